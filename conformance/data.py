@@ -1,0 +1,444 @@
+"""The DATA grammar: calls, arguments, keywords, raw text, and replies.
+
+Requests (manual chapter 2 onwards) carry one of:
+
+* a call ``Name(arg,arg,...)`` where an argument is an integer (``12``, ``-3``),
+  a decimal (``1.5``, ``.000``, ``-0.000``), a double-quoted string (``"P1"``), an
+  unquoted string (``192.168.58.2``) or a brace array ``{a,b,c}``;
+* a bare keyword (``STOP``, ``START``, ``PAUSE``, ``RESUME``; 2.35 and chapter 7);
+* raw text (e.g. a Lua program path for the program commands).
+
+Replies carry one value, comma-separated values, or space-separated values (the
+gripper queries reply ``0 0``).
+
+Parsing is sans-I/O and never raises anything but :class:`RemoteProtocolError`
+(for bytes the peer sent) or :class:`LocalProtocolError` (for values we were asked
+to format).  Lenient parsing accepts whitespace after commas and reports it as
+``Rule.SPACE_IN_ARGS``; strict parsing refuses it.
+
+Validation of parsed arguments against a spec variant lives here too
+(:func:`check_args`), so the emulator, the client-mode validator and the offline
+capture checker share one reading of the tables.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from .errors import LocalProtocolError, RemoteProtocolError, Rule
+from .spec import Command, Param, ReturnValue, Returns, Variant
+
+__all__ = [
+    "Arg",
+    "Array",
+    "Call",
+    "Keyword",
+    "Number",
+    "Parsed",
+    "RawData",
+    "Text",
+    "Violation",
+    "check_args",
+    "check_reply",
+    "format_call",
+    "format_number",
+    "format_value",
+    "match_variant",
+    "parse_args",
+    "parse_data",
+    "parse_reply",
+    "to_python",
+]
+
+
+@dataclass(frozen=True, kw_only=True)
+class Number:
+    """A numeric argument, with the text it was written as (``.000`` stays ``.000``)."""
+
+    text: str
+    value: int | float
+
+    @property
+    def is_int(self) -> bool:
+        return isinstance(self.value, int)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Text:
+    """A string argument: ``"P1"`` (quoted) or ``192.168.58.2`` (bare)."""
+
+    value: str
+    quoted: bool
+
+
+@dataclass(frozen=True, kw_only=True)
+class Array:
+    """A brace array ``{a,b,c}``."""
+
+    items: tuple[Arg, ...]
+
+
+Arg = Number | Text | Array
+
+
+@dataclass(frozen=True, kw_only=True)
+class Call:
+    name: str
+    args: tuple[Arg, ...]
+    problems: tuple[Rule, ...] = ()
+
+
+@dataclass(frozen=True, kw_only=True)
+class Keyword:
+    word: str
+
+
+@dataclass(frozen=True, kw_only=True)
+class RawData:
+    text: str
+
+
+Parsed = Call | Keyword | RawData
+
+_NAME_RE = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+_NUMBER_RE = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
+_KEYWORD_RE = re.compile(r"[A-Z][A-Z_]*")
+# Characters that end a bare (unquoted) token.
+_BARE_STOP = frozenset(',(){}"')
+
+
+def _error(msg: str, data: str) -> RemoteProtocolError:
+    return RemoteProtocolError(msg, rule=Rule.BAD_DATA, raw=data.encode("utf-8", "replace"))
+
+
+class _ArgParser:
+    def __init__(self, text: str, *, strict: bool, sep: str = ",") -> None:
+        self.s = text
+        self.i = 0
+        self.strict = strict
+        self.sep = sep
+        self.spaces = False
+
+    def skip_ws(self) -> None:
+        j = self.i
+        while j < len(self.s) and self.s[j] in " \t":
+            j += 1
+        if j != self.i:
+            if self.strict:
+                raise _error(f"whitespace at offset {self.i} in {self.s!r}", self.s)
+            self.spaces = True
+            self.i = j
+
+    def items(self, close: str | None) -> list[Arg]:
+        """Comma-separated items up to ``close`` (or end of text when None)."""
+        out: list[Arg] = []
+        self.skip_ws()
+        if close is not None and self.peek() == close:
+            self.i += 1
+            return out
+        if close is None and self.i >= len(self.s):
+            return out
+        while True:
+            self.skip_ws()
+            out.append(self.item())
+            self.skip_ws()
+            c = self.peek()
+            if c == self.sep and self.sep != " ":
+                self.i += 1
+                continue
+            if close is not None and c == close:
+                self.i += 1
+                return out
+            if close is None and c == "":
+                return out
+            if c == "":
+                raise _error(f"unterminated argument list in {self.s!r}", self.s)
+            raise _error(f"unexpected {c!r} at offset {self.i} in {self.s!r}", self.s)
+
+    def peek(self) -> str:
+        return self.s[self.i] if self.i < len(self.s) else ""
+
+    def item(self) -> Arg:
+        c = self.peek()
+        if c == "{":
+            self.i += 1
+            saved, self.sep = self.sep, ","
+            items = self.items("}")
+            self.sep = saved
+            return Array(items=tuple(items))
+        if c == '"':
+            end = self.s.find('"', self.i + 1)
+            if end < 0:
+                raise _error(f"unterminated string in {self.s!r}", self.s)
+            value = self.s[self.i + 1 : end]
+            self.i = end + 1
+            return Text(value=value, quoted=True)
+        j = self.i
+        stop = _BARE_STOP if self.sep != " " else _BARE_STOP | {" "}
+        while j < len(self.s) and self.s[j] not in stop:
+            j += 1
+        token = self.s[self.i : j].rstrip(" \t")
+        if not token:
+            raise _error(f"empty argument at offset {self.i} in {self.s!r}", self.s)
+        self.i = self.i + len(token)
+        if _NUMBER_RE.fullmatch(token):
+            return Number(text=token, value=_number_value(token))
+        return Text(value=token, quoted=False)
+
+
+def _number_value(token: str) -> int | float:
+    if re.fullmatch(r"[+-]?\d+", token):
+        return int(token)
+    return float(token)
+
+
+def parse_args(text: str, *, strict: bool = False) -> tuple[tuple[Arg, ...], bool]:
+    """Parse a bare argument list ``a,b,{c,d}``; returns (args, had_spaces)."""
+    p = _ArgParser(text, strict=strict)
+    items = p.items(None)
+    return tuple(items), p.spaces
+
+
+def parse_data(data: str, *, strict: bool = False) -> Parsed:
+    """Parse a request's DATA into a :class:`Call`, :class:`Keyword` or :class:`RawData`.
+
+    A DATA that starts like a call (``Name(``) must be a well-formed call, else
+    :class:`RemoteProtocolError` with ``Rule.BAD_DATA``.
+    """
+    m = _NAME_RE.match(data)
+    if m and data[m.end() : m.end() + 1] == "(":
+        if not data.endswith(")"):
+            raise _error(f"call {m.group()!r} does not end with ')'", data)
+        p = _ArgParser(data[m.end() + 1 : -1], strict=strict)
+        items = p.items(None)
+        problems = (Rule.SPACE_IN_ARGS,) if p.spaces else ()
+        return Call(name=m.group(), args=tuple(items), problems=problems)
+    if _KEYWORD_RE.fullmatch(data):
+        return Keyword(word=data)
+    return RawData(text=data)
+
+
+def parse_reply(data: str, separator: str | None = None, *, strict: bool = False) -> tuple[Arg, ...]:
+    """Split a reply's DATA into values (``,`` or space separated; auto-detected when None)."""
+    if separator is None:
+        separator = "," if "," in data else " " if " " in data.strip() else ","
+    if separator == " ":
+        parts = [x for x in data.split(" ") if x != ""] if not strict else data.split(" ")
+        out: list[Arg] = []
+        for part in parts:
+            p = _ArgParser(part, strict=True)
+            out.extend(p.items(None) or [Text(value="", quoted=False)])
+        return tuple(out)
+    p = _ArgParser(data, strict=strict)
+    return tuple(p.items(None))
+
+
+# --------------------------------------------------------------------------- formatting
+
+
+def format_number(x: int | float) -> str:
+    """Format a number the way the manual's examples do (``-116.061``, ``0.000``, ``12``)."""
+    if isinstance(x, bool):
+        x = int(x)
+    if isinstance(x, int):
+        return str(x)
+    if not math.isfinite(x):
+        raise LocalProtocolError(f"{x!r} cannot be sent", rule=Rule.UNENCODABLE)
+    text = f"{x:.6f}"
+    if "." in text:
+        text = text.rstrip("0")
+        decimals = len(text.split(".")[1])
+        if decimals < 3:
+            text += "0" * (3 - decimals)
+    return text
+
+
+Value = int | float | str | Sequence["Value"]
+
+
+def format_value(value: Value, *, quoted: bool = True) -> str:
+    """Format one Python value as an argument (lists become brace arrays)."""
+    if isinstance(value, str):
+        if quoted:
+            if '"' in value:
+                raise LocalProtocolError(
+                    f"string {value!r} contains a double quote", rule=Rule.UNENCODABLE
+                )
+            return f'"{value}"'
+        if any(c in _BARE_STOP or c in " \t" for c in value) or value == "":
+            raise LocalProtocolError(f"bare string {value!r} cannot be sent", rule=Rule.UNENCODABLE)
+        return value
+    if isinstance(value, (int, float)):
+        return format_number(value)
+    return "{" + ",".join(format_value(v, quoted=quoted) for v in value) + "}"
+
+
+def format_call(name: str, args: Sequence[Value], params: Sequence[Param] | None = None) -> str:
+    """Build ``Name(a,b,...)``; with ``params``, strings are quoted as the spec says."""
+    parts = []
+    for i, a in enumerate(args):
+        quoted = params[i].quoted if params is not None and i < len(params) else True
+        parts.append(format_value(a, quoted=quoted))
+    return f"{name}({','.join(parts)})"
+
+
+def to_python(arg: Arg) -> Value:
+    """An argument as a plain Python value (numbers, strings, lists)."""
+    if isinstance(arg, Number):
+        return arg.value
+    if isinstance(arg, Text):
+        return arg.value
+    return [to_python(a) for a in arg.items]
+
+
+# --------------------------------------------------------------------------- validation
+
+
+@dataclass(frozen=True, kw_only=True)
+class Violation:
+    """One way a call departs from its spec variant."""
+
+    rule: Rule
+    detail: str
+    index: int | None = None
+    param: str | None = None
+
+
+def _check_scalar(p: Param, arg: Arg, where: str) -> Violation | None:
+    if p.is_string:
+        if isinstance(arg, Array):
+            return Violation(rule=Rule.ARG_TYPE, detail=f"{where}: expected a string, got an array")
+        value = arg.value if isinstance(arg, Text) else arg.text
+        if p.max_length is not None and len(value.encode("utf-8")) > p.max_length:
+            return Violation(
+                rule=Rule.ARG_RANGE, detail=f"{where}: string longer than {p.max_length} bytes"
+            )
+        return None
+    if not isinstance(arg, Number):
+        kind = "an array" if isinstance(arg, Array) else f"text {arg.value!r}"
+        return Violation(rule=Rule.ARG_TYPE, detail=f"{where}: expected {p.type}, got {kind}")
+    if p.is_integer and not arg.is_int:
+        if not (isinstance(arg.value, float) and arg.value.is_integer()):
+            return Violation(
+                rule=Rule.ARG_TYPE, detail=f"{where}: expected {p.type}, got {arg.text}"
+            )
+    if not p.allows(arg.value):
+        return Violation(
+            rule=Rule.ARG_RANGE, detail=f"{where}: {arg.text} is outside {describe_domain(p)}"
+        )
+    return None
+
+
+def describe_domain(p: Param) -> str:
+    parts: list[str] = []
+    if p.range:
+        parts += [f"{_num(iv.min)}~{_num(iv.max)}" for iv in p.range]
+    if p.enum:
+        parts += [f"{v}" for v, _ in p.enum]
+    if not parts:
+        return f"the range of {p.type}"
+    return "{" + ", ".join(parts) + "}"
+
+
+def _num(x: float) -> str:
+    return str(int(x)) if float(x).is_integer() else str(x)
+
+
+def check_args(variant: Variant, args: Sequence[Arg]) -> list[Violation]:
+    """Check arguments against a variant's table: count, types, ranges/enums."""
+    params = variant.params
+    if len(args) != len(params):
+        return [
+            Violation(
+                rule=Rule.ARG_COUNT,
+                detail=f"{len(args)} arguments, table {variant.table} lists {len(params)}",
+            )
+        ]
+    out: list[Violation] = []
+    for i, (p, a) in enumerate(zip(params, args)):
+        where = f"argument {i + 1} ({p.name})"
+        if p.is_array:
+            if not isinstance(a, Array):
+                out.append(Violation(rule=Rule.ARG_TYPE, detail=f"{where}: expected {{...}} of {p.length}", index=i, param=p.name))
+                continue
+            if p.length is not None and len(a.items) != p.length:
+                out.append(Violation(rule=Rule.ARG_COUNT, detail=f"{where}: {len(a.items)} elements, expected {p.length}", index=i, param=p.name))
+                continue
+            for j, item in enumerate(a.items):
+                v = _check_scalar(p, item, f"{where}[{j}]")
+                if v:
+                    out.append(Violation(rule=v.rule, detail=v.detail, index=i, param=p.name))
+            continue
+        v = _check_scalar(p, a, where)
+        if v:
+            out.append(Violation(rule=v.rule, detail=v.detail, index=i, param=p.name))
+    return out
+
+
+def match_variant(command: Command, parsed: Parsed) -> tuple[Variant | None, list[Violation]]:
+    """The variant a request matches best, with its violations (empty when it conforms)."""
+    if isinstance(parsed, Keyword):
+        for v in command.variants:
+            if v.form == "keyword":
+                return v, []
+        return None, [Violation(rule=Rule.BAD_DATA, detail=f"{command.name} is not a keyword command")]
+    if isinstance(parsed, RawData):
+        for v in command.variants:
+            if v.form == "raw":
+                return v, []
+        return None, [Violation(rule=Rule.BAD_DATA, detail=f"DATA is not a call of {command.name}")]
+    best: tuple[Variant | None, list[Violation]] = (None, [])
+    for v in command.variants:
+        if v.form == "raw":
+            continue
+        if v.form == "keyword":
+            continue
+        viols = check_args(v, parsed.args)
+        if not viols:
+            return v, []
+        # Prefer a variant whose arity matches (its violations are about types/ranges).
+        if best[0] is None or (viols[0].rule is not Rule.ARG_COUNT and best[1][0].rule is Rule.ARG_COUNT):
+            best = (v, viols)
+    if best[0] is None:
+        if any(v.form == "raw" for v in command.variants):
+            return next(v for v in command.variants if v.form == "raw"), []
+        return None, [Violation(rule=Rule.BAD_DATA, detail=f"{command.name} takes no call arguments")]
+    return best
+
+
+def _flat(values: Sequence[ReturnValue]) -> list[ReturnValue]:
+    out: list[ReturnValue] = []
+    for v in values:
+        out += [v] * (v.length or 1)
+    return out
+
+
+def check_reply(returns: Returns, data: str) -> list[Violation]:
+    """Check a reply's DATA against the declared return values (count and types)."""
+    try:
+        values = parse_reply(data, returns.separator)
+    except RemoteProtocolError as e:
+        return [Violation(rule=Rule.REPLY_SHAPE, detail=str(e))]
+    flat = _flat(returns.values)
+    # Array-valued returns may come as one brace array or flattened.
+    expanded: list[Arg] = []
+    for v in values:
+        expanded += list(v.items) if isinstance(v, Array) else [v]
+    if len(expanded) != len(flat) and len(values) != len(returns.values):
+        return [
+            Violation(
+                rule=Rule.REPLY_SHAPE,
+                detail=f"{len(expanded)} values, expected {len(flat)} ({returns.separator!r}-separated)",
+            )
+        ]
+    out: list[Violation] = []
+    if len(expanded) == len(flat):
+        for i, (rv, a) in enumerate(zip(flat, expanded)):
+            if rv.type != "string" and not isinstance(a, Number):
+                out.append(
+                    Violation(rule=Rule.REPLY_SHAPE, detail=f"value {i + 1} ({rv.name}): expected {rv.type}, got {a!r}", index=i)
+                )
+    return out

@@ -1,0 +1,106 @@
+"""One error tree for the whole kit (see STYLE.md, convention 3).
+
+``ConformanceError`` is the root.  Protocol errors split, as in h11, into
+``LocalProtocolError`` (we were asked to build something illegal) and
+``RemoteProtocolError`` (the peer sent something illegal).  Each protocol error
+carries the rule that was broken (a ``Rule`` member, citing the manual where it
+can) and the raw bytes involved, as typed fields rather than a formatted string.
+"""
+
+from __future__ import annotations
+
+import enum
+
+__all__ = [
+    "ConformanceError",
+    "LocalProtocolError",
+    "ProtocolError",
+    "RemoteProtocolError",
+    "Rule",
+    "SpecError",
+    "UsageError",
+]
+
+
+class Rule(str, enum.Enum):
+    """A protocol rule, by the name reported to users (``problems`` in JSON output)."""
+
+    #: 1.1, table 1-1-1: a frame starts with ``/f/b``.
+    BAD_HEAD = "bad_head"
+    #: 1.1, table 1-1-1: a frame ends with ``/b/f``.
+    BAD_TAIL = "bad_tail"
+    #: 1.1, table 1-1-2 row 3: fields are separated by ``III``.
+    BAD_SEPARATOR = "bad_separator"
+    #: 1.1: CNT is a uint16 frame counter.
+    BAD_CNT = "bad_cnt"
+    #: 1.1: CMD_ID is a decimal command number.
+    BAD_CMD_ID = "bad_cmd_id"
+    #: 1.1: LEN is a decimal length.
+    BAD_LEN = "bad_len"
+    #: 1.1: LEN is the length of DATA (we read it as UTF-8 bytes).
+    LEN_MISMATCH = "len_mismatch"
+    #: Frame larger than the configured maximum.
+    OVERSIZE = "oversize"
+    #: Bytes before a frame head that are not a frame (garbage, preamble).
+    GARBAGE = "garbage"
+    #: NUL padding after a frame (clients sending fixed 4096-byte buffers).
+    NUL_PADDING = "nul_padding"
+    #: Stream ended inside a frame.
+    TRUNCATED = "truncated"
+    #: DATA is not UTF-8.
+    BAD_ENCODING = "bad_encoding"
+    #: DATA does not follow the call grammar ``Name(arg,...)``.
+    BAD_DATA = "bad_data"
+    #: Whitespace after a comma in an argument list (lenient peers send it).
+    SPACE_IN_ARGS = "space_in_args"
+    #: Command ID not in the specs.
+    UNKNOWN_COMMAND = "unknown_command"
+    #: DATA names another command than CMD_ID's.
+    NAME_MISMATCH = "name_mismatch"
+    #: Argument count differs from every variant of the command.
+    ARG_COUNT = "arg_count"
+    #: An argument has the wrong type.
+    ARG_TYPE = "arg_type"
+    #: An argument is outside the range or enum the manual states.
+    ARG_RANGE = "arg_range"
+    #: A reply's values do not have the declared shape.
+    REPLY_SHAPE = "reply_shape"
+    #: A value cannot be encoded (local error).
+    UNENCODABLE = "unencodable"
+
+
+class ConformanceError(Exception):
+    """Root of every error the kit raises on purpose."""
+
+
+class UsageError(ConformanceError):
+    """A user mistake (bad option, missing file): the CLI prints it in one line."""
+
+
+class SpecError(ConformanceError):
+    """The spec files are missing, malformed or do not match the schema."""
+
+    def __init__(self, message: str, *, path: str | None = None) -> None:
+        super().__init__(message if path is None else f"{path}: {message}")
+        self.path = path
+
+
+class ProtocolError(ConformanceError):
+    """A protocol rule was broken.  ``rule`` says which, ``raw`` holds the bytes."""
+
+    def __init__(self, message: str, *, rule: Rule, raw: bytes = b"") -> None:
+        super().__init__(message)
+        self.rule = rule
+        self.raw = raw
+        self.message = message
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.message!r}, rule={self.rule.value}, raw={self.raw!r})"
+
+
+class LocalProtocolError(ProtocolError):
+    """We were asked to build a frame or value that breaks the protocol."""
+
+
+class RemoteProtocolError(ProtocolError):
+    """The peer sent bytes that break the protocol."""

@@ -1,0 +1,492 @@
+"""Frame model and sans-I/O codec for the FAIRINO text command protocol.
+
+Manual 1.1, table 1-1-1: ``/f/bIII{CNT}III{CMD_ID}III{LEN}III{DATA}III/b/f``.
+CNT is a uint16 frame counter the reply echoes, CMD_ID the command number
+(指令号), LEN the length of DATA.  We read LEN as the UTF-8 byte length of DATA
+(the manual says only "数据内容的长度"; every ASCII example agrees).
+
+No sockets, no clock, no asyncio here (STYLE.md, convention 1): the decoder takes
+bytes with :meth:`FrameDecoder.feed` and returns :class:`Frame` and
+:class:`Malformed` events.  It is LEN-driven (DATA may contain ``III`` or
+``/b/f``), resynchronises on the next ``/f/b`` after garbage, reports every byte
+it skips, and never buffers more than ``max_frame_size`` bytes of one frame or of
+one garbage run.  Feeding a stream whole or one byte at a time gives the same
+events.
+
+Two readings:
+
+* **lenient** (default): accepts what real peers send and lists each deviation in
+  ``Frame.problems`` (``II``/``IIII`` separators, a LEN that disagrees with DATA,
+  a CNT beyond uint16, DATA that is not UTF-8);
+* **strict**: every deviation turns the frame into a :class:`Malformed` event.
+
+Skipped bytes (garbage, a bare preamble, NUL padding after a frame, a broken
+header) always come out as :class:`Malformed` events with the rule that explains
+them, in both readings.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+
+from .errors import LocalProtocolError, Rule
+
+__all__ = [
+    "DEFAULT_MAX_FRAME_SIZE",
+    "HEAD",
+    "SEP",
+    "TAIL",
+    "Event",
+    "Frame",
+    "FrameDecoder",
+    "Malformed",
+    "decode_all",
+    "encode_frame",
+]
+
+#: 1.1, table 1-1-2 row 1: the frame head.
+HEAD = b"/f/b"
+#: 1.1, table 1-1-2 row 2: the frame tail.
+TAIL = b"/b/f"
+#: 1.1, table 1-1-2 row 3: the field separator.
+SEP = b"III"
+#: Default bound on one frame (and on one reported garbage run).
+DEFAULT_MAX_FRAME_SIZE = 256 * 1024
+#: CNT is a uint16_t (1.1, table 1-1-2 row 5).
+CNT_MAX = 0xFFFF
+
+# Longest header we wait for before calling it broken: head, 4 separators of up
+# to 4 bytes, three fields of up to 10 digits.
+_MAX_HEADER = 4 + 4 * 4 + 3 * 10
+_MAX_DIGITS = 10
+# Progressive header reading: always matches; where it stops tells what broke.
+_HEADER_RE = re.compile(rb"/f/b(I*)(\d*)(I*)(\d*)(I*)(\d*)")
+_HEADER_FIELDS = (
+    (Rule.BAD_SEPARATOR, "separator after head"),
+    (Rule.BAD_CNT, "CNT"),
+    (Rule.BAD_SEPARATOR, "separator after CNT"),
+    (Rule.BAD_CMD_ID, "CMD_ID"),
+    (Rule.BAD_SEPARATOR, "separator after CMD_ID"),
+    (Rule.BAD_LEN, "LEN"),
+)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Frame:
+    """One frame, as decoded or to be encoded.
+
+    ``length`` is LEN as it appeared on the wire (``None`` for a frame built
+    locally: it is then the UTF-8 length of ``data``).  ``problems`` lists the
+    deviations a lenient decoder tolerated; ``offset`` is the stream offset of the
+    frame's first byte; ``raw`` the exact bytes received.
+    """
+
+    cnt: int
+    cmd_id: int
+    data: str
+    length: int | None = None
+    raw: bytes = field(default=b"", repr=False)
+    problems: tuple[Rule, ...] = ()
+    offset: int = 0
+
+    def __post_init__(self) -> None:
+        if self.cnt < 0 or self.cmd_id < 0:
+            raise LocalProtocolError(
+                f"CNT and CMD_ID must be non-negative (got {self.cnt}, {self.cmd_id})",
+                rule=Rule.BAD_CNT if self.cnt < 0 else Rule.BAD_CMD_ID,
+            )
+
+    @property
+    def data_len(self) -> int:
+        return len(self.data.encode("utf-8"))
+
+    @property
+    def len_field(self) -> int:
+        return self.data_len if self.length is None else self.length
+
+    def encode(self) -> bytes:
+        """The frame's bytes with LEN computed from DATA (the raw bytes if it was decoded)."""
+        return self.raw or encode_frame(self.cnt, self.cmd_id, self.data)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Malformed:
+    """Bytes that are not a (tolerated) frame: skipped, with the rule that explains why."""
+
+    raw: bytes = field(repr=False)
+    rule: Rule
+    detail: str
+    offset: int = 0
+
+    def __repr__(self) -> str:
+        shown = self.raw[:40] + (b"..." if len(self.raw) > 40 else b"")
+        return f"Malformed(rule={self.rule.value}, detail={self.detail!r}, raw={shown!r})"
+
+
+Event = Frame | Malformed
+
+
+def encode_frame(cnt: int, cmd_id: int, data: str | bytes) -> bytes:
+    """Build one frame; LEN is the UTF-8 byte length of DATA (1.1)."""
+    if not 0 <= cnt <= CNT_MAX:
+        raise LocalProtocolError(f"CNT {cnt} is not a uint16", rule=Rule.BAD_CNT)
+    if cmd_id < 0:
+        raise LocalProtocolError(f"CMD_ID {cmd_id} is negative", rule=Rule.BAD_CMD_ID)
+    payload = data.encode("utf-8") if isinstance(data, str) else bytes(data)
+    return b"".join(
+        (HEAD, SEP, b"%d" % cnt, SEP, b"%d" % cmd_id, SEP, b"%d" % len(payload), SEP, payload, SEP, TAIL)
+    )
+
+
+def _prefix_overlap(buf: bytearray, start: int) -> int:
+    """How many trailing bytes of ``buf[start:]`` could begin a frame head."""
+    for k in (3, 2, 1):
+        if len(buf) - start >= k and buf.endswith(HEAD[:k]):
+            return k
+    return 0
+
+
+class FrameDecoder:
+    """Streaming, LEN-driven frame decoder (sans-I/O).
+
+    >>> d = FrameDecoder()
+    >>> [e.data for e in d.feed(b"/f/bIII4III201III11IIIMoveJ(\\"P1\\")III/b/f")]
+    ['MoveJ("P1")']
+    """
+
+    def __init__(self, *, strict: bool = False, max_frame_size: int = DEFAULT_MAX_FRAME_SIZE) -> None:
+        if max_frame_size < 64:
+            raise ValueError("max_frame_size must be at least 64 bytes")
+        self.strict = strict
+        self.max_frame_size = max_frame_size
+        self._buf = bytearray()
+        self._pos = 0  # parse position in _buf
+        self._base = 0  # stream offset of _buf[0]
+        self._run = bytearray()  # pending skipped bytes
+        self._run_offset = 0
+        self._run_rule: Rule | None = None  # reason fixed by a broken header, else by content
+        self._run_detail = ""
+        self._frames_seen = 0
+        self._events: list[Event] = []
+        self._closed = False
+
+    # ------------------------------------------------------------------ public API
+
+    @property
+    def buffered(self) -> int:
+        """Bytes held: an incomplete frame plus not yet reported skipped bytes."""
+        return len(self._buf) - self._pos + len(self._run)
+
+    @property
+    def stream_offset(self) -> int:
+        """Total bytes fed so far."""
+        return self._base + len(self._buf)
+
+    def feed(self, data: bytes | bytearray | memoryview) -> list[Event]:
+        """Take the next bytes of the stream; return the events they complete."""
+        if self._closed:
+            raise RuntimeError("feed() after close()")
+        if data:
+            self._buf += data
+            self._parse(final=False)
+        return self._take()
+
+    def resolve_pending(self) -> list[Event]:
+        """The peer went quiet inside a frame: decide on it now if a tail is buffered.
+
+        A frame whose LEN claims more bytes than were sent would otherwise wait
+        for bytes that never come.  The caller owns the clock and calls this after
+        an idle time.  Lenient: a buffered tail ends the frame (LEN mismatch);
+        strict: it becomes a ``Malformed`` event.
+        """
+        self._parse(final=False, quiet=True)
+        return self._take()
+
+    def close(self) -> list[Event]:
+        """End of stream: report a partial frame and any skipped bytes still held."""
+        if not self._closed:
+            self._parse(final=True)
+            rest = len(self._buf) - self._pos
+            if rest:
+                self._skip(self._pos, len(self._buf))
+                self._pos = len(self._buf)
+            self._flush_run()
+            self._closed = True
+        return self._take()
+
+    # ------------------------------------------------------------------ internals
+
+    def _take(self) -> list[Event]:
+        events, self._events = self._events, []
+        return events
+
+    def _skip(self, start: int, end: int, rule: Rule | None = None, detail: str = "") -> None:
+        """Add ``_buf[start:end]`` to the pending skipped run, flushing full chunks."""
+        if end <= start:
+            return
+        if not self._run:
+            self._run_offset = self._base + start
+            self._run_rule, self._run_detail = rule, detail
+        self._run += self._buf[start:end]
+        limit = self.max_frame_size
+        while len(self._run) >= limit:
+            chunk = bytes(self._run[:limit])
+            del self._run[:limit]
+            self._emit_run(chunk, self._run_offset)
+            self._run_offset += limit
+
+    def _flush_run(self) -> None:
+        if self._run:
+            self._emit_run(bytes(self._run), self._run_offset)
+            self._run.clear()
+        self._run_rule, self._run_detail = None, ""
+
+    def _emit_run(self, chunk: bytes, offset: int) -> None:
+        rule, detail = self._run_rule, self._run_detail
+        if rule is None:
+            if chunk.count(0) == len(chunk):
+                rule, detail = Rule.NUL_PADDING, f"{len(chunk)} NUL bytes"
+                if self._frames_seen:
+                    detail += " after a frame"
+            else:
+                rule = Rule.GARBAGE
+                where = "before the first frame" if not self._frames_seen else "between frames"
+                detail = f"{len(chunk)} bytes that are not a frame, {where}"
+        self._events.append(Malformed(raw=chunk, rule=rule, detail=detail, offset=offset))
+        # Continuation chunks of a broken header's run are plain garbage.
+        self._run_rule, self._run_detail = None, ""
+
+    def _parse(self, *, final: bool, quiet: bool = False) -> None:
+        buf = self._buf
+        while self._pos < len(buf):
+            pos = self._pos
+            head = buf.find(HEAD, pos)
+            if head < 0:
+                keep = 0 if final else _prefix_overlap(buf, pos)
+                self._skip(pos, len(buf) - keep)
+                self._pos = len(buf) - keep
+                break
+            if head > pos:
+                self._skip(pos, head)
+            self._pos = head
+            nxt = self._frame_at(head, final=final, quiet=quiet)
+            if nxt is None:
+                break
+            self._pos = nxt
+        self._compact()
+
+    def _compact(self) -> None:
+        if self._pos > 65536 or (self._pos and self._pos == len(self._buf)):
+            del self._buf[: self._pos]
+            self._base += self._pos
+            self._pos = 0
+
+    def _frame_at(self, i: int, *, final: bool, quiet: bool) -> int | None:
+        """Decode the frame whose head is at ``i``; return where parsing goes on, or None to wait."""
+        buf = self._buf
+        m = _HEADER_RE.match(buf, i)
+        assert m is not None  # every group may be empty
+        groups = m.groups()
+        hdr_end = m.end()
+        complete = all(groups) and hdr_end < len(buf)
+        if not complete or len(groups[1]) > _MAX_DIGITS or len(groups[3]) > _MAX_DIGITS or len(
+            groups[5]
+        ) > _MAX_DIGITS:
+            at_end = hdr_end == len(buf)
+            if at_end and not final and hdr_end - i < _MAX_HEADER:
+                return None  # the header may still complete
+            return self._bad_header(i, groups, hdr_end, at_end)
+        seps = (groups[0], groups[2], groups[4])
+        problems: list[Rule] = []
+        for s in seps:
+            if len(s) != 3:
+                if not 2 <= len(s) <= 4:
+                    self._flush_run()
+                    self._skip(i, hdr_end, Rule.BAD_SEPARATOR, f"separator {s.decode()!r} is not III")
+                    self._flush_run()
+                    return hdr_end
+                problems.append(Rule.BAD_SEPARATOR)
+        cnt, cmd_id, length = int(groups[1]), int(groups[3]), int(groups[5])
+        if cnt > CNT_MAX:
+            problems.append(Rule.BAD_CNT)
+        p = hdr_end  # first byte after LEN's digits: the last separator
+        run = 0
+        while p + run < len(buf) and run < 5 and buf[p + run] == 0x49:  # b"I"
+            run += 1
+        if run < 2 and p + run < len(buf):
+            # "/f/bIII1III2III3x": no separator after LEN.
+            self._flush_run()
+            self._skip(i, p, Rule.BAD_SEPARATOR, "no separator after LEN")
+            self._flush_run()
+            return p
+        header_size = p - i
+        waiting_ok = not (final or quiet)
+        if header_size + 3 + length + 7 <= self.max_frame_size:
+            # LEN-driven: the tail must follow DATA exactly.  The standard reading
+            # (III, DATA, III/b/f) is decided as soon as its LEN bytes are in;
+            # only when it fails do we look for the real end of the frame.
+            ds, de = p + 3, p + 3 + length
+            if len(buf) < de + 7:
+                if waiting_ok:
+                    return None
+            elif buf[p:ds] == SEP and buf[de : de + 7] == b"III/b/f":
+                return self._emit_frame(i, ds, de, de + 7, cnt, cmd_id, length, problems)
+        # LEN disagrees with DATA (or is absurd): look for the tail or the next head.
+        return self._search_tail(i, p, run, cnt, cmd_id, length, problems, final=final)
+
+    def _search_tail(
+        self,
+        i: int,
+        p: int,
+        run: int,
+        cnt: int,
+        cmd_id: int,
+        length: int,
+        problems: list[Rule],
+        *,
+        final: bool,
+    ) -> int | None:
+        """The standard reading failed: find where the frame really ends.
+
+        The end is the earliest ``/b/f`` preceded by at least two ``I`` (or, if a
+        new head comes first, the frame has no tail).  Within that extent the
+        separator lengths (2-4 ``I``) are chosen so that DATA has LEN bytes when
+        some choice allows it (a separator deviation), else the standard ones (a
+        LEN mismatch).  Both are only ever decided from bytes up to that tail, so
+        chunking does not change the result.
+        """
+        buf = self._buf
+        limit = min(len(buf), i + self.max_frame_size)
+        q = p + min(run, 3)
+        tail_at = -1
+        while True:
+            q = buf.find(TAIL, q, limit)
+            if q < 0:
+                break
+            if buf[q - 2 : q] == b"II" and q - 2 >= p + 2:
+                tail_at = q
+                break
+            q += 1
+        head_at = buf.find(HEAD, p, limit)
+        if head_at >= 0 and (tail_at < 0 or head_at < tail_at):
+            # A new frame starts before this one ended: the tail is missing.
+            self._flush_run()
+            self._skip(i, head_at, Rule.BAD_TAIL, f"frame CNT={cnt} ID={cmd_id} has no tail")
+            self._flush_run()
+            return head_at
+        if tail_at >= 0:
+            trail = 0
+            while trail < 5 and buf[tail_at - trail - 1] == 0x49 and tail_at - trail - 1 >= p + 2:
+                trail += 1
+            # A run of 2-4 I is taken whole as the separator (DATA rarely starts or
+            # ends with I); a longer run could be either, and LEN decides.
+            ks = (run,) if run <= 4 else (3, 2, 4)
+            ts = (trail,) if trail <= 4 else (3, 2, 4)
+            best: tuple[int, int] | None = None
+            for k in ks:
+                for t in ts:
+                    if tail_at - t - (p + k) == length:
+                        best = (k, t)
+                        break
+                if best:
+                    break
+            probs = list(problems)
+            if best is None:
+                best = (min(run, 3), min(trail, 3))
+                probs.append(Rule.LEN_MISMATCH)
+            k, t = best
+            if (k, t) != (3, 3):
+                probs.append(Rule.BAD_SEPARATOR)
+            ds, de = p + k, max(p + k, tail_at - t)
+            return self._emit_frame(i, ds, de, tail_at + 4, cnt, cmd_id, length, probs)
+        if limit - i >= self.max_frame_size:
+            self._flush_run()
+            self._skip(
+                i,
+                i + self.max_frame_size,
+                Rule.OVERSIZE,
+                f"frame CNT={cnt} ID={cmd_id} LEN={length}: no tail within {self.max_frame_size} bytes",
+            )
+            self._flush_run()
+            return i + self.max_frame_size
+        if final:
+            self._flush_run()
+            self._skip(i, len(buf), Rule.TRUNCATED, f"stream ended inside frame CNT={cnt} ID={cmd_id}")
+            self._flush_run()
+            return len(buf)
+        return None
+
+    def _bad_header(self, i: int, groups: tuple[bytes, ...], hdr_end: int, at_end: bool) -> int:
+        rule, what = Rule.BAD_HEAD, "header"
+        for g, (r, name) in zip(groups, _HEADER_FIELDS):
+            if not g or (r is not Rule.BAD_SEPARATOR and len(g) > _MAX_DIGITS):
+                rule, what = r, name
+                break
+        else:
+            rule, what = Rule.BAD_SEPARATOR, "separator after LEN"
+        if at_end:
+            detail = f"stream ended inside the header ({what})"
+            rule = Rule.TRUNCATED
+        else:
+            detail = f"{what} is missing or not a number"
+            if rule is Rule.BAD_SEPARATOR:
+                detail = f"{what} is not III"
+        end = max(hdr_end, i + len(HEAD))
+        self._flush_run()
+        self._skip(i, end, rule, detail)
+        self._flush_run()
+        return end
+
+    def _emit_frame(
+        self,
+        i: int,
+        ds: int,
+        de: int,
+        end: int,
+        cnt: int,
+        cmd_id: int,
+        length: int,
+        problems: list[Rule],
+    ) -> int:
+        buf = self._buf
+        payload = bytes(buf[ds:de])
+        try:
+            data = payload.decode("utf-8")
+        except UnicodeDecodeError:
+            data = payload.decode("utf-8", errors="replace")
+            problems.append(Rule.BAD_ENCODING)
+        raw = bytes(buf[i:end])
+        self._flush_run()
+        self._frames_seen += 1
+        uniq = tuple(dict.fromkeys(problems))
+        if self.strict and uniq:
+            self._events.append(
+                Malformed(
+                    raw=raw,
+                    rule=uniq[0],
+                    detail=f"frame CNT={cnt} ID={cmd_id}: " + ", ".join(r.value for r in uniq),
+                    offset=self._base + i,
+                )
+            )
+        else:
+            self._events.append(
+                Frame(
+                    cnt=cnt,
+                    cmd_id=cmd_id,
+                    data=data,
+                    length=length,
+                    raw=raw,
+                    problems=uniq,
+                    offset=self._base + i,
+                )
+            )
+        return end
+
+
+def decode_all(
+    data: bytes, *, strict: bool = False, max_frame_size: int = DEFAULT_MAX_FRAME_SIZE
+) -> list[Event]:
+    """Decode a complete byte string (feed + close)."""
+    d = FrameDecoder(strict=strict, max_frame_size=max_frame_size)
+    return d.feed(data) + d.close()

@@ -1,0 +1,469 @@
+"""Load and validate the machine-readable specs under ``specs/``.
+
+The spec is data; the code is generic over it (STYLE.md, convention 2).  This
+module turns the JSON files of one spec set (``commands.json``, ``errata.json``,
+``error_codes.json``) into frozen dataclasses and offers the look-ups the rest of
+the kit needs: by command ID, by name, by key (section).
+"""
+
+from __future__ import annotations
+
+import enum
+import functools
+import json
+import os
+from collections.abc import Iterable, Iterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from .errors import SpecError
+
+__all__ = [
+    "DEFAULT_SPEC_SET",
+    "Command",
+    "ErrorCode",
+    "Erratum",
+    "Example",
+    "Interval",
+    "Param",
+    "ReturnValue",
+    "Returns",
+    "Safety",
+    "SpecSet",
+    "Variant",
+    "default_specs",
+    "load_specs",
+    "schema_path",
+    "specs_root",
+]
+
+DEFAULT_SPEC_SET = "fairino-3.8.2"
+
+
+class Safety(str, enum.Enum):
+    """How dangerous a command is to send to a real arm (specs/spec.schema.json)."""
+
+    QUERY = "query"
+    CONFIGURATION = "configuration"
+    IO = "io"
+    MOTION = "motion"
+    PROGRAM = "program"
+    DESTRUCTIVE = "destructive"
+
+
+INTEGER_TYPES = frozenset({"int", "uint8_t", "uint16_t", "uint32_t"})
+REAL_TYPES = frozenset({"float", "double"})
+
+#: Bounds implied by the C type itself (used when the manual states no range).
+TYPE_BOUNDS: Mapping[str, tuple[int, int]] = {
+    "uint8_t": (0, 255),
+    "uint16_t": (0, 65535),
+    "uint32_t": (0, 2**32 - 1),
+    "int": (-(2**31), 2**31 - 1),
+}
+
+
+@dataclass(frozen=True, kw_only=True)
+class Interval:
+    min: float
+    max: float
+
+    def __contains__(self, value: object) -> bool:
+        return isinstance(value, (int, float)) and self.min <= value <= self.max
+
+
+@dataclass(frozen=True, kw_only=True)
+class Param:
+    name: str
+    type: str
+    printed_type: str = ""
+    length: int | None = None
+    max_length: int | None = None
+    quoted: bool = True
+    unit: str | None = None
+    range: tuple[Interval, ...] | None = None
+    enum: tuple[tuple[float | str, str], ...] | None = None
+    description: str = ""
+
+    @property
+    def is_array(self) -> bool:
+        return self.length is not None
+
+    @property
+    def is_string(self) -> bool:
+        return self.type == "string"
+
+    @property
+    def is_integer(self) -> bool:
+        return self.type in INTEGER_TYPES
+
+    def allows(self, value: float | str) -> bool:
+        """Whether a scalar value satisfies the stated range/enum (and the C type's bounds)."""
+        if self.is_string:
+            if not isinstance(value, str):
+                return False
+            return self.max_length is None or len(value.encode("utf-8")) <= self.max_length
+        if isinstance(value, str):
+            return False
+        if self.is_integer and isinstance(value, float) and not value.is_integer():
+            return False
+        bounds = TYPE_BOUNDS.get(self.type)
+        if bounds is not None and not bounds[0] <= value <= bounds[1]:
+            return False
+        if self.range is None and self.enum is None:
+            return True
+        if self.range is not None and any(value in iv for iv in self.range):
+            return True
+        return self.enum is not None and any(
+            not isinstance(v, str) and v == value for v, _ in self.enum
+        )
+
+
+@dataclass(frozen=True, kw_only=True)
+class ReturnValue:
+    name: str
+    type: str
+    printed_type: str = ""
+    length: int | None = None
+    max_length: int | None = None
+    unit: str | None = None
+    description: str = ""
+    volatile: bool = False
+
+
+@dataclass(frozen=True, kw_only=True)
+class Returns:
+    separator: str
+    values: tuple[ReturnValue, ...]
+
+    @property
+    def errcode_only(self) -> bool:
+        """The reply is a single error code (``1`` on success in the manual's examples)."""
+        return len(self.values) == 1 and self.values[0].name.lower() in {"errcode", "err", "error"}
+
+    @property
+    def arity(self) -> int:
+        """Number of separated values in a reply (arrays count element by element)."""
+        return sum(v.length or 1 for v in self.values)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Example:
+    request: str | None
+    reply: str | None
+    printed_request: str
+    printed_reply: str
+    errata: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True, kw_only=True)
+class Variant:
+    table: str
+    caption: str
+    form: str
+    params: tuple[Param, ...]
+    returns: Returns
+    examples: tuple[Example, ...]
+
+    @property
+    def arity(self) -> int:
+        return len(self.params)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Command:
+    key: str
+    name: str
+    cmd_id: int
+    section: str
+    heading: str
+    title: str
+    safety: Safety
+    variants: tuple[Variant, ...]
+    alt_cmd_ids: tuple[int, ...] = ()
+
+    @property
+    def label(self) -> str:
+        return f"{self.cmd_id} {self.name}"
+
+
+@dataclass(frozen=True, kw_only=True)
+class Erratum:
+    id: str
+    kind: str
+    commands: tuple[str, ...]
+    manual_text: str
+    adopted: str
+    note: str
+    table: str | None = None
+    cmd_id: int | None = None
+
+
+@dataclass(frozen=True, kw_only=True)
+class ErrorCode:
+    code: int
+    meaning: str
+    remedy: str
+
+
+@dataclass(frozen=True, kw_only=True)
+class SpecSet:
+    """All commands, errata and error codes of one manual version."""
+
+    spec_version: str
+    source: str
+    commands: tuple[Command, ...]
+    errata: tuple[Erratum, ...]
+    error_codes: tuple[ErrorCode, ...]
+    _by_id: Mapping[int, tuple[Command, ...]] = field(default_factory=dict, repr=False)
+    _by_name: Mapping[str, tuple[Command, ...]] = field(default_factory=dict, repr=False)
+    _by_key: Mapping[str, Command] = field(default_factory=dict, repr=False)
+
+    @classmethod
+    def build(
+        cls,
+        *,
+        spec_version: str,
+        source: str,
+        commands: Iterable[Command],
+        errata: Iterable[Erratum],
+        error_codes: Iterable[ErrorCode],
+    ) -> SpecSet:
+        cmds = tuple(commands)
+        by_id: dict[int, list[Command]] = {}
+        by_name: dict[str, list[Command]] = {}
+        by_key: dict[str, Command] = {}
+        for c in cmds:
+            if c.key in by_key:
+                raise SpecError(f"duplicate command key {c.key!r}")
+            by_key[c.key] = c
+            for cid in (c.cmd_id, *c.alt_cmd_ids):
+                by_id.setdefault(cid, []).append(c)
+            by_name.setdefault(c.name.lower(), []).append(c)
+        return cls(
+            spec_version=spec_version,
+            source=source,
+            commands=cmds,
+            errata=tuple(errata),
+            error_codes=tuple(error_codes),
+            _by_id={k: tuple(v) for k, v in by_id.items()},
+            _by_name={k: tuple(v) for k, v in by_name.items()},
+            _by_key=by_key,
+        )
+
+    def __iter__(self) -> Iterator[Command]:
+        return iter(self.commands)
+
+    def __len__(self) -> int:
+        return len(self.commands)
+
+    def by_id(self, cmd_id: int) -> tuple[Command, ...]:
+        """Commands answering to ``cmd_id`` (more than one where the manual reuses an ID)."""
+        return self._by_id.get(cmd_id, ())
+
+    def by_name(self, name: str) -> tuple[Command, ...]:
+        return self._by_name.get(name.lower(), ())
+
+    def by_key(self, key: str) -> Command | None:
+        return self._by_key.get(key)
+
+    def resolve(self, cmd_id: int, name: str | None = None) -> Command | None:
+        """The command a frame means: by ID, disambiguated by the DATA's name when needed."""
+        cands = self.by_id(cmd_id)
+        if name is not None:
+            named = [c for c in cands if c.name.lower() == name.lower()]
+            if named:
+                return named[0]
+        if cands:
+            # Prefer the command whose adopted ID this is over one listing it as alternative.
+            primary = [c for c in cands if c.cmd_id == cmd_id]
+            return (primary or list(cands))[0]
+        return None
+
+    def lookup(self, token: str) -> tuple[Command, ...]:
+        """Find commands by ID (``201``), key (``2.1``) or name (``MoveJ``, case-insensitive)."""
+        token = token.strip()
+        if token.isdigit():
+            return self.by_id(int(token))
+        c = self.by_key(token)
+        if c is not None:
+            return (c,)
+        return self.by_name(token.removesuffix("()"))
+
+    def errata_for(self, key: str) -> tuple[Erratum, ...]:
+        return tuple(e for e in self.errata if key in e.commands)
+
+    def erratum(self, eid: str) -> Erratum | None:
+        return next((e for e in self.errata if e.id == eid), None)
+
+    @property
+    def cmd_ids(self) -> tuple[int, ...]:
+        return tuple(sorted(self._by_id))
+
+    def error_code(self, code: int) -> ErrorCode | None:
+        return next((e for e in self.error_codes if e.code == code), None)
+
+
+# --------------------------------------------------------------------------- loading
+
+
+def specs_root() -> Path:
+    """Directory holding the spec sets: ``$FAIRINO_SPECS_DIR``, else ``specs/`` of the checkout."""
+    env = os.environ.get("FAIRINO_SPECS_DIR")
+    if env:
+        return Path(env)
+    here = Path(__file__).resolve().parent
+    for cand in (here.parent / "specs", here / "_specs"):
+        if (cand / "spec.schema.json").is_file():
+            return cand
+    raise SpecError(
+        "cannot find the specs directory (looked for specs/ beside the package); "
+        "set FAIRINO_SPECS_DIR"
+    )
+
+
+def schema_path() -> Path:
+    return specs_root() / "spec.schema.json"
+
+
+def _read_json(path: Path) -> dict[str, Any]:
+    try:
+        with path.open(encoding="utf-8") as f:
+            doc = json.load(f)
+    except FileNotFoundError:
+        raise SpecError("spec file not found", path=str(path)) from None
+    except json.JSONDecodeError as e:
+        raise SpecError(f"not valid JSON: {e}", path=str(path)) from None
+    if not isinstance(doc, dict):
+        raise SpecError("top level must be an object", path=str(path))
+    return doc
+
+
+def validate_document(doc: Mapping[str, Any], *, path: str = "<document>") -> None:
+    """Validate one spec document against ``specs/spec.schema.json``."""
+    import jsonschema
+
+    with schema_path().open(encoding="utf-8") as f:
+        schema = json.load(f)
+    validator = jsonschema.Draft202012Validator(schema)
+    errors = sorted(validator.iter_errors(doc), key=lambda e: list(e.absolute_path))
+    if errors:
+        e = errors[0]
+        loc = "/".join(str(p) for p in e.absolute_path)
+        raise SpecError(f"schema violation at /{loc}: {e.message}", path=path)
+
+
+def _intervals(raw: Any) -> tuple[Interval, ...] | None:
+    if raw is None:
+        return None
+    return tuple(Interval(min=float(i["min"]), max=float(i["max"])) for i in raw)
+
+
+def _enum(raw: Any) -> tuple[tuple[float | str, str], ...] | None:
+    if raw is None:
+        return None
+    return tuple((i["value"], i["label"]) for i in raw)
+
+
+def _param(raw: Mapping[str, Any]) -> Param:
+    return Param(
+        name=raw["name"],
+        type=raw["type"],
+        printed_type=raw.get("printed_type", ""),
+        length=raw.get("length"),
+        max_length=raw.get("max_length"),
+        quoted=raw.get("quoted", True),
+        unit=raw.get("unit"),
+        range=_intervals(raw.get("range")),
+        enum=_enum(raw.get("enum")),
+        description=raw.get("description", ""),
+    )
+
+
+def _return_value(raw: Mapping[str, Any]) -> ReturnValue:
+    return ReturnValue(
+        name=raw["name"],
+        type=raw["type"],
+        printed_type=raw.get("printed_type", ""),
+        length=raw.get("length"),
+        max_length=raw.get("max_length"),
+        unit=raw.get("unit"),
+        description=raw.get("description", ""),
+        volatile=raw.get("volatile", False),
+    )
+
+
+def _variant(raw: Mapping[str, Any]) -> Variant:
+    return Variant(
+        table=raw["table"],
+        caption=raw["caption"],
+        form=raw["form"],
+        params=tuple(_param(p) for p in raw["params"]),
+        returns=Returns(
+            separator=raw["returns"]["separator"],
+            values=tuple(_return_value(v) for v in raw["returns"]["values"]),
+        ),
+        examples=tuple(
+            Example(
+                request=e["request"],
+                reply=e["reply"],
+                printed_request=e["printed_request"],
+                printed_reply=e["printed_reply"],
+                errata=tuple(e["errata"]),
+            )
+            for e in raw["examples"]
+        ),
+    )
+
+
+def _command(raw: Mapping[str, Any]) -> Command:
+    return Command(
+        key=raw["key"],
+        name=raw["name"],
+        cmd_id=raw["cmd_id"],
+        alt_cmd_ids=tuple(raw.get("alt_cmd_ids", ())),
+        section=raw["section"],
+        heading=raw["heading"],
+        title=raw["title"],
+        safety=Safety(raw["safety"]),
+        variants=tuple(_variant(v) for v in raw["variants"]),
+    )
+
+
+def load_specs(directory: Path | str | None = None, *, validate: bool = True) -> SpecSet:
+    """Load one spec set (default: ``specs/fairino-3.8.2``), validating it against the schema."""
+    d = Path(directory) if directory is not None else specs_root() / DEFAULT_SPEC_SET
+    docs = {name: _read_json(d / f"{name}.json") for name in ("commands", "errata", "error_codes")}
+    if validate:
+        for name, doc in docs.items():
+            validate_document(doc, path=str(d / f"{name}.json"))
+    cdoc = docs["commands"]
+    return SpecSet.build(
+        spec_version=cdoc["spec_version"],
+        source=cdoc["source"],
+        commands=(_command(c) for c in cdoc["commands"]),
+        errata=(
+            Erratum(
+                id=e["id"],
+                kind=e["kind"],
+                commands=tuple(e["commands"]),
+                manual_text=e["manual_text"],
+                adopted=e["adopted"],
+                note=e["note"],
+                table=e.get("table"),
+                cmd_id=e.get("cmd_id"),
+            )
+            for e in docs["errata"]["errata"]
+        ),
+        error_codes=(
+            ErrorCode(code=e["code"], meaning=e["meaning"], remedy=e["remedy"])
+            for e in docs["error_codes"]["error_codes"]
+        ),
+    )
+
+
+@functools.lru_cache(maxsize=1)
+def default_specs() -> SpecSet:
+    """The default spec set, loaded once per process (schema-validated)."""
+    return load_specs()
