@@ -1,0 +1,1102 @@
+#!/usr/bin/env python3
+"""Extract the machine-readable protocol specs from the FAIRINO manual text.
+
+Reads the plain-text manual (``../shared/manual/fairino-command-protocol-v3.8.2.zh.txt``
+relative to the repository root unless ``--manual`` says otherwise), applies the
+human-reviewed corrections in ``tools/manual_corrections.yaml`` and writes
+``specs/fairino-3.8.2/{commands,errata,error_codes}.json``.
+
+The heuristics below do most of the work (section and table segmentation, parameter
+rows, units, ranges, enums, frame reassembly from cut table cells, OCR repair of
+names, LEN checking); the corrections file holds what text extraction cannot
+recover, each entry with a ``why``.  Manual contradictions are never fixed
+silently: each becomes an erratum in ``errata.json`` and is referenced from the
+examples it explains.
+
+``--check`` compares the committed files with what would be written and exits 1
+with a unified diff when they differ.  Output is deterministic.
+"""
+
+from __future__ import annotations
+
+import argparse
+import difflib
+import json
+import re
+import sys
+import unicodedata
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+REPO = Path(__file__).resolve().parent.parent
+DEFAULT_MANUAL = REPO.parent / "shared" / "manual" / "fairino-command-protocol-v3.8.2.zh.txt"
+DEFAULT_CORRECTIONS = REPO / "tools" / "manual_corrections.yaml"
+DEFAULT_OUT = REPO / "specs" / "fairino-3.8.2"
+SPEC_VERSION = "3.8.2"
+
+# --------------------------------------------------------------------------- text helpers
+
+#: Cyrillic and other look-alikes the OCR put into identifiers.
+LOOKALIKES = str.maketrans(
+    {
+        "у": "y", "У": "Y", "Ј": "J", "ј": "j", "а": "a", "е": "e", "о": "o", "р": "p",
+        "с": "c", "х": "x", "А": "A", "В": "B", "Е": "E", "К": "K", "М": "M", "Н": "H",
+        "О": "O", "Р": "P", "С": "C", "Т": "T", "Х": "X", "і": "i", "І": "I",
+        "（": "(", "）": ")", "，": ",", "：": ":", "；": ";", "～": "~", "［": "[", "］": "]",
+        "\u00a0": " ", "\u3000": " ",
+    }
+)
+
+CJK = r"\u3000-\u303f\u4e00-\u9fff\uff00-\uffef"
+
+
+def clean_text(s: str) -> str:
+    """Whitespace-normalise a piece of manual text and drop LaTeX/HTML debris."""
+    s = s.replace("\\_", "_").replace("\\,", " ")
+    s = re.sub(r"</?(?:i|b|sup|sub)>", "", s)
+    s = re.sub(r"\s+", " ", s).strip()
+    # Line wraps inside Chinese text leave a space between two CJK characters.
+    s = re.sub(rf"(?<=[{CJK}]) (?=[{CJK}])", "", s)
+    return s
+
+
+def ident(s: str) -> str:
+    """An identifier as printed, with look-alikes mapped and wrap spaces removed."""
+    s = s.translate(LOOKALIKES).replace("\\_", "_").replace("$", "")
+    s = re.sub(r"</?(?:i|b)>", "", s)
+    s = unicodedata.normalize("NFKC", s)
+    return re.sub(r"\s+", "", s)
+
+
+def utf8len(s: str) -> int:
+    return len(s.encode("utf-8"))
+
+
+def norm_name_key(s: str) -> str:
+    """Fold the usual OCR confusions so names can be compared (SetD0 ~ SetDO ~ SetDo)."""
+    s = ident(s).lower()
+    return s.replace("0", "o").replace("1", "l").replace("i", "l")
+
+
+# --------------------------------------------------------------------------- model
+
+
+@dataclass
+class Row:
+    index: int | None
+    printed_type: str
+    name: str
+    description: str
+    label: str = ""
+
+
+@dataclass
+class FrameText:
+    printed: str
+    cnt: str | None = None
+    cmd_id: str | None = None
+    length: str | None = None
+    data: str | None = None
+    separators: tuple[str, ...] = ()
+
+
+@dataclass
+class RawVariant:
+    table: str
+    caption: str
+    line: int
+    params: list[Row] = field(default_factory=list)
+    returns: list[Row] = field(default_factory=list)
+    cmd_ids: list[int] = field(default_factory=list)
+    printed_cmd_id: str = ""
+    requests: list[FrameText] = field(default_factory=list)
+    replies: list[FrameText] = field(default_factory=list)
+
+
+@dataclass
+class RawSection:
+    key: str
+    heading: str
+    printed_name: str
+    line: int
+    title: str = ""
+    lines: list[tuple[int, str]] = field(default_factory=list)
+    variants: list[RawVariant] = field(default_factory=list)
+
+
+# --------------------------------------------------------------------------- segmentation
+
+HEADING_RE = re.compile(
+    r"^#{1,6}\s*\$?\s*(\d+(?:\s*[.．]\s*\d+)*)\s*(?:\\,|\\ |\s)*(?:\\hbox\{)?\s*"
+    r"([A-Za-z][A-Za-z0-9_\\ ]*?)\s*(\(\s*\))?\s*\}?\s*(?:\\\\)?\s*\$?\s*$"
+)
+CAPTION_RE = re.compile(r"^(?:#+\s*)?(?:表\s*)?(\d+(?:\s*-\s*\d+)+)\s*(.*指令协议.*)$")
+TYPE_RE = re.compile(
+    r"^(?:u?int(?:8|16|32|64)?(?:_t)?|float|double|char|string|table|bool)(?:\s*\[\s*\d[\d ]*\])?$"
+)
+
+
+def find_body(lines: list[str]) -> tuple[int, int]:
+    start = next(i for i, ln in enumerate(lines) if re.match(r"^#+\s*2\s+机器人运动指令", ln))
+    end = next(i for i, ln in enumerate(lines) if re.match(r"^#+\s*9\s+机器人指令接口错误码", ln))
+    return start, end
+
+
+def parse_heading(line: str) -> tuple[str, str] | None:
+    if "指令协议" in line:
+        return None
+    m = HEADING_RE.match(latex_clean(line.strip()))
+    if not m:
+        return None
+    key = re.sub(r"[\s．]", "", m.group(1)).replace("．", ".")
+    name = ident(m.group(2))
+    if not re.match(r"^[A-Za-z]", name) or "." not in key:
+        return None
+    return key, name
+
+
+def latex_clean(s: str) -> str:
+    """Drop the LaTeX the PDF converter wrapped some headings in ($8.\\,75\\,\\hbox{X()}$)."""
+    s = re.sub(r"\\hbox\{([^}]*)\}", r"\1", s)
+    s = s.replace("\\,", " ").replace("\\\\", "").replace("$", "")
+    return re.sub(r"\s+", " ", s)
+
+
+def parse_caption(line: str) -> tuple[str, str] | None:
+    s = line.strip()
+    m = CAPTION_RE.match(s)
+    if not m:
+        k = s.find("表 ")
+        if k <= 0:
+            return None
+        s = s[k:]
+        m = CAPTION_RE.match(s)
+        if not m:
+            return None
+    return re.sub(r"\s+", "", m.group(1)), clean_text(s.lstrip("#").strip())
+
+
+def segment(lines: list[str], start: int, end: int) -> list[RawSection]:
+    sections: list[RawSection] = []
+    cur: RawSection | None = None
+    for i in range(start, end):
+        ln = lines[i]
+        h = parse_heading(ln)
+        if h is not None:
+            cur = RawSection(key=h[0], heading=clean_text(latex_clean(ln.lstrip("#"))),
+                             printed_name=h[1],
+                             line=i + 1)
+            sections.append(cur)
+            continue
+        if re.match(r"^#+\s", ln) and "指令协议" not in ln:
+            # a group heading (3.1 数字 IO): ends the current command section
+            cur = None
+            continue
+        cap = parse_caption(ln)
+        if cap is not None and cur is not None:
+            cap_name = caption_name(cap[1])
+            if (
+                cap[0].count("-") == 2
+                and cap[0].replace("-", ".") != cur.key
+                and norm_name_key(cap_name) != norm_name_key(cur.printed_name)
+                and not any(norm_name_key(caption_name(v.caption)) == norm_name_key(cap_name)
+                            for v in cur.variants)
+            ):
+                # The section heading is missing from the text (5.2.2): the caption's
+                # number, in chapters 3-8 the section number, starts a new section.
+                cur = RawSection(key=cap[0].replace("-", "."), heading="",
+                                 printed_name=ident(cap_name), line=i + 1)
+                sections.append(cur)
+        if cur is not None:
+            cur.lines.append((i + 1, ln))
+    return sections
+
+
+def caption_name(caption: str) -> str:
+    m = re.search(r"([A-Za-z_][A-Za-z0-9_ \\]*?)\s*(?:\(\s*\))?\s*指令协议", caption)
+    return m.group(1) if m else ""
+
+
+# --------------------------------------------------------------------------- table rows
+
+
+def cells(line: str) -> list[str]:
+    return [c.strip() for c in line.split("\t")]
+
+
+def split_variants(sec: RawSection) -> list[tuple[str, str, int, list[tuple[int, str]]]]:
+    """Cut a section's lines into (table, caption, line, lines) chunks, one per table."""
+    chunks: list[list[Any]] = []
+    pre: list[tuple[int, str]] = []
+    title = ""
+    for n, ln in sec.lines:
+        cap = parse_caption(ln)
+        if cap is not None and not title and not chunks and ln.strip().find("表 ") > 0:
+            title = clean_text(ln.strip()[: ln.strip().find("表 ")])
+        if cap is not None:
+            if (chunks and not _has_content(chunks[-1][3])) or (not chunks and _has_content(pre)):
+                # caption printed after its table (5.3.1): attach
+                body = chunks[-1][3] if chunks else pre
+                if chunks:
+                    chunks[-1][0], chunks[-1][1] = cap
+                else:
+                    chunks.append([cap[0], cap[1], n, body])
+                    pre = []
+                continue
+            chunks.append([cap[0], cap[1], n, []])
+            continue
+        if chunks:
+            chunks[-1][3].append((n, ln))
+        else:
+            pre.append((n, ln))
+            if not title and ln.strip() and not _has_content([(n, ln)]):
+                title = clean_text(ln)
+    sec.title = title
+    return [(c[0], c[1], c[2], c[3]) for c in chunks]
+
+
+def _has_content(lines: list[tuple[int, str]]) -> bool:
+    return any(("指令号" in ln or "指今号" in ln or "发送帧" in ln) for _, ln in lines)
+
+
+def parse_row(cs: list[str]) -> Row | None:
+    """A parameter/return row: [label] index type name description."""
+    cs2 = [c for c in cs]
+    for i in range(len(cs2) - 1):
+        c = cs2[i]
+        if not re.fullmatch(r"\d{1,2}", c):
+            continue
+        rest = [x for x in cs2[i + 1:]]
+        while rest and rest[0] == "":
+            rest.pop(0)
+        if not rest:
+            return None
+        t = rest[0]
+        name = rest[1] if len(rest) > 1 else ""
+        tm = re.match(
+            r"^(u?int(?:8|16|32|64)?(?:_t)?|float|double|char|string|table)\b\s*(.*)$", t
+        )
+        if not tm:
+            return None
+        typ = tm.group(1)
+        extra = tm.group(2).strip()
+        desc_cells = rest[2:]
+        if extra:
+            if re.fullmatch(r"\[\s*[\d ]+\]", extra):
+                typ = typ + ident(extra)
+            else:
+                desc_cells = [name, *desc_cells] if name else desc_cells
+                name = extra
+        label = " ".join(x for x in cs2[:i] if x)
+        return Row(index=int(c), printed_type=typ, name=name,
+                   description=clean_text(" ".join(desc_cells)), label=label)
+    return None
+
+
+def parse_return_row(cs: list[str]) -> Row | None:
+    """``返回值 <empty> int errcode 错误码`` style row (no index)."""
+    if not cs or "返回值" not in cs[0]:
+        return None
+    rest = [c for c in cs[1:] if c != ""]
+    if len(rest) >= 2 and re.match(r"^(u?int\w*|float|double|char|string)", rest[0]):
+        return Row(index=None, printed_type=rest[0], name=rest[1],
+                   description=clean_text(" ".join(rest[2:])), label="返回值")
+    return None
+
+
+FRAME_RE = re.compile(
+    r"/f/b(I{2,4})(\d+)(I{2,4})(\d+)(I{2,4})(\d+)(I{2,4})(.*?)(I{2,4})/b/f"
+)
+
+
+def parse_frame(s: str) -> FrameText | None:
+    m = FRAME_RE.fullmatch(s)
+    if not m:
+        return None
+    return FrameText(printed=s, cnt=m.group(2), cmd_id=m.group(4), length=m.group(6),
+                     data=m.group(8),
+                     separators=(m.group(1), m.group(3), m.group(5), m.group(7), m.group(9)))
+
+
+def frame_ok(f: FrameText) -> bool:
+    return f.data is not None and f.length is not None and utf8len(f.data) == int(f.length)
+
+
+def assemble_frames(tokens: list[str]) -> list[FrameText]:
+    """Reassemble frames from the example cells of one table (cells cut at arbitrary points)."""
+    out: list[FrameText] = []
+    acc: list[str] = []
+
+    def flush_candidates(parts: list[str]) -> FrameText | None:
+        joined = "".join(parts)
+        cands: list[FrameText] = []
+        f = parse_frame(joined)
+        if f is not None:
+            cands.append(f)
+        # overlapping cells: a truncated prefix cell followed by the frame's tail
+        for k in range(1, len(parts)):
+            head = "".join(parts[:k])
+            tail = "".join(parts[k:])
+            for cut in range(len(head), 3, -1):
+                g = parse_frame(head[:cut] + tail)
+                if g is not None:
+                    cands.append(g)
+        if not cands:
+            return None
+        good = [c for c in cands if frame_ok(c) and all(s == "III" for s in c.separators)]
+        best = good[0] if good else cands[0]
+        best.printed = " ".join(p for p in parts if p)
+        return best
+
+    for tok in tokens:
+        t = tok.strip()
+        if not t:
+            continue
+        while t:
+            if not acc:
+                p = t.find("/f/b")
+                if p < 0:
+                    t = ""
+                    continue
+                t = t[p:]
+            elif t.startswith("/f/b") and "/b/f" not in "".join(acc):
+                # a cell restarting the frame: the accumulated cells were a cut copy
+                acc = []
+            q = t.find("/b/f")
+            nxt = t.find("/f/b", 4 if not acc else 0)
+            if q >= 0 and (nxt < 0 or q < nxt):
+                acc.append(t[: q + 4])
+                t = t[q + 4:]
+                f = flush_candidates(acc)
+                if f is not None:
+                    out.append(f)
+                else:
+                    out.append(FrameText(printed=" ".join(acc)))
+                acc = []
+            elif nxt > 0:
+                acc.append(t[:nxt])
+                out.append(FrameText(printed=" ".join(acc)))
+                acc = []
+                t = t[nxt:]
+            else:
+                acc.append(t)
+                t = ""
+    if acc:
+        out.append(FrameText(printed=" ".join(acc)))
+    return out
+
+
+LABEL_JUNK = re.compile(rf"^[^/A-Za-z0-9]*$|^[{CJK}\s.<>/=a-zA-Z]*(?:示例|帧)[{CJK}\s]*$")
+
+
+def parse_variant(table: str, caption: str, line: int, body: list[tuple[int, str]]) -> RawVariant:
+    v = RawVariant(table=table, caption=caption, line=line)
+    state = "params"
+    last: Row | None = None
+    req_tokens: list[str] = []
+    rep_tokens: list[str] = []
+    ex_mode = ""
+    for _n, ln in body:
+        if not ln.strip():
+            continue
+        cs = cells(ln)
+        joined = " ".join(c for c in cs if c)
+        if state in ("params", "returns"):
+            m = re.search(r"指[令今]号\s*(\d+)(?:\s*[/、,，]\s*(\d+))?", joined)
+            if m:
+                v.printed_cmd_id = clean_text(joined)
+                v.cmd_ids = [int(x) for x in m.groups() if x]
+                state = "ids"
+                continue
+            rr = parse_return_row(cs)
+            row = rr or parse_row(cs)
+            if row is not None:
+                if "返回值" in row.label or rr is not None:
+                    if state == "params" and row.index and row.index > 1:
+                        # label printed mid-table: move the earlier rows of this numbering
+                        k = row.index - 1
+                        moved = v.params[-k:] if len(v.params) >= k else v.params[:]
+                        v.params = v.params[: len(v.params) - len(moved)]
+                        v.returns.extend(moved)
+                    state = "returns"
+                elif (state == "params" and row.index == 1 and v.params
+                      and v.params[-1].index is not None and v.params[-1].index >= 1
+                      and "参数" not in row.label):
+                    state = "returns"
+                (v.returns if state == "returns" else v.params).append(row)
+                last = row
+                continue
+            if "序号" in joined or ("类型" in joined and "变量" in joined):
+                continue
+            if "发送帧" in joined or "接收帧" in joined:
+                state = "ids"
+            elif last is not None and not re.search(r"用户手册|^\d+\s*/\s*\d+", joined):
+                extra = clean_text(" ".join(c for c in cs if c and c not in ("参数", "返回值")))
+                if extra and not LABEL_JUNK.match(extra):
+                    last.description = clean_text(last.description + " " + extra)
+                continue
+        if state == "ids":
+            for c in cs:
+                if not c:
+                    continue
+                if "发送帧" in c and "接收帧" in c:
+                    ex_mode = "both"
+                    rest = c.split("接收帧", 1)[1]
+                    c = rest
+                elif "发送帧" in c:
+                    ex_mode = "req"
+                    c = c.split("发送帧", 1)[1]
+                elif "接收帧" in c:
+                    ex_mode = "rep"
+                    c = c.split("接收帧", 1)[1]
+                c = c.strip()
+                if not c or ("/f/b" not in c and LABEL_JUNK.match(c)):
+                    continue
+                if ex_mode in ("req", "both"):
+                    req_tokens.append(c)
+                elif ex_mode == "rep":
+                    rep_tokens.append(c)
+    if req_tokens or rep_tokens:
+        frames = assemble_frames(req_tokens)
+        rep_frames = assemble_frames(rep_tokens)
+        if len(frames) >= 2 and not rep_frames:
+            # "发送帧 接收帧" printed side by side: request then reply
+            rep_frames = frames[1::2]
+            frames = frames[0::2]
+        v.requests = frames
+        v.replies = rep_frames
+    return v
+
+
+# --------------------------------------------------------------------------- normalisation
+
+SCALAR_MAP = {
+    "int": "int", "uint8_t": "uint8_t", "uint16_t": "uint16_t", "uint32_t": "uint32_t",
+    "float": "float", "double": "double", "string": "string", "char": "string",
+    "uint8": "uint8_t", "uint16": "uint16_t", "uint32": "uint32_t", "int32_t": "int",
+    "int8_t": "int", "int16_t": "int", "bool": "uint8_t", "table": "float",
+}
+
+
+def normalise_type(printed_type: str, name: str) -> dict[str, Any]:
+    """Printed type + name -> schema fields (type, length, max_length, clean name)."""
+    pt = ident(printed_type)
+    nm = ident(name)
+    size: int | None = None
+    m = re.match(r"^([A-Za-z0-9_]+)\[(\d+)\]$", pt)
+    if m:
+        pt_base, size = m.group(1), int(m.group(2))
+    else:
+        pt_base = pt
+    m2 = re.match(r"^([A-Za-z_][A-Za-z0-9_]*)\[(\d+)\]$", nm)
+    if m2:
+        nm, size = m2.group(1), int(m2.group(2))
+    m3 = re.match(r"^([A-Za-z_][A-Za-z0-9_]*)=\{(.*)\}$", nm)
+    if m3:
+        nm, size = m3.group(1), len(m3.group(2).split(","))
+    base = SCALAR_MAP.get(pt_base, "string" if "char" in pt_base else "int")
+    out: dict[str, Any] = {"name": nm, "type": base, "length": None, "max_length": None}
+    if base == "string":
+        out["max_length"] = size
+    else:
+        out["length"] = size
+    return out
+
+
+NUM = r"-?\d+(?:\.\d+)?"
+
+
+def parse_unit(desc: str) -> str | None:
+    m = re.search(r"单位\s*(?:为)?\s*[:：]?\s*\[\s*([^\]]+?)\s*\]", desc)
+    if m:
+        return m.group(1).replace(" ", "")
+    m = re.search(
+        r"单位\s*(?:为)?\s*[:：]?\s*(°/s²|°/s|mm/s²|mm/s|mm|ms|°|%|s|kg|N·m|Nm|N|V|A|Hz|m)\b", desc
+    )
+    if m:
+        return m.group(1)
+    m = re.search(r"\((V|A|mm|ms|kg|°)\)", desc)
+    return m.group(1) if m else None
+
+
+def _num(s: str) -> float | int:
+    f = float(s)
+    return int(f) if f.is_integer() and "." not in s else f
+
+
+def parse_range(desc: str) -> list[dict[str, float | int]] | None:
+    d = desc.translate(LOOKALIKES)
+    out: list[dict[str, float | int]] = []
+    for m in re.finditer(rf"\[\s*({NUM})\s*\]\s*(?=[:：]|不平滑|在此)", d):
+        v = _num(m.group(1))
+        out.append({"min": v, "max": v})
+    for m in re.finditer(rf"(?<![\d.\w])({NUM})\s*[~～]\s*({NUM})(?![\d.])", d):
+        out.append({"min": _num(m.group(1)), "max": _num(m.group(2))})
+    for m in re.finditer(rf"\[\s*({NUM})\s*-\s*({NUM})\s*\]", d):
+        out.append({"min": _num(m.group(1)), "max": _num(m.group(2))})
+    uniq: list[dict[str, float | int]] = []
+    for iv in out:
+        if iv["min"] <= iv["max"] and iv not in uniq:
+            uniq.append(iv)
+    return uniq or None
+
+
+def parse_enum(desc: str) -> list[dict[str, Any]] | None:
+    d = desc.translate(LOOKALIKES)
+    items = re.findall(
+        rf"(?:^|[,;，；\s(（]|[{CJK}])(-?\d+)\s*(?:-|:|：|—|为)\s*([^,;，；\d\s()（）][^,;，；()（）]*?)"
+        rf"(?=\s*(?:[,;，；)）]|$|\s-?\d+\s*(?:-|:|：)))",
+        d,
+    )
+    if len(items) < 2:
+        return None
+    seen: set[int] = set()
+    out: list[dict[str, Any]] = []
+    for val, label in items:
+        v = int(val)
+        if v in seen:
+            return None
+        seen.add(v)
+        out.append({"value": v, "label": clean_text(label)})
+    return out
+
+
+# --------------------------------------------------------------------------- safety
+
+DESTRUCTIVE = {
+    "ShutDownRobotOS", "RobotIPConfig", "SetRobotType", "SetQNXSystemTime",
+    "SetSingleEnconderZeroStart", "SetSingleEnconderZeroStop", "SetAllDHCompensation",
+}
+IO_PREFIXES = (
+    "SetDO", "SetAO", "SetToolDO", "SetToolAO", "SetAuxDO", "SetAuxAO", "SetAxleExtDO",
+    "SetVirtual",
+)
+MOTION_RE = re.compile(
+    r"^(?:Move|SimMove|Servo|StartJOG|Circle|Spiral|NewSpiral|HorizonSpiral|Spline|NewSpline|"
+    r"unifCircle|dmpMotion|MoveCart|ExtAxisMoveJ|ExtAxisStartJog|Tractor|FT_SpiralSearch|"
+    r"FT_RotInsertion|FT_LinInsertion|FT_FindSurface|FT_Control|ActGripper|MoveGripper|"
+    r"RobotEnable|RobotSingleJoint|ExtAxisServoOn|ExtAxisSetHoming|EndForceDragControl|"
+    r"ForceAndJointImpedanceStartStop|ConveyorTrackStart|WeaveStart|MoveLTR|MoveToLaserRecord|"
+    r"LaserTrackingTrackOn|LaserTrackingSearchStart|WireSearchStart|FT_ComplianceStart|"
+    r"FT_CalCenterStart|ArcWeldTraceReplayStart|StartLowTempPreheating)"
+)
+
+
+def classify(name: str, form: str) -> str:
+    if name in DESTRUCTIVE:
+        return "destructive"
+    if form == "keyword":
+        return "program"
+    if MOTION_RE.match(name):
+        return "motion"
+    if name.startswith(IO_PREFIXES):
+        return "io"
+    if re.match(r"^(?:Get|ExtAxisGet|ExtDevGet|ConveyorGet|WeldingGet)", name) or re.search(
+        r"Get[A-Z]", name
+    ):
+        return "query"
+    return "configuration"
+
+
+VOLATILE_RE = re.compile(
+    r"actual|cur|speed|torque|current|voltage|temp|version|time|date|state|status|count|"
+    r"num$|pos|sn|mac|rot|force|err|length|done|flag|freq|"
+    r"当前|实际|版本|温度|电流|电压|速度|位置|时间|状态|计数|长度|转|力|完成|序列|SN|mac",
+    re.I,
+)
+
+
+# --------------------------------------------------------------------------- errata
+
+
+class Errata:
+    def __init__(self) -> None:
+        self.items: list[dict[str, Any]] = []
+
+    def add(self, *, order: tuple[int, int], kind: str, commands: list[str], table: str | None,
+            cmd_id: int | None, manual_text: str, adopted: str, note: str) -> dict[str, Any]:
+        e = {
+            "id": "", "kind": kind, "commands": commands, "table": table, "cmd_id": cmd_id,
+            "manual_text": manual_text, "adopted": adopted, "note": note, "_order": order,
+        }
+        self.items.append(e)
+        return e
+
+    def finalise(self) -> list[dict[str, Any]]:
+        self.items.sort(key=lambda e: (e["_order"], e["kind"], e["manual_text"]))
+        for i, e in enumerate(self.items, 1):
+            e["id"] = f"E{i:03d}"
+        return self.items
+
+    def strip(self) -> list[dict[str, Any]]:
+        return [{k: v for k, v in e.items() if k != "_order"} for e in self.items]
+
+
+# --------------------------------------------------------------------------- DATA helpers
+
+
+def split_args(s: str) -> list[str]:
+    out: list[str] = []
+    depth = 0
+    quote = False
+    cur = ""
+    for ch in s:
+        if ch == '"':
+            quote = not quote
+        elif not quote and ch in "{[(":
+            depth += 1
+        elif not quote and ch in "}])":
+            depth -= 1
+        if ch == "," and depth == 0 and not quote:
+            out.append(cur)
+            cur = ""
+        else:
+            cur += ch
+    if cur or out:
+        out.append(cur)
+    return out
+
+
+def data_shape(data: str) -> tuple[str, str, list[str] | None]:
+    """(form, name, args) of a request DATA."""
+    m = re.fullmatch(r"\s*([A-Za-z_][A-Za-z0-9_ ]*?)\s*\((.*)\)\s*", data, re.S)
+    if m:
+        args = split_args(m.group(2)) if m.group(2).strip() else []
+        return "call", m.group(1), args
+    if re.fullmatch(r"[A-Z]+", data):
+        return "keyword", data, None
+    return "raw", "", None
+
+
+def build_frame(cnt: str, cmd_id: int, data: str) -> str:
+    return f"/f/bIII{cnt}III{cmd_id}III{utf8len(data)}III{data}III/b/f"
+
+
+# --------------------------------------------------------------------------- main build
+
+
+def load_corrections(path: Path) -> dict[str, Any]:
+    with path.open(encoding="utf-8") as f:
+        doc = yaml.safe_load(f) or {}
+    if not isinstance(doc, dict):
+        raise SystemExit(f"{path}: top level must be a mapping")
+    return doc
+
+
+def build(manual: Path, corrections: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    text = manual.read_text(encoding="utf-8")
+    lines = text.splitlines()
+    start, end = find_body(lines)
+    sections = segment(lines, start, end)
+    errata = Errata()
+    ccmds: dict[str, Any] = corrections.get("commands") or {}
+
+    commands: list[dict[str, Any]] = []
+    id_users: dict[int, list[tuple[str, str, int]]] = {}
+    pending_examples: list[tuple[dict[str, Any], list[tuple[str, dict[str, Any]]]]] = []
+
+    for sec in sections:
+        corr = ccmds.get(sec.key) or {}
+        chunks = split_variants(sec)
+        variants_raw = [parse_variant(t, c, n, b) for t, c, n, b in chunks]
+        name = corr.get("name") or fix_name(sec.printed_name, variants_raw)
+        variants: list[dict[str, Any]] = []
+        cmd_ids: list[int] = []
+        for vi, rv in enumerate(variants_raw):
+            vcorr = (corr.get("variants") or {}).get(rv.table) or {}
+            ids = vcorr.get("cmd_ids") or rv.cmd_ids
+            for cid in ids:
+                if cid not in cmd_ids:
+                    cmd_ids.append(cid)
+                id_users.setdefault(cid, []).append((sec.key, rv.table, rv.line))
+            variant, ex_links = build_variant(sec, name, rv, vcorr, vi, ids, errata)
+            variants.append(variant)
+            pending_examples.append((variant, ex_links))
+        if not variants:
+            raise SystemExit(f"section {sec.key} ({sec.heading}) has no table")
+        cmd_id = corr.get("cmd_id", cmd_ids[0] if cmd_ids else 0)
+        alt = [c for c in cmd_ids if c != cmd_id]
+        if alt:
+            errata.add(
+                order=(sec.line, 1), kind="multiple_cmd_ids", commands=[sec.key], table=None,
+                cmd_id=cmd_id,
+                manual_text=f"{name}: 指令号 " + ", ".join(str(c) for c in cmd_ids),
+                adopted=f"{cmd_id} (others kept as alt_cmd_ids)",
+                note="The manual gives this command more than one command ID.",
+            )
+        forms = {v["form"] for v in variants}
+        safety = corr.get("safety") or classify(name, "keyword" if forms == {"keyword"} else "call")
+        cmd: dict[str, Any] = {
+            "key": sec.key,
+            "name": name,
+            "cmd_id": cmd_id,
+        }
+        if alt:
+            cmd["alt_cmd_ids"] = alt
+        cmd.update({
+            "section": sec.key,
+            "heading": corr.get("heading", sec.heading),
+            "title": corr.get("title", sec.title),
+            "safety": safety,
+            "variants": variants,
+        })
+        for v in variants:
+            for rvv in v["returns"]["values"]:
+                if "volatile" not in rvv:
+                    rvv["volatile"] = bool(
+                        safety == "query" and rvv["name"].lower() not in ("errcode", "error")
+                        and VOLATILE_RE.search(rvv["name"] + " " + rvv.get("description", ""))
+                    )
+        commands.append(cmd)
+
+    # the same command ID given to different commands
+    for cid, users in sorted(id_users.items()):
+        keys = sorted({u[0] for u in users}, key=section_sort_key)
+        if len(keys) > 1:
+            by_key = {c["key"]: c["name"] for c in commands}
+            errata.add(
+                order=(min(u[2] for u in users), 2), kind="duplicate_cmd_id", commands=keys,
+                table=None, cmd_id=cid,
+                manual_text=f"指令号 {cid}: " + ", ".join(f"{k} {by_key[k]}" for k in keys),
+                adopted="all commands keep the ID; resolve by DATA name",
+                note="One command ID is given to different commands.",
+            )
+
+    for e in corrections.get("errata") or []:
+        errata.add(order=(int(e.get("line", 0)), 3), kind=e["kind"], commands=e["commands"],
+                   table=e.get("table"), cmd_id=e.get("cmd_id"), manual_text=e["manual_text"],
+                   adopted=e["adopted"], note=e.get("note", e.get("why", "")))
+
+    errata.finalise()
+    for variant, links in pending_examples:
+        grouped = links_by_example(links, len(variant["examples"]))
+        for ex, refs in zip(variant["examples"], grouped, strict=True):
+            ex["errata"] = sorted({r["id"] for r in refs})
+    del pending_examples
+
+    commands.sort(key=lambda c: section_sort_key(c["key"]))
+    error_codes = parse_error_codes(lines, end)
+    return {
+        "commands": {"kind": "commands", "spec_version": SPEC_VERSION, "source": manual.name,
+                     "commands": commands},
+        "errata": {"kind": "errata", "spec_version": SPEC_VERSION, "errata": errata.strip()},
+        "error_codes": {"kind": "error_codes", "spec_version": SPEC_VERSION,
+                        "error_codes": error_codes},
+    }
+
+
+def links_by_example(links: list[tuple[str, dict[str, Any]]], n: int) -> list[list[dict[str, Any]]]:
+    out: list[list[dict[str, Any]]] = [[] for _ in range(n)]
+    for idx, e in links:
+        out[int(idx)].append(e)
+    return out
+
+
+def section_sort_key(key: str) -> tuple[int, ...]:
+    return tuple(int(x) for x in key.split("."))
+
+
+def fix_name(printed: str, variants: list[RawVariant]) -> str:
+    """Repair OCR damage in a command name (SetD0 -> SetDO, SetTooIDO -> SetToolDO)."""
+    n = printed
+    n = re.sub(r"(?<=[a-z])I(?=[A-Z][A-Z]|DO|AO|DI|AI)", "l", n)  # TooIDO -> ToolDO
+    n = re.sub(r"I0(?=[A-Z]|$)", "IO", n)
+    n = re.sub(r"(?<=[A-Z])0(?=$|[A-Z(])", "O", n)  # SetD0 -> SetDO
+    n = re.sub(r"(?<=[a-z]|[A-Z])Al(?=$|[A-Z])", "AI", n)  # SetVirtualAl -> SetVirtualAI
+    n = re.sub(r"(?<=[A-Z])l(?=Config|FilterTime|O)", "I", n)  # SetToolDlConfig -> SetToolDIConfig
+    n = n.replace("lPConfig", "IPConfig").replace("Extl", "ExtI")
+    return n
+
+
+def build_variant(
+    sec: RawSection, name: str, rv: RawVariant, vcorr: dict[str, Any], vi: int,
+    ids: list[int], errata: Errata,
+) -> tuple[dict[str, Any], list[tuple[str, dict[str, Any]]]]:
+    links: list[tuple[str, dict[str, Any]]] = []
+    cmd_id = ids[0] if ids else 0
+    # ---- params
+    params: list[dict[str, Any]]
+    if "params" in vcorr:
+        params = [complete_param(dict(p)) for p in vcorr["params"]]
+    else:
+        params = [row_to_param(r) for r in rv.params]
+    if "returns" in vcorr:
+        rvals = [complete_return(dict(r)) for r in vcorr["returns"]]
+    else:
+        rvals = [row_to_return(r) for r in rv.returns]
+
+    # ---- examples
+    ex_corr: list[dict[str, Any]] = vcorr.get("examples") or []
+    n_ex = max(len(rv.requests), len(rv.replies), len(ex_corr))
+    examples: list[dict[str, Any]] = []
+    forms: list[str] = []
+    req_args: list[list[str]] = []
+    reply_datas: list[str] = []
+    for i in range(n_ex):
+        req = rv.requests[i] if i < len(rv.requests) else FrameText(printed="")
+        rep = rv.replies[i] if i < len(rv.replies) else FrameText(printed="")
+        ec = ex_corr[i] if i < len(ex_corr) else {}
+        if "request" in ec:
+            f = parse_frame(ec["request"]) if ec["request"] else None
+            req = FrameText(printed=req.printed) if f is None else \
+                FrameText(printed=req.printed, cnt=f.cnt, cmd_id=f.cmd_id, length=f.length,
+                          data=f.data, separators=f.separators)
+        if "reply" in ec:
+            f = parse_frame(ec["reply"]) if ec["reply"] else None
+            rep = FrameText(printed=rep.printed) if f is None else \
+                FrameText(printed=rep.printed, cnt=f.cnt, cmd_id=f.cmd_id, length=f.length,
+                          data=f.data, separators=f.separators)
+        order = (rv.line, 10 + i)
+        ex: dict[str, Any] = {
+            "request": None, "reply": None,
+            "printed_request": clean_ws(ec.get("printed_request", req.printed)),
+            "printed_reply": clean_ws(ec.get("printed_reply", rep.printed)),
+            "errata": [],
+        }
+        where = f"{name} table {rv.table}"
+        # ---- request
+        if req.data is not None and req.cnt is not None and req.cmd_id is not None:
+            data = req.data
+            form, dname, args = data_shape(data)
+            if form == "call":
+                fixed = data
+                if dname != name:
+                    if norm_name_key(dname) == norm_name_key(name) or close_name(dname, name):
+                        fixed = name + data[data.index("("):]
+                    elif not ec.get("keep_name"):
+                        e = errata.add(
+                            order=order, kind="example_wrong_name", commands=[sec.key],
+                            table=rv.table, cmd_id=cmd_id, manual_text=req.printed,
+                            adopted=f"{name}(...)",
+                            note=f"The {where} example sends {dname}(...), not {name}(...).",
+                        )
+                        links.append((str(i), e))
+                        fixed = name + data[data.index("("):]
+                data = fixed
+                if args is not None:
+                    req_args.append(args)
+                    if len(args) != len(params) and params and not ec.get("arg_count_ok"):
+                        e = errata.add(
+                            order=order, kind="example_arg_count", commands=[sec.key],
+                            table=rv.table, cmd_id=cmd_id, manual_text=req.printed,
+                            adopted=f"{len(params)} parameters as in the table",
+                            note=f"The {where} example sends {len(args)} argument(s); "
+                                 f"the table lists {len(params)}.",
+                        )
+                        links.append((str(i), e))
+            forms.append(form)
+            check_frame(req, data, name, sec.key, rv.table, cmd_id, order, errata, links, i,
+                        "request")
+            ex["request"] = build_frame(req.cnt, cmd_id, data)
+        elif req.printed or ec:
+            e = errata.add(
+                order=order, kind="unrecoverable_example", commands=[sec.key], table=rv.table,
+                cmd_id=cmd_id, manual_text=req.printed or "(nothing printed)",
+                adopted="request: null",
+                note=ec.get("why", f"The {where} example request cannot be recovered."),
+            )
+            links.append((str(i), e))
+        # ---- reply
+        if rep.data is not None and rep.cnt is not None and rep.cmd_id is not None:
+            check_frame(rep, rep.data, name, sec.key, rv.table, cmd_id, order, errata, links, i,
+                        "reply")
+            ex["reply"] = build_frame(rep.cnt, cmd_id, rep.data)
+            reply_datas.append(rep.data)
+        elif rep.printed:
+            e = errata.add(
+                order=order, kind="unrecoverable_example", commands=[sec.key], table=rv.table,
+                cmd_id=cmd_id, manual_text=rep.printed, adopted="reply: null",
+                note=ec.get("reply_why", f"The {where} example reply cannot be recovered."),
+            )
+            links.append((str(i), e))
+        for ce in ec.get("errata") or []:
+            e = errata.add(order=order, kind=ce["kind"], commands=[sec.key], table=rv.table,
+                           cmd_id=ce.get("cmd_id", cmd_id), manual_text=ce["manual_text"],
+                           adopted=ce["adopted"], note=ce.get("note", ce.get("why", "")))
+            links.append((str(i), e))
+        examples.append(ex)
+
+    form = vcorr.get("form") or (forms[0] if forms else "call")
+    # quoted strings, from the examples
+    for p in params:
+        if p["type"] == "string" and "quoted" not in p:
+            p["quoted"] = True
+    for args in req_args:
+        for p, a in zip(params, args, strict=False):
+            if p["type"] == "string" and "quoted_fixed" not in p:
+                p["quoted"] = a.strip().startswith('"')
+    for p in params:
+        p.pop("quoted_fixed", None)
+    sep = vcorr.get("separator")
+    if sep is None:
+        sep = ","
+        if len(rvals) > 1 and any(" " in d and "," not in d for d in reply_datas):
+            sep = " "
+    variant = {
+        "table": rv.table,
+        "caption": rv.caption,
+        "form": form,
+        "params": params,
+        "returns": {"separator": sep, "values": rvals},
+        "examples": examples,
+    }
+    return variant, links
+
+
+def clean_ws(s: str) -> str:
+    return re.sub(r"\s+", " ", s).strip()
+
+
+def close_name(a: str, b: str) -> bool:
+    """Names equal up to OCR noise (a stray/missing letter, case)."""
+    x, y = a.lower().replace(" ", ""), b.lower()
+    if x == y:
+        return True
+    return difflib.SequenceMatcher(None, norm_name_key(x), norm_name_key(y)).ratio() >= 0.9
+
+
+def check_frame(f: FrameText, data: str, name: str, key: str, table: str, cmd_id: int,
+                order: tuple[int, int], errata: Errata, links: list[tuple[str, dict[str, Any]]],
+                i: int, what: str) -> None:
+    assert f.length is not None and f.cmd_id is not None and f.data is not None
+    if f.separators and any(s != "III" for s in f.separators):
+        e = errata.add(order=order, kind="separator_typo", commands=[key], table=table,
+                       cmd_id=cmd_id, manual_text=f.printed,
+                       adopted="III separators",
+                       note=f"The {what} frame of {name} table {table} prints a separator "
+                            f"other than III.")
+        links.append((str(i), e))
+    if int(f.cmd_id) != cmd_id:
+        e = errata.add(order=order, kind="example_cmd_id_mismatch", commands=[key], table=table,
+                       cmd_id=cmd_id, manual_text=f.printed,
+                       adopted=f"CMD_ID {cmd_id} (the table's 指令号)",
+                       note=f"The {what} frame of {name} table {table} uses CMD_ID {f.cmd_id}; "
+                            f"the table gives {cmd_id}.")
+        links.append((str(i), e))
+    n = utf8len(data)
+    if int(f.length) != utf8len(f.data) or int(f.length) != n:
+        e = errata.add(order=order, kind="len_mismatch", commands=[key], table=table,
+                       cmd_id=cmd_id, manual_text=f.printed,
+                       adopted=f"LEN {n}",
+                       note=f"The {what} frame of {name} table {table} prints LEN {f.length} "
+                            f"but its DATA is {utf8len(f.data)} bytes.")
+        links.append((str(i), e))
+
+
+def row_to_param(r: Row) -> dict[str, Any]:
+    t = normalise_type(r.printed_type, r.name)
+    p: dict[str, Any] = {"name": t["name"], "type": t["type"], "printed_type": r.printed_type}
+    p["length"] = t["length"]
+    p["max_length"] = t["max_length"]
+    if t["type"] == "string":
+        p["quoted"] = True
+    p["unit"] = parse_unit(r.description)
+    p["range"] = parse_range(r.description) if t["type"] != "string" else None
+    p["enum"] = parse_enum(r.description) if t["type"] != "string" else None
+    p["description"] = r.description
+    return p
+
+
+def complete_param(p: dict[str, Any]) -> dict[str, Any]:
+    """A parameter given in the corrections file: fill the derivable fields."""
+    desc = p.get("description", "")
+    pt = p.get("printed_type", p.get("type", "int"))
+    t = normalise_type(pt, p["name"])
+    out: dict[str, Any] = {"name": t["name"], "type": p.get("type_override", t["type"]),
+                           "printed_type": pt}
+    out["length"] = p.get("length", t["length"])
+    out["max_length"] = p.get("max_length", t["max_length"])
+    if out["type"] == "string":
+        out["quoted"] = p.get("quoted", True)
+        if "quoted" in p:
+            out["quoted_fixed"] = True
+    out["unit"] = p.get("unit", parse_unit(desc))
+    out["range"] = p.get("range", parse_range(desc) if out["type"] != "string" else None)
+    out["enum"] = p.get("enum", parse_enum(desc) if out["type"] != "string" else None)
+    out["description"] = desc
+    return out
+
+
+def row_to_return(r: Row) -> dict[str, Any]:
+    t = normalise_type(r.printed_type, r.name)
+    return {
+        "name": t["name"], "type": t["type"], "printed_type": r.printed_type,
+        "length": t["length"], "max_length": t["max_length"],
+        "unit": parse_unit(r.description), "description": r.description,
+    }
+
+
+def complete_return(r: dict[str, Any]) -> dict[str, Any]:
+    desc = r.get("description", "")
+    pt = r.get("printed_type", r.get("type", "int"))
+    t = normalise_type(pt, r["name"])
+    out = {
+        "name": t["name"], "type": t["type"], "printed_type": pt,
+        "length": r.get("length", t["length"]), "max_length": r.get("max_length", t["max_length"]),
+        "unit": r.get("unit", parse_unit(desc)), "description": desc,
+    }
+    if "volatile" in r:
+        out["volatile"] = bool(r["volatile"])
+    return out
+
+
+# --------------------------------------------------------------------------- error codes
+
+
+def parse_error_codes(lines: list[str], start: int) -> list[dict[str, Any]]:
+    rows: list[dict[str, Any]] = []
+    for ln in lines[start:]:
+        cs = [c.strip() for c in ln.split("\t") if c.strip()]
+        if not cs:
+            continue
+        m = re.fullmatch(r"(\d+)", cs[0])
+        if m and len(cs) >= 2:
+            rows.append({"code": int(m.group(1)), "meaning": clean_text(cs[1]),
+                         "remedy": clean_text(" ".join(cs[2:]))})
+        elif rows and not re.search(r"用户手册|^\d+\s*/\s*\d+|错误码|^表", ln):
+            rows[-1]["remedy"] = clean_text(rows[-1]["remedy"] + " " + " ".join(cs))
+    for r in rows:
+        if re.fullmatch(r"[,，\s]*", r["remedy"]):
+            r["remedy"] = ""
+    rows.sort(key=lambda r: r["code"])
+    return rows
+
+
+# --------------------------------------------------------------------------- output
+
+
+def dump(doc: dict[str, Any]) -> str:
+    return json.dumps(doc, indent=2, ensure_ascii=False) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--manual", type=Path, default=DEFAULT_MANUAL)
+    ap.add_argument("--corrections", type=Path, default=DEFAULT_CORRECTIONS)
+    ap.add_argument("--out", type=Path, default=DEFAULT_OUT)
+    ap.add_argument("--check", action="store_true",
+                    help="compare with the committed files; exit 1 with a diff if they differ")
+    args = ap.parse_args(argv)
+    docs = build(args.manual, load_corrections(args.corrections))
+    rc = 0
+    for name, doc in docs.items():
+        path = args.out / f"{name}.json"
+        new = dump(doc)
+        if args.check:
+            old = path.read_text(encoding="utf-8") if path.exists() else ""
+            if old != new:
+                rc = 1
+                sys.stdout.writelines(difflib.unified_diff(
+                    old.splitlines(keepends=True), new.splitlines(keepends=True),
+                    fromfile=str(path), tofile=f"{path} (regenerated)"))
+        else:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_text(new, encoding="utf-8")
+    return rc
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
