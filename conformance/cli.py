@@ -1,0 +1,65 @@
+"""The ``fairino-conformance`` command line.
+
+Each module in :mod:`conformance.commands` contributes sub-commands through a
+``register(subparsers)`` function that sets ``func`` on its parsers; ``func``
+takes the parsed arguments and returns the exit code.  User mistakes raise
+:class:`~conformance.errors.UsageError` (or another ``ConformanceError``) and are
+printed as one line, never as a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import pkgutil
+import sys
+from collections.abc import Sequence
+
+from . import __version__, commands
+from .errors import ConformanceError
+
+__all__ = ["EXIT_ERROR", "EXIT_FAIL", "EXIT_OK", "build_parser", "main"]
+
+EXIT_OK = 0
+#: Conformance failures (or, for ``decode --strict``, malformed input).
+EXIT_FAIL = 1
+#: Kit error, bad usage, unreachable target.
+EXIT_ERROR = 2
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="fairino-conformance",
+        description="Conformance kit and traffic recorder for the FAIRINO text command protocol.",
+    )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
+        if info.name.startswith("_"):
+            continue
+        module = importlib.import_module(f"{commands.__name__}.{info.name}")
+        module.register(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        code = args.func(args)
+    except ConformanceError as e:
+        print(f"fairino-conformance {args.command}: error: {e}", file=sys.stderr)
+        return EXIT_ERROR
+    except OSError as e:
+        print(f"fairino-conformance {args.command}: error: {e.strerror or e}"
+              + (f": {e.filename}" if e.filename else ""), file=sys.stderr)
+        return EXIT_ERROR
+    except KeyboardInterrupt:
+        print(f"fairino-conformance {args.command}: interrupted", file=sys.stderr)
+        return 130
+    return int(code)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""Sub-commands of the CLI: every public module here has ``register(subparsers)``."""
