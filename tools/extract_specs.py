@@ -101,6 +101,7 @@ class FrameText:
     length: str | None = None
     data: str | None = None
     separators: tuple[str, ...] = ()
+    parts: list[str] = field(default_factory=list)
 
 
 @dataclass
@@ -325,31 +326,98 @@ def frame_ok(f: FrameText) -> bool:
     return f.data is not None and f.length is not None and utf8len(f.data) == int(f.length)
 
 
+def _boundary_options(a: str, b: str) -> list[tuple[str, int]]:
+    """Ways two adjacent cut cells may join: (text of b to append, cost)."""
+    opts: list[tuple[str, int]] = [(b, 0)]
+    for k in range(1, min(len(a), len(b), 40) + 1):
+        if a.endswith(b[:k]):
+            opts.append((b[k:], 1))  # the cut repeated k characters
+    if b[:1] in "1l]|" and a.endswith("I"):
+        opts.append(("I" + b[1:], 1))  # an I of the separator read as 1 / l / ]
+        opts.append((b[1:], 1))
+    if b[:1] == "I" and a.endswith("III"):
+        opts.append((b[1:], 1))
+    return opts
+
+
+def frame_candidates(parts: list[str], *, request: bool) -> list[tuple[FrameText, int]]:
+    """All readings of a frame cut into cells, with the number of repairs each needs."""
+    ps = [re.sub(r"(?<=I)[\]|l](?=$)", "I", p.strip()) for p in parts if p.strip()]
+    if not ps:
+        return []
+    texts: list[tuple[str, int]] = [(ps[0], 0)]
+    for nxt in ps[1:]:
+        new: list[tuple[str, int]] = []
+        for t, cost in texts:
+            for add, c in _boundary_options(t, nxt):
+                new.append((t + add, cost + c))
+                new.append((t + " " + add, cost + c))
+            # overlapping cells: b restarts inside the text of a (a cut copy of its head)
+            for k in range(len(nxt), 2, -1):
+                pos = t.rfind(nxt[:k])
+                if pos > 0 and pos + k < len(t):
+                    new.append((t[:pos] + nxt, cost + 1))
+                    break
+        texts = new[:512]
+    out: list[tuple[FrameText, int]] = []
+    for t, cost in texts:
+        variants = [(t, cost)]
+        if request:
+            variants.append((strip_spaces_outside_quotes(t), cost))
+        else:
+            variants.append((re.sub(r"\s*,\s*", ",", t), cost))
+        if not request:
+            # "1III1III/b/f" printed as "1IIIIIII/b/f": the errcode digit lost in the cut
+            variants += [(re.sub(r"(III\d+III)I{3,4}/b/f$", r"\g<1>1III/b/f", v), c + 1)
+                         for v, c in list(variants)]
+        for v, c in variants:
+            f = parse_frame(re.sub(r"\s*(I{2,4})\s*", r"\1", v.strip()))
+            if f is not None:
+                out.append((f, c))
+    return out
+
+
+def strip_spaces_outside_quotes(s: str) -> str:
+    out: list[str] = []
+    quote = False
+    for ch in s:
+        if ch == '"':
+            quote = not quote
+        if ch.isspace() and not quote:
+            continue
+        out.append(ch)
+    return "".join(out)
+
+
+def choose_frame(parts: list[str], *, name: str, cmd_id: int, request: bool) -> FrameText | None:
+    best: tuple[tuple[int, ...], FrameText] | None = None
+    for f, cost in frame_candidates(parts, request=request):
+        assert f.data is not None and f.cmd_id is not None
+        form, dname, _args = data_shape(f.data)
+        score = (
+            4 * all(s == "III" for s in f.separators)
+            + 4 * (int(f.cmd_id) == cmd_id)
+            + 2 * frame_ok(f)
+            + 2 * (not request or dname == name or (form == "keyword" and f.data == name)),
+            -cost,
+            -len(f.data),
+        )
+        if best is None or score > best[0]:
+            best = (score, f)
+    if best is None:
+        return None
+    f = best[1]
+    f.printed = " ".join(p.strip() for p in parts if p.strip())
+    return f
+
+
 def assemble_frames(tokens: list[str]) -> list[FrameText]:
-    """Reassemble frames from the example cells of one table (cells cut at arbitrary points)."""
+    """Group the example cells of one table into frames (each a list of cut cells)."""
     out: list[FrameText] = []
     acc: list[str] = []
 
-    def flush_candidates(parts: list[str]) -> FrameText | None:
-        joined = "".join(parts)
-        cands: list[FrameText] = []
-        f = parse_frame(joined)
-        if f is not None:
-            cands.append(f)
-        # overlapping cells: a truncated prefix cell followed by the frame's tail
-        for k in range(1, len(parts)):
-            head = "".join(parts[:k])
-            tail = "".join(parts[k:])
-            for cut in range(len(head), 3, -1):
-                g = parse_frame(head[:cut] + tail)
-                if g is not None:
-                    cands.append(g)
-        if not cands:
-            return None
-        good = [c for c in cands if frame_ok(c) and all(s == "III" for s in c.separators)]
-        best = good[0] if good else cands[0]
-        best.printed = " ".join(p for p in parts if p)
-        return best
+    def flush_candidates(parts: list[str]) -> FrameText:
+        return FrameText(printed=" ".join(p for p in parts if p), parts=list(parts))
 
     for tok in tokens:
         t = tok.strip()
@@ -370,22 +438,18 @@ def assemble_frames(tokens: list[str]) -> list[FrameText]:
             if q >= 0 and (nxt < 0 or q < nxt):
                 acc.append(t[: q + 4])
                 t = t[q + 4:]
-                f = flush_candidates(acc)
-                if f is not None:
-                    out.append(f)
-                else:
-                    out.append(FrameText(printed=" ".join(acc)))
+                out.append(flush_candidates(acc))
                 acc = []
             elif nxt > 0:
                 acc.append(t[:nxt])
-                out.append(FrameText(printed=" ".join(acc)))
+                out.append(flush_candidates(acc))
                 acc = []
                 t = t[nxt:]
             else:
                 acc.append(t)
                 t = ""
     if acc:
-        out.append(FrameText(printed=" ".join(acc)))
+        out.append(flush_candidates(acc))
     return out
 
 
@@ -443,8 +507,15 @@ def parse_variant(table: str, caption: str, line: int, body: list[tuple[int, str
                 if not c:
                     continue
                 if "发送帧" in c and "接收帧" in c:
-                    ex_mode = "both"
-                    rest = c.split("接收帧", 1)[1]
+                    head, rest = c.split("接收帧", 1)
+                    head = head.split("发送帧", 1)[-1].strip()
+                    if head or rest.strip():
+                        # "发送帧 <frame> 接收帧 <frame>" in one cell
+                        if head:
+                            req_tokens.append(head)
+                        ex_mode = "rep"
+                    else:
+                        ex_mode = "both"
                     c = rest
                 elif "发送帧" in c:
                     ex_mode = "req"
@@ -838,6 +909,8 @@ def build_variant(
     for i in range(n_ex):
         req = rv.requests[i] if i < len(rv.requests) else FrameText(printed="")
         rep = rv.replies[i] if i < len(rv.replies) else FrameText(printed="")
+        req = choose_frame(req.parts, name=name, cmd_id=cmd_id, request=True) or req
+        rep = choose_frame(rep.parts, name=name, cmd_id=cmd_id, request=False) or rep
         ec = ex_corr[i] if i < len(ex_corr) else {}
         if "request" in ec:
             f = parse_frame(ec["request"]) if ec["request"] else None
@@ -977,7 +1050,7 @@ def check_frame(f: FrameText, data: str, name: str, key: str, table: str, cmd_id
                             f"the table gives {cmd_id}.")
         links.append((str(i), e))
     n = utf8len(data)
-    if int(f.length) != utf8len(f.data) or int(f.length) != n:
+    if int(f.length) != n:
         e = errata.add(order=order, kind="len_mismatch", commands=[key], table=table,
                        cmd_id=cmd_id, manual_text=f.printed,
                        adopted=f"LEN {n}",
