@@ -81,10 +81,13 @@ def test_files_are_pretty_printed_with_trailing_newline(raw: dict[str, dict[str,
 
 
 def test_counts(specs: SpecSet) -> None:
-    assert len(specs.commands) >= 350
-    assert sum(len(c.variants) for c in specs) >= 365
-    assert len({c.cmd_id for c in specs}) >= 345
+    assert len(specs.commands) >= 345
+    assert sum(len(c.variants) for c in specs) >= 360
+    assert len({c.cmd_id for c in specs}) >= 340
     assert len(specs.error_codes) >= 120
+    examples = [ex for c in specs for v in c.variants for ex in v.examples]
+    assert len(examples) >= 350
+    assert sum(ex.request is not None for ex in examples) >= 300
 
 
 def test_unique_keys(raw: dict[str, dict[str, Any]]) -> None:
@@ -163,6 +166,57 @@ def test_example_frames_are_consistent(specs: SpecSet) -> None:
 def test_errata_reference_existing_commands(specs: SpecSet) -> None:
     keys = {c.key for c in specs}
     for e in specs.errata:
-        assert e.commands, e.id
+        # errata of the error-code table (chapter 9) concern no command
+        assert e.commands or e.table == "9-1", e.id
         assert set(e.commands) <= keys, (e.id, e.commands)
     assert [e.id for e in specs.errata] == [f"E{i:03d}" for i in range(1, len(specs.errata) + 1)]
+
+
+def _example_errata(specs: SpecSet, name: str, table: str) -> list[str]:
+    (cmd,) = specs.by_name(name)
+    v = next(v for v in cmd.variants if v.table == table)
+    kinds = []
+    for ex in v.examples:
+        for eid in ex.errata:
+            e = specs.erratum(eid)
+            assert e is not None
+            kinds.append(f"{e.kind}:{e.manual_text}")
+    return kinds
+
+
+def test_known_errata(specs: SpecSet) -> None:
+    movec = _example_errata(specs, "MoveC", "2-5")
+    assert any(k.startswith("example_wrong_name:") and "MoveJ(" in k for k in movec)
+    toolao = _example_errata(specs, "SetToolAO", "3-2-3")
+    assert any(k.startswith("example_cmd_id_mismatch:") and "209" in k for k in toolao)
+    kinds = Counter(e.kind for e in specs.errata)
+    assert kinds["len_mismatch"] >= 20
+    assert kinds["duplicate_cmd_id"] >= 3
+    dup = [e for e in specs.errata if e.kind == "duplicate_cmd_id" and e.cmd_id == 564]
+    assert dup and set(dup[0].commands) == {"3.3.5", "3.3.7"}
+    for cmd in specs.by_id(564):
+        assert cmd.cmd_id == 564  # both commands keep the ID
+
+
+def test_unrecoverable_examples_are_explained(specs: SpecSet) -> None:
+    for c in specs:
+        for v in c.variants:
+            for ex in v.examples:
+                if ex.request is None or ex.reply is None:
+                    kinds = {specs.erratum(e).kind for e in ex.errata}  # type: ignore[union-attr]
+                    assert "unrecoverable_example" in kinds, (c.key, v.table)
+
+
+def test_string_params_and_quoting(specs: SpecSet) -> None:
+    (ipconf,) = specs.by_name("RobotIPConfig")
+    assert ipconf.variants[0].params[0].type == "string"
+    assert ipconf.variants[0].params[0].quoted is False
+    (movecart,) = specs.by_name("MoveCart")
+    pos = movecart.variants[0].params[0]
+    assert pos.type == "float" and pos.length == 6
+
+
+def test_gripper_replies_are_space_separated(specs: SpecSet) -> None:
+    (g,) = specs.by_name("GetGripperCurPosition")
+    assert g.variants[0].returns.separator == " "
+    assert g.variants[0].returns.values[1].volatile

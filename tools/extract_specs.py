@@ -263,25 +263,60 @@ def _has_content(lines: list[tuple[int, str]]) -> bool:
     return any(("指令号" in ln or "指今号" in ln or "发送帧" in ln) for _, ln in lines)
 
 
+TYPE_WORD = r"(?:u?int(?:8|16|32|64)?(?:_t)?|float|double|char|string|table)"
+
+
+def _split_cells(cs: list[str]) -> list[str]:
+    """Split cells where the PDF merged 'index type name' into one ("2 int avera")."""
+    out: list[str] = []
+    for j, c in enumerate(cs):
+        m = re.fullmatch(rf"(\d{{1,2}})\s+({TYPE_WORD}(?:\[\d+\])?)(?:\s+(\S+))?", c)
+        if m:
+            out += [m.group(1), m.group(2)]
+            nxt = next((x for x in cs[j + 1:] if x), "")
+            if m.group(3) and not nxt.startswith(m.group(3)):
+                out.append(m.group(3))
+        else:
+            out.append(c)
+    return out
+
+
 def parse_row(cs: list[str]) -> Row | None:
     """A parameter/return row: [label] index type name description."""
-    cs2 = [c for c in cs]
+    cs2 = _split_cells(cs)
+    found = _parse_row_at(cs2)
+    if found is not None:
+        return found
+    # a row whose index cell was lost: [label] type name description
+    for i, c in enumerate(cs2[:3]):
+        if re.fullmatch(TYPE_WORD + r"(?:\[\d+\])?", c) and i + 1 < len(cs2) \
+                and re.fullmatch(r"[A-Za-z_][\w\[\] ]*", cs2[i + 1] or "-"):
+            label = " ".join(x for x in cs2[:i] if x)
+            if label and not re.search(r"[参数返回值奴致]", label):
+                return None
+            return Row(index=None, printed_type=c, name=cs2[i + 1],
+                       description=clean_text(" ".join(cs2[i + 2:])), label=label)
+    return None
+
+
+def _parse_row_at(cs2: list[str]) -> Row | None:
     for i in range(len(cs2) - 1):
-        c = cs2[i]
-        if not re.fullmatch(r"\d{1,2}", c):
+        m_idx = re.fullmatch(r"(?:[^\x00-\x7f]+\s*)?(\d{1,2})", cs2[i])
+        if not m_idx:
             continue
+        c = m_idx.group(1)
         rest = [x for x in cs2[i + 1:]]
         while rest and rest[0] == "":
             rest.pop(0)
         if not rest:
-            return None
+            continue
         t = rest[0]
         name = rest[1] if len(rest) > 1 else ""
         tm = re.match(
             r"^(u?int(?:8|16|32|64)?(?:_t)?|float|double|char|string|table)\b\s*(.*)$", t
         )
         if not tm:
-            return None
+            continue
         typ = tm.group(1)
         extra = tm.group(2).strip()
         desc_cells = rest[2:]
@@ -345,6 +380,22 @@ def frame_candidates(parts: list[str], *, request: bool) -> list[tuple[FrameText
     ps = [re.sub(r"(?<=I)[\]|l](?=$)", "I", p.strip()) for p in parts if p.strip()]
     if not ps:
         return []
+    # OCR forms of the separator and the tail: "]]]"/"ПП" for III, "[" debris, "/b/1"
+    ocr = [re.sub(r"\[(?=\d)", "", p.replace("ПП", "III").replace("]", "I").replace("|", "I"))
+           for p in ps]
+    if ocr[-1].endswith(("/b/1", "/b/", "III/b")):
+        ocr[-1] = re.sub(r"/b(?:/1?)?$", "/b/f", ocr[-1])
+    if request and re.search(r"III[A-Za-z_]\w*\(.*\)$", ocr[-1]):
+        ocr[-1] += "III/b/f"  # frame tail lost after a complete DATA
+    ocr = [p.replace("·", "").strip() for p in ocr]
+    if ocr != ps:
+        return frame_candidates_exact(ps, request=request) + [
+            (f, c + 1) for f, c in frame_candidates_exact(ocr, request=request)
+        ]
+    return frame_candidates_exact(ps, request=request)
+
+
+def frame_candidates_exact(ps: list[str], *, request: bool) -> list[tuple[FrameText, int]]:
     texts: list[tuple[str, int]] = [(ps[0], 0)]
     for nxt in ps[1:]:
         new: list[tuple[str, int]] = []
@@ -471,10 +522,13 @@ def parse_variant(table: str, caption: str, line: int, body: list[tuple[int, str
         if state in ("params", "returns"):
             m = re.search(r"指[令今]号\s*(\d+)(?:\s*[/、,，]\s*(\d+))?", joined)
             if m:
-                v.printed_cmd_id = clean_text(joined)
+                v.printed_cmd_id = clean_text(joined[: m.end()])
                 v.cmd_ids = [int(x) for x in m.groups() if x]
                 state = "ids"
-                continue
+                tail = joined[m.end():]
+                if "发送帧" not in tail and "接收帧" not in tail:
+                    continue
+                cs = [tail]  # a flattened table: the examples follow on the same line
             rr = parse_return_row(cs)
             row = rr or parse_row(cs)
             if row is not None:
@@ -532,6 +586,8 @@ def parse_variant(table: str, caption: str, line: int, body: list[tuple[int, str
                     rep_tokens.append(c)
     if req_tokens or rep_tokens:
         frames = assemble_frames(req_tokens)
+        if not frames and req_tokens:
+            frames = [FrameText(printed=clean_text(" ".join(req_tokens)))]
         rep_frames = assemble_frames(rep_tokens)
         if len(frames) >= 2 and not rep_frames:
             # "发送帧 接收帧" printed side by side: request then reply
@@ -640,6 +696,13 @@ def parse_enum(desc: str) -> list[dict[str, Any]] | None:
 DESTRUCTIVE = {
     "ShutDownRobotOS", "RobotIPConfig", "SetRobotType", "SetQNXSystemTime",
     "SetSingleEnconderZeroStart", "SetSingleEnconderZeroStop", "SetAllDHCompensation",
+    "LaserTrackingSensorIPConfig",
+}
+#: Commands that drive process outputs (arc, gas, wire feed, laser, weld AO).
+IO_NAMES = {
+    "ARCStart", "ARCEnd", "SetAspirated", "SetForwardWireFeed", "SetReverseWireFeed",
+    "LaserTrackingLaserOn", "LaserTrackingLaserOff", "SetWeldingVoltage", "SetWeldingCurrent",
+    "WeldingSetCurrert", "WeldingSetVoltage", "WeldingSetCurrent",
 }
 IO_PREFIXES = (
     "SetDO", "SetAO", "SetToolDO", "SetToolAO", "SetAuxDO", "SetAuxAO", "SetAxleExtDO",
@@ -663,7 +726,7 @@ def classify(name: str, form: str) -> str:
         return "program"
     if MOTION_RE.match(name):
         return "motion"
-    if name.startswith(IO_PREFIXES):
+    if name.startswith(IO_PREFIXES) or name in IO_NAMES:
         return "io"
     if re.match(r"^(?:Get|ExtAxisGet|ExtDevGet|ConveyorGet|WeldingGet)", name) or re.search(
         r"Get[A-Z]", name
@@ -841,15 +904,28 @@ def build(manual: Path, corrections: dict[str, Any]) -> dict[str, dict[str, Any]
                    table=e.get("table"), cmd_id=e.get("cmd_id"), manual_text=e["manual_text"],
                    adopted=e["adopted"], note=e.get("note", e.get("why", "")))
 
+    commands.sort(key=lambda c: section_sort_key(c["key"]))
+    error_codes = parse_error_codes(lines, end)
+    seen_codes: dict[int, dict[str, Any]] = {}
+    for ec_row in error_codes:
+        prev = seen_codes.get(ec_row["code"])
+        if prev is not None:
+            errata.add(
+                order=(end + 1, ec_row["code"]), kind="table_inconsistency", commands=[],
+                table="9-1", cmd_id=None,
+                manual_text=f"{prev['code']} {prev['meaning']} / {ec_row['code']} "
+                            f"{ec_row['meaning']}",
+                adopted="both rows kept as printed",
+                note=f"Error code {ec_row['code']} is given twice in table 9-1 (the rows around "
+                     "it are damaged: 106 has no meaning, 107 is missing); needs a human decision.",
+            )
+        seen_codes.setdefault(ec_row["code"], ec_row)
     errata.finalise()
     for variant, links in pending_examples:
         grouped = links_by_example(links, len(variant["examples"]))
         for ex, refs in zip(variant["examples"], grouped, strict=True):
             ex["errata"] = sorted({r["id"] for r in refs})
     del pending_examples
-
-    commands.sort(key=lambda c: section_sort_key(c["key"]))
-    error_codes = parse_error_codes(lines, end)
     return {
         "commands": {"kind": "commands", "spec_version": SPEC_VERSION, "source": manual.name,
                      "commands": commands},
@@ -879,6 +955,8 @@ def fix_name(printed: str, variants: list[RawVariant]) -> str:
     n = re.sub(r"(?<=[a-z]|[A-Z])Al(?=$|[A-Z])", "AI", n)  # SetVirtualAl -> SetVirtualAI
     n = re.sub(r"(?<=[A-Z])l(?=Config|FilterTime|O)", "I", n)  # SetToolDlConfig -> SetToolDIConfig
     n = n.replace("lPConfig", "IPConfig").replace("Extl", "ExtI")
+    n = re.sub(r"(?<=[a-z])lO(?=[A-Z])", "IO", n)  # ConveyorlODetect -> ConveyorIODetect
+    n = n.replace("Cogl", "CogI")  # FT_PdCogldenCompute -> FT_PdCogIdenCompute
     return n
 
 
@@ -951,7 +1029,7 @@ def build_variant(
                 data = fixed
                 if args is not None:
                     req_args.append(args)
-                    if len(args) != len(params) and params and not ec.get("arg_count_ok"):
+                    if len(args) != len(params) and not ec.get("arg_count_ok"):
                         e = errata.add(
                             order=order, kind="example_arg_count", commands=[sec.key],
                             table=rv.table, cmd_id=cmd_id, manual_text=req.printed,
@@ -964,7 +1042,7 @@ def build_variant(
             check_frame(req, data, name, sec.key, rv.table, cmd_id, order, errata, links, i,
                         "request")
             ex["request"] = build_frame(req.cnt, cmd_id, data)
-        elif req.printed or ec:
+        else:
             e = errata.add(
                 order=order, kind="unrecoverable_example", commands=[sec.key], table=rv.table,
                 cmd_id=cmd_id, manual_text=req.printed or "(nothing printed)",
@@ -978,10 +1056,25 @@ def build_variant(
                         "reply")
             ex["reply"] = build_frame(rep.cnt, cmd_id, rep.data)
             reply_datas.append(rep.data)
-        elif rep.printed:
+        elif (rep.printed.startswith("/f/b") and req.cnt is not None and len(rvals) == 1
+              and rvals[0]["name"].lower() == "errcode" and "reply" not in ec):
+            m = re.match(r"/f/bI{2,3}(\d+)", rep.printed)
+            cnt = m.group(1) if m and m.group(1) == req.cnt else req.cnt
+            adopted = build_frame(cnt, cmd_id, "1")
+            e = errata.add(
+                order=order, kind="ocr_damage", commands=[sec.key], table=rv.table,
+                cmd_id=cmd_id, manual_text=rep.printed, adopted=adopted,
+                note=f"The {where} example reply is cut off in the text; the command "
+                     "returns only errcode, so the manual's success reply (errcode 1) "
+                     "with the request's CNT is adopted.",
+            )
+            links.append((str(i), e))
+            ex["reply"] = adopted
+        else:
             e = errata.add(
                 order=order, kind="unrecoverable_example", commands=[sec.key], table=rv.table,
-                cmd_id=cmd_id, manual_text=rep.printed, adopted="reply: null",
+                cmd_id=cmd_id, manual_text=rep.printed or "(no reply printed)",
+                adopted="reply: null",
                 note=ec.get("reply_why", f"The {where} example reply cannot be recovered."),
             )
             links.append((str(i), e))
