@@ -1,0 +1,1013 @@
+"""The MCAP layout of a recording, its writer and reader, and the sans-I/O stream recorder.
+
+A recording is an MCAP file whose messages are JSON documents described by JSON
+schemas (``json`` message encoding, ``jsonschema`` schema encoding), so Foxglove
+and the ``mcap`` command-line tools open it as it is.  The topics are stable:
+
+=========================  ====================  ===========================================
+topic                      schema                one message per
+=========================  ====================  ===========================================
+``/fairino/c2s``           ``fairino.Frame``     frame sent by a client to the controller
+``/fairino/s2c``           ``fairino.Frame``     frame sent by the controller to a client
+``/fairino/problems``      ``fairino.Problem``   malformed bytes, partial frame, capture gap
+``/fairino/connections``   ``fairino.Connection`` connection opened, closed or refused
+=========================  ====================  ===========================================
+
+and one metadata record, ``fairino.recording`` (kit and spec version, source,
+upstream, listen address, start time, host, segment number).  A frame message's
+log time is the time its last byte arrived, its publish time the time its first
+byte arrived (both ns since the Unix epoch).
+
+:class:`StreamRecorder` is the one path from bytes to records: the proxy feeds it
+socket reads, the pcap importer reassembled segments, so both produce recordings
+that read and diff alike.  It is sans-I/O: the caller passes the bytes and the
+times they were seen (STYLE.md, convention 1).
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import os
+import re
+import socket
+import time
+from collections import deque
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any, Literal, Protocol
+
+from . import __version__
+from .frame import DEFAULT_MAX_FRAME_SIZE, Event, Frame, FrameDecoder, Malformed, decode_all
+from .spec import SpecSet
+
+__all__ = [
+    "C2S",
+    "FORMAT",
+    "METADATA_NAME",
+    "PROBLEM_RAW_LIMIT",
+    "S2C",
+    "SCHEMAS",
+    "TOPIC_C2S",
+    "TOPIC_CONNECTIONS",
+    "TOPIC_PROBLEMS",
+    "TOPIC_S2C",
+    "ConnectionRecord",
+    "Exchange",
+    "FrameRecord",
+    "ProblemRecord",
+    "Recording",
+    "RecordingWriter",
+    "RotatingWriter",
+    "StreamRecorder",
+    "read_recording",
+    "recover",
+]
+
+Direction = Literal["c2s", "s2c"]
+#: Client to controller (requests).
+C2S: Direction = "c2s"
+#: Controller to client (replies).
+S2C: Direction = "s2c"
+
+TOPIC_C2S = "/fairino/c2s"
+TOPIC_S2C = "/fairino/s2c"
+TOPIC_PROBLEMS = "/fairino/problems"
+TOPIC_CONNECTIONS = "/fairino/connections"
+METADATA_NAME = "fairino.recording"
+#: Layout version, stored in the metadata; bump on incompatible changes.
+FORMAT = "fairino-conformance/1"
+#: Malformed runs keep at most this many raw bytes (``size`` says how many there were).
+PROBLEM_RAW_LIMIT = 64 * 1024
+
+_B64 = {"type": "string", "contentEncoding": "base64"}
+_CONN = {"type": "integer", "description": "connection number, from 1, unique in the recording"}
+_TRANSPORT = {"type": "string", "enum": ["tcp", "udp"]}
+_DIR = {"type": "string", "enum": ["c2s", "s2c"], "description": "c2s: client to controller"}
+
+#: The JSON schemas of the three message kinds (draft 2020-12).
+SCHEMAS: Mapping[str, Mapping[str, Any]] = {
+    "fairino.Frame": {
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": "fairino.Frame",
+        "description": "One frame /f/bIII{CNT}III{CMD_ID}III{LEN}III{DATA}III/b/f (manual 1.1)",
+        "type": "object",
+        "properties": {
+            "conn": _CONN,
+            "transport": _TRANSPORT,
+            "dir": _DIR,
+            "cnt": {"type": "integer"},
+            "cmd_id": {"type": "integer"},
+            "name": {"type": ["string", "null"], "description": "command name from the specs"},
+            "data": {"type": "string", "description": "DATA as text (invalid UTF-8 replaced)"},
+            "len": {"type": "integer", "description": "LEN as sent"},
+            "problems": {"type": "array", "items": {"type": "string"}},
+            "offset": {"type": "integer", "description": "stream offset of the first byte"},
+            "first_ns": {"type": "integer"},
+            "complete_ns": {"type": "integer"},
+            "raw": _B64,
+        },
+        "required": ["conn", "transport", "dir", "cnt", "cmd_id", "data", "raw", "complete_ns"],
+    },
+    "fairino.Problem": {
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": "fairino.Problem",
+        "description": "Bytes that are not a frame, a partial frame at close, or a capture gap",
+        "type": "object",
+        "properties": {
+            "conn": _CONN,
+            "transport": _TRANSPORT,
+            "dir": _DIR,
+            "kind": {"type": "string", "enum": ["malformed", "gap"]},
+            "rule": {"type": "string"},
+            "detail": {"type": "string"},
+            "offset": {"type": "integer"},
+            "size": {"type": "integer", "description": "bytes involved (missing bytes for a gap)"},
+            "first_ns": {"type": "integer"},
+            "complete_ns": {"type": "integer"},
+            "raw": _B64,
+        },
+        "required": ["conn", "dir", "kind", "rule", "size", "complete_ns"],
+    },
+    "fairino.Connection": {
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": "fairino.Connection",
+        "type": "object",
+        "properties": {
+            "conn": _CONN,
+            "transport": _TRANSPORT,
+            "event": {"type": "string", "enum": ["open", "close"]},
+            "t_ns": {"type": "integer"},
+            "client": {"type": "string", "description": "client address host:port"},
+            "upstream": {"type": "string", "description": "controller address host:port"},
+            "local": {"type": "string", "description": "proxy's listening address"},
+            "reason": {"type": "string"},
+            "bytes_c2s": {"type": "integer"},
+            "bytes_s2c": {"type": "integer"},
+            "frames_c2s": {"type": "integer"},
+            "frames_s2c": {"type": "integer"},
+        },
+        "required": ["conn", "event", "t_ns"],
+    },
+}
+
+_TOPICS = {
+    TOPIC_C2S: "fairino.Frame",
+    TOPIC_S2C: "fairino.Frame",
+    TOPIC_PROBLEMS: "fairino.Problem",
+    TOPIC_CONNECTIONS: "fairino.Connection",
+}
+
+_NAME_RE = re.compile(r"\s*([A-Za-z_][A-Za-z0-9_]*)")
+
+
+def _b64(raw: bytes) -> str:
+    return base64.b64encode(raw).decode("ascii")
+
+
+# --------------------------------------------------------------------------- records
+
+
+@dataclass(frozen=True, kw_only=True)
+class FrameRecord:
+    """One recorded frame (topic ``/fairino/c2s`` or ``/fairino/s2c``)."""
+
+    conn: int
+    dir: Direction
+    cnt: int
+    cmd_id: int
+    data: str
+    raw: bytes = field(repr=False)
+    complete_ns: int
+    first_ns: int = 0
+    name: str | None = None
+    length: int | None = None
+    problems: tuple[str, ...] = ()
+    offset: int = 0
+    transport: str = "tcp"
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "conn": self.conn,
+            "transport": self.transport,
+            "dir": self.dir,
+            "cnt": self.cnt,
+            "cmd_id": self.cmd_id,
+            "name": self.name,
+            "data": self.data,
+            "len": self.length if self.length is not None else len(self.data.encode("utf-8")),
+            "problems": list(self.problems),
+            "offset": self.offset,
+            "first_ns": self.first_ns,
+            "complete_ns": self.complete_ns,
+            "raw": _b64(self.raw),
+        }
+
+    @classmethod
+    def from_json(cls, d: Mapping[str, Any]) -> FrameRecord:
+        return cls(
+            conn=d["conn"],
+            transport=d.get("transport", "tcp"),
+            dir=d["dir"],
+            cnt=d["cnt"],
+            cmd_id=d["cmd_id"],
+            name=d.get("name"),
+            data=d["data"],
+            length=d.get("len"),
+            problems=tuple(d.get("problems", ())),
+            offset=d.get("offset", 0),
+            first_ns=d.get("first_ns", d["complete_ns"]),
+            complete_ns=d["complete_ns"],
+            raw=base64.b64decode(d["raw"]),
+        )
+
+    def frame(self) -> Frame:
+        """The frame as the codec's :class:`~conformance.frame.Frame` (for validation)."""
+        from .errors import Rule
+
+        probs = []
+        for p in self.problems:
+            try:
+                probs.append(Rule(p))
+            except ValueError:
+                pass
+        return Frame(
+            cnt=self.cnt,
+            cmd_id=self.cmd_id,
+            data=self.data,
+            length=self.length,
+            raw=self.raw,
+            problems=tuple(probs),
+            offset=self.offset,
+        )
+
+
+@dataclass(frozen=True, kw_only=True)
+class ProblemRecord:
+    """Bytes that were not a frame, or a gap in a capture (topic ``/fairino/problems``)."""
+
+    conn: int
+    dir: Direction
+    kind: str
+    rule: str
+    detail: str
+    size: int
+    complete_ns: int
+    first_ns: int = 0
+    offset: int = 0
+    raw: bytes = field(default=b"", repr=False)
+    transport: str = "tcp"
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "conn": self.conn,
+            "transport": self.transport,
+            "dir": self.dir,
+            "kind": self.kind,
+            "rule": self.rule,
+            "detail": self.detail,
+            "offset": self.offset,
+            "size": self.size,
+            "first_ns": self.first_ns,
+            "complete_ns": self.complete_ns,
+            "raw": _b64(self.raw),
+        }
+
+    @classmethod
+    def from_json(cls, d: Mapping[str, Any]) -> ProblemRecord:
+        return cls(
+            conn=d["conn"],
+            transport=d.get("transport", "tcp"),
+            dir=d["dir"],
+            kind=d["kind"],
+            rule=d["rule"],
+            detail=d.get("detail", ""),
+            offset=d.get("offset", 0),
+            size=d["size"],
+            first_ns=d.get("first_ns", d["complete_ns"]),
+            complete_ns=d["complete_ns"],
+            raw=base64.b64decode(d.get("raw", "")),
+        )
+
+
+@dataclass(frozen=True, kw_only=True)
+class ConnectionRecord:
+    """A connection opened or closed (topic ``/fairino/connections``)."""
+
+    conn: int
+    event: Literal["open", "close"]
+    t_ns: int
+    transport: str = "tcp"
+    client: str = ""
+    upstream: str = ""
+    local: str = ""
+    reason: str = ""
+    bytes_c2s: int = 0
+    bytes_s2c: int = 0
+    frames_c2s: int = 0
+    frames_s2c: int = 0
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "conn": self.conn,
+            "transport": self.transport,
+            "event": self.event,
+            "t_ns": self.t_ns,
+            "client": self.client,
+            "upstream": self.upstream,
+            "local": self.local,
+            "reason": self.reason,
+            "bytes_c2s": self.bytes_c2s,
+            "bytes_s2c": self.bytes_s2c,
+            "frames_c2s": self.frames_c2s,
+            "frames_s2c": self.frames_s2c,
+        }
+
+    @classmethod
+    def from_json(cls, d: Mapping[str, Any]) -> ConnectionRecord:
+        return cls(
+            conn=d["conn"],
+            transport=d.get("transport", "tcp"),
+            event=d["event"],
+            t_ns=d["t_ns"],
+            client=d.get("client", ""),
+            upstream=d.get("upstream", ""),
+            local=d.get("local", ""),
+            reason=d.get("reason", ""),
+            bytes_c2s=d.get("bytes_c2s", 0),
+            bytes_s2c=d.get("bytes_s2c", 0),
+            frames_c2s=d.get("frames_c2s", 0),
+            frames_s2c=d.get("frames_s2c", 0),
+        )
+
+
+Record = FrameRecord | ProblemRecord | ConnectionRecord
+
+
+class RecordSink(Protocol):
+    """Where a :class:`StreamRecorder` puts its records."""
+
+    def write(self, record: Record) -> None: ...
+
+
+# --------------------------------------------------------------------------- writer
+
+
+def default_metadata(**extra: str) -> dict[str, str]:
+    """The ``fairino.recording`` metadata every recording carries."""
+    from .spec import default_specs
+
+    try:
+        spec_version = default_specs().spec_version
+    except Exception:  # a recording without specs is still a recording
+        spec_version = ""
+    now = time.time_ns()
+    md = {
+        "format": FORMAT,
+        "kit_version": __version__,
+        "spec_version": spec_version,
+        "start_ns": str(now),
+        "start_time": time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(now / 1e9))
+        + f".{now % 1_000_000_000 // 1000:06d}Z",
+        "host": socket.gethostname(),
+    }
+    md.update({k: str(v) for k, v in extra.items()})
+    return md
+
+
+class RecordingWriter:
+    """Writes records to one MCAP file (or stream) in the layout described above.
+
+    :meth:`flush` ends the current chunk and pushes it to the OS: a writer flushed
+    once a second loses at most that second if the process is killed, and
+    :func:`recover` turns the unfinished file into a valid, indexed one.
+    """
+
+    def __init__(
+        self,
+        output: str | os.PathLike[str] | IO[bytes],
+        *,
+        metadata: Mapping[str, str] | None = None,
+        compression: str = "zstd",
+        chunk_size: int = 1024 * 1024,
+    ) -> None:
+        from mcap.writer import CompressionType, Writer
+
+        if isinstance(output, (str, os.PathLike)):
+            self._file: IO[bytes] | None = open(output, "wb")  # noqa: SIM115 (closed in close())
+            stream: IO[bytes] = self._file
+            self.path: str | None = os.fspath(output)
+        else:
+            self._file = None
+            stream = output
+            self.path = None
+        self._stream = stream
+        comp = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
+        self._writer = Writer(stream, chunk_size=chunk_size, compression=comp[compression])
+        self._writer.start(profile="", library=f"fairino-conformance/{__version__}")
+        schema_ids = {
+            name: self._writer.register_schema(
+                name=name, encoding="jsonschema", data=json.dumps(s).encode("utf-8")
+            )
+            for name, s in SCHEMAS.items()
+        }
+        self._channels = {
+            topic: self._writer.register_channel(
+                topic=topic, message_encoding="json", schema_id=schema_ids[schema]
+            )
+            for topic, schema in _TOPICS.items()
+        }
+        self._seq = dict.fromkeys(self._channels, 0)
+        self.metadata = dict(metadata if metadata is not None else default_metadata())
+        self._writer.add_metadata(METADATA_NAME, self.metadata)
+        self._dumps = json.JSONEncoder(separators=(",", ":"), ensure_ascii=False).encode
+        self.messages = 0
+        self._closed = False
+        self._stream.flush()
+
+    def tell(self) -> int:
+        """Bytes written so far (chunks in progress not included)."""
+        try:
+            return self._stream.tell()
+        except (OSError, ValueError):
+            return 0
+
+    def write(self, record: Record) -> None:
+        if isinstance(record, FrameRecord):
+            topic = TOPIC_C2S if record.dir == C2S else TOPIC_S2C
+            log, pub = record.complete_ns, record.first_ns or record.complete_ns
+        elif isinstance(record, ProblemRecord):
+            topic, log, pub = TOPIC_PROBLEMS, record.complete_ns, record.first_ns or record.complete_ns
+        else:
+            topic, log, pub = TOPIC_CONNECTIONS, record.t_ns, record.t_ns
+        self.write_json(topic, record.to_json(), log_time=log, publish_time=pub)
+
+    def write_json(self, topic: str, doc: Mapping[str, Any], *, log_time: int, publish_time: int) -> None:
+        ch = self._channels[topic]
+        self._seq[topic] += 1
+        self._writer.add_message(
+            channel_id=ch,
+            log_time=log_time,
+            publish_time=publish_time,
+            sequence=self._seq[topic] & 0xFFFFFFFF,
+            data=self._dumps(doc).encode("utf-8"),
+        )
+        self.messages += 1
+
+    def flush(self) -> None:
+        """End the chunk in progress and hand everything to the OS."""
+        if not self._closed:
+            self._writer.flush()
+
+    def close(self) -> None:
+        """Write the summary and index and close the file (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        self._writer.finish()
+        self._stream.flush()
+        if self._file is not None:
+            self._file.close()
+
+    def __enter__(self) -> RecordingWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def segment_path(path: str | os.PathLike[str], index: int) -> str:
+    """``out.mcap`` → ``out-0001.mcap`` (segment numbers start at 1)."""
+    p = Path(path)
+    return str(p.with_name(f"{p.stem}-{index:04d}{p.suffix or '.mcap'}"))
+
+
+class RotatingWriter:
+    """A :class:`RecordingWriter` that starts a new file by size or duration.
+
+    Without limits it writes ``path`` itself; with a limit it writes
+    ``stem-0001.mcap``, ``stem-0002.mcap``... each a complete recording with
+    the same metadata plus its ``segment`` number.
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        *,
+        metadata: Mapping[str, str],
+        split_size: int | None = None,
+        split_duration_ns: int | None = None,
+        clock: Callable[[], int] = time.monotonic_ns,
+    ) -> None:
+        self.base = os.fspath(path)
+        self.metadata = dict(metadata)
+        self.split_size = split_size
+        self.split_duration_ns = split_duration_ns
+        self._clock = clock
+        self.paths: list[str] = []
+        self._segment = 0
+        self._writer = self._open()
+
+    @property
+    def rotating(self) -> bool:
+        return bool(self.split_size or self.split_duration_ns)
+
+    def _open(self) -> RecordingWriter:
+        self._segment += 1
+        path = segment_path(self.base, self._segment) if self.rotating else self.base
+        self.paths.append(path)
+        md = dict(self.metadata, segment=str(self._segment))
+        self._opened = self._clock()
+        return RecordingWriter(path, metadata=md)
+
+    def write(self, record: Record) -> None:
+        self._writer.write(record)
+
+    @property
+    def messages(self) -> int:
+        return self._writer.messages
+
+    def flush(self) -> None:
+        self._writer.flush()
+        self.maybe_rotate()
+
+    def maybe_rotate(self) -> None:
+        if not self.rotating:
+            return
+        due = (self.split_size is not None and self._writer.tell() >= self.split_size) or (
+            self.split_duration_ns is not None and self._clock() - self._opened >= self.split_duration_ns
+        )
+        if due:
+            self._writer.close()
+            self._writer = self._open()
+
+    def close(self) -> None:
+        self._writer.close()
+
+
+# --------------------------------------------------------------------------- recorder
+
+
+class _Stream:
+    """One direction of one connection: decoder plus the times its bytes arrived."""
+
+    __slots__ = ("base", "bytes", "decoder", "frames", "last_ns", "timeline")
+
+    def __init__(self, max_frame_size: int) -> None:
+        self.decoder = FrameDecoder(max_frame_size=max_frame_size)
+        self.timeline: deque[tuple[int, int]] = deque()  # (decoder offset, t_ns)
+        self.base = 0  # stream offset of the decoder's first byte (grows at gaps)
+        self.bytes = 0
+        self.frames = 0
+        self.last_ns = 0
+
+    def first_ns(self, offset: int) -> int:
+        tl = self.timeline
+        while len(tl) > 1 and tl[1][0] <= offset:
+            tl.popleft()
+        return tl[0][1] if tl else self.last_ns
+
+
+@dataclass
+class _Conn:
+    transport: str
+    client: str
+    upstream: str
+    local: str
+    streams: dict[str, _Stream]
+
+
+class StreamRecorder:
+    """Bytes and times in, records out (sans-I/O): the proxy's and importer's one path.
+
+    ``on_frame`` (for ``--print``) sees each frame record as it is written.
+    """
+
+    def __init__(
+        self,
+        sink: RecordSink,
+        *,
+        specs: SpecSet | None = None,
+        max_frame_size: int = DEFAULT_MAX_FRAME_SIZE,
+        on_frame: Callable[[FrameRecord], None] | None = None,
+    ) -> None:
+        self.sink = sink
+        self.specs = specs
+        self.max_frame_size = max_frame_size
+        self.on_frame = on_frame
+        self._conns: dict[int, _Conn] = {}
+        self._names: dict[tuple[int, str | None], str | None] = {}
+        self.frames = 0
+        self.problems = 0
+
+    # -- names
+
+    def command_name(self, cmd_id: int, data: str) -> str | None:
+        m = _NAME_RE.match(data)
+        token = m.group(1) if m else None
+        key = (cmd_id, token)
+        try:
+            return self._names[key]
+        except KeyError:
+            pass
+        name: str | None = None
+        if self.specs is not None:
+            cmd = self.specs.resolve(cmd_id, token)
+            name = cmd.name if cmd is not None else None
+        if len(self._names) < 65536:
+            self._names[key] = name
+        return name
+
+    # -- connection life
+
+    def open(
+        self,
+        conn: int,
+        *,
+        t_ns: int,
+        transport: str = "tcp",
+        client: str = "",
+        upstream: str = "",
+        local: str = "",
+    ) -> None:
+        self._conns[conn] = _Conn(
+            transport=transport,
+            client=client,
+            upstream=upstream,
+            local=local,
+            streams={C2S: _Stream(self.max_frame_size), S2C: _Stream(self.max_frame_size)},
+        )
+        self.sink.write(
+            ConnectionRecord(
+                conn=conn,
+                event="open",
+                t_ns=t_ns,
+                transport=transport,
+                client=client,
+                upstream=upstream,
+                local=local,
+            )
+        )
+
+    def is_open(self, conn: int) -> bool:
+        return conn in self._conns
+
+    def close(self, conn: int, *, t_ns: int, reason: str) -> None:
+        c = self._conns.pop(conn, None)
+        if c is None:
+            return
+        for d, st in c.streams.items():
+            self._emit(conn, c.transport, d, st, st.decoder.close(), t_ns)  # type: ignore[arg-type]
+        self.sink.write(
+            ConnectionRecord(
+                conn=conn,
+                event="close",
+                t_ns=t_ns,
+                transport=c.transport,
+                client=c.client,
+                upstream=c.upstream,
+                local=c.local,
+                reason=reason,
+                bytes_c2s=c.streams[C2S].bytes,
+                bytes_s2c=c.streams[S2C].bytes,
+                frames_c2s=c.streams[C2S].frames,
+                frames_s2c=c.streams[S2C].frames,
+            )
+        )
+
+    def finish(self, *, t_ns: int, reason: str = "recording ended") -> None:
+        for conn in list(self._conns):
+            self.close(conn, t_ns=t_ns, reason=reason)
+
+    # -- traffic
+
+    def data(self, conn: int, direction: Direction, t_ns: int, data: bytes) -> None:
+        """Bytes of a TCP stream, in order, as they arrived at ``t_ns``."""
+        c = self._conns[conn]
+        st = c.streams[direction]
+        st.timeline.append((st.decoder.stream_offset, t_ns))
+        st.bytes += len(data)
+        st.last_ns = t_ns
+        self._emit(conn, c.transport, direction, st, st.decoder.feed(data), t_ns)
+
+    def datagram(self, conn: int, direction: Direction, t_ns: int, data: bytes) -> None:
+        """One UDP datagram: decoded on its own (a frame never spans datagrams)."""
+        c = self._conns[conn]
+        st = c.streams[direction]
+        events = decode_all(data, max_frame_size=max(self.max_frame_size, len(data) + 64))
+        st.timeline.clear()
+        st.timeline.append((0, t_ns))
+        base = st.base
+        st.base += len(data)
+        st.bytes += len(data)
+        st.last_ns = t_ns
+        self._emit(conn, c.transport, direction, st, events, t_ns, base=base)
+
+    def gap(self, conn: int, direction: Direction, t_ns: int, missing: int, detail: str = "") -> None:
+        """``missing`` bytes of the stream were never captured: record it, restart decoding."""
+        c = self._conns[conn]
+        st = c.streams[direction]
+        self._emit(conn, c.transport, direction, st, st.decoder.close(), t_ns)
+        offset = st.base + st.decoder.stream_offset
+        self.sink.write(
+            ProblemRecord(
+                conn=conn,
+                transport=c.transport,
+                dir=direction,
+                kind="gap",
+                rule="gap",
+                detail=detail or f"{missing} bytes missing from the capture",
+                offset=offset,
+                size=missing,
+                first_ns=t_ns,
+                complete_ns=t_ns,
+            )
+        )
+        self.problems += 1
+        st.base = offset + missing
+        st.decoder = FrameDecoder(max_frame_size=self.max_frame_size)
+        st.timeline.clear()
+
+    def idle(self, now_ns: int, idle_ns: int) -> None:
+        """Decide on frames whose peer went quiet mid-frame for ``idle_ns`` (LEN too large)."""
+        for conn, c in self._conns.items():
+            for d, st in c.streams.items():
+                if st.decoder.buffered and now_ns - st.last_ns >= idle_ns:
+                    self._emit(conn, c.transport, d, st, st.decoder.resolve_pending(), now_ns)  # type: ignore[arg-type]
+
+    def _emit(
+        self,
+        conn: int,
+        transport: str,
+        direction: Direction,
+        st: _Stream,
+        events: list[Event],
+        t_ns: int,
+        *,
+        base: int | None = None,
+    ) -> None:
+        b = st.base if base is None else base
+        sink = self.sink
+        for ev in events:
+            first = st.first_ns(ev.offset)
+            if isinstance(ev, Frame):
+                st.frames += 1
+                self.frames += 1
+                rec = FrameRecord(
+                    conn=conn,
+                    transport=transport,
+                    dir=direction,
+                    cnt=ev.cnt,
+                    cmd_id=ev.cmd_id,
+                    name=self.command_name(ev.cmd_id, ev.data),
+                    data=ev.data,
+                    length=ev.length,
+                    raw=ev.raw,
+                    problems=tuple(p.value for p in ev.problems),
+                    offset=b + ev.offset,
+                    first_ns=first,
+                    complete_ns=t_ns,
+                )
+                sink.write(rec)
+                if self.on_frame is not None:
+                    self.on_frame(rec)
+            else:
+                self.problems += 1
+                sink.write(_problem(conn, transport, direction, ev, b, first, t_ns))
+
+
+def _problem(
+    conn: int, transport: str, direction: Direction, ev: Malformed, base: int, first: int, t_ns: int
+) -> ProblemRecord:
+    return ProblemRecord(
+        conn=conn,
+        transport=transport,
+        dir=direction,
+        kind="malformed",
+        rule=ev.rule.value,
+        detail=ev.detail,
+        offset=base + ev.offset,
+        size=len(ev.raw),
+        raw=ev.raw[:PROBLEM_RAW_LIMIT],
+        first_ns=first,
+        complete_ns=t_ns,
+    )
+
+
+# --------------------------------------------------------------------------- reader
+
+
+@dataclass(frozen=True, kw_only=True)
+class Exchange:
+    """A request and the reply paired with it (either may be missing)."""
+
+    conn: int
+    request: FrameRecord | None
+    reply: FrameRecord | None
+
+    @property
+    def cmd_id(self) -> int:
+        f = self.request or self.reply
+        assert f is not None
+        return f.cmd_id
+
+    @property
+    def name(self) -> str | None:
+        f = self.request or self.reply
+        assert f is not None
+        return f.name if f.name is not None else (self.reply.name if self.reply else None)
+
+    @property
+    def latency_ns(self) -> int | None:
+        if self.request is None or self.reply is None:
+            return None
+        return self.reply.complete_ns - self.request.complete_ns
+
+
+@dataclass(frozen=True, kw_only=True)
+class Recording:
+    """Everything in one recording, in file order."""
+
+    path: str
+    metadata: Mapping[str, str]
+    frames: tuple[FrameRecord, ...]
+    problems: tuple[ProblemRecord, ...]
+    connections: tuple[ConnectionRecord, ...]
+    #: The file has its summary and footer (False: unfinished, e.g. the proxy was killed).
+    complete: bool = True
+    #: Why reading stopped early, for an unfinished file.
+    truncated: str = ""
+
+    @property
+    def start_ns(self) -> int:
+        times = [f.first_ns or f.complete_ns for f in self.frames] + [c.t_ns for c in self.connections]
+        return min(times) if times else 0
+
+    @property
+    def end_ns(self) -> int:
+        times = [f.complete_ns for f in self.frames] + [c.t_ns for c in self.connections]
+        return max(times) if times else 0
+
+    def requests(self) -> list[FrameRecord]:
+        return [f for f in self.frames if f.dir == C2S]
+
+    def exchanges(self) -> list[Exchange]:
+        """Pair each reply with the oldest unanswered request of its connection with the same
+        CNT and CMD_ID (else the same CMD_ID); unpaired frames stand alone."""
+        out: list[Exchange | None] = []
+        pending: dict[int, list[tuple[int, FrameRecord]]] = {}
+        for f in self.frames:
+            if f.dir == C2S:
+                pending.setdefault(f.conn, []).append((len(out), f))
+                out.append(Exchange(conn=f.conn, request=f, reply=None))
+                continue
+            waiting = pending.get(f.conn, [])
+            pick = next((k for k, (_, r) in enumerate(waiting) if r.cnt == f.cnt and r.cmd_id == f.cmd_id), None)
+            if pick is None:
+                pick = next((k for k, (_, r) in enumerate(waiting) if r.cmd_id == f.cmd_id), None)
+            if pick is None:
+                out.append(Exchange(conn=f.conn, request=None, reply=f))
+                continue
+            idx, req = waiting.pop(pick)
+            out[idx] = Exchange(conn=f.conn, request=req, reply=f)
+        return [e for e in out if e is not None]
+
+
+def _iter_tolerant(stream: IO[bytes]) -> Iterator[tuple[Any, str]]:
+    """MCAP records in file order; stops (with a reason) where an unfinished file breaks off."""
+    from mcap.stream_reader import StreamReader
+
+    reader = StreamReader(stream, record_size_limit=1 << 30)
+    it = reader.records
+    while True:
+        try:
+            rec = next(it)
+        except StopIteration:
+            return
+        except Exception as e:  # truncated record, bad chunk, missing magic: the file ends here
+            yield None, f"{type(e).__name__}: {e}" if str(e) else type(e).__name__
+            return
+        yield rec, ""
+
+
+def read_recording(path: str | os.PathLike[str]) -> Recording:
+    """Read a recording, finished or not (an unfinished one reads up to its last whole chunk)."""
+    from mcap.records import Channel, Footer, Message, Metadata, Schema
+
+    from .errors import UsageError
+
+    p = os.fspath(path)
+    frames: list[FrameRecord] = []
+    problems: list[ProblemRecord] = []
+    conns: list[ConnectionRecord] = []
+    metadata: dict[str, str] = {}
+    topics: dict[int, str] = {}
+    complete = False
+    truncated = ""
+    try:
+        f = open(p, "rb")  # noqa: SIM115
+    except FileNotFoundError:
+        raise UsageError(f"no such recording: {p}") from None
+    with f:
+        head = f.read(8)
+        if head != b"\x89MCAP0\r\n":
+            raise UsageError(f"{p} is not an MCAP file")
+        f.seek(0)
+        for rec, why in _iter_tolerant(f):
+            if rec is None:
+                truncated = why
+                break
+            if isinstance(rec, Schema):
+                continue
+            if isinstance(rec, Channel):
+                topics[rec.id] = rec.topic
+            elif isinstance(rec, Message):
+                topic = topics.get(rec.channel_id)
+                if topic is None:
+                    continue
+                try:
+                    doc = json.loads(rec.data)
+                    if topic in (TOPIC_C2S, TOPIC_S2C):
+                        frames.append(FrameRecord.from_json(doc))
+                    elif topic == TOPIC_PROBLEMS:
+                        problems.append(ProblemRecord.from_json(doc))
+                    elif topic == TOPIC_CONNECTIONS:
+                        conns.append(ConnectionRecord.from_json(doc))
+                except (ValueError, KeyError, TypeError):
+                    continue  # a foreign message on our topic: not ours to judge
+            elif isinstance(rec, Metadata) and rec.name == METADATA_NAME and not metadata:
+                metadata = dict(rec.metadata)
+            elif isinstance(rec, Footer):
+                complete = True
+    if not metadata:
+        raise UsageError(f"{p} is an MCAP file but not a fairino-conformance recording")
+    return Recording(
+        path=p,
+        metadata=metadata,
+        frames=tuple(frames),
+        problems=tuple(problems),
+        connections=tuple(conns),
+        complete=complete,
+        truncated=truncated,
+    )
+
+
+@dataclass(frozen=True, kw_only=True)
+class RecoverResult:
+    messages: int
+    was_complete: bool
+    stopped: str
+
+
+def recover(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> RecoverResult:
+    """Rewrite an unfinished recording (e.g. of a killed proxy) as a valid, indexed MCAP file.
+
+    Every record up to the point where the file breaks off is kept: schemas,
+    channels, messages (with their times and sequence numbers) and metadata.
+    """
+    from mcap.records import Channel, Footer, Message, Metadata, Schema
+    from mcap.writer import Writer
+
+    from .errors import UsageError
+
+    if os.path.abspath(os.fspath(src)) == os.path.abspath(os.fspath(dst)):
+        raise UsageError("recover writes a new file: give another output path")
+    try:
+        fin = open(src, "rb")  # noqa: SIM115
+    except FileNotFoundError:
+        raise UsageError(f"no such recording: {os.fspath(src)}") from None
+    tmp = os.fspath(dst) + ".part"
+    with fin, open(tmp, "wb") as fout:
+        if fin.read(8) != b"\x89MCAP0\r\n":
+            raise UsageError(f"{os.fspath(src)} is not an MCAP file")
+        fin.seek(0)
+        out = Writer(fout)
+        out.start(profile="", library=f"fairino-conformance/{__version__} (recovered)")
+        schema_map: dict[int, int] = {}
+        chan_map: dict[int, int] = {}
+        n = 0
+        complete = False
+        stopped = ""
+        for rec, why in _iter_tolerant(fin):
+            if rec is None:
+                stopped = why
+                break
+            if isinstance(rec, Schema) and rec.id not in schema_map:
+                schema_map[rec.id] = out.register_schema(rec.name, rec.encoding, rec.data)
+            elif isinstance(rec, Channel) and rec.id not in chan_map:
+                chan_map[rec.id] = out.register_channel(
+                    rec.topic, rec.message_encoding, schema_map.get(rec.schema_id, 0), dict(rec.metadata)
+                )
+            elif isinstance(rec, Message) and rec.channel_id in chan_map:
+                out.add_message(
+                    chan_map[rec.channel_id], rec.log_time, rec.data, rec.publish_time, rec.sequence
+                )
+                n += 1
+            elif isinstance(rec, Metadata):
+                out.add_metadata(rec.name, dict(rec.metadata))
+            elif isinstance(rec, Footer):
+                complete = True
+        out.finish()
+    os.replace(tmp, dst)
+    return RecoverResult(messages=n, was_complete=complete, stopped=stopped)
