@@ -1,0 +1,153 @@
+"""Faults the emulator can inject, to prove the suite catches real departures.
+
+A :class:`Fault` names a :class:`FaultKind` and the command IDs it applies to
+(empty: every command).  ``parse_fault("wrong_cnt:201,203")`` reads the form the
+``--fault KIND[:CMD_IDS]`` option takes.  The functions here are pure: they take
+a reply frame's parts and return the bytes (or the action) the faulty
+controller would produce; the sans-I/O controller in :mod:`conformance.model`
+applies them and :mod:`conformance.net.emulator` performs the actions.
+"""
+
+from __future__ import annotations
+
+import enum
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+from .errors import UsageError
+from .frame import HEAD, SEP, TAIL
+
+__all__ = ["Fault", "FaultKind", "active_fault", "mangle_reply", "parse_fault", "parse_faults"]
+
+
+class FaultKind(str, enum.Enum):
+    """One way a controller departs from the protocol (each one the suite must catch)."""
+
+    #: The reply's CNT is not the request's (1.1: the reply echoes CNT).
+    WRONG_CNT = "wrong_cnt"
+    #: The reply's CMD_ID is not the request's.
+    WRONG_CMD_ID = "wrong_cmd_id"
+    #: The reply's LEN disagrees with its DATA.
+    WRONG_LEN = "wrong_len"
+    #: The reply has no ``III/b/f`` tail.
+    MISSING_TAIL = "missing_tail"
+    #: The reply carries one value more than the command declares.
+    WRONG_COUNT = "wrong_count"
+    #: Out-of-range (and mistyped) arguments are executed instead of refused.
+    ACCEPT_OUT_OF_RANGE = "accept_out_of_range"
+    #: The reply comes after ``Fault.delay`` seconds.
+    SLOW = "slow"
+    #: The request is executed but never answered.
+    NO_REPLY = "no_reply"
+    #: The controller closes the connection instead of answering.
+    CLOSE = "close"
+    #: Bytes that are not a frame precede the reply.
+    GARBAGE = "garbage"
+    #: Malformed input for the command (bad DATA, LEN mismatch) crashes the controller:
+    #: every connection drops and new ones are refused for ``Fault.delay`` seconds.
+    CRASH_ON_MALFORMED = "crash_on_malformed"
+    #: The controller splits frames with a regular expression and ignores LEN, so it
+    #: executes frames whose LEN disagrees with DATA.
+    IGNORE_LEN = "ignore_len"
+
+
+_DEFAULT_DELAY = {FaultKind.SLOW: 2.0, FaultKind.CRASH_ON_MALFORMED: 0.5}
+
+
+@dataclass(frozen=True, kw_only=True)
+class Fault:
+    """A fault of ``kind`` on ``cmd_ids`` (empty: on every command).
+
+    ``delay`` is the reply delay of ``slow`` and the restart time of
+    ``crash_on_malformed`` (seconds; ``None``: the kind's default).
+    """
+
+    kind: FaultKind
+    cmd_ids: frozenset[int] = frozenset()
+    delay: float | None = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.kind, FaultKind):
+            object.__setattr__(self, "kind", FaultKind(self.kind))
+        object.__setattr__(self, "cmd_ids", frozenset(self.cmd_ids))
+        if self.delay is not None and self.delay < 0:
+            raise UsageError(f"fault delay must not be negative (got {self.delay})")
+
+    def applies(self, cmd_id: int | None) -> bool:
+        return not self.cmd_ids or (cmd_id is not None and cmd_id in self.cmd_ids)
+
+    @property
+    def seconds(self) -> float:
+        return self.delay if self.delay is not None else _DEFAULT_DELAY.get(self.kind, 0.0)
+
+    def __str__(self) -> str:
+        text = self.kind.value
+        if self.cmd_ids:
+            text += ":" + ",".join(str(i) for i in sorted(self.cmd_ids))
+        if self.delay is not None:
+            text += f"@{self.delay:g}"
+        return text
+
+
+def parse_fault(text: str) -> Fault:
+    """Read ``KIND[:CMD_ID,...][@SECONDS]``, e.g. ``wrong_cnt:201,203`` or ``slow:201@0.5``."""
+    raw = text.strip()
+    delay: float | None = None
+    if "@" in raw:
+        raw, _, secs = raw.partition("@")
+        try:
+            delay = float(secs)
+        except ValueError:
+            raise UsageError(f"fault {text!r}: {secs!r} is not a number of seconds") from None
+    name, _, ids = raw.partition(":")
+    try:
+        kind = FaultKind(name.strip().lower().replace("-", "_"))
+    except ValueError:
+        kinds = ", ".join(k.value for k in FaultKind)
+        raise UsageError(f"unknown fault kind {name!r} (one of: {kinds})") from None
+    cmd_ids: set[int] = set()
+    for part in ids.split(",") if ids.strip() else ():
+        part = part.strip()
+        if not part.isdigit():
+            raise UsageError(f"fault {text!r}: command ID {part!r} is not a number")
+        cmd_ids.add(int(part))
+    return Fault(kind=kind, cmd_ids=frozenset(cmd_ids), delay=delay)
+
+
+def parse_faults(items: Iterable[Fault | str]) -> tuple[Fault, ...]:
+    return tuple(f if isinstance(f, Fault) else parse_fault(f) for f in items)
+
+
+def active_fault(faults: Iterable[Fault], kind: FaultKind, cmd_id: int | None) -> Fault | None:
+    """The first fault of ``kind`` that applies to ``cmd_id``."""
+    for f in faults:
+        if f.kind is kind and f.applies(cmd_id):
+            return f
+    return None
+
+
+#: What the ``garbage`` fault sends before a reply: looks like a broken frame.
+GARBAGE_BYTES = b"\x00\xffIII/b/fxx"
+
+
+def mangle_reply(faults: Iterable[Fault], cnt: int, cmd_id: int, data: str) -> bytes:
+    """The reply frame for (cnt, cmd_id, data) as the faults on ``cmd_id`` distort it."""
+    fs = [f for f in faults if f.applies(cmd_id)]
+    kinds = {f.kind for f in fs}
+    if FaultKind.WRONG_COUNT in kinds:
+        sep = " " if " " in data and "," not in data else ","
+        data = f"{data}{sep}0" if data else "0,0"
+    payload = data.encode("utf-8")
+    length = len(payload)
+    if FaultKind.WRONG_LEN in kinds:
+        # Shorter than DATA, so a LEN-driven reader sees the mismatch at once.
+        length = length - 1 if length else 1
+    rcnt = (cnt + 1) % 0x10000 if FaultKind.WRONG_CNT in kinds else cnt
+    rid = cmd_id + 1 if FaultKind.WRONG_CMD_ID in kinds else cmd_id
+    parts = [HEAD, SEP, b"%d" % rcnt, SEP, b"%d" % rid, SEP, b"%d" % length, SEP, payload]
+    if FaultKind.MISSING_TAIL not in kinds:
+        parts += [SEP, TAIL]
+    out = b"".join(parts)
+    if FaultKind.GARBAGE in kinds:
+        out = GARBAGE_BYTES + out
+    return out

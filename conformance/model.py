@@ -1,0 +1,448 @@
+"""The emulated controller, sans-I/O: its state model and how it answers frames.
+
+Everything that depends on what a particular command *does* lives here (STYLE.md,
+convention 2, like h11's ``_state.py``); the rest of the kit reads the specs
+generically.  Three parts:
+
+* :func:`derive_pairs`: the Set/Get pairs the specs reveal (``SetX``/``GetX``
+  with parameters and return values of the same names, plus a few explicit rules
+  where the manual names them differently), and :func:`motion_targets` /
+  :data:`POSITION_QUERIES`, which tie motion commands to the position queries.
+  The suite's stateful cases use the same functions against any target.
+* :class:`RobotModel`: what was set can be read back, motion moves the joints and
+  the TCP that the position queries return.
+* :class:`Controller` / :class:`ControllerConnection`: bytes in, :class:`Action`
+  out (reply bytes, a delay, a close, a crash), with the faults of
+  :mod:`conformance.faults` applied.  No sockets, no clock: the caller performs
+  the actions (:mod:`conformance.net.emulator`).
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+
+from .data import Arg, Array, Call, Number, Text, format_number
+from .errors import Rule
+from .faults import Fault, FaultKind, active_fault, mangle_reply
+from .frame import Frame, FrameDecoder, Malformed
+from .spec import Command, Returns, ReturnValue, SpecSet, Variant, default_specs
+from .validate import ERR_ARG_COUNT, ERR_ARG_VALUE, ERR_EXEC_FAILED, validate_request
+
+__all__ = [
+    "POSITION_QUERIES",
+    "Action",
+    "Controller",
+    "ControllerConnection",
+    "MotionTargets",
+    "RobotModel",
+    "StatePair",
+    "derive_pairs",
+    "flat_returns",
+    "motion_targets",
+    "refusal_data",
+]
+
+#: Position queries and what they report (joint angles or a Cartesian pose).
+POSITION_QUERIES: Mapping[str, str] = {
+    "getactualjointposdegree": "joints",
+    "getactualtcppose": "tcp",
+    "gettargettcppose": "tcp",
+    "getactualtoolflangepose": "tcp",
+}
+
+#: Set/Get pairs whose names do not follow ``SetX``/``GetX``: (setter, getter,
+#: {setter parameter: getter parameter} addressing the stored record).  Fields
+#: are matched by name as for derived pairs.
+EXPLICIT_PAIRS: tuple[tuple[str, str, Mapping[str, str]], ...] = (
+    ("SetLoadWeight", "GetLoadData", {"loadNo": "loadNo"}),
+    ("SetLoadcoord", "GetLoadData", {"loadNo": "loadNo"}),
+    ("SetPayload", "GetLoadData", {"loadNo": "loadNo"}),
+    ("SetToolList", "GetToolData", {"toolNum": "toolNo"}),
+    ("SetWObjCoord", "GetWorkpieceData", {"frameNo": "workpieceNo"}),
+    ("SetWObjList", "GetWorkpieceData", {"frameNo": "workpieceNo"}),
+)
+
+_JOINTS = ("j1", "j2", "j3", "j4", "j5", "j6")
+_CART = ("x", "y", "z", "rx", "ry", "rz")
+
+
+def flat_returns(returns: Returns) -> list[ReturnValue]:
+    """Return values with arrays expanded element by element (the reply's value order)."""
+    out: list[ReturnValue] = []
+    for v in returns.values:
+        out += [v] * (v.length or 1)
+    return out
+
+
+def _replies_with_code(returns: Returns) -> bool:
+    return returns.errcode_only or returns.arity == 0
+
+
+def refusal_data(returns: Returns | None, code: int) -> str:
+    """DATA the emulator refuses with: the code where it cannot be mistaken for data.
+
+    Errcode-only commands reply the code (``1`` is success); commands with
+    several values reply a lone code (validate.classify_reply reads it as a
+    refusal); where a lone number would read as a value (one-value queries,
+    commands declaring no value) the text form ``robot errcode:N`` is used.
+    """
+    if returns is not None and (returns.errcode_only or returns.arity > 1):
+        return str(code)
+    return f"robot errcode:{code}"
+
+
+# --------------------------------------------------------------------------- pairs
+
+
+@dataclass(frozen=True, kw_only=True)
+class StatePair:
+    """A setter whose values a getter reads back.
+
+    ``keys``: (setter parameter index, getter parameter index) pairs that address
+    the record (an I/O number, a tool number); ``fields``: (setter parameter
+    index, getter flat return index) pairs that must read back equal.
+    """
+
+    setter: Command
+    setter_variant: Variant
+    getter: Command
+    getter_variant: Variant
+    keys: tuple[tuple[int, int], ...]
+    fields: tuple[tuple[int, int], ...]
+
+    @property
+    def id(self) -> str:
+        return f"{self.setter.name}->{self.getter.name}"
+
+
+def _pair(
+    setter: Command, sv: Variant, getter: Command, gv: Variant, key_map: Mapping[str, str]
+) -> StatePair | None:
+    if sv.form != "call" or gv.form != "call" or not _replies_with_code(sv.returns):
+        return None
+    sparams = {p.name.lower(): i for i, p in enumerate(sv.params) if not p.is_array}
+    kmap = {k.lower(): v.lower() for k, v in key_map.items()}
+    keys: list[tuple[int, int]] = []
+    for gi, gp in enumerate(gv.params):
+        if gp.is_array:
+            return None
+        src = next((s for s, g in kmap.items() if g == gp.name.lower()), gp.name.lower())
+        if src in sparams:
+            keys.append((sparams[src], gi))
+    key_setter = {s for s, _ in keys}
+    fields: list[tuple[int, int]] = []
+    seen: set[int] = set()
+    for fi, rv in enumerate(flat_returns(gv.returns)):
+        si = sparams.get(rv.name.lower())
+        if si is None or si in key_setter or si in seen or rv.length is not None:
+            continue
+        if sv.params[si].is_string != (rv.type == "string"):
+            continue
+        seen.add(si)
+        fields.append((si, fi))
+    if not fields:
+        return None
+    return StatePair(
+        setter=setter, setter_variant=sv, getter=getter, getter_variant=gv,
+        keys=tuple(keys), fields=tuple(fields),
+    )
+
+
+def derive_pairs(specs: SpecSet) -> tuple[StatePair, ...]:
+    """Every Set/Get pair of ``specs``: by name (``SetX``/``GetX``) and by the explicit rules."""
+    found: list[StatePair] = []
+    rules: list[tuple[Command, Command, Mapping[str, str]]] = []
+    for c in specs:
+        if "Set" in c.name:
+            for g in specs.by_name(c.name.replace("Set", "Get", 1)):
+                rules.append((c, g, {}))
+    for sname, gname, kmap in EXPLICIT_PAIRS:
+        for s in specs.by_name(sname):
+            for g in specs.by_name(gname):
+                rules.append((s, g, kmap))
+    for s, g, kmap in rules:
+        for sv in s.variants:
+            for gv in g.variants:
+                p = _pair(s, sv, g, gv, kmap)
+                if p is not None:
+                    found.append(p)
+    return tuple(found)
+
+
+# --------------------------------------------------------------------------- motion
+
+
+@dataclass(frozen=True, kw_only=True)
+class MotionTargets:
+    """Where a motion variant's arguments put the arm: parameter indices (or an array's)."""
+
+    joints: tuple[int, ...] | None = None
+    tcp: tuple[int, ...] | None = None
+    tcp_array: int | None = None
+
+    def joint_values(self, args: Sequence[float]) -> list[float] | None:
+        return None if self.joints is None else [float(args[i]) for i in self.joints]
+
+
+def _last_complete(params: Sequence[str], names: Sequence[str]) -> tuple[int, ...] | None:
+    idx: dict[str, int] = {}
+    for i, n in enumerate(params):
+        if n in names:
+            idx[n] = i
+    if len(idx) != len(names):
+        return None
+    out = tuple(idx[n] for n in names)
+    return out if list(out) == sorted(out) else None
+
+
+def motion_targets(command: Command, variant: Variant) -> MotionTargets | None:
+    """Joint / Cartesian targets of a motion variant with explicit positions, else None.
+
+    The last complete ``J1..J6`` (and ``x..rz``) run counts: MoveC's second point
+    is where the arm ends.  Named points (``MoveJ("P1")``) carry no position.
+    """
+    if command.safety.value != "motion" or variant.form != "call":
+        return None
+    names = [p.name.lower() for p in variant.params]
+    scalar = [n if not variant.params[i].is_array else "" for i, n in enumerate(names)]
+    joints = _last_complete(scalar, _JOINTS)
+    tcp = _last_complete(scalar, _CART)
+    arr = next(
+        (
+            i
+            for i, p in enumerate(variant.params)
+            if p.is_array and p.length == 6 and p.name.lower() == "pos"
+        ),
+        None,
+    )
+    if joints is None and tcp is None and arr is None:
+        return None
+    if any(variant.params[i].is_string for i in (*(joints or ()), *(tcp or ()))):
+        return None
+    return MotionTargets(joints=joints, tcp=tcp, tcp_array=arr if tcp is None else None)
+
+
+# --------------------------------------------------------------------------- state
+
+
+def _arg_text(a: Arg) -> str | None:
+    if isinstance(a, Number):
+        return format_number(a.value)
+    if isinstance(a, Text):
+        return a.value
+    return None
+
+
+def _default(rv: ReturnValue) -> str:
+    if rv.type == "string":
+        return re.sub(r"[^A-Za-z0-9_.]", "", rv.name) or "0"
+    if rv.type in ("float", "double"):
+        return "0.000"
+    return "0"
+
+
+class RobotModel:
+    """The emulated controller's state: stored Set values, joint and TCP position."""
+
+    def __init__(self, specs: SpecSet) -> None:
+        self.specs = specs
+        self.pairs = derive_pairs(specs)
+        self._by_setter: dict[tuple[str, str], list[StatePair]] = {}
+        for p in self.pairs:
+            self._by_setter.setdefault((p.setter.key, p.setter_variant.table), []).append(p)
+        self._motion: dict[tuple[str, str], MotionTargets] = {}
+        for c in specs:
+            for v in c.variants:
+                t = motion_targets(c, v)
+                if t is not None:
+                    self._motion[(c.key, v.table)] = t
+        self.records: dict[tuple[str, str, tuple[str, ...]], dict[int, str]] = {}
+        self.joints: list[str] = ["0.000"] * 6
+        self.tcp: list[str] = ["0.000"] * 6
+
+    def execute(self, command: Command, variant: Variant, args: Sequence[Arg]) -> list[str]:
+        """Apply a (valid) call and return the reply's values."""
+        texts = [_arg_text(a) for a in args]
+        for p in self._by_setter.get((command.key, variant.table), ()):
+            if len(args) != len(variant.params):
+                break
+            key = tuple(texts[si] or "" for si, _ in p.keys)
+            rec = self.records.setdefault((p.getter.key, p.getter_variant.table, key), {})
+            for si, fi in p.fields:
+                t = texts[si]
+                if t is not None:
+                    rec[fi] = t
+        m = self._motion.get((command.key, variant.table))
+        if m is not None and len(args) == len(variant.params):
+            if m.joints is not None:
+                self.joints = [texts[i] or "0.000" for i in m.joints]
+            if m.tcp is not None:
+                self.tcp = [texts[i] or "0.000" for i in m.tcp]
+            elif m.tcp_array is not None:
+                arr = args[m.tcp_array]
+                if isinstance(arr, Array):
+                    self.tcp = [_arg_text(a) or "0.000" for a in arr.items]
+        return self.reply_values(command, variant, args)
+
+    def reply_values(self, command: Command, variant: Variant, args: Sequence[Arg]) -> list[str]:
+        returns = variant.returns
+        if returns.errcode_only:
+            return ["1"]  # the manual's examples answer 1 on success
+        flat = flat_returns(returns)
+        if not flat:
+            return []
+        texts = [_arg_text(a) for a in args]
+        # Key: the getter parameters some pair addresses records by.
+        rec: dict[int, str] = {}
+        for p in self.pairs:
+            same = p.getter.key == command.key and p.getter_variant.table == variant.table
+            if same and len(args) == len(variant.params):
+                key = tuple(texts[gi] or "" for _, gi in p.keys)
+                rec = self.records.get((command.key, variant.table, key), rec)
+                if rec:
+                    break
+        pos = POSITION_QUERIES.get(command.name.lower())
+        pnames = {p.name.lower(): i for i, p in enumerate(variant.params)}
+        out: list[str] = []
+        for i, rv in enumerate(flat):
+            if i in rec:
+                out.append(rec[i])
+            elif pos is not None and i < 6:
+                out.append((self.joints if pos == "joints" else self.tcp)[i])
+            elif rv.name.lower() in pnames and pnames[rv.name.lower()] < len(texts):
+                out.append(texts[pnames[rv.name.lower()]] or _default(rv))
+            else:
+                out.append(_default(rv))
+        return out
+
+
+# --------------------------------------------------------------------------- controller
+
+
+@dataclass(frozen=True, kw_only=True)
+class Action:
+    """What the transport must do: send ``data`` after ``delay`` s, then maybe close or crash."""
+
+    data: bytes = b""
+    delay: float = 0.0
+    close: bool = False
+    #: Drop every connection and refuse new ones for ``delay`` seconds (a restart).
+    crash: bool = False
+
+
+_IDS_RE = re.compile(rb"/f/bI{2,4}\d+I{2,4}(\d+)")
+
+
+def _cmd_id_of(raw: bytes) -> int | None:
+    m = _IDS_RE.match(raw)
+    return int(m.group(1)) if m else None
+
+
+_CODE_FOR = {
+    Rule.ARG_COUNT: ERR_ARG_COUNT,
+    Rule.ARG_TYPE: ERR_ARG_VALUE,
+    Rule.ARG_RANGE: ERR_ARG_VALUE,
+    Rule.BAD_DATA: ERR_ARG_VALUE,
+}
+#: Framing deviations a lenient decoder tolerates but the emulator refuses (1.1).
+_FRAMING = frozenset(
+    {Rule.LEN_MISMATCH, Rule.BAD_SEPARATOR, Rule.BAD_CNT, Rule.BAD_ENCODING}
+)
+
+
+class Controller:
+    """The emulated controller: shared state, faults, and the answer to each event."""
+
+    def __init__(self, specs: SpecSet | None = None, *, faults: Iterable[Fault] = ()) -> None:
+        self.specs = specs if specs is not None else default_specs()
+        self.faults = tuple(faults)
+        self.model = RobotModel(self.specs)
+        self.frames_answered = 0
+
+    def connection(self) -> ControllerConnection:
+        return ControllerConnection(self)
+
+    def restart(self) -> None:
+        """A crash loses the state, as a controller restart would."""
+        self.model = RobotModel(self.specs)
+
+    def _fault(self, kind: FaultKind, cmd_id: int | None) -> Fault | None:
+        return active_fault(self.faults, kind, cmd_id)
+
+    def _crash(self, cmd_id: int | None) -> list[Action] | None:
+        f = self._fault(FaultKind.CRASH_ON_MALFORMED, cmd_id)
+        return None if f is None else [Action(crash=True, delay=f.seconds)]
+
+    def answer(self, event: Frame | Malformed) -> list[Action]:
+        """The actions answering one decoded event."""
+        if isinstance(event, Malformed):
+            # Not a frame: a controller cannot echo CNT/CMD_ID, so it stays silent.
+            return self._crash(_cmd_id_of(event.raw)) or []
+        frame = event
+        check = validate_request(frame, self.specs)
+        cmd, variant = check.command, check.variant
+        returns = variant.returns if variant is not None else None
+        if cmd is None:
+            return self._reply(frame, refusal_data(None, ERR_EXEC_FAILED))
+        rules = [v.rule for v in check.violations if v.rule is not Rule.SPACE_IN_ARGS]
+        framing = [r for r in rules if r in _FRAMING]
+        ignore_len = self._fault(FaultKind.IGNORE_LEN, frame.cmd_id) is not None
+        if ignore_len:
+            framing = [r for r in framing if r is not Rule.LEN_MISMATCH]
+            rules = [r for r in rules if r is not Rule.LEN_MISMATCH]
+        if framing or Rule.BAD_DATA in rules:
+            crash = self._crash(frame.cmd_id)
+            if crash is not None:
+                return crash
+        if framing:
+            return self._reply(frame, refusal_data(returns, ERR_EXEC_FAILED))
+        if self._fault(FaultKind.ACCEPT_OUT_OF_RANGE, frame.cmd_id) is not None:
+            rules = [r for r in rules if r is not Rule.ARG_RANGE]
+        if rules:
+            code = next((_CODE_FOR[r] for r in rules if r in _CODE_FOR), ERR_EXEC_FAILED)
+            return self._reply(frame, refusal_data(returns, code))
+        assert variant is not None
+        if isinstance(check.parsed, Call):
+            values = self.model.execute(cmd, variant, check.parsed.args)
+        else:
+            values = self.model.reply_values(cmd, variant, ())
+        return self._reply(frame, variant.returns.separator.join(values))
+
+    def _reply(self, frame: Frame, data: str) -> list[Action]:
+        cid = frame.cmd_id
+        self.frames_answered += 1
+        if self._fault(FaultKind.NO_REPLY, cid) is not None:
+            return []
+        if self._fault(FaultKind.CLOSE, cid) is not None:
+            return [Action(close=True)]
+        raw = mangle_reply(self.faults, frame.cnt, cid, data)
+        slow = self._fault(FaultKind.SLOW, cid)
+        return [Action(data=raw, delay=slow.seconds if slow is not None else 0.0)]
+
+
+class ControllerConnection:
+    """One client's byte stream to the controller (a TCP connection, or one UDP datagram)."""
+
+    def __init__(self, controller: Controller) -> None:
+        self.controller = controller
+        self.decoder = FrameDecoder()
+        self.events: list[Frame | Malformed] = []
+
+    def _answer(self, events: Iterable[Frame | Malformed]) -> list[Action]:
+        out: list[Action] = []
+        for e in events:
+            self.events.append(e)
+            out += self.controller.answer(e)
+        return out
+
+    def receive(self, data: bytes) -> list[Action]:
+        return self._answer(self.decoder.feed(data))
+
+    def idle(self) -> list[Action]:
+        """The client went quiet: decide on a frame whose LEN claims more than was sent."""
+        return self._answer(self.decoder.resolve_pending())
+
+    def close(self) -> list[Action]:
+        return self._answer(self.decoder.close())

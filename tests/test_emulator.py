@@ -1,0 +1,364 @@
+"""The emulated controller: sans-I/O answers, state model, faults, and the socket server."""
+
+from __future__ import annotations
+
+import socket
+import threading
+
+import pytest
+
+from conformance.data import format_call, format_number
+from conformance.errors import UsageError
+from conformance.faults import Fault, FaultKind, parse_fault
+from conformance.frame import Frame, decode_all, encode_frame
+from conformance.model import (
+    POSITION_QUERIES,
+    Action,
+    Controller,
+    derive_pairs,
+    flat_returns,
+    motion_targets,
+)
+from conformance.net.emulator import EmulatorServer
+from conformance.spec import Command, Safety, Variant, default_specs
+from conformance.suite.requests import default_args, default_data
+from conformance.validate import classify_reply
+
+SPECS = default_specs()
+
+
+def _reply(ctrl: Controller, cmd_id: int, data: str, cnt: int = 7) -> Frame:
+    actions = ctrl.connection().receive(encode_frame(cnt, cmd_id, data))
+    assert len(actions) == 1, actions
+    (frame,) = decode_all(actions[0].data)
+    assert isinstance(frame, Frame)
+    return frame
+
+
+def _variants() -> list[tuple[Command, Variant]]:
+    return [(c, v) for c in SPECS for v in c.variants]
+
+
+def _ranged(kind: str = "int") -> tuple[Command, Variant, int]:
+    """A call variant with an integer parameter whose range or enum excludes a value."""
+    for c, v in _variants():
+        if v.form != "call" or len({x.arity for x in c.variants}) != len(c.variants):
+            continue
+        for i, p in enumerate(v.params):
+            if p.is_integer and not p.is_array and (p.range or p.enum) and not p.allows(100000):
+                return c, v, i
+    raise AssertionError("no command with a bounded integer parameter")
+
+
+# --------------------------------------------------------------------------- sans-I/O
+
+
+def test_every_variant_answers_success_with_declared_shape() -> None:
+    ctrl = Controller(SPECS)
+    for c, v in _variants():
+        reply = _reply(ctrl, c.cmd_id, default_data(c, v), cnt=c.cmd_id % 65536)
+        assert (reply.cnt, reply.cmd_id, reply.problems) == (c.cmd_id % 65536, c.cmd_id, ())
+        verdict = classify_reply(v.returns, reply.data, SPECS)
+        assert verdict.ok, (c.name, v.table, reply.data, verdict)
+        if v.returns.errcode_only:
+            assert reply.data == "1"
+
+
+def test_wrong_argument_count_is_refused_with_code_3() -> None:
+    ctrl = Controller(SPECS)
+    c = SPECS.by_name("MoveJ")[0] if SPECS.by_name("MoveJ") else SPECS.commands[0]
+    arities = {v.arity for v in c.variants}
+    n = next(k for k in range(1, 100) if k not in arities)
+    reply = _reply(ctrl, c.cmd_id, format_call(c.name, [0] * n))
+    v = c.variants[0]
+    verdict = classify_reply(v.returns, reply.data, SPECS)
+    assert verdict.refused and verdict.code == 3
+
+
+def test_out_of_range_value_is_refused_with_code_4() -> None:
+    c, v, i = _ranged()
+    args = default_args(v)
+    args[i] = 100000
+    reply = _reply(Controller(SPECS), c.cmd_id, format_call(c.name, args, v.params))
+    verdict = classify_reply(v.returns, reply.data, SPECS)
+    assert verdict.refused and verdict.code == 4
+
+
+def test_unknown_command_id_is_refused() -> None:
+    unknown = max(SPECS.cmd_ids) + 1
+    reply = _reply(Controller(SPECS), unknown, "Nothing()")
+    assert reply.cmd_id == unknown
+    assert reply.data == "robot errcode:14"
+
+
+def test_malformed_data_and_len_mismatch_are_refused_not_executed() -> None:
+    c, v = next((c, v) for c, v in _variants() if v.returns.errcode_only and v.form == "call")
+    ctrl = Controller(SPECS)
+    good = default_data(c, v)
+    bad_len = b"/f/bIII1III%dIII%dIII%sIII/b/f" % (c.cmd_id, len(good) - 2, good.encode())
+    (a,) = ctrl.connection().receive(bad_len)
+    assert classify_reply(v.returns, decode_all(a.data)[0].data, SPECS).refused  # type: ignore[union-attr]
+    reply = _reply(ctrl, c.cmd_id, c.name + "(1,")
+    assert classify_reply(v.returns, reply.data, SPECS).refused
+
+
+def test_garbage_gets_no_reply() -> None:
+    assert Controller(SPECS).connection().receive(b"hello /f/bIIIxIII") == []
+
+
+# --------------------------------------------------------------------------- state model
+
+
+def test_pairs_are_derived_and_read_back() -> None:
+    pairs = derive_pairs(SPECS)
+    assert pairs, "the specs reveal Set/Get pairs"
+    checked = 0
+    for p in pairs:
+        ctrl = Controller(SPECS)
+        args = default_args(p.setter_variant)
+        # Change each field to a different allowed value where the table allows one.
+        for si, _ in p.fields:
+            param = p.setter_variant.params[si]
+            for cand in (1, 2, 5, 0.5, "Q7"):
+                if (
+                    isinstance(cand, str) == param.is_string
+                    and param.allows(cand)
+                    and cand != args[si]
+                ):
+                    args[si] = cand
+                    break
+        data = format_call(p.setter.name, args, p.setter_variant.params)
+        assert _reply(ctrl, p.setter.cmd_id, data).data == "1"
+        gargs = default_args(p.getter_variant)
+        for si, gi in p.keys:
+            gargs[gi] = args[si]
+        gdata = format_call(p.getter.name, gargs, p.getter_variant.params)
+        got = _reply(ctrl, p.getter.cmd_id, gdata)
+        values = got.data.split(p.getter_variant.returns.separator)
+        assert len(values) == len(flat_returns(p.getter_variant.returns))
+        for si, fi in p.fields:
+            want = args[si]
+            assert isinstance(want, (int, float, str))
+            expect = format_number(want) if not isinstance(want, str) else want
+            assert values[fi] == expect, (p.id, si, fi, values)
+        checked += 1
+    assert checked == len(pairs)
+
+
+def test_set_value_is_kept_per_key() -> None:
+    p = next(p for p in derive_pairs(SPECS) if p.keys)
+    ctrl = Controller(SPECS)
+    si, gi = p.keys[0]
+    fsi, ffi = p.fields[0]
+    key_param = p.setter_variant.params[si]
+    keys = [k for k in range(0, 10) if key_param.allows(k)][:2]
+    assert len(keys) == 2
+    field_param = p.setter_variant.params[fsi]
+    vals = [v for v in range(1, 10) if field_param.allows(v)][:2]
+    for k, val in zip(keys, vals, strict=True):
+        args = default_args(p.setter_variant)
+        args[si], args[fsi] = k, val
+        _reply(ctrl, p.setter.cmd_id, format_call(p.setter.name, args, p.setter_variant.params))
+    for k, val in zip(keys, vals, strict=True):
+        gargs = default_args(p.getter_variant)
+        gargs[gi] = k
+        gdata = format_call(p.getter.name, gargs, p.getter_variant.params)
+        got = _reply(ctrl, p.getter.cmd_id, gdata)
+        assert got.data.split(p.getter_variant.returns.separator)[ffi] == format_number(val)
+
+
+def test_motion_moves_the_reported_joint_position() -> None:
+    query = next(c for c in SPECS if POSITION_QUERIES.get(c.name.lower()) == "joints")
+    c, v, t = next(
+        (c, v, t)
+        for c, v in _variants()
+        if (t := motion_targets(c, v)) is not None and t.joints is not None
+    )
+    assert c.safety is Safety.MOTION
+    ctrl = Controller(SPECS)
+    args = default_args(v)
+    for n, i in enumerate(t.joints or ()):
+        args[i] = 10.5 + n
+    assert _reply(ctrl, c.cmd_id, format_call(c.name, args, v.params)).data == "1"
+    qv = query.variants[0]
+    got = _reply(ctrl, query.cmd_id, default_data(query, qv)).data.split(qv.returns.separator)
+    assert [float(x) for x in got[:6]] == [10.5 + n for n in range(6)]
+
+
+# --------------------------------------------------------------------------- faults
+
+
+@pytest.mark.parametrize(
+    ("text", "fault"),
+    [
+        ("wrong_cnt", Fault(kind=FaultKind.WRONG_CNT)),
+        ("wrong_cnt:201,203", Fault(kind=FaultKind.WRONG_CNT, cmd_ids=frozenset({201, 203}))),
+        ("slow:201@0.5", Fault(kind=FaultKind.SLOW, cmd_ids=frozenset({201}), delay=0.5)),
+        ("No-Reply", Fault(kind=FaultKind.NO_REPLY)),
+    ],
+)
+def test_parse_fault(text: str, fault: Fault) -> None:
+    assert parse_fault(text) == fault
+    assert parse_fault(str(fault)) == fault
+
+
+@pytest.mark.parametrize("text", ["", "bogus", "wrong_cnt:x", "slow@z", "slow:1@-1"])
+def test_parse_fault_rejects(text: str) -> None:
+    with pytest.raises(UsageError):
+        parse_fault(text)
+
+
+def _errcode_command() -> tuple[Command, Variant]:
+    return next((c, v) for c, v in _variants() if v.returns.errcode_only and v.form == "call")
+
+
+@pytest.mark.parametrize(
+    ("kind", "check"),
+    [
+        (FaultKind.WRONG_CNT, lambda f, req: f.cnt != req.cnt),
+        (FaultKind.WRONG_CMD_ID, lambda f, req: f.cmd_id != req.cmd_id),
+        (FaultKind.WRONG_LEN, lambda f, req: "len_mismatch" in [p.value for p in f.problems]),
+        (FaultKind.WRONG_COUNT, lambda f, req: f.data.count(",") == 1),
+    ],
+)
+def test_reply_faults_only_on_their_command(kind: FaultKind, check: object) -> None:
+    (c, v) = _errcode_command()
+    other = next(x for x in SPECS if x.cmd_id != c.cmd_id and x.variants[0].form == "call")
+    ctrl = Controller(SPECS, faults=[Fault(kind=kind, cmd_ids=frozenset({c.cmd_id}))])
+    req = Frame(cnt=9, cmd_id=c.cmd_id, data=default_data(c, v))
+    (a,) = ctrl.connection().receive(req.encode())
+    (f,) = [e for e in decode_all(a.data) if isinstance(e, Frame)]
+    assert check(f, req)  # type: ignore[operator]
+    ov = other.variants[0]
+    clean = _reply(ctrl, other.cmd_id, default_data(other, ov), cnt=9)
+    assert (clean.cnt, clean.cmd_id, clean.problems) == (9, other.cmd_id, ())
+
+
+def test_action_faults() -> None:
+    c, v = _errcode_command()
+    frame = encode_frame(1, c.cmd_id, default_data(c, v))
+    one = frozenset({c.cmd_id})
+
+    def answer(kind: FaultKind, delay: float | None = None) -> list[Action]:
+        fault = Fault(kind=kind, cmd_ids=one, delay=delay)
+        return Controller(SPECS, faults=[fault]).connection().receive(frame)
+
+    assert answer(FaultKind.NO_REPLY) == []
+    (a,) = answer(FaultKind.CLOSE)
+    assert a.close and not a.data
+    (a,) = answer(FaultKind.SLOW, 3)
+    assert a.delay == 3 and a.data
+    (a,) = answer(FaultKind.GARBAGE)
+    assert not a.data.startswith(b"/f/b") and a.data.endswith(b"III/b/f")
+    (a,) = answer(FaultKind.MISSING_TAIL)
+    assert not a.data.endswith(b"/b/f")
+
+
+def test_accept_out_of_range_and_ignore_len_and_crash() -> None:
+    c, v, i = _ranged()
+    args = default_args(v)
+    args[i] = 100000
+    one = frozenset({c.cmd_id})
+    bad = format_call(c.name, args, v.params)
+    ctrl = Controller(SPECS, faults=[Fault(kind=FaultKind.ACCEPT_OUT_OF_RANGE, cmd_ids=one)])
+    assert not classify_reply(v.returns, _reply(ctrl, c.cmd_id, bad).data, SPECS).refused
+    good = default_data(c, v).encode()
+    bad_len = b"/f/bIII1III%dIII%dIII%sIII/b/f" % (c.cmd_id, len(good) - 2, good)
+    ctrl = Controller(SPECS, faults=[Fault(kind=FaultKind.IGNORE_LEN, cmd_ids=one)])
+    (a,) = ctrl.connection().receive(bad_len)
+    assert not classify_reply(v.returns, decode_all(a.data)[0].data, SPECS).refused  # type: ignore[union-attr]
+    crash = Fault(kind=FaultKind.CRASH_ON_MALFORMED, cmd_ids=one, delay=0.1)
+    ctrl = Controller(SPECS, faults=[crash])
+    (a,) = ctrl.connection().receive(bad_len)
+    assert a.crash and a.delay == 0.1
+    # Well-formed input does not crash it.
+    assert not ctrl.connection().receive(good and encode_frame(1, c.cmd_id, good))[0].crash
+
+
+# --------------------------------------------------------------------------- sockets
+
+
+def _exchange(sock: socket.socket, request: bytes) -> bytes:
+    sock.sendall(request)
+    buf = b""
+    while not buf.endswith(b"/b/f"):
+        chunk = sock.recv(4096)
+        assert chunk, "connection closed"
+        buf += chunk
+    return buf
+
+
+def test_server_tcp_concurrent_and_udp() -> None:
+    with EmulatorServer(udp_port=0) as emu:
+        host, port = emu.address
+        assert host == "127.0.0.1" and port != 0
+        assert emu.udp_address is not None and emu.udp_address[1] != 0
+        errors: list[BaseException] = []
+
+        def client(n: int) -> None:
+            try:
+                with socket.create_connection(emu.address, timeout=5) as s:
+                    for k in range(20):
+                        cnt = n * 100 + k
+                        r = _exchange(s, encode_frame(cnt, 201, 'MoveJ("P1")'))
+                        assert r == encode_frame(cnt, 201, "1")
+            except BaseException as e:
+                errors.append(e)
+
+        threads = [threading.Thread(target=client, args=(n,)) for n in range(8)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        assert not errors
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as u:
+            u.settimeout(5)
+            u.sendto(encode_frame(3, 201, 'MoveJ("P1")'), emu.udp_address)
+            assert u.recvfrom(4096)[0] == encode_frame(3, 201, "1")
+
+
+def test_server_on_ipv6_loopback() -> None:
+    if not socket.has_ipv6:
+        pytest.skip("no IPv6")
+    try:
+        emu = EmulatorServer(host="::1").start()
+    except OSError as e:
+        pytest.skip(f"::1 not available: {e}")
+    with emu, socket.create_connection(emu.address, timeout=5) as s:
+        assert _exchange(s, encode_frame(1, 201, 'MoveJ("P1")')) == encode_frame(1, 201, "1")
+
+
+def test_server_crash_drops_connections_then_recovers() -> None:
+    c, v = _errcode_command()
+    fault = Fault(kind=FaultKind.CRASH_ON_MALFORMED, cmd_ids=frozenset({c.cmd_id}), delay=0.3)
+    with EmulatorServer(faults=[fault]) as emu:
+        with socket.create_connection(emu.address, timeout=5) as s:
+            s.sendall(encode_frame(1, c.cmd_id, c.name + "(1,"))
+            assert s.recv(100) == b""  # dropped
+        # Refused (accepted then closed) while restarting...
+        with socket.create_connection(emu.address, timeout=5) as s:
+            s.sendall(encode_frame(1, c.cmd_id, default_data(c, v)))
+            assert s.recv(100) == b""
+        # ...and back afterwards (poll: the restart window is the fault's delay).
+        deadline = 50
+        while True:
+            with socket.create_connection(emu.address, timeout=5) as s:
+                s.sendall(encode_frame(1, c.cmd_id, default_data(c, v)))
+                got = s.recv(100)
+            if got or not deadline:
+                break
+            deadline -= 1
+            threading.Event().wait(0.05)
+        assert got == encode_frame(1, c.cmd_id, "1")
+
+
+def test_server_reraises_background_failure() -> None:
+    def observer(peer: str, event: object, actions: object) -> None:
+        raise ValueError("boom")
+
+    emu = EmulatorServer(observer=observer).start()
+    with socket.create_connection(emu.address, timeout=5) as s:
+        s.sendall(encode_frame(1, 201, 'MoveJ("P1")'))
+        s.recv(100)
+    with pytest.raises(RuntimeError, match="boom"):
+        emu.close()
