@@ -177,10 +177,9 @@ class _ArgParser:
             self.i = end + 1
             return Text(value=value, quoted=True)
         j = self.i
-        stop = _BARE_STOP if self.sep != " " else _BARE_STOP | {" "}
-        while j < len(self.s) and self.s[j] not in stop:
+        while j < len(self.s) and self.s[j] not in _BARE_STOP and self.s[j] not in " \t":
             j += 1
-        token = self.s[self.i : j].rstrip(" \t")
+        token = self.s[self.i : j]
         if not token:
             raise _error(f"empty argument at offset {self.i} in {self.s!r}", self.s)
         self.i = self.i + len(token)
@@ -213,7 +212,10 @@ def parse_data(data: str, *, strict: bool = False) -> Parsed:
         if not data.endswith(")"):
             raise _error(f"call {m.group()!r} does not end with ')'", data)
         p = _ArgParser(data[m.end() + 1 : -1], strict=strict)
-        items = p.items(None)
+        try:
+            items = p.items(None)
+        except RemoteProtocolError as e:
+            raise _error(f"{m.group()}: {e.message}", data) from None
         problems = (Rule.SPACE_IN_ARGS,) if p.spaces else ()
         return Call(name=m.group(), args=tuple(items), problems=problems)
     if _KEYWORD_RE.fullmatch(data):

@@ -19,6 +19,8 @@ __all__ = [
     "cnts",
     "garbage",
     "invalid_calls",
+    "minimal_args",
+    "minimal_value",
     "param_values",
     "request_frames",
     "valid_args",
@@ -92,6 +94,28 @@ def param_values(p: Param) -> st.SearchStrategy[Value]:
         n = p.length or 1
         return st.lists(scalar, min_size=n, max_size=n)
     return scalar
+
+
+def minimal_value(p: Param) -> Value:
+    """The value a shrunk :func:`param_values` tends to: the low end of the first domain."""
+    if p.is_string:
+        v: Value = "P1" if p.quoted else "127.0.0.1"
+    elif p.enum and any(not isinstance(x, str) and p.allows(x) for x, _ in p.enum):
+        v = next(x for x, _ in p.enum if not isinstance(x, str) and p.allows(x))
+        if p.is_integer:
+            v = int(v)
+    elif p.range:
+        tlo = TYPE_BOUNDS.get(p.type, (-math.inf, math.inf))[0]
+        lo = next((max(iv.min, tlo) for iv in p.range if max(iv.min, tlo) <= iv.max), p.range[0].min)
+        v = math.ceil(lo) if p.is_integer else lo
+    else:
+        v = 0 if p.is_integer else 0.0
+    return [v] * (p.length or 1) if p.is_array else v
+
+
+def minimal_args(variant: Variant) -> list[Value]:
+    """One valid argument list per variant, without drawing: for sweeps and harmless probes."""
+    return [minimal_value(p) for p in variant.params]
 
 
 def valid_args(variant: Variant) -> st.SearchStrategy[list[Value]]:

@@ -1,0 +1,323 @@
+"""``specs`` (browse the machine-readable specs) and ``decode`` (bytes to frames)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Iterable
+from typing import Any
+
+from ..data import Call
+from ..errors import UsageError
+from ..frame import DEFAULT_MAX_FRAME_SIZE, Event, FrameDecoder, Malformed
+from ..spec import Command, Param, ReturnValue, SpecSet, default_specs, load_specs
+from ..validate import validate_request
+
+__all__ = ["command_json", "decode_stream", "event_json", "register"]
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    p = sub.add_parser("specs", help="browse the machine-readable specs")
+    p.add_argument("--specs-dir", help="spec set directory (default: specs/fairino-3.8.2)")
+    ssub = p.add_subparsers(dest="specs_command", metavar="ACTION")
+    ssub.required = True
+    lp = ssub.add_parser("list", help="one line per command")
+    lp.add_argument("--json", action="store_true")
+    lp.add_argument("--safety", help="only this safety class")
+    sp = ssub.add_parser("show", help="one command, by name, ID or section")
+    sp.add_argument("name_or_id")
+    sp.add_argument("--json", action="store_true")
+    ep = ssub.add_parser("errata", help="the manual's contradictions and the readings adopted")
+    ep.add_argument("--json", action="store_true")
+    ep.add_argument("--kind", help="only this erratum kind")
+    xp = ssub.add_parser("export", help="the complete spec set as one JSON document")
+    xp.add_argument("--json", action="store_true", required=True, help="JSON (the only format)")
+    p.set_defaults(func=_run_specs)
+
+    d = sub.add_parser("decode", help="decode frames from bytes (file, stdin or --hex)")
+    d.add_argument("file", nargs="?", default="-", help="input file, or - for stdin (default)")
+    d.add_argument("--hex", metavar="HEX", help="decode these hex bytes instead of a file")
+    d.add_argument("--json", action="store_true", help="one JSON object per line")
+    d.add_argument("--strict", action="store_true", help="strict reading: every deviation is malformed")
+    d.add_argument("--max-frame-size", type=int, default=DEFAULT_MAX_FRAME_SIZE)
+    d.add_argument("--specs-dir", help="spec set directory")
+    d.set_defaults(func=_run_decode)
+
+
+def _specs(args: argparse.Namespace) -> SpecSet:
+    return load_specs(args.specs_dir) if args.specs_dir else default_specs()
+
+
+# --------------------------------------------------------------------------- specs
+
+
+def _param_json(p: Param | ReturnValue) -> dict[str, Any]:
+    out: dict[str, Any] = {"name": p.name, "type": p.type}
+    if p.length is not None:
+        out["length"] = p.length
+    if p.max_length is not None:
+        out["max_length"] = p.max_length
+    if p.unit:
+        out["unit"] = p.unit
+    if isinstance(p, Param):
+        if p.is_string:
+            out["quoted"] = p.quoted
+        if p.range is not None:
+            out["range"] = [{"min": iv.min, "max": iv.max} for iv in p.range]
+        if p.enum is not None:
+            out["enum"] = [{"value": v, "label": lab} for v, lab in p.enum]
+    else:
+        out["volatile"] = p.volatile
+    out["description"] = p.description
+    return out
+
+
+def command_json(c: Command, specs: SpecSet) -> dict[str, Any]:
+    return {
+        "key": c.key,
+        "name": c.name,
+        "cmd_id": c.cmd_id,
+        "alt_cmd_ids": list(c.alt_cmd_ids),
+        "section": c.section,
+        "heading": c.heading,
+        "title": c.title,
+        "safety": c.safety.value,
+        "variants": [
+            {
+                "table": v.table,
+                "caption": v.caption,
+                "form": v.form,
+                "params": [_param_json(p) for p in v.params],
+                "returns": {
+                    "separator": v.returns.separator,
+                    "values": [_param_json(r) for r in v.returns.values],
+                },
+                "examples": [
+                    {
+                        "request": e.request,
+                        "reply": e.reply,
+                        "printed_request": e.printed_request,
+                        "printed_reply": e.printed_reply,
+                        "errata": list(e.errata),
+                    }
+                    for e in v.examples
+                ],
+            }
+            for v in c.variants
+        ],
+        "errata": [e.id for e in specs.errata_for(c.key)],
+    }
+
+
+def _erratum_json(e: Any) -> dict[str, Any]:
+    return {
+        "id": e.id,
+        "kind": e.kind,
+        "commands": list(e.commands),
+        "table": e.table,
+        "cmd_id": e.cmd_id,
+        "manual_text": e.manual_text,
+        "adopted": e.adopted,
+        "note": e.note,
+    }
+
+
+def _signature(c: Command) -> str:
+    sigs = []
+    for v in c.variants:
+        if v.form == "keyword":
+            sigs.append(c.name)
+        elif v.form == "raw":
+            sigs.append(f"{c.name} <text>")
+        else:
+            params = ",".join(
+                f"{p.type}{f'[{p.length}]' if p.length else ''} {p.name}" for p in v.params
+            )
+            sigs.append(f"{c.name}({params})")
+    return " | ".join(sigs)
+
+
+def _run_specs(args: argparse.Namespace) -> int:
+    specs = _specs(args)
+    out = sys.stdout
+    action = args.specs_command
+    if action == "list":
+        cmds = [c for c in specs if not args.safety or c.safety.value == args.safety]
+        if args.safety and not cmds:
+            raise UsageError(f"no command has safety class {args.safety!r}")
+        if args.json:
+            json.dump(
+                [
+                    {"cmd_id": c.cmd_id, "name": c.name, "section": c.section, "safety": c.safety.value,
+                     "variants": len(c.variants)}
+                    for c in cmds
+                ],
+                out,
+                ensure_ascii=False,
+                indent=2,
+            )
+            out.write("\n")
+        else:
+            for c in sorted(cmds, key=lambda c: (c.cmd_id, c.key)):
+                out.write(f"{c.cmd_id:>5}  {c.name:<40} {c.section:<8} {c.safety.value}\n")
+            out.write(f"{len(cmds)} commands\n")
+        return 0
+    if action == "show":
+        found = specs.lookup(args.name_or_id)
+        if not found:
+            raise UsageError(f"no command {args.name_or_id!r} in the specs (try 'specs list')")
+        if args.json:
+            json.dump([command_json(c, specs) for c in found], out, ensure_ascii=False, indent=2)
+            out.write("\n")
+            return 0
+        for c in found:
+            _show_text(c, specs, out)
+        return 0
+    if action == "errata":
+        errata = [e for e in specs.errata if not args.kind or e.kind == args.kind]
+        if args.json:
+            json.dump([_erratum_json(e) for e in errata], out, ensure_ascii=False, indent=2)
+            out.write("\n")
+        else:
+            for e in errata:
+                names = ", ".join(
+                    f"{c.name} ({c.cmd_id})" for k in e.commands if (c := specs.by_key(k)) is not None
+                )
+                out.write(f"{e.id}  {e.kind:<24} {names}\n")
+                out.write(f"      manual:  {e.manual_text}\n      adopted: {e.adopted}\n")
+                if e.note:
+                    out.write(f"      note:    {e.note}\n")
+            out.write(f"{len(errata)} errata\n")
+        return 0
+    # export
+    doc = {
+        "spec_version": specs.spec_version,
+        "source": specs.source,
+        "commands": [command_json(c, specs) for c in specs],
+        "errata": [_erratum_json(e) for e in specs.errata],
+        "error_codes": [
+            {"code": e.code, "meaning": e.meaning, "remedy": e.remedy} for e in specs.error_codes
+        ],
+    }
+    json.dump(doc, out, ensure_ascii=False, indent=2)
+    out.write("\n")
+    return 0
+
+
+def _show_text(c: Command, specs: SpecSet, out: Any) -> None:
+    out.write(f"{c.name}  ID {c.cmd_id}  section {c.section}  safety {c.safety.value}\n")
+    if c.alt_cmd_ids:
+        out.write(f"  also ID: {', '.join(map(str, c.alt_cmd_ids))}\n")
+    out.write(f"  {c.title}\n")
+    for v in c.variants:
+        out.write(f"  table {v.table} ({v.form}): {v.caption}\n")
+        for i, p in enumerate(v.params, 1):
+            dom = ""
+            if p.range:
+                dom += " range " + ",".join(f"{iv.min:g}~{iv.max:g}" for iv in p.range)
+            if p.enum:
+                dom += " enum " + ",".join(f"{val}={lab}" for val, lab in p.enum)
+            arr = f"[{p.length}]" if p.length else f"[{p.max_length}]" if p.max_length else ""
+            unit = f" [{p.unit}]" if p.unit else ""
+            out.write(f"    {i:>2}. {p.type}{arr} {p.name}{unit}{dom}\n")
+        rets = f" {v.returns.separator!r} ".join(r.name for r in v.returns.values)
+        out.write(f"    returns: {rets}\n")
+        for e in v.examples:
+            out.write(f"    example: {e.request}\n")
+            if e.reply:
+                out.write(f"    reply:   {e.reply}\n")
+            if e.errata:
+                out.write(f"    errata:  {', '.join(e.errata)}\n")
+    for e in specs.errata_for(c.key):
+        out.write(f"  {e.id} {e.kind}: {e.adopted}\n")
+
+
+# --------------------------------------------------------------------------- decode
+
+
+def event_json(ev: Event, specs: SpecSet, *, strict: bool = False) -> dict[str, Any]:
+    """One decoded event as the JSON object ``decode --json`` prints."""
+    if isinstance(ev, Malformed):
+        return {
+            "kind": "malformed",
+            "offset": ev.offset,
+            "cnt": None,
+            "cmd_id": None,
+            "len": None,
+            "data": None,
+            "name": None,
+            "problems": [ev.rule.value],
+            "detail": ev.detail,
+            "raw": ev.raw.decode("latin-1"),
+        }
+    check = validate_request(ev, specs, strict=strict)
+    problems = list(dict.fromkeys(v.rule.value for v in check.violations))
+    name = check.command.name if check.command is not None else None
+    out: dict[str, Any] = {
+        "kind": "frame",
+        "offset": ev.offset,
+        "cnt": ev.cnt,
+        "cmd_id": ev.cmd_id,
+        "len": ev.length,
+        "data": ev.data,
+        "name": name,
+        "problems": problems,
+    }
+    if isinstance(check.parsed, Call):
+        out["call"] = check.parsed.name
+    if check.violations:
+        out["details"] = [v.detail for v in check.violations]
+    return out
+
+
+def decode_stream(chunks: Iterable[bytes], *, strict: bool, max_frame_size: int) -> Iterable[Event]:
+    dec = FrameDecoder(strict=strict, max_frame_size=max_frame_size)
+    for chunk in chunks:
+        yield from dec.feed(chunk)
+    yield from dec.close()
+
+
+def _read_chunks(args: argparse.Namespace) -> Iterable[bytes]:
+    if args.hex is not None:
+        text = "".join(args.hex.split())
+        try:
+            yield bytes.fromhex(text)
+        except ValueError:
+            raise UsageError(f"--hex: not a hex string: {args.hex[:40]!r}") from None
+        return
+    if args.file == "-":
+        stream = sys.stdin.buffer
+        while chunk := stream.read1(65536) if hasattr(stream, "read1") else stream.read(65536):
+            yield chunk
+        return
+    try:
+        f = open(args.file, "rb")  # noqa: SIM115 - generator owns it
+    except FileNotFoundError:
+        raise UsageError(f"no such file: {args.file}") from None
+    except IsADirectoryError:
+        raise UsageError(f"is a directory: {args.file}") from None
+    with f:
+        while chunk := f.read(65536):
+            yield chunk
+
+
+def _run_decode(args: argparse.Namespace) -> int:
+    if args.max_frame_size < 64:
+        raise UsageError("--max-frame-size must be at least 64")
+    specs = _specs(args)
+    out = sys.stdout
+    bad = 0
+    for ev in decode_stream(_read_chunks(args), strict=args.strict, max_frame_size=args.max_frame_size):
+        doc = event_json(ev, specs, strict=args.strict)
+        if doc["kind"] == "malformed" or (args.strict and doc["problems"]):
+            bad += 1
+        if args.json:
+            out.write(json.dumps(doc, ensure_ascii=False) + "\n")
+        elif doc["kind"] == "frame":
+            name = doc["name"] or "?"
+            probs = f"  problems: {','.join(doc['problems'])}" if doc["problems"] else ""
+            out.write(f"frame  cnt={doc['cnt']} id={doc['cmd_id']} ({name}) len={doc['len']} data={doc['data']!r}{probs}\n")
+        else:
+            out.write(f"malformed @{doc['offset']}  {doc['problems'][0]}: {doc['detail']}  raw={ev.raw[:60]!r}\n")
+    return 1 if args.strict and bad else 0

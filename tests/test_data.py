@@ -1,0 +1,182 @@
+"""DATA grammar: calls, arguments, replies; formatting; checks against spec variants."""
+
+from __future__ import annotations
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from conformance.data import (
+    Array,
+    Call,
+    Keyword,
+    Number,
+    RawData,
+    Text,
+    check_args,
+    check_reply,
+    format_call,
+    format_number,
+    match_variant,
+    parse_data,
+    parse_reply,
+    to_python,
+)
+from conformance.errors import LocalProtocolError, RemoteProtocolError, Rule
+from conformance.frame import Frame, decode_all, encode_frame
+from conformance.spec import Command, Variant, default_specs
+from conformance.strategies import invalid_calls, minimal_args, valid_args
+
+SPECS = default_specs()
+CALL_VARIANTS: list[tuple[Command, Variant]] = [
+    (c, v) for c in SPECS for v in c.variants if v.form == "call"
+]
+
+PARSE_CASES = [
+    ('MoveJ("P1")', Call(name="MoveJ", args=(Text(value="P1", quoted=True),))),
+    ("GetActualTCPPose()", Call(name="GetActualTCPPose", args=())),
+    ("SetAO(0,409.50,0)", Call(name="SetAO", args=(Number(text="0", value=0), Number(text="409.50", value=409.5), Number(text="0", value=0)))),
+    (".000 forms", RawData(text=".000 forms")),
+    ("X(.000,-0.000,+1,1e3)", Call(name="X", args=(Number(text=".000", value=0.0), Number(text="-0.000", value=-0.0), Number(text="+1", value=1), Number(text="1e3", value=1000.0)))),
+    ("RobotIPConfig(192.168.58.2,255.255.255.0)", Call(name="RobotIPConfig", args=(Text(value="192.168.58.2", quoted=False), Text(value="255.255.255.0", quoted=False)))),
+    ("ServoJT({0.001,0.024},0)", Call(name="ServoJT", args=(Array(items=(Number(text="0.001", value=0.001), Number(text="0.024", value=0.024))), Number(text="0", value=0)))),
+    ("F({},{{1}})", Call(name="F", args=(Array(items=()), Array(items=(Array(items=(Number(text="1", value=1),)),))))),
+    ("STOP", Keyword(word="STOP")),
+    ("RESUME", Keyword(word="RESUME")),
+    ("/fruser/test.lua", RawData(text="/fruser/test.lua")),
+]
+
+
+@pytest.mark.parametrize(("data", "expected"), PARSE_CASES, ids=[c[0] for c in PARSE_CASES])
+def test_parse_data(data: str, expected: object) -> None:
+    assert parse_data(data) == expected
+    assert parse_data(data, strict=True) == expected
+
+
+def test_spaces_after_commas_lenient_and_strict() -> None:
+    parsed = parse_data("SetDO(0, 1, 0, 0)")
+    assert isinstance(parsed, Call)
+    assert [to_python(a) for a in parsed.args] == [0, 1, 0, 0]
+    assert parsed.problems == (Rule.SPACE_IN_ARGS,)
+    with pytest.raises(RemoteProtocolError) as exc:
+        parse_data("SetDO(0, 1, 0, 0)", strict=True)
+    assert exc.value.rule is Rule.BAD_DATA
+
+
+@pytest.mark.parametrize("bad", ["MoveJ(1,2", 'MoveJ("P1)', "MoveJ(1,,2)", "MoveJ(1,{2)", "F(1)x)", "F(1 2)"])
+def test_parse_data_rejects_broken_calls(bad: str) -> None:
+    with pytest.raises(RemoteProtocolError) as exc:
+        parse_data(bad)
+    assert exc.value.rule is Rule.BAD_DATA
+    assert exc.value.raw == bad.encode()
+
+
+@pytest.mark.parametrize(
+    ("data", "sep", "values"),
+    [
+        ("1", ",", [1]),
+        ("0 0", " ", [0, 0]),
+        ("0 0", None, [0, 0]),
+        ("41.7,-56.2,89.3", ",", [41.7, -56.2, 89.3]),
+        ("41.7,-56.2", None, [41.7, -56.2]),
+        ("V3.8.2", None, ["V3.8.2"]),
+        ("{1,2},3", ",", [[1, 2], 3]),
+    ],
+)
+def test_parse_reply(data: str, sep: str | None, values: list[object]) -> None:
+    assert [to_python(a) for a in parse_reply(data, sep)] == values
+
+
+@pytest.mark.parametrize(
+    ("value", "text"),
+    [(0, "0"), (12, "12"), (-3, "-3"), (0.0, "0.000"), (-116.061, "-116.061"), (409.5, "409.500"),
+     (1e-7, "0.000"), (0.123456, "0.123456"), (True, "1")],
+)
+def test_format_number(value: float, text: str) -> None:
+    assert format_number(value) == text
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf")])
+def test_format_number_refuses_non_finite(bad: float) -> None:
+    with pytest.raises(LocalProtocolError):
+        format_number(bad)
+
+
+def test_format_call_quotes_per_spec() -> None:
+    assert format_call("MoveJ", ["P1"]) == 'MoveJ("P1")'
+    assert format_call("M", [1, 2.5, [0.0, 1]]) == "M(1,2.500,{0.000,1})"
+    with pytest.raises(LocalProtocolError):
+        format_call("M", ['a"b'])
+
+
+# ------------------------------------------------------------------- against the specs
+
+
+@settings(max_examples=400, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+@given(data=st.data())
+def test_roundtrip_generated_calls_for_every_command(data: st.DataObject) -> None:
+    """Generated valid arguments of any command/variant: format -> frame -> decode -> parse -> same."""
+    command, variant = data.draw(st.sampled_from(CALL_VARIANTS))
+    args = data.draw(valid_args(variant))
+    text = format_call(command.name, args, variant.params)
+    wire = encode_frame(data.draw(st.integers(0, 65535)), command.cmd_id, text)
+    (frame,) = decode_all(wire, strict=True)
+    assert isinstance(frame, Frame) and frame.data == text
+    parsed = parse_data(frame.data, strict=True)
+    assert isinstance(parsed, Call) and parsed.name == command.name
+    back = [to_python(a) for a in parsed.args]
+    assert format_call(command.name, back, variant.params) == text
+    assert check_args(variant, parsed.args) == []
+
+
+def test_every_call_variant_round_trips_once() -> None:
+    """Deterministic sweep: the minimal call of every variant (low end of each domain) is accepted."""
+    for command, variant in CALL_VARIANTS:
+        text = format_call(command.name, minimal_args(variant), variant.params)
+        v, viols = match_variant(command, parse_data(text))
+        assert viols == [], (command.key, text, viols)
+        assert v is not None
+
+
+@settings(max_examples=300, suppress_health_check=[HealthCheck.too_slow])
+@given(data=st.data())
+def test_invalid_calls_are_caught(data: st.DataObject) -> None:
+    command, variant = data.draw(st.sampled_from(CALL_VARIANTS))
+    strat = invalid_calls(command, variant)
+    kind, text = data.draw(strat)
+    _, viols = match_variant(command, parse_data(text))
+    assert viols, (kind, text)
+    expected = {"count": Rule.ARG_COUNT, "type": Rule.ARG_TYPE, "range": Rule.ARG_RANGE}[kind]
+    assert any(v.rule is expected for v in viols), (kind, text, viols)
+
+
+def _cmd(name: str) -> Command:
+    (c,) = [c for c in SPECS.by_name(name)][:1]
+    return c
+
+
+def test_check_args_names_the_parameter() -> None:
+    setdo = _cmd("SetDO")
+    variant = setdo.variants[0]
+    parsed = parse_data("SetDO(0,1,0)")
+    assert isinstance(parsed, Call)
+    (v,) = check_args(variant, parsed.args)
+    assert v.rule is Rule.ARG_COUNT
+    parsed = parse_data('SetDO(0,"x",0,0)')
+    assert isinstance(parsed, Call)
+    (v,) = check_args(variant, parsed.args)
+    assert v.rule is Rule.ARG_TYPE and v.index == 1
+
+
+def test_match_variant_picks_by_arity() -> None:
+    movej = _cmd("MoveJ")
+    v, viols = match_variant(movej, parse_data('MoveJ("P1")'))
+    assert viols == [] and v is not None and len(v.params) == 1
+
+
+def test_check_reply_shapes() -> None:
+    joints = _cmd("GetActualJointPosDegree").variants[0].returns
+    assert check_reply(joints, "1,2,3,4,5,6") == []
+    (v,) = check_reply(joints, "1,2,3")
+    assert v.rule is Rule.REPLY_SHAPE
+    assert check_reply(joints, "a,b,c,d,e,f")

@@ -1,0 +1,231 @@
+"""Frame codec: shared case table for encoder and decoder, lenient/strict readings, properties."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from conformance.errors import LocalProtocolError, Rule
+from conformance.frame import Frame, FrameDecoder, Malformed, decode_all, encode_frame
+from conformance.strategies import garbage
+
+from .frame_cases import FRAME_CASES, LENIENT_CASES, MALFORMED_CASES
+
+
+def feed_bytewise(data: bytes, **kw: object) -> list[Frame | Malformed]:
+    d = FrameDecoder(**kw)  # type: ignore[arg-type]
+    out: list[Frame | Malformed] = []
+    for i in range(len(data)):
+        out += d.feed(data[i : i + 1])
+    return out + d.close()
+
+
+def feed_chunks(data: bytes, cuts: list[int], **kw: object) -> list[Frame | Malformed]:
+    d = FrameDecoder(**kw)  # type: ignore[arg-type]
+    out: list[Frame | Malformed] = []
+    prev = 0
+    for c in sorted(set(cuts)) + [len(data)]:
+        out += d.feed(data[prev:c])
+        prev = c
+    return out + d.close()
+
+
+# ------------------------------------------------------------------- shared table
+
+
+@pytest.mark.parametrize(("fields", "wire"), [(f, w) for _, f, w in FRAME_CASES], ids=[c[0] for c in FRAME_CASES])
+def test_encode(fields: tuple[int, int, str], wire: bytes) -> None:
+    assert encode_frame(*fields) == wire
+    assert Frame(cnt=fields[0], cmd_id=fields[1], data=fields[2]).encode() == wire
+
+
+@pytest.mark.parametrize("strict", [False, True])
+@pytest.mark.parametrize(("fields", "wire"), [(f, w) for _, f, w in FRAME_CASES], ids=[c[0] for c in FRAME_CASES])
+def test_decode(fields: tuple[int, int, str], wire: bytes, strict: bool) -> None:
+    for events in (decode_all(wire, strict=strict), feed_bytewise(wire, strict=strict)):
+        assert len(events) == 1, events
+        (ev,) = events
+        assert isinstance(ev, Frame)
+        assert (ev.cnt, ev.cmd_id, ev.data) == fields
+        assert ev.problems == ()
+        assert ev.raw == wire
+        assert ev.length == len(fields[2].encode())
+
+
+def test_decode_all_cases_in_one_stream() -> None:
+    stream = b"".join(w for _, _, w in FRAME_CASES)
+    events = decode_all(stream, strict=True)
+    assert [(e.cnt, e.cmd_id, e.data) for e in events if isinstance(e, Frame)] == [f for _, f, _ in FRAME_CASES]
+    assert all(isinstance(e, Frame) for e in events)
+    # Offsets point at each frame's first byte.
+    offsets = [e.offset for e in events]
+    expect, pos = [], 0
+    for _, _, w in FRAME_CASES:
+        expect.append(pos)
+        pos += len(w)
+    assert offsets == expect
+
+
+@pytest.mark.parametrize(
+    ("wire", "fields", "problems"), [c[1:] for c in LENIENT_CASES], ids=[c[0] for c in LENIENT_CASES]
+)
+def test_lenient_reports_deviation(wire: bytes, fields: tuple[int, int, str], problems: tuple[str, ...]) -> None:
+    events = decode_all(wire)
+    first = events[0]
+    assert isinstance(first, Frame), events
+    assert (first.cnt, first.cmd_id, first.data) == fields
+    assert tuple(p.value for p in first.problems) == problems
+    assert feed_bytewise(wire) == events
+
+
+@pytest.mark.parametrize(
+    ("wire", "problems"), [(c[1], c[3]) for c in LENIENT_CASES], ids=[c[0] for c in LENIENT_CASES]
+)
+def test_strict_rejects_deviation(wire: bytes, problems: tuple[str, ...]) -> None:
+    first = decode_all(wire, strict=True)[0]
+    assert isinstance(first, Malformed)
+    assert first.rule.value == problems[0]
+    assert first.raw == wire[: len(first.raw)] and first.raw.endswith(b"/b/f")
+
+
+@pytest.mark.parametrize(("wire", "rules"), [c[1:] for c in MALFORMED_CASES], ids=[c[0] for c in MALFORMED_CASES])
+def test_malformed(wire: bytes, rules: tuple[str, ...]) -> None:
+    for strict in (False, True):
+        events = decode_all(wire, strict=strict)
+        bad = [e for e in events if isinstance(e, Malformed)]
+        assert tuple(e.rule.value for e in bad) == rules
+        # Nothing is lost: every byte is in exactly one event.
+        assert b"".join(e.raw for e in sorted(events, key=lambda e: e.offset)) == wire
+        assert feed_bytewise(wire, strict=strict) == events
+
+
+def test_missing_tail_keeps_following_frame() -> None:
+    events = decode_all(b"/f/bIII4III201III3IIIabc/f/bIII5III201III1III1III/b/f")
+    assert isinstance(events[0], Malformed) and events[0].rule is Rule.BAD_TAIL
+    assert isinstance(events[1], Frame) and events[1].cnt == 5
+
+
+def test_preamble_and_nul_padding() -> None:
+    frame = encode_frame(1, 201, 'MoveJ("P1")')
+    padded = frame + b"\x00" * (4096 - len(frame))
+    events = decode_all(b"HELLO\r\n" + padded + frame)
+    kinds = [(type(e).__name__, getattr(e, "rule", None)) for e in events]
+    assert kinds == [
+        ("Malformed", Rule.GARBAGE),
+        ("Frame", None),
+        ("Malformed", Rule.NUL_PADDING),
+        ("Frame", None),
+    ]
+    assert events[0].detail.endswith("before the first frame")  # type: ignore[union-attr]
+    assert len(events[2].raw) == 4096 - len(frame)
+
+
+def test_resolve_pending_ends_frame_with_too_large_len() -> None:
+    d = FrameDecoder()
+    assert d.feed(b'/f/bIII4III201III99IIIMoveJ("P1")III/b/f') == []
+    (ev,) = d.resolve_pending()
+    assert isinstance(ev, Frame) and ev.problems == (Rule.LEN_MISMATCH,) and ev.data == 'MoveJ("P1")'
+    strict = FrameDecoder(strict=True)
+    strict.feed(b'/f/bIII4III201III99IIIMoveJ("P1")III/b/f')
+    (bad,) = strict.resolve_pending()
+    assert isinstance(bad, Malformed) and bad.rule is Rule.LEN_MISMATCH
+
+
+def test_resolve_pending_waits_without_tail() -> None:
+    d = FrameDecoder()
+    assert d.feed(b"/f/bIII4III201III99IIIMoveJ(") == []
+    assert d.resolve_pending() == []
+    assert d.buffered > 0
+
+
+def test_oversize_frame_is_bounded_and_reported() -> None:
+    d = FrameDecoder(max_frame_size=1024)
+    events = d.feed(b"/f/bIII1III2III999999III" + b"x" * 10_000)
+    assert d.buffered <= 1024
+    assert events[0].rule is Rule.OVERSIZE  # type: ignore[union-attr]
+    events += d.feed(encode_frame(7, 201, "GetX()")) + d.close()
+    assert isinstance(events[-1], Frame) and events[-1].cnt == 7
+    # Every byte of the oversize frame is reported, in chunks of at most max_frame_size.
+    assert sum(len(e.raw) for e in events if isinstance(e, Malformed)) == 24 + 10_000
+    assert all(len(e.raw) <= 1024 for e in events)
+
+
+def test_endless_garbage_is_bounded() -> None:
+    d = FrameDecoder(max_frame_size=4096)
+    total = 0
+    for _ in range(200):
+        evs = d.feed(b"\x01garbage" * 100)
+        total += sum(len(e.raw) for e in evs)
+        assert d.buffered <= 4096
+    total += sum(len(e.raw) for e in d.close())
+    assert total == 200 * 800
+
+
+@pytest.mark.parametrize(("cnt", "cmd_id"), [(-1, 1), (65536, 1), (1, -5)])
+def test_encode_rejects_bad_fields(cnt: int, cmd_id: int) -> None:
+    with pytest.raises(LocalProtocolError) as exc:
+        encode_frame(cnt, cmd_id, "x")
+    assert exc.value.rule in (Rule.BAD_CNT, Rule.BAD_CMD_ID)
+
+
+def test_feed_after_close_is_an_error() -> None:
+    d = FrameDecoder()
+    d.close()
+    with pytest.raises(RuntimeError):
+        d.feed(b"x")
+
+
+def test_max_frame_size_floor() -> None:
+    with pytest.raises(ValueError):
+        FrameDecoder(max_frame_size=10)
+
+
+# ------------------------------------------------------------------- properties
+
+_data = st.text(alphabet=st.characters(blacklist_categories=("Cs",)), max_size=60) | st.sampled_from(
+    ["III", "/b/f", "III/b/f", "I", "II/b/f", "/f/bIII1III1III1IIIxIII/b/f"]
+)
+
+
+@given(cnt=st.integers(0, 65535), cmd_id=st.integers(0, 10**6), data=_data)
+def test_roundtrip_any_data(cnt: int, cmd_id: int, data: str) -> None:
+    """Encode then decode gives the frame back, whatever DATA holds (LEN decides)."""
+    wire = encode_frame(cnt, cmd_id, data)
+    for strict in (False, True):
+        (ev,) = decode_all(wire, strict=strict)
+        assert isinstance(ev, Frame)
+        assert (ev.cnt, ev.cmd_id, ev.data, ev.problems) == (cnt, cmd_id, data, ())
+
+
+@settings(suppress_health_check=[HealthCheck.too_slow])
+@given(chunks=st.lists(garbage() | st.sampled_from([w for _, _, w in FRAME_CASES]), max_size=12), strict=st.booleans())
+def test_any_bytes_give_events_only(chunks: list[bytes], strict: bool) -> None:
+    """Any bytes: Frame/Malformed events only, no byte lost, whole == byte-at-a-time."""
+    data = b"".join(chunks)
+    whole = decode_all(data, strict=strict, max_frame_size=256)
+    assert all(isinstance(e, (Frame, Malformed)) for e in whole)
+    assert sum(len(e.raw) for e in whole) == len(data)
+    assert b"".join(e.raw for e in whole) == data
+    assert feed_bytewise(data, strict=strict, max_frame_size=256) == whole
+
+
+@given(data=st.lists(st.sampled_from([w for _, _, w in FRAME_CASES]) | garbage(), max_size=8).map(b"".join),
+       cuts=st.lists(st.integers(0, 400), max_size=10))
+def test_chunking_never_changes_result(data: bytes, cuts: list[int]) -> None:
+    assert feed_chunks(data, [c for c in cuts if c <= len(data)]) == decode_all(data)
+
+
+_NAIVE = re.compile(rb"/f/bIII(\d*?)III(\d*?)III(\d*)III(.*?)III/b/f", re.S)
+
+
+@given(frames=st.lists(st.sampled_from([w for _, _, w in FRAME_CASES]), min_size=1, max_size=10))
+def test_agrees_with_naive_regex_on_plain_frames(frames: list[bytes]) -> None:
+    """On frames without III inside DATA, the LEN-driven decoder and the public regex agree."""
+    frames = [f for f in frames if b"III" not in f.split(b"III", 4)[4][:-7] and b"/b/f" not in f[4:-4]]
+    data = b"".join(frames)
+    ours = [(e.cnt, e.cmd_id, e.data.encode()) for e in decode_all(data) if isinstance(e, Frame)]
+    theirs = [(int(a), int(b), d) for a, b, _, d in _NAIVE.findall(data)]
+    assert ours == theirs
