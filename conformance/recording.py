@@ -27,6 +27,7 @@ times they were seen (STYLE.md, convention 1).
 from __future__ import annotations
 
 import base64
+import contextlib
 import json
 import os
 import re
@@ -228,10 +229,8 @@ class FrameRecord:
 
         probs = []
         for p in self.problems:
-            try:
+            with contextlib.suppress(ValueError):
                 probs.append(Rule(p))
-            except ValueError:
-                pass
         return Frame(
             cnt=self.cnt,
             cmd_id=self.cmd_id,
@@ -403,7 +402,11 @@ class RecordingWriter:
             stream = output
             self.path = None
         self._stream = stream
-        comp = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
+        comp = {
+            "zstd": CompressionType.ZSTD,
+            "lz4": CompressionType.LZ4,
+            "none": CompressionType.NONE,
+        }
         self._writer = Writer(stream, chunk_size=chunk_size, compression=comp[compression])
         self._writer.start(profile="", library=f"fairino-conformance/{__version__}")
         schema_ids = {
@@ -438,12 +441,18 @@ class RecordingWriter:
             topic = TOPIC_C2S if record.dir == C2S else TOPIC_S2C
             log, pub = record.complete_ns, record.first_ns or record.complete_ns
         elif isinstance(record, ProblemRecord):
-            topic, log, pub = TOPIC_PROBLEMS, record.complete_ns, record.first_ns or record.complete_ns
+            topic, log, pub = (
+                TOPIC_PROBLEMS,
+                record.complete_ns,
+                record.first_ns or record.complete_ns,
+            )
         else:
             topic, log, pub = TOPIC_CONNECTIONS, record.t_ns, record.t_ns
         self.write_json(topic, record.to_json(), log_time=log, publish_time=pub)
 
-    def write_json(self, topic: str, doc: Mapping[str, Any], *, log_time: int, publish_time: int) -> None:
+    def write_json(
+        self, topic: str, doc: Mapping[str, Any], *, log_time: int, publish_time: int
+    ) -> None:
         ch = self._channels[topic]
         self._seq[topic] += 1
         self._writer.add_message(
@@ -458,14 +467,14 @@ class RecordingWriter:
     def flush(self) -> None:
         """End the chunk in progress and hand everything to the OS."""
         if not self._closed:
-            self._writer.flush()
+            self._writer.flush()  # type: ignore[no-untyped-call]
 
     def close(self) -> None:
         """Write the summary and index and close the file (idempotent)."""
         if self._closed:
             return
         self._closed = True
-        self._writer.finish()
+        self._writer.finish()  # type: ignore[no-untyped-call]
         self._stream.flush()
         if self._file is not None:
             self._file.close()
@@ -529,14 +538,15 @@ class RotatingWriter:
         return self._writer.messages
 
     def flush(self) -> None:
-        self._writer.flush()
+        self._writer.flush()  # type: ignore[no-untyped-call]
         self.maybe_rotate()
 
     def maybe_rotate(self) -> None:
         if not self.rotating:
             return
         due = (self.split_size is not None and self._writer.tell() >= self.split_size) or (
-            self.split_duration_ns is not None and self._clock() - self._opened >= self.split_duration_ns
+            self.split_duration_ns is not None
+            and self._clock() - self._opened >= self.split_duration_ns
         )
         if due:
             self._writer.close()
@@ -704,7 +714,9 @@ class StreamRecorder:
         st.last_ns = t_ns
         self._emit(conn, c.transport, direction, st, events, t_ns, base=base)
 
-    def gap(self, conn: int, direction: Direction, t_ns: int, missing: int, detail: str = "") -> None:
+    def gap(
+        self, conn: int, direction: Direction, t_ns: int, missing: int, detail: str = ""
+    ) -> None:
         """``missing`` bytes of the stream were never captured: record it, restart decoding."""
         c = self._conns[conn]
         st = c.streams[direction]
@@ -841,7 +853,9 @@ class Recording:
 
     @property
     def start_ns(self) -> int:
-        times = [f.first_ns or f.complete_ns for f in self.frames] + [c.t_ns for c in self.connections]
+        times = [f.first_ns or f.complete_ns for f in self.frames] + [
+            c.t_ns for c in self.connections
+        ]
         return min(times) if times else 0
 
     @property
@@ -863,7 +877,10 @@ class Recording:
                 out.append(Exchange(conn=f.conn, request=f, reply=None))
                 continue
             waiting = pending.get(f.conn, [])
-            pick = next((k for k, (_, r) in enumerate(waiting) if r.cnt == f.cnt and r.cmd_id == f.cmd_id), None)
+            pick = next(
+                (k for k, (_, r) in enumerate(waiting) if r.cnt == f.cnt and r.cmd_id == f.cmd_id),
+                None,
+            )
             if pick is None:
                 pick = next((k for k, (_, r) in enumerate(waiting) if r.cmd_id == f.cmd_id), None)
             if pick is None:
@@ -997,7 +1014,10 @@ def recover(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> Recover
                 schema_map[rec.id] = out.register_schema(rec.name, rec.encoding, rec.data)
             elif isinstance(rec, Channel) and rec.id not in chan_map:
                 chan_map[rec.id] = out.register_channel(
-                    rec.topic, rec.message_encoding, schema_map.get(rec.schema_id, 0), dict(rec.metadata)
+                    rec.topic,
+                    rec.message_encoding,
+                    schema_map.get(rec.schema_id, 0),
+                    dict(rec.metadata),
                 )
             elif isinstance(rec, Message) and rec.channel_id in chan_map:
                 out.add_message(
@@ -1008,6 +1028,6 @@ def recover(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> Recover
                 out.add_metadata(rec.name, dict(rec.metadata))
             elif isinstance(rec, Footer):
                 complete = True
-        out.finish()
+        out.finish()  # type: ignore[no-untyped-call]
     os.replace(tmp, dst)
     return RecoverResult(messages=n, was_complete=complete, stopped=stopped)

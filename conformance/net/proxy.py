@@ -23,6 +23,7 @@ the reason) and the client's connection is closed; the proxy carries on.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
 import queue
@@ -89,6 +90,7 @@ class ProxyStats:
     bytes_c2s: int = 0
     bytes_s2c: int = 0
     refused: int = 0
+    closed: int = 0
     paused: int = 0  # times the I/O thread waited for the recorder
 
 
@@ -222,7 +224,9 @@ class RecordingProxy:
         self._sel.register(self._wake_r, _READ, "wake")
         if self._udp is not None:
             self._sel.register(self._udp, _READ, "udp")
-        self._rec_thread = threading.Thread(target=self._record_loop, name="proxy-recorder", daemon=True)
+        self._rec_thread = threading.Thread(
+            target=self._record_loop, name="proxy-recorder", daemon=True
+        )
         self._io_thread = threading.Thread(target=self._io_loop, name="proxy-io", daemon=True)
         self._rec_thread.start()
         self._io_thread.start()
@@ -234,10 +238,8 @@ class RecordingProxy:
             return
         self._closed = True
         self._stopping.set()
-        try:
+        with contextlib.suppress(OSError):
             self._wake_w.send(b"x")
-        except OSError:
-            pass
         if self._io_thread is not None:
             self._io_thread.join()
         else:
@@ -352,10 +354,8 @@ class RecordingProxy:
                     if tag == "listen":
                         self._accept()
                     elif tag == "wake":
-                        try:
+                        with contextlib.suppress(OSError):
                             self._wake_r.recv(64)
-                        except OSError:
-                            pass
                     elif tag == "udp":
                         self._udp_from_client()
                     elif isinstance(tag, _Pair):
@@ -397,7 +397,12 @@ class RecordingProxy:
             up = socket.socket(_family(self.upstream[0]), socket.SOCK_STREAM)
             up.setblocking(False)
             up.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            pair = _Pair(conn=conn, client=client, upstream=up, deadline=time.monotonic() + self.connect_timeout)
+            pair = _Pair(
+                conn=conn,
+                client=client,
+                upstream=up,
+                deadline=time.monotonic() + self.connect_timeout,
+            )
             self._put(
                 _OPEN,
                 conn,
@@ -554,10 +559,8 @@ class RecordingProxy:
     def _shut(self, p: _Pair, *, to_client: bool) -> None:
         """Pass a half-close on: the peer has sent everything it will."""
         sock = p.client if to_client else p.upstream
-        try:
+        with contextlib.suppress(OSError):
             sock.shutdown(socket.SHUT_WR)
-        except OSError:
-            pass
         if to_client:
             p.shut_client = True
         else:
@@ -573,7 +576,9 @@ class RecordingProxy:
             if p.deadline and now >= p.deadline:
                 if not p.connected:
                     self.stats.refused += 1
-                    self._close_pair(p, f"upstream connect timed out after {self.connect_timeout:g} s")
+                    self._close_pair(
+                        p, f"upstream connect timed out after {self.connect_timeout:g} s"
+                    )
                 else:
                     self._close_pair(p, p.first_close or "linger timeout")
         if self._sessions:
@@ -581,7 +586,9 @@ class RecordingProxy:
                 if time.monotonic() - s.last >= self.udp_idle:
                     self._close_session(s, "idle")
 
-    def _close_pair(self, p: _Pair, reason: str, pending: tuple[str, int, bytes] | None = None) -> None:
+    def _close_pair(
+        self, p: _Pair, reason: str, pending: tuple[str, int, bytes] | None = None
+    ) -> None:
         if p.closed:
             return
         if pending is not None:
@@ -592,17 +599,14 @@ class RecordingProxy:
                 self.stats.bytes_s2c += len(data)
             self._put(_DATA, p.conn, d, t, data)
         p.closed = True
+        self.stats.closed += 1
         for sock in (p.client, p.upstream):
             if p.interest.get(sock.fileno(), 0):
-                try:
+                with contextlib.suppress(KeyError, ValueError):
                     self._sel.unregister(sock)
-                except (KeyError, ValueError):
-                    pass
             self._pairs.pop(sock, None)
-            try:
+            with contextlib.suppress(OSError):
                 sock.close()
-            except OSError:
-                pass
         self._put(_CLOSE, p.conn, "", time.time_ns(), reason)
 
     # ------------------------------------------------------------------ UDP
@@ -626,7 +630,9 @@ class RecordingProxy:
                 except OSError:
                     sock.close()
                     continue
-                s = _UdpSession(conn=self._new_conn(), client_addr=addr, sock=sock, last=time.monotonic())
+                s = _UdpSession(
+                    conn=self._new_conn(), client_addr=addr, sock=sock, last=time.monotonic()
+                )
                 self._sessions[addr] = s
                 self._session_socks[sock] = s
                 self._sel.register(sock, _READ, s)
@@ -644,10 +650,9 @@ class RecordingProxy:
                     },
                 )
             s.last = time.monotonic()
-            try:
+            # UDP: a failed send loses the datagram on the way, as it would without us.
+            with contextlib.suppress(OSError):
                 s.sock.send(data)
-            except OSError:
-                pass  # UDP: the datagram is lost on the way, as it would be without us
             self.stats.bytes_c2s += len(data)
             self._put(_DGRAM, s.conn, C2S, t, data)
 
@@ -662,20 +667,16 @@ class RecordingProxy:
                 return  # ICMP port unreachable and the like: nothing arrived
             t = time.time_ns()
             s.last = time.monotonic()
-            try:
+            with contextlib.suppress(OSError):
                 self._udp.sendto(data, s.client_addr)
-            except OSError:
-                pass
             self.stats.bytes_s2c += len(data)
             self._put(_DGRAM, s.conn, S2C, t, data)
 
     def _close_session(self, s: _UdpSession, reason: str) -> None:
         self._sessions.pop(s.client_addr, None)
         self._session_socks.pop(s.sock, None)
-        try:
+        with contextlib.suppress(KeyError, ValueError):
             self._sel.unregister(s.sock)
-        except (KeyError, ValueError):
-            pass
         s.sock.close()
         self._put(_CLOSE, s.conn, "", time.time_ns(), reason)
 
@@ -692,10 +693,8 @@ class RecordingProxy:
             self._close_session(s, "proxy stopped")
         for sock in (self._listener, self._udp):
             if sock is not None:
-                try:
+                with contextlib.suppress(OSError):
                     sock.close()
-                except OSError:
-                    pass
 
 
 def _try_send(sock: socket.socket, data: bytes | bytearray) -> int:

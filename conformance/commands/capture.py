@@ -1,0 +1,324 @@
+"""Traffic recorder sub-commands: ``proxy``, ``recover``, ``info``, ``check``, ``replay``,
+``diff``, ``import-pcap`` and ``export-pcap``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from ..errors import UsageError
+from ..recording import C2S, FrameRecord, read_recording, recover
+from ..spec import SpecSet, default_specs, load_specs
+
+__all__ = ["format_frame_line", "parse_duration", "parse_size", "register"]
+
+
+def parse_size(text: str) -> int:
+    """``1048576``, ``100k``, ``64M``, ``2G`` → bytes."""
+    m = re.fullmatch(r"\s*(\d+(?:\.\d+)?)\s*([kKmMgG]?)[bB]?\s*", text)
+    if not m:
+        raise argparse.ArgumentTypeError(f"bad size {text!r} (e.g. 100M)")
+    mult = {"": 1, "k": 1 << 10, "m": 1 << 20, "g": 1 << 30}[m.group(2).lower()]
+    return int(float(m.group(1)) * mult)
+
+
+def parse_duration(text: str) -> float:
+    """``30``, ``30s``, ``15m``, ``2h`` → seconds."""
+    m = re.fullmatch(r"\s*(\d+(?:\.\d+)?)\s*(ms|s|m|h)?\s*", text)
+    if not m:
+        raise argparse.ArgumentTypeError(f"bad duration {text!r} (e.g. 15m)")
+    mult = {None: 1.0, "ms": 1e-3, "s": 1.0, "m": 60.0, "h": 3600.0}[m.group(2)]
+    return float(m.group(1)) * mult
+
+
+def _specs(args: argparse.Namespace) -> SpecSet:
+    d = getattr(args, "specs_dir", None)
+    return load_specs(d) if d else default_specs()
+
+
+def _write_json(path: str, doc: Any) -> None:
+    text = json.dumps(doc, indent=2, ensure_ascii=False) + "\n"
+    if path == "-":
+        sys.stdout.write(text)
+    else:
+        Path(path).write_text(text, encoding="utf-8")
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    p = sub.add_parser(
+        "proxy",
+        help="record traffic between a client and a controller to MCAP",
+        description="Forward TCP (and with --udp, UDP) traffic and record every frame to MCAP.",
+    )
+    p.add_argument(
+        "--listen", default="127.0.0.1:18080", help="address to listen on (default 127.0.0.1:18080)"
+    )
+    p.add_argument(
+        "--upstream",
+        required=True,
+        help="controller address HOST:PORT (port 8080 on a real controller)",
+    )
+    p.add_argument("--out", "-o", required=True, help="MCAP file to write")
+    p.add_argument("--udp", action="store_true", help="proxy the UDP transport too")
+    p.add_argument(
+        "--udp-listen", help="UDP listen address (default: the --listen host, port 20007)"
+    )
+    p.add_argument(
+        "--udp-upstream", help="controller UDP address (default: the --upstream host, port 20007)"
+    )
+    p.add_argument(
+        "--split-size", type=parse_size, help="start a new file after this size (e.g. 100M)"
+    )
+    p.add_argument(
+        "--split-duration", type=parse_duration, help="start a new file after this time (e.g. 15m)"
+    )
+    p.add_argument(
+        "--print", dest="print_frames", action="store_true", help="print one line per frame"
+    )
+    p.add_argument("--connect-timeout", type=float, default=5.0)
+    p.add_argument("--specs-dir", help="spec set directory")
+    p.set_defaults(func=_run_proxy)
+
+    r = sub.add_parser("recover", help="rewrite an unfinished recording as a valid, indexed one")
+    r.add_argument("capture")
+    r.add_argument("-o", "--out", required=True)
+    r.set_defaults(func=_run_recover)
+
+    i = sub.add_parser(
+        "info", help="duration, connections, frames and latency per command of a recording"
+    )
+    i.add_argument("capture")
+    i.add_argument("--json", action="store_true")
+    i.add_argument("--specs-dir", help="spec set directory")
+    i.set_defaults(func=_run_info)
+
+    c = sub.add_parser(
+        "check", help="validate a recording's traffic, both directions, against the specs"
+    )
+    c.add_argument("capture")
+    c.add_argument("--report-json", metavar="PATH", help="write the report as JSON (- for stdout)")
+    c.add_argument("--strict", action="store_true", help="NON-STRICT deviations count as failures")
+    c.add_argument("--only-failures", action="store_true")
+    c.add_argument("--specs-dir", help="spec set directory")
+    c.set_defaults(func=_run_check)
+
+    _register_more(sub)
+
+
+def _register_more(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    rp = sub.add_parser(
+        "replay",
+        help="resend a recording's requests to a target and compare, or serve its replies",
+        description="With --target: resend the client's frames and compare the replies with the "
+        "recorded ones. With --serve: answer a client with the recorded replies.",
+    )
+    rp.add_argument("capture")
+    mode = rp.add_mutually_exclusive_group(required=True)
+    mode.add_argument("--target", help="HOST:PORT to resend the requests to")
+    mode.add_argument(
+        "--serve", metavar="HOST:PORT", help="play the controller's side on this address"
+    )
+    rp.add_argument("--timing", choices=("recorded", "fast"), default="fast")
+    rp.add_argument(
+        "--ignore",
+        action="append",
+        default=[],
+        metavar="RULE",
+        help="difference to ignore: volatile, data, cnt, latency, missing, extra, "
+        "or ID / ID.INDEX / NAME (repeatable)",
+    )
+    rp.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for each reply")
+    rp.add_argument("--json", metavar="PATH", help="write the comparison as JSON (- for stdout)")
+    rp.add_argument(
+        "--unmatched",
+        choices=("error", "nearest", "drop"),
+        default="error",
+        help="serve: a request the recording has no reply for gets an error reply, "
+        "the nearest recorded reply of its command ID, or none",
+    )
+    rp.add_argument("--count", type=int, default=0, help="serve: stop after this many connections")
+    rp.add_argument("--allow-motion", action="store_true")
+    rp.add_argument("--allow-io", action="store_true")
+    rp.add_argument("--allow-config", action="store_true")
+    rp.add_argument("--allow-destructive", action="append", default=[], metavar="NAME")
+    rp.add_argument("--specs-dir", help="spec set directory")
+    rp.set_defaults(func=_run_replay)
+
+    d = sub.add_parser("diff", help="compare two recordings per command ID")
+    d.add_argument("a")
+    d.add_argument("b")
+    d.add_argument("--json", action="store_true")
+    d.add_argument(
+        "--ignore",
+        action="append",
+        default=[],
+        metavar="RULE",
+        help="volatile, data, latency, or ID / NAME (repeatable)",
+    )
+    d.add_argument(
+        "--latency-threshold",
+        type=float,
+        default=0.5,
+        help="report p50 latency changes above this fraction (default 0.5 = 50%%)",
+    )
+    d.add_argument("--specs-dir", help="spec set directory")
+    d.set_defaults(func=_run_diff)
+
+    ip = sub.add_parser("import-pcap", help="turn a pcap/pcapng capture into a recording")
+    ip.add_argument("pcap")
+    ip.add_argument("-o", "--out", required=True)
+    ip.add_argument(
+        "--port",
+        type=int,
+        action="append",
+        default=[],
+        help="controller TCP port (default 8080; repeatable)",
+    )
+    ip.add_argument(
+        "--udp-port",
+        type=int,
+        action="append",
+        default=[],
+        help="controller UDP port (default 20007; repeatable)",
+    )
+    ip.add_argument("--specs-dir", help="spec set directory")
+    ip.set_defaults(func=_run_import_pcap)
+
+    ep = sub.add_parser("export-pcap", help="write a recording as a pcap for Wireshark")
+    ep.add_argument("capture")
+    ep.add_argument("-o", "--out", required=True)
+    ep.set_defaults(func=_run_export_pcap)
+
+
+# --------------------------------------------------------------------------- proxy
+
+
+def format_frame_line(f: FrameRecord) -> str:
+    """One tcpdump-like line: time, connection, direction, CNT, ID, name, short DATA."""
+    t = f.complete_ns
+    stamp = time.strftime("%H:%M:%S", time.localtime(t / 1e9)) + f".{t % 1_000_000_000 // 1000:06d}"
+    arrow = ">" if f.dir == C2S else "<"
+    data = f.data if len(f.data) <= 60 else f.data[:57] + "..."
+    extra = f"  !{','.join(f.problems)}" if f.problems else ""
+    return f"{stamp} #{f.conn} {arrow} CNT={f.cnt} ID={f.cmd_id} {f.name or '?'} {data}{extra}"
+
+
+def _run_proxy(args: argparse.Namespace) -> int:
+    from ..net.proxy import RecordingProxy, parse_hostport
+
+    listen = parse_hostport(args.listen, default_port=18080)
+    upstream = parse_hostport(args.upstream, default_port=8080)
+    udp_upstream = udp_listen = None
+    if args.udp or args.udp_upstream or args.udp_listen:
+        udp_upstream = parse_hostport(args.udp_upstream or upstream[0], default_port=20007)
+        udp_listen = parse_hostport(args.udp_listen or listen[0], default_port=20007)
+    specs = _specs(args)
+    on_frame = None
+    if args.print_frames:
+
+        def on_frame(f: FrameRecord) -> None:
+            print(format_frame_line(f), flush=True)
+
+    stop = threading.Event()
+
+    def _stop(signum: int, frame: object) -> None:
+        stop.set()
+
+    try:
+        proxy = RecordingProxy(
+            upstream,
+            out=args.out,
+            listen=listen,
+            udp_upstream=udp_upstream,
+            udp_listen=udp_listen,
+            specs=specs,
+            split_size=args.split_size,
+            split_duration=args.split_duration,
+            connect_timeout=args.connect_timeout,
+            on_frame=on_frame,
+        )
+    except OSError as e:
+        raise UsageError(f"cannot listen on {args.listen}: {e.strerror or e}") from None
+    old = {s: signal.signal(s, _stop) for s in (signal.SIGINT, signal.SIGTERM)}
+    proxy.start()
+    h, port = proxy.address
+    msg = f"proxy: listening on {h}:{port} -> {args.upstream}"
+    if proxy.udp_address and udp_upstream:
+        ua, uu = proxy.udp_address, udp_upstream
+        msg += f" (udp {ua[0]}:{ua[1]} -> {uu[0]}:{uu[1]})"
+    print(msg + f", recording to {args.out}", file=sys.stderr, flush=True)
+    try:
+        while not stop.wait(0.2):
+            pass
+    finally:
+        for s, h_ in old.items():
+            signal.signal(s, h_)
+        proxy.close()
+    print(
+        f"proxy: stopped; {proxy.stats.connections} connections, {proxy.frames_recorded} frames "
+        f"recorded to {', '.join(proxy.paths)}",
+        file=sys.stderr,
+    )
+    return 0
+
+
+# --------------------------------------------------------------------------- recover / info / check
+
+
+def _run_recover(args: argparse.Namespace) -> int:
+    res = recover(args.capture, args.out)
+    state = (
+        "was already complete"
+        if res.was_complete
+        else f"was unfinished ({res.stopped or 'no footer'})"
+    )
+    print(f"recovered {res.messages} messages to {args.out}; {args.capture} {state}")
+    return 0
+
+
+def _run_info(args: argparse.Namespace) -> int:
+    from ..capture_check import render_info, summarize
+
+    info = summarize(read_recording(args.capture), _specs(args))
+    if args.json:
+        _write_json("-", info)
+    else:
+        print(render_info(info))
+    return 0
+
+
+def _run_check(args: argparse.Namespace) -> int:
+    from ..capture_check import check_recording
+
+    report = check_recording(read_recording(args.capture), _specs(args), strict=args.strict)
+    if args.report_json:
+        _write_json(args.report_json, report.to_json())
+    if args.report_json != "-":
+        print(report.render_terminal(only_failures=args.only_failures))
+    return report.exit_code()
+
+
+# --------------------------------------------------------------------------- replay / diff / pcap
+
+
+def _run_replay(args: argparse.Namespace) -> int:
+    raise UsageError("replay is not available yet")
+
+
+def _run_diff(args: argparse.Namespace) -> int:
+    raise UsageError("diff is not available yet")
+
+
+def _run_import_pcap(args: argparse.Namespace) -> int:
+    raise UsageError("import-pcap is not available yet")
+
+
+def _run_export_pcap(args: argparse.Namespace) -> int:
+    raise UsageError("export-pcap is not available yet")

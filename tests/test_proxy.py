@@ -1,0 +1,415 @@
+"""The recording proxy with real sockets on 127.0.0.1 (port 0) and real MCAP files."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+
+from conformance.frame import Frame, FrameDecoder, encode_frame
+from conformance.net.proxy import RecordingProxy, parse_hostport
+from conformance.recording import (
+    TOPIC_C2S,
+    TOPIC_CONNECTIONS,
+    TOPIC_S2C,
+    read_recording,
+    recover,
+)
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+class Upstream:
+    """A small controller stand-in: replies ``1`` to every frame, echoing CNT and CMD_ID.
+
+    ``on_frame`` may replace the reply (return bytes, or None for no reply).
+    """
+
+    def __init__(self, on_frame: Callable[[Frame], bytes | None] | None = None) -> None:
+        self.srv = socket.create_server(("127.0.0.1", 0))
+        self.address: tuple[str, int] = self.srv.getsockname()[:2]
+        self.on_frame = on_frame
+        self.conns: list[socket.socket] = []
+        self.frames = 0
+        threading.Thread(target=self._accept, daemon=True).start()
+
+    def _accept(self) -> None:
+        while True:
+            try:
+                c, _ = self.srv.accept()
+            except OSError:
+                return
+            self.conns.append(c)
+            threading.Thread(target=self._serve, args=(c,), daemon=True).start()
+
+    def _serve(self, c: socket.socket) -> None:
+        d = FrameDecoder()
+        try:
+            while True:
+                b = c.recv(65536)
+                if not b:
+                    break
+                out = []
+                for ev in d.feed(b):
+                    if isinstance(ev, Frame):
+                        self.frames += 1
+                        r = (
+                            self.on_frame(ev)
+                            if self.on_frame
+                            else encode_frame(ev.cnt, ev.cmd_id, "1")
+                        )
+                        if r:
+                            out.append(r)
+                if out:
+                    c.sendall(b"".join(out))
+        except OSError:
+            pass
+        finally:
+            c.close()
+
+    def close(self) -> None:
+        self.srv.close()
+        for c in self.conns:
+            try:
+                c.shutdown(socket.SHUT_RDWR)
+                c.close()
+            except OSError:
+                pass
+
+
+@pytest.fixture
+def upstream() -> Iterator[Upstream]:
+    u = Upstream()
+    yield u
+    u.close()
+
+
+def recv_frames(sock: socket.socket, n: int, timeout: float = 5.0) -> list[Frame]:
+    d = FrameDecoder()
+    out: list[Frame] = []
+    sock.settimeout(timeout)
+    while len(out) < n:
+        b = sock.recv(65536)
+        if not b:
+            break
+        out += [e for e in d.feed(b) if isinstance(e, Frame)]
+    return out
+
+
+def wait_for(pred: Callable[[], bool], timeout: float = 5.0) -> None:
+    end = time.monotonic() + timeout
+    while not pred():
+        if time.monotonic() > end:
+            raise AssertionError("condition not met in time")
+        time.sleep(0.01)
+
+
+def test_forwards_and_records_both_directions(tmp_path: Path, upstream: Upstream) -> None:
+    out = tmp_path / "r.mcap"
+    with RecordingProxy(upstream.address, out=out) as p:
+        with socket.create_connection(p.address) as c:
+            for i in range(20):
+                c.sendall(encode_frame(i, 201, 'MoveJ("P1")'))
+                (reply,) = recv_frames(c, 1)
+                assert (reply.cnt, reply.cmd_id, reply.data) == (i, 201, "1")
+        wait_for(lambda: p.stats.closed == 1)
+    rec = read_recording(out)
+    assert rec.complete
+    req = [f for f in rec.frames if f.dir == "c2s"]
+    rep = [f for f in rec.frames if f.dir == "s2c"]
+    assert [f.cnt for f in req] == list(range(20)) == [f.cnt for f in rep]
+    assert all(f.name == "MoveJ" and f.cmd_id == 201 for f in rec.frames)
+    assert req[0].raw == encode_frame(0, 201, 'MoveJ("P1")')
+    assert all(f.first_ns <= f.complete_ns for f in rec.frames)
+    ex = rec.exchanges()
+    assert len(ex) == 20 and all(e.latency_ns is not None and e.latency_ns >= 0 for e in ex)
+    events = [(c.event, c.reason) for c in rec.connections]
+    assert events == [("open", ""), ("close", "client closed")]
+    assert rec.connections[0].upstream == f"127.0.0.1:{upstream.address[1]}"
+    for key in ("kit_version", "spec_version", "upstream", "listen", "start_time", "host"):
+        assert rec.metadata[key]
+    # The mcap library reads it as an indexed file with our topics and schemas.
+    with open(out, "rb") as f:
+        r = make_reader(f)
+        summary = r.get_summary()
+        assert summary is not None and summary.statistics is not None
+        topics = {c.topic: c for c in summary.channels.values()}
+        assert {TOPIC_C2S, TOPIC_S2C, TOPIC_CONNECTIONS} <= set(topics)
+        assert topics[TOPIC_C2S].message_encoding == "json"
+        assert summary.schemas[topics[TOPIC_C2S].schema_id].encoding == "jsonschema"
+        counts = summary.statistics.channel_message_counts
+        assert counts[topics[TOPIC_C2S].id] == 20 and counts[topics[TOPIC_S2C].id] == 20
+
+
+def test_many_concurrent_clients_nothing_dropped(tmp_path: Path, upstream: Upstream) -> None:
+    out = tmp_path / "r.mcap"
+    n_clients, n_frames = 100, 20
+    with RecordingProxy(upstream.address, out=out) as p:
+        socks = [socket.create_connection(p.address) for _ in range(n_clients)]
+        # Pipelined: every client sends all its frames at once, then reads.
+        for k, s in enumerate(socks):
+            s.sendall(
+                b"".join(encode_frame(i, 400 + k % 3, "GetVersion()") for i in range(n_frames))
+            )
+        for s in socks:
+            assert len(recv_frames(s, n_frames)) == n_frames
+            s.close()
+        wait_for(lambda: p.stats.connections == n_clients)
+    rec = read_recording(out)
+    assert sum(1 for f in rec.frames if f.dir == "c2s") == n_clients * n_frames
+    assert sum(1 for f in rec.frames if f.dir == "s2c") == n_clients * n_frames
+    assert len({f.conn for f in rec.frames}) == n_clients
+    assert not rec.problems
+
+
+def test_client_hangs_up_mid_frame(tmp_path: Path, upstream: Upstream) -> None:
+    out = tmp_path / "r.mcap"
+    with RecordingProxy(upstream.address, out=out) as p:
+        with socket.create_connection(p.address) as c:
+            c.sendall(encode_frame(1, 201, 'MoveJ("P1")'))
+            recv_frames(c, 1)
+            c.sendall(b"/f/bIII2III201III11IIIMove")
+        wait_for(lambda: p.stats.closed == 1)
+    rec = read_recording(out)
+    assert [p.rule for p in rec.problems] == ["truncated"]
+    assert rec.problems[0].raw == b"/f/bIII2III201III11IIIMove"
+    assert rec.connections[-1].reason == "client closed"
+
+
+def test_upstream_refusal_closes_client_and_is_recorded(tmp_path: Path) -> None:
+    s = socket.create_server(("127.0.0.1", 0))
+    dead = s.getsockname()[:2]
+    s.close()  # nothing listens there now
+    out = tmp_path / "r.mcap"
+    with RecordingProxy(dead, out=out) as p:
+        with socket.create_connection(p.address) as c:
+            c.settimeout(5)
+            c.sendall(encode_frame(1, 201, 'MoveJ("P1")'))
+            with contextlib.suppress(ConnectionResetError):
+                assert c.recv(100) == b""
+        wait_for(lambda: p.stats.refused == 1)
+        # The proxy carries on: the next client is refused the same way.
+        with socket.create_connection(p.address) as c:
+            c.settimeout(5)
+            with contextlib.suppress(ConnectionResetError):
+                assert c.recv(100) == b""
+    rec = read_recording(out)
+    closes = [c for c in rec.connections if c.event == "close"]
+    assert len(closes) == 2
+    assert all("upstream refused" in c.reason for c in closes)
+
+
+def test_upstream_dies_mid_connection(tmp_path: Path) -> None:
+    up = Upstream(
+        on_frame=lambda f: None if f.cmd_id == 999 else encode_frame(f.cnt, f.cmd_id, "1")
+    )
+    out = tmp_path / "r.mcap"
+    with RecordingProxy(up.address, out=out) as p:
+        with socket.create_connection(p.address) as c:
+            c.sendall(encode_frame(1, 201, 'MoveJ("P1")'))
+            recv_frames(c, 1)
+            up.close()  # the controller goes away
+            c.settimeout(5)
+            with contextlib.suppress(ConnectionResetError):
+                assert c.recv(100) == b""
+        wait_for(lambda: p.stats.closed == 1)
+    rec = read_recording(out)
+    assert rec.connections[-1].event == "close"
+    assert "upstream" in rec.connections[-1].reason
+
+
+def test_garbage_flood_and_endless_frame_are_recorded_as_problems(
+    tmp_path: Path, upstream: Upstream
+) -> None:
+    out = tmp_path / "r.mcap"
+    garbage = bytes(range(256)).replace(b"/", b".") * 8192  # 2 MiB, no frame head in it
+    endless = b"/f/bIII1III201III99999999III" + b"x" * (600 * 1024)
+    with RecordingProxy(upstream.address, out=out) as p:
+        with socket.create_connection(p.address) as c:
+            c.sendall(garbage)
+            c.sendall(encode_frame(7, 201, 'MoveJ("P1")'))
+            assert recv_frames(c, 1)[0].cnt == 7
+            c.sendall(endless)
+            c.sendall(encode_frame(8, 201, 'MoveJ("P1")'))
+            assert recv_frames(c, 1)[0].cnt == 8
+        wait_for(lambda: p.recorder.frames >= 4)
+    rec = read_recording(out)
+    assert [f.cnt for f in rec.frames if f.dir == "c2s"] == [7, 8]
+    rules: dict[str, int] = {}
+    for pr in rec.problems:
+        rules[pr.rule] = rules.get(pr.rule, 0) + pr.size
+    assert rules["garbage"] >= len(garbage)
+    assert "oversize" in rules
+    # Every byte the client sent is accounted for: frames + problems.
+    total = sum(len(f.raw) for f in rec.frames if f.dir == "c2s") + sum(
+        pr.size for pr in rec.problems if pr.dir == "c2s"
+    )
+    assert total == len(garbage) + len(endless) + 2 * len(encode_frame(7, 201, 'MoveJ("P1")'))
+
+
+def test_slow_reader_bounds_buffering(tmp_path: Path) -> None:
+    big = encode_frame(1, 400, "x" * 60000)
+    up = Upstream(on_frame=lambda f: big * 300)  # 18 MB per request: more than socket buffers hold
+    out = tmp_path / "r.mcap"
+    with RecordingProxy(up.address, out=out, max_pending=256 * 1024) as p:
+        c = socket.create_connection(p.address)
+        c.sendall(encode_frame(1, 400, "GetVersion()"))
+        time.sleep(0.5)  # we do not read: the proxy must stop reading upstream
+        pending = max((len(x.to_client) for x in p._pairs.values()), default=0)
+        assert pending <= 256 * 1024 + 256 * 1024
+        got = recv_frames(c, 300, timeout=10)
+        assert len(got) == 300
+        c.close()
+    up.close()
+    rec = read_recording(out)
+    assert sum(1 for f in rec.frames if f.dir == "s2c") == 300
+
+
+def test_udp_datagrams_are_forwarded_and_recorded(tmp_path: Path) -> None:
+    usock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    usock.bind(("127.0.0.1", 0))
+
+    def serve() -> None:
+        while True:
+            try:
+                data, addr = usock.recvfrom(65535)
+            except OSError:
+                return
+            for ev in FrameDecoder().feed(data):
+                if isinstance(ev, Frame):
+                    usock.sendto(encode_frame(ev.cnt, ev.cmd_id, "1"), addr)
+
+    threading.Thread(target=serve, daemon=True).start()
+    tcp = Upstream()
+    out = tmp_path / "r.mcap"
+    with RecordingProxy(tcp.address, out=out, udp_upstream=usock.getsockname()[:2]) as p:
+        assert p.udp_address is not None
+        c = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        c.settimeout(5)
+        for i in range(3):
+            c.sendto(encode_frame(i, 201, 'MoveJ("P1")'), p.udp_address)
+            data, _ = c.recvfrom(65535)
+            assert data == encode_frame(i, 201, "1")
+        c.close()
+    usock.close()
+    tcp.close()
+    rec = read_recording(out)
+    assert [(f.dir, f.cnt, f.transport) for f in rec.frames] == [
+        (d, i, "udp") for i in range(3) for d in ("c2s", "s2c")
+    ]
+    assert rec.connections[0].transport == "udp"
+
+
+def test_rotation_by_size(tmp_path: Path, upstream: Upstream) -> None:
+    out = tmp_path / "r.mcap"
+    with (
+        RecordingProxy(upstream.address, out=out, split_size=20_000, flush_interval=0.05) as p,
+        socket.create_connection(p.address) as c,
+    ):
+        for i in range(300):
+            c.sendall(encode_frame(i % 65536, 400, "GetVersion()" + " " * 100))
+            recv_frames(c, 1)
+            if i % 50 == 0:
+                time.sleep(0.1)
+    paths = p.paths
+    assert len(paths) >= 2 and all(re.search(r"r-\d{4}\.mcap$", x) for x in paths)
+    recs = [read_recording(x) for x in paths]
+    assert all(r.complete for r in recs)
+    assert sum(len(r.frames) for r in recs) == 600
+    assert [r.metadata["segment"] for r in recs] == [str(i + 1) for i in range(len(recs))]
+
+
+def _start_proxy_process(
+    tmp_path: Path, upstream: Upstream, *extra: str
+) -> tuple[subprocess.Popen[str], tuple[str, int], Path]:
+    out = tmp_path / "killed.mcap"
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "conformance",
+            "proxy",
+            "--listen",
+            "127.0.0.1:0",
+            "--upstream",
+            f"127.0.0.1:{upstream.address[1]}",
+            "--out",
+            str(out),
+            *extra,
+        ],
+        stderr=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+        env=env,
+        cwd=ROOT,
+    )
+    assert proc.stderr is not None
+    line = proc.stderr.readline()
+    m = re.search(r"listening on ([\d.]+):(\d+)", line)
+    assert m, line
+    return proc, parse_hostport(f"{m.group(1)}:{m.group(2)}"), out
+
+
+def test_sigkill_loses_at_most_a_second_and_recover_repairs(
+    tmp_path: Path, upstream: Upstream
+) -> None:
+    proc, addr, out = _start_proxy_process(tmp_path, upstream)
+    try:
+        with socket.create_connection(addr) as c:
+            for i in range(50):
+                c.sendall(encode_frame(i, 201, 'MoveJ("P1")'))
+                recv_frames(c, 1)
+            time.sleep(1.3)  # more than a flush interval
+            os.kill(proc.pid, signal.SIGKILL)
+    finally:
+        proc.wait(10)
+        assert proc.stderr is not None and proc.stdout is not None
+        proc.stderr.close()
+        proc.stdout.close()
+    broken = read_recording(out)
+    assert not broken.complete
+    assert len([f for f in broken.frames if f.dir == "c2s"]) == 50
+    with open(out, "rb") as f, pytest.raises(McapError):
+        make_reader(f).get_summary()
+    fixed = tmp_path / "fixed.mcap"
+    res = recover(out, fixed)
+    assert not res.was_complete and res.messages == broken_messages(broken)
+    rec = read_recording(fixed)
+    assert rec.complete and len(rec.frames) == 100
+    with open(fixed, "rb") as f:
+        summary = make_reader(f).get_summary()
+        assert summary is not None and summary.statistics is not None
+        assert summary.statistics.message_count == res.messages
+        assert summary.chunk_indexes
+
+
+def broken_messages(rec) -> int:  # type: ignore[no-untyped-def]
+    return len(rec.frames) + len(rec.problems) + len(rec.connections)
+
+
+def test_sigterm_finishes_the_file(tmp_path: Path, upstream: Upstream) -> None:
+    proc, addr, out = _start_proxy_process(tmp_path, upstream, "--print")
+    with socket.create_connection(addr) as c:
+        c.sendall(encode_frame(3, 201, 'MoveJ("P1")'))
+        recv_frames(c, 1)
+        proc.send_signal(signal.SIGTERM)
+        stdout, stderr = proc.communicate(timeout=10)
+    assert proc.returncode == 0, stderr
+    assert re.search(r"#1 > CNT=3 ID=201 MoveJ MoveJ\(\"P1\"\)", stdout)
+    assert re.search(r"#1 < CNT=3 ID=201 MoveJ 1", stdout)
+    rec = read_recording(out)
+    assert rec.complete and len(rec.frames) == 2
+    assert rec.connections[-1].reason == "proxy stopped"
