@@ -84,11 +84,11 @@ def refusal_data(returns: Returns | None, code: int) -> str:
     """DATA the emulator refuses with: the code where it cannot be mistaken for data.
 
     Errcode-only commands reply the code (``1`` is success); commands with
-    several values reply a lone code (validate.classify_reply reads it as a
+    several return values reply a lone code (validate.classify_reply reads it as a
     refusal); where a lone number would read as a value (one-value queries,
     commands declaring no value) the text form ``robot errcode:N`` is used.
     """
-    if returns is not None and (returns.errcode_only or returns.arity > 1):
+    if returns is not None and (returns.errcode_only or len(returns.values) > 1):
         return str(code)
     return f"robot errcode:{code}"
 

@@ -1,0 +1,797 @@
+"""The cases, by group, built from the specs (no per-command logic: see conformance.model).
+
+Case IDs are derived from content, never position:
+``{cmd_id}/{name}/{group}/{what}`` (``what`` names the variant table, the
+example, the malformed-input kind...).  Cases that concern no single command
+(malformed headers, concurrency) use command ID 0, name ``protocol``.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import hypothesis
+from hypothesis import HealthCheck, Phase
+from hypothesis import strategies as st
+from hypothesis.errors import Unsatisfiable
+from hypothesis.stateful import RuleBasedStateMachine, get_state_machine_test, precondition, rule
+
+from ..data import Value, format_call, format_number, parse_reply, to_python
+from ..frame import Frame, decode_all, encode_frame
+from ..model import (
+    POSITION_QUERIES,
+    MotionTargets,
+    StatePair,
+    derive_pairs,
+    flat_returns,
+    motion_targets,
+)
+from ..report import Outcome
+from ..spec import Command, SpecSet, Variant
+from ..strategies import garbage, invalid_calls, valid_args, valid_calls
+from ..validate import ERR_ARG_COUNT, ERR_ARG_VALUE, RefusalForm, ReplyVerdict
+from .config import GROUPS, SuiteConfig, select_commands
+from .requests import default_args, default_data
+from .runner import Case, CaseFailure, SuiteRunner, Verdict, describe_exchange
+
+__all__ = ["PROTOCOL_ID", "build_cases"]
+
+PROTOCOL_ID = 0
+PROTOCOL = "protocol"
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _settings(runner: SuiteRunner, n: int) -> hypothesis.settings:
+    phases = [Phase.explicit, Phase.reuse, Phase.generate]
+    if runner.config.profile.shrink:
+        phases.append(Phase.shrink)
+    return hypothesis.settings(
+        max_examples=max(1, n),
+        deadline=None,
+        database=None,
+        derandomize=False,
+        report_multiple_bugs=False,
+        suppress_health_check=list(HealthCheck),
+        phases=phases,
+        print_blob=False,
+        verbosity=hypothesis.Verbosity.quiet,
+    )
+
+
+def _failure_in(exc: BaseException) -> CaseFailure | None:
+    if isinstance(exc, CaseFailure):
+        return exc
+    for sub in getattr(exc, "exceptions", ()) or ():
+        f = _failure_in(sub)
+        if f is not None:
+            return f
+    cause = exc.__cause__ or exc.__context__
+    return _failure_in(cause) if cause is not None and cause is not exc else None
+
+
+def _hypothesis(
+    runner: SuiteRunner,
+    case: Case,
+    n: int,
+    strategy: st.SearchStrategy[Any],
+    check: Callable[[Any], None],
+) -> Verdict | None:
+    """Run ``check`` on ``n`` examples; the first failure (shrunk if the profile says) ends it."""
+    sticky: list[CaseFailure] = []
+
+    def body(x: Any) -> None:
+        if sticky:
+            raise sticky[0]
+        try:
+            check(x)
+        except CaseFailure as f:
+            if f.sticky:
+                sticky.append(f)
+            raise
+
+    test = hypothesis.given(strategy)(body)
+    test = _settings(runner, n)(test)
+    test = hypothesis.seed(runner.config.seed ^ case.seed_offset)(test)
+    try:
+        test()
+    except Unsatisfiable:
+        return Verdict(
+            outcome=Outcome.SKIPPED, detail="no example satisfying the table could be built"
+        )
+    except BaseException as e:
+        f = _failure_in(e)
+        if f is None:
+            raise
+        if sticky and f is not sticky[0]:
+            return sticky[0].verdict
+        return f.verdict
+    return None
+
+
+def _notes(notes: list[Verdict], passed: str) -> Verdict:
+    if notes:
+        return notes[0]
+    return Verdict(outcome=Outcome.PASS, detail=passed)
+
+
+def _close(a: float, b: float) -> bool:
+    return math.isclose(a, b, rel_tol=1e-4, abs_tol=1.5e-3)
+
+
+def _number(text: str) -> float | None:
+    try:
+        return float(text)
+    except ValueError:
+        return None
+
+
+def _same(expected: Value, got: str) -> bool:
+    if isinstance(expected, (int, float)):
+        g = _number(got)
+        return g is not None and _close(float(expected), g)
+    return str(expected) == got.strip().strip('"')
+
+
+def _judge_success(runner: SuiteRunner, ex: Any, variant: Variant, what: str) -> Verdict | None:
+    """A reply to a valid request: must succeed with the declared shape."""
+    verdict = runner.judge(ex, variant)
+    assert verdict is not None and ex.reply is not None
+    frames = describe_exchange(ex)
+    if verdict.refused:
+        if runner.is_unimplemented(ex.reply):
+            raise CaseFailure(
+                Outcome.UNIMPLEMENTED,
+                "refused like an unknown command ID",
+                frames=frames,
+                raw=ex.request,
+            )
+        form = verdict.form.value if verdict.form else "?"
+        if verdict.code in (ERR_ARG_COUNT, ERR_ARG_VALUE):
+            raise CaseFailure(
+                Outcome.FAIL,
+                f"{what}: refused valid arguments as invalid ({form} form, code {verdict.code})",
+                frames=frames,
+                raw=ex.request,
+            )
+        return Verdict(
+            outcome=Outcome.NON_STRICT,
+            detail=f"{what}: refused a request the table allows ({form} form, "
+            f"code {verdict.code}); the target's state may forbid it",
+            frames=frames,
+            raw=ex.request,
+        )
+    if verdict.violations:
+        raise CaseFailure(
+            Outcome.FAIL,
+            f"{what}: " + "; ".join(v.detail for v in verdict.violations),
+            frames=frames,
+            raw=ex.request,
+        )
+    return None
+
+
+# --------------------------------------------------------------------------- group 1: framing
+
+
+def _run_framing(runner: SuiteRunner, case: Case) -> Verdict:
+    cmd, variant = case.command, case.variant
+    assert cmd is not None and variant is not None
+    client = runner.client()
+    cnt = client.next_cnt()
+    raw = encode_frame(cnt, cmd.cmd_id, default_data(cmd, variant))
+    # Pipeline a harmless query: a second reply to the first request would arrive before its reply.
+    hcnt = client.next_cnt()
+    hraw = encode_frame(
+        hcnt,
+        runner.health_command.cmd_id,
+        default_data(runner.health_command, runner.health_variant),
+    )
+    ex = runner.send_raw_exchange(raw, cnt, cmd.cmd_id)
+    verdict = runner.judge(ex, variant)
+    frames = describe_exchange(ex)
+    if runner.config.transport == "tcp" and runner._client is not None:
+        runner.client().send_raw(hraw)
+        follow = runner.client().await_reply(hcnt, runner.health_command.cmd_id, request=hraw)
+        dupes = [f for f in follow.unsolicited if f.cnt == cnt and f.cmd_id == cmd.cmd_id]
+        if dupes:
+            raise CaseFailure(
+                Outcome.FAIL,
+                f"{1 + len(dupes)} replies to one request",
+                frames=frames + describe_exchange(follow),
+                raw=raw,
+            )
+        if follow.reply is None:
+            runner.drop_client()
+    assert verdict is not None and ex.reply is not None
+    if verdict.refused and runner.is_unimplemented(ex.reply):
+        return Verdict(
+            outcome=Outcome.UNIMPLEMENTED,
+            detail="refused like an unknown command ID",
+            frames=frames,
+            raw=raw,
+        )
+    if not verdict.refused and verdict.violations:
+        return Verdict(
+            outcome=Outcome.FAIL,
+            detail="; ".join(v.detail for v in verdict.violations),
+            frames=frames,
+            raw=raw,
+        )
+    return Verdict(outcome=Outcome.PASS)
+
+
+# --------------------------------------------------------------------------- group 2: examples
+
+
+def _run_example(runner: SuiteRunner, case: Case) -> Verdict:
+    cmd, variant = case.command, case.variant
+    assert cmd is not None and variant is not None
+    request, reply_text = case.extra
+    events = decode_all(request.encode("utf-8"))
+    frames = [e for e in events if isinstance(e, Frame)]
+    if len(frames) != 1:
+        return Verdict(
+            outcome=Outcome.SKIPPED, detail=f"example request {request!r} is not one frame"
+        )
+    f = frames[0]
+    # The adopted frame, with LEN recomputed (the errata record LEN typos).
+    cmd_id = f.cmd_id if cmd in runner.specs.by_id(f.cmd_id) else cmd.cmd_id
+    raw = encode_frame(f.cnt, cmd_id, f.data)
+    ex = runner.send_raw_exchange(raw, f.cnt, cmd_id)
+    valid = runner.check_request_valid(cmd_id, f.data)
+    if not valid:
+        verdict = runner.judge(ex, variant)
+        assert verdict is not None
+        how = "refused" if verdict.refused else "accepted"
+        return Verdict(
+            outcome=Outcome.PASS,
+            detail=f"the manual's example disagrees with its own table; the target {how} it",
+        )
+    note = _judge_success(runner, ex, variant, "the manual's example")
+    if note is not None:
+        return note
+    # The example's reply is not compared: it shows one state of one arm (and the
+    # extraction leaves some empty); its shape was checked above.
+    del reply_text
+    return Verdict(outcome=Outcome.PASS)
+
+
+# --------------------------------------------------------------------------- group 3: valid
+
+
+def _run_valid(runner: SuiteRunner, case: Case) -> Verdict:
+    cmd, variant = case.command, case.variant
+    assert cmd is not None and variant is not None
+    notes: list[Verdict] = []
+
+    def check(data: str) -> None:
+        ex = runner.exchange(cmd.cmd_id, data)
+        note = _judge_success(runner, ex, variant, "valid arguments")
+        if note is not None and not notes:
+            notes.append(note)
+
+    strategy = valid_calls(cmd, variant).filter(lambda d: runner.check_request_valid(cmd.cmd_id, d))
+    v = _hypothesis(runner, case, runner.config.profile.valid, strategy, check)
+    return v or _notes(notes, "")
+
+
+# --------------------------------------------------------------------------- group 4: invalid
+
+_EXPECTED_CODE = {"count": ERR_ARG_COUNT, "type": ERR_ARG_VALUE, "range": ERR_ARG_VALUE}
+
+
+def _run_invalid(runner: SuiteRunner, case: Case) -> Verdict:
+    cmd, variant = case.command, case.variant
+    assert cmd is not None and variant is not None
+    notes: list[Verdict] = []
+
+    def check(pair: tuple[str, str]) -> None:
+        kind, data = pair
+        hypothesis.assume(not runner.check_request_valid(cmd.cmd_id, data))
+        ex = runner.exchange(cmd.cmd_id, data)
+        verdict = runner.judge(ex, variant)
+        assert verdict is not None and ex.reply is not None
+        frames = describe_exchange(ex)
+        if not verdict.refused:
+            raise CaseFailure(
+                Outcome.FAIL,
+                f"accepted invalid arguments ({kind}): replied {ex.reply.data!r}",
+                frames=frames,
+                raw=ex.request,
+            )
+        want = _EXPECTED_CODE[kind]
+        if verdict.code != want and not notes:
+            form = verdict.form.value if verdict.form else "?"
+            notes.append(
+                Verdict(
+                    outcome=Outcome.NON_STRICT,
+                    detail=f"refused invalid arguments ({kind}) with {form} {verdict.code}; "
+                    f"chapter 9 has code {want} for this",
+                    frames=frames,
+                    raw=ex.request,
+                )
+            )
+
+    v = _hypothesis(runner, case, runner.config.profile.invalid, invalid_calls(cmd, variant), check)
+    return v or _notes(notes, "")
+
+
+def _has_invalid(cmd: Command, variant: Variant) -> bool:
+    return variant.form == "call" and not invalid_calls(cmd, variant).is_empty
+
+
+# --------------------------------------------------------------------------- group 5: robustness
+
+
+def _silence_window(runner: SuiteRunner) -> float:
+    return min(runner.config.reply_timeout, 0.5)
+
+
+def _run_malformed_command(runner: SuiteRunner, case: Case) -> Verdict:
+    """A frame of this command that must not be executed: LEN mismatch or broken DATA."""
+    cmd, variant = case.command, case.variant
+    assert cmd is not None and variant is not None
+    kind = case.extra
+    data = default_data(cmd, variant)
+    client = runner.client()
+    cnt = client.next_cnt()
+    if kind == "len-mismatch":
+        payload = data.encode("utf-8")
+        raw = b"/f/bIII%dIII%dIII%dIII%sIII/b/f" % (
+            cnt,
+            cmd.cmd_id,
+            max(len(payload) - 2, 0),
+            payload,
+        )
+    else:
+        raw = encode_frame(cnt, cmd.cmd_id, data[:-1] + ",(")
+    ex = runner.send_raw_exchange(raw, cnt, cmd.cmd_id, timeout=_silence_window(runner))
+    frames = describe_exchange(ex)
+    if ex.reply is not None:
+        verdict: ReplyVerdict | None = None
+        from ..validate import classify_reply
+
+        verdict = classify_reply(variant.returns, ex.reply.data, runner.specs)
+        if not verdict.refused:
+            what = (
+                "a frame whose LEN disagrees with DATA (the parser ignores LEN)"
+                if kind == "len-mismatch"
+                else "a frame with broken DATA"
+            )
+            return Verdict(
+                outcome=Outcome.FAIL,
+                detail=f"executed {what}: replied {ex.reply.data!r}",
+                frames=frames,
+                raw=raw,
+            )
+    if ex.closed:
+        runner.drop_client()
+    after = runner.after_disturbance(case, frames, raw)
+    return after or Verdict(outcome=Outcome.PASS)
+
+
+_PROTOCOL_INPUTS: dict[str, bytes] = {
+    "bad-head": b"/x/bIII1III%dIII0IIIIII/b/f",
+    "bad-tail": b"/f/bIII1III%dIII0IIIIII/x/f",
+    "bad-separator": b"/f/bII1II%dII0IIIII/b/f",
+    "non-numeric-cnt": b"/f/bIIIxIII%dIII0IIIIII/b/f",
+    "non-numeric-len": b"/f/bIII1III%dIIIzzIIIIII/b/f",
+    "truncated": b"/f/bIII1III%dIII40IIIGet",
+    "nul-bytes": b"\x00" * 64,
+    "binary-garbage": bytes(range(256)),
+}
+
+
+def _run_protocol_input(runner: SuiteRunner, case: Case) -> Verdict:
+    name = case.extra
+    hid = runner.health_command.cmd_id
+    if name == "oversize":
+        payload = b"A" * (300 * 1024)
+        raw = b"/f/bIII1III%dIII%dIII%sIII/b/f" % (hid, len(payload), payload)
+    else:
+        raw = _PROTOCOL_INPUTS[name]
+        if b"%d" in raw:
+            raw = raw % hid
+    client = runner.client()
+    client.send_raw(raw)
+    frames_in, _malformed, closed = client.collect(
+        _silence_window(runner) if name != "truncated" else 0.05
+    )
+    if closed:
+        runner.drop_client()
+    if name == "truncated":
+        runner.drop_client()  # the partial frame would swallow the next request
+    frames = (f">> {raw[:200]!r}", *tuple(f"<< {f.raw!r}" for f in frames_in))
+    after = runner.after_disturbance(case, frames, raw)
+    return after or Verdict(outcome=Outcome.PASS)
+
+
+def _run_unknown_id(runner: SuiteRunner, case: Case) -> Verdict:
+    unknown = next(i for i in range(9999, 100000) if not runner.specs.by_id(i))
+    client = runner.client()
+    cnt = client.next_cnt()
+    raw = encode_frame(cnt, unknown, "Conformance()")
+    ex = runner.send_raw_exchange(raw, cnt, unknown)
+    frames = describe_exchange(ex)
+    if ex.reply is None:
+        after = runner.after_disturbance(case, frames, raw)
+        return after or Verdict(
+            outcome=Outcome.NON_STRICT,
+            detail="no reply to an unknown command ID",
+            frames=frames,
+            raw=raw,
+        )
+    fp = runner.unknown_fingerprint()
+    if fp is not None and not fp[1].refused:
+        return Verdict(
+            outcome=Outcome.FAIL,
+            detail=f"reported success ({ex.reply.data!r}) for an unknown command ID",
+            frames=frames,
+            raw=raw,
+        )
+    after = runner.after_disturbance(case, frames, raw)
+    form = fp[1].form.value if fp and fp[1].form else "?"
+    return after or Verdict(
+        outcome=Outcome.PASS, detail=f"refused ({form} form, DATA {ex.reply.data!r})"
+    )
+
+
+def _run_garbage(runner: SuiteRunner, case: Case) -> Verdict:
+    def check(junk: bytes) -> None:
+        client = runner.client()
+        client.send_raw(junk)
+        _, _, _closed = client.collect(0.02)
+        runner.drop_client()  # a partial frame may remain: start clean
+        after = runner.after_disturbance(case, (f">> {junk!r}",), junk)
+        if after is not None:
+            raise CaseFailure(
+                after.outcome, after.detail, frames=after.frames, raw=junk, sticky=True
+            )
+
+    v = _hypothesis(runner, case, runner.config.profile.garbage, garbage(), check)
+    return v or Verdict(outcome=Outcome.PASS)
+
+
+# --------------------------------------------------------------------------- group 6: transport
+
+
+def _run_pipelined(runner: SuiteRunner, case: Case) -> Verdict:
+    cmd, variant = case.command, case.variant
+    assert cmd is not None and variant is not None
+    client = runner.client()
+    data = default_data(cmd, variant)
+    cnts = [client.next_cnt() for _ in range(3)]
+    raw = b"".join(encode_frame(c, cmd.cmd_id, data) for c in cnts)
+    client.send_raw(raw)
+    for c in cnts:
+        ex = client.await_reply(c, cmd.cmd_id, request=raw)
+        if ex.reply is None:
+            runner.drop_client()
+        try:
+            runner.judge(ex, variant)
+        except CaseFailure as f:
+            raise CaseFailure(
+                Outcome.FAIL,
+                f"3 frames in one segment, reply to CNT {c}: {f.verdict.detail}",
+                frames=f.verdict.frames,
+                raw=raw,
+            ) from None
+    return Verdict(outcome=Outcome.PASS)
+
+
+def _run_split(runner: SuiteRunner, case: Case) -> Verdict:
+    cmd, variant = case.command, case.variant
+    assert cmd is not None and variant is not None
+    client = runner.client()
+    cnt = client.next_cnt()
+    raw = encode_frame(cnt, cmd.cmd_id, default_data(cmd, variant))
+    ex = runner.send_raw_exchange(raw, cnt, cmd.cmd_id, chunk=1)
+    try:
+        runner.judge(ex, variant)
+    except CaseFailure as f:
+        raise CaseFailure(
+            Outcome.FAIL,
+            f"frame sent byte by byte: {f.verdict.detail}",
+            frames=f.verdict.frames,
+            raw=raw,
+        ) from None
+    return Verdict(outcome=Outcome.PASS)
+
+
+def _run_concurrent(runner: SuiteRunner, case: Case) -> Verdict:
+    errors: list[str] = []
+    hdata = default_data(runner.health_command, runner.health_variant)
+    hid = runner.health_command.cmd_id
+
+    def worker(n: int) -> None:
+        try:
+            with runner.new_client() as c:
+                for _ in range(10):
+                    ex = c.request(hid, hdata)
+                    probs = runner.framing_problems(ex)
+                    if probs:
+                        errors.append(f"connection {n}: {'; '.join(probs)}")
+                        return
+        except Exception as e:
+            errors.append(f"connection {n}: {e}")
+
+    threads = [threading.Thread(target=worker, args=(n,)) for n in range(6)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    if errors:
+        return Verdict(outcome=Outcome.FAIL, detail=f"6 concurrent connections: {errors[0]}")
+    return Verdict(outcome=Outcome.PASS)
+
+
+def _run_reconnect(runner: SuiteRunner, case: Case) -> Verdict:
+    hdata = default_data(runner.health_command, runner.health_variant)
+    for n in range(5):
+        with runner.new_client() as c:
+            ex = c.request(runner.health_command.cmd_id, hdata)
+            probs = runner.framing_problems(ex)
+            if probs:
+                return Verdict(
+                    outcome=Outcome.FAIL,
+                    detail=f"connection {n + 1} of 5: {'; '.join(probs)}",
+                    frames=describe_exchange(ex),
+                    raw=ex.request,
+                )
+    return Verdict(outcome=Outcome.PASS)
+
+
+# --------------------------------------------------------------------------- group 7: stateful
+
+
+def _values(runner: SuiteRunner, ex: Any, variant: Variant, what: str) -> list[str]:
+    note = _judge_success(runner, ex, variant, what)
+    if note is not None:
+        raise CaseFailure(note.outcome, note.detail, frames=note.frames, raw=note.raw)
+    assert ex.reply is not None
+    vals = parse_reply(ex.reply.data, variant.returns.separator)
+    return [str(to_python(v)) if not isinstance(to_python(v), list) else "" for v in vals]
+
+
+def _run_pair(runner: SuiteRunner, case: Case) -> Verdict:
+    pair: StatePair = case.extra
+    sv, gv = pair.setter_variant, pair.getter_variant
+
+    class PairMachine(RuleBasedStateMachine):
+        def __init__(self) -> None:
+            super().__init__()
+            self.expected: dict[tuple[str, ...], dict[int, Value]] = {}
+            self.keyargs: dict[tuple[str, ...], list[Value]] = {}
+
+        @rule(args=valid_args(sv))
+        def set_value(self, args: list[Value]) -> None:
+            data = format_call(pair.setter.name, args, sv.params)
+            hypothesis.assume(runner.check_request_valid(pair.setter.cmd_id, data))
+            ex = runner.exchange(pair.setter.cmd_id, data)
+            _values(runner, ex, sv, f"{pair.setter.name}")
+            key = tuple(_key_text(args[si]) for si, _ in pair.keys)
+            self.expected[key] = {fi: args[si] for si, fi in pair.fields}
+            gargs = default_args(gv)
+            for si, gi in pair.keys:
+                gargs[gi] = args[si]
+            self.keyargs[key] = gargs
+
+        @precondition(lambda self: bool(self.expected))
+        @rule(data=st.data())
+        def read_back(self, data: st.DataObject) -> None:
+            key = data.draw(st.sampled_from(sorted(self.expected)))
+            gdata = format_call(pair.getter.name, self.keyargs[key], gv.params)
+            ex = runner.exchange(pair.getter.cmd_id, gdata)
+            got = _values(runner, ex, gv, pair.getter.name)
+            for fi, want in self.expected[key].items():
+                name = flat_returns(gv.returns)[fi].name
+                if fi >= len(got) or not _same(want, got[fi]):
+                    raise CaseFailure(
+                        Outcome.FAIL,
+                        f"{pair.setter.name} set {name}={_show(want)}, "
+                        f"{pair.getter.name} read back {got[fi] if fi < len(got) else 'nothing'}",
+                        frames=describe_exchange(ex),
+                        raw=ex.request,
+                    )
+
+    return _run_machine(runner, case, PairMachine)
+
+
+def _key_text(v: Value) -> str:
+    return format_number(v) if isinstance(v, (int, float)) else str(v)
+
+
+def _show(v: Value) -> str:
+    return _key_text(v) if not isinstance(v, list) else str(v)
+
+
+def _run_motion(runner: SuiteRunner, case: Case) -> Verdict:
+    cmd, variant = case.command, case.variant
+    assert cmd is not None and variant is not None
+    targets = motion_targets(cmd, variant)
+    assert targets is not None
+    mcmd: Command = cmd
+    mvariant: Variant = variant
+    mtargets: MotionTargets = targets
+    queries: list[tuple[Command, Variant, str]] = case.extra
+
+    class MotionMachine(RuleBasedStateMachine):
+        def __init__(self) -> None:
+            super().__init__()
+            self.where: dict[str, list[Value]] = {}
+
+        @rule(args=valid_args(mvariant))
+        def move(self, args: list[Value]) -> None:
+            data = format_call(mcmd.name, args, mvariant.params)
+            hypothesis.assume(runner.check_request_valid(mcmd.cmd_id, data))
+            ex = runner.exchange(mcmd.cmd_id, data)
+            _values(runner, ex, mvariant, mcmd.name)
+            if mtargets.joints is not None:
+                self.where["joints"] = [args[i] for i in mtargets.joints]
+            if mtargets.tcp is not None:
+                self.where["tcp"] = [args[i] for i in mtargets.tcp]
+            elif mtargets.tcp_array is not None:
+                arr = args[mtargets.tcp_array]
+                assert isinstance(arr, list)
+                self.where["tcp"] = list(arr)
+
+        @precondition(lambda self: bool(self.where))
+        @rule(data=st.data())
+        def query(self, data: st.DataObject) -> None:
+            usable = [q for q in queries if q[2] in self.where]
+            hypothesis.assume(usable)
+            q, qv, kind = data.draw(st.sampled_from(usable))
+            ex = runner.exchange(q.cmd_id, default_data(q, qv))
+            got = _values(runner, ex, qv, q.name)
+            want = self.where[kind]
+            if len(got) < 6 or not all(_same(w, g) for w, g in zip(want, got[:6], strict=False)):
+                raise CaseFailure(
+                    Outcome.NON_STRICT,
+                    f"after {mcmd.name} to {kind} {[_show(w) for w in want]}, "
+                    f"{q.name} reports {got[:6]} (the arm may still be moving or cannot get there)",
+                    frames=describe_exchange(ex),
+                    raw=ex.request,
+                )
+
+    return _run_machine(runner, case, MotionMachine)
+
+
+def _run_machine(runner: SuiteRunner, case: Case, machine: type[RuleBasedStateMachine]) -> Verdict:
+    prof = runner.config.profile
+    s = hypothesis.settings(
+        _settings(runner, prof.stateful_examples), stateful_step_count=prof.stateful_steps
+    )
+    test = get_state_machine_test(machine, settings=s)  # type: ignore[no-untyped-call]
+    test = hypothesis.seed(runner.config.seed ^ case.seed_offset)(test)
+    try:
+        test()
+    except Unsatisfiable:
+        return Verdict(outcome=Outcome.SKIPPED, detail="no valid step could be built")
+    except BaseException as e:
+        f = _failure_in(e)
+        if f is None:
+            raise
+        return f.verdict
+    return Verdict(outcome=Outcome.PASS)
+
+
+# --------------------------------------------------------------------------- building
+
+
+def _slug(text: str) -> str:
+    return "".join(ch if ch.isalnum() or ch in "-_." else "-" for ch in text).strip("-") or "x"
+
+
+def _case(
+    group: str,
+    cmd: Command | None,
+    what: str,
+    run: Callable[[SuiteRunner, Case], Verdict],
+    variant: Variant | None = None,
+    extra: Any = None,
+) -> Case:
+    cid, name = (cmd.cmd_id, cmd.name) if cmd is not None else (PROTOCOL_ID, PROTOCOL)
+    return Case(
+        id=f"{cid}/{name}/{group}/{_slug(what)}",
+        group=group,
+        cmd_id=cid,
+        name=name,
+        run=run,
+        command=cmd,
+        variant=variant,
+        extra=extra,
+    )
+
+
+def _main_variant(cmd: Command) -> Variant:
+    """The variant the framing and transport cases send: the first call variant."""
+    return next((v for v in cmd.variants if v.form == "call"), cmd.variants[0])
+
+
+def build_cases(specs: SpecSet, config: SuiteConfig) -> list[Case]:
+    """Every case of the selected groups and commands, in run order (group, then command ID)."""
+    commands = select_commands(specs, config.commands, config.exclude)
+    chosen = {c.key for c in commands}
+    by_group: dict[str, list[Case]] = {g: [] for g in GROUPS}
+    whole_protocol = not config.commands  # protocol-wide cases run unless commands are picked
+    udp = config.transport == "udp"
+    for cmd in sorted(commands, key=lambda c: (c.cmd_id, c.key)):
+        main = _main_variant(cmd)
+        by_group["framing"].append(_case("framing", cmd, main.table, _run_framing, main))
+        for v in cmd.variants:
+            for i, ex in enumerate(v.examples):
+                if ex.request:
+                    what = f"{v.table}-{i + 1}" if len(v.examples) > 1 else v.table
+                    by_group["examples"].append(
+                        _case("examples", cmd, what, _run_example, v, (ex.request, ex.reply))
+                    )
+            by_group["valid"].append(_case("valid", cmd, v.table, _run_valid, v))
+            if _has_invalid(cmd, v):
+                by_group["invalid"].append(_case("invalid", cmd, v.table, _run_invalid, v))
+        call = next((v for v in cmd.variants if v.form == "call"), None)
+        by_group["robustness"].append(
+            _case("robustness", cmd, "len-mismatch", _run_malformed_command, main, "len-mismatch")
+        )
+        if call is not None:
+            by_group["robustness"].append(
+                _case("robustness", cmd, "bad-data", _run_malformed_command, call, "bad-data")
+            )
+        by_group["transport"].append(_case("transport", cmd, "pipelined", _run_pipelined, main))
+        if not udp:
+            by_group["transport"].append(_case("transport", cmd, "byte-by-byte", _run_split, main))
+        for v in cmd.variants:
+            if motion_targets(cmd, v) is not None:
+                queries = _position_queries(specs, motion_targets(cmd, v))
+                if queries:
+                    by_group["stateful"].append(
+                        _case("stateful", cmd, f"motion-{v.table}", _run_motion, v, queries)
+                    )
+    for pair in derive_pairs(specs):
+        if pair.setter.key in chosen and (pair.getter.key in chosen or not config.commands):
+            what = (
+                f"pair-{pair.setter_variant.table}-{pair.getter.name}-{pair.getter_variant.table}"
+            )
+            c = _case("stateful", pair.setter, what, _run_pair, pair.setter_variant, pair)
+            by_group["stateful"].append(c)
+    if whole_protocol:
+        protocol_cases = [
+            _case("robustness", None, name, _run_protocol_input, extra=name)
+            for name in (*_PROTOCOL_INPUTS, "oversize")
+            if not (udp and name in ("truncated", "oversize"))
+        ]
+        protocol_cases.append(_case("robustness", None, "unknown-command-id", _run_unknown_id))
+        protocol_cases.append(_case("robustness", None, "garbage", _run_garbage))
+        by_group["robustness"][:0] = protocol_cases
+        by_group["transport"][:0] = [
+            _case("transport", None, "concurrent-connections", _run_concurrent),
+            *([] if udp else [_case("transport", None, "reconnects", _run_reconnect)]),
+        ]
+    out: list[Case] = []
+    for g in GROUPS:
+        if g in config.groups:
+            out += by_group[g]
+    return out
+
+
+def _position_queries(specs: SpecSet, targets: Any) -> list[tuple[Command, Variant, str]]:
+    out: list[tuple[Command, Variant, str]] = []
+    for c in specs:
+        kind = POSITION_QUERIES.get(c.name.lower())
+        if (
+            kind is None
+            or (kind == "joints" and targets.joints is None)
+            or (kind == "tcp" and targets.tcp is None and targets.tcp_array is None)
+        ):
+            continue
+        v = next((v for v in c.variants if v.form == "call" and v.returns.arity >= 6), None)
+        if v is not None:
+            out.append((c, v, kind))
+    return out
+
+
+_ = (RefusalForm, Sequence)

@@ -1,0 +1,141 @@
+"""How a suite run is configured: target, selection, profile, safety, limits."""
+
+from __future__ import annotations
+
+import fnmatch
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+
+from ..errors import UsageError
+from ..net import format_address
+from ..safety import SafetyPolicy
+from ..spec import Command, SpecSet
+
+__all__ = ["GROUPS", "PROFILES", "Profile", "SuiteConfig", "select_commands"]
+
+#: Case groups, in the order they run.
+GROUPS = ("framing", "examples", "valid", "invalid", "robustness", "transport", "stateful")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Profile:
+    """Hypothesis example counts (per case) for one run profile."""
+
+    name: str
+    valid: int
+    invalid: int
+    garbage: int
+    stateful_examples: int
+    stateful_steps: int
+    shrink: bool
+
+
+PROFILES: dict[str, Profile] = {
+    p.name: p
+    for p in (
+        Profile(
+            name="quick",
+            valid=3,
+            invalid=3,
+            garbage=3,
+            stateful_examples=2,
+            stateful_steps=6,
+            shrink=False,
+        ),
+        Profile(
+            name="default",
+            valid=10,
+            invalid=10,
+            garbage=10,
+            stateful_examples=5,
+            stateful_steps=10,
+            shrink=True,
+        ),
+        Profile(
+            name="thorough",
+            valid=100,
+            invalid=100,
+            garbage=50,
+            stateful_examples=25,
+            stateful_steps=30,
+            shrink=True,
+        ),
+    )
+}
+
+
+@dataclass(frozen=True, kw_only=True)
+class SuiteConfig:
+    """Everything a run needs to know, read from options / ini keys / environment."""
+
+    #: (host, port), or None for the in-process emulator.
+    target: tuple[str, int] | None = None
+    transport: str = "tcp"
+    commands: tuple[str, ...] = ()
+    exclude: tuple[str, ...] = ()
+    groups: tuple[str, ...] = GROUPS
+    profile: Profile = PROFILES["default"]
+    strict: bool = False
+    reply_timeout: float = 2.0
+    case_timeout: float = 60.0
+    recovery_timeout: float = 10.0
+    rate: float | None = None
+    seed: int = 0
+    safety: SafetyPolicy = field(
+        default_factory=lambda: SafetyPolicy.for_target(None, embedded=True)
+    )
+    #: Faults for the in-process emulator (to test the suite itself).
+    emulator_faults: tuple[str, ...] = ()
+    expected_failures: frozenset[str] = frozenset()
+
+    def __post_init__(self) -> None:
+        if self.transport not in ("tcp", "udp"):
+            raise UsageError(f"--transport must be tcp or udp, not {self.transport!r}")
+        bad = [g for g in self.groups if g not in GROUPS]
+        if bad:
+            raise UsageError(f"unknown case group {bad[0]!r} (one of: {', '.join(GROUPS)})")
+        if self.reply_timeout <= 0 or self.case_timeout <= 0:
+            raise UsageError("timeouts must be positive")
+        if self.rate is not None and self.rate <= 0:
+            raise UsageError("--rate must be positive")
+        if self.emulator_faults and self.target is not None:
+            raise UsageError(
+                "--emulator-fault applies only to the in-process emulator (no --target)"
+            )
+
+    @property
+    def embedded(self) -> bool:
+        return self.target is None
+
+    def target_label(self, actual: tuple[str, int] | None = None) -> str:
+        addr = self.target or actual
+        if addr is None:
+            return "embedded emulator"
+        return format_address(*addr)
+
+
+def _matches(c: Command, token: str) -> bool:
+    t = token.strip()
+    if not t:
+        return False
+    if t.isdigit():
+        return c.cmd_id == int(t) or int(t) in c.alt_cmd_ids
+    if t == c.key:
+        return True
+    return fnmatch.fnmatchcase(c.name.lower(), t.lower().removesuffix("()"))
+
+
+def _split(tokens: Iterable[str]) -> list[str]:
+    return [p.strip() for t in tokens for p in t.split(",") if p.strip()]
+
+
+def select_commands(
+    specs: SpecSet, include: Sequence[str], exclude: Sequence[str]
+) -> list[Command]:
+    """Commands by ID, section key, or name glob (``Get*``); ``exclude`` wins."""
+    inc, exc = _split(include), _split(exclude)
+    for t in inc + exc:
+        if not any(_matches(c, t) for c in specs):
+            raise UsageError(f"--commands/--exclude: {t!r} matches no command in the specs")
+    out = [c for c in specs if (not inc or any(_matches(c, t) for t in inc))]
+    return [c for c in out if not any(_matches(c, t) for t in exc)]

@@ -1,0 +1,423 @@
+"""Runs cases against a target: connections, health checks, verdicts, reproduction lines."""
+
+from __future__ import annotations
+
+import shlex
+import time
+import zlib
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from ..data import Call
+from ..errors import ConformanceError
+from ..frame import Frame, Malformed, encode_frame
+from ..net.client import Client, Exchange, TargetUnreachable
+from ..report import CaseResult, Outcome, Report
+from ..spec import Command, Returns, ReturnValue, SpecSet, Variant
+from ..validate import ReplyVerdict, classify_reply, validate_request
+from .config import SuiteConfig
+from .requests import default_data
+
+__all__ = ["Case", "CaseFailure", "SuiteRunner", "Verdict", "shell_printf"]
+
+#: Reply read for an unknown command: a lone error code.
+_ERRCODE = Returns(separator=",", values=(ReturnValue(name="errcode", type="int"),))
+#: Command ID of the frames a controller sends on its own (Lua program errors).
+UNSOLICITED_IDS = frozenset({500})
+
+
+@dataclass(frozen=True, kw_only=True)
+class Verdict:
+    outcome: Outcome
+    detail: str = ""
+    frames: tuple[str, ...] = ()
+    raw: bytes = b""
+
+
+class CaseFailure(Exception):
+    """Raised inside a case to end it with an outcome (FAIL, NON-STRICT, UNIMPLEMENTED...)."""
+
+    def __init__(
+        self,
+        outcome: Outcome,
+        detail: str,
+        *,
+        frames: tuple[str, ...] = (),
+        raw: bytes = b"",
+        sticky: bool = False,
+    ) -> None:
+        super().__init__(detail)
+        self.verdict = Verdict(outcome=outcome, detail=detail, frames=frames, raw=raw)
+        #: A transport failure (no reply, closed): later examples of the case fail the same way.
+        self.sticky = sticky
+
+
+@dataclass(frozen=True, kw_only=True)
+class Case:
+    """One case: content-derived ID, group, command blamed, and the function that runs it."""
+
+    id: str
+    group: str
+    cmd_id: int
+    name: str
+    run: Callable[[SuiteRunner, Case], Verdict] = field(repr=False, compare=False)
+    command: Command | None = field(default=None, repr=False, compare=False)
+    variant: Variant | None = field(default=None, repr=False, compare=False)
+    extra: Any = field(default=None, repr=False, compare=False)
+
+    @property
+    def item_name(self) -> str:
+        """The pytest item's name (its class, in JUnit terms, is the command ID)."""
+        return self.id.split("/", 1)[1]
+
+    @property
+    def seed_offset(self) -> int:
+        return zlib.crc32(self.id.encode())
+
+
+def shell_printf(raw: bytes) -> str:
+    """A POSIX ``printf`` format that prints exactly ``raw`` (octal escapes, no bashisms)."""
+    out: list[str] = []
+    for b in raw:
+        ch = chr(b)
+        if ch == "%":
+            out.append("%%")
+        elif ch == "\\":
+            out.append("\\\\")
+        elif ch == "'":
+            out.append("'\\''")
+        elif 0x20 <= b < 0x7F:
+            out.append(ch)
+        else:
+            out.append(f"\\{b:03o}")
+    return "'" + "".join(out) + "'"
+
+
+def show(raw: bytes, limit: int = 400) -> str:
+    text = raw[:limit].decode("utf-8", "backslashreplace")
+    return text + (f"...(+{len(raw) - limit} bytes)" if len(raw) > limit else "")
+
+
+def describe_exchange(ex: Exchange) -> tuple[str, ...]:
+    lines = [f">> {show(ex.request)}"] if ex.request else []
+    for m in ex.malformed:
+        lines.append(f"<< (not a frame: {m.rule.value}) {show(m.raw)}")
+    for f in ex.unsolicited:
+        lines.append(f"<< (unpaired) {show(f.raw or f.encode())}")
+    if ex.reply is not None:
+        lines.append(f"<< {show(ex.reply.raw or ex.reply.encode())}")
+    elif ex.closed:
+        lines.append("<< (connection closed)")
+    else:
+        tail = f" {ex.pending.decode()}" if ex.pending else ""
+        lines.append(f"<< (no reply after {ex.elapsed:.2f} s){tail}")
+    return tuple(lines)
+
+
+class SuiteRunner:
+    """Session state: the target (or the in-process emulator), a connection, the report."""
+
+    def __init__(self, config: SuiteConfig, specs: SpecSet) -> None:
+        self.config = config
+        self.specs = specs
+        self.emulator: Any = None
+        self.address: tuple[str, int] | None = config.target
+        self._client: Client | None = None
+        self._unknown: tuple[str, ReplyVerdict] | bool | None = False  # False: not learnt yet
+        self.health_command, self.health_variant = _health_query(specs)
+        self.dead: str | None = None
+        self.last_case: str | None = None
+        self.report = Report(
+            target=config.target_label(),
+            spec_version=specs.spec_version,
+            seed=config.seed,
+            transport=config.transport,
+            strict=config.strict,
+            meta={"profile": config.profile.name},
+        )
+        self.case_started = 0.0
+
+    # ------------------------------------------------------------------ lifecycle
+
+    def start(self) -> None:
+        if self.config.embedded:
+            from ..net.emulator import EmulatorServer
+
+            emu = EmulatorServer(
+                self.specs,
+                udp_port=0 if self.config.transport == "udp" else None,
+                faults=self.config.emulator_faults,
+            )
+            emu.start()
+            self.emulator = emu
+            self.address = emu.udp_address if self.config.transport == "udp" else emu.address
+            self.report.meta["emulator_faults"] = list(self.config.emulator_faults)
+
+    def close(self) -> None:
+        if self._client is not None:
+            self._client.close()
+            self._client = None
+        if self.emulator is not None:
+            emu, self.emulator = self.emulator, None
+            emu.close()
+
+    # ------------------------------------------------------------------ connections
+
+    def new_client(self) -> Client:
+        assert self.address is not None
+        host, port = self.address
+        return Client(
+            host,
+            port,
+            transport=self.config.transport,
+            timeout=self.config.reply_timeout,
+            rate=self.config.rate,
+        )
+
+    def client(self) -> Client:
+        if self._client is None or not self._client.connected:
+            if self._client is not None:
+                self._client.close()
+            self._client = self.new_client().connect()
+        return self._client
+
+    def drop_client(self) -> None:
+        if self._client is not None:
+            self._client.close()
+            self._client = None
+
+    def check_budget(self) -> None:
+        if time.monotonic() - self.case_started > self.config.case_timeout:
+            raise CaseFailure(
+                Outcome.ERROR, f"case exceeded its time budget of {self.config.case_timeout:g} s"
+            )
+
+    def exchange(self, cmd_id: int, data: str, *, client: Client | None = None) -> Exchange:
+        self.check_budget()
+        c = client or self.client()
+        ex = c.request(cmd_id, data)
+        if ex.reply is None and client is None:
+            # Closed, or silent: a late reply or a half frame would pollute the next case.
+            self.drop_client()
+        return ex
+
+    def send_raw_exchange(
+        self,
+        raw: bytes,
+        cnt: int,
+        cmd_id: int,
+        *,
+        chunk: int | None = None,
+        client: Client | None = None,
+        timeout: float | None = None,
+    ) -> Exchange:
+        self.check_budget()
+        c = client or self.client()
+        c.send_raw(raw, chunk=chunk)
+        ex = c.await_reply(cnt, cmd_id, request=raw, timeout=timeout)
+        if ex.reply is None and client is None:
+            self.drop_client()
+        return ex
+
+    # ------------------------------------------------------------------ health / unknown
+
+    def health(self) -> tuple[bool, str]:
+        """A harmless query on a fresh connection; (ok, what went wrong)."""
+        data = default_data(self.health_command, self.health_variant)
+        try:
+            with self.new_client() as c:
+                ex = c.request(self.health_command.cmd_id, data)
+        except TargetUnreachable as e:
+            return False, str(e)
+        if ex.reply is None:
+            return False, "connection closed" if ex.closed else "no reply"
+        verdict = classify_reply(self.health_variant.returns, ex.reply.data, self.specs)
+        if not verdict.ok:
+            return False, f"reply {ex.reply.data!r}"
+        return True, ""
+
+    def recover(self) -> bool:
+        """Wait (up to the recovery timeout) for the target to answer again."""
+        deadline = time.monotonic() + self.config.recovery_timeout
+        while time.monotonic() < deadline:
+            if self.health()[0]:
+                return True
+            time.sleep(0.05)
+        return False
+
+    def unknown_fingerprint(self) -> tuple[str, ReplyVerdict] | None:
+        """How the target answers an unknown command ID (None: it stays silent)."""
+        if self._unknown is False:
+            unknown = next(i for i in range(9999, 100000) if not self.specs.by_id(i))
+            with self.new_client() as c:
+                ex = c.request(unknown, "Conformance()")
+            if ex.reply is None:
+                self._unknown = None
+            else:
+                self._unknown = (ex.reply.data, classify_reply(_ERRCODE, ex.reply.data, self.specs))
+        return self._unknown if self._unknown is not False else None  # type: ignore[return-value]
+
+    def is_unimplemented(self, reply: Frame) -> bool:
+        fp = self.unknown_fingerprint()
+        return fp is not None and fp[1].refused and reply.data.strip() == fp[0].strip()
+
+    # ------------------------------------------------------------------ judging
+
+    def framing_problems(self, ex: Exchange) -> list[str]:
+        """How an exchange departs from 1.1 framing and echo rules (empty when it conforms)."""
+        out: list[str] = []
+        bad = [m for m in ex.malformed]
+        if bad:
+            out.append(
+                f"{sum(len(m.raw) for m in bad)} bytes that are not a frame arrived "
+                f"({', '.join(sorted({m.rule.value for m in bad}))})"
+            )
+        if ex.reply is None:
+            if ex.closed:
+                out.append("the target closed the connection instead of replying")
+            else:
+                near = [f for f in ex.near_misses() if f.cmd_id not in UNSOLICITED_IDS]
+                if near:
+                    f = near[0]
+                    if f.cnt == ex.cnt and f.cmd_id != ex.cmd_id:
+                        out.append(
+                            f"reply CMD_ID {f.cmd_id} does not echo the request's {ex.cmd_id}"
+                        )
+                    elif f.cmd_id == ex.cmd_id:
+                        out.append(f"reply CNT {f.cnt} does not echo the request's {ex.cnt}")
+                elif ex.pending:
+                    out.append("an incomplete reply frame (no tail?) and then silence")
+                else:
+                    out.append(f"no reply within {self.config.reply_timeout:g} s")
+        else:
+            probs = [p.value for p in ex.reply.problems]
+            if probs:
+                out.append(f"reply framing: {', '.join(probs)}")
+        return out
+
+    def judge(self, ex: Exchange, variant: Variant | None) -> ReplyVerdict | None:
+        """Raise CaseFailure for framing problems; else the reply's classification."""
+        probs = self.framing_problems(ex)
+        frames = describe_exchange(ex)
+        if probs:
+            raise CaseFailure(
+                Outcome.FAIL,
+                "; ".join(probs),
+                frames=frames,
+                raw=ex.request,
+                sticky=ex.reply is None,
+            )
+        assert ex.reply is not None
+        if variant is None:
+            return None
+        return classify_reply(variant.returns, ex.reply.data, self.specs)
+
+    def check_request_valid(self, cmd_id: int, data: str) -> bool:
+        chk = validate_request(Frame(cnt=1, cmd_id=cmd_id, data=data), self.specs)
+        return chk.ok or all(v.rule.value == "space_in_args" for v in chk.violations)
+
+    # ------------------------------------------------------------------ running cases
+
+    def reproduce(self, case: Case, raw: bytes) -> str:
+        if self.config.embedded:
+            where = "--conformance"
+            faults = "".join(
+                f" --emulator-fault {shlex.quote(f)}" for f in self.config.emulator_faults
+            )
+            where += faults
+        else:
+            where = f"--target {shlex.quote(self.config.target_label())}"
+            if self.config.transport != "tcp":
+                where += f" --transport {self.config.transport}"
+        line = (
+            f"pytest -p no:cacheprovider {where} --case {shlex.quote(case.id)} "
+            f"--hypothesis-seed={self.config.seed}"
+        )
+        if raw and self.address is not None:
+            host, port = self.address
+            nc = "nc -u -w1" if self.config.transport == "udp" else "nc -w1"
+            line += f"  # or: printf {shell_printf(raw)} | {nc} {host} {port}"
+        return line
+
+    def run(self, case: Case) -> CaseResult:
+        """Run one case (never raises): safety, a dead target and kit errors become outcomes."""
+        verdict = self._run(case)
+        reproduce = ""
+        if verdict.outcome in (Outcome.FAIL, Outcome.ERROR, Outcome.NON_STRICT):
+            reproduce = self.reproduce(case, verdict.raw)
+        result = CaseResult(
+            id=case.id,
+            cmd_id=case.cmd_id,
+            name=case.name,
+            group=case.group,
+            outcome=verdict.outcome,
+            detail=verdict.detail,
+            reproduce=reproduce,
+            frames=verdict.frames,
+        )
+        self.report.add(result)
+        self.last_case = case.id
+        return result
+
+    def _run(self, case: Case) -> Verdict:
+        if case.command is not None:
+            ok, why = self.config.safety.permits(case.command)
+            if not ok:
+                return Verdict(outcome=Outcome.SKIPPED, detail=why)
+        if self.dead is not None:
+            return Verdict(outcome=Outcome.ERROR, detail=f"target down since case {self.dead}")
+        self.case_started = time.monotonic()
+        try:
+            return case.run(self, case)
+        except CaseFailure as f:
+            return f.verdict
+        except TargetUnreachable as e:
+            if self.recover():
+                return Verdict(outcome=Outcome.FAIL, detail=f"target dropped during the case: {e}")
+            self.dead = case.id
+            return Verdict(outcome=Outcome.ERROR, detail=str(e))
+        except ConformanceError as e:
+            return Verdict(outcome=Outcome.ERROR, detail=f"kit error: {e}")
+        except OSError as e:
+            return Verdict(outcome=Outcome.ERROR, detail=f"connection error: {e}")
+
+    def after_disturbance(self, case: Case, frames: tuple[str, ...], raw: bytes) -> Verdict | None:
+        """Health check on a fresh connection; a failure is blamed on ``case``."""
+        ok, why = self.health()
+        if ok:
+            return None
+        self.drop_client()
+        detail = f"a harmless query on a fresh connection failed afterwards ({why})"
+        if not self.recover():
+            self.dead = case.id
+            detail += f"; target did not recover within {self.config.recovery_timeout:g} s"
+        return Verdict(outcome=Outcome.FAIL, detail=detail, frames=frames, raw=raw)
+
+
+def _health_query(specs: SpecSet) -> tuple[Command, Variant]:
+    """The harmless query: the lowest-ID query taking no arguments and returning values."""
+    cands = sorted(
+        (
+            (c, v)
+            for c in specs
+            if c.safety.value == "query"
+            for v in c.variants
+            if v.form == "call"
+            and not v.params
+            and v.returns.arity >= 1
+            and not v.returns.errcode_only
+            and len(specs.by_id(c.cmd_id)) == 1
+        ),
+        key=lambda cv: cv[0].cmd_id,
+    )
+    if not cands:
+        raise ConformanceError("the specs list no argument-less query to use as a health check")
+    return cands[0]
+
+
+def parsed_is_call(x: object) -> bool:
+    return isinstance(x, Call)
+
+
+_ = Malformed, encode_frame
