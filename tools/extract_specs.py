@@ -102,6 +102,7 @@ class FrameText:
     data: str | None = None
     separators: tuple[str, ...] = ()
     parts: list[str] = field(default_factory=list)
+    repairs: tuple[str, ...] = ()
 
 
 @dataclass
@@ -361,69 +362,99 @@ def frame_ok(f: FrameText) -> bool:
     return f.data is not None and f.length is not None and utf8len(f.data) == int(f.length)
 
 
-def _boundary_options(a: str, b: str) -> list[tuple[str, int]]:
-    """Ways two adjacent cut cells may join: (text of b to append, cost)."""
-    opts: list[tuple[str, int]] = [(b, 0)]
+def _boundary_options(a: str, b: str) -> list[tuple[str, int, str]]:
+    """Ways two adjacent cut cells may join: (text of b to append, cost, repair made)."""
+    opts: list[tuple[str, int, str]] = [(b, 0, "")]
     for k in range(1, min(len(a), len(b), 40) + 1):
         if a.endswith(b[:k]):
-            opts.append((b[k:], 1))  # the cut repeated k characters
+            opts.append((b[k:], 1, "text repeated across a cell cut dropped"))
     if b[:1] in "1l]|" and a.endswith("I"):
-        opts.append(("I" + b[1:], 1))  # an I of the separator read as 1 / l / ]
-        opts.append((b[1:], 1))
+        opts.append(("I" + b[1:], 1, "an I of a separator read as 1/l/]/| restored"))
+        opts.append((b[1:], 1, "a stray character at a cell cut dropped"))
     if b[:1] == "I" and a.endswith("III"):
-        opts.append((b[1:], 1))
+        opts.append((b[1:], 1, "a separator I repeated across a cell cut dropped"))
     return opts
 
 
+#: A reading of a cut frame: text, number of repairs, the repairs made.
+Reading = tuple[str, int, tuple[str, ...]]
+
+
+def _tag(tags: tuple[str, ...], *new: str) -> tuple[str, ...]:
+    return tags + tuple(t for t in new if t and t not in tags)
+
+
 def frame_candidates(parts: list[str], *, request: bool) -> list[tuple[FrameText, int]]:
-    """All readings of a frame cut into cells, with the number of repairs each needs."""
-    ps = [re.sub(r"(?<=I)[\]|l](?=$)", "I", p.strip()) for p in parts if p.strip()]
+    """All readings of a frame cut into cells, with the number of repairs each needs.
+
+    Each reading's ``repairs`` lists what was done to the printed text to get it.
+    """
+    raw = [p.strip() for p in parts if p.strip()]
+    ps = [re.sub(r"(?<=I)[\]|l](?=$)", "I", p) for p in raw]
     if not ps:
         return []
+    base: tuple[str, ...] = ("OCR forms of the separator III repaired",) if ps != raw else ()
     # OCR forms of the separator and the tail: "]]]"/"ПП" for III, "[" debris, "/b/1"
     ocr = [re.sub(r"\[(?=\d)", "", p.replace("ПП", "III").replace("]", "I").replace("|", "I"))
            for p in ps]
+    ocr_tags = _tag(base, "OCR forms of the separator III repaired") if ocr != ps else base
     if ocr[-1].endswith(("/b/1", "/b/", "III/b")):
         ocr[-1] = re.sub(r"/b(?:/1?)?$", "/b/f", ocr[-1])
+        ocr_tags = _tag(ocr_tags, "OCR-damaged frame tail repaired")
     if request and re.search(r"III[A-Za-z_]\w*\(.*\)$", ocr[-1]):
         ocr[-1] += "III/b/f"  # frame tail lost after a complete DATA
-    ocr = [p.replace("·", "").strip() for p in ocr]
-    if ocr != ps:
-        return frame_candidates_exact(ps, request=request) + [
-            (f, c + 1) for f, c in frame_candidates_exact(ocr, request=request)
+        ocr_tags = _tag(ocr_tags, "lost frame tail III/b/f restored")
+    dots = [p.replace("·", "").strip() for p in ocr]
+    if dots != ocr:
+        ocr_tags = _tag(ocr_tags, "stray OCR dots dropped")
+    if dots != ps:
+        return frame_candidates_exact(ps, request=request, tags=base) + [
+            (f, c + 1) for f, c in frame_candidates_exact(dots, request=request, tags=ocr_tags)
         ]
-    return frame_candidates_exact(ps, request=request)
+    return frame_candidates_exact(ps, request=request, tags=base)
 
 
-def frame_candidates_exact(ps: list[str], *, request: bool) -> list[tuple[FrameText, int]]:
-    texts: list[tuple[str, int]] = [(ps[0], 0)]
+def frame_candidates_exact(ps: list[str], *, request: bool,
+                           tags: tuple[str, ...] = ()) -> list[tuple[FrameText, int]]:
+    texts: list[Reading] = [(ps[0], 0, tags)]
+    joined = "the frame's cells, cut apart in the text, joined"
     for nxt in ps[1:]:
-        new: list[tuple[str, int]] = []
-        for t, cost in texts:
-            for add, c in _boundary_options(t, nxt):
-                new.append((t + add, cost + c))
-                new.append((t + " " + add, cost + c))
+        new: list[Reading] = []
+        for t, cost, tg in texts:
+            for add, c, why in _boundary_options(t, nxt):
+                new.append((t + add, cost + c, _tag(tg, joined, why)))
+                new.append((t + " " + add, cost + c, _tag(tg, joined, why)))
             # overlapping cells: b restarts inside the text of a (a cut copy of its head)
             for k in range(len(nxt), 2, -1):
                 pos = t.rfind(nxt[:k])
                 if pos > 0 and pos + k < len(t):
-                    new.append((t[:pos] + nxt, cost + 1))
+                    new.append((t[:pos] + nxt, cost + 1,
+                                _tag(tg, joined, "an overlapping cut copy of a cell dropped")))
                     break
         texts = new[:512]
     out: list[tuple[FrameText, int]] = []
-    for t, cost in texts:
-        variants = [(t, cost)]
+    for t, cost, tg in texts:
+        variants: list[Reading] = [(t, cost, tg)]
         if request:
-            variants.append((strip_spaces_outside_quotes(t), cost))
+            variants.append((strip_spaces_outside_quotes(t), cost, tg))
         else:
-            variants.append((re.sub(r"\s*,\s*", ",", t), cost))
+            variants.append((re.sub(r"\s*,\s*", ",", t), cost, tg))
+            # a cut inside a number ("-89 .816387", "0.00000 0") in a comma-separated reply
+            variants.append((re.sub(r"\s*,\s*", ",", re.sub(r"(?<=[\d.])\s+(?=[\d.])", "", t)),
+                             cost + 1, tg))
         if not request:
             # "1III1III/b/f" printed as "1IIIIIII/b/f": the errcode digit lost in the cut
-            variants += [(re.sub(r"(III\d+III)I{3,4}/b/f$", r"\g<1>1III/b/f", v), c + 1)
-                         for v, c in list(variants)]
-        for v, c in variants:
-            f = parse_frame(re.sub(r"\s*(I{2,4})\s*", r"\1", v.strip()))
+            variants += [(re.sub(r"(III\d+III)I{3,4}/b/f$", r"\g<1>1III/b/f", v), c + 1,
+                          _tag(g, "the errcode digit lost in the cut restored as 1"))
+                         for v, c, g in list(variants)
+                         if re.search(r"(III\d+III)I{3,4}/b/f$", v)]
+        for v, c, g in variants:
+            squeezed = re.sub(r"\s*(I{2,4})\s*", r"\1", v.strip())
+            f = parse_frame(squeezed)
             if f is not None:
+                if squeezed != t:
+                    g = _tag(g, "spaces left by the cell cuts removed")
+                f.repairs = g
                 out.append((f, c))
     return out
 
@@ -1009,14 +1040,31 @@ def build_variant(
         }
         where = f"{name} table {rv.table}"
         # ---- request
+        name_repair = ""
         if req.data is not None and req.cnt is not None and req.cmd_id is not None:
             data = req.data
             form, dname, args = data_shape(data)
             if form == "call":
                 fixed = data
                 if dname != name:
-                    if norm_name_key(dname) == norm_name_key(name) or close_name(dname, name):
+                    if is_case_variant(dname, name) and not ec.get("keep_name"):
+                        e = errata.add(
+                            order=order, kind="example_wrong_name", commands=[sec.key],
+                            table=rv.table, cmd_id=cmd_id, manual_text=req.printed,
+                            adopted=f"{name}(...)",
+                            note=f"The {where} example sends {dname.replace(' ', '')}(...), "
+                                 f"which differs from the heading's {name} in letter case only "
+                                 "(not an OCR confusion); the heading's spelling is adopted. "
+                                 "Which spelling the controller accepts needs a human decision "
+                                 "(or a capture).",
+                        )
+                        links.append((str(i), e))
                         fixed = name + data[data.index("("):]
+                    elif norm_name_key(dname) == norm_name_key(name) or close_name(dname, name):
+                        fixed = name + data[data.index("("):]
+                        if dname.replace(" ", "") != name:
+                            name_repair = (f"the command name, OCR-damaged as "
+                                           f"{dname.replace(' ', '')}, read as {name}")
                     elif not ec.get("keep_name"):
                         e = errata.add(
                             order=order, kind="example_wrong_name", commands=[sec.key],
@@ -1042,6 +1090,11 @@ def build_variant(
             check_frame(req, data, name, sec.key, rv.table, cmd_id, order, errata, links, i,
                         "request")
             ex["request"] = build_frame(req.cnt, cmd_id, data)
+            if not ec.get("printed_as_is"):
+                record_reconstruction(req, ex["printed_request"], ex["request"], name_repair,
+                                      ec.get("why") if "request" in ec else None,
+                                      sec.key, rv.table, cmd_id, where, "request", order,
+                                      errata, links, i)
         else:
             e = errata.add(
                 order=order, kind="unrecoverable_example", commands=[sec.key], table=rv.table,
@@ -1056,6 +1109,21 @@ def build_variant(
                         "reply")
             ex["reply"] = build_frame(rep.cnt, cmd_id, rep.data)
             reply_datas.append(rep.data)
+            record_reconstruction(rep, ex["printed_reply"], ex["reply"], "",
+                                  (ec.get("reply_why") or ec.get("why")) if "reply" in ec else None,
+                                  sec.key, rv.table, cmd_id, where, "reply", order, errata,
+                                  links, i)
+            if req.cnt is not None and ex["request"] is not None and int(rep.cnt) != int(req.cnt):
+                e = errata.add(
+                    order=order, kind="reply_cnt_mismatch", commands=[sec.key], table=rv.table,
+                    cmd_id=cmd_id, manual_text=f"{ex['printed_request']} / {ex['printed_reply']}",
+                    adopted=f"replies echo the request's CNT ({int(req.cnt)}); the example "
+                            f"reply is kept as printed (CNT {int(rep.cnt)})",
+                    note=f"The {where} example reply carries CNT {rep.cnt} but the request's "
+                         f"CNT is {req.cnt}; the protocol (1.1) says the reply echoes the "
+                         "request's CNT, so the two frames do not belong to one exchange.",
+                )
+                links.append((str(i), e))
         elif (rep.printed.startswith("/f/b") and req.cnt is not None and len(rvals) == 1
               and rvals[0]["name"].lower() == "errcode" and "reply" not in ec):
             m = re.match(r"/f/bI{2,3}(\d+)", rep.printed)
@@ -1110,6 +1178,45 @@ def build_variant(
         "examples": examples,
     }
     return variant, links
+
+
+def is_case_variant(printed: str, name: str) -> bool:
+    """Names that differ in letter case only, not by an OCR confusion (Speed ~ speed)."""
+    p = printed.replace(" ", "")
+    if p == name or p.lower() != name.lower():
+        return False
+    return any(a != b and a.lower() not in "oli" for a, b in zip(p, name, strict=True))
+
+
+def record_reconstruction(
+    f: FrameText, printed: str, adopted: str, name_repair: str, why: str | None, key: str,
+    table: str, cmd_id: int, where: str, what: str, order: tuple[int, int], errata: Errata,
+    links: list[tuple[str, dict[str, Any]]], i: int,
+) -> None:
+    """Record a ``reconstructed_example`` erratum when the printed text is not the frame read.
+
+    The reading (CNT, CMD_ID, LEN, DATA) is compared with the printed text taken as one
+    frame; a wrong CMD_ID, LEN or separator in an otherwise intact frame is left to its own
+    erratum kind.  Nothing is recorded when the printed text already is that frame.
+    """
+    pf = parse_frame(printed)
+    read = (f.cnt, f.cmd_id, f.length, f.data)
+    if pf is not None and (pf.cnt, pf.cmd_id, pf.length, pf.data) == read and not name_repair:
+        return
+    if why is not None:
+        how = "read by hand (tools/manual_corrections.yaml): " + clean_ws(why)
+    else:
+        repairs = [r for r in (*f.repairs, name_repair) if r]
+        how = "; ".join(repairs) if repairs else "read off the text as printed"
+        how = "reconstructed by the extractor: " + how
+    e = errata.add(
+        order=order, kind="reconstructed_example", commands=[key], table=table, cmd_id=cmd_id,
+        manual_text=printed or "(nothing printed)", adopted=adopted,
+        note=f"The {what} frame of the {where} example is not one intact frame in the manual "
+             f"text (cut across table cells or OCR-damaged); {how}. The LEN of the adopted "
+             "frame is the UTF-8 length of its DATA.",
+    )
+    links.append((str(i), e))
 
 
 def clean_ws(s: str) -> str:
