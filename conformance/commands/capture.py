@@ -317,8 +317,28 @@ def _run_diff(args: argparse.Namespace) -> int:
 
 
 def _run_import_pcap(args: argparse.Namespace) -> int:
-    raise UsageError("import-pcap is not available yet")
+    from ..pcap import DEFAULT_TCP_PORTS, DEFAULT_UDP_PORTS, import_pcap
+
+    t0 = time.perf_counter()
+    st = import_pcap(
+        args.pcap,
+        args.out,
+        tcp_ports=args.port or DEFAULT_TCP_PORTS,
+        udp_ports=args.udp_port or DEFAULT_UDP_PORTS,
+        specs=_specs(args),
+    )
+    dt = time.perf_counter() - t0
+    print(
+        f"imported {st.packets} packets ({st.ignored} not ours) in {dt:.2f} s: "
+        f"{st.connections} connections, {st.frames} frames, {st.problems} problems, "
+        f"{st.retransmitted_bytes} retransmitted bytes dropped -> {args.out}"
+    )
+    return 0
 
 
 def _run_export_pcap(args: argparse.Namespace) -> int:
-    raise UsageError("export-pcap is not available yet")
+    from ..pcap import export_pcap
+
+    n = export_pcap(read_recording(args.capture), args.out)
+    print(f"wrote {n} packets to {args.out}")
+    return 0
