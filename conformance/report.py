@@ -1,4 +1,4 @@
-"""Results model, reported per command ID: terminal table and JSON.
+"""Results model, reported per command ID: terminal table, JSON and HTML.
 
 A :class:`Report` collects :class:`CaseResult` rows; the per-command outcome is
 derived from the cases (never stored twice).  The JSON document has the shape
@@ -17,7 +17,15 @@ from typing import Any
 
 from . import __version__
 
-__all__ = ["CaseResult", "CommandSummary", "Outcome", "Report"]
+__all__ = [
+    "CaseResult",
+    "CommandSummary",
+    "Outcome",
+    "Report",
+    "aggregate",
+    "load_report",
+    "render_html",
+]
 
 
 class Outcome(str, enum.Enum):
@@ -122,7 +130,8 @@ class Report:
             by.setdefault(c.cmd_id, []).append(c)
             names.setdefault(c.cmd_id, c.name)
         return {
-            k: CommandSummary(cmd_id=k, name=names[k], cases=tuple(v)) for k, v in sorted(by.items())
+            k: CommandSummary(cmd_id=k, name=names[k], cases=tuple(v))
+            for k, v in sorted(by.items())
         }
 
     def effective(self, outcome: Outcome) -> Outcome:
@@ -209,7 +218,178 @@ class Report:
             counts = " ".join(f"{k}={v}" for k, v in sorted(s.counts().items()))
             lines.append(f"{s.cmd_id:>5}  {s.name[:34]:<34} {s.outcome.value:<14} {counts}"[:width])
         t = self.totals()
-        lines.append(
-            "commands: " + ", ".join(f"{v} {k}" for k, v in t.items() if v) + f" (target {self.target})"
-        )
+        counts = ", ".join(f"{v} {k}" for k, v in t.items() if v)
+        lines.append(f"commands: {counts} (target {self.target})")
         return "\n".join(lines)
+
+
+def load_report(path: str) -> Report:
+    """Read a JSON report written by ``--report-json`` (UsageError-free: callers map errors)."""
+    with open(path, encoding="utf-8") as f:
+        doc = json.load(f)
+    if not isinstance(doc, dict) or "commands" not in doc or "target" not in doc:
+        raise ValueError(f"{path} is not a conformance report (no target/commands)")
+    return Report.from_json(doc)
+
+
+# --------------------------------------------------------------------------- HTML
+
+_GROUP_ORDER = ("framing", "examples", "valid", "invalid", "robustness", "transport", "stateful")
+_COLORS = {
+    Outcome.PASS: "#2e7d32",
+    Outcome.FAIL: "#c62828",
+    Outcome.NON_STRICT: "#ef6c00",
+    Outcome.UNIMPLEMENTED: "#6a1b9a",
+    Outcome.SKIPPED: "#9e9e9e",
+    Outcome.ERROR: "#000000",
+}
+
+
+def _esc(text: object) -> str:
+    import html
+
+    return html.escape(str(text), quote=True)
+
+
+def _groups(reports: list[Report]) -> list[str]:
+    seen = {c.group for r in reports for c in r.cases}
+    return [g for g in _GROUP_ORDER if g in seen] + sorted(seen - set(_GROUP_ORDER))
+
+
+def _cell(cases: list[CaseResult], groups: list[str]) -> str:
+    """One target's results for one command: overall outcome and one box per case group."""
+    if not cases:
+        return '<td class="none">-</td>'
+    overall = aggregate(c.outcome for c in cases)
+    boxes = []
+    for g in groups:
+        gc = [c for c in cases if c.group == g]
+        if not gc:
+            boxes.append(f'<span class="box empty" title="{_esc(g)}: no case"></span>')
+            continue
+        o = aggregate(c.outcome for c in gc)
+        tip = f"{_esc(g)}: {o.value} ({len(gc)})"
+        boxes.append(
+            f'<span class="box" style="background:{_COLORS[o]}" title="{tip}">'
+            f"{_esc(g[0].upper())}</span>"
+        )
+    bad = [c for c in cases if c.outcome not in (Outcome.PASS, Outcome.SKIPPED)]
+    details = ""
+    if bad:
+        items = []
+        for c in bad[:50]:
+            frames = "".join(f"<div class=frame>{_esc(f)}</div>" for f in c.frames)
+            repro = f"<div class=repro>{_esc(c.reproduce)}</div>" if c.reproduce else ""
+            color = _COLORS[c.outcome]
+            items.append(
+                f"<li><b>{_esc(c.id)}</b> <span class=o style='color:{color}'>"
+                f"{c.outcome.value}</span> {_esc(c.detail)}{frames}{repro}</li>"
+            )
+        more = f"<li>... {len(bad) - 50} more</li>" if len(bad) > 50 else ""
+        details = (
+            f"<details><summary>{len(bad)} case(s)</summary>"
+            f"<ul>{''.join(items)}{more}</ul></details>"
+        )
+    color = _COLORS[overall]
+    return (
+        f'<td class="cell" data-outcome="{overall.value}">'
+        f'<span class="ov" style="color:{color}">{overall.value}</span> '
+        f"{''.join(boxes)}{details}</td>"
+    )
+
+
+def render_html(reports: list[Report], *, title: str = "FAIRINO conformance") -> str:
+    """A self-contained page (no network): command x case-group matrix, one column per target.
+
+    Several reports (targets) merge into one side-by-side matrix.  Rows can be
+    filtered by text (ID or name) and to commands that are not PASS everywhere;
+    failing cases unfold with their frames and reproduction line.
+    """
+    if not reports:
+        raise ValueError("no report to render")
+    groups = _groups(reports)
+    per: list[dict[int, CommandSummary]] = [r.commands() for r in reports]
+    ids = sorted({i for p in per for i in p})
+    names = {i: s.name for p in per for i, s in p.items()}
+    rows = []
+    for i in ids:
+        summaries = [p.get(i) for p in per]
+        outs = [s.outcome for s in summaries if s is not None]
+        worst = min(outs, key=_SEVERITY.__getitem__) if outs else Outcome.SKIPPED
+        cells = "".join(_cell(list(s.cases) if s else [], groups) for s in summaries)
+        key = _esc(f"{i} {names[i]}".lower())
+        rows.append(
+            f'<tr data-worst="{worst.value}" data-key="{key}"><td class=id>{i}</td>'
+            f"<td class=name>{_esc(names[i])}</td>{cells}</tr>"
+        )
+    heads = []
+    totals = []
+    for r in reports:
+        strict = " · strict" if r.strict else ""
+        heads.append(
+            f"<th>{_esc(r.target)}<br><small>{_esc(r.transport)} · {_esc(r.spec_version)}"
+            f" · seed {_esc(r.seed)}{strict}</small></th>"
+        )
+        counts = ", ".join(f"{v} {k}" for k, v in r.totals().items() if v)
+        totals.append(f"<p><b>{_esc(r.target)}</b>: {_esc(counts)} (exit code {r.exit_code()})</p>")
+    legend = " ".join(
+        f'<span class="box" style="background:{c}">&nbsp;</span> {o.value}'
+        for o, c in _COLORS.items()
+    )
+    glegend = ", ".join(f"{g[0].upper()} = {g}" for g in groups)
+    return _PAGE.format(
+        title=_esc(title),
+        totals="".join(totals),
+        legend=legend,
+        glegend=_esc(glegend),
+        heads="".join(heads),
+        rows="\n".join(rows),
+        count=len(ids),
+    )
+
+
+_PAGE = """<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>{title}</title>
+<style>
+body {{ font: 14px system-ui, sans-serif; margin: 1em; }}
+table {{ border-collapse: collapse; }}
+th, td {{ border: 1px solid #ddd; padding: 3px 6px; vertical-align: top; text-align: left; }}
+th {{ background: #f3f3f3; position: sticky; top: 0; }}
+.box {{ display: inline-block; width: 14px; height: 14px; margin-right: 1px; color: #fff;
+       font-size: 10px; text-align: center; line-height: 14px; border-radius: 2px; }}
+.box.empty {{ background: #eee; }}
+.ov {{ font-weight: bold; display: inline-block; min-width: 9em; }}
+.frame {{ font-family: monospace; white-space: pre-wrap; color: #333; margin-left: 1em; }}
+.repro {{ font-family: monospace; white-space: pre-wrap; color: #555; margin-left: 1em; }}
+details ul {{ margin: 0.3em 0; padding-left: 1.2em; max-width: 70em; }}
+.controls {{ margin: 0.5em 0; }}
+</style></head><body>
+<h1>{title}</h1>
+{totals}
+<p>{legend}<br><small>case groups: {glegend}</small></p>
+<div class="controls"><input id="q" placeholder="filter by ID or name" size="30">
+<label><input type="checkbox" id="bad"> only commands not PASS everywhere</label>
+<span id="shown"></span></div>
+<table id="m"><thead><tr><th>ID</th><th>command</th>{heads}</tr></thead>
+<tbody>
+{rows}
+</tbody></table>
+<script>
+(function () {{
+  var q = document.getElementById("q"), bad = document.getElementById("bad");
+  var rows = document.querySelectorAll("#m tbody tr"), shown = document.getElementById("shown");
+  function apply() {{
+    var t = q.value.trim().toLowerCase(), n = 0;
+    rows.forEach(function (r) {{
+      var ok = (!t || r.dataset.key.indexOf(t) >= 0) &&
+               (!bad.checked || r.dataset.worst !== "PASS");
+      r.style.display = ok ? "" : "none";
+      if (ok) n++;
+    }});
+    shown.textContent = n + " of {count} commands shown";
+  }}
+  q.addEventListener("input", apply); bad.addEventListener("change", apply); apply();
+}})();
+</script>
+</body></html>
+"""

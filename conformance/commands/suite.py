@@ -75,5 +75,261 @@ def _emulate(args: argparse.Namespace) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------- run
+
+
+def _add_run(sub: Any) -> None:
+    p = sub.add_parser(
+        "run",
+        help="run the conformance suite against an endpoint (default: the built-in emulator)",
+        description="Run the packaged conformance suite (pytest in-process, with a progress bar). "
+        "Exit code: 0 conformant, 1 conformance failures, 2 kit or connection error.",
+    )
+    p.add_argument("--target", help="HOST:PORT of the endpoint (default: in-process emulator)")
+    p.add_argument("--transport", choices=("tcp", "udp"), default="tcp")
+    p.add_argument("--commands", action="append", default=[], help="IDs, names, globs")
+    p.add_argument("--exclude", action="append", default=[], help="IDs, names, globs")
+    p.add_argument("--groups", action="append", default=[], help="case groups to run")
+    p.add_argument("--profile", choices=("quick", "default", "thorough"), default="default")
+    p.add_argument("--strict", action="store_true", help="NON-STRICT departures fail")
+    p.add_argument("--expected-failures", metavar="FILE", help="baseline of case IDs")
+    p.add_argument("--reply-timeout", type=float, default=None, metavar="SECONDS")
+    p.add_argument("--case-timeout", type=float, default=None, metavar="SECONDS")
+    p.add_argument("--rate", type=float, default=None, help="at most this many frames/s")
+    p.add_argument("--seed", type=int, default=None, help="Hypothesis seed")
+    p.add_argument("--report-json", metavar="PATH")
+    p.add_argument("--report-html", metavar="PATH")
+    p.add_argument("--junitxml", metavar="PATH")
+    p.add_argument("--allow-motion", action="store_true")
+    p.add_argument("--allow-io", action="store_true")
+    p.add_argument("--allow-config", action="store_true")
+    p.add_argument("--allow-destructive", action="append", default=[], metavar="NAME")
+    p.add_argument("--emulator-fault", action="append", default=[], metavar="KIND[:CMD_IDS]")
+    p.add_argument("--case", action="append", default=[], metavar="ID")
+    p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
+    p.set_defaults(func=_run)
+
+
+class _Progress:
+    """pytest plugin object: a one-line progress bar on stderr, and the final report."""
+
+    def __init__(self, quiet: bool) -> None:
+        self.quiet = quiet
+        self.total = 0
+        self.done = 0
+        self.failed = 0
+        self.report: Any = None
+        self.usage_error: str | None = None
+
+    def pytest_collection_finish(self, session: Any) -> None:
+        self.total = len(session.items)
+
+    def pytest_runtest_logreport(self, report: Any) -> None:
+        if report.when == "call" or (report.when == "setup" and report.outcome != "passed"):
+            self.done += 1
+            self.failed += report.outcome == "failed"
+            if not self.quiet and (self.done % 25 == 0 or self.done == self.total):
+                width = 30
+                filled = int(width * self.done / max(self.total, 1))
+                bar = "#" * filled + "-" * (width - filled)
+                sys.stderr.write(f"\r[{bar}] {self.done}/{self.total} cases, {self.failed} failed")
+                sys.stderr.flush()
+
+    def pytest_sessionfinish(self, session: Any) -> None:
+        from ..pytest_plugin import current_runner
+
+        runner = current_runner(session.config)
+        if runner is not None:
+            self.report = runner.report
+        if not self.quiet and self.total:
+            sys.stderr.write("\n")
+
+
+def _run(args: argparse.Namespace) -> int:
+    import os
+    import tempfile
+
+    import pytest
+
+    from ..cli import EXIT_ERROR, EXIT_FAIL, EXIT_OK
+
+    if args.target:
+        parse_address(args.target, default_port=8080)  # a clear error before pytest starts
+    for f in args.emulator_fault:
+        parse_fault(f)
+    if args.emulator_fault and args.target:
+        raise UsageError("--emulator-fault applies only to the built-in emulator (no --target)")
+    for name in ("reply_timeout", "case_timeout", "rate"):
+        v = getattr(args, name)
+        if v is not None and v <= 0:
+            raise UsageError(f"--{name.replace('_', '-')} must be positive")
+    if args.expected_failures and not os.path.isfile(args.expected_failures):
+        raise UsageError(f"--expected-failures: no such file: {args.expected_failures}")
+    with tempfile.TemporaryDirectory(prefix="fairino-run-") as tmp:
+        ini = os.path.join(tmp, "pytest.ini")
+        with open(ini, "w", encoding="utf-8") as f:
+            f.write("[pytest]\n")
+        argv = [tmp, "-c", ini, "--rootdir", tmp, "-p", "no:cacheprovider", "-p", "no:terminal"]
+        argv += ["--target", args.target] if args.target else ["--conformance"]
+        argv += ["--transport", args.transport, "--profile", args.profile]
+        for opt in ("commands", "exclude", "groups", "case", "allow_destructive", "emulator_fault"):
+            for v in getattr(args, opt):
+                argv += [f"--{opt.replace('_', '-')}", v]
+        for opt in ("expected_failures", "reply_timeout", "case_timeout", "rate", "junitxml"):
+            v = getattr(args, opt)
+            if v is not None:
+                argv += [f"--{opt.replace('_', '-')}", str(v)]
+        for opt in ("report_json", "report_html"):
+            v = getattr(args, opt)
+            if v is not None:
+                argv += [f"--{opt.replace('_', '-')}", os.path.abspath(v)]
+        if args.junitxml:
+            argv[-1] = os.path.abspath(args.junitxml)
+        for flag in ("allow_motion", "allow_io", "allow_config"):
+            if getattr(args, flag):
+                argv.append(f"--{flag.replace('_', '-')}")
+        if args.strict:
+            argv.append("--strict-conformance")
+        if args.seed is not None:
+            argv.append(f"--hypothesis-seed={args.seed}")
+        progress = _Progress(args.quiet)
+        code = int(pytest.main(argv, plugins=[progress]))
+    report = progress.report
+    if report is not None and report.cases:
+        print(report.render_terminal())
+        if code in (0, 1):
+            return EXIT_OK if code == 0 else max(EXIT_FAIL, report.exit_code())
+        return EXIT_ERROR
+    if code == 4:
+        raise UsageError("bad options for the suite (see the message above)")
+    return EXIT_ERROR if code != 0 else EXIT_OK
+
+
+# --------------------------------------------------------------------------- serve
+
+
+def _add_serve(sub: Any) -> None:
+    p = sub.add_parser(
+        "serve",
+        help="client mode: play the controller and validate every frame a client sends",
+        description="Play the controller (the emulator) and report, per command ID, how the "
+        "connecting client departs from the protocol. Stops on Ctrl-C, --duration or "
+        "--max-frames; exit code 0 conformant, 1 departures, 2 error.",
+    )
+    p.add_argument("--listen", default="127.0.0.1:8080", help="TCP HOST:PORT")
+    p.add_argument("--udp", default=None, metavar="HOST:PORT", help="also listen on UDP")
+    p.add_argument("--duration", type=float, default=None, metavar="SECONDS")
+    p.add_argument("--max-frames", type=int, default=None)
+    p.add_argument("--report-json", metavar="PATH")
+    p.add_argument("--report-html", metavar="PATH")
+    p.add_argument("--strict", action="store_true", help="NON-STRICT departures fail")
+    p.set_defaults(func=_serve)
+
+
+def _serve(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from ..net.emulator import EmulatorServer
+    from ..report import render_html
+    from ..spec import default_specs
+    from ..suite.client_mode import ClientValidator
+
+    host, port = parse_address(args.listen, default_port=8080)
+    udp_port: int | None = None
+    if args.udp is not None:
+        uhost, udp_port = parse_address(args.udp, default_port=20007)
+        if uhost != host:
+            raise UsageError("--udp must use the same host as --listen")
+    if args.duration is not None and args.duration <= 0:
+        raise UsageError("--duration must be positive")
+    if args.max_frames is not None and args.max_frames <= 0:
+        raise UsageError("--max-frames must be positive")
+    specs = default_specs()
+    validator = ClientValidator(specs, target=f"client of {args.listen}", strict=args.strict)
+    server = EmulatorServer(
+        specs, host=host, port=port, udp_port=udp_port, observer=validator.observe
+    )
+    server.start()
+    print(
+        f"playing the controller on {format_address(*server.address)}; Ctrl-C to stop", flush=True
+    )
+    deadline = None if args.duration is None else time.monotonic() + args.duration
+    try:
+        while deadline is None or time.monotonic() < deadline:
+            if args.max_frames is not None and validator.frames >= args.max_frames:
+                break
+            time.sleep(0.05)
+            server.check()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.close()
+    report = validator.report()
+    print(report.render_terminal())
+    if args.report_json:
+        Path(args.report_json).write_text(report.dumps(), encoding="utf-8")
+    if args.report_html:
+        Path(args.report_html).write_text(render_html([report]), encoding="utf-8")
+    return report.exit_code()
+
+
+# --------------------------------------------------------------------------- report
+
+
+def _add_report(sub: Any) -> None:
+    p = sub.add_parser("report", help="show, render or merge JSON reports")
+    rs = p.add_subparsers(dest="report_command", metavar="ACTION")
+    rs.required = True
+    show = rs.add_parser("show", help="per-command table of a JSON report")
+    show.add_argument("report")
+    show.set_defaults(func=_report_show)
+    html = rs.add_parser("html", help="render one or more JSON reports as one HTML page")
+    html.add_argument("reports", nargs="+")
+    html.add_argument("-o", "--output", required=True)
+    html.set_defaults(func=_report_html)
+    merge = rs.add_parser("merge", help="side-by-side matrix of several targets' reports")
+    merge.add_argument("reports", nargs="+")
+    merge.add_argument("-o", "--output", required=True)
+    merge.set_defaults(func=_report_html)
+
+
+def _load(path: str) -> Any:
+    import json
+
+    from ..report import load_report
+
+    try:
+        return load_report(path)
+    except FileNotFoundError:
+        raise UsageError(f"no such report: {path}") from None
+    except (ValueError, KeyError, TypeError) as e:
+        msg = (
+            str(e)
+            if isinstance(e, ValueError) and not isinstance(e, json.JSONDecodeError)
+            else f"{path} is not a JSON conformance report ({type(e).__name__}: {e})"
+        )
+        raise UsageError(msg) from None
+
+
+def _report_show(args: argparse.Namespace) -> int:
+    report = _load(args.report)
+    print(report.render_terminal())
+    return int(report.exit_code())
+
+
+def _report_html(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from ..report import render_html
+
+    reports = [_load(p) for p in args.reports]
+    Path(args.output).write_text(render_html(reports), encoding="utf-8")
+    print(f"wrote {args.output} ({len(reports)} report(s))")
+    return 0
+
+
 def register(subparsers: Any) -> None:
     _add_emulate(subparsers)
+    _add_report(subparsers)
+    _add_run(subparsers)
+    _add_serve(subparsers)

@@ -124,7 +124,8 @@ class SuiteRunner:
         self.emulator: Any = None
         self.address: tuple[str, int] | None = config.target
         self._client: Client | None = None
-        self._unknown: tuple[str, ReplyVerdict] | bool | None = False  # False: not learnt yet
+        self._unknown: tuple[str, ReplyVerdict] | None = None
+        self._unknown_learnt = False
         self.health_command, self.health_variant = _health_query(specs)
         self.dead: str | None = None
         self.last_case: str | None = None
@@ -248,7 +249,8 @@ class SuiteRunner:
 
     def unknown_fingerprint(self) -> tuple[str, ReplyVerdict] | None:
         """How the target answers an unknown command ID (None: it stays silent)."""
-        if self._unknown is False:
+        if not self._unknown_learnt:
+            self._unknown_learnt = True
             unknown = next(i for i in range(9999, 100000) if not self.specs.by_id(i))
             with self.new_client() as c:
                 ex = c.request(unknown, "Conformance()")
@@ -256,7 +258,7 @@ class SuiteRunner:
                 self._unknown = None
             else:
                 self._unknown = (ex.reply.data, classify_reply(_ERRCODE, ex.reply.data, self.specs))
-        return self._unknown if self._unknown is not False else None  # type: ignore[return-value]
+        return self._unknown
 
     def is_unimplemented(self, reply: Frame) -> bool:
         fp = self.unknown_fingerprint()
