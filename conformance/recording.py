@@ -62,6 +62,8 @@ __all__ = [
     "RecordingWriter",
     "RotatingWriter",
     "StreamRecorder",
+    "default_metadata",
+    "dump_json",
     "read_recording",
     "recover",
 ]
@@ -863,6 +865,28 @@ class Recording:
         times = [f.complete_ns for f in self.frames] + [c.t_ns for c in self.connections]
         return max(times) if times else 0
 
+    def noise_before(self) -> dict[int, int]:
+        """For each frame (by ``id()``), the malformed bytes its sender sent just before it
+        (since the previous frame in that direction): garbage ahead of a reply."""
+        out: dict[int, int] = {}
+        streams: dict[tuple[int, str], list[tuple[int, int, Any]]] = {}
+        for f in self.frames:
+            streams.setdefault((f.conn, f.dir), []).append((f.offset, 1, f))
+        for p in self.problems:
+            if p.kind == "malformed":
+                streams.setdefault((p.conn, p.dir), []).append((p.offset, 0, p))
+        for items in streams.values():
+            items.sort(key=lambda x: (x[0], x[1]))
+            run = 0
+            for _, is_frame, x in items:
+                if is_frame:
+                    if run:
+                        out[id(x)] = run
+                    run = 0
+                else:
+                    run += x.size
+        return out
+
     def requests(self) -> list[FrameRecord]:
         return [f for f in self.frames if f.dir == C2S]
 
@@ -1031,3 +1055,26 @@ def recover(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> Recover
         out.finish()  # type: ignore[no-untyped-call]
     os.replace(tmp, dst)
     return RecoverResult(messages=n, was_complete=complete, stopped=stopped)
+
+
+_VOLATILE_METADATA = frozenset({"start_ns", "start_time", "host", "kit_version"})
+
+
+def dump_json(rec: Recording, *, metadata: bool = True) -> dict[str, Any]:
+    """A recording as plain JSON (the golden corpus's decoded form).
+
+    Metadata that changes from run to run of the same input (start time, host,
+    kit version) is left out, so importing the same pcap twice dumps the same.
+    """
+    out: dict[str, Any] = {"complete": rec.complete}
+    if metadata:
+        md = sorted(rec.metadata.items())
+        out["metadata"] = {k: v for k, v in md if k not in _VOLATILE_METADATA}
+    out["connections"] = [c.to_json() for c in rec.connections]
+    out["frames"] = [
+        dict(f.to_json(), raw=f.raw.decode("utf-8", "backslashreplace")) for f in rec.frames
+    ]
+    out["problems"] = [
+        dict(p.to_json(), raw=p.raw.decode("utf-8", "backslashreplace")) for p in rec.problems
+    ]
+    return out

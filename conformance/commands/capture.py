@@ -309,11 +309,87 @@ def _run_check(args: argparse.Namespace) -> int:
 
 
 def _run_replay(args: argparse.Namespace) -> int:
-    raise UsageError("replay is not available yet")
+    from ..diff import Ignore
+    from ..net.proxy import ReplayServer, parse_hostport
+    from ..replay import ReplyBook, replay_to_target
+    from ..safety import SafetyPolicy
+
+    rec = read_recording(args.capture)
+    specs = _specs(args)
+    ignore = Ignore.parse(args.ignore)
+    if args.serve:
+        listen = parse_hostport(args.serve, default_port=8080)
+        book = ReplyBook(rec, unmatched=args.unmatched)
+        stop = threading.Event()
+        old = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            server = ReplayServer(book, listen=listen).start()
+        except OSError as e:
+            raise UsageError(f"cannot listen on {args.serve}: {e.strerror or e}") from None
+        h, p = server.address
+        print(
+            f"replay: serving {args.capture} on {h}:{p} (unmatched: {args.unmatched})",
+            file=sys.stderr,
+            flush=True,
+        )
+        try:
+            while not stop.wait(0.1):
+                if args.count and server.finished >= args.count:
+                    break
+        finally:
+            for s, h_ in old.items():
+                signal.signal(s, h_)
+            server.close()
+        print(
+            f"replay: {book.answered} requests answered from the recording, "
+            f"{book.unmatched_count} unmatched",
+            file=sys.stderr,
+        )
+        return 0
+    host, port = parse_hostport(args.target, default_port=8080)
+    safety = SafetyPolicy.for_target(
+        host,
+        allow_config=args.allow_config,
+        allow_io=args.allow_io,
+        allow_motion=args.allow_motion,
+        destructive=args.allow_destructive,
+    )
+    result = replay_to_target(
+        rec,
+        host,
+        port,
+        specs=specs,
+        safety=safety,
+        timing=args.timing,
+        timeout=args.timeout,
+        ignore=ignore,
+    )
+    report = result.to_report(specs.spec_version)
+    if args.json:
+        _write_json(args.json, result.to_json())
+    if args.json != "-":
+        print(report.render_terminal())
+        for k in sorted(result.differing_ids):
+            for d in result.commands[k].differences[:3]:
+                print(f"  {k} {d.kind}: {d.detail}")
+    return 1 if result.differing_ids else 0
 
 
 def _run_diff(args: argparse.Namespace) -> int:
-    raise UsageError("diff is not available yet")
+    from ..diff import Ignore, diff_recordings
+
+    res = diff_recordings(
+        read_recording(args.a),
+        read_recording(args.b),
+        specs=_specs(args),
+        ignore=Ignore.parse(args.ignore),
+        latency_threshold=args.latency_threshold,
+    )
+    if args.json:
+        _write_json("-", res.to_json())
+    else:
+        print(res.render())
+    return 1 if res.changed else 0
 
 
 def _run_import_pcap(args: argparse.Namespace) -> int:

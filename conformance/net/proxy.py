@@ -45,7 +45,7 @@ from ..recording import (
 )
 from ..spec import SpecSet
 
-__all__ = ["ProxyStats", "RecordingProxy", "format_addr", "parse_hostport"]
+__all__ = ["ProxyStats", "RecordingProxy", "ReplayServer", "format_addr", "parse_hostport"]
 
 _READ = selectors.EVENT_READ
 _WRITE = selectors.EVENT_WRITE
@@ -709,3 +709,92 @@ def _try_send(sock: socket.socket, data: bytes | bytearray) -> int:
 
 def _family(host: str) -> socket.AddressFamily:
     return socket.AF_INET6 if ":" in host else socket.AF_INET
+
+
+class ReplayServer:
+    """Plays a recording's controller side: answers each request with the recorded reply.
+
+    ``book`` is a :class:`~conformance.replay.ReplyBook`; one thread per client.
+    """
+
+    def __init__(self, book: Any, *, listen: tuple[str, int] = ("127.0.0.1", 0)) -> None:
+        self.book = book
+        self._srv = socket.create_server(listen, family=_family(listen[0]), backlog=64)
+        self._srv.settimeout(0.2)
+        self.address: tuple[str, int] = self._srv.getsockname()[:2]
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._conns: set[socket.socket] = set()
+        self.connections = 0
+        self.finished = 0
+        self.errors: list[BaseException] = []
+
+    def start(self) -> ReplayServer:
+        t = threading.Thread(target=self._accept, name="replay-accept", daemon=True)
+        t.start()
+        self._threads.append(t)
+        return self
+
+    def _accept(self) -> None:
+        while not self._stop.is_set():
+            try:
+                c, _ = self._srv.accept()
+            except TimeoutError:
+                continue
+            except OSError:
+                return
+            self.connections += 1
+            with self._lock:
+                self._conns.add(c)
+            t = threading.Thread(target=self._serve, args=(c,), name="replay-conn", daemon=True)
+            t.start()
+            self._threads.append(t)
+
+    def _serve(self, c: socket.socket) -> None:
+        from ..frame import Frame, FrameDecoder
+
+        dec = FrameDecoder()
+        c.settimeout(0.5)
+        try:
+            while not self._stop.is_set():
+                try:
+                    data = c.recv(65536)
+                except TimeoutError:
+                    continue
+                if not data:
+                    break
+                out = []
+                for ev in dec.feed(data):
+                    if isinstance(ev, Frame):
+                        with self._lock:
+                            r = self.book.answer(ev)
+                        if r:
+                            out.append(r)
+                if out:
+                    c.sendall(b"".join(out))
+        except OSError:
+            pass
+        except Exception as e:  # pragma: no cover - a bug: keep it for the caller
+            self.errors.append(e)
+        finally:
+            with self._lock:
+                self._conns.discard(c)
+                self.finished += 1
+            c.close()
+
+    def close(self) -> None:
+        self._stop.set()
+        self._srv.close()
+        with self._lock:
+            for c in list(self._conns):
+                with contextlib.suppress(OSError):
+                    c.shutdown(socket.SHUT_RDWR)
+        for t in self._threads:
+            t.join(2)
+
+    def __enter__(self) -> ReplayServer:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

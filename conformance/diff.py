@@ -1,0 +1,413 @@
+"""Compare replies and recordings, per command ID.
+
+:func:`compare_replies` is the one comparison ``replay`` and ``diff`` share: it
+reads both replies against the command's declared return values, compares
+values the specs mark ``volatile`` (positions, sensor readings, versions, times)
+by shape only, and reports every other difference.  :func:`diff_recordings`
+aligns the exchanges of two recordings (the k-th ``(CMD_ID, DATA)`` request of
+one with the k-th of the other) and reports per command ID: exchanges only in
+one recording, replies that differ, and latency changes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from .capture_check import percentile
+from .data import Arg, Array, Number, Text, parse_reply
+from .errors import RemoteProtocolError
+from .recording import Exchange, FrameRecord, Recording
+from .spec import ReturnValue, SpecSet
+
+__all__ = [
+    "DiffResult",
+    "Difference",
+    "Ignore",
+    "compare_replies",
+    "diff_recordings",
+]
+
+#: Difference kinds.
+KINDS = ("missing_reply", "extra_reply", "cnt", "cmd_id", "shape", "data", "framing", "closed")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Difference:
+    """One way a reply differs from the recorded one."""
+
+    kind: str
+    cmd_id: int
+    detail: str
+    recorded: str = ""
+    new: str = ""
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "kind": self.kind,
+            "cmd_id": self.cmd_id,
+            "detail": self.detail,
+            "recorded": self.recorded,
+            "new": self.new,
+        }
+
+
+@dataclass(frozen=True, kw_only=True)
+class Ignore:
+    """What not to report: difference kinds, commands (ID or name), values (``ID.INDEX``).
+
+    ``volatile`` makes volatile values count as equal even when their shape changed.
+    """
+
+    kinds: frozenset[str] = frozenset()
+    commands: frozenset[str] = frozenset()
+    values: frozenset[tuple[int, int]] = frozenset()
+
+    @classmethod
+    def parse(cls, items: Iterable[str]) -> Ignore:
+        from .errors import UsageError
+
+        kinds: set[str] = set()
+        commands: set[str] = set()
+        values: set[tuple[int, int]] = set()
+        known = {*KINDS, "volatile", "latency", "missing", "extra"}
+        for raw in items:
+            for item in raw.split(","):
+                it = item.strip()
+                if not it:
+                    continue
+                if it.lower() in known:
+                    k = it.lower()
+                    kinds.add({"missing": "missing_reply", "extra": "extra_reply"}.get(k, k))
+                elif it.replace(".", "", 1).isdigit() and "." in it:
+                    a, b = it.split(".")
+                    values.add((int(a), int(b)))
+                elif it.isdigit() or it.replace("_", "").isalnum():
+                    commands.add(it.lower())
+                else:
+                    raise UsageError(f"--ignore {it!r}: not a difference kind, command or ID.INDEX")
+        return cls(kinds=frozenset(kinds), commands=frozenset(commands), values=frozenset(values))
+
+    def skips_command(self, cmd_id: int, name: str | None) -> bool:
+        return str(cmd_id) in self.commands or (name is not None and name.lower() in self.commands)
+
+
+def _flat_returns(specs: SpecSet | None, cmd_id: int, name: str | None) -> list[ReturnValue] | None:
+    if specs is None:
+        return None
+    cmd = specs.resolve(cmd_id, name)
+    if cmd is None:
+        return None
+    out: list[ReturnValue] = []
+    for v in cmd.variants[0].returns.values:
+        out += [v] * (v.length or 1)
+    return out
+
+
+def _shape(a: Arg) -> str:
+    if isinstance(a, Number):
+        return "int" if a.is_int else "float"
+    if isinstance(a, Text):
+        return "text"
+    return "array[" + ",".join(_shape(x) for x in a.items) + "]"
+
+
+def _text(a: Arg) -> str:
+    if isinstance(a, Number):
+        return a.text
+    if isinstance(a, Text):
+        return a.value
+    return "{" + ",".join(_text(x) for x in a.items) + "}"
+
+
+def _values(data: str) -> list[Arg] | None:
+    try:
+        vals = parse_reply(data)
+    except RemoteProtocolError:
+        return None
+    out: list[Arg] = []
+    for v in vals:
+        out += list(v.items) if isinstance(v, Array) else [v]
+    return out
+
+
+def compare_replies(
+    recorded: FrameRecord | None,
+    new: FrameRecord | None,
+    *,
+    request: FrameRecord | None = None,
+    new_request: FrameRecord | None = None,
+    noise: tuple[int, int] = (0, 0),
+    specs: SpecSet | None = None,
+    ignore: Ignore = Ignore(),
+) -> list[Difference]:
+    """Differences between a recorded reply and a new one (both may be missing).
+
+    ``request`` is the recorded request, ``new_request`` the one the new reply
+    answers (default: the same); each reply's echo is judged against its own.
+    ``noise`` is the malformed bytes received just before each reply (recorded, new).
+    """
+    new_req = new_request or request
+    ref = recorded or new or request
+    if ref is None:
+        return []
+    cid = request.cmd_id if request is not None else ref.cmd_id
+    name = (request.name if request is not None else None) or ref.name
+    if ignore.skips_command(cid, name):
+        return []
+    out: list[Difference] = []
+
+    def add(kind: str, detail: str) -> None:
+        if kind not in ignore.kinds:
+            out.append(
+                Difference(
+                    kind=kind,
+                    cmd_id=cid,
+                    detail=detail,
+                    recorded=recorded.raw.decode("utf-8", "replace") if recorded else "",
+                    new=new.raw.decode("utf-8", "replace") if new else "",
+                )
+            )
+
+    if recorded is None and new is None:
+        return out
+    if new is None:
+        add("missing_reply", "no reply now; the recording has one")
+        return out
+    if recorded is None:
+        add("extra_reply", "a reply now; the recording has none")
+        return out
+    # Echo: does each reply echo its own request?  (CNT values may differ between runs.)
+    if request is not None and new_req is not None:
+        if (recorded.cnt == request.cnt) != (new.cnt == new_req.cnt):
+            add(
+                "cnt",
+                f"reply CNT {new.cnt} for request CNT {new_req.cnt} "
+                f"(recorded {recorded.cnt} for {request.cnt})",
+            )
+        if (recorded.cmd_id == request.cmd_id) != (new.cmd_id == new_req.cmd_id):
+            add("cmd_id", f"reply CMD_ID {new.cmd_id} (recorded {recorded.cmd_id})")
+    elif recorded.cmd_id != new.cmd_id:
+        add("cmd_id", f"reply CMD_ID {new.cmd_id} (recorded {recorded.cmd_id})")
+    if bool(noise[0]) != bool(noise[1]):
+        add("framing", f"{noise[1]} malformed bytes before the reply (recorded {noise[0]})")
+    if set(recorded.problems) != set(new.problems):
+        add(
+            "framing",
+            f"framing problems {sorted(new.problems) or 'none'} "
+            f"(recorded {sorted(recorded.problems) or 'none'})",
+        )
+    if recorded.data == new.data or "data" in ignore.kinds:
+        return out
+    rv, nv = _values(recorded.data), _values(new.data)
+    if rv is None or nv is None or len(rv) != len(nv):
+        add(
+            "shape",
+            f"{'?' if nv is None else len(nv)} values (recorded {'?' if rv is None else len(rv)}): "
+            f"{new.data[:60]!r} vs {recorded.data[:60]!r}",
+        )
+        return out
+    returns = _flat_returns(specs, cid, name)
+    for i, (a, b) in enumerate(zip(rv, nv, strict=True)):
+        if (cid, i) in ignore.values:
+            continue
+        decl = returns[i] if returns is not None and i < len(returns) else None
+        vname = decl.name if decl else f"value {i}"
+        if decl is not None and decl.volatile:
+            if "volatile" not in ignore.kinds and _shape(a) != _shape(b):
+                add("shape", f"{vname} (volatile, index {i}): {_shape(b)} (recorded {_shape(a)})")
+            continue
+        if _text(a) != _text(b):
+            add("data", f"{vname} (index {i}): {_text(b)!r} (recorded {_text(a)!r})")
+    return out
+
+
+# --------------------------------------------------------------------------- diff
+
+
+@dataclass
+class CommandDiff:
+    cmd_id: int
+    name: str
+    count_a: int = 0
+    count_b: int = 0
+    only_a: list[str] = field(default_factory=list)
+    only_b: list[str] = field(default_factory=list)
+    differing: int = 0
+    differences: list[Difference] = field(default_factory=list)
+    latency_a: list[int] = field(default_factory=list)
+    latency_b: list[int] = field(default_factory=list)
+    latency_changed: bool = False
+
+    @property
+    def changed(self) -> bool:
+        return bool(self.only_a or self.only_b or self.differing or self.latency_changed)
+
+    def to_json(self) -> dict[str, Any]:
+        def ms(v: float | None) -> float | None:
+            return None if v is None else round(v / 1e6, 3)
+
+        return {
+            "name": self.name,
+            "count_a": self.count_a,
+            "count_b": self.count_b,
+            "only_in_a": len(self.only_a),
+            "only_in_b": len(self.only_b),
+            "only_in_a_examples": self.only_a[:5],
+            "only_in_b_examples": self.only_b[:5],
+            "differing_replies": self.differing,
+            "differences": [d.to_json() for d in self.differences[:10]],
+            "latency_p50_ms": [
+                ms(percentile(self.latency_a, 50)),
+                ms(percentile(self.latency_b, 50)),
+            ],
+            "latency_p99_ms": [
+                ms(percentile(self.latency_a, 99)),
+                ms(percentile(self.latency_b, 99)),
+            ],
+            "latency_changed": self.latency_changed,
+        }
+
+
+@dataclass
+class DiffResult:
+    a: str
+    b: str
+    commands: dict[int, CommandDiff]
+
+    @property
+    def changed(self) -> bool:
+        return any(c.changed for c in self.commands.values())
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "a": self.a,
+            "b": self.b,
+            "changed": self.changed,
+            "commands": {str(k): v.to_json() for k, v in sorted(self.commands.items())},
+        }
+
+    def render(self, *, all_commands: bool = False) -> str:
+        lines = [f"--- {self.a}", f"+++ {self.b}"]
+        lines.append(
+            f"{'ID':>5}  {'name':<26} {'A':>6} {'B':>6} {'onlyA':>6} {'onlyB':>6} {'differ':>6}"
+            "  p50 ms A -> B"
+        )
+        for k, c in sorted(self.commands.items()):
+            if not (c.changed or all_commands):
+                continue
+            pa, pb = percentile(c.latency_a, 50), percentile(c.latency_b, 50)
+            lat = "-" if pa is None or pb is None else f"{pa / 1e6:.3f} -> {pb / 1e6:.3f}"
+            if c.latency_changed:
+                lat += " !"
+            lines.append(
+                f"{k:>5}  {c.name[:26]:<26} {c.count_a:>6} {c.count_b:>6} {len(c.only_a):>6} "
+                f"{len(c.only_b):>6} {c.differing:>6}  {lat}"
+            )
+            for d in c.differences[:3]:
+                lines.append(f"         {d.kind}: {d.detail}")
+        changed = sum(1 for c in self.commands.values() if c.changed)
+        lines.append(f"{changed} of {len(self.commands)} command IDs differ")
+        return "\n".join(lines)
+
+
+def _key(e: Exchange) -> tuple[int, str]:
+    f = e.request or e.reply
+    assert f is not None
+    return (f.cmd_id, f.data if e.request is not None else "<unsolicited>")
+
+
+def diff_recordings(
+    a: Recording,
+    b: Recording,
+    *,
+    specs: SpecSet | None = None,
+    ignore: Ignore = Ignore(),
+    latency_threshold: float = 0.5,
+    latency_floor_ns: int = 200_000,
+) -> DiffResult:
+    """Align the exchanges of two recordings and compare them per command ID.
+
+    A p50 latency change counts when it is larger than ``latency_threshold``
+    (a fraction) and than ``latency_floor_ns``.
+    """
+    ex_a, ex_b = a.exchanges(), b.exchanges()
+    noise_a, noise_b = a.noise_before(), b.noise_before()
+    groups_b: dict[tuple[int, str], list[Exchange]] = {}
+    for e in ex_b:
+        groups_b.setdefault(_key(e), []).append(e)
+    used: dict[tuple[int, str], int] = {}
+    cmds: dict[int, CommandDiff] = {}
+
+    def cd(e: Exchange) -> CommandDiff:
+        cid = e.cmd_id
+        c = cmds.get(cid)
+        if c is None:
+            c = cmds[cid] = CommandDiff(cmd_id=cid, name=e.name or "?")
+        return c
+
+    for e in ex_a:
+        c = cd(e)
+        if ignore.skips_command(c.cmd_id, c.name):
+            continue
+        c.count_a += 1
+        if e.latency_ns is not None:
+            c.latency_a.append(e.latency_ns)
+        k = _key(e)
+        i = used.get(k, 0)
+        peers = groups_b.get(k, [])
+        if i >= len(peers):
+            c.only_a.append(_show(e))
+            continue
+        used[k] = i + 1
+        o = peers[i]
+        diffs = compare_replies(
+            e.reply,
+            o.reply,
+            request=e.request,
+            new_request=o.request,
+            noise=(noise_a.get(id(e.reply), 0), noise_b.get(id(o.reply), 0)),
+            specs=specs,
+            ignore=ignore,
+        )
+        if diffs:
+            c.differing += 1
+            c.differences.extend(diffs)
+    for k, peers in groups_b.items():
+        for o in peers[used.get(k, 0) :]:
+            c = cd(o)
+            if ignore.skips_command(c.cmd_id, c.name):
+                continue
+            c.only_b.append(_show(o))
+    for e in ex_b:
+        c = cmds[e.cmd_id]
+        if ignore.skips_command(c.cmd_id, c.name):
+            continue
+        c.count_b += 1
+        if e.latency_ns is not None:
+            c.latency_b.append(e.latency_ns)
+    if "latency" not in ignore.kinds:
+        for c in cmds.values():
+            pa, pb = percentile(c.latency_a, 50), percentile(c.latency_b, 50)
+            if pa is not None and pb is not None:
+                delta = abs(pb - pa)
+                c.latency_changed = delta > latency_floor_ns and delta > latency_threshold * max(
+                    pa, 1
+                )
+    for cid in [k for k, c in cmds.items() if ignore.skips_command(k, c.name)]:
+        del cmds[cid]
+    return DiffResult(a=a.path, b=b.path, commands=cmds)
+
+
+def _show(e: Exchange) -> str:
+    f = e.request or e.reply
+    assert f is not None
+    return f.raw.decode("utf-8", "replace")
+
+
+def differences_by_command(diffs: Sequence[Difference]) -> dict[int, list[Difference]]:
+    out: dict[int, list[Difference]] = {}
+    for d in diffs:
+        out.setdefault(d.cmd_id, []).append(d)
+    return out

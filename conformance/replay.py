@@ -1,0 +1,339 @@
+"""Replay a recording: resend the client's side to a target, or serve the controller's side.
+
+``replay --target``: the client's frames (and the malformed bytes it sent) are
+resent in order, one recorded connection after another, through
+:class:`~conformance.net.client.Client`; each new reply is paired with the
+recorded one by CNT and CMD_ID and compared with
+:func:`~conformance.diff.compare_replies` (volatile values by shape).  The
+safety profile (:mod:`conformance.safety`) decides what may be sent to a
+non-loopback target; what it holds back is reported as SKIPPED.
+
+``replay --serve``: :class:`ReplyBook` answers requests with the recorded
+replies, matched by command ID and DATA; a request the recording never saw is
+answered by the ``unmatched`` policy: ``error`` (DATA ``0``, the manual's
+refusal), ``nearest`` (the recorded reply of the same command ID whose request
+DATA is most alike) or ``drop`` (no reply).  The socket side is
+:class:`~conformance.net.proxy.ReplayServer`.
+"""
+
+from __future__ import annotations
+
+import difflib
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+from .diff import Difference, Ignore, compare_replies
+from .errors import ConformanceError
+from .frame import Frame, encode_frame
+from .recording import C2S, S2C, FrameRecord, ProblemRecord, Recording
+from .report import CaseResult, Outcome, Report
+from .safety import SafetyPolicy
+from .spec import SpecSet
+
+__all__ = ["ReplayResult", "ReplyBook", "replay_to_target"]
+
+_UNKNOWN = "command ID not in the specs: not sent to a non-loopback target"
+
+
+# --------------------------------------------------------------------------- serve
+
+
+def _with_cnt(raw: bytes, old_cnt: int, new_cnt: int) -> bytes:
+    """The recorded reply's bytes with its CNT replaced (everything else as recorded)."""
+    prefix = b"/f/bIII%dIII" % old_cnt
+    if raw.startswith(prefix):
+        return b"/f/bIII%dIII" % new_cnt + raw[len(prefix) :]
+    return raw
+
+
+class ReplyBook:
+    """The controller's side of a recording, as answers to requests (sans-I/O)."""
+
+    def __init__(self, rec: Recording, *, unmatched: str = "error") -> None:
+        if unmatched not in ("error", "nearest", "drop"):
+            raise ValueError(f"unmatched policy must be error, nearest or drop, not {unmatched!r}")
+        self.unmatched = unmatched
+        self._book: dict[tuple[int, str], deque[FrameRecord]] = {}
+        self._last: dict[tuple[int, str], FrameRecord] = {}
+        self._by_id: dict[int, list[tuple[str, FrameRecord]]] = {}
+        self._requests: dict[tuple[int, str], FrameRecord] = {}
+        for ex in rec.exchanges():
+            if ex.request is None or ex.reply is None:
+                continue
+            key = (ex.request.cmd_id, ex.request.data)
+            self._book.setdefault(key, deque()).append(ex.reply)
+            self._requests.setdefault(key, ex.request)
+            self._by_id.setdefault(ex.request.cmd_id, []).append((ex.request.data, ex.reply))
+        self.answered = 0
+        self.unmatched_count = 0
+
+    def answer(self, frame: Frame) -> bytes | None:
+        """The bytes to send back for ``frame`` (None: send nothing)."""
+        key = (frame.cmd_id, frame.data)
+        q = self._book.get(key)
+        rep: FrameRecord | None = None
+        if q:
+            rep = q.popleft()  # recorded replies in order, then the last one again
+            self._last[key] = rep
+        elif key in self._last:
+            rep = self._last[key]
+        if rep is not None:
+            self.answered += 1
+            req = self._requests[key]
+            if rep.cnt == req.cnt:
+                return _with_cnt(rep.raw, rep.cnt, frame.cnt)
+            return rep.raw  # the recorded reply did not echo CNT: neither do we
+        self.unmatched_count += 1
+        if self.unmatched == "drop":
+            return None
+        if self.unmatched == "nearest":
+            cands = self._by_id.get(frame.cmd_id, [])
+            if cands:
+                best = max(
+                    cands, key=lambda c: difflib.SequenceMatcher(None, c[0], frame.data).ratio()
+                )
+                r = best[1]
+                return encode_frame(frame.cnt, r.cmd_id, r.data)
+        return encode_frame(frame.cnt, frame.cmd_id, "0")
+
+
+# --------------------------------------------------------------------------- target
+
+
+@dataclass
+class _CmdResult:
+    cmd_id: int
+    name: str
+    sent: int = 0
+    matched: int = 0
+    differing: int = 0
+    differences: list[Difference] = field(default_factory=list)
+    skipped: dict[str, int] = field(default_factory=dict)
+
+
+@dataclass
+class ReplayResult:
+    target: str
+    commands: dict[int, _CmdResult] = field(default_factory=dict)
+    connections: int = 0
+    elapsed: float = 0.0
+
+    def cmd(self, cmd_id: int, name: str | None) -> _CmdResult:
+        c = self.commands.get(cmd_id)
+        if c is None:
+            c = self.commands[cmd_id] = _CmdResult(cmd_id=cmd_id, name=name or "?")
+        return c
+
+    @property
+    def differing_ids(self) -> set[int]:
+        return {k for k, c in self.commands.items() if c.differing}
+
+    def to_report(self, spec_version: str) -> Report:
+        r = Report(target=self.target, spec_version=spec_version, meta={"mode": "replay"})
+        for k, c in sorted(self.commands.items()):
+            if c.matched:
+                r.add(
+                    CaseResult(
+                        id=f"{k}/replay/match",
+                        cmd_id=k,
+                        name=c.name,
+                        group="replay",
+                        outcome=Outcome.PASS,
+                        detail=f"{c.matched} replies match the recording",
+                    )
+                )
+            kinds: dict[str, list[Difference]] = {}
+            for d in c.differences:
+                kinds.setdefault(d.kind, []).append(d)
+            for kind, ds in sorted(kinds.items()):
+                r.add(
+                    CaseResult(
+                        id=f"{k}/replay/{kind}",
+                        cmd_id=k,
+                        name=c.name,
+                        group="replay",
+                        outcome=Outcome.FAIL,
+                        detail=f"{len(ds)}x {ds[0].detail}",
+                        frames=(ds[0].recorded, ds[0].new),
+                    )
+                )
+            for reason, n in c.skipped.items():
+                r.add(
+                    CaseResult(
+                        id=f"{k}/replay/skipped",
+                        cmd_id=k,
+                        name=c.name,
+                        group="replay",
+                        outcome=Outcome.SKIPPED,
+                        detail=f"{n}x {reason}",
+                    )
+                )
+        return r
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "target": self.target,
+            "connections": self.connections,
+            "elapsed_s": round(self.elapsed, 3),
+            "differing_ids": sorted(self.differing_ids),
+            "commands": {
+                str(k): {
+                    "name": c.name,
+                    "sent": c.sent,
+                    "matched": c.matched,
+                    "differing": c.differing,
+                    "skipped": dict(c.skipped),
+                    "differences": [d.to_json() for d in c.differences[:20]],
+                }
+                for k, c in sorted(self.commands.items())
+            },
+        }
+
+
+def _record(f: Frame, direction: str, t_ns: int, name: str | None, conn: int) -> FrameRecord:
+    return FrameRecord(
+        conn=conn,
+        dir=C2S if direction == C2S else S2C,
+        cnt=f.cnt,
+        cmd_id=f.cmd_id,
+        data=f.data,
+        raw=f.raw or f.encode(),
+        name=name,
+        length=f.length,
+        problems=tuple(p.value for p in f.problems),
+        complete_ns=t_ns,
+        first_ns=t_ns,
+    )
+
+
+def replay_to_target(
+    rec: Recording,
+    host: str,
+    port: int,
+    *,
+    specs: SpecSet,
+    safety: SafetyPolicy,
+    timing: str = "fast",
+    timeout: float = 2.0,
+    quiet_timeout: float = 0.2,
+    ignore: Ignore = Ignore(),  # noqa: B008 (frozen)
+    udp_port: int | None = None,
+) -> ReplayResult:
+    """Resend the recording's client side to ``host:port`` and compare the replies."""
+    from .net.client import Client
+
+    result = ReplayResult(target=f"{host}:{port}")
+    start = time.monotonic()
+    # What each recorded request got, by connection and request index.
+    replies: dict[int, FrameRecord | None] = {}
+    noise = rec.noise_before()
+    for rx in rec.exchanges():
+        if rx.request is not None:
+            replies[id(rx.request)] = rx.reply
+    per_conn: dict[int, list[tuple[int, FrameRecord | ProblemRecord]]] = {}
+    transports: dict[int, str] = {c.conn: c.transport for c in rec.connections if c.event == "open"}
+    for f in rec.frames:
+        if f.dir == C2S:
+            per_conn.setdefault(f.conn, []).append((f.offset, f))
+    for p in rec.problems:
+        if p.dir == C2S and p.kind == "malformed" and p.raw:
+            per_conn.setdefault(p.conn, []).append((p.offset, p))
+    t0_rec = rec.start_ns
+    t0 = time.monotonic()
+    for conn in sorted(per_conn):
+        items = [x for _, x in sorted(per_conn[conn], key=lambda it: it[0])]
+        transport = transports.get(conn, items[0].transport)
+        if transport == "udp" and udp_port is None:
+            continue
+        target_port = udp_port if transport == "udp" and udp_port is not None else port
+        client = Client(host, target_port, transport=transport, timeout=timeout)
+        result.connections += 1
+
+        def ensure(client: Client = client) -> bool:
+            if client.connected:
+                return True
+            try:
+                client.reconnect()
+            except ConformanceError:
+                return False
+            return True
+
+        try:
+            for item in items:
+                if timing == "recorded":
+                    due = t0 + (item.complete_ns - t0_rec) / 1e9
+                    delay = due - time.monotonic()
+                    if delay > 0:
+                        time.sleep(delay)
+                if isinstance(item, ProblemRecord):
+                    if ensure():
+                        client.send_raw(item.raw)
+                    continue
+                cmd = specs.resolve(item.cmd_id, item.name)
+                c = result.cmd(item.cmd_id, item.name or (cmd.name if cmd else None))
+                ok, why = (safety.loopback, _UNKNOWN) if cmd is None else safety.permits(cmd)
+                if not ok:
+                    c.skipped[why] = c.skipped.get(why, 0) + 1
+                    continue
+                recorded = replies.get(id(item))
+                if not ensure():
+                    c.differing += 1
+                    c.differences.append(
+                        Difference(
+                            kind="closed",
+                            cmd_id=item.cmd_id,
+                            detail="the target refused the connection",
+                            recorded=recorded.raw.decode("utf-8", "replace") if recorded else "",
+                        )
+                    )
+                    continue
+                client.send_raw(item.raw)
+                c.sent += 1
+                ex = client.await_reply(
+                    item.cnt,
+                    item.cmd_id,
+                    request=item.raw,
+                    timeout=timeout if recorded is not None else quiet_timeout,
+                )
+                got = ex.reply
+                if got is None:
+                    near = ex.near_misses()
+                    got = near[0] if near else None
+                new = None if got is None else _record(got, S2C, time.time_ns(), item.name, conn)
+                got_noise = sum(len(m.raw) for m in ex.malformed)
+                rec_noise = noise.get(id(recorded), 0) if recorded is not None else 0
+                diffs = compare_replies(
+                    recorded,
+                    new,
+                    request=item,
+                    noise=(rec_noise, got_noise),
+                    specs=specs,
+                    ignore=ignore,
+                )
+                if (
+                    ex.closed
+                    and recorded is not None
+                    and "closed" not in ignore.kinds
+                    and got is None
+                ):
+                    diffs = [
+                        Difference(
+                            kind="closed",
+                            cmd_id=item.cmd_id,
+                            detail="the target closed the connection instead of replying",
+                            recorded=recorded.raw.decode("utf-8", "replace"),
+                        )
+                    ]
+                if ex.closed:
+                    client.close()
+                if diffs:
+                    c.differing += 1
+                    c.differences.extend(diffs)
+                else:
+                    c.matched += 1
+        finally:
+            client.close()
+    result.elapsed = time.monotonic() - start
+    return result
