@@ -417,7 +417,8 @@ def pytest_collection_modifyitems(
             order.append(c.cmd_id)
         nodes[c.cmd_id].append(c)
     collectors = {
-        cid: CommandNode.from_parent(session, name=str(cid), cases=nodes[cid]) for cid in order
+        cid: CommandNode.from_parent(session, name=str(cid), nodeid=str(cid), cases=nodes[cid])
+        for cid in order
     }
     by_id = {cid: {i.name: i for i in col.collect()} for cid, col in collectors.items()}
     items.extend(by_id[c.cmd_id][c.item_name] for c in cases)

@@ -1,0 +1,187 @@
+"""The pytest plugin, driven through pytester (in-process: no test files in the directory)."""
+
+from __future__ import annotations
+
+import json
+import socket
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import pytest
+
+from conformance.spec import default_specs
+
+SPECS = default_specs()
+QUERY = next(
+    c
+    for c in sorted(SPECS, key=lambda c: c.cmd_id)
+    if c.safety.value == "query"
+    and len(SPECS.by_id(c.cmd_id)) == 1
+    and c.variants[0].form == "call"
+    and c.variants[0].params
+)
+MOTION = next(c for c in sorted(SPECS, key=lambda c: c.cmd_id) if c.safety.value == "motion")
+BASE = ("-p", "no:cacheprovider", "--profile", "quick", "--reply-timeout", "0.3")
+
+
+def test_plugin_is_off_without_target(pytester: pytest.Pytester) -> None:
+    pytester.makepyfile("def test_x():\n    assert True\n")
+    result = pytester.runpytest("-p", "no:cacheprovider")
+    result.assert_outcomes(passed=1)
+    assert "results per command ID" not in result.stdout.str()
+
+
+def test_suite_runs_against_embedded_emulator(pytester: pytest.Pytester, tmp_path: Path) -> None:
+    rj, junit = tmp_path / "r.json", tmp_path / "j.xml"
+    result = pytester.runpytest(
+        *BASE,
+        "--conformance",
+        "--commands",
+        str(QUERY.cmd_id),
+        "--groups",
+        "framing,valid,invalid",
+        "--report-json",
+        str(rj),
+        "--junitxml",
+        str(junit),
+        "--hypothesis-seed=7",
+    )
+    assert result.ret == 0
+    out = result.stdout.str()
+    assert "results per command ID" in out and f"{QUERY.cmd_id:>5}  {QUERY.name}" in out
+    doc = json.loads(rj.read_text())
+    assert doc["seed"] == 7 and doc["target"] == "embedded emulator"
+    cmd = doc["commands"][str(QUERY.cmd_id)]
+    assert cmd["name"] == QUERY.name and cmd["outcome"] == "PASS"
+    assert {c["group"] for c in cmd["cases"]} == {"framing", "valid", "invalid"}
+    cases = ET.parse(junit).getroot().iter("testcase")
+    classes = {(tc.get("classname"), tc.get("name")) for tc in cases}
+    assert classes and all(cls == str(QUERY.cmd_id) for cls, _ in classes)
+    assert len(classes) == len(cmd["cases"])
+
+
+def test_failure_prints_reproduction_that_selects_exactly_that_case(
+    pytester: pytest.Pytester,
+) -> None:
+    fault = f"wrong_cnt:{QUERY.cmd_id}"
+    result = pytester.runpytest(
+        *BASE,
+        "--conformance",
+        "--commands",
+        str(QUERY.cmd_id),
+        "--groups",
+        "framing",
+        "--emulator-fault",
+        fault,
+        "--hypothesis-seed=3",
+    )
+    assert result.ret == 1
+    out = result.stdout.str()
+    assert "does not echo the request's" in out
+    line = next(x for x in out.splitlines() if x.startswith("reproduce: pytest"))
+    assert "printf '/f/bIII" in line and "| nc -w1 127.0.0.1" in line
+    args = line.split("reproduce: pytest ", 1)[1].split("  # or:")[0].split()
+    case_id = args[args.index("--case") + 1]
+    again = pytester.runpytest(*args[:], "--reply-timeout", "0.3")
+    again.assert_outcomes(failed=1)
+    assert case_id in again.stdout.str()
+
+
+def test_expected_failures_baseline(pytester: pytest.Pytester, tmp_path: Path) -> None:
+    fault = f"wrong_cnt:{QUERY.cmd_id}"
+    framing = f"{QUERY.cmd_id}/{QUERY.name}/framing/{QUERY.variants[0].table}"
+    baseline = tmp_path / "baseline.txt"
+    baseline.write_text(f"# known\n{framing}  # CNT not echoed\n")
+    args = (
+        *BASE,
+        "--conformance",
+        "--commands",
+        str(QUERY.cmd_id),
+        "--groups",
+        "framing",
+        "--expected-failures",
+        str(baseline),
+    )
+    result = pytester.runpytest(*args, "--emulator-fault", fault)
+    result.assert_outcomes(xfailed=1)
+    assert result.ret == 0
+    fixed = pytester.runpytest(*args)  # the listed case now passes: the run fails
+    fixed.assert_outcomes(failed=1)
+    assert "listed in --expected-failures but passed" in fixed.stdout.str()
+
+
+def test_non_loopback_target_skips_motion_without_connecting(
+    pytester: pytest.Pytester, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def refuse(*a: object, **k: object) -> None:
+        raise AssertionError("the kit tried to connect")
+
+    monkeypatch.setattr(socket, "create_connection", refuse)
+    result = pytester.runpytest(
+        "-p",
+        "no:cacheprovider",
+        "--target",
+        "192.0.2.1:8080",
+        "--dry-run",
+        "-rs",
+        "--commands",
+        f"{MOTION.cmd_id},{QUERY.cmd_id}",
+        "--groups",
+        "framing,valid",
+    )
+    out = result.stdout.str()
+    assert result.ret == 0
+    assert "--allow-motion" in out and "dry run: would run" in out
+    assert "tried to connect" not in out
+    # Opting in lifts the motion skips.
+    allowed = pytester.runpytest(
+        "-p",
+        "no:cacheprovider",
+        "--target",
+        "192.0.2.1:8080",
+        "--dry-run",
+        "-rs",
+        "--allow-motion",
+        "--commands",
+        str(MOTION.cmd_id),
+        "--groups",
+        "framing",
+    )
+    assert "--allow-motion" not in allowed.stdout.str() and allowed.ret == 0
+
+
+def test_collect_only_names_and_env_target(
+    pytester: pytest.Pytester, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("FAIRINO_TARGET", "127.0.0.1:9")
+    result = pytester.runpytest(
+        "-p",
+        "no:cacheprovider",
+        "--collect-only",
+        "-q",
+        "--commands",
+        str(QUERY.cmd_id),
+        "--groups",
+        "framing",
+    )
+    out = result.stdout.str()
+    assert f"{QUERY.cmd_id}::{QUERY.name}/framing/" in out
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (("--target", "host:notaport"), "bad address"),
+        (("--conformance", "--profile", "nope"), "--profile must be one of"),
+        (("--conformance", "--commands", "NoSuchCommandXYZ"), "matches no command"),
+        (("--conformance", "--case", "1/x/y/z"), "no case"),
+        (("--conformance", "--groups", "bogus"), "unknown case group"),
+    ],
+)
+def test_bad_options_are_usage_errors(
+    pytester: pytest.Pytester, args: tuple[str, ...], message: str
+) -> None:
+    result = pytester.runpytest("-p", "no:cacheprovider", *args)
+    assert result.ret == pytest.ExitCode.USAGE_ERROR
+    assert message in result.stderr.str()
+    assert "Traceback" not in result.stderr.str()
