@@ -58,8 +58,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         os.dup2(devnull, sys.stdout.fileno())
         return EXIT_OK
     except OSError as e:
-        print(f"fairino-conformance {args.command}: error: {e.strerror or e}"
-              + (f": {e.filename}" if e.filename else ""), file=sys.stderr)
+        print(
+            f"fairino-conformance {args.command}: error: {e.strerror or e}"
+            + (f": {e.filename}" if e.filename else ""),
+            file=sys.stderr,
+        )
         return EXIT_ERROR
     except KeyboardInterrupt:
         print(f"fairino-conformance {args.command}: interrupted", file=sys.stderr)

@@ -29,7 +29,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from .errors import LocalProtocolError, RemoteProtocolError, Rule
-from .spec import Command, Param, ReturnValue, Returns, Variant
+from .spec import Command, Param, Returns, ReturnValue, Variant
 
 __all__ = [
     "Arg",
@@ -60,6 +60,13 @@ class Number:
 
     text: str
     value: int | float
+
+    @classmethod
+    def of(cls, text: str) -> Number:
+        """From a token already known to match the number grammar (no re-validation)."""
+        obj = object.__new__(cls)
+        obj.__dict__.update(text=text, value=_number_value(text))
+        return obj
 
     @property
     def is_int(self) -> bool:
@@ -106,6 +113,8 @@ Parsed = Call | Keyword | RawData
 _NAME_RE = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 _NUMBER_RE = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
 _KEYWORD_RE = re.compile(r"[A-Z][A-Z_]*")
+# A flat argument list: tokens without quotes, braces, parens or blanks, one comma apart.
+_SIMPLE_LIST_RE = re.compile(r'[^\s,(){}"]+(?:,[^\s,(){}"]+)*')
 # Characters that end a bare (unquoted) token.
 _BARE_STOP = frozenset(',(){}"')
 
@@ -134,7 +143,15 @@ class _ArgParser:
 
     def items(self, close: str | None) -> list[Arg]:
         """Comma-separated items up to ``close`` (or end of text when None)."""
-        out: list[Arg] = []
+        if close is None and self.sep == "," and _SIMPLE_LIST_RE.fullmatch(self.s, self.i):
+            # Fast path: a flat list of numbers and bare words, no spaces or nesting.
+            out: list[Arg] = [
+                Number.of(t) if _NUMBER_RE.fullmatch(t) else Text(value=t, quoted=False)
+                for t in self.s[self.i :].split(",")
+            ]
+            self.i = len(self.s)
+            return out
+        out = []
         self.skip_ws()
         if close is not None and self.peek() == close:
             self.i += 1
@@ -184,14 +201,14 @@ class _ArgParser:
             raise _error(f"empty argument at offset {self.i} in {self.s!r}", self.s)
         self.i = self.i + len(token)
         if _NUMBER_RE.fullmatch(token):
-            return Number(text=token, value=_number_value(token))
+            return Number.of(token)
         return Text(value=token, quoted=False)
 
 
 def _number_value(token: str) -> int | float:
-    if re.fullmatch(r"[+-]?\d+", token):
-        return int(token)
-    return float(token)
+    if "." in token or "e" in token or "E" in token:
+        return float(token)
+    return int(token)
 
 
 def parse_args(text: str, *, strict: bool = False) -> tuple[tuple[Arg, ...], bool]:
@@ -223,7 +240,9 @@ def parse_data(data: str, *, strict: bool = False) -> Parsed:
     return RawData(text=data)
 
 
-def parse_reply(data: str, separator: str | None = None, *, strict: bool = False) -> tuple[Arg, ...]:
+def parse_reply(
+    data: str, separator: str | None = None, *, strict: bool = False
+) -> tuple[Arg, ...]:
     """Split a reply's DATA into values (``,`` or space separated; auto-detected when None)."""
     if separator is None:
         separator = "," if "," in data else " " if " " in data.strip() else ","
@@ -322,11 +341,9 @@ def _check_scalar(p: Param, arg: Arg, where: str) -> Violation | None:
     if not isinstance(arg, Number):
         kind = "an array" if isinstance(arg, Array) else f"text {arg.value!r}"
         return Violation(rule=Rule.ARG_TYPE, detail=f"{where}: expected {p.type}, got {kind}")
-    if p.is_integer and not arg.is_int:
-        if not (isinstance(arg.value, float) and arg.value.is_integer()):
-            return Violation(
-                rule=Rule.ARG_TYPE, detail=f"{where}: expected {p.type}, got {arg.text}"
-            )
+    # An integer written as 1.000 is tolerated; 1.5 is not.
+    if p.is_integer and not arg.is_int and not float(arg.value).is_integer():
+        return Violation(rule=Rule.ARG_TYPE, detail=f"{where}: expected {p.type}, got {arg.text}")
     if not p.allows(arg.value):
         return Violation(
             rule=Rule.ARG_RANGE, detail=f"{where}: {arg.text} is outside {describe_domain(p)}"
@@ -360,14 +377,28 @@ def check_args(variant: Variant, args: Sequence[Arg]) -> list[Violation]:
             )
         ]
     out: list[Violation] = []
-    for i, (p, a) in enumerate(zip(params, args)):
+    for i, (p, a) in enumerate(zip(params, args, strict=True)):
         where = f"argument {i + 1} ({p.name})"
         if p.is_array:
             if not isinstance(a, Array):
-                out.append(Violation(rule=Rule.ARG_TYPE, detail=f"{where}: expected {{...}} of {p.length}", index=i, param=p.name))
+                out.append(
+                    Violation(
+                        rule=Rule.ARG_TYPE,
+                        detail=f"{where}: expected {{...}} of {p.length}",
+                        index=i,
+                        param=p.name,
+                    )
+                )
                 continue
             if p.length is not None and len(a.items) != p.length:
-                out.append(Violation(rule=Rule.ARG_COUNT, detail=f"{where}: {len(a.items)} elements, expected {p.length}", index=i, param=p.name))
+                out.append(
+                    Violation(
+                        rule=Rule.ARG_COUNT,
+                        detail=f"{where}: {len(a.items)} elements, expected {p.length}",
+                        index=i,
+                        param=p.name,
+                    )
+                )
                 continue
             for j, item in enumerate(a.items):
                 v = _check_scalar(p, item, f"{where}[{j}]")
@@ -386,7 +417,9 @@ def match_variant(command: Command, parsed: Parsed) -> tuple[Variant | None, lis
         for v in command.variants:
             if v.form == "keyword":
                 return v, []
-        return None, [Violation(rule=Rule.BAD_DATA, detail=f"{command.name} is not a keyword command")]
+        return None, [
+            Violation(rule=Rule.BAD_DATA, detail=f"{command.name} is not a keyword command")
+        ]
     if isinstance(parsed, RawData):
         for v in command.variants:
             if v.form == "raw":
@@ -402,12 +435,16 @@ def match_variant(command: Command, parsed: Parsed) -> tuple[Variant | None, lis
         if not viols:
             return v, []
         # Prefer a variant whose arity matches (its violations are about types/ranges).
-        if best[0] is None or (viols[0].rule is not Rule.ARG_COUNT and best[1][0].rule is Rule.ARG_COUNT):
+        if best[0] is None or (
+            viols[0].rule is not Rule.ARG_COUNT and best[1][0].rule is Rule.ARG_COUNT
+        ):
             best = (v, viols)
     if best[0] is None:
         if any(v.form == "raw" for v in command.variants):
             return next(v for v in command.variants if v.form == "raw"), []
-        return None, [Violation(rule=Rule.BAD_DATA, detail=f"{command.name} takes no call arguments")]
+        return None, [
+            Violation(rule=Rule.BAD_DATA, detail=f"{command.name} takes no call arguments")
+        ]
     return best
 
 
@@ -438,9 +475,13 @@ def check_reply(returns: Returns, data: str) -> list[Violation]:
         ]
     out: list[Violation] = []
     if len(expanded) == len(flat):
-        for i, (rv, a) in enumerate(zip(flat, expanded)):
+        for i, (rv, a) in enumerate(zip(flat, expanded, strict=True)):
             if rv.type != "string" and not isinstance(a, Number):
                 out.append(
-                    Violation(rule=Rule.REPLY_SHAPE, detail=f"value {i + 1} ({rv.name}): expected {rv.type}, got {a!r}", index=i)
+                    Violation(
+                        rule=Rule.REPLY_SHAPE,
+                        detail=f"value {i + 1} ({rv.name}): expected {rv.type}, got {a!r}",
+                        index=i,
+                    )
                 )
     return out

@@ -84,9 +84,15 @@ class SafetyPolicy:
         if s is Safety.QUERY or self.loopback:
             return True, ""
         if s is Safety.CONFIGURATION and not (self.allow_config or self.named(command)):
-            return False, f"{command.name} changes configuration on a non-loopback target; pass --allow-config"
+            return (
+                False,
+                f"{command.name} changes configuration on a non-loopback target; pass --allow-config",
+            )
         if s is Safety.IO and not (self.allow_io or self.named(command)):
             return False, f"{command.name} drives I/O on a non-loopback target; pass --allow-io"
         if s in (Safety.MOTION, Safety.PROGRAM) and not (self.allow_motion or self.named(command)):
-            return False, f"{command.name} can move the arm ({s.value}) on a non-loopback target; pass --allow-motion"
+            return (
+                False,
+                f"{command.name} can move the arm ({s.value}) on a non-loopback target; pass --allow-motion",
+            )
         return True, ""

@@ -22,8 +22,8 @@ from .errors import SpecError
 __all__ = [
     "DEFAULT_SPEC_SET",
     "Command",
-    "ErrorCode",
     "Erratum",
+    "ErrorCode",
     "Example",
     "Interval",
     "Param",

@@ -31,7 +31,11 @@ __all__ = [
 FLOAT_DEFAULT = (-1000.0, 1000.0)
 #: ...and for an int without range, a small band (IDs, counts, flags).
 INT_DEFAULT = (0, 100)
-_IDENT = st.text(alphabet="abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_", min_size=1, max_size=12)
+_IDENT = st.text(
+    alphabet="abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_",
+    min_size=1,
+    max_size=12,
+)
 
 
 def cnts() -> st.SearchStrategy[int]:
@@ -41,6 +45,15 @@ def cnts() -> st.SearchStrategy[int]:
 
 def _bounded_int(lo: float, hi: float) -> st.SearchStrategy[int]:
     return st.integers(min_value=math.ceil(lo), max_value=math.floor(hi))
+
+
+def _rounded_floats(lo: float, hi: float) -> st.SearchStrategy[Value]:
+    """Floats in [lo, hi] with at most 3 decimals, as the manual writes them."""
+
+    def clamp(x: float) -> Value:
+        return min(max(round(x, 3), lo), hi)
+
+    return st.floats(min_value=lo, max_value=hi, allow_nan=False).map(clamp)
 
 
 def _scalar(p: Param) -> st.SearchStrategy[Value]:
@@ -54,7 +67,11 @@ def _scalar(p: Param) -> st.SearchStrategy[Value]:
         nums = [v for v, _ in p.enum if not isinstance(v, str)]
         nums = [v for v in nums if p.allows(v)]
         if nums:
-            choices.append(st.sampled_from(nums).map(lambda v: int(v) if float(v).is_integer() and p.is_integer else v))
+            choices.append(
+                st.sampled_from(nums).map(
+                    lambda v: int(v) if float(v).is_integer() and p.is_integer else v
+                )
+            )
     tlo, thi = TYPE_BOUNDS.get(p.type, (-math.inf, math.inf))
     if p.range:
         for iv in p.range:
@@ -65,20 +82,16 @@ def _scalar(p: Param) -> st.SearchStrategy[Value]:
                 if math.ceil(lo) <= math.floor(hi):
                     choices.append(_bounded_int(lo, hi))
             else:
-                choices.append(
-                    st.floats(min_value=iv.min, max_value=iv.max, allow_nan=False).map(
-                        lambda x, lo=iv.min, hi=iv.max: min(max(round(x, 3), lo), hi)
-                    )
-                )
+                choices.append(_rounded_floats(iv.min, iv.max))
     if not choices:
         if p.is_integer:
             lo, hi = TYPE_BOUNDS.get(p.type, INT_DEFAULT)
             choices.append(_bounded_int(max(lo, INT_DEFAULT[0]), min(hi, INT_DEFAULT[1])))
         else:
             choices.append(
-                st.floats(min_value=FLOAT_DEFAULT[0], max_value=FLOAT_DEFAULT[1], allow_nan=False).map(
-                    lambda x: round(x, 3)
-                )
+                st.floats(
+                    min_value=FLOAT_DEFAULT[0], max_value=FLOAT_DEFAULT[1], allow_nan=False
+                ).map(lambda x: round(x, 3))
             )
     return st.one_of(choices)
 
@@ -106,7 +119,9 @@ def minimal_value(p: Param) -> Value:
             v = int(v)
     elif p.range:
         tlo = TYPE_BOUNDS.get(p.type, (-math.inf, math.inf))[0]
-        lo = next((max(iv.min, tlo) for iv in p.range if max(iv.min, tlo) <= iv.max), p.range[0].min)
+        lo = next(
+            (max(iv.min, tlo) for iv in p.range if max(iv.min, tlo) <= iv.max), p.range[0].min
+        )
         v = math.ceil(lo) if p.is_integer else lo
     else:
         v = 0 if p.is_integer else 0.0
@@ -134,13 +149,17 @@ def valid_calls(command: Command, variant: Variant) -> st.SearchStrategy[str]:
 
 def _out_of_range(p: Param) -> st.SearchStrategy[Value] | None:
     """A value just outside the stated domain, or None when no such value exists."""
-    if p.is_string or p.range is None and p.enum is None:
+    if p.is_string or (p.range is None and p.enum is None):
         if p.is_string and p.max_length:
             return st.just("x" * (p.max_length + 1))
         return None
     bad: list[float] = []
-    lows = [iv.min for iv in p.range or ()] + [float(v) for v, _ in p.enum or () if not isinstance(v, str)]
-    highs = [iv.max for iv in p.range or ()] + [float(v) for v, _ in p.enum or () if not isinstance(v, str)]
+    lows = [iv.min for iv in p.range or ()] + [
+        float(v) for v, _ in p.enum or () if not isinstance(v, str)
+    ]
+    highs = [iv.max for iv in p.range or ()] + [
+        float(v) for v, _ in p.enum or () if not isinstance(v, str)
+    ]
     step = 1 if p.is_integer else 0.5
     cands = [min(lows) - step * 1000, max(highs) + step * 1000, max(highs) + step]
     for c in cands:
@@ -164,6 +183,7 @@ def invalid_calls(command: Command, variant: Variant) -> st.SearchStrategy[tuple
     base = valid_args(variant)
     counts = [n for n in (len(params) - 1, len(params) + 1) if n >= 0 and n not in other_arities]
     if counts:
+
         def change_count(args: list[Value], n: int) -> tuple[str, str]:
             extra: list[Value] = [*args, 0][:n] if n > len(args) else args[:n]
             return ("count", format_call(command.name, extra, params))
@@ -171,35 +191,48 @@ def invalid_calls(command: Command, variant: Variant) -> st.SearchStrategy[tuple
         kinds.append(st.tuples(base, st.sampled_from(counts)).map(lambda t: change_count(*t)))
     numeric = [i for i, p in enumerate(params) if not p.is_string]
     if numeric:
+
         def wrong_type(args: list[Value], i: int) -> tuple[str, str]:
             parts = [format_value(a, quoted=params[j].quoted) for j, a in enumerate(args)]
             parts[i] = '"x"'
             return ("type", f"{command.name}({','.join(parts)})")
 
         kinds.append(st.tuples(base, st.sampled_from(numeric)).map(lambda t: wrong_type(*t)))
-    ranged = [(i, s) for i, p in enumerate(params) if (s := _out_of_range(p)) is not None and not p.is_array]
+    ranged = [
+        (i, s)
+        for i, p in enumerate(params)
+        if (s := _out_of_range(p)) is not None and not p.is_array
+    ]
     if ranged:
+
         def out_of_range(args: list[Value], pick: tuple[int, Value]) -> tuple[str, str]:
             i, v = pick
             args = list(args)
             args[i] = v
             return ("range", format_call(command.name, args, params))
 
-        picks = st.one_of([s.map(lambda v, i=i: (i, v)) for i, s in ranged])
+        def tag(i: int, s: st.SearchStrategy[Value]) -> st.SearchStrategy[tuple[int, Value]]:
+            return s.map(lambda v: (i, v))
+
+        picks = st.one_of([tag(i, s) for i, s in ranged])
         kinds.append(st.tuples(base, picks).map(lambda t: out_of_range(*t)))
     if not kinds:
         return st.nothing()
     return st.one_of(kinds)
 
 
-def request_frames(specs: SpecSet, commands: Sequence[Command] | None = None) -> st.SearchStrategy[bytes]:
+def request_frames(
+    specs: SpecSet, commands: Sequence[Command] | None = None
+) -> st.SearchStrategy[bytes]:
     """Complete, valid request frames for any command of ``specs`` (or of ``commands``)."""
     cmds = list(commands) if commands is not None else list(specs)
     pairs = [(c, v) for c in cmds for v in c.variants]
 
     def build(pair: tuple[Command, Variant]) -> st.SearchStrategy[bytes]:
         c, v = pair
-        return st.tuples(cnts(), valid_calls(c, v)).map(lambda t: encode_frame(t[0], c.cmd_id, t[1]))
+        return st.tuples(cnts(), valid_calls(c, v)).map(
+            lambda t: encode_frame(t[0], c.cmd_id, t[1])
+        )
 
     return st.sampled_from(pairs).flatmap(build)
 
@@ -207,6 +240,21 @@ def request_frames(specs: SpecSet, commands: Sequence[Command] | None = None) ->
 def garbage() -> st.SearchStrategy[bytes]:
     """Byte strings rich in protocol fragments (heads, separators, digits), shrinking to b''."""
     pieces = st.sampled_from(
-        [b"/f/b", b"/b/f", b"III", b"II", b"I", b"4", b"201", b"11", b"\x00", b"(", b")", b",", b'"', b"\xff"]
+        [
+            b"/f/b",
+            b"/b/f",
+            b"III",
+            b"II",
+            b"I",
+            b"4",
+            b"201",
+            b"11",
+            b"\x00",
+            b"(",
+            b")",
+            b",",
+            b'"',
+            b"\xff",
+        ]
     )
     return st.lists(st.one_of(pieces, st.binary(max_size=8)), max_size=40).map(b"".join)

@@ -81,9 +81,13 @@ def validate_request(frame: Frame, specs: SpecSet, *, strict: bool = False) -> R
     command = specs.resolve(frame.cmd_id, name)
     if command is None:
         viols.append(
-            Violation(rule=Rule.UNKNOWN_COMMAND, detail=f"command ID {frame.cmd_id} is not in the specs")
+            Violation(
+                rule=Rule.UNKNOWN_COMMAND, detail=f"command ID {frame.cmd_id} is not in the specs"
+            )
         )
-        return RequestCheck(frame=frame, command=None, variant=None, parsed=parsed, violations=tuple(viols))
+        return RequestCheck(
+            frame=frame, command=None, variant=None, parsed=parsed, violations=tuple(viols)
+        )
     if isinstance(parsed, Call):
         viols += [Violation(rule=r, detail=f"DATA: {r.value}") for r in parsed.problems]
         if parsed.name.lower() != command.name.lower():
@@ -150,7 +154,9 @@ def classify_reply(returns: Returns, data: str, specs: SpecSet | None = None) ->
             return ReplyVerdict(refused=True, form=RefusalForm.ERRCODE, code=code)
         return ReplyVerdict(
             refused=False,
-            violations=(Violation(rule=Rule.REPLY_SHAPE, detail=f"expected an error code, got {text!r}"),),
+            violations=(
+                Violation(rule=Rule.REPLY_SHAPE, detail=f"expected an error code, got {text!r}"),
+            ),
         )
     viols = check_reply(returns, text)
     if viols and specs is not None:
@@ -172,16 +178,23 @@ def classify_reply(returns: Returns, data: str, specs: SpecSet | None = None) ->
     return ReplyVerdict(refused=False, violations=tuple(viols))
 
 
-def validate_reply(request: Frame, reply: Frame, variant: Variant | None, specs: SpecSet) -> tuple[ReplyVerdict, list[Violation]]:
+def validate_reply(
+    request: Frame, reply: Frame, variant: Variant | None, specs: SpecSet
+) -> tuple[ReplyVerdict, list[Violation]]:
     """Check a reply's framing and echo against its request, and its DATA against the variant."""
     framing: list[Violation] = [
         Violation(rule=r, detail=f"reply framing: {r.value}") for r in reply.problems
     ]
     if reply.cnt != request.cnt:
-        framing.append(Violation(rule=Rule.BAD_CNT, detail=f"reply CNT {reply.cnt}, request CNT {request.cnt}"))
+        framing.append(
+            Violation(rule=Rule.BAD_CNT, detail=f"reply CNT {reply.cnt}, request CNT {request.cnt}")
+        )
     if reply.cmd_id != request.cmd_id:
         framing.append(
-            Violation(rule=Rule.BAD_CMD_ID, detail=f"reply CMD_ID {reply.cmd_id}, request {request.cmd_id}")
+            Violation(
+                rule=Rule.BAD_CMD_ID,
+                detail=f"reply CMD_ID {reply.cmd_id}, request {request.cmd_id}",
+            )
         )
     if variant is None:
         return ReplyVerdict(refused=False), framing

@@ -46,13 +46,37 @@ FRAME_CASES: list[tuple[str, tuple[int, int, str], bytes]] = [
 #: Deviations a lenient decoder accepts, with the problem it must report.
 #: (id, bytes, expected (cnt, cmd_id, data), expected problems)
 LENIENT_CASES: list[tuple[str, bytes, tuple[int, int, str], tuple[str, ...]]] = [
-    ("len-too-small", b'/f/bIII4III201III10IIIMoveJ("P1")III/b/f', (4, 201, 'MoveJ("P1")'), ("len_mismatch",)),
-    ("len-too-large", b'/f/bIII4III201III12IIIMoveJ("P1")III/b/f/f/bIII1III1III0IIIIII/b/f', (4, 201, 'MoveJ("P1")'), ("len_mismatch",)),
-    ("two-I-separator", b'/f/bII4II201III11IIIMoveJ("P1")III/b/f', (4, 201, 'MoveJ("P1")'), ("bad_separator",)),
-    ("four-I-separator", b'/f/bIIII4III201III11IIIMoveJ("P1")III/b/f', (4, 201, 'MoveJ("P1")'), ("bad_separator",)),
+    (
+        "len-too-small",
+        b'/f/bIII4III201III10IIIMoveJ("P1")III/b/f',
+        (4, 201, 'MoveJ("P1")'),
+        ("len_mismatch",),
+    ),
+    (
+        "len-too-large",
+        b'/f/bIII4III201III12IIIMoveJ("P1")III/b/f/f/bIII1III1III0IIIIII/b/f',
+        (4, 201, 'MoveJ("P1")'),
+        ("len_mismatch",),
+    ),
+    (
+        "two-I-separator",
+        b'/f/bII4II201III11IIIMoveJ("P1")III/b/f',
+        (4, 201, 'MoveJ("P1")'),
+        ("bad_separator",),
+    ),
+    (
+        "four-I-separator",
+        b'/f/bIIII4III201III11IIIMoveJ("P1")III/b/f',
+        (4, 201, 'MoveJ("P1")'),
+        ("bad_separator",),
+    ),
     # 5.x: SetCollisionStrategy's example ends with IIII/b/f.
-    ("four-I-tail", b"/f/bIII202III569III50IIISetCollisionStrategy(2,1000,150,250,{5,5,5,5,5,5})IIII/b/f",
-     (202, 569, "SetCollisionStrategy(2,1000,150,250,{5,5,5,5,5,5})"), ("bad_separator",)),
+    (
+        "four-I-tail",
+        b"/f/bIII202III569III50IIISetCollisionStrategy(2,1000,150,250,{5,5,5,5,5,5})IIII/b/f",
+        (202, 569, "SetCollisionStrategy(2,1000,150,250,{5,5,5,5,5,5})"),
+        ("bad_separator",),
+    ),
     ("cnt-over-uint16", b"/f/bIII70000III1III1IIIxIII/b/f", (70000, 1, "x"), ("bad_cnt",)),
     ("not-utf8", b"/f/bIII1III1III1III\xffIII/b/f", (1, 1, "\ufffd"), ("bad_encoding",)),
 ]
@@ -65,7 +89,11 @@ MALFORMED_CASES: list[tuple[str, bytes, tuple[str, ...]]] = [
     ("non-numeric-id", b"/f/bIII4IIIabcIII1III1III/b/f", ("bad_cmd_id", "garbage")),
     ("non-numeric-len", b"/f/bIII4III201IIIzIII1III/b/f", ("bad_len", "garbage")),
     ("no-separator", b"/f/b4III201III1III1III/b/f", ("bad_separator", "garbage")),
-    ("missing-tail-then-frame", b"/f/bIII4III201III3IIIabc/f/bIII5III201III1III1III/b/f", ("bad_tail",)),
+    (
+        "missing-tail-then-frame",
+        b"/f/bIII4III201III3IIIabc/f/bIII5III201III1III1III/b/f",
+        ("bad_tail",),
+    ),
     ("truncated", b'/f/bIII4III201III11IIIMoveJ("P', ("truncated",)),
     ("truncated-header", b"/f/bIII4II", ("truncated",)),
 ]

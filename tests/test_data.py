@@ -35,12 +35,57 @@ CALL_VARIANTS: list[tuple[Command, Variant]] = [
 PARSE_CASES = [
     ('MoveJ("P1")', Call(name="MoveJ", args=(Text(value="P1", quoted=True),))),
     ("GetActualTCPPose()", Call(name="GetActualTCPPose", args=())),
-    ("SetAO(0,409.50,0)", Call(name="SetAO", args=(Number(text="0", value=0), Number(text="409.50", value=409.5), Number(text="0", value=0)))),
+    (
+        "SetAO(0,409.50,0)",
+        Call(
+            name="SetAO",
+            args=(
+                Number(text="0", value=0),
+                Number(text="409.50", value=409.5),
+                Number(text="0", value=0),
+            ),
+        ),
+    ),
     (".000 forms", RawData(text=".000 forms")),
-    ("X(.000,-0.000,+1,1e3)", Call(name="X", args=(Number(text=".000", value=0.0), Number(text="-0.000", value=-0.0), Number(text="+1", value=1), Number(text="1e3", value=1000.0)))),
-    ("RobotIPConfig(192.168.58.2,255.255.255.0)", Call(name="RobotIPConfig", args=(Text(value="192.168.58.2", quoted=False), Text(value="255.255.255.0", quoted=False)))),
-    ("ServoJT({0.001,0.024},0)", Call(name="ServoJT", args=(Array(items=(Number(text="0.001", value=0.001), Number(text="0.024", value=0.024))), Number(text="0", value=0)))),
-    ("F({},{{1}})", Call(name="F", args=(Array(items=()), Array(items=(Array(items=(Number(text="1", value=1),)),))))),
+    (
+        "X(.000,-0.000,+1,1e3)",
+        Call(
+            name="X",
+            args=(
+                Number(text=".000", value=0.0),
+                Number(text="-0.000", value=-0.0),
+                Number(text="+1", value=1),
+                Number(text="1e3", value=1000.0),
+            ),
+        ),
+    ),
+    (
+        "RobotIPConfig(192.168.58.2,255.255.255.0)",
+        Call(
+            name="RobotIPConfig",
+            args=(
+                Text(value="192.168.58.2", quoted=False),
+                Text(value="255.255.255.0", quoted=False),
+            ),
+        ),
+    ),
+    (
+        "ServoJT({0.001,0.024},0)",
+        Call(
+            name="ServoJT",
+            args=(
+                Array(items=(Number(text="0.001", value=0.001), Number(text="0.024", value=0.024))),
+                Number(text="0", value=0),
+            ),
+        ),
+    ),
+    (
+        "F({},{{1}})",
+        Call(
+            name="F",
+            args=(Array(items=()), Array(items=(Array(items=(Number(text="1", value=1),)),))),
+        ),
+    ),
     ("STOP", Keyword(word="STOP")),
     ("RESUME", Keyword(word="RESUME")),
     ("/fruser/test.lua", RawData(text="/fruser/test.lua")),
@@ -63,7 +108,9 @@ def test_spaces_after_commas_lenient_and_strict() -> None:
     assert exc.value.rule is Rule.BAD_DATA
 
 
-@pytest.mark.parametrize("bad", ["MoveJ(1,2", 'MoveJ("P1)', "MoveJ(1,,2)", "MoveJ(1,{2)", "F(1)x)", "F(1 2)"])
+@pytest.mark.parametrize(
+    "bad", ["MoveJ(1,2", 'MoveJ("P1)', "MoveJ(1,,2)", "MoveJ(1,{2)", "F(1)x)", "F(1 2)"]
+)
 def test_parse_data_rejects_broken_calls(bad: str) -> None:
     with pytest.raises(RemoteProtocolError) as exc:
         parse_data(bad)
@@ -89,8 +136,17 @@ def test_parse_reply(data: str, sep: str | None, values: list[object]) -> None:
 
 @pytest.mark.parametrize(
     ("value", "text"),
-    [(0, "0"), (12, "12"), (-3, "-3"), (0.0, "0.000"), (-116.061, "-116.061"), (409.5, "409.500"),
-     (1e-7, "0.000"), (0.123456, "0.123456"), (True, "1")],
+    [
+        (0, "0"),
+        (12, "12"),
+        (-3, "-3"),
+        (0.0, "0.000"),
+        (-116.061, "-116.061"),
+        (409.5, "409.500"),
+        (1e-7, "0.000"),
+        (0.123456, "0.123456"),
+        (True, "1"),
+    ],
 )
 def test_format_number(value: float, text: str) -> None:
     assert format_number(value) == text
@@ -112,7 +168,9 @@ def test_format_call_quotes_per_spec() -> None:
 # ------------------------------------------------------------------- against the specs
 
 
-@settings(max_examples=400, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+@settings(
+    max_examples=400, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large]
+)
 @given(data=st.data())
 def test_roundtrip_generated_calls_for_every_command(data: st.DataObject) -> None:
     """Generated valid arguments of any command/variant: format -> frame -> decode -> parse -> same."""

@@ -27,7 +27,7 @@ def feed_chunks(data: bytes, cuts: list[int], **kw: object) -> list[Frame | Malf
     d = FrameDecoder(**kw)  # type: ignore[arg-type]
     out: list[Frame | Malformed] = []
     prev = 0
-    for c in sorted(set(cuts)) + [len(data)]:
+    for c in [*sorted(set(cuts)), len(data)]:
         out += d.feed(data[prev:c])
         prev = c
     return out + d.close()
@@ -36,14 +36,18 @@ def feed_chunks(data: bytes, cuts: list[int], **kw: object) -> list[Frame | Malf
 # ------------------------------------------------------------------- shared table
 
 
-@pytest.mark.parametrize(("fields", "wire"), [(f, w) for _, f, w in FRAME_CASES], ids=[c[0] for c in FRAME_CASES])
+@pytest.mark.parametrize(
+    ("fields", "wire"), [(f, w) for _, f, w in FRAME_CASES], ids=[c[0] for c in FRAME_CASES]
+)
 def test_encode(fields: tuple[int, int, str], wire: bytes) -> None:
     assert encode_frame(*fields) == wire
     assert Frame(cnt=fields[0], cmd_id=fields[1], data=fields[2]).encode() == wire
 
 
 @pytest.mark.parametrize("strict", [False, True])
-@pytest.mark.parametrize(("fields", "wire"), [(f, w) for _, f, w in FRAME_CASES], ids=[c[0] for c in FRAME_CASES])
+@pytest.mark.parametrize(
+    ("fields", "wire"), [(f, w) for _, f, w in FRAME_CASES], ids=[c[0] for c in FRAME_CASES]
+)
 def test_decode(fields: tuple[int, int, str], wire: bytes, strict: bool) -> None:
     for events in (decode_all(wire, strict=strict), feed_bytewise(wire, strict=strict)):
         assert len(events) == 1, events
@@ -58,7 +62,9 @@ def test_decode(fields: tuple[int, int, str], wire: bytes, strict: bool) -> None
 def test_decode_all_cases_in_one_stream() -> None:
     stream = b"".join(w for _, _, w in FRAME_CASES)
     events = decode_all(stream, strict=True)
-    assert [(e.cnt, e.cmd_id, e.data) for e in events if isinstance(e, Frame)] == [f for _, f, _ in FRAME_CASES]
+    assert [(e.cnt, e.cmd_id, e.data) for e in events if isinstance(e, Frame)] == [
+        f for _, f, _ in FRAME_CASES
+    ]
     assert all(isinstance(e, Frame) for e in events)
     # Offsets point at each frame's first byte.
     offsets = [e.offset for e in events]
@@ -70,9 +76,13 @@ def test_decode_all_cases_in_one_stream() -> None:
 
 
 @pytest.mark.parametrize(
-    ("wire", "fields", "problems"), [c[1:] for c in LENIENT_CASES], ids=[c[0] for c in LENIENT_CASES]
+    ("wire", "fields", "problems"),
+    [c[1:] for c in LENIENT_CASES],
+    ids=[c[0] for c in LENIENT_CASES],
 )
-def test_lenient_reports_deviation(wire: bytes, fields: tuple[int, int, str], problems: tuple[str, ...]) -> None:
+def test_lenient_reports_deviation(
+    wire: bytes, fields: tuple[int, int, str], problems: tuple[str, ...]
+) -> None:
     events = decode_all(wire)
     first = events[0]
     assert isinstance(first, Frame), events
@@ -91,7 +101,9 @@ def test_strict_rejects_deviation(wire: bytes, problems: tuple[str, ...]) -> Non
     assert first.raw == wire[: len(first.raw)] and first.raw.endswith(b"/b/f")
 
 
-@pytest.mark.parametrize(("wire", "rules"), [c[1:] for c in MALFORMED_CASES], ids=[c[0] for c in MALFORMED_CASES])
+@pytest.mark.parametrize(
+    ("wire", "rules"), [c[1:] for c in MALFORMED_CASES], ids=[c[0] for c in MALFORMED_CASES]
+)
 def test_malformed(wire: bytes, rules: tuple[str, ...]) -> None:
     for strict in (False, True):
         events = decode_all(wire, strict=strict)
@@ -127,7 +139,9 @@ def test_resolve_pending_ends_frame_with_too_large_len() -> None:
     d = FrameDecoder()
     assert d.feed(b'/f/bIII4III201III99IIIMoveJ("P1")III/b/f') == []
     (ev,) = d.resolve_pending()
-    assert isinstance(ev, Frame) and ev.problems == (Rule.LEN_MISMATCH,) and ev.data == 'MoveJ("P1")'
+    assert (
+        isinstance(ev, Frame) and ev.problems == (Rule.LEN_MISMATCH,) and ev.data == 'MoveJ("P1")'
+    )
     strict = FrameDecoder(strict=True)
     strict.feed(b'/f/bIII4III201III99IIIMoveJ("P1")III/b/f')
     (bad,) = strict.resolve_pending()
@@ -185,7 +199,7 @@ def test_max_frame_size_floor() -> None:
 
 # ------------------------------------------------------------------- properties
 
-_data = st.text(alphabet=st.characters(blacklist_categories=("Cs",)), max_size=60) | st.sampled_from(
+_data = st.text(alphabet=st.characters(exclude_categories=["Cs"]), max_size=60) | st.sampled_from(
     ["III", "/b/f", "III/b/f", "I", "II/b/f", "/f/bIII1III1III1IIIxIII/b/f"]
 )
 
@@ -201,7 +215,10 @@ def test_roundtrip_any_data(cnt: int, cmd_id: int, data: str) -> None:
 
 
 @settings(suppress_health_check=[HealthCheck.too_slow])
-@given(chunks=st.lists(garbage() | st.sampled_from([w for _, _, w in FRAME_CASES]), max_size=12), strict=st.booleans())
+@given(
+    chunks=st.lists(garbage() | st.sampled_from([w for _, _, w in FRAME_CASES]), max_size=12),
+    strict=st.booleans(),
+)
 def test_any_bytes_give_events_only(chunks: list[bytes], strict: bool) -> None:
     """Any bytes: Frame/Malformed events only, no byte lost, whole == byte-at-a-time."""
     data = b"".join(chunks)
@@ -212,8 +229,12 @@ def test_any_bytes_give_events_only(chunks: list[bytes], strict: bool) -> None:
     assert feed_bytewise(data, strict=strict, max_frame_size=256) == whole
 
 
-@given(data=st.lists(st.sampled_from([w for _, _, w in FRAME_CASES]) | garbage(), max_size=8).map(b"".join),
-       cuts=st.lists(st.integers(0, 400), max_size=10))
+@given(
+    data=st.lists(st.sampled_from([w for _, _, w in FRAME_CASES]) | garbage(), max_size=8).map(
+        b"".join
+    ),
+    cuts=st.lists(st.integers(0, 400), max_size=10),
+)
 def test_chunking_never_changes_result(data: bytes, cuts: list[int]) -> None:
     assert feed_chunks(data, [c for c in cuts if c <= len(data)]) == decode_all(data)
 
@@ -224,7 +245,9 @@ _NAIVE = re.compile(rb"/f/bIII(\d*?)III(\d*?)III(\d*)III(.*?)III/b/f", re.S)
 @given(frames=st.lists(st.sampled_from([w for _, _, w in FRAME_CASES]), min_size=1, max_size=10))
 def test_agrees_with_naive_regex_on_plain_frames(frames: list[bytes]) -> None:
     """On frames without III inside DATA, the LEN-driven decoder and the public regex agree."""
-    frames = [f for f in frames if b"III" not in f.split(b"III", 4)[4][:-7] and b"/b/f" not in f[4:-4]]
+    frames = [
+        f for f in frames if b"III" not in f.split(b"III", 4)[4][:-7] and b"/b/f" not in f[4:-4]
+    ]
     data = b"".join(frames)
     ours = [(e.cnt, e.cmd_id, e.data.encode()) for e in decode_all(data) if isinstance(e, Frame)]
     theirs = [(int(a), int(b), d) for a, b, _, d in _NAIVE.findall(data)]

@@ -39,7 +39,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     d.add_argument("file", nargs="?", default="-", help="input file, or - for stdin (default)")
     d.add_argument("--hex", metavar="HEX", help="decode these hex bytes instead of a file")
     d.add_argument("--json", action="store_true", help="one JSON object per line")
-    d.add_argument("--strict", action="store_true", help="strict reading: every deviation is malformed")
+    d.add_argument(
+        "--strict", action="store_true", help="strict reading: every deviation is malformed"
+    )
     d.add_argument("--max-frame-size", type=int, default=DEFAULT_MAX_FRAME_SIZE)
     d.add_argument("--specs-dir", help="spec set directory")
     d.set_defaults(func=_run_decode)
@@ -149,8 +151,13 @@ def _run_specs(args: argparse.Namespace) -> int:
         if args.json:
             json.dump(
                 [
-                    {"cmd_id": c.cmd_id, "name": c.name, "section": c.section, "safety": c.safety.value,
-                     "variants": len(c.variants)}
+                    {
+                        "cmd_id": c.cmd_id,
+                        "name": c.name,
+                        "section": c.section,
+                        "safety": c.safety.value,
+                        "variants": len(c.variants),
+                    }
                     for c in cmds
                 ],
                 out,
@@ -182,7 +189,9 @@ def _run_specs(args: argparse.Namespace) -> int:
         else:
             for e in errata:
                 names = ", ".join(
-                    f"{c.name} ({c.cmd_id})" for k in e.commands if (c := specs.by_key(k)) is not None
+                    f"{cmd.name} ({cmd.cmd_id})"
+                    for k in e.commands
+                    if (cmd := specs.by_key(k)) is not None
                 )
                 out.write(f"{e.id}  {e.kind:<24} {names}\n")
                 out.write(f"      manual:  {e.manual_text}\n      adopted: {e.adopted}\n")
@@ -229,8 +238,8 @@ def _show_text(c: Command, specs: SpecSet, out: Any) -> None:
                 out.write(f"    reply:   {e.reply}\n")
             if e.errata:
                 out.write(f"    errata:  {', '.join(e.errata)}\n")
-    for e in specs.errata_for(c.key):
-        out.write(f"  {e.id} {e.kind}: {e.adopted}\n")
+    for err in specs.errata_for(c.key):
+        out.write(f"  {err.id} {err.kind}: {err.adopted}\n")
 
 
 # --------------------------------------------------------------------------- decode
@@ -308,7 +317,9 @@ def _run_decode(args: argparse.Namespace) -> int:
     specs = _specs(args)
     out = sys.stdout
     bad = 0
-    for ev in decode_stream(_read_chunks(args), strict=args.strict, max_frame_size=args.max_frame_size):
+    for ev in decode_stream(
+        _read_chunks(args), strict=args.strict, max_frame_size=args.max_frame_size
+    ):
         doc = event_json(ev, specs, strict=args.strict)
         if doc["kind"] == "malformed" or (args.strict and doc["problems"]):
             bad += 1
@@ -317,7 +328,11 @@ def _run_decode(args: argparse.Namespace) -> int:
         elif doc["kind"] == "frame":
             name = doc["name"] or "?"
             probs = f"  problems: {','.join(doc['problems'])}" if doc["problems"] else ""
-            out.write(f"frame  cnt={doc['cnt']} id={doc['cmd_id']} ({name}) len={doc['len']} data={doc['data']!r}{probs}\n")
+            out.write(
+                f"frame  cnt={doc['cnt']} id={doc['cmd_id']} ({name}) len={doc['len']} data={doc['data']!r}{probs}\n"
+            )
         else:
-            out.write(f"malformed @{doc['offset']}  {doc['problems'][0]}: {doc['detail']}  raw={ev.raw[:60]!r}\n")
+            out.write(
+                f"malformed @{doc['offset']}  {doc['problems'][0]}: {doc['detail']}  raw={ev.raw[:60]!r}\n"
+            )
     return 1 if args.strict and bad else 0

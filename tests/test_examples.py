@@ -1,0 +1,93 @@
+"""Every example frame printed in the manual decodes, or is explained by a recorded erratum.
+
+For each example of each variant in the specs:
+
+* the adopted request/reply is either a complete frame that the strict decoder
+  accepts, or null with an ``unrecoverable_example`` erratum;
+* the adopted request conforms to its own command's table (known ID, name, argument
+  count, types, ranges), unless the example's errata explain why not;
+* the adopted reply has the declared shape (or is a refusal), unless explained;
+* the printed text either decodes to the adopted frame (same CNT, CMD_ID, DATA) or
+  the example lists errata saying why it was read differently.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from conformance.data import check_reply
+from conformance.frame import Frame, decode_all
+from conformance.spec import Command, Example, Variant, default_specs
+from conformance.validate import classify_reply, validate_request
+
+SPECS = default_specs()
+EXAMPLES: list[tuple[Command, Variant, int, Example]] = [
+    (c, v, i, e) for c in SPECS for v in c.variants for i, e in enumerate(v.examples)
+]
+IDS = [f"{c.key}-{v.table}-{i}-{c.name}" for c, v, i, _ in EXAMPLES]
+
+
+def _kinds(example: Example) -> set[str]:
+    out = set()
+    for eid in example.errata:
+        e = SPECS.erratum(eid)
+        assert e is not None, f"example cites unknown erratum {eid}"
+        out.add(e.kind)
+    return out
+
+
+def _fields(text: str, *, strict: bool) -> tuple[int, int, str] | None:
+    events = decode_all(text.encode("utf-8"), strict=strict)
+    frames = [e for e in events if isinstance(e, Frame)]
+    if len(frames) != 1 or (strict and len(events) != 1):
+        return None
+    f = frames[0]
+    return (f.cnt, f.cmd_id, f.data)
+
+
+def test_examples_exist_for_most_variants() -> None:
+    with_examples = sum(1 for c in SPECS for v in c.variants if v.examples)
+    assert with_examples >= 0.95 * sum(len(c.variants) for c in SPECS)
+
+
+@pytest.mark.parametrize(("command", "variant", "index", "example"), EXAMPLES, ids=IDS)
+def test_example(command: Command, variant: Variant, index: int, example: Example) -> None:
+    kinds = _kinds(example)
+    for which in ("request", "reply"):
+        adopted = getattr(example, which)
+        printed = getattr(example, f"printed_{which}")
+        if adopted is None:
+            assert "unrecoverable_example" in kinds, (
+                f"{which} is null without an unrecoverable_example erratum"
+            )
+            continue
+        fields = _fields(adopted, strict=True)
+        assert fields is not None, f"adopted {which} is not one strict frame: {adopted!r}"
+        if _fields(printed, strict=False) != fields:
+            assert example.errata, (
+                f"printed {which} {printed!r} does not decode to the adopted {adopted!r}, and no erratum says why"
+            )
+    if example.request is None:
+        return
+    (req,) = decode_all(example.request.encode("utf-8"), strict=True)
+    assert isinstance(req, Frame)
+    if req.cmd_id not in (command.cmd_id, *command.alt_cmd_ids):
+        assert "example_cmd_id_mismatch" in kinds
+    check = validate_request(req, SPECS, strict=True)
+    if check.command is not None and check.command.key != command.key:
+        # One ID for two commands: the request resolves by name; it must be ours by name.
+        assert kinds, f"request resolves to {check.command.key}, not {command.key}"
+    elif check.violations:
+        assert example.errata, (
+            f"adopted request breaks its table: {[v.detail for v in check.violations]}"
+        )
+    if example.reply is not None:
+        (rep,) = decode_all(example.reply.encode("utf-8"), strict=True)
+        assert isinstance(rep, Frame)
+        if (rep.cnt, rep.cmd_id) != (req.cnt, req.cmd_id):
+            assert example.errata, f"reply does not echo CNT/CMD_ID of {example.request!r}"
+        verdict = classify_reply(variant.returns, rep.data, SPECS)
+        if verdict.violations and check_reply(variant.returns, rep.data):
+            assert example.errata, (
+                f"reply {rep.data!r} does not have the declared shape: {[v.detail for v in verdict.violations]}"
+            )
