@@ -154,6 +154,9 @@ def compare_replies(
         return []
     cid = request.cmd_id if request is not None else ref.cmd_id
     name = (request.name if request is not None else None) or ref.name
+    if name is None and specs is not None:
+        known = specs.resolve(cid)
+        name = known.name if known is not None else None
     if ignore.skips_command(cid, name):
         return []
     out: list[Difference] = []

@@ -1,0 +1,137 @@
+"""replay against the emulator (with and without faults), safety, and serving a recording."""
+
+from __future__ import annotations
+
+import socket
+from pathlib import Path
+
+import pytest
+
+from conformance.diff import Ignore
+from conformance.frame import Frame, FrameDecoder, encode_frame
+from conformance.net.emulator import EmulatorServer
+from conformance.net.proxy import ReplayServer
+from conformance.recording import read_recording
+from conformance.replay import ReplyBook, replay_to_target
+from conformance.safety import SafetyPolicy
+from conformance.spec import default_specs
+
+CAPTURES = Path(__file__).resolve().parent.parent / "captures"
+LOOPBACK = SafetyPolicy.for_target("127.0.0.1")
+
+
+@pytest.fixture(scope="module")
+def session():  # type: ignore[no-untyped-def]
+    return read_recording(CAPTURES / "session.mcap")
+
+
+def test_replay_against_a_healthy_emulator_matches(session) -> None:  # type: ignore[no-untyped-def]
+    with EmulatorServer() as em:
+        res = replay_to_target(
+            session, *em.address, specs=default_specs(), safety=LOOPBACK, timeout=1.0
+        )
+    assert res.differing_ids == set()
+    assert sum(c.matched for c in res.commands.values()) == 11
+    assert res.to_report("3.8.2").exit_code() == 0
+
+
+@pytest.mark.parametrize(
+    "faults, expected",
+    [
+        (("wrong_cnt:201",), {201}),
+        (("wrong_count:214", "garbage:212"), {212, 214}),
+        (("no_reply:682",), {682}),
+    ],
+)
+def test_replay_reports_exactly_the_faulted_ids(session, faults, expected) -> None:  # type: ignore[no-untyped-def]
+    with EmulatorServer(faults=faults) as em:
+        res = replay_to_target(
+            session, *em.address, specs=default_specs(), safety=LOOPBACK, timeout=0.3
+        )
+    assert res.differing_ids == expected
+    report = res.to_report("3.8.2")
+    failed = {k for k, s in report.commands().items() if s.outcome.value == "FAIL"}
+    assert failed == expected
+
+
+def test_ignore_rules_apply_to_replay(session) -> None:  # type: ignore[no-untyped-def]
+    with EmulatorServer(faults=("wrong_count:214",)) as em:
+        res = replay_to_target(
+            session,
+            *em.address,
+            specs=default_specs(),
+            safety=LOOPBACK,
+            timeout=0.3,
+            ignore=Ignore.parse(["214"]),
+        )
+    assert res.differing_ids == set()
+
+
+def test_non_loopback_safety_holds_motion_back(session, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    remote = SafetyPolicy.for_target("192.0.2.1")  # TEST-NET: never contacted
+    with EmulatorServer() as em:
+        res = replay_to_target(
+            session, *em.address, specs=default_specs(), safety=remote, timeout=0.3
+        )
+    assert res.commands[201].sent == 0 and res.commands[201].skipped
+    assert res.commands[203].sent == 0
+    assert res.commands[400].sent == 1  # queries go
+    assert res.commands[9999].sent == 0  # unknown IDs are not sent to a real arm
+    allowed = SafetyPolicy.for_target(
+        "192.0.2.1", allow_motion=True, allow_io=True, allow_config=True
+    )
+    with EmulatorServer() as em:
+        res = replay_to_target(
+            session, *em.address, specs=default_specs(), safety=allowed, timeout=0.3
+        )
+    assert res.commands[201].sent == 3
+
+
+def _ask(addr: tuple[str, int], frames: list[bytes]) -> list[Frame]:
+    d = FrameDecoder()
+    out: list[Frame] = []
+    with socket.create_connection(addr) as c:
+        c.settimeout(2)
+        for f in frames:
+            c.sendall(f)
+            while True:
+                got = [e for e in d.feed(c.recv(65536)) if isinstance(e, Frame)]
+                out += got
+                if got:
+                    break
+    return out
+
+
+def test_serve_answers_with_recorded_replies(session) -> None:  # type: ignore[no-untyped-def]
+    book = ReplyBook(session, unmatched="error")
+    with ReplayServer(book) as srv:
+        got = _ask(
+            srv.address,
+            [
+                encode_frame(77, 400, "GetVersion()"),
+                encode_frame(78, 212, "GetDI(0,0)"),
+                encode_frame(79, 212, "GetDI(7,0)"),  # never recorded
+            ],
+        )
+    recorded = {
+        (e.request.cmd_id, e.request.data): e.reply
+        for e in session.exchanges()
+        if e.request is not None and e.reply is not None
+    }
+    assert (got[0].cnt, got[0].data) == (77, recorded[(400, "GetVersion()")].data)
+    assert (got[1].cnt, got[1].data) == (78, recorded[(212, "GetDI(0,0)")].data)
+    assert (got[2].cnt, got[2].cmd_id, got[2].data) == (79, 212, "0")
+    assert book.unmatched_count == 1
+
+
+def test_serve_unmatched_policies(session) -> None:  # type: ignore[no-untyped-def]
+    nearest = ReplyBook(session, unmatched="nearest")
+    r = nearest.answer(Frame(cnt=5, cmd_id=212, data="GetDI(1,1)"))
+    assert r is not None and r.startswith(b"/f/bIII5III212III")
+    drop = ReplyBook(session, unmatched="drop")
+    assert drop.answer(Frame(cnt=5, cmd_id=212, data="GetDI(9,9)")) is None
+    # A recorded reply that did not echo CNT is served as recorded.
+    faults = read_recording(CAPTURES / "session_faults.mcap")
+    book = ReplyBook(faults)
+    out = book.answer(Frame(cnt=40, cmd_id=201, data='MoveJ("P1")'))
+    assert out is not None and not out.startswith(b"/f/bIII40III")
