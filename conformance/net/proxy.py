@@ -152,6 +152,7 @@ class RecordingProxy:
         udp_idle: float = 60.0,
         max_pending: int = 1 << 20,
         max_backlog: int = 64 << 20,
+        record_tick: float = 0.002,
         on_frame: Callable[[FrameRecord], None] | None = None,
     ) -> None:
         if specs is None:
@@ -168,6 +169,7 @@ class RecordingProxy:
         self.udp_idle = udp_idle
         self.max_pending = max_pending
         self.max_backlog = max_backlog
+        self.record_tick = record_tick
         self.stats = ProxyStats()
         self.error: BaseException | None = None
 
@@ -282,7 +284,12 @@ class RecordingProxy:
         rec = self.recorder
         last_flush = time.monotonic()
         idle_ns = self.idle_resolve_ns
+        tick = self.record_tick
         while True:
+            # Work in ticks rather than on every put: the I/O thread then rarely
+            # finds the GIL held by the recorder just as a reply arrives.
+            if tick:
+                time.sleep(tick)
             try:
                 item = q.get(timeout=min(0.2, self.flush_interval))
             except queue.Empty:
@@ -310,7 +317,7 @@ class RecordingProxy:
                     if self.error is None:
                         self.error = e
                 n += 1
-                if n >= 512:
+                if n >= 4096:
                     break
                 try:
                     item = q.get_nowait()

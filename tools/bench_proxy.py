@@ -1,0 +1,210 @@
+"""Benchmark the recording proxy and the pcap importer (prints figures; asserts nothing).
+
+    python tools/bench_proxy.py [--requests 3000] [--frames 200000]
+
+1. Request/reply round trip at 1 kHz, direct to an echo upstream and through a
+   recording proxy (``python -m conformance proxy`` in its own process): p50, p99
+   and the latency the proxy adds.
+2. Pipelined throughput: the client sends ``--frames`` frames as fast as it can,
+   the upstream echoes them; frames/s counted from the first byte sent to the
+   recording being complete on disk, and checked: frames in = frames in the file.
+3. ``import-pcap`` frames/s on a pcap exported from that recording.
+
+Everything runs on 127.0.0.1 with ports chosen by the OS.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from conformance.frame import encode_frame  # noqa: E402
+
+ECHO = r"""
+import socket, sys, threading
+srv = socket.create_server(("127.0.0.1", 0), backlog=128)
+print(srv.getsockname()[1], flush=True)
+def serve(c):
+    c.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    try:
+        while True:
+            b = c.recv(262144)
+            if not b:
+                break
+            c.sendall(b)
+    except OSError:
+        pass
+    c.close()
+while True:
+    c, _ = srv.accept()
+    threading.Thread(target=serve, args=(c,), daemon=True).start()
+"""
+
+
+def start_echo() -> tuple[subprocess.Popen[str], int]:
+    p = subprocess.Popen([sys.executable, "-c", ECHO], stdout=subprocess.PIPE, text=True)
+    assert p.stdout is not None
+    return p, int(p.stdout.readline())
+
+
+def start_proxy(upstream_port: int, out: Path) -> tuple[subprocess.Popen[str], int]:
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    p = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "conformance",
+            "proxy",
+            "--listen",
+            "127.0.0.1:0",
+            "--upstream",
+            f"127.0.0.1:{upstream_port}",
+            "--out",
+            str(out),
+        ],
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+        cwd=ROOT,
+    )
+    assert p.stderr is not None
+    m = re.search(r"listening on [\d.]+:(\d+)", p.stderr.readline())
+    assert m, "proxy did not start"
+    return p, int(m.group(1))
+
+
+def stop_proxy(p: subprocess.Popen[str]) -> None:
+    p.send_signal(signal.SIGTERM)
+    p.communicate(timeout=120)
+
+
+def pct(xs: list[float], q: float) -> float:
+    s = sorted(xs)
+    return s[min(len(s) - 1, int(q / 100 * len(s)))]
+
+
+def rtt_run(port: int, n: int, rate_hz: float = 1000.0) -> list[float]:
+    frame = encode_frame(1, 201, 'MoveJ("P1")')
+    out: list[float] = []
+    with socket.create_connection(("127.0.0.1", port)) as c:
+        c.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        period = 1.0 / rate_hz
+        nxt = time.perf_counter()
+        for i in range(n + 200):
+            while time.perf_counter() < nxt:
+                pass  # spin: sleep() granularity would dominate at 1 kHz
+            nxt += period
+            t = time.perf_counter_ns()
+            c.sendall(frame)
+            got = 0
+            while got < len(frame):
+                got += len(c.recv(65536))
+            if i >= 200:  # warm-up
+                out.append((time.perf_counter_ns() - t) / 1000.0)
+    return out
+
+
+def throughput(port: int, n: int) -> float:
+    """Send n frames pipelined and read the echo; returns the seconds it took."""
+    import threading
+
+    frames = b"".join(encode_frame(i % 65536, 201, 'MoveJ("P1")') for i in range(n))
+    total = len(frames)
+    c = socket.create_connection(("127.0.0.1", port))
+    got = [0]
+
+    def reader() -> None:
+        while got[0] < total:
+            b = c.recv(1 << 20)
+            if not b:
+                break
+            got[0] += len(b)
+
+    t = threading.Thread(target=reader)
+    t0 = time.perf_counter()
+    t.start()
+    c.sendall(frames)
+    t.join()
+    c.close()
+    return time.perf_counter() - t0
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    ap.add_argument("--requests", type=int, default=3000)
+    ap.add_argument("--frames", type=int, default=200_000)
+    args = ap.parse_args()
+    from conformance.pcap import export_pcap, import_pcap
+    from conformance.recording import read_recording
+
+    echo, eport = start_echo()
+    tmp = Path(tempfile.mkdtemp(prefix="bench_proxy_"))
+    try:
+        print(f"CPU cores: {os.cpu_count()}; Python {sys.version.split()[0]}")
+        direct = rtt_run(eport, args.requests)
+        proxy, pport = start_proxy(eport, tmp / "rtt.mcap")
+        via = rtt_run(pport, args.requests)
+        stop_proxy(proxy)
+        d50, d99, p50, p99 = pct(direct, 50), pct(direct, 99), pct(via, 50), pct(via, 99)
+        print(f"\n1 kHz request/reply round trip ({args.requests} requests, µs):")
+        print(f"  direct        p50 {d50:8.1f}   p99 {d99:8.1f}")
+        print(f"  via proxy     p50 {p50:8.1f}   p99 {p99:8.1f}")
+        print(f"  added         p50 {p50 - d50:8.1f}   p99 {p99 - d99:8.1f}")
+        rtt_rec = read_recording(tmp / "rtt.mcap")
+        print(f"  recorded {len(rtt_rec.frames)} frames (expected {2 * (args.requests + 200)})")
+
+        n = args.frames
+        t_direct = throughput(eport, n)
+        out = tmp / "tp.mcap"
+        proxy, pport = start_proxy(eport, out)
+        t0 = time.perf_counter()
+        t_fwd = throughput(pport, n)
+        stop_proxy(proxy)  # returns once the file is complete
+        t_rec = time.perf_counter() - t0
+        rec = read_recording(out)
+        c2s = sum(1 for f in rec.frames if f.dir == "c2s")
+        s2c = len(rec.frames) - c2s
+        print(f"\npipelined {n} frames each way (echo upstream):")
+        print(f"  direct:     {2 * n / t_direct:10.0f} frames/s forwarded (both directions)")
+        print(
+            f"  via proxy:  {2 * n / t_fwd:10.0f} frames/s forwarded, "
+            f"{2 * n / t_rec:10.0f} frames/s recorded (to complete file)"
+        )
+        print(
+            f"  frames in {2 * n}, in the file {c2s} c2s + {s2c} s2c = {c2s + s2c}, "
+            f"problems {len(rec.problems)}: {'NO LOSS' if c2s == n and s2c == n else 'LOSS'}"
+        )
+
+        pcap = tmp / "tp.pcap"
+        export_pcap(rec, pcap)
+        t0 = time.perf_counter()
+        st = import_pcap(pcap, tmp / "imp.mcap", tcp_ports=[eport])
+        t_imp = time.perf_counter() - t0
+        print(
+            f"\nimport-pcap: {st.packets} packets, {st.frames} frames in {t_imp:.2f} s = "
+            f"{st.frames / t_imp:.0f} frames/s, {st.packets / t_imp:.0f} packets/s"
+        )
+    finally:
+        echo.kill()
+        echo.wait()
+        for p in tmp.iterdir():
+            p.unlink()
+        tmp.rmdir()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
