@@ -326,6 +326,9 @@ def render_html(reports: list[Report], *, title: str = "FAIRINO conformance") ->
     totals = []
     for r in reports:
         strict = " · strict" if r.strict else ""
+        faults = r.meta.get("emulator_faults")
+        if faults:
+            strict += f" · faults {_esc(', '.join(map(str, faults)))}"
         heads.append(
             f"<th>{_esc(r.target)}<br><small>{_esc(r.transport)} · {_esc(r.spec_version)}"
             f" · seed {_esc(r.seed)}{strict}</small></th>"

@@ -317,12 +317,30 @@ def _run_invalid(runner: SuiteRunner, case: Case) -> Verdict:
                 )
             )
 
-    v = _hypothesis(runner, case, runner.config.profile.invalid, invalid_calls(cmd, variant), check)
+    kind: str = case.extra
+    # One case per kind (count, type, range), so that each is sure to be tried.
+    strategy = invalid_calls(cmd, variant).filter(lambda t: t[0] == kind)
+    v = _hypothesis(runner, case, runner.config.profile.invalid, strategy, check)
     return v or _notes(notes, "")
 
 
-def _has_invalid(cmd: Command, variant: Variant) -> bool:
-    return variant.form == "call" and not invalid_calls(cmd, variant).is_empty
+def _invalid_kinds(cmd: Command, variant: Variant) -> list[str]:
+    """The kinds of invalid call strategies.invalid_calls can build for this variant."""
+    if variant.form != "call" or invalid_calls(cmd, variant).is_empty:
+        return []
+    n = variant.arity
+    others = {v.arity for v in cmd.variants if v is not variant and v.form == "call"}
+    kinds = []
+    if any(k >= 0 and k not in others for k in (n - 1, n + 1)):
+        kinds.append("count")
+    if any(not p.is_string for p in variant.params):
+        kinds.append("type")
+    if any(
+        not p.is_array and (p.range or p.enum or (p.is_string and p.max_length))
+        for p in variant.params
+    ):
+        kinds.append("range")
+    return kinds
 
 
 # --------------------------------------------------------------------------- group 5: robustness
@@ -731,8 +749,10 @@ def build_cases(specs: SpecSet, config: SuiteConfig) -> list[Case]:
                         _case("examples", cmd, what, _run_example, v, (ex.request, ex.reply))
                     )
             by_group["valid"].append(_case("valid", cmd, v.table, _run_valid, v))
-            if _has_invalid(cmd, v):
-                by_group["invalid"].append(_case("invalid", cmd, v.table, _run_invalid, v))
+            for kind in _invalid_kinds(cmd, v):
+                by_group["invalid"].append(
+                    _case("invalid", cmd, f"{v.table}-{kind}", _run_invalid, v, kind)
+                )
         call = next((v for v in cmd.variants if v.form == "call"), None)
         by_group["robustness"].append(
             _case("robustness", cmd, "len-mismatch", _run_malformed_command, main, "len-mismatch")
