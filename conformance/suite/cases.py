@@ -30,7 +30,7 @@ from ..model import (
     motion_targets,
 )
 from ..report import Outcome
-from ..spec import Command, SpecSet, Variant
+from ..spec import TYPE_BOUNDS, Command, SpecSet, Variant
 from ..strategies import garbage, invalid_calls, valid_args, valid_calls
 from ..validate import ERR_ARG_COUNT, ERR_ARG_VALUE, RefusalForm, ReplyVerdict
 from .config import GROUPS, SuiteConfig, select_commands
@@ -282,7 +282,34 @@ def _run_valid(runner: SuiteRunner, case: Case) -> Verdict:
 
 # --------------------------------------------------------------------------- group 4: invalid
 
-_EXPECTED_CODE = {"count": ERR_ARG_COUNT, "type": ERR_ARG_VALUE, "range": ERR_ARG_VALUE}
+_EXPECTED_CODE = {
+    "count": ERR_ARG_COUNT,
+    "type": ERR_ARG_VALUE,
+    "range": ERR_ARG_VALUE,
+    "bounds": ERR_ARG_VALUE,
+}
+
+
+def _bounded(variant: Variant) -> list[int]:
+    """Integer parameters with no stated range whose C type still bounds them (uint8_t...)."""
+    return [
+        i
+        for i, p in enumerate(variant.params)
+        if p.is_integer and not p.is_array and not p.range and not p.enum and p.type in TYPE_BOUNDS
+    ]
+
+
+def _beyond_type(cmd: Command, variant: Variant) -> st.SearchStrategy[tuple[str, str]]:
+    """("bounds", DATA) with one argument just past its C type's maximum (uint8_t: 256)."""
+
+    def build(args: list[Value], i: int) -> tuple[str, str]:
+        args = list(args)
+        args[i] = TYPE_BOUNDS[variant.params[i].type][1] + 1
+        return ("bounds", format_call(cmd.name, args, variant.params))
+
+    return st.tuples(valid_args(variant), st.sampled_from(_bounded(variant))).map(
+        lambda t: build(*t)
+    )
 
 
 def _run_invalid(runner: SuiteRunner, case: Case) -> Verdict:
@@ -319,7 +346,11 @@ def _run_invalid(runner: SuiteRunner, case: Case) -> Verdict:
 
     kind: str = case.extra
     # One case per kind (count, type, range), so that each is sure to be tried.
-    strategy = invalid_calls(cmd, variant).filter(lambda t: t[0] == kind)
+    strategy = (
+        _beyond_type(cmd, variant)
+        if kind == "bounds"
+        else invalid_calls(cmd, variant).filter(lambda t: t[0] == kind)
+    )
     v = _hypothesis(runner, case, runner.config.profile.invalid, strategy, check)
     return v or _notes(notes, "")
 
@@ -340,6 +371,8 @@ def _invalid_kinds(cmd: Command, variant: Variant) -> list[str]:
         for p in variant.params
     ):
         kinds.append("range")
+    if _bounded(variant):
+        kinds.append("bounds")
     return kinds
 
 
