@@ -250,6 +250,7 @@ def _serve(args: argparse.Namespace) -> int:
         specs, host=host, port=port, udp_port=udp_port, observer=validator.observe
     )
     server.start()
+    validator.target = f"client of {format_address(*server.address)}"
     print(
         f"playing the controller on {format_address(*server.address)}; Ctrl-C to stop", flush=True
     )
