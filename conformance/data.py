@@ -462,11 +462,12 @@ def check_reply(returns: Returns, data: str) -> list[Violation]:
     except RemoteProtocolError as e:
         return [Violation(rule=Rule.REPLY_SHAPE, detail=str(e))]
     flat = _flat(returns.values)
-    # Array-valued returns may come as one brace array or flattened.
+    # An array-valued return may come as one brace array or flattened; either way
+    # the element count must be the declared one (a lone "3" is not a float[6]).
     expanded: list[Arg] = []
     for v in values:
         expanded += list(v.items) if isinstance(v, Array) else [v]
-    if len(expanded) != len(flat) and len(values) != len(returns.values):
+    if len(expanded) != len(flat):
         return [
             Violation(
                 rule=Rule.REPLY_SHAPE,
@@ -474,14 +475,13 @@ def check_reply(returns: Returns, data: str) -> list[Violation]:
             )
         ]
     out: list[Violation] = []
-    if len(expanded) == len(flat):
-        for i, (rv, a) in enumerate(zip(flat, expanded, strict=True)):
-            if rv.type != "string" and not isinstance(a, Number):
-                out.append(
-                    Violation(
-                        rule=Rule.REPLY_SHAPE,
-                        detail=f"value {i + 1} ({rv.name}): expected {rv.type}, got {a!r}",
-                        index=i,
-                    )
+    for i, (rv, a) in enumerate(zip(flat, expanded, strict=True)):
+        if isinstance(a, Array) or (rv.type != "string" and not isinstance(a, Number)):
+            out.append(
+                Violation(
+                    rule=Rule.REPLY_SHAPE,
+                    detail=f"value {i + 1} ({rv.name}): expected {rv.type}, got {a!r}",
+                    index=i,
                 )
+            )
     return out

@@ -238,3 +238,18 @@ def test_check_reply_shapes() -> None:
     (v,) = check_reply(joints, "1,2,3")
     assert v.rule is Rule.REPLY_SHAPE
     assert check_reply(joints, "a,b,c,d,e,f")
+
+
+def test_check_reply_array_returns_need_every_element() -> None:
+    """A float[6] return: six values, flattened or braced; a lone number is not enough."""
+    array_returns = next(
+        v.returns
+        for c in SPECS
+        for v in c.variants
+        if len(v.returns.values) == 1 and v.returns.values[0].length == 6
+    )
+    assert check_reply(array_returns, "1,2,3,4,5,6") == []
+    assert check_reply(array_returns, "{1,2,3,4,5,6}") == []
+    (v,) = check_reply(array_returns, "3")
+    assert v.rule is Rule.REPLY_SHAPE
+    assert check_reply(array_returns, "{1,2,3}")
