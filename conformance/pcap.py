@@ -166,6 +166,22 @@ def _ethertype(etype: int, off: int) -> tuple[int, int] | None:
 _V6_EXT = {0, 43, 60}  # hop-by-hop, routing, destination options
 
 
+_IPV4 = struct.Struct("!BBHHHBB").unpack_from
+_TCP = struct.Struct("!HHIIBB").unpack_from
+_IP_TEXT: dict[bytes, str] = {}
+
+
+def _ip_text(packed: bytes) -> str:
+    """An address's text form, memoised: a capture has few addresses and many packets."""
+    text = _IP_TEXT.get(packed)
+    if text is None:
+        addr = ipaddress.IPv4Address(packed) if len(packed) == 4 else ipaddress.IPv6Address(packed)
+        text = str(addr)
+        if len(_IP_TEXT) < 4096:
+            _IP_TEXT[packed] = text
+    return text
+
+
 def parse_packet(linktype: int, t_ns: int, data: bytes) -> Packet | None:
     """Parse link, IP and TCP/UDP headers; None for anything else (or IP fragments)."""
     lk = _link(linktype, data)
@@ -175,20 +191,20 @@ def parse_packet(linktype: int, t_ns: int, data: bytes) -> Packet | None:
     if ver == 4:
         if len(data) < off + 20:
             return None
-        vihl, _tos, total, _id, frag, _ttl, proto = struct.unpack_from("!BBHHHBB", data, off)
+        vihl, _tos, total, _id, frag, _ttl, proto = _IPV4(data, off)
         ihl = (vihl & 0x0F) * 4
         if frag & 0x3FFF:  # fragment (MF set or offset > 0): not reassembled
             return None
         end = off + total if total else len(data)
-        src = str(ipaddress.IPv4Address(data[off + 12 : off + 16]))
-        dst = str(ipaddress.IPv4Address(data[off + 16 : off + 20]))
+        src = _ip_text(data[off + 12 : off + 16])
+        dst = _ip_text(data[off + 16 : off + 20])
         l4 = off + ihl
     elif ver == 6:
         if len(data) < off + 40:
             return None
         plen, proto = struct.unpack_from("!HB", data, off + 4)
-        src = str(ipaddress.IPv6Address(data[off + 8 : off + 24]))
-        dst = str(ipaddress.IPv6Address(data[off + 24 : off + 40]))
+        src = _ip_text(data[off + 8 : off + 24])
+        dst = _ip_text(data[off + 24 : off + 40])
         l4 = off + 40
         end = l4 + plen
         while proto in _V6_EXT and len(data) >= l4 + 2:
@@ -202,7 +218,7 @@ def parse_packet(linktype: int, t_ns: int, data: bytes) -> Packet | None:
     if proto == 6:
         if end < l4 + 20:
             return None
-        sport, dport, seq, _ack, doff, flags = struct.unpack_from("!HHIIBB", data, l4)
+        sport, dport, seq, _ack, doff, flags = _TCP(data, l4)
         start = l4 + (doff >> 4) * 4
         return Packet(
             t_ns=t_ns,

@@ -27,12 +27,17 @@ times they were seen (STYLE.md, convention 1).
 from __future__ import annotations
 
 import base64
+import binascii
 import contextlib
 import json
 import os
 import re
 import socket
+import struct
+import sys
 import time
+import zlib
+from array import array
 from collections import deque
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
@@ -81,7 +86,9 @@ TOPIC_CONNECTIONS = "/fairino/connections"
 METADATA_NAME = "fairino.recording"
 #: Layout version, stored in the metadata; bump on incompatible changes.
 FORMAT = "fairino-conformance/1"
-#: Malformed runs keep at most this many raw bytes (``size`` says how many there were).
+#: Raw bytes in one Problem record: a longer malformed run is recorded as several
+#: records with consecutive offsets, each with its share of the bytes (its ``size``
+#: is ``len(raw)``), so no byte is lost and each record stays small.
 PROBLEM_RAW_LIMIT = 64 * 1024
 
 _B64 = {"type": "string", "contentEncoding": "base64"}
@@ -167,6 +174,17 @@ _NAME_RE = re.compile(r"\s*([A-Za-z_][A-Za-z0-9_]*)")
 
 def _b64(raw: bytes) -> str:
     return base64.b64encode(raw).decode("ascii")
+
+
+#: ``json.dumps(s, ensure_ascii=False)`` for one string (the C encoder), quotes included.
+_json_str: Callable[[str], str] = json.encoder.encode_basestring  # type: ignore[attr-defined]
+
+#: A frame message as ``FrameRecord.to_json`` dumped compactly (the recorder's fast path):
+#: same keys, same order, same separators; strings are passed already JSON-encoded.
+_FRAME_JSON = (
+    '{"conn":%d,"transport":%s,"dir":"%s","cnt":%d,"cmd_id":%d,"name":%s,"data":%s,'
+    '"len":%d,"problems":%s,"offset":%d,"first_ns":%d,"complete_ns":%d,"raw":"%s"}'
+)
 
 
 # --------------------------------------------------------------------------- records
@@ -377,12 +395,247 @@ def default_metadata(**extra: str) -> dict[str, str]:
     return md
 
 
+_MAGIC = b"\x89MCAP0\r\n"
+# Message record (opcode 0x05): record length, channel id, sequence, log and publish time.
+_MSG_HEAD = struct.Struct("<BQHIQQ").pack
+# Message Index record (opcode 0x07) header: record length, channel id, entries length.
+_INDEX_HEAD = struct.Struct("<BQHI").pack
+_OP_MESSAGE = 0x05
+_OP_MESSAGE_INDEX = 0x07
+_NATIVE_LE = sys.byteorder == "little"
+
+
+def _end(builder: Any) -> bytes:
+    """``RecordBuilder.end()``: the bytes built so far (the builder starts afresh)."""
+    data: bytes = builder.end()
+    return data
+
+
+class _McapWriter:
+    """An MCAP writer for records whose data is already serialised.
+
+    It writes the same records, in the same order and with the same bytes, as
+    ``mcap.writer.Writer`` with its defaults (chunked, every index, statistics,
+    summary offsets, chunk CRCs; ``tests/test_recording.py`` compares the two),
+    but a message costs two ``bytearray`` appends and two ``array`` appends
+    instead of a ``Message`` object and a dozen small writes: that call was a
+    third of the recorder's time per frame.  The non-message records (header,
+    schemas, channels, metadata, chunks, indexes, summary, footer) are written by
+    the ``mcap`` library's record classes.
+    """
+
+    def __init__(self, stream: IO[bytes], *, chunk_size: int, compression: str) -> None:
+        from mcap.data_stream import RecordBuilder
+
+        if compression == "zstd":
+            import zstandard
+
+            self._compress: Callable[[bytes], bytes] | None = zstandard.compress
+        elif compression == "lz4":
+            import lz4.frame  # type: ignore[import-untyped]
+
+            self._compress = lz4.frame.compress
+        elif compression == "none":
+            self._compress = None
+        else:
+            raise ValueError(f"unknown compression {compression!r}")
+        self._compression = "" if compression == "none" else compression
+        self._stream = stream
+        self._chunk_size = chunk_size
+        self._rb = RecordBuilder()
+        self._chunk = bytearray()  # records of the chunk in progress
+        self._index: dict[int, array[int]] = {}  # channel → [log_time, offset, ...] this chunk
+        self._schemas: list[Any] = []
+        self._channels: list[Any] = []
+        self._chunk_indexes: list[Any] = []
+        self._metadata_indexes: list[Any] = []
+        self._counts: dict[int, int] = {}  # messages per channel, in first-message order
+        self._first = self._last = 0
+        self.message_count = 0
+        self.chunk_count = 0
+        self.metadata_count = 0
+
+    def _out(self) -> None:
+        self._stream.write(_end(self._rb))
+
+    def start(self, *, profile: str, library: str) -> None:
+        from mcap.records import Header
+
+        self._stream.write(_MAGIC)
+        Header(profile, library).write(self._rb)
+        self._out()
+
+    def register_schema(self, name: str, encoding: str, data: bytes) -> int:
+        from mcap.records import Schema
+
+        schema = Schema(id=len(self._schemas) + 1, name=name, encoding=encoding, data=data)
+        self._schemas.append(schema)
+        schema.write(self._rb)
+        self._chunk += _end(self._rb)
+        return schema.id
+
+    def register_channel(self, topic: str, message_encoding: str, schema_id: int) -> int:
+        from mcap.records import Channel
+
+        channel = Channel(
+            id=len(self._channels) + 1,
+            topic=topic,
+            message_encoding=message_encoding,
+            schema_id=schema_id,
+            metadata={},
+        )
+        self._channels.append(channel)
+        channel.write(self._rb)
+        self._chunk += _end(self._rb)
+        return channel.id
+
+    def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
+        from mcap.records import Metadata, MetadataIndex
+
+        offset = self._stream.tell()
+        Metadata(name=name, metadata=dict(data)).write(self._rb)
+        self.metadata_count += 1
+        self._metadata_indexes.append(
+            MetadataIndex(offset=offset, length=self._rb.count, name=name)
+        )
+        self._out()
+
+    def message(
+        self, channel: int, sequence: int, log_time: int, publish_time: int, data: bytes
+    ) -> None:
+        chunk = self._chunk
+        index = self._index.get(channel)
+        if index is None:
+            index = self._index[channel] = array("Q")
+        index.append(log_time)
+        index.append(len(chunk))
+        chunk += _MSG_HEAD(_OP_MESSAGE, 22 + len(data), channel, sequence, log_time, publish_time)
+        chunk += data
+        if len(chunk) > self._chunk_size:
+            self.end_chunk()
+
+    def end_chunk(self) -> None:
+        """Write the chunk in progress and its message indexes (nothing if it has no message)."""
+        from mcap.records import Chunk, ChunkIndex
+
+        if not self._index:
+            return
+        data = bytes(self._chunk)
+        compressed = self._compress(data) if self._compress is not None else data
+        start = end = -1
+        n = 0
+        for ch, index in self._index.items():
+            times = index[0::2]
+            lo, hi = min(times), max(times)
+            start = lo if start < 0 else min(start, lo)
+            end = max(end, hi)
+            self._counts[ch] = self._counts.get(ch, 0) + len(times)
+            n += len(times)
+        self._first = start if self.message_count == 0 else min(self._first, start)
+        self._last = max(self._last, end)
+        self.message_count += n
+        self.chunk_count += 1
+        chunk = Chunk(
+            message_start_time=start,
+            message_end_time=end,
+            uncompressed_size=len(data),
+            uncompressed_crc=zlib.crc32(data),
+            compression=self._compression,
+            data=compressed,
+        )
+        chunk_offset = self._stream.tell()
+        chunk.write(self._rb)
+        chunk_length = self._rb.count
+        self._out()
+        index_offset = self._stream.tell()
+        offsets: dict[int, int] = {}
+        parts: list[bytes] = []
+        pos = 0
+        for ch, index in self._index.items():
+            if not _NATIVE_LE:
+                index.byteswap()
+            body = index.tobytes()
+            offsets[ch] = index_offset + pos
+            parts.append(_INDEX_HEAD(_OP_MESSAGE_INDEX, 6 + len(body), ch, len(body)))
+            parts.append(body)
+            pos += 15 + len(body)
+        self._stream.write(b"".join(parts))
+        self._chunk_indexes.append(
+            ChunkIndex(
+                message_start_time=start,
+                message_end_time=end,
+                chunk_start_offset=chunk_offset,
+                chunk_length=chunk_length,
+                message_index_offsets=offsets,
+                message_index_length=pos,
+                compression=self._compression,
+                compressed_size=len(compressed),
+                uncompressed_size=len(data),
+            )
+        )
+        self._chunk = bytearray()
+        self._index = {}
+
+    def finish(self) -> None:
+        """Last chunk, data end, summary (as ``mcap.writer.Writer.finish`` lays it out), footer."""
+        from mcap.data_stream import RecordBuilder
+        from mcap.opcode import Opcode
+        from mcap.records import DataEnd, Footer, Statistics, SummaryOffset
+
+        self.end_chunk()
+        DataEnd(0).write(self._rb)
+        self._out()
+        summary_start = self._stream.tell()
+        sb = RecordBuilder()
+        offsets: list[SummaryOffset] = []
+
+        def group(opcode: int, records: list[Any]) -> None:
+            begin = sb.count
+            for r in records:
+                r.write(sb)
+            offsets.append(SummaryOffset(opcode, summary_start + begin, sb.count - begin))
+
+        stats = Statistics(
+            message_count=self.message_count,
+            schema_count=len(self._schemas),
+            channel_count=len(self._channels),
+            attachment_count=0,
+            metadata_count=self.metadata_count,
+            chunk_count=self.chunk_count,
+            message_start_time=self._first,
+            message_end_time=self._last,
+            channel_message_counts=self._counts,
+        )
+        group(Opcode.SCHEMA, self._schemas)
+        group(Opcode.CHANNEL, self._channels)
+        group(Opcode.STATISTICS, [stats])
+        group(Opcode.CHUNK_INDEX, self._chunk_indexes)
+        group(Opcode.ATTACHMENT_INDEX, [])
+        group(Opcode.METADATA_INDEX, self._metadata_indexes)
+        offset_start = summary_start + sb.count
+        for o in offsets:
+            o.write(sb)
+        summary = _end(sb)
+        crc = zlib.crc32(summary)
+        crc = zlib.crc32(struct.pack("<BQQQ", Opcode.FOOTER, 20, summary_start, offset_start), crc)
+        self._stream.write(summary)
+        Footer(
+            summary_start=summary_start, summary_offset_start=offset_start, summary_crc=crc
+        ).write(self._rb)
+        self._out()
+        self._stream.write(_MAGIC)
+
+
 class RecordingWriter:
     """Writes records to one MCAP file (or stream) in the layout described above.
 
     :meth:`flush` ends the current chunk and pushes it to the OS: a writer flushed
     once a second loses at most that second if the process is killed, and
     :func:`recover` turns the unfinished file into a valid, indexed one.
+
+    :meth:`write_frame` is the recorder's fast path for frames: it fills a
+    precompiled JSON template instead of building a :class:`FrameRecord` and a
+    dict, and gives the same bytes as :meth:`write` would for that record.
     """
 
     def __init__(
@@ -393,8 +646,6 @@ class RecordingWriter:
         compression: str = "zstd",
         chunk_size: int = 1024 * 1024,
     ) -> None:
-        from mcap.writer import CompressionType, Writer
-
         if isinstance(output, (str, os.PathLike)):
             self._file: IO[bytes] | None = open(output, "wb")  # noqa: SIM115 (closed in close())
             stream: IO[bytes] = self._file
@@ -404,32 +655,33 @@ class RecordingWriter:
             stream = output
             self.path = None
         self._stream = stream
-        comp = {
-            "zstd": CompressionType.ZSTD,
-            "lz4": CompressionType.LZ4,
-            "none": CompressionType.NONE,
-        }
-        self._writer = Writer(stream, chunk_size=chunk_size, compression=comp[compression])
-        self._writer.start(profile="", library=f"fairino-conformance/{__version__}")
+        self._mcap = _McapWriter(stream, chunk_size=chunk_size, compression=compression)
+        self._mcap.start(profile="", library=f"fairino-conformance/{__version__}")
         schema_ids = {
-            name: self._writer.register_schema(
-                name=name, encoding="jsonschema", data=json.dumps(s).encode("utf-8")
-            )
+            name: self._mcap.register_schema(name, "jsonschema", json.dumps(s).encode("utf-8"))
             for name, s in SCHEMAS.items()
         }
         self._channels = {
-            topic: self._writer.register_channel(
-                topic=topic, message_encoding="json", schema_id=schema_ids[schema]
-            )
+            topic: self._mcap.register_channel(topic, "json", schema_ids[schema])
             for topic, schema in _TOPICS.items()
         }
-        self._seq = dict.fromkeys(self._channels, 0)
+        self._seq = dict.fromkeys(self._channels.values(), 0)
         self.metadata = dict(metadata if metadata is not None else default_metadata())
-        self._writer.add_metadata(METADATA_NAME, self.metadata)
+        self._mcap.add_metadata(METADATA_NAME, self.metadata)
         self._dumps = json.JSONEncoder(separators=(",", ":"), ensure_ascii=False).encode
-        self.messages = 0
+        self._frame_channel: dict[str, int] = {
+            C2S: self._channels[TOPIC_C2S],
+            S2C: self._channels[TOPIC_S2C],
+        }
+        self._json_str: dict[str | None, str] = {None: "null"}
+        self._message = self._mcap.message
         self._closed = False
         self._stream.flush()
+
+    @property
+    def messages(self) -> int:
+        """Messages written so far."""
+        return sum(self._seq.values())
 
     def tell(self) -> int:
         """Bytes written so far (chunks in progress not included)."""
@@ -456,27 +708,70 @@ class RecordingWriter:
         self, topic: str, doc: Mapping[str, Any], *, log_time: int, publish_time: int
     ) -> None:
         ch = self._channels[topic]
-        self._seq[topic] += 1
-        self._writer.add_message(
-            channel_id=ch,
-            log_time=log_time,
-            publish_time=publish_time,
-            sequence=self._seq[topic] & 0xFFFFFFFF,
-            data=self._dumps(doc).encode("utf-8"),
+        seq = self._seq[ch] = self._seq[ch] + 1
+        self._message(
+            ch, seq & 0xFFFFFFFF, log_time, publish_time, self._dumps(doc).encode("utf-8")
         )
-        self.messages += 1
+
+    def write_frame(
+        self,
+        conn: int,
+        transport: str,
+        direction: str,
+        cnt: int,
+        cmd_id: int,
+        name: str | None,
+        data: str,
+        length: int | None,
+        problems: tuple[str, ...],
+        offset: int,
+        first_ns: int,
+        complete_ns: int,
+        raw: bytes,
+    ) -> None:
+        """The frame record of these fields, as :meth:`write` would write it, but faster."""
+        js = self._json_str
+        try:
+            jname = js[name]
+        except KeyError:
+            jname = js[name] = _json_str(name)  # type: ignore[arg-type]
+        try:
+            jtransport = js[transport]
+        except KeyError:
+            jtransport = js[transport] = _json_str(transport)
+        doc = _FRAME_JSON % (
+            conn,
+            jtransport,
+            direction,
+            cnt,
+            cmd_id,
+            jname,
+            _json_str(data),
+            length if length is not None else len(data.encode("utf-8")),
+            self._dumps(list(problems)) if problems else "[]",
+            offset,
+            first_ns,
+            complete_ns,
+            binascii.b2a_base64(raw, newline=False).decode("ascii"),
+        )
+        ch = self._frame_channel[direction]
+        seq = self._seq[ch] = self._seq[ch] + 1
+        self._message(
+            ch, seq & 0xFFFFFFFF, complete_ns, first_ns or complete_ns, doc.encode("utf-8")
+        )
 
     def flush(self) -> None:
         """End the chunk in progress and hand everything to the OS."""
         if not self._closed:
-            self._writer.flush()  # type: ignore[no-untyped-call]
+            self._mcap.end_chunk()
+            self._stream.flush()
 
     def close(self) -> None:
         """Write the summary and index and close the file (idempotent)."""
         if self._closed:
             return
         self._closed = True
-        self._writer.finish()  # type: ignore[no-untyped-call]
+        self._mcap.finish()
         self._stream.flush()
         if self._file is not None:
             self._file.close()
@@ -535,12 +830,16 @@ class RotatingWriter:
     def write(self, record: Record) -> None:
         self._writer.write(record)
 
+    def write_frame(self, *fields: Any) -> None:
+        """:meth:`RecordingWriter.write_frame` on the current segment."""
+        self._writer.write_frame(*fields)
+
     @property
     def messages(self) -> int:
         return self._writer.messages
 
     def flush(self) -> None:
-        self._writer.flush()  # type: ignore[no-untyped-call]
+        self._writer.flush()
         self.maybe_rotate()
 
     def maybe_rotate(self) -> None:
@@ -610,6 +909,11 @@ class StreamRecorder:
         self.on_frame = on_frame
         self._conns: dict[int, _Conn] = {}
         self._names: dict[tuple[int, str | None], str | None] = {}
+        # The sink's fast path for frames (RecordingWriter.write_frame), unless each
+        # frame must also be handed to on_frame as a FrameRecord.
+        self._write_frame: Callable[..., None] | None = (
+            getattr(sink, "write_frame", None) if on_frame is None else None
+        )
         self.frames = 0
         self.problems = 0
 
@@ -762,51 +1066,85 @@ class StreamRecorder:
         base: int | None = None,
     ) -> None:
         b = st.base if base is None else base
-        sink = self.sink
+        write = self.sink.write
+        fast = self._write_frame
+        name_of = self.command_name
+        tl = st.timeline
         for ev in events:
-            first = st.first_ns(ev.offset)
-            if isinstance(ev, Frame):
+            # st.first_ns(ev.offset), inlined: the time the event's first byte arrived.
+            offset = ev.offset
+            while len(tl) > 1 and tl[1][0] <= offset:
+                tl.popleft()
+            first = tl[0][1] if tl else st.last_ns
+            if type(ev) is Frame:
                 st.frames += 1
                 self.frames += 1
+                cnt, cmd_id, data, length, raw, probs, _ = ev
+                problems = tuple([p.value for p in probs]) if probs else ()
+                if fast is not None:
+                    fast(
+                        conn,
+                        transport,
+                        direction,
+                        cnt,
+                        cmd_id,
+                        name_of(cmd_id, data),
+                        data,
+                        length,
+                        problems,
+                        b + offset,
+                        first,
+                        t_ns,
+                        raw,
+                    )
+                    continue
                 rec = FrameRecord(
                     conn=conn,
                     transport=transport,
                     dir=direction,
-                    cnt=ev.cnt,
-                    cmd_id=ev.cmd_id,
-                    name=self.command_name(ev.cmd_id, ev.data),
-                    data=ev.data,
-                    length=ev.length,
-                    raw=ev.raw,
-                    problems=tuple(p.value for p in ev.problems),
-                    offset=b + ev.offset,
+                    cnt=cnt,
+                    cmd_id=cmd_id,
+                    name=name_of(cmd_id, data),
+                    data=data,
+                    length=length,
+                    raw=raw,
+                    problems=problems,
+                    offset=b + offset,
                     first_ns=first,
                     complete_ns=t_ns,
                 )
-                sink.write(rec)
+                write(rec)
                 if self.on_frame is not None:
                     self.on_frame(rec)
             else:
-                self.problems += 1
-                sink.write(_problem(conn, transport, direction, ev, b, first, t_ns))
+                assert isinstance(ev, Malformed)
+                for pr in _problems(conn, transport, direction, ev, b, first, t_ns):
+                    self.problems += 1
+                    write(pr)
 
 
-def _problem(
+def _problems(
     conn: int, transport: str, direction: Direction, ev: Malformed, base: int, first: int, t_ns: int
-) -> ProblemRecord:
-    return ProblemRecord(
-        conn=conn,
-        transport=transport,
-        dir=direction,
-        kind="malformed",
-        rule=ev.rule.value,
-        detail=ev.detail,
-        offset=base + ev.offset,
-        size=len(ev.raw),
-        raw=ev.raw[:PROBLEM_RAW_LIMIT],
-        first_ns=first,
-        complete_ns=t_ns,
-    )
+) -> Iterator[ProblemRecord]:
+    """The Problem records of one malformed run: one per ``PROBLEM_RAW_LIMIT`` bytes, at
+    consecutive offsets, so every byte is kept (export-pcap puts them all back)."""
+    raw = ev.raw
+    parts = max(1, -(-len(raw) // PROBLEM_RAW_LIMIT))
+    for k in range(parts):
+        piece = raw[k * PROBLEM_RAW_LIMIT : (k + 1) * PROBLEM_RAW_LIMIT]
+        yield ProblemRecord(
+            conn=conn,
+            transport=transport,
+            dir=direction,
+            kind="malformed",
+            rule=ev.rule.value,
+            detail=ev.detail if parts == 1 else f"{ev.detail} (part {k + 1} of {parts})",
+            offset=base + ev.offset + k * PROBLEM_RAW_LIMIT,
+            size=len(piece),
+            raw=piece,
+            first_ns=first,
+            complete_ns=t_ns,
+        )
 
 
 # --------------------------------------------------------------------------- reader

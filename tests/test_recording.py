@@ -6,12 +6,18 @@ import json
 from pathlib import Path
 
 import jsonschema
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from mcap.reader import make_reader
 
+from conformance import __version__
 from conformance.frame import encode_frame
+from conformance.pcap import export_pcap, import_pcap
 from conformance.recording import (
+    _TOPICS,
+    METADATA_NAME,
+    PROBLEM_RAW_LIMIT,
     SCHEMAS,
     TOPIC_C2S,
     TOPIC_CONNECTIONS,
@@ -19,6 +25,7 @@ from conformance.recording import (
     TOPIC_S2C,
     FrameRecord,
     ProblemRecord,
+    Recording,
     RecordingWriter,
     RotatingWriter,
     StreamRecorder,
@@ -161,3 +168,152 @@ def test_rotating_writer_by_duration(tmp_path: Path) -> None:
     assert [Path(p).name for p in w.paths] == ["rot-0001.mcap", "rot-0002.mcap", "rot-0003.mcap"]
     counts = [len(read_recording(p).frames) for p in w.paths]
     assert sum(counts) == 5
+
+
+# A 2 MiB garbage flood (no frame head in it) and a frame that announces 99999999
+# bytes of DATA and never ends: the decoder reports both as malformed runs longer
+# than one Problem record may carry.
+FLOOD = bytes(range(256)).replace(b"/", b".") * 8192
+ENDLESS = b"/f/bIII1III201III99999999III" + b"x" * (600 * 1024)
+FLOOD_STREAM = (
+    FLOOD + encode_frame(7, 201, 'MoveJ("P1")') + ENDLESS + encode_frame(8, 201, 'MoveJ("P1")')
+)
+
+
+def sent_bytes(rec: Recording, conn: int, direction: str) -> bytes:
+    """The bytes of one direction, put back together from the recording's frames and
+    malformed-run problems by stream offset; raises if a byte is missing or doubled."""
+    parts = sorted(
+        [(f.offset, f.raw) for f in rec.frames if (f.conn, f.dir) == (conn, direction)]
+        + [
+            (p.offset, p.raw)
+            for p in rec.problems
+            if (p.conn, p.dir) == (conn, direction) and p.kind == "malformed"
+        ]
+    )
+    out = bytearray()
+    for offset, raw in parts:
+        assert offset == len(out), f"bytes {len(out)}..{offset} missing or doubled"
+        out += raw
+    return bytes(out)
+
+
+def test_long_malformed_runs_are_kept_whole_in_the_file(tmp_path: Path) -> None:
+    out = tmp_path / "flood.mcap"
+    with RecordingWriter(out) as w:
+        r = StreamRecorder(w, specs=default_specs())
+        r.open(1, t_ns=1, client="127.0.0.1:5000", upstream="127.0.0.1:8080")
+        for i in range(0, len(FLOOD_STREAM), 100_000):  # as socket reads would come
+            r.data(1, "c2s", 10 + i, FLOOD_STREAM[i : i + 100_000])
+        r.data(1, "s2c", 20, encode_frame(7, 201, "1"))
+        r.close(1, t_ns=10**9, reason="client closed")
+    rec = read_recording(out)
+    assert [f.cnt for f in rec.frames if f.dir == "c2s"] == [7, 8]
+    assert sent_bytes(rec, 1, "c2s") == FLOOD_STREAM
+    assert sent_bytes(rec, 1, "s2c") == encode_frame(7, 201, "1")
+    # Long runs are split, never cut: every record within the limit, sizes add up.
+    assert all(0 < len(p.raw) == p.size <= PROBLEM_RAW_LIMIT for p in rec.problems)
+    assert len(rec.problems) > len(FLOOD) // PROBLEM_RAW_LIMIT
+    assert sum(p.size for p in rec.problems if p.rule == "garbage") >= len(FLOOD)
+    assert any(p.rule == "oversize" for p in rec.problems)
+    # export-pcap puts every byte back on the wire: importing it gives the same streams.
+    pcap = tmp_path / "flood.pcap"
+    export_pcap(rec, pcap)
+    import_pcap(pcap, tmp_path / "back.mcap", tcp_ports=[8080])
+    back = read_recording(tmp_path / "back.mcap")
+    assert sent_bytes(back, 1, "c2s") == FLOOD_STREAM
+    assert sent_bytes(back, 1, "s2c") == encode_frame(7, 201, "1")
+
+
+def test_write_frame_is_write_of_the_frame_record(tmp_path: Path) -> None:
+    """The fast path and the record path give byte-identical files."""
+    recs = [
+        FrameRecord(
+            conn=1,
+            dir="c2s",
+            cnt=1,
+            cmd_id=201,
+            name="MoveJ",
+            data='MoveJ("P1")',
+            raw=encode_frame(1, 201, 'MoveJ("P1")'),
+            complete_ns=5,
+            first_ns=4,
+        ),
+        FrameRecord(
+            conn=2,
+            dir="s2c",
+            cnt=70000,
+            cmd_id=9,
+            data='é"\\\n\x01\u2028',
+            length=3,
+            raw=b"\xff\x00",
+            problems=("bad_len", "bad_cnt"),
+            offset=17,
+            complete_ns=9,
+            transport="udp",
+        ),
+        FrameRecord(conn=3, dir="s2c", cnt=0, cmd_id=0, data="", raw=b"", complete_ns=7),
+    ]
+    metadata = {"format": "x"}
+    a, b = tmp_path / "a.mcap", tmp_path / "b.mcap"
+    with RecordingWriter(a, metadata=metadata) as w:
+        for r in recs:
+            w.write(r)
+    with RecordingWriter(b, metadata=metadata) as w:
+        for r in recs:
+            w.write_frame(
+                r.conn,
+                r.transport,
+                r.dir,
+                r.cnt,
+                r.cmd_id,
+                r.name,
+                r.data,
+                r.length,
+                r.problems,
+                r.offset,
+                r.first_ns,
+                r.complete_ns,
+                r.raw,
+            )
+    assert a.read_bytes() == b.read_bytes()
+    assert [f.to_json() for f in read_recording(b).frames] == [r.to_json() for r in recs]
+
+
+@pytest.mark.parametrize("compression", ["zstd", "lz4", "none"])
+def test_same_bytes_as_the_mcap_library_writer(tmp_path: Path, compression: str) -> None:
+    """Our chunk writer lays a file out exactly as ``mcap.writer.Writer`` does: same
+    records, same chunking, indexes, statistics, summary and CRCs."""
+    from mcap.writer import CompressionType, Writer
+
+    metadata = {"format": "x", "host": "h"}
+    topics = [TOPIC_CONNECTIONS, TOPIC_C2S, TOPIC_S2C, TOPIC_PROBLEMS]
+    docs = [
+        (topics[i % 7 % 4], 1000 - i if i % 5 == 0 else 1000 + i, {"i": i, "pad": "x" * (i % 90)})
+        for i in range(600)
+    ]
+    ours = tmp_path / "ours.mcap"
+    with RecordingWriter(ours, metadata=metadata, compression=compression, chunk_size=4096) as w:
+        for k, (topic, t, doc) in enumerate(docs):
+            w.write_json(topic, doc, log_time=t, publish_time=t - 1)
+            if k == 300:
+                w.flush()
+    theirs = tmp_path / "theirs.mcap"
+    with open(theirs, "wb") as f:
+        lib = Writer(f, chunk_size=4096, compression=CompressionType[compression.upper()])
+        lib.start(profile="", library=f"fairino-conformance/{__version__}")
+        ids = {
+            n: lib.register_schema(n, "jsonschema", json.dumps(s).encode("utf-8"))
+            for n, s in SCHEMAS.items()
+        }
+        chans = {t: lib.register_channel(t, "json", ids[s]) for t, s in _TOPICS.items()}
+        lib.add_metadata(METADATA_NAME, metadata)
+        seq = dict.fromkeys(chans, 0)
+        for k, (topic, t, doc) in enumerate(docs):
+            seq[topic] += 1
+            data = json.dumps(doc, separators=(",", ":"), ensure_ascii=False).encode("utf-8")
+            lib.add_message(chans[topic], t, data, t - 1, seq[topic])
+            if k == 300:
+                lib.flush()  # type: ignore[no-untyped-call]
+        lib.finish()  # type: ignore[no-untyped-call]
+    assert ours.read_bytes() == theirs.read_bytes()
