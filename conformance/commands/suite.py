@@ -42,15 +42,21 @@ def _load_specs(path: str | None) -> Any:
     return default_specs() if path is None else load_specs(path)
 
 
-def _emulate(args: argparse.Namespace) -> int:
-    from ..net.emulator import EmulatorServer
-
+def _listen_addresses(args: argparse.Namespace) -> tuple[str, int, int | None]:
+    """``--listen`` and ``--udp`` (which must share the host): (host, tcp port, udp port)."""
     host, port = parse_address(args.listen, default_port=8080)
     udp_port: int | None = None
     if args.udp is not None:
         uhost, udp_port = parse_address(args.udp, default_port=20007)
         if uhost != host:
             raise UsageError("--udp must use the same host as --listen")
+    return host, port, udp_port
+
+
+def _emulate(args: argparse.Namespace) -> int:
+    from ..net.emulator import EmulatorServer
+
+    host, port, udp_port = _listen_addresses(args)
     faults = [parse_fault(f) for f in args.fault]
     if args.duration is not None and args.duration < 0:
         raise UsageError("--duration must not be negative")
@@ -234,12 +240,7 @@ def _serve(args: argparse.Namespace) -> int:
     from ..spec import default_specs
     from ..suite.client_mode import ClientValidator
 
-    host, port = parse_address(args.listen, default_port=8080)
-    udp_port: int | None = None
-    if args.udp is not None:
-        uhost, udp_port = parse_address(args.udp, default_port=20007)
-        if uhost != host:
-            raise UsageError("--udp must use the same host as --listen")
+    host, port, udp_port = _listen_addresses(args)
     if args.duration is not None and args.duration <= 0:
         raise UsageError("--duration must be positive")
     if args.max_frames is not None and args.max_frames <= 0:
