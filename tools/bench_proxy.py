@@ -1,14 +1,20 @@
 """Benchmark the recording proxy and the pcap importer (prints figures; asserts nothing).
 
-    python tools/bench_proxy.py [--requests 3000] [--frames 200000]
+    python tools/bench_proxy.py [--requests 3000] [--frames 200000] [--rounds 3]
 
 1. Request/reply round trip at 1 kHz, direct to an echo upstream and through a
    recording proxy (``python -m conformance proxy`` in its own process): p50, p99
-   and the latency the proxy adds.
+   and the latency the proxy adds.  Direct and proxied runs alternate, ``--rounds``
+   times, and the best of each is reported: the machine's cores are shared, and
+   interleaving keeps a busy spell of a neighbour from favouring one side.  The
+   client sleeps until shortly before each send time and spins only the last
+   ~150 µs, so it does not hold a core the proxy needs.
 2. Pipelined throughput: the client sends ``--frames`` frames as fast as it can,
    the upstream echoes them; frames/s counted from the first byte sent to the
-   recording being complete on disk, and checked: frames in = frames in the file.
-3. ``import-pcap`` frames/s on a pcap exported from that recording.
+   recording being complete on disk, and checked: frames in = frames in the file
+   (best of ``--rounds``, each with a fresh proxy).
+3. ``import-pcap`` frames/s on a pcap exported from that recording (specs loaded
+   beforehand, as a long-lived process would have them; best of two).
 
 Everything runs on 127.0.0.1 with ports chosen by the OS.
 """
@@ -102,8 +108,11 @@ def rtt_run(port: int, n: int, rate_hz: float = 1000.0) -> list[float]:
         period = 1.0 / rate_hz
         nxt = time.perf_counter()
         for i in range(n + 200):
+            ahead = nxt - time.perf_counter()
+            if ahead > 0.0003:
+                time.sleep(ahead - 0.00015)  # sleep overshoots by ~50-100 µs: spin the rest
             while time.perf_counter() < nxt:
-                pass  # spin: sleep() granularity would dominate at 1 kHz
+                pass
             nxt += period
             t = time.perf_counter_ns()
             c.sendall(frame)
@@ -146,56 +155,81 @@ def main() -> int:
     )
     ap.add_argument("--requests", type=int, default=3000)
     ap.add_argument("--frames", type=int, default=200_000)
+    ap.add_argument("--rounds", type=int, default=3)
     args = ap.parse_args()
     from conformance.pcap import export_pcap, import_pcap
     from conformance.recording import read_recording
+    from conformance.spec import default_specs
 
     echo, eport = start_echo()
     tmp = Path(tempfile.mkdtemp(prefix="bench_proxy_"))
     try:
         print(f"CPU cores: {os.cpu_count()}; Python {sys.version.split()[0]}")
-        direct = rtt_run(eport, args.requests)
         proxy, pport = start_proxy(eport, tmp / "rtt.mcap")
-        via = rtt_run(pport, args.requests)
+        rounds: list[tuple[float, float, float, float]] = []
+        for _ in range(args.rounds):
+            direct = rtt_run(eport, args.requests)
+            via = rtt_run(pport, args.requests)
+            rounds.append((pct(direct, 50), pct(direct, 99), pct(via, 50), pct(via, 99)))
         stop_proxy(proxy)
-        d50, d99, p50, p99 = pct(direct, 50), pct(direct, 99), pct(via, 50), pct(via, 99)
-        print(f"\n1 kHz request/reply round trip ({args.requests} requests, µs):")
+        d50, d99, p50, p99 = (min(r[k] for r in rounds) for k in range(4))
+        print(
+            f"\n1 kHz request/reply round trip ({args.requests} requests x {args.rounds} "
+            "interleaved rounds, µs; best round of each):"
+        )
         print(f"  direct        p50 {d50:8.1f}   p99 {d99:8.1f}")
         print(f"  via proxy     p50 {p50:8.1f}   p99 {p99:8.1f}")
         print(f"  added         p50 {p50 - d50:8.1f}   p99 {p99 - d99:8.1f}")
+        for k, (a50, a99, b50, b99) in enumerate(rounds, 1):
+            print(
+                f"    round {k}: direct {a50:6.1f} / {a99:7.1f}   proxy {b50:6.1f} / {b99:7.1f}"
+                f"   added p99 {b99 - a99:7.1f}"
+            )
         rtt_rec = read_recording(tmp / "rtt.mcap")
-        print(f"  recorded {len(rtt_rec.frames)} frames (expected {2 * (args.requests + 200)})")
+        expected = 2 * args.rounds * (args.requests + 200)
+        print(f"  recorded {len(rtt_rec.frames)} frames (expected {expected})")
 
         n = args.frames
-        t_direct = throughput(eport, n)
+        best_direct = best_fwd = best_rec = 0.0
+        lossless = True
         out = tmp / "tp.mcap"
-        proxy, pport = start_proxy(eport, out)
-        t0 = time.perf_counter()
-        t_fwd = throughput(pport, n)
-        stop_proxy(proxy)  # returns once the file is complete
-        t_rec = time.perf_counter() - t0
-        rec = read_recording(out)
-        c2s = sum(1 for f in rec.frames if f.dir == "c2s")
-        s2c = len(rec.frames) - c2s
-        print(f"\npipelined {n} frames each way (echo upstream):")
-        print(f"  direct:     {2 * n / t_direct:10.0f} frames/s forwarded (both directions)")
+        for _ in range(args.rounds):
+            best_direct = max(best_direct, 2 * n / throughput(eport, n))
+            proxy, pport = start_proxy(eport, out)
+            t0 = time.perf_counter()
+            t_fwd = throughput(pport, n)
+            stop_proxy(proxy)  # returns once the file is complete
+            t_rec = time.perf_counter() - t0
+            rec = read_recording(out)
+            c2s = sum(1 for f in rec.frames if f.dir == "c2s")
+            s2c = len(rec.frames) - c2s
+            ok = c2s == n and s2c == n
+            lossless = lossless and ok
+            best_fwd = max(best_fwd, 2 * n / t_fwd)
+            best_rec = max(best_rec, 2 * n / t_rec)
+            print(
+                f"  round: {2 * n / t_rec:8.0f} frames/s recorded; in the file {c2s} c2s + "
+                f"{s2c} s2c, problems {len(rec.problems)}: {'NO LOSS' if ok else 'LOSS'}"
+            )
+        print(f"\npipelined {n} frames each way (echo upstream), best of {args.rounds}:")
+        print(f"  direct:     {best_direct:10.0f} frames/s forwarded (both directions)")
         print(
-            f"  via proxy:  {2 * n / t_fwd:10.0f} frames/s forwarded, "
-            f"{2 * n / t_rec:10.0f} frames/s recorded (to complete file)"
+            f"  via proxy:  {best_fwd:10.0f} frames/s forwarded, "
+            f"{best_rec:10.0f} frames/s recorded (to complete file)"
         )
-        print(
-            f"  frames in {2 * n}, in the file {c2s} c2s + {s2c} s2c = {c2s + s2c}, "
-            f"problems {len(rec.problems)}: {'NO LOSS' if c2s == n and s2c == n else 'LOSS'}"
-        )
+        print(f"  frames in {2 * n} per round, every round: {'NO LOSS' if lossless else 'LOSS'}")
 
         pcap = tmp / "tp.pcap"
         export_pcap(rec, pcap)
-        t0 = time.perf_counter()
-        st = import_pcap(pcap, tmp / "imp.mcap", tcp_ports=[eport])
-        t_imp = time.perf_counter() - t0
+        specs = default_specs()
+        best_imp = float("inf")
+        for _ in range(2):
+            t0 = time.perf_counter()
+            st = import_pcap(pcap, tmp / "imp.mcap", tcp_ports=[eport], specs=specs)
+            best_imp = min(best_imp, time.perf_counter() - t0)
         print(
-            f"\nimport-pcap: {st.packets} packets, {st.frames} frames in {t_imp:.2f} s = "
-            f"{st.frames / t_imp:.0f} frames/s, {st.packets / t_imp:.0f} packets/s"
+            f"\nimport-pcap: {st.packets} packets, {st.frames} frames in {best_imp:.2f} s = "
+            f"{st.frames / best_imp:.0f} frames/s, {st.packets / best_imp:.0f} packets/s"
         )
     finally:
         echo.kill()
