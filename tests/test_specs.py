@@ -129,8 +129,16 @@ def test_error_codes(specs: SpecSet) -> None:
 
 
 def test_ocr_names_repaired(specs: SpecSet) -> None:
-    for name in ("SetDO", "SetToolDO", "GetAI", "SetToolAO", "SetVirtualAI", "SetAuxDO",
-                 "RobotIPConfig", "SetOutputResetCtlBoxDO"):
+    for name in (
+        "SetDO",
+        "SetToolDO",
+        "GetAI",
+        "SetToolAO",
+        "SetVirtualAI",
+        "SetAuxDO",
+        "RobotIPConfig",
+        "SetOutputResetCtlBoxDO",
+    ):
         assert specs.by_name(name), name
         assert specs.by_name(name)[0].name == name
 
@@ -155,8 +163,7 @@ def test_example_frames_are_consistent(specs: SpecSet) -> None:
                     assert int(m.group(3)) == len(m.group(4).encode("utf-8")), (c.key, frame)
                     cid = int(m.group(2))
                     explained = any(
-                        ids[e].cmd_id == cid or str(cid) in ids[e].manual_text
-                        for e in ex.errata
+                        ids[e].cmd_id == cid or str(cid) in ids[e].manual_text for e in ex.errata
                     )
                     assert cid in (c.cmd_id, *c.alt_cmd_ids) or explained, (c.key, frame)
                 for e in ex.errata:
@@ -220,3 +227,93 @@ def test_gripper_replies_are_space_separated(specs: SpecSet) -> None:
     (g,) = specs.by_name("GetGripperCurPosition")
     assert g.variants[0].returns.separator == " "
     assert g.variants[0].returns.values[1].volatile
+
+
+# --------------------------------------------------------------------------- (4) index audit
+
+
+def _audits() -> list[Any]:
+    mod = _extractor()
+    manual = Path(mod.DEFAULT_MANUAL)
+    if not manual.is_file():
+        pytest.skip(f"manual text not available at {manual}; cannot audit the 序号 columns")
+    audits: list[Any] = mod.audit_tables(manual, mod.DEFAULT_CORRECTIONS)
+    return audits
+
+
+def test_every_table_matches_its_printed_index_column(specs: SpecSet) -> None:
+    """No table loses or shifts a row: its 序号 column runs 1..n over the n extracted rows.
+
+    Where the manual itself skips or repeats an index, a ``table_inconsistency`` erratum
+    must say so, and then the number of printed rows must still match.
+    """
+    audits = _audits()
+    assert len({(a.key, a.table) for a in audits}) >= 300  # tables with a 序号 column
+    bad = [a.describe() for a in audits if not a.ok]
+    assert bad == []
+    inconsistent = {
+        (k, e.table) for e in specs.errata if e.kind == "table_inconsistency" for k in e.commands
+    }
+    for a in audits:
+        if a.explained:
+            assert (a.key, a.table) in inconsistent, a.describe()
+    # the audit counts the rows that reach the spec
+    by_table = {(c.key, v.table): v for c in specs for v in c.variants}
+    for a in audits:
+        v = by_table[(a.key, a.table)]
+        assert a.extracted == len(v.params if a.part == "params" else v.returns.values)
+
+
+def test_audit_sees_a_lost_row() -> None:
+    """The audit itself: an index cell whose row is not read shows as a mismatch."""
+    mod = _extractor()
+    body = [
+        (1, "\t序号\t类型\t变量\t描述"),
+        (2, "\t1\tfloat\tX\tx"),
+        (3, "\t2\t<b>a</b> .\t\t"),
+        (4, "\t3\tfloat\tZ\tz"),
+        (5, "返回值\t\tint\terrcode\t错误码"),
+        (6, "指令号\t1"),
+    ]
+    rv = mod.parse_variant("0-1", "表 0-1 T()指令协议", 1, body)
+    assert [r.name for r in rv.params] == ["X", "Z"]
+    assert mod.printed_indices(
+        rv.params, [(i, at) for p, i, at in rv.orphans if p == "params"]
+    ) == [1, 2, 3]
+    # the same row with its cells on the next line is recovered
+    body[3:3] = [(3, "\t\tfloat\tу\ty")]
+    rv = mod.parse_variant("0-1", "表 0-1 T()指令协议", 1, body)
+    assert [(r.index, r.name) for r in rv.params] == [(1, "X"), (2, "у"), (3, "Z")]
+    assert rv.orphans == []
+
+
+def test_movel_table_2_6_rows(specs: SpecSet) -> None:
+    (movel,) = specs.by_name("MoveL")
+    v = next(v for v in movel.variants if v.table == "2-6")
+    names = [p.name for p in v.params]
+    assert len(names) == 31
+    assert names[6:9] == ["X", "y", "Z"]  # row 8 is printed over two lines
+    assert names[18] == "blendMode"
+    assert names[-1] == "dt_rz"
+    assert v.params[7].unit == "mm"
+
+
+def test_recovered_rows_elsewhere(specs: SpecSet) -> None:
+    (splineptp,) = specs.by_name("SplinePTP")
+    assert [p.name for p in splineptp.variants[0].params][4:6] == ["J5", "J6"]
+    (simmovec,) = specs.by_name("SimMoveC")
+    assert [p.name for p in simmovec.variants[0].params][:7] == [
+        "J1",
+        "J2",
+        "J3",
+        "J4",
+        "J5",
+        "J6",
+        "X",
+    ]
+    assert len(simmovec.variants[0].params) == 58
+    (drag,) = specs.by_name("EndForceDragControl")
+    ks = [p.name for p in drag.variants[0].params if p.name.startswith("K")]
+    assert ks == ["K1", "K2", "K3", "K4", "K5", "K6"]
+    (circle,) = specs.by_name("Circle")
+    assert len(circle.variants[0].params) == 48

@@ -42,11 +42,39 @@ SPEC_VERSION = "3.8.2"
 #: Cyrillic and other look-alikes the OCR put into identifiers.
 LOOKALIKES = str.maketrans(
     {
-        "у": "y", "У": "Y", "Ј": "J", "ј": "j", "а": "a", "е": "e", "о": "o", "р": "p",
-        "с": "c", "х": "x", "А": "A", "В": "B", "Е": "E", "К": "K", "М": "M", "Н": "H",
-        "О": "O", "Р": "P", "С": "C", "Т": "T", "Х": "X", "і": "i", "І": "I",
-        "（": "(", "）": ")", "，": ",", "：": ":", "；": ";", "～": "~", "［": "[", "］": "]",
-        "\u00a0": " ", "\u3000": " ",
+        "у": "y",
+        "У": "Y",
+        "Ј": "J",
+        "ј": "j",
+        "а": "a",
+        "е": "e",
+        "о": "o",
+        "р": "p",
+        "с": "c",
+        "х": "x",
+        "А": "A",
+        "В": "B",
+        "Е": "E",
+        "К": "K",
+        "М": "M",
+        "Н": "H",
+        "О": "O",
+        "Р": "P",
+        "С": "C",
+        "Т": "T",
+        "Х": "X",
+        "і": "i",
+        "І": "I",
+        "（": "(",
+        "）": ")",
+        "，": ",",
+        "：": ":",
+        "；": ";",
+        "～": "~",
+        "［": "[",
+        "］": "]",
+        "\u00a0": " ",
+        "\u3000": " ",
     }
 )
 
@@ -91,6 +119,9 @@ class Row:
     name: str
     description: str
     label: str = ""
+    #: how the index cell was read: "printed", "recovered" (from a line of its own or a
+    #: cell merged with its row), "lost" (no index cell; inferred by the audit)
+    index_source: str = "printed"
 
 
 @dataclass
@@ -116,6 +147,9 @@ class RawVariant:
     printed_cmd_id: str = ""
     requests: list[FrameText] = field(default_factory=list)
     replies: list[FrameText] = field(default_factory=list)
+    #: printed indices of rows that could not be read (an index cell with no row cells):
+    #: (part, index, number of rows of the part read before it), part "params"/"returns"
+    orphans: list[tuple[str, int, int]] = field(default_factory=list)
 
 
 @dataclass
@@ -188,9 +222,12 @@ def segment(lines: list[str], start: int, end: int) -> list[RawSection]:
         ln = lines[i]
         h = parse_heading(ln)
         if h is not None:
-            cur = RawSection(key=h[0], heading=clean_text(latex_clean(ln.lstrip("#"))),
-                             printed_name=h[1],
-                             line=i + 1)
+            cur = RawSection(
+                key=h[0],
+                heading=clean_text(latex_clean(ln.lstrip("#"))),
+                printed_name=h[1],
+                line=i + 1,
+            )
             sections.append(cur)
             continue
         if re.match(r"^#+\s", ln) and "指令协议" not in ln:
@@ -204,13 +241,19 @@ def segment(lines: list[str], start: int, end: int) -> list[RawSection]:
                 cap[0].count("-") == 2
                 and cap[0].replace("-", ".") != cur.key
                 and norm_name_key(cap_name) != norm_name_key(cur.printed_name)
-                and not any(norm_name_key(caption_name(v.caption)) == norm_name_key(cap_name)
-                            for v in cur.variants)
+                and not any(
+                    norm_name_key(caption_name(v.caption)) == norm_name_key(cap_name)
+                    for v in cur.variants
+                )
             ):
                 # The section heading is missing from the text (5.2.2): the caption's
                 # number, in chapters 3-8 the section number, starts a new section.
-                cur = RawSection(key=cap[0].replace("-", "."), heading="",
-                                 printed_name=ident(cap_name), line=i + 1)
+                cur = RawSection(
+                    key=cap[0].replace("-", "."),
+                    heading="",
+                    printed_name=ident(cap_name),
+                    line=i + 1,
+                )
                 sections.append(cur)
         if cur is not None:
             cur.lines.append((i + 1, ln))
@@ -271,15 +314,63 @@ def _split_cells(cs: list[str]) -> list[str]:
     """Split cells where the PDF merged 'index type name' into one ("2 int avera")."""
     out: list[str] = []
     for j, c in enumerate(cs):
-        m = re.fullmatch(rf"(\d{{1,2}})\s+({TYPE_WORD}(?:\[\d+\])?)(?:\s+(\S+))?", c)
+        m = re.fullmatch(
+            rf"(\d{{1,2}})\s+({TYPE_WORD}(?:\[\d+\])?)(?:\s+([A-Za-z_]\S*))?(?:\s+(.+))?", c
+        )
         if m:
             out += [m.group(1), m.group(2)]
-            nxt = next((x for x in cs[j + 1:] if x), "")
+            nxt = next((x for x in cs[j + 1 :] if x), "")
             if m.group(3) and not nxt.startswith(m.group(3)):
                 out.append(m.group(3))
+                if m.group(4) and not nxt:
+                    out.append(m.group(4))  # "19 double K3 调节系数": the description too
         else:
             out.append(c)
     return out
+
+
+MERGED_ROW = rf"(\d{{1,2}})\s+({TYPE_WORD}(?:\[\d+\])?)\s+([A-Za-z_]\w*)"
+
+
+def expand_merged_rows(cs: list[str]) -> list[list[str]]:
+    """Split a cell holding two or more whole rows ("5 float J5 6 float J6") into rows.
+
+    The PDF converter sometimes merges the rows of a table into one cell; each
+    ``index type name`` group becomes a row of its own.  A following cell that repeats
+    one of the names is debris of the merge and is dropped; other cells stay with the
+    last row.
+    """
+    for j, c in enumerate(cs):
+        if not re.fullmatch(rf"(?:{MERGED_ROW}\s*){{2,}}", c):
+            continue
+        groups = [g.groups() for g in re.finditer(MERGED_ROW, c)]
+        names = {g[2] for g in groups}
+        tail = [x for x in cs[j + 1 :] if x and x not in names]
+        rows = [["", *g] for g in groups]
+        rows[0] = [*cs[:j], *groups[0]]
+        rows[-1] += tail
+        return rows
+    return [cs]
+
+
+def orphan_index(cs: list[str]) -> int | None:
+    """The index of a row whose cells are not on its line (``8 <b>a</b> .``), else None.
+
+    A line that is nothing but an optional label, an index cell and non-identifier
+    debris: the row's type, name and description are printed on the next line (or lost).
+    """
+    rest = [c for c in cs if c]
+    if rest and not re.fullmatch(r"[\d\s]+", rest[0]) and re.search(r"[^\x00-\x7f]", rest[0]):
+        rest = rest[1:]  # a label cell (参数 / 返回值 or its OCR debris)
+    if not rest:
+        return None
+    m = re.fullmatch(r"(\d{1,2})", rest[0])
+    if not m:
+        return None
+    debris = " ".join(rest[1:])
+    if re.search(r"[A-Za-z_]{2,}|[\u4e00-\u9fff]", clean_text(debris)):
+        return None
+    return int(m.group(1))
 
 
 def parse_row(cs: list[str]) -> Row | None:
@@ -290,13 +381,21 @@ def parse_row(cs: list[str]) -> Row | None:
         return found
     # a row whose index cell was lost: [label] type name description
     for i, c in enumerate(cs2[:3]):
-        if re.fullmatch(TYPE_WORD + r"(?:\[\d+\])?", c) and i + 1 < len(cs2) \
-                and re.fullmatch(r"[A-Za-z_][\w\[\] ]*", cs2[i + 1] or "-"):
+        if (
+            re.fullmatch(TYPE_WORD + r"(?:\[\d+\])?", c)
+            and i + 1 < len(cs2)
+            and re.fullmatch(r"[A-Za-z_][\w\[\] ]*", ident(cs2[i + 1]) or "-")
+        ):
             label = " ".join(x for x in cs2[:i] if x)
             if label and not re.search(r"[参数返回值奴致]", label):
                 return None
-            return Row(index=None, printed_type=c, name=cs2[i + 1],
-                       description=clean_text(" ".join(cs2[i + 2:])), label=label)
+            return Row(
+                index=None,
+                printed_type=c,
+                name=cs2[i + 1],
+                description=clean_text(" ".join(cs2[i + 2 :])),
+                label=label,
+            )
     return None
 
 
@@ -306,16 +405,14 @@ def _parse_row_at(cs2: list[str]) -> Row | None:
         if not m_idx:
             continue
         c = m_idx.group(1)
-        rest = [x for x in cs2[i + 1:]]
+        rest = [x for x in cs2[i + 1 :]]
         while rest and rest[0] == "":
             rest.pop(0)
         if not rest:
             continue
         t = rest[0]
         name = rest[1] if len(rest) > 1 else ""
-        tm = re.match(
-            r"^(u?int(?:8|16|32|64)?(?:_t)?|float|double|char|string|table)\b\s*(.*)$", t
-        )
+        tm = re.match(r"^(u?int(?:8|16|32|64)?(?:_t)?|float|double|char|string|table)\b\s*(.*)$", t)
         if not tm:
             continue
         typ = tm.group(1)
@@ -328,8 +425,13 @@ def _parse_row_at(cs2: list[str]) -> Row | None:
                 desc_cells = [name, *desc_cells] if name else desc_cells
                 name = extra
         label = " ".join(x for x in cs2[:i] if x)
-        return Row(index=int(c), printed_type=typ, name=name,
-                   description=clean_text(" ".join(desc_cells)), label=label)
+        return Row(
+            index=int(c),
+            printed_type=typ,
+            name=name,
+            description=clean_text(" ".join(desc_cells)),
+            label=label,
+        )
     return None
 
 
@@ -339,23 +441,31 @@ def parse_return_row(cs: list[str]) -> Row | None:
         return None
     rest = [c for c in cs[1:] if c != ""]
     if len(rest) >= 2 and re.match(r"^(u?int\w*|float|double|char|string)", rest[0]):
-        return Row(index=None, printed_type=rest[0], name=rest[1],
-                   description=clean_text(" ".join(rest[2:])), label="返回值")
+        return Row(
+            index=None,
+            printed_type=rest[0],
+            name=rest[1],
+            description=clean_text(" ".join(rest[2:])),
+            label="返回值",
+        )
     return None
 
 
-FRAME_RE = re.compile(
-    r"/f/b(I{2,4})(\d+)(I{2,4})(\d+)(I{2,4})(\d+)(I{2,4})(.*?)(I{2,4})/b/f"
-)
+FRAME_RE = re.compile(r"/f/b(I{2,4})(\d+)(I{2,4})(\d+)(I{2,4})(\d+)(I{2,4})(.*?)(I{2,4})/b/f")
 
 
 def parse_frame(s: str) -> FrameText | None:
     m = FRAME_RE.fullmatch(s)
     if not m:
         return None
-    return FrameText(printed=s, cnt=m.group(2), cmd_id=m.group(4), length=m.group(6),
-                     data=m.group(8),
-                     separators=(m.group(1), m.group(3), m.group(5), m.group(7), m.group(9)))
+    return FrameText(
+        printed=s,
+        cnt=m.group(2),
+        cmd_id=m.group(4),
+        length=m.group(6),
+        data=m.group(8),
+        separators=(m.group(1), m.group(3), m.group(5), m.group(7), m.group(9)),
+    )
 
 
 def frame_ok(f: FrameText) -> bool:
@@ -395,8 +505,10 @@ def frame_candidates(parts: list[str], *, request: bool) -> list[tuple[FrameText
         return []
     base: tuple[str, ...] = ("OCR forms of the separator III repaired",) if ps != raw else ()
     # OCR forms of the separator and the tail: "]]]"/"ПП" for III, "[" debris, "/b/1"
-    ocr = [re.sub(r"\[(?=\d)", "", p.replace("ПП", "III").replace("]", "I").replace("|", "I"))
-           for p in ps]
+    ocr = [
+        re.sub(r"\[(?=\d)", "", p.replace("ПП", "III").replace("]", "I").replace("|", "I"))
+        for p in ps
+    ]
     ocr_tags = _tag(base, "OCR forms of the separator III repaired") if ocr != ps else base
     if ocr[-1].endswith(("/b/1", "/b/", "III/b")):
         ocr[-1] = re.sub(r"/b(?:/1?)?$", "/b/f", ocr[-1])
@@ -414,8 +526,9 @@ def frame_candidates(parts: list[str], *, request: bool) -> list[tuple[FrameText
     return frame_candidates_exact(ps, request=request, tags=base)
 
 
-def frame_candidates_exact(ps: list[str], *, request: bool,
-                           tags: tuple[str, ...] = ()) -> list[tuple[FrameText, int]]:
+def frame_candidates_exact(
+    ps: list[str], *, request: bool, tags: tuple[str, ...] = ()
+) -> list[tuple[FrameText, int]]:
     texts: list[Reading] = [(ps[0], 0, tags)]
     joined = "the frame's cells, cut apart in the text, joined"
     for nxt in ps[1:]:
@@ -428,8 +541,13 @@ def frame_candidates_exact(ps: list[str], *, request: bool,
             for k in range(len(nxt), 2, -1):
                 pos = t.rfind(nxt[:k])
                 if pos > 0 and pos + k < len(t):
-                    new.append((t[:pos] + nxt, cost + 1,
-                                _tag(tg, joined, "an overlapping cut copy of a cell dropped")))
+                    new.append(
+                        (
+                            t[:pos] + nxt,
+                            cost + 1,
+                            _tag(tg, joined, "an overlapping cut copy of a cell dropped"),
+                        )
+                    )
                     break
         texts = new[:512]
     out: list[tuple[FrameText, int]] = []
@@ -440,14 +558,20 @@ def frame_candidates_exact(ps: list[str], *, request: bool,
         else:
             variants.append((re.sub(r"\s*,\s*", ",", t), cost, tg))
             # a cut inside a number ("-89 .816387", "0.00000 0") in a comma-separated reply
-            variants.append((re.sub(r"\s*,\s*", ",", re.sub(r"(?<=[\d.])\s+(?=[\d.])", "", t)),
-                             cost + 1, tg))
+            variants.append(
+                (re.sub(r"\s*,\s*", ",", re.sub(r"(?<=[\d.])\s+(?=[\d.])", "", t)), cost + 1, tg)
+            )
         if not request:
             # "1III1III/b/f" printed as "1IIIIIII/b/f": the errcode digit lost in the cut
-            variants += [(re.sub(r"(III\d+III)I{3,4}/b/f$", r"\g<1>1III/b/f", v), c + 1,
-                          _tag(g, "the errcode digit lost in the cut restored as 1"))
-                         for v, c, g in list(variants)
-                         if re.search(r"(III\d+III)I{3,4}/b/f$", v)]
+            variants += [
+                (
+                    re.sub(r"(III\d+III)I{3,4}/b/f$", r"\g<1>1III/b/f", v),
+                    c + 1,
+                    _tag(g, "the errcode digit lost in the cut restored as 1"),
+                )
+                for v, c, g in list(variants)
+                if re.search(r"(III\d+III)I{3,4}/b/f$", v)
+            ]
         for v, c, g in variants:
             squeezed = re.sub(r"\s*(I{2,4})\s*", r"\1", v.strip())
             f = parse_frame(squeezed)
@@ -519,7 +643,7 @@ def assemble_frames(tokens: list[str]) -> list[FrameText]:
             nxt = t.find("/f/b", 4 if not acc else 0)
             if q >= 0 and (nxt < 0 or q < nxt):
                 acc.append(t[: q + 4])
-                t = t[q + 4:]
+                t = t[q + 4 :]
                 out.append(flush_candidates(acc))
                 acc = []
             elif nxt > 0:
@@ -545,24 +669,66 @@ def parse_variant(table: str, caption: str, line: int, body: list[tuple[int, str
     req_tokens: list[str] = []
     rep_tokens: list[str] = []
     ex_mode = ""
-    for _n, ln in body:
-        if not ln.strip():
-            continue
-        cs = cells(ln)
+    pending: int | None = None  # the index of a row printed on a line of its own
+    header = False  # the 序号 header row seen (a lone number before it is debris)
+
+    def part() -> list[Row]:
+        return v.returns if state == "returns" else v.params
+
+    def next_index() -> int:
+        done = [r.index for r in part() if r.index is not None]
+        return (done[-1] if done else 0) + 1
+
+    def flush_pending() -> None:
+        nonlocal pending
+        if pending is not None:
+            v.orphans.append((state, pending, len(part())))
+            pending = None
+
+    lines: list[tuple[int, list[str]]] = []
+    for n, ln in body:
+        if ln.strip():
+            lines += [(n, cs) for cs in expand_merged_rows(cells(ln))]
+    for _n, cs in lines:
         joined = " ".join(c for c in cs if c)
         if state in ("params", "returns"):
             m = re.search(r"指[令今]号\s*(\d+)(?:\s*[/、,，]\s*(\d+))?", joined)
             if m:
+                flush_pending()
                 v.printed_cmd_id = clean_text(joined[: m.end()])
                 v.cmd_ids = [int(x) for x in m.groups() if x]
                 state = "ids"
-                tail = joined[m.end():]
+                tail = joined[m.end() :]
                 if "发送帧" not in tail and "接收帧" not in tail:
                     continue
                 cs = [tail]  # a flattened table: the examples follow on the same line
             rr = parse_return_row(cs)
             row = rr or parse_row(cs)
             if row is not None:
+                prev = part()[-1] if part() else None
+                if (
+                    prev is not None
+                    and ident(prev.name) == ident(row.name)
+                    and prev.printed_type == row.printed_type
+                    and (row.index is None or row.index == prev.index != 1)
+                ):
+                    continue  # a cut copy of the row above ("5 float J5 6 float J6" + "6 float J6")
+                if row.index is None and pending is not None and rr is None:
+                    row.index, row.index_source = pending, "recovered"
+                    pending = None
+                elif row.index is None:
+                    row.index_source = "lost"
+                flush_pending()
+                if (
+                    state == "params"
+                    and rr is None
+                    and row.index is None
+                    and ident(row.name).lower() == "errcode"
+                    and v.params
+                    and v.params[-1].index is not None
+                ):
+                    # the 返回值 label is lost (page break): errcode after numbered params
+                    row.label = "返回值"
                 if "返回值" in row.label or rr is not None:
                     if state == "params" and row.index and row.index > 1:
                         # label printed mid-table: move the earlier rows of this numbering
@@ -571,16 +737,28 @@ def parse_variant(table: str, caption: str, line: int, body: list[tuple[int, str
                         v.params = v.params[: len(v.params) - len(moved)]
                         v.returns.extend(moved)
                     state = "returns"
-                elif (state == "params" and row.index == 1 and v.params
-                      and v.params[-1].index is not None and v.params[-1].index >= 1
-                      and "参数" not in row.label):
+                elif (
+                    state == "params"
+                    and row.index == 1
+                    and v.params
+                    and v.params[-1].index is not None
+                    and v.params[-1].index >= 1
+                    and "参数" not in row.label
+                ):
                     state = "returns"
                 (v.returns if state == "returns" else v.params).append(row)
                 last = row
                 continue
             if "序号" in joined or ("类型" in joined and "变量" in joined):
+                header = True
+                continue
+            oi = orphan_index(cs) if header else None
+            if oi is not None and oi == next_index() and (not part() or part()[-1].index):
+                flush_pending()
+                pending = oi
                 continue
             if "发送帧" in joined or "接收帧" in joined:
+                flush_pending()
                 state = "ids"
             elif last is not None and not re.search(r"用户手册|^\d+\s*/\s*\d+", joined):
                 extra = clean_text(" ".join(c for c in cs if c and c not in ("参数", "返回值")))
@@ -632,10 +810,22 @@ def parse_variant(table: str, caption: str, line: int, body: list[tuple[int, str
 # --------------------------------------------------------------------------- normalisation
 
 SCALAR_MAP = {
-    "int": "int", "uint8_t": "uint8_t", "uint16_t": "uint16_t", "uint32_t": "uint32_t",
-    "float": "float", "double": "double", "string": "string", "char": "string",
-    "uint8": "uint8_t", "uint16": "uint16_t", "uint32": "uint32_t", "int32_t": "int",
-    "int8_t": "int", "int16_t": "int", "bool": "uint8_t", "table": "float",
+    "int": "int",
+    "uint8_t": "uint8_t",
+    "uint16_t": "uint16_t",
+    "uint32_t": "uint32_t",
+    "float": "float",
+    "double": "double",
+    "string": "string",
+    "char": "string",
+    "uint8": "uint8_t",
+    "uint16": "uint16_t",
+    "uint32": "uint32_t",
+    "int32_t": "int",
+    "int8_t": "int",
+    "int16_t": "int",
+    "bool": "uint8_t",
+    "table": "float",
 }
 
 
@@ -725,18 +915,38 @@ def parse_enum(desc: str) -> list[dict[str, Any]] | None:
 # --------------------------------------------------------------------------- safety
 
 DESTRUCTIVE = {
-    "ShutDownRobotOS", "RobotIPConfig", "SetRobotType", "SetQNXSystemTime",
-    "SetSingleEnconderZeroStart", "SetSingleEnconderZeroStop", "SetAllDHCompensation",
+    "ShutDownRobotOS",
+    "RobotIPConfig",
+    "SetRobotType",
+    "SetQNXSystemTime",
+    "SetSingleEnconderZeroStart",
+    "SetSingleEnconderZeroStop",
+    "SetAllDHCompensation",
     "LaserTrackingSensorIPConfig",
 }
 #: Commands that drive process outputs (arc, gas, wire feed, laser, weld AO).
 IO_NAMES = {
-    "ARCStart", "ARCEnd", "SetAspirated", "SetForwardWireFeed", "SetReverseWireFeed",
-    "LaserTrackingLaserOn", "LaserTrackingLaserOff", "SetWeldingVoltage", "SetWeldingCurrent",
-    "WeldingSetCurrert", "WeldingSetVoltage", "WeldingSetCurrent",
+    "ARCStart",
+    "ARCEnd",
+    "SetAspirated",
+    "SetForwardWireFeed",
+    "SetReverseWireFeed",
+    "LaserTrackingLaserOn",
+    "LaserTrackingLaserOff",
+    "SetWeldingVoltage",
+    "SetWeldingCurrent",
+    "WeldingSetCurrert",
+    "WeldingSetVoltage",
+    "WeldingSetCurrent",
 }
 IO_PREFIXES = (
-    "SetDO", "SetAO", "SetToolDO", "SetToolAO", "SetAuxDO", "SetAuxAO", "SetAxleExtDO",
+    "SetDO",
+    "SetAO",
+    "SetToolDO",
+    "SetToolAO",
+    "SetAuxDO",
+    "SetAuxAO",
+    "SetAxleExtDO",
     "SetVirtual",
 )
 MOTION_RE = re.compile(
@@ -781,11 +991,28 @@ class Errata:
     def __init__(self) -> None:
         self.items: list[dict[str, Any]] = []
 
-    def add(self, *, order: tuple[int, int], kind: str, commands: list[str], table: str | None,
-            cmd_id: int | None, manual_text: str, adopted: str, note: str) -> dict[str, Any]:
+    def add(
+        self,
+        *,
+        order: tuple[int, int],
+        kind: str,
+        commands: list[str],
+        table: str | None,
+        cmd_id: int | None,
+        manual_text: str,
+        adopted: str,
+        note: str,
+    ) -> dict[str, Any]:
         e = {
-            "id": "", "kind": kind, "commands": commands, "table": table, "cmd_id": cmd_id,
-            "manual_text": manual_text, "adopted": adopted, "note": note, "_order": order,
+            "id": "",
+            "kind": kind,
+            "commands": commands,
+            "table": table,
+            "cmd_id": cmd_id,
+            "manual_text": manual_text,
+            "adopted": adopted,
+            "note": note,
+            "_order": order,
         }
         self.items.append(e)
         return e
@@ -851,13 +1078,22 @@ def load_corrections(path: Path) -> dict[str, Any]:
     return doc
 
 
-def build(manual: Path, corrections: dict[str, Any]) -> dict[str, dict[str, Any]]:
+def build(
+    manual: Path, corrections: dict[str, Any], audits: list[TableAudit] | None = None
+) -> dict[str, dict[str, Any]]:
+    """The three spec documents; ``audits`` (if given) receives the index audit of every table."""
     text = manual.read_text(encoding="utf-8")
     lines = text.splitlines()
     start, end = find_body(lines)
     sections = segment(lines, start, end)
     errata = Errata()
     ccmds: dict[str, Any] = corrections.get("commands") or {}
+    inconsistent = {
+        (k, e.get("table"))
+        for e in corrections.get("errata") or []
+        if e.get("kind") == "table_inconsistency"
+        for k in e.get("commands") or []
+    }
 
     commands: list[dict[str, Any]] = []
     id_users: dict[int, list[tuple[str, str, int]]] = {}
@@ -878,6 +1114,10 @@ def build(manual: Path, corrections: dict[str, Any]) -> dict[str, dict[str, Any]
                     cmd_ids.append(cid)
                 id_users.setdefault(cid, []).append((sec.key, rv.table, rv.line))
             variant, ex_links = build_variant(sec, name, rv, vcorr, vi, ids, errata)
+            if audits is not None:
+                audits += audit_variant(
+                    sec.key, name, rv, vcorr, variant, (sec.key, rv.table) in inconsistent
+                )
             variants.append(variant)
             pending_examples.append((variant, ex_links))
         if not variants:
@@ -886,7 +1126,10 @@ def build(manual: Path, corrections: dict[str, Any]) -> dict[str, dict[str, Any]
         alt = [c for c in cmd_ids if c != cmd_id]
         if alt:
             errata.add(
-                order=(sec.line, 1), kind="multiple_cmd_ids", commands=[sec.key], table=None,
+                order=(sec.line, 1),
+                kind="multiple_cmd_ids",
+                commands=[sec.key],
+                table=None,
                 cmd_id=cmd_id,
                 manual_text=f"{name}: 指令号 " + ", ".join(str(c) for c in cmd_ids),
                 adopted=f"{cmd_id} (others kept as alt_cmd_ids)",
@@ -901,18 +1144,21 @@ def build(manual: Path, corrections: dict[str, Any]) -> dict[str, dict[str, Any]
         }
         if alt:
             cmd["alt_cmd_ids"] = alt
-        cmd.update({
-            "section": sec.key,
-            "heading": corr.get("heading", sec.heading),
-            "title": corr.get("title", sec.title),
-            "safety": safety,
-            "variants": variants,
-        })
+        cmd.update(
+            {
+                "section": sec.key,
+                "heading": corr.get("heading", sec.heading),
+                "title": corr.get("title", sec.title),
+                "safety": safety,
+                "variants": variants,
+            }
+        )
         for v in variants:
             for rvv in v["returns"]["values"]:
                 if "volatile" not in rvv:
                     rvv["volatile"] = bool(
-                        safety == "query" and rvv["name"].lower() not in ("errcode", "error")
+                        safety == "query"
+                        and rvv["name"].lower() not in ("errcode", "error")
                         and VOLATILE_RE.search(rvv["name"] + " " + rvv.get("description", ""))
                     )
         commands.append(cmd)
@@ -923,17 +1169,27 @@ def build(manual: Path, corrections: dict[str, Any]) -> dict[str, dict[str, Any]
         if len(keys) > 1:
             by_key = {c["key"]: c["name"] for c in commands}
             errata.add(
-                order=(min(u[2] for u in users), 2), kind="duplicate_cmd_id", commands=keys,
-                table=None, cmd_id=cid,
+                order=(min(u[2] for u in users), 2),
+                kind="duplicate_cmd_id",
+                commands=keys,
+                table=None,
+                cmd_id=cid,
                 manual_text=f"指令号 {cid}: " + ", ".join(f"{k} {by_key[k]}" for k in keys),
                 adopted="all commands keep the ID; resolve by DATA name",
                 note="One command ID is given to different commands.",
             )
 
     for e in corrections.get("errata") or []:
-        errata.add(order=(int(e.get("line", 0)), 3), kind=e["kind"], commands=e["commands"],
-                   table=e.get("table"), cmd_id=e.get("cmd_id"), manual_text=e["manual_text"],
-                   adopted=e["adopted"], note=e.get("note", e.get("why", "")))
+        errata.add(
+            order=(int(e.get("line", 0)), 3),
+            kind=e["kind"],
+            commands=e["commands"],
+            table=e.get("table"),
+            cmd_id=e.get("cmd_id"),
+            manual_text=e["manual_text"],
+            adopted=e["adopted"],
+            note=e.get("note", e.get("why", "")),
+        )
 
     commands.sort(key=lambda c: section_sort_key(c["key"]))
     error_codes = parse_error_codes(lines, end)
@@ -942,13 +1198,16 @@ def build(manual: Path, corrections: dict[str, Any]) -> dict[str, dict[str, Any]
         prev = seen_codes.get(ec_row["code"])
         if prev is not None:
             errata.add(
-                order=(end + 1, ec_row["code"]), kind="table_inconsistency", commands=[],
-                table="9-1", cmd_id=None,
+                order=(end + 1, ec_row["code"]),
+                kind="table_inconsistency",
+                commands=[],
+                table="9-1",
+                cmd_id=None,
                 manual_text=f"{prev['code']} {prev['meaning']} / {ec_row['code']} "
-                            f"{ec_row['meaning']}",
+                f"{ec_row['meaning']}",
                 adopted="both rows kept as printed",
                 note=f"Error code {ec_row['code']} is given twice in table 9-1 (the rows around "
-                     "it are damaged: 106 has no meaning, 107 is missing); needs a human decision.",
+                "it are damaged: 106 has no meaning, 107 is missing); needs a human decision.",
             )
         seen_codes.setdefault(ec_row["code"], ec_row)
     errata.finalise()
@@ -958,11 +1217,18 @@ def build(manual: Path, corrections: dict[str, Any]) -> dict[str, dict[str, Any]
             ex["errata"] = sorted({r["id"] for r in refs})
     del pending_examples
     return {
-        "commands": {"kind": "commands", "spec_version": SPEC_VERSION, "source": manual.name,
-                     "commands": commands},
+        "commands": {
+            "kind": "commands",
+            "spec_version": SPEC_VERSION,
+            "source": manual.name,
+            "commands": commands,
+        },
         "errata": {"kind": "errata", "spec_version": SPEC_VERSION, "errata": errata.strip()},
-        "error_codes": {"kind": "error_codes", "spec_version": SPEC_VERSION,
-                        "error_codes": error_codes},
+        "error_codes": {
+            "kind": "error_codes",
+            "spec_version": SPEC_VERSION,
+            "error_codes": error_codes,
+        },
     }
 
 
@@ -992,8 +1258,13 @@ def fix_name(printed: str, variants: list[RawVariant]) -> str:
 
 
 def build_variant(
-    sec: RawSection, name: str, rv: RawVariant, vcorr: dict[str, Any], vi: int,
-    ids: list[int], errata: Errata,
+    sec: RawSection,
+    name: str,
+    rv: RawVariant,
+    vcorr: dict[str, Any],
+    vi: int,
+    ids: list[int],
+    errata: Errata,
 ) -> tuple[dict[str, Any], list[tuple[str, dict[str, Any]]]]:
     links: list[tuple[str, dict[str, Any]]] = []
     cmd_id = ids[0] if ids else 0
@@ -1023,17 +1294,36 @@ def build_variant(
         ec = ex_corr[i] if i < len(ex_corr) else {}
         if "request" in ec:
             f = parse_frame(ec["request"]) if ec["request"] else None
-            req = FrameText(printed=req.printed) if f is None else \
-                FrameText(printed=req.printed, cnt=f.cnt, cmd_id=f.cmd_id, length=f.length,
-                          data=f.data, separators=f.separators)
+            req = (
+                FrameText(printed=req.printed)
+                if f is None
+                else FrameText(
+                    printed=req.printed,
+                    cnt=f.cnt,
+                    cmd_id=f.cmd_id,
+                    length=f.length,
+                    data=f.data,
+                    separators=f.separators,
+                )
+            )
         if "reply" in ec:
             f = parse_frame(ec["reply"]) if ec["reply"] else None
-            rep = FrameText(printed=rep.printed) if f is None else \
-                FrameText(printed=rep.printed, cnt=f.cnt, cmd_id=f.cmd_id, length=f.length,
-                          data=f.data, separators=f.separators)
+            rep = (
+                FrameText(printed=rep.printed)
+                if f is None
+                else FrameText(
+                    printed=rep.printed,
+                    cnt=f.cnt,
+                    cmd_id=f.cmd_id,
+                    length=f.length,
+                    data=f.data,
+                    separators=f.separators,
+                )
+            )
         order = (rv.line, 10 + i)
         ex: dict[str, Any] = {
-            "request": None, "reply": None,
+            "request": None,
+            "reply": None,
             "printed_request": clean_ws(ec.get("printed_request", req.printed)),
             "printed_reply": clean_ws(ec.get("printed_reply", rep.printed)),
             "errata": [],
@@ -1049,107 +1339,176 @@ def build_variant(
                 if dname != name:
                     if is_case_variant(dname, name) and not ec.get("keep_name"):
                         e = errata.add(
-                            order=order, kind="example_wrong_name", commands=[sec.key],
-                            table=rv.table, cmd_id=cmd_id, manual_text=req.printed,
+                            order=order,
+                            kind="example_wrong_name",
+                            commands=[sec.key],
+                            table=rv.table,
+                            cmd_id=cmd_id,
+                            manual_text=req.printed,
                             adopted=f"{name}(...)",
                             note=f"The {where} example sends {dname.replace(' ', '')}(...), "
-                                 f"which differs from the heading's {name} in letter case only "
-                                 "(not an OCR confusion); the heading's spelling is adopted. "
-                                 "Which spelling the controller accepts needs a human decision "
-                                 "(or a capture).",
+                            f"which differs from the heading's {name} in letter case only "
+                            "(not an OCR confusion); the heading's spelling is adopted. "
+                            "Which spelling the controller accepts needs a human decision "
+                            "(or a capture).",
                         )
                         links.append((str(i), e))
-                        fixed = name + data[data.index("("):]
+                        fixed = name + data[data.index("(") :]
                     elif norm_name_key(dname) == norm_name_key(name) or close_name(dname, name):
-                        fixed = name + data[data.index("("):]
+                        fixed = name + data[data.index("(") :]
                         if dname.replace(" ", "") != name:
-                            name_repair = (f"the command name, OCR-damaged as "
-                                           f"{dname.replace(' ', '')}, read as {name}")
+                            name_repair = (
+                                f"the command name, OCR-damaged as "
+                                f"{dname.replace(' ', '')}, read as {name}"
+                            )
                     elif not ec.get("keep_name"):
                         e = errata.add(
-                            order=order, kind="example_wrong_name", commands=[sec.key],
-                            table=rv.table, cmd_id=cmd_id, manual_text=req.printed,
+                            order=order,
+                            kind="example_wrong_name",
+                            commands=[sec.key],
+                            table=rv.table,
+                            cmd_id=cmd_id,
+                            manual_text=req.printed,
                             adopted=f"{name}(...)",
                             note=f"The {where} example sends {dname}(...), not {name}(...).",
                         )
                         links.append((str(i), e))
-                        fixed = name + data[data.index("("):]
+                        fixed = name + data[data.index("(") :]
                 data = fixed
                 if args is not None:
                     req_args.append(args)
                     if len(args) != len(params) and not ec.get("arg_count_ok"):
                         e = errata.add(
-                            order=order, kind="example_arg_count", commands=[sec.key],
-                            table=rv.table, cmd_id=cmd_id, manual_text=req.printed,
+                            order=order,
+                            kind="example_arg_count",
+                            commands=[sec.key],
+                            table=rv.table,
+                            cmd_id=cmd_id,
+                            manual_text=req.printed,
                             adopted=f"{len(params)} parameters as in the table",
                             note=f"The {where} example sends {len(args)} argument(s); "
-                                 f"the table lists {len(params)}.",
+                            f"the table lists {len(params)}.",
                         )
                         links.append((str(i), e))
             forms.append(form)
-            check_frame(req, data, name, sec.key, rv.table, cmd_id, order, errata, links, i,
-                        "request")
+            check_frame(
+                req, data, name, sec.key, rv.table, cmd_id, order, errata, links, i, "request"
+            )
             ex["request"] = build_frame(req.cnt, cmd_id, data)
             if not ec.get("printed_as_is"):
-                record_reconstruction(req, ex["printed_request"], ex["request"], name_repair,
-                                      ec.get("why") if "request" in ec else None,
-                                      sec.key, rv.table, cmd_id, where, "request", order,
-                                      errata, links, i)
+                record_reconstruction(
+                    req,
+                    ex["printed_request"],
+                    ex["request"],
+                    name_repair,
+                    ec.get("why") if "request" in ec else None,
+                    sec.key,
+                    rv.table,
+                    cmd_id,
+                    where,
+                    "request",
+                    order,
+                    errata,
+                    links,
+                    i,
+                )
         else:
             e = errata.add(
-                order=order, kind="unrecoverable_example", commands=[sec.key], table=rv.table,
-                cmd_id=cmd_id, manual_text=req.printed or "(nothing printed)",
+                order=order,
+                kind="unrecoverable_example",
+                commands=[sec.key],
+                table=rv.table,
+                cmd_id=cmd_id,
+                manual_text=req.printed or "(nothing printed)",
                 adopted="request: null",
                 note=ec.get("why", f"The {where} example request cannot be recovered."),
             )
             links.append((str(i), e))
         # ---- reply
         if rep.data is not None and rep.cnt is not None and rep.cmd_id is not None:
-            check_frame(rep, rep.data, name, sec.key, rv.table, cmd_id, order, errata, links, i,
-                        "reply")
+            check_frame(
+                rep, rep.data, name, sec.key, rv.table, cmd_id, order, errata, links, i, "reply"
+            )
             ex["reply"] = build_frame(rep.cnt, cmd_id, rep.data)
             reply_datas.append(rep.data)
-            record_reconstruction(rep, ex["printed_reply"], ex["reply"], "",
-                                  (ec.get("reply_why") or ec.get("why")) if "reply" in ec else None,
-                                  sec.key, rv.table, cmd_id, where, "reply", order, errata,
-                                  links, i)
+            record_reconstruction(
+                rep,
+                ex["printed_reply"],
+                ex["reply"],
+                "",
+                (ec.get("reply_why") or ec.get("why")) if "reply" in ec else None,
+                sec.key,
+                rv.table,
+                cmd_id,
+                where,
+                "reply",
+                order,
+                errata,
+                links,
+                i,
+            )
             if req.cnt is not None and ex["request"] is not None and int(rep.cnt) != int(req.cnt):
                 e = errata.add(
-                    order=order, kind="reply_cnt_mismatch", commands=[sec.key], table=rv.table,
-                    cmd_id=cmd_id, manual_text=f"{ex['printed_request']} / {ex['printed_reply']}",
+                    order=order,
+                    kind="reply_cnt_mismatch",
+                    commands=[sec.key],
+                    table=rv.table,
+                    cmd_id=cmd_id,
+                    manual_text=f"{ex['printed_request']} / {ex['printed_reply']}",
                     adopted=f"replies echo the request's CNT ({int(req.cnt)}); the example "
-                            f"reply is kept as printed (CNT {int(rep.cnt)})",
+                    f"reply is kept as printed (CNT {int(rep.cnt)})",
                     note=f"The {where} example reply carries CNT {rep.cnt} but the request's "
-                         f"CNT is {req.cnt}; the protocol (1.1) says the reply echoes the "
-                         "request's CNT, so the two frames do not belong to one exchange.",
+                    f"CNT is {req.cnt}; the protocol (1.1) says the reply echoes the "
+                    "request's CNT, so the two frames do not belong to one exchange.",
                 )
                 links.append((str(i), e))
-        elif (rep.printed.startswith("/f/b") and req.cnt is not None and len(rvals) == 1
-              and rvals[0]["name"].lower() == "errcode" and "reply" not in ec):
+        elif (
+            rep.printed.startswith("/f/b")
+            and req.cnt is not None
+            and len(rvals) == 1
+            and rvals[0]["name"].lower() == "errcode"
+            and "reply" not in ec
+        ):
             m = re.match(r"/f/bI{2,3}(\d+)", rep.printed)
             cnt = m.group(1) if m and m.group(1) == req.cnt else req.cnt
             adopted = build_frame(cnt, cmd_id, "1")
             e = errata.add(
-                order=order, kind="ocr_damage", commands=[sec.key], table=rv.table,
-                cmd_id=cmd_id, manual_text=rep.printed, adopted=adopted,
+                order=order,
+                kind="ocr_damage",
+                commands=[sec.key],
+                table=rv.table,
+                cmd_id=cmd_id,
+                manual_text=rep.printed,
+                adopted=adopted,
                 note=f"The {where} example reply is cut off in the text; the command "
-                     "returns only errcode, so the manual's success reply (errcode 1) "
-                     "with the request's CNT is adopted.",
+                "returns only errcode, so the manual's success reply (errcode 1) "
+                "with the request's CNT is adopted.",
             )
             links.append((str(i), e))
             ex["reply"] = adopted
         else:
             e = errata.add(
-                order=order, kind="unrecoverable_example", commands=[sec.key], table=rv.table,
-                cmd_id=cmd_id, manual_text=rep.printed or "(no reply printed)",
+                order=order,
+                kind="unrecoverable_example",
+                commands=[sec.key],
+                table=rv.table,
+                cmd_id=cmd_id,
+                manual_text=rep.printed or "(no reply printed)",
                 adopted="reply: null",
                 note=ec.get("reply_why", f"The {where} example reply cannot be recovered."),
             )
             links.append((str(i), e))
         for ce in ec.get("errata") or []:
-            e = errata.add(order=order, kind=ce["kind"], commands=[sec.key], table=rv.table,
-                           cmd_id=ce.get("cmd_id", cmd_id), manual_text=ce["manual_text"],
-                           adopted=ce["adopted"], note=ce.get("note", ce.get("why", "")))
+            e = errata.add(
+                order=order,
+                kind=ce["kind"],
+                commands=[sec.key],
+                table=rv.table,
+                cmd_id=ce.get("cmd_id", cmd_id),
+                manual_text=ce["manual_text"],
+                adopted=ce["adopted"],
+                note=ce.get("note", ce.get("why", "")),
+            )
             links.append((str(i), e))
         examples.append(ex)
 
@@ -1189,9 +1548,20 @@ def is_case_variant(printed: str, name: str) -> bool:
 
 
 def record_reconstruction(
-    f: FrameText, printed: str, adopted: str, name_repair: str, why: str | None, key: str,
-    table: str, cmd_id: int, where: str, what: str, order: tuple[int, int], errata: Errata,
-    links: list[tuple[str, dict[str, Any]]], i: int,
+    f: FrameText,
+    printed: str,
+    adopted: str,
+    name_repair: str,
+    why: str | None,
+    key: str,
+    table: str,
+    cmd_id: int,
+    where: str,
+    what: str,
+    order: tuple[int, int],
+    errata: Errata,
+    links: list[tuple[str, dict[str, Any]]],
+    i: int,
 ) -> None:
     """Record a ``reconstructed_example`` erratum when the printed text is not the frame read.
 
@@ -1210,11 +1580,16 @@ def record_reconstruction(
         how = "; ".join(repairs) if repairs else "read off the text as printed"
         how = "reconstructed by the extractor: " + how
     e = errata.add(
-        order=order, kind="reconstructed_example", commands=[key], table=table, cmd_id=cmd_id,
-        manual_text=printed or "(nothing printed)", adopted=adopted,
+        order=order,
+        kind="reconstructed_example",
+        commands=[key],
+        table=table,
+        cmd_id=cmd_id,
+        manual_text=printed or "(nothing printed)",
+        adopted=adopted,
         note=f"The {what} frame of the {where} example is not one intact frame in the manual "
-             f"text (cut across table cells or OCR-damaged); {how}. The LEN of the adopted "
-             "frame is the UTF-8 length of its DATA.",
+        f"text (cut across table cells or OCR-damaged); {how}. The LEN of the adopted "
+        "frame is the UTF-8 length of its DATA.",
     )
     links.append((str(i), e))
 
@@ -1231,31 +1606,58 @@ def close_name(a: str, b: str) -> bool:
     return difflib.SequenceMatcher(None, norm_name_key(x), norm_name_key(y)).ratio() >= 0.9
 
 
-def check_frame(f: FrameText, data: str, name: str, key: str, table: str, cmd_id: int,
-                order: tuple[int, int], errata: Errata, links: list[tuple[str, dict[str, Any]]],
-                i: int, what: str) -> None:
+def check_frame(
+    f: FrameText,
+    data: str,
+    name: str,
+    key: str,
+    table: str,
+    cmd_id: int,
+    order: tuple[int, int],
+    errata: Errata,
+    links: list[tuple[str, dict[str, Any]]],
+    i: int,
+    what: str,
+) -> None:
     assert f.length is not None and f.cmd_id is not None and f.data is not None
     if f.separators and any(s != "III" for s in f.separators):
-        e = errata.add(order=order, kind="separator_typo", commands=[key], table=table,
-                       cmd_id=cmd_id, manual_text=f.printed,
-                       adopted="III separators",
-                       note=f"The {what} frame of {name} table {table} prints a separator "
-                            f"other than III.")
+        e = errata.add(
+            order=order,
+            kind="separator_typo",
+            commands=[key],
+            table=table,
+            cmd_id=cmd_id,
+            manual_text=f.printed,
+            adopted="III separators",
+            note=f"The {what} frame of {name} table {table} prints a separator other than III.",
+        )
         links.append((str(i), e))
     if int(f.cmd_id) != cmd_id:
-        e = errata.add(order=order, kind="example_cmd_id_mismatch", commands=[key], table=table,
-                       cmd_id=cmd_id, manual_text=f.printed,
-                       adopted=f"CMD_ID {cmd_id} (the table's 指令号)",
-                       note=f"The {what} frame of {name} table {table} uses CMD_ID {f.cmd_id}; "
-                            f"the table gives {cmd_id}.")
+        e = errata.add(
+            order=order,
+            kind="example_cmd_id_mismatch",
+            commands=[key],
+            table=table,
+            cmd_id=cmd_id,
+            manual_text=f.printed,
+            adopted=f"CMD_ID {cmd_id} (the table's 指令号)",
+            note=f"The {what} frame of {name} table {table} uses CMD_ID {f.cmd_id}; "
+            f"the table gives {cmd_id}.",
+        )
         links.append((str(i), e))
     n = utf8len(data)
     if int(f.length) != n:
-        e = errata.add(order=order, kind="len_mismatch", commands=[key], table=table,
-                       cmd_id=cmd_id, manual_text=f.printed,
-                       adopted=f"LEN {n}",
-                       note=f"The {what} frame of {name} table {table} prints LEN {f.length} "
-                            f"but its DATA is {utf8len(f.data)} bytes.")
+        e = errata.add(
+            order=order,
+            kind="len_mismatch",
+            commands=[key],
+            table=table,
+            cmd_id=cmd_id,
+            manual_text=f.printed,
+            adopted=f"LEN {n}",
+            note=f"The {what} frame of {name} table {table} prints LEN {f.length} "
+            f"but its DATA is {utf8len(f.data)} bytes.",
+        )
         links.append((str(i), e))
 
 
@@ -1278,8 +1680,11 @@ def complete_param(p: dict[str, Any]) -> dict[str, Any]:
     desc = p.get("description", "")
     pt = p.get("printed_type", p.get("type", "int"))
     t = normalise_type(pt, p["name"])
-    out: dict[str, Any] = {"name": t["name"], "type": p.get("type_override", t["type"]),
-                           "printed_type": pt}
+    out: dict[str, Any] = {
+        "name": t["name"],
+        "type": p.get("type_override", t["type"]),
+        "printed_type": pt,
+    }
     out["length"] = p.get("length", t["length"])
     out["max_length"] = p.get("max_length", t["max_length"])
     if out["type"] == "string":
@@ -1296,9 +1701,13 @@ def complete_param(p: dict[str, Any]) -> dict[str, Any]:
 def row_to_return(r: Row) -> dict[str, Any]:
     t = normalise_type(r.printed_type, r.name)
     return {
-        "name": t["name"], "type": t["type"], "printed_type": r.printed_type,
-        "length": t["length"], "max_length": t["max_length"],
-        "unit": parse_unit(r.description), "description": r.description,
+        "name": t["name"],
+        "type": t["type"],
+        "printed_type": r.printed_type,
+        "length": t["length"],
+        "max_length": t["max_length"],
+        "unit": parse_unit(r.description),
+        "description": r.description,
     }
 
 
@@ -1307,9 +1716,13 @@ def complete_return(r: dict[str, Any]) -> dict[str, Any]:
     pt = r.get("printed_type", r.get("type", "int"))
     t = normalise_type(pt, r["name"])
     out = {
-        "name": t["name"], "type": t["type"], "printed_type": pt,
-        "length": r.get("length", t["length"]), "max_length": r.get("max_length", t["max_length"]),
-        "unit": r.get("unit", parse_unit(desc)), "description": desc,
+        "name": t["name"],
+        "type": t["type"],
+        "printed_type": pt,
+        "length": r.get("length", t["length"]),
+        "max_length": r.get("max_length", t["max_length"]),
+        "unit": r.get("unit", parse_unit(desc)),
+        "description": desc,
     }
     if "volatile" in r:
         out["volatile"] = bool(r["volatile"])
@@ -1327,8 +1740,13 @@ def parse_error_codes(lines: list[str], start: int) -> list[dict[str, Any]]:
             continue
         m = re.fullmatch(r"(\d+)", cs[0])
         if m and len(cs) >= 2:
-            rows.append({"code": int(m.group(1)), "meaning": clean_text(cs[1]),
-                         "remedy": clean_text(" ".join(cs[2:]))})
+            rows.append(
+                {
+                    "code": int(m.group(1)),
+                    "meaning": clean_text(cs[1]),
+                    "remedy": clean_text(" ".join(cs[2:])),
+                }
+            )
         elif rows and not re.search(r"用户手册|^\d+\s*/\s*\d+|错误码|^表", ln):
             rows[-1]["remedy"] = clean_text(rows[-1]["remedy"] + " " + " ".join(cs))
     for r in rows:
@@ -1338,6 +1756,121 @@ def parse_error_codes(lines: list[str], start: int) -> list[dict[str, Any]]:
     return rows
 
 
+# --------------------------------------------------------------------------- index audit
+
+
+@dataclass
+class TableAudit:
+    """The 序号 column of one table part (params or numbered returns) against the spec.
+
+    ``printed`` is the index column as the extractor read it (rows' index cells, index
+    cells whose row could not be read, lost cells inferred from their neighbours) or, when
+    the corrections file gives ``printed_indices``, the reviewed reading of it.
+    ``extracted`` is the number of rows the spec has.  ``explained`` is set when a
+    ``table_inconsistency`` erratum records that the manual itself skips or repeats an
+    index; then only the number of printed rows must match.
+    """
+
+    key: str
+    name: str
+    table: str
+    line: int
+    part: str
+    printed: list[int]
+    extracted: int
+    source: str = "text"
+    explained: bool = False
+
+    @property
+    def ok(self) -> bool:
+        if self.explained:
+            return len(self.printed) == self.extracted
+        return self.printed == list(range(1, self.extracted + 1))
+
+    def describe(self) -> str:
+        return (
+            f"{self.key} {self.name} table {self.table} (line {self.line}) {self.part}: "
+            f"printed index column {compact_indices(self.printed)} ({self.source}), "
+            f"{self.extracted} row(s) extracted"
+        )
+
+
+def compact_indices(xs: list[int]) -> str:
+    if xs and xs == list(range(1, len(xs) + 1)):
+        return f"1-{len(xs)}" if len(xs) > 1 else "1"
+    return ",".join(str(x) for x in xs) or "(none)"
+
+
+def parse_indices(spec: str | list[int]) -> list[int]:
+    """A reviewed index column: "1-48", "1,1,2,3" or a list."""
+    if isinstance(spec, list):
+        return [int(x) for x in spec]
+    out: list[int] = []
+    if not str(spec).strip():
+        return out
+    for part in str(spec).split(","):
+        a, _, b = part.strip().partition("-")
+        out += list(range(int(a), int(b) + 1)) if b else [int(a)]
+    return out
+
+
+def printed_indices(rows: list[Row], orphans: list[tuple[int, int]]) -> list[int]:
+    """The index column of one part as read: rows' indices with the orphans put back."""
+    out: list[int] = []
+    pos = 0
+    for i, r in enumerate([*rows, None]):
+        for idx, at in orphans:
+            if at == i:
+                out.append(idx)
+        if r is None:
+            break
+        pos = r.index if r.index is not None else pos + 1  # a lost cell: the next number
+        out.append(pos)
+    return out
+
+
+def audit_variant(
+    sec_key: str,
+    name: str,
+    rv: RawVariant,
+    vcorr: dict[str, Any],
+    variant: dict[str, Any],
+    explained: bool,
+) -> list[TableAudit]:
+    reviewed = vcorr.get("printed_indices") or {}
+    out: list[TableAudit] = []
+    for part, rows, n in (
+        ("params", rv.params, len(variant["params"])),
+        ("returns", rv.returns, len(variant["returns"]["values"])),
+    ):
+        orph = [(i, at) for p, i, at in rv.orphans if p == part]
+        if part in reviewed and reviewed[part] is None:
+            continue  # reviewed: this part has no index column (an unnumbered errcode row)
+        if part in reviewed:
+            printed, source = parse_indices(reviewed[part] or []), "corrections"
+        else:
+            numbered = any(r.index is not None for r in rows) or orph
+            if part == "returns" and not numbered:
+                continue  # an unnumbered 返回值 row (errcode)
+            if part == "params" and not rows and not orph and n == 0:
+                continue
+            printed, source = printed_indices(rows, orph), "text"
+        out.append(
+            TableAudit(
+                key=sec_key,
+                name=name,
+                table=rv.table,
+                line=rv.line,
+                part=part,
+                printed=printed,
+                extracted=n,
+                source=source,
+                explained=explained,
+            )
+        )
+    return out
+
+
 # --------------------------------------------------------------------------- output
 
 
@@ -1345,16 +1878,40 @@ def dump(doc: dict[str, Any]) -> str:
     return json.dumps(doc, indent=2, ensure_ascii=False) + "\n"
 
 
+def audit_tables(
+    manual: Path = DEFAULT_MANUAL, corrections: Path = DEFAULT_CORRECTIONS
+) -> list[TableAudit]:
+    """The index audit of every parameter and numbered return table of the manual."""
+    audits: list[TableAudit] = []
+    build(manual, load_corrections(corrections), audits)
+    return audits
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--manual", type=Path, default=DEFAULT_MANUAL)
     ap.add_argument("--corrections", type=Path, default=DEFAULT_CORRECTIONS)
     ap.add_argument("--out", type=Path, default=DEFAULT_OUT)
-    ap.add_argument("--check", action="store_true",
-                    help="compare with the committed files; exit 1 with a diff if they differ")
+    ap.add_argument(
+        "--audit",
+        action="store_true",
+        help="print the index audit of every table (printed 序号 column vs rows)",
+    )
+    ap.add_argument(
+        "--check",
+        action="store_true",
+        help="compare with the committed files; exit 1 with a diff if they differ",
+    )
     args = ap.parse_args(argv)
-    docs = build(args.manual, load_corrections(args.corrections))
+    audits: list[TableAudit] = []
+    docs = build(args.manual, load_corrections(args.corrections), audits)
     rc = 0
+    bad = [a for a in audits if not a.ok]
+    for a in bad:
+        print(f"index audit: {a.describe()}", file=sys.stderr)
+    if bad:
+        # a table whose rows do not match its printed 序号 column: a lost or shifted row
+        rc = 1
     for name, doc in docs.items():
         path = args.out / f"{name}.json"
         new = dump(doc)
@@ -1362,12 +1919,20 @@ def main(argv: list[str] | None = None) -> int:
             old = path.read_text(encoding="utf-8") if path.exists() else ""
             if old != new:
                 rc = 1
-                sys.stdout.writelines(difflib.unified_diff(
-                    old.splitlines(keepends=True), new.splitlines(keepends=True),
-                    fromfile=str(path), tofile=f"{path} (regenerated)"))
+                sys.stdout.writelines(
+                    difflib.unified_diff(
+                        old.splitlines(keepends=True),
+                        new.splitlines(keepends=True),
+                        fromfile=str(path),
+                        tofile=f"{path} (regenerated)",
+                    )
+                )
         else:
             path.parent.mkdir(parents=True, exist_ok=True)
             path.write_text(new, encoding="utf-8")
+    if args.audit:
+        for a in audits:
+            print(("ok  " if a.ok else "BAD ") + a.describe())
     return rc
 
 
