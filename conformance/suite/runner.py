@@ -154,6 +154,13 @@ class SuiteRunner:
             self.emulator = emu
             self.address = emu.udp_address if self.config.transport == "udp" else emu.address
             self.report.meta["emulator_faults"] = list(self.config.emulator_faults)
+        elif self.config.transport == "tcp":
+            # Fail fast: an endpoint that refuses connections at the start is an
+            # ERROR for every case at once, not a recovery wait per case.
+            try:
+                self.new_client().connect().close()
+            except TargetUnreachable as e:
+                self.dead = f"the start of the session ({e})"
 
     def close(self) -> None:
         if self._client is not None:
@@ -368,7 +375,7 @@ class SuiteRunner:
             if not ok:
                 return Verdict(outcome=Outcome.SKIPPED, detail=why)
         if self.dead is not None:
-            return Verdict(outcome=Outcome.ERROR, detail=f"target down since case {self.dead}")
+            return Verdict(outcome=Outcome.ERROR, detail=f"target down since {self.dead}")
         self.case_started = time.monotonic()
         try:
             return case.run(self, case)
@@ -377,7 +384,7 @@ class SuiteRunner:
         except TargetUnreachable as e:
             if self.recover():
                 return Verdict(outcome=Outcome.FAIL, detail=f"target dropped during the case: {e}")
-            self.dead = case.id
+            self.dead = f"case {case.id}"
             return Verdict(outcome=Outcome.ERROR, detail=str(e))
         except ConformanceError as e:
             return Verdict(outcome=Outcome.ERROR, detail=f"kit error: {e}")
@@ -392,7 +399,7 @@ class SuiteRunner:
         self.drop_client()
         detail = f"a harmless query on a fresh connection failed afterwards ({why})"
         if not self.recover():
-            self.dead = case.id
+            self.dead = f"case {case.id}"
             detail += f"; target did not recover within {self.config.recovery_timeout:g} s"
         return Verdict(outcome=Outcome.FAIL, detail=detail, frames=frames, raw=raw)
 
