@@ -16,9 +16,11 @@ from .frame import CNT_MAX, encode_frame
 from .spec import TYPE_BOUNDS, Command, Param, SpecSet, Variant
 
 __all__ = [
+    "INVALID_KINDS",
     "cnts",
     "garbage",
     "invalid_calls",
+    "invalid_kinds",
     "minimal_args",
     "minimal_value",
     "param_values",
@@ -48,12 +50,15 @@ def _bounded_int(lo: float, hi: float) -> st.SearchStrategy[int]:
 
 
 def _rounded_floats(lo: float, hi: float) -> st.SearchStrategy[Value]:
-    """Floats in [lo, hi] with at most 3 decimals, as the manual writes them."""
+    """Floats in [lo, hi] with at most 3 decimals, as the manual writes them.
 
-    def clamp(x: float) -> Value:
-        return min(max(round(x, 3), lo), hi)
-
-    return st.floats(min_value=lo, max_value=hi, allow_nan=False).map(clamp)
+    Drawn as whole thousandths: an integer draw is far cheaper than a float draw,
+    and every value a 3-decimal float can take is still reachable.
+    """
+    klo, khi = math.ceil(lo * 1000), math.floor(hi * 1000)
+    if klo > khi:
+        return st.just(lo)
+    return st.integers(min_value=klo, max_value=khi).map(lambda k: k / 1000)
 
 
 def _scalar(p: Param) -> st.SearchStrategy[Value]:
@@ -88,11 +93,7 @@ def _scalar(p: Param) -> st.SearchStrategy[Value]:
             lo, hi = TYPE_BOUNDS.get(p.type, INT_DEFAULT)
             choices.append(_bounded_int(max(lo, INT_DEFAULT[0]), min(hi, INT_DEFAULT[1])))
         else:
-            choices.append(
-                st.floats(
-                    min_value=FLOAT_DEFAULT[0], max_value=FLOAT_DEFAULT[1], allow_nan=False
-                ).map(lambda x: round(x, 3))
-            )
+            choices.append(_rounded_floats(*FLOAT_DEFAULT))
     return st.one_of(choices)
 
 
@@ -170,40 +171,70 @@ def _out_of_range(p: Param) -> st.SearchStrategy[Value] | None:
     return st.sampled_from([int(b) if p.is_integer else b for b in bad])
 
 
-def invalid_calls(command: Command, variant: Variant) -> st.SearchStrategy[tuple[str, str]]:
+INVALID_KINDS = ("count", "type", "range")
+
+
+def _count_targets(command: Command, variant: Variant) -> list[int]:
+    """Argument counts one off the table's that no other variant of the command takes."""
+    n = len(variant.params)
+    others = {v.arity for v in command.variants if v is not variant and v.form == "call"}
+    return [k for k in (n - 1, n + 1) if k >= 0 and k not in others]
+
+
+def _ranged(variant: Variant) -> list[tuple[int, st.SearchStrategy[Value]]]:
+    return [
+        (i, s)
+        for i, p in enumerate(variant.params)
+        if not p.is_array and (s := _out_of_range(p)) is not None
+    ]
+
+
+def invalid_kinds(command: Command, variant: Variant) -> tuple[str, ...]:
+    """The kinds of :func:`invalid_calls` this variant allows (a call variant only)."""
+    if variant.form != "call":
+        return ()
+    kinds = []
+    if _count_targets(command, variant):
+        kinds.append("count")
+    if any(not p.is_string for p in variant.params):
+        kinds.append("type")
+    if _ranged(variant):
+        kinds.append("range")
+    return tuple(kinds)
+
+
+def invalid_calls(
+    command: Command, variant: Variant, kinds: Sequence[str] = INVALID_KINDS
+) -> st.SearchStrategy[tuple[str, str]]:
     """(kind, DATA) pairs that break the table: kind is ``count``, ``type`` or ``range``.
 
     ``count`` drops or adds an argument (never matching another variant's count),
     ``type`` puts text where a number is due, ``range`` a value outside a stated
-    range or enum.  Shrinks towards the first parameter.
+    range or enum; every other argument is valid.  ``kinds`` restricts the choice
+    (no draw is wasted on a filtered-out kind).  Shrinks towards the first parameter.
     """
     params = variant.params
-    other_arities = {v.arity for v in command.variants if v is not variant and v.form == "call"}
-    kinds: list[st.SearchStrategy[tuple[str, str]]] = []
+    strategies: list[st.SearchStrategy[tuple[str, str]]] = []
     base = valid_args(variant)
-    counts = [n for n in (len(params) - 1, len(params) + 1) if n >= 0 and n not in other_arities]
-    if counts:
+    counts = _count_targets(command, variant)
+    if "count" in kinds and counts:
 
         def change_count(args: list[Value], n: int) -> tuple[str, str]:
             extra: list[Value] = [*args, 0][:n] if n > len(args) else args[:n]
             return ("count", format_call(command.name, extra, params))
 
-        kinds.append(st.tuples(base, st.sampled_from(counts)).map(lambda t: change_count(*t)))
+        strategies.append(st.tuples(base, st.sampled_from(counts)).map(lambda t: change_count(*t)))
     numeric = [i for i, p in enumerate(params) if not p.is_string]
-    if numeric:
+    if "type" in kinds and numeric:
 
         def wrong_type(args: list[Value], i: int) -> tuple[str, str]:
             parts = [format_value(a, quoted=params[j].quoted) for j, a in enumerate(args)]
             parts[i] = '"x"'
             return ("type", f"{command.name}({','.join(parts)})")
 
-        kinds.append(st.tuples(base, st.sampled_from(numeric)).map(lambda t: wrong_type(*t)))
-    ranged = [
-        (i, s)
-        for i, p in enumerate(params)
-        if (s := _out_of_range(p)) is not None and not p.is_array
-    ]
-    if ranged:
+        strategies.append(st.tuples(base, st.sampled_from(numeric)).map(lambda t: wrong_type(*t)))
+    ranged = _ranged(variant)
+    if "range" in kinds and ranged:
 
         def out_of_range(args: list[Value], pick: tuple[int, Value]) -> tuple[str, str]:
             i, v = pick
@@ -215,10 +246,10 @@ def invalid_calls(command: Command, variant: Variant) -> st.SearchStrategy[tuple
             return s.map(lambda v: (i, v))
 
         picks = st.one_of([tag(i, s) for i, s in ranged])
-        kinds.append(st.tuples(base, picks).map(lambda t: out_of_range(*t)))
-    if not kinds:
+        strategies.append(st.tuples(base, picks).map(lambda t: out_of_range(*t)))
+    if not strategies:
         return st.nothing()
-    return st.one_of(kinds)
+    return st.one_of(strategies)
 
 
 def request_frames(

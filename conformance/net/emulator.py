@@ -181,6 +181,9 @@ class EmulatorServer:
             if self._down():
                 _shutdown(conn)  # restarting after a crash: refuse
                 continue
+            # Replies go out at once: with Nagle, a second reply waits for the
+            # client's delayed ACK (~40 ms) behind the first.
+            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             self.connections_accepted += 1
             with self._lock:
                 self._conns.add(conn)

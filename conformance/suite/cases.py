@@ -31,7 +31,7 @@ from ..model import (
 )
 from ..report import Outcome
 from ..spec import TYPE_BOUNDS, Command, SpecSet, Variant
-from ..strategies import garbage, invalid_calls, valid_args, valid_calls
+from ..strategies import garbage, invalid_calls, invalid_kinds, valid_args, valid_calls
 from ..validate import ERR_ARG_COUNT, ERR_ARG_VALUE, RefusalForm, ReplyVerdict
 from .config import GROUPS, SuiteConfig, select_commands
 from .requests import default_args, default_data
@@ -349,29 +349,16 @@ def _run_invalid(runner: SuiteRunner, case: Case) -> Verdict:
     strategy = (
         _beyond_type(cmd, variant)
         if kind == "bounds"
-        else invalid_calls(cmd, variant).filter(lambda t: t[0] == kind)
+        else invalid_calls(cmd, variant, kinds=(kind,))
     )
     v = _hypothesis(runner, case, runner.config.profile.invalid, strategy, check)
     return v or _notes(notes, "")
 
 
 def _invalid_kinds(cmd: Command, variant: Variant) -> list[str]:
-    """The kinds of invalid call strategies.invalid_calls can build for this variant."""
-    if variant.form != "call" or invalid_calls(cmd, variant).is_empty:
-        return []
-    n = variant.arity
-    others = {v.arity for v in cmd.variants if v is not variant and v.form == "call"}
-    kinds = []
-    if any(k >= 0 and k not in others for k in (n - 1, n + 1)):
-        kinds.append("count")
-    if any(not p.is_string for p in variant.params):
-        kinds.append("type")
-    if any(
-        not p.is_array and (p.range or p.enum or (p.is_string and p.max_length))
-        for p in variant.params
-    ):
-        kinds.append("range")
-    if _bounded(variant):
+    """The invalid-call kinds to try for this variant: strategies.invalid_kinds, plus bounds."""
+    kinds = list(invalid_kinds(cmd, variant))
+    if variant.form == "call" and _bounded(variant):
         kinds.append("bounds")
     return kinds
 
