@@ -319,7 +319,6 @@ class FrameDecoder:
         n = len(buf)
         append = self._events.append
         frames = self._fast.finditer
-        n_events = len(self._events)
         new = tuple.__new__
         base = self._base
         pos = self._pos
@@ -329,6 +328,7 @@ class FrameDecoder:
                 # Fast path: standard frames back to back, each tail where LEN says.
                 # The regex engine does the scanning; anything unusual (garbage, a
                 # deviation, an incomplete frame) leaves for the careful path below.
+                fast_from = pos
                 for m in frames(buf, pos):
                     if m.start() != pos:
                         break
@@ -346,7 +346,7 @@ class FrameDecoder:
                     # Fields are checked above: skip Frame.__new__'s validation.
                     append(new(Frame, (cnt, int(i), data, length, raw, (), base + pos)))
                     pos += len(raw)
-                if len(self._events) > n_events:
+                if pos != fast_from:
                     self._frames_seen += 1  # only "any frame yet?" matters
                 if pos >= n:
                     break

@@ -252,3 +252,13 @@ def test_agrees_with_naive_regex_on_plain_frames(frames: list[bytes]) -> None:
     ours = [(e.cnt, e.cmd_id, e.data.encode()) for e in decode_all(data) if isinstance(e, Frame)]
     theirs = [(int(a), int(b), d) for a, b, _, d in _NAIVE.findall(data)]
     assert ours == theirs
+
+
+def test_skipped_runs_say_where_they_were() -> None:
+    """Long garbage is cut into chunks, each still 'before the first frame'; later runs 'between'."""
+    d = FrameDecoder(max_frame_size=64)
+    events = d.feed(b"x" * 200 + encode_frame(1, 2, "a") + b"yy") + d.close()
+    details = [e.detail for e in events if isinstance(e, Malformed)]
+    assert len(details) == 5
+    assert all(x.endswith("before the first frame") for x in details[:4])
+    assert details[4].endswith("between frames")
