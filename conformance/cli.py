@@ -67,6 +67,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"fairino-conformance {args.command}: interrupted", file=sys.stderr)
         return 130
+    except Exception as e:
+        # Not a user mistake we foresaw: still one line, with a way to see more.
+        if os.environ.get("FAIRINO_DEBUG"):
+            raise
+        print(
+            f"fairino-conformance {args.command}: internal error: {type(e).__name__}: {e} "
+            "(a bug in the kit; FAIRINO_DEBUG=1 shows the traceback)",
+            file=sys.stderr,
+        )
+        return EXIT_ERROR
     return int(code)
 
 

@@ -136,3 +136,22 @@ def test_decode_reads_stdin() -> None:
     assert proc.returncode == 0
     (row,) = [json.loads(line) for line in proc.stdout.decode().splitlines()]
     assert row["name"] == "GetActualJointPosDegree" and row["cnt"] == 9
+
+
+def test_unexpected_error_is_one_line(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A failure nobody foresaw still gives one line and exit 2 (FAIRINO_DEBUG re-raises)."""
+    import conformance.commands.specs as specs_cmd
+
+    def boom(*_: object, **__: object) -> None:
+        raise ZeroDivisionError("boom")
+
+    monkeypatch.setattr(specs_cmd, "_run_specs", boom)
+    monkeypatch.delenv("FAIRINO_DEBUG", raising=False)
+    assert main(["specs", "list"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "internal error: ZeroDivisionError: boom" in err[0]
+    monkeypatch.setenv("FAIRINO_DEBUG", "1")
+    with pytest.raises(ZeroDivisionError):
+        main(["specs", "list"])
