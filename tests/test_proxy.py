@@ -330,7 +330,7 @@ def test_rotation_by_size(tmp_path: Path, upstream: Upstream) -> None:
 
 
 def _start_proxy_process(
-    tmp_path: Path, upstream: Upstream, *extra: str
+    tmp_path: Path, upstream: Upstream, *extra: str, new_session: bool = False
 ) -> tuple[subprocess.Popen[str], tuple[str, int], Path]:
     out = tmp_path / "killed.mcap"
     env = dict(os.environ, PYTHONPATH=str(ROOT))
@@ -353,6 +353,7 @@ def _start_proxy_process(
         text=True,
         env=env,
         cwd=ROOT,
+        start_new_session=new_session,
     )
     assert proc.stderr is not None
     line = proc.stderr.readline()
@@ -361,22 +362,62 @@ def _start_proxy_process(
     return proc, parse_hostport(f"{m.group(1)}:{m.group(2)}"), out
 
 
-def test_sigkill_loses_at_most_a_second_and_recover_repairs(
-    tmp_path: Path, upstream: Upstream
+def _children(pid: int) -> list[int]:
+    """The processes ``pid`` started (Linux /proc)."""
+    text = Path(f"/proc/{pid}/task/{pid}/children").read_text()
+    return [int(x) for x in text.split()]
+
+
+def _gone(pid: int) -> bool:
+    """The process has exited (a zombie nobody reaps counts as exited)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except FileNotFoundError:
+        return True
+    return fields[0] in ("Z", "X")
+
+
+def _talk_then_kill(
+    proc: subprocess.Popen[str], addr: tuple[str, int], kill: Callable[[], None]
 ) -> None:
-    proc, addr, out = _start_proxy_process(tmp_path, upstream)
     try:
         with socket.create_connection(addr) as c:
             for i in range(50):
                 c.sendall(encode_frame(i, 201, 'MoveJ("P1")'))
                 recv_frames(c, 1)
             time.sleep(1.3)  # more than a flush interval
-            os.kill(proc.pid, signal.SIGKILL)
+            kill()
     finally:
         proc.wait(10)
         assert proc.stderr is not None and proc.stdout is not None
         proc.stderr.close()
         proc.stdout.close()
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_sigkill_of_the_proxy_the_recorder_finishes_the_file_and_exits(
+    tmp_path: Path, upstream: Upstream
+) -> None:
+    proc, addr, out = _start_proxy_process(tmp_path, upstream)
+    (recorder,) = _children(proc.pid)
+    _talk_then_kill(proc, addr, lambda: os.kill(proc.pid, signal.SIGKILL))
+    # The recorder sees the proxy die, records the open connection as closed and
+    # finishes the file: nothing lost, and no orphan left writing.
+    wait_for(lambda: _gone(recorder), timeout=30)
+    rec = read_recording(out)
+    assert rec.complete
+    assert [f.cnt for f in rec.frames if f.dir == "c2s"] == list(range(50))
+    assert len(rec.frames) == 100
+    assert rec.connections[-1].event == "close"
+    assert rec.connections[-1].reason == "proxy died"
+
+
+def test_sigkill_of_proxy_and_recorder_loses_at_most_a_second_and_recover_repairs(
+    tmp_path: Path, upstream: Upstream
+) -> None:
+    proc, addr, out = _start_proxy_process(tmp_path, upstream, new_session=True)
+    # The whole process group at once: proxy and recorder process.
+    _talk_then_kill(proc, addr, lambda: os.killpg(proc.pid, signal.SIGKILL))
     broken = read_recording(out)
     assert not broken.complete
     assert len([f for f in broken.frames if f.dir == "c2s"]) == 50
@@ -411,3 +452,25 @@ def test_sigterm_finishes_the_file(tmp_path: Path, upstream: Upstream) -> None:
     rec = read_recording(out)
     assert rec.complete and len(rec.frames) == 2
     assert rec.connections[-1].reason == "proxy stopped"
+
+
+def test_recorder_process_death_is_reported_and_forwarding_goes_on(
+    tmp_path: Path, upstream: Upstream
+) -> None:
+    p = RecordingProxy(upstream.address, out=tmp_path / "r.mcap").start()
+    assert p._proc is not None
+    p._proc.kill()
+    p._proc.wait()
+    with socket.create_connection(p.address) as c:
+        for i in range(3):
+            c.sendall(encode_frame(i, 201, 'MoveJ("P1")'))
+            assert recv_frames(c, 1)[0].cnt == i
+    with pytest.raises(RuntimeError, match="recorder process"):
+        p.close()
+
+
+def test_close_without_start_writes_an_empty_recording(tmp_path: Path, upstream: Upstream) -> None:
+    out = tmp_path / "r.mcap"
+    RecordingProxy(upstream.address, out=out).close()
+    rec = read_recording(out)
+    assert rec.complete and not rec.frames and rec.metadata["upstream"]

@@ -3,8 +3,9 @@
     python tools/bench_proxy.py [--requests 3000] [--frames 200000] [--rounds 3]
 
 1. Request/reply round trip at 1 kHz, direct to an echo upstream and through a
-   recording proxy (``python -m conformance proxy`` in its own process): p50, p99
-   and the latency the proxy adds.  Direct and proxied runs alternate, ``--rounds``
+   recording proxy (``python -m conformance proxy`` in its own process, which
+   forwards in one I/O thread and records in a child process): p50, p99 and the
+   latency the proxy adds.  Direct and proxied runs alternate, ``--rounds``
    times, and the best of each is reported: the machine's cores are shared, and
    interleaving keeps a busy spell of a neighbour from favouring one side.  The
    client sleeps until shortly before each send time and spins only the last

@@ -5,17 +5,27 @@ Put it between a client and a controller::
     client ──► proxy (127.0.0.1:18080) ──► controller (192.168.58.2:8080)
 
 One I/O thread moves the bytes with non-blocking sockets and a selector: it
-reads, takes the time, forwards, and only then hands ``(connection, direction,
-time, bytes)`` to a queue.  A recorder thread decodes frames
-(:class:`~conformance.recording.StreamRecorder`) and writes MCAP, flushing the
-file at least every ``flush_interval`` seconds so that a killed proxy loses at
-most that much.  The hot path does no decoding, JSON or file work.
+reads, takes the time, forwards, and only then appends ``(connection,
+direction, time, bytes)`` to a buffer that it writes, once per turn of its loop
+and without ever blocking, into a pipe.  At the other end of the pipe a
+recorder *process* decodes frames (:class:`~conformance.recording.StreamRecorder`)
+and writes MCAP, flushing the file at least every ``flush_interval`` seconds so
+that a killed recorder loses at most that much.  Decoding, JSON and file work
+thus never hold the forwarding thread's GIL: in one process they delayed a
+reply by up to a GIL switch interval, which was most of the added p99 latency.
 
 Memory is bounded: each direction of a connection buffers at most
 ``max_pending`` unsent bytes (a slow reader stops us reading from its peer), and
-when the recorder falls ``max_backlog`` bytes behind, the I/O thread stops
-reading until it catches up, so nothing is ever dropped: every byte read is
-recorded, as a frame or as a problem event.
+when the recorder falls ``max_backlog`` bytes behind (the pipe is full and the
+buffer in front of it has grown that large), the I/O thread stops reading until
+it catches up, so nothing is ever dropped: every byte read is recorded, as a
+frame or as a problem event.
+
+The recorder process ignores SIGINT and SIGTERM (a Ctrl-C reaches the whole
+process group): the proxy stops it by closing the pipe after a stop event.  If
+the proxy dies (SIGKILL), the recorder sees the pipe end, or its parent change,
+records the connections still open as closed ("proxy died") and finishes the
+file; if both die, the file is unfinished but flushed, and ``recover`` repairs it.
 
 An upstream that refuses, times out or dies is recorded (a ``close`` event with
 the reason) and the client's connection is closed; the proxy carries on.
@@ -25,14 +35,23 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import json
+import mmap
 import os
-import queue
+import pickle
 import selectors
+import signal
 import socket
+import struct
+import subprocess
+import sys
+import tempfile
 import threading
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from multiprocessing.connection import Connection
+from pathlib import Path
 from typing import Any
 
 from ..recording import (
@@ -42,6 +61,7 @@ from ..recording import (
     RotatingWriter,
     StreamRecorder,
     default_metadata,
+    segment_path,
 )
 from ..spec import SpecSet
 
@@ -122,8 +142,45 @@ class _UdpSession:
     last: float
 
 
-# Queue items: (kind, conn, direction, t_ns, payload)
+# Events to the recorder process: a header (kind, direction, conn, t_ns, payload
+# length), then the payload: the bytes (data, datagram), the connection's
+# addresses as JSON (open) or the reason (close).
 _OPEN, _DATA, _DGRAM, _CLOSE, _STOP = range(5)
+_EVENT = struct.Struct("<BBIqI")
+_DIR_CODE = {C2S: 0, S2C: 1, "": 2}
+_DIR_NAME = (C2S, S2C, "")
+_F_SETPIPE_SZ = 1031  # Linux fcntl: grow the pipe (1 MiB, the unprivileged maximum)
+_PIPE_SIZE = 1 << 20
+# Counters the recorder process keeps in shared memory: frames, problems, bytes taken.
+_COUNTERS = struct.Struct("<qqq")
+
+
+class RecorderCounters:
+    """What the recorder process has done so far (read from memory it shares with us)."""
+
+    def __init__(self, shared: mmap.mmap) -> None:
+        self._shared = shared
+
+    def _get(self) -> tuple[int, int, int]:
+        try:
+            return _COUNTERS.unpack_from(self._shared)  # type: ignore[return-value]
+        except ValueError:  # closed
+            return (0, 0, 0)
+
+    @property
+    def frames(self) -> int:
+        """Frames recorded."""
+        return self._get()[0]
+
+    @property
+    def problems(self) -> int:
+        """Problem records written."""
+        return self._get()[1]
+
+    @property
+    def taken(self) -> int:
+        """Payload bytes the recorder has taken from the pipe."""
+        return self._get()[2]
 
 
 class RecordingProxy:
@@ -152,7 +209,7 @@ class RecordingProxy:
         udp_idle: float = 60.0,
         max_pending: int = 1 << 20,
         max_backlog: int = 64 << 20,
-        record_tick: float = 0.002,
+        record_tick: float = 0.01,
         on_frame: Callable[[FrameRecord], None] | None = None,
     ) -> None:
         if specs is None:
@@ -196,41 +253,54 @@ class RecordingProxy:
             md["udp_upstream"] = format_addr(udp_upstream)
             md["udp_listen"] = format_addr(self.udp_address)
         md.update(metadata or {})
-        self.writer = RotatingWriter(
-            out,
-            metadata=md,
-            split_size=split_size,
-            split_duration_ns=int(split_duration * 1e9) if split_duration else None,
-        )
-        self.recorder = StreamRecorder(self.writer, specs=specs, on_frame=on_frame)
+        self.metadata = md
+        self.out = os.fspath(out)
+        self.split_size = split_size
+        self.split_duration = split_duration
+        self.on_frame = on_frame
+        rotating = bool(split_size or split_duration)
+        first = segment_path(self.out, 1) if rotating else self.out
+        # Fail here, as before the recorder moved out, if the file cannot be written;
+        # the recorder process writes it afresh.
+        with open(first, "wb"):
+            pass
+        self._paths: list[str] = [first]
 
         self._sel = selectors.DefaultSelector()
         self._wake_r, self._wake_w = socket.socketpair()
         self._wake_r.setblocking(False)
-        self._queue: queue.SimpleQueue[tuple[int, int, str, int, Any]] = queue.SimpleQueue()
-        self._queued = 0  # bytes handed to the recorder (I/O thread writes)
-        self._drained = 0  # bytes the recorder has taken (recorder thread writes)
+        # Shared counters: an unlinked temporary file, mapped by both processes.
+        self._shared_file = tempfile.TemporaryFile()  # noqa: SIM115 (closed in close())
+        self._shared_file.truncate(mmap.PAGESIZE)
+        self._shared = mmap.mmap(self._shared_file.fileno(), mmap.PAGESIZE)
+        self.recorder = RecorderCounters(self._shared)
+        self._rec_buf = bytearray()  # events not yet in the pipe (I/O thread only)
+        self._rec_w = -1  # the pipe's write end
+        self._rec_registered = False
+        self._rec_dead = False
+        self._proc: subprocess.Popen[bytes] | None = None
+        self._status: Connection | None = None
+        self._status_thread: threading.Thread | None = None
+        self._done = False
+        self._queued = 0  # payload bytes handed to the recorder
         self._next_conn = 0
         self._pairs: dict[socket.socket, _Pair] = {}
         self._sessions: dict[Any, _UdpSession] = {}
         self._session_socks: dict[socket.socket, _UdpSession] = {}
         self._stopping = threading.Event()
         self._io_thread: threading.Thread | None = None
-        self._rec_thread: threading.Thread | None = None
+        self._next_deadlines = 0.0
         self._closed = False
 
     # ------------------------------------------------------------------ lifecycle
 
     def start(self) -> RecordingProxy:
+        self._start_recorder()
         self._sel.register(self._listener, _READ, "listen")
         self._sel.register(self._wake_r, _READ, "wake")
         if self._udp is not None:
             self._sel.register(self._udp, _READ, "udp")
-        self._rec_thread = threading.Thread(
-            target=self._record_loop, name="proxy-recorder", daemon=True
-        )
         self._io_thread = threading.Thread(target=self._io_loop, name="proxy-io", daemon=True)
-        self._rec_thread.start()
         self._io_thread.start()
         return self
 
@@ -246,11 +316,16 @@ class RecordingProxy:
             self._io_thread.join()
         else:
             self._shutdown_all()
-        self._queue.put((_STOP, 0, "", time.time_ns(), None))
-        if self._rec_thread is not None:
-            self._rec_thread.join()
-        else:
-            self._record_loop()
+        try:
+            if self._proc is None:
+                self._start_recorder()
+            self._put(_STOP, 0, "", time.time_ns(), b"")
+            self._flush_rec(block=True)
+        except BaseException as e:
+            if self.error is None:
+                self.error = e
+        finally:
+            self._stop_recorder()
         self._sel.close()
         self._wake_r.close()
         self._wake_w.close()
@@ -266,7 +341,7 @@ class RecordingProxy:
     @property
     def paths(self) -> list[str]:
         """Files written (several when rotating)."""
-        return list(self.writer.paths)
+        return list(self._paths)
 
     @property
     def frames_recorded(self) -> int:
@@ -275,106 +350,198 @@ class RecordingProxy:
     @property
     def backlog(self) -> int:
         """Bytes read but not yet taken by the recorder."""
-        return self._queued - self._drained
+        return self._queued - self.recorder.taken
 
-    # ------------------------------------------------------------------ recorder thread
+    # ------------------------------------------------------------------ recorder process
 
-    def _record_loop(self) -> None:
-        q = self._queue
-        rec = self.recorder
-        last_flush = time.monotonic()
-        idle_ns = self.idle_resolve_ns
-        tick = self.record_tick
+    def _start_recorder(self) -> None:
+        """Start the recorder process and wait until its file is open."""
+        r, w = os.pipe()
+        with contextlib.suppress(OSError):
+            import fcntl
+
+            fcntl.fcntl(w, _F_SETPIPE_SZ, _PIPE_SIZE)
+        status_r, status_w = os.pipe()
+        config = {
+            "out": self.out,
+            "metadata": self.metadata,
+            "split_size": self.split_size,
+            "split_duration_ns": int(self.split_duration * 1e9) if self.split_duration else None,
+            "flush_interval": self.flush_interval,
+            "idle_resolve_ns": self.idle_resolve_ns,
+            "record_tick": self.record_tick,
+            "specs": self.specs,
+            "frames": self.on_frame is not None,
+            "parent": os.getpid(),
+        }
+        shared = self._shared_file.fileno()
+        root = str(Path(__file__).resolve().parent.parent.parent)
+        env = dict(os.environ)
+        env["PYTHONPATH"] = os.pathsep.join(filter(None, [root, env.get("PYTHONPATH")]))
+        code = "import sys; from conformance.net.proxy import _recorder_main; _recorder_main(sys.argv[1:])"
+        try:
+            self._proc = subprocess.Popen(
+                [sys.executable, "-c", code, str(r), str(status_w), str(shared)],
+                pass_fds=(r, status_w, shared),
+                stdin=subprocess.DEVNULL,
+                env=env,
+            )
+        finally:
+            os.close(r)
+            os.close(status_w)
+        self._rec_w = w
+        self._status = Connection(status_r, writable=False)
+        blob = pickle.dumps(config, protocol=pickle.HIGHEST_PROTOCOL)
+        try:
+            _write_all(w, struct.pack("<I", len(blob)) + blob)
+            msg = self._status.recv()
+        except (OSError, EOFError):
+            msg = ("error", RuntimeError("the recorder process did not start"))
+        if msg[0] != "ready":
+            self._stop_recorder()
+            raise msg[1]
+        self._paths = list(msg[1])
+        os.set_blocking(w, False)
+        self._status_thread = threading.Thread(
+            target=self._status_loop, name="proxy-recorder-status", daemon=True
+        )
+        self._status_thread.start()
+
+    def _status_loop(self) -> None:
+        """Messages from the recorder process: frames for ``on_frame``, paths, errors."""
+        assert self._status is not None
         while True:
-            # Work in ticks rather than on every put: the I/O thread then rarely
-            # finds the GIL held by the recorder just as a reply arrives.
-            if tick:
-                time.sleep(tick)
             try:
-                item = q.get(timeout=min(0.2, self.flush_interval))
-            except queue.Empty:
-                item = None
-            stop = False
-            n = 0
-            while item is not None:
-                kind, conn, d, t_ns, payload = item
-                try:
-                    if kind == _DATA:
-                        self._drained += len(payload)
-                        rec.data(conn, d, t_ns, payload)  # type: ignore[arg-type]
-                    elif kind == _DGRAM:
-                        self._drained += len(payload)
-                        rec.datagram(conn, d, t_ns, payload)  # type: ignore[arg-type]
-                    elif kind == _OPEN:
-                        rec.open(conn, t_ns=t_ns, **payload)
-                    elif kind == _CLOSE:
-                        rec.close(conn, t_ns=t_ns, reason=payload)
-                    else:
-                        rec.finish(t_ns=t_ns, reason="proxy stopped")
-                        stop = True
-                        break
-                except Exception as e:  # the recording failed (disk full...): keep forwarding
-                    if self.error is None:
-                        self.error = e
-                n += 1
-                if n >= 4096:
-                    break
-                try:
-                    item = q.get_nowait()
-                except queue.Empty:
-                    item = None
-            if stop:
-                try:
-                    self.writer.close()
-                except Exception as e:
-                    if self.error is None:
-                        self.error = e
+                kind, value = self._status.recv()
+            except (EOFError, OSError):
                 return
-            now = time.monotonic()
-            if now - last_flush >= self.flush_interval:
-                last_flush = now
-                try:
-                    rec.idle(time.time_ns(), idle_ns)
-                    self.writer.flush()
-                except Exception as e:
-                    if self.error is None:
-                        self.error = e
+            if kind == "frames":
+                assert self.on_frame is not None
+                for rec in value:
+                    try:
+                        self.on_frame(rec)
+                    except Exception as e:
+                        if self.error is None:
+                            self.error = e
+            elif kind == "paths":
+                self._paths = list(value)
+            elif kind == "error":
+                if self.error is None:
+                    self.error = value
+            elif kind == "done":
+                self._paths = list(value)
+                self._done = True
 
-    def _put(self, kind: int, conn: int, d: str, t_ns: int, payload: Any) -> None:
+    def _stop_recorder(self) -> None:
+        if self._rec_w >= 0:
+            with contextlib.suppress(OSError):
+                os.close(self._rec_w)
+            self._rec_w = -1
+        if self._proc is not None:
+            code = self._proc.wait()
+            if self._status_thread is not None:
+                self._status_thread.join()
+            if not self._done and self.error is None:
+                self.error = RuntimeError(f"the recorder process ended early (exit code {code})")
+        if self._status is not None:
+            self._status.close()
+        self._shared.close()
+        self._shared_file.close()
+
+    def _put(self, kind: int, conn: int, d: str, t_ns: int, payload: bytes) -> None:
         if kind in (_DATA, _DGRAM):
             self._queued += len(payload)
-        self._queue.put((kind, conn, d, t_ns, payload))
+        if self._rec_dead:
+            return
+        buf = self._rec_buf
+        buf += _EVENT.pack(kind, _DIR_CODE[d], conn, t_ns, len(payload))
+        buf += payload
+
+    def _flush_rec(self, *, block: bool = False) -> None:
+        """Hand buffered events to the recorder process; never waits unless ``block``."""
+        buf = self._rec_buf
+        if self._rec_dead or self._rec_w < 0:
+            buf.clear()
+            return
+        if block:
+            os.set_blocking(self._rec_w, True)
+        try:
+            while buf:
+                n = os.write(self._rec_w, buf)
+                del buf[:n]
+        except BlockingIOError:
+            pass
+        except OSError as e:  # the recorder died: keep forwarding, record nothing more
+            self._rec_dead = True
+            buf.clear()
+            if self.error is None:
+                self.error = RuntimeError(f"the recorder process is gone: {e.strerror or e}")
+        if block:
+            return
+        want = bool(buf) and not self._rec_dead
+        if want != self._rec_registered:
+            # A full pipe: wake when it drains (the loop flushes every turn).
+            if want:
+                self._sel.register(self._rec_w, _WRITE, "rec")
+            else:
+                self._sel.unregister(self._rec_w)
+            self._rec_registered = want
 
     # ------------------------------------------------------------------ I/O thread
 
     def _io_loop(self) -> None:
         sel = self._sel
+        pairs = _Pair
+        monotonic = time.monotonic
         try:
             while not self._stopping.is_set():
                 # The recorder fell behind: stop reading (writes go on) until it catches up.
-                paused = self._queued - self._drained > self.max_backlog
+                paused = len(self._rec_buf) > self.max_backlog
                 if paused != self._reads_paused:
                     self._set_paused(paused)
-                timeout = 0.005 if paused else 0.25
-                for key, mask in sel.select(timeout):
+                self._reply_due = False
+                writable = False  # the pipe to the recorder has room again
+                for key, mask in sel.select(0.005 if self._rec_buf else 0.25):
                     tag = key.data
-                    if tag == "listen":
+                    # Forwarding first: a pair's event is the hot path.
+                    if type(tag) is pairs:
+                        self._pair_event(tag, key.fileobj, mask)  # type: ignore[arg-type]
+                    elif tag == "listen":
                         self._accept()
                     elif tag == "wake":
                         with contextlib.suppress(OSError):
                             self._wake_r.recv(64)
                     elif tag == "udp":
                         self._udp_from_client()
-                    elif isinstance(tag, _Pair):
-                        self._pair_event(tag, key.fileobj, mask)  # type: ignore[arg-type]
                     elif isinstance(tag, _UdpSession):
                         self._udp_from_upstream(tag)
-                self._deadlines()
+                    elif tag == "rec":
+                        writable = True
+                now = monotonic()
+                if self._rec_buf or self._rec_registered:
+                    # Hand the recorder what this turn read, in one write, but not just
+                    # after forwarding a request: its reply is due within microseconds
+                    # and should not find us in a system call.  The write follows the
+                    # reply, or the next quiet turn (at most 5 ms later), or 64 KiB.
+                    if not self._rec_since:
+                        self._rec_since = now
+                    if (
+                        writable
+                        or not self._reply_due
+                        or len(self._rec_buf) >= 1 << 16
+                        or now - self._rec_since >= 0.005
+                    ):
+                        self._flush_rec()
+                        self._rec_since = 0.0
+                if now >= self._next_deadlines:
+                    self._deadlines()
         except Exception as e:  # pragma: no cover - a bug; do not hang the caller
             self.error = e
         finally:
             self._shutdown_all()
 
+    _reply_due = False
+    _rec_since = 0.0
     _reads_paused = False
 
     def _set_paused(self, paused: bool) -> None:
@@ -415,12 +582,7 @@ class RecordingProxy:
                 conn,
                 "",
                 t,
-                {
-                    "transport": "tcp",
-                    "client": format_addr(addr),
-                    "upstream": format_addr(self.upstream),
-                    "local": format_addr(self.address),
-                },
+                _addresses("tcp", addr, self.upstream, self.address),
             )
             self._pairs[client] = pair
             self._pairs[up] = pair
@@ -485,6 +647,12 @@ class RecordingProxy:
                 self._shut(p, to_client=False)
             self._update(p)
             return
+        if mask == _READ:
+            # The hot path: bytes to forward, nothing queued either way.
+            if self._recv(p, from_client=is_client) or p.closed:
+                return
+            self._update(p)
+            return
         if mask & _WRITE:
             self._send(p, to_client=is_client)
             if p.closed:
@@ -495,57 +663,71 @@ class RecordingProxy:
                 return
         self._update(p)
 
-    def _recv(self, p: _Pair, *, from_client: bool) -> None:
+    def _recv(self, p: _Pair, *, from_client: bool) -> bool:
+        """Read and forward; True if the pair's interests cannot have changed."""
         sock = p.client if from_client else p.upstream
         try:
             data = sock.recv(_RECV)
         except (BlockingIOError, InterruptedError):
-            return
+            return True
         except OSError as e:
             who = "client" if from_client else "upstream"
             self._close_pair(p, f"{who} error: {e.strerror or e}")
-            return
+            return False
         t = time.time_ns()
-        if not data:
-            p.first_close = p.first_close or ("client closed" if from_client else "upstream closed")
-            if from_client:
-                p.client_eof = True
-                if not p.to_upstream and p.connected:
-                    self._shut(p, to_client=False)
-            else:
-                p.upstream_eof = True
-                if not p.to_client:
-                    self._shut(p, to_client=True)
-            if (p.client_eof and p.upstream_eof) or (from_client and not p.connected):
-                self._close_pair(p, p.first_close)
-            else:
-                p.deadline = time.monotonic() + self.linger
-            return
-        # Forward first, record second.
-        if from_client:
-            if p.connected and not p.to_upstream:
-                sent = _try_send(p.upstream, data)
+        if data and p.connected:
+            # Forward first, record second: the common case, kept short.
+            buf = p.to_upstream if from_client else p.to_client
+            if not buf:
+                try:
+                    sent = (p.upstream if from_client else p.client).send(data)
+                except (BlockingIOError, InterruptedError):
+                    sent = 0
+                except OSError:
+                    sent = -1
+                if sent == len(data):
+                    if from_client:
+                        self.stats.bytes_c2s += sent
+                        self._reply_due = True
+                        self._put(_DATA, p.conn, C2S, t, data)
+                    else:
+                        self.stats.bytes_s2c += sent
+                        self._put(_DATA, p.conn, S2C, t, data)
+                    return True
                 if sent < 0:
-                    self._close_pair(p, "upstream closed (send failed)", pending=(C2S, t, data))
-                    return
-                if sent < len(data):
-                    p.to_upstream += data[sent:]
+                    who = "upstream" if from_client else "client"
+                    d = C2S if from_client else S2C
+                    self._close_pair(p, f"{who} closed (send failed)", pending=(d, t, data))
+                    return False
+                buf += data[sent:]
             else:
-                p.to_upstream += data
+                buf += data
+            if from_client:
+                self.stats.bytes_c2s += len(data)
+                self._put(_DATA, p.conn, C2S, t, data)
+            else:
+                self.stats.bytes_s2c += len(data)
+                self._put(_DATA, p.conn, S2C, t, data)
+            return False
+        if data:  # from the client, before the upstream connection is up
+            p.to_upstream += data
             self.stats.bytes_c2s += len(data)
             self._put(_DATA, p.conn, C2S, t, data)
+            return False
+        p.first_close = p.first_close or ("client closed" if from_client else "upstream closed")
+        if from_client:
+            p.client_eof = True
+            if not p.to_upstream and p.connected:
+                self._shut(p, to_client=False)
         else:
+            p.upstream_eof = True
             if not p.to_client:
-                sent = _try_send(p.client, data)
-                if sent < 0:
-                    self._close_pair(p, "client closed (send failed)", pending=(S2C, t, data))
-                    return
-                if sent < len(data):
-                    p.to_client += data[sent:]
-            else:
-                p.to_client += data
-            self.stats.bytes_s2c += len(data)
-            self._put(_DATA, p.conn, S2C, t, data)
+                self._shut(p, to_client=True)
+        if (p.client_eof and p.upstream_eof) or (from_client and not p.connected):
+            self._close_pair(p, p.first_close)
+        else:
+            p.deadline = time.monotonic() + self.linger
+        return False
 
     def _send(self, p: _Pair, *, to_client: bool) -> None:
         buf = p.to_client if to_client else p.to_upstream
@@ -575,6 +757,8 @@ class RecordingProxy:
 
     def _deadlines(self) -> None:
         now = time.monotonic()
+        # Timeouts are checked 20 times a second, not on every event.
+        self._next_deadlines = now + 0.05
         seen: set[int] = set()
         for p in list(self._pairs.values()):
             if p.conn in seen or p.closed:
@@ -614,7 +798,7 @@ class RecordingProxy:
             self._pairs.pop(sock, None)
             with contextlib.suppress(OSError):
                 sock.close()
-        self._put(_CLOSE, p.conn, "", time.time_ns(), reason)
+        self._put(_CLOSE, p.conn, "", time.time_ns(), reason.encode("utf-8"))
 
     # ------------------------------------------------------------------ UDP
 
@@ -649,12 +833,7 @@ class RecordingProxy:
                     s.conn,
                     "",
                     t,
-                    {
-                        "transport": "udp",
-                        "client": format_addr(addr),
-                        "upstream": format_addr(self.udp_upstream),
-                        "local": format_addr(self.udp_address),
-                    },
+                    _addresses("udp", addr, self.udp_upstream, self.udp_address),
                 )
             s.last = time.monotonic()
             # UDP: a failed send loses the datagram on the way, as it would without us.
@@ -685,7 +864,7 @@ class RecordingProxy:
         with contextlib.suppress(KeyError, ValueError):
             self._sel.unregister(s.sock)
         s.sock.close()
-        self._put(_CLOSE, s.conn, "", time.time_ns(), reason)
+        self._put(_CLOSE, s.conn, "", time.time_ns(), reason.encode("utf-8"))
 
     # ------------------------------------------------------------------ shutdown
 
@@ -702,6 +881,214 @@ class RecordingProxy:
             if sock is not None:
                 with contextlib.suppress(OSError):
                     sock.close()
+
+
+def _addresses(transport: str, client: Any, upstream: Any, local: Any) -> bytes:
+    """An open event's payload."""
+    doc = {
+        "transport": transport,
+        "client": format_addr(client),
+        "upstream": format_addr(upstream),
+        "local": format_addr(local),
+    }
+    return json.dumps(doc).encode("utf-8")
+
+
+def _write_all(fd: int, data: bytes) -> None:
+    view = memoryview(data)
+    while view:
+        view = view[os.write(fd, view) :]
+
+
+# --------------------------------------------------------------------------- recorder process
+
+
+def _recorder_main(argv: list[str]) -> None:
+    """The recorder process: events from the pipe in, MCAP out (``python -c`` runs this).
+
+    ``argv``: the pipe's read end, the status pipe's write end, the shared counters' file.
+    """
+    # A Ctrl-C or a SIGTERM to the process group is for the proxy: it stops us in order.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    fd, status_fd, shared_fd = (int(a) for a in argv)
+    status = Connection(status_fd, readable=False)
+    shared = mmap.mmap(shared_fd, mmap.PAGESIZE)
+    head = _read_exactly(fd, 4)
+    config = pickle.loads(_read_exactly(fd, struct.unpack("<I", head)[0]))
+    try:
+        writer = RotatingWriter(
+            config["out"],
+            metadata=config["metadata"],
+            split_size=config["split_size"],
+            split_duration_ns=config["split_duration_ns"],
+        )
+    except BaseException as e:
+        status.send(("error", _picklable(e)))
+        return
+    status.send(("ready", writer.paths))
+    out_frames: list[FrameRecord] = []
+    rec = StreamRecorder(
+        writer, specs=config["specs"], on_frame=out_frames.append if config["frames"] else None
+    )
+    _Recorder(config, fd, status, shared, writer, rec, out_frames).run()
+
+
+def _read_exactly(fd: int, n: int) -> bytes:
+    parts = []
+    while n:
+        b = os.read(fd, n)
+        if not b:
+            raise EOFError("the proxy closed the pipe")
+        parts.append(b)
+        n -= len(b)
+    return b"".join(parts)
+
+
+def _picklable(e: BaseException) -> BaseException:
+    try:
+        pickle.loads(pickle.dumps(e))
+    except Exception:
+        return RuntimeError(f"{type(e).__name__}: {e}")
+    return e
+
+
+class _Recorder:
+    """The recorder process's loop (see :func:`_recorder_main`)."""
+
+    def __init__(
+        self,
+        config: Mapping[str, Any],
+        fd: int,
+        status: Connection,
+        shared: mmap.mmap,
+        writer: RotatingWriter,
+        rec: StreamRecorder,
+        out_frames: list[FrameRecord],
+    ) -> None:
+        self.fd = fd
+        self.status = status
+        self.shared = shared
+        self.writer = writer
+        self.rec = rec
+        self.out_frames = out_frames
+        self.parent = config["parent"]
+        self.flush_interval = config["flush_interval"]
+        self.idle_ns = config["idle_resolve_ns"]
+        self.tick = config["record_tick"]
+        self.taken = 0
+        self.error_sent = False
+        self.paths = list(writer.paths)
+
+    def fail(self, e: BaseException) -> None:
+        """The recording failed (disk full...): tell the proxy once, and carry on."""
+        if not self.error_sent:
+            self.error_sent = True
+            with contextlib.suppress(OSError):
+                self.status.send(("error", _picklable(e)))
+
+    def run(self) -> None:
+        import select
+
+        fd = self.fd
+        rec = self.rec
+        buf = bytearray()
+        last_flush = time.monotonic()
+        stopped = eof = False
+        got = True
+        os.set_blocking(fd, False)
+        while not (stopped or eof):
+            # Work in ticks while traffic flows; wait for it when it does not.
+            if got and self.tick:
+                time.sleep(self.tick)
+            else:
+                select.select([fd], [], [], min(0.2, self.flush_interval))
+            got = False
+            # Bounded reads: a recorder far behind leaves the rest in the pipe, and the
+            # proxy, finding the pipe full, stops reading from its sockets.
+            for _ in range(4):
+                try:
+                    chunk = os.read(fd, 1 << 20)
+                except BlockingIOError:
+                    break
+                if not chunk:
+                    eof = True
+                    break
+                got = True
+                buf += chunk
+                stopped = self.events(buf)
+                if stopped or len(chunk) < (1 << 20):
+                    break
+            if os.getppid() != self.parent:
+                eof = True  # the proxy is gone (SIGKILL) and someone else holds the pipe
+            self.publish()
+            now = time.monotonic()
+            if now - last_flush >= self.flush_interval:
+                last_flush = now
+                try:
+                    rec.idle(time.time_ns(), self.idle_ns)
+                    self.writer.flush()
+                except Exception as e:
+                    self.fail(e)
+        if not stopped:
+            try:
+                rec.finish(t_ns=time.time_ns(), reason="proxy died")
+            except Exception as e:
+                self.fail(e)
+        try:
+            self.writer.close()
+        except Exception as e:
+            self.fail(e)
+        self.publish()
+        with contextlib.suppress(OSError):
+            self.status.send(("done", self.writer.paths))
+
+    def events(self, buf: bytearray) -> bool:
+        """Record the whole events in ``buf`` (and remove them); True at the stop event."""
+        rec = self.rec
+        unpack = _EVENT.unpack_from
+        size = _EVENT.size
+        pos = 0
+        end = len(buf)
+        stop = False
+        while end - pos >= size:
+            kind, d, conn, t_ns, n = unpack(buf, pos)
+            if end - pos - size < n:
+                break
+            payload = bytes(buf[pos + size : pos + size + n])
+            pos += size + n
+            try:
+                if kind == _DATA:
+                    self.taken += n
+                    rec.data(conn, _DIR_NAME[d], t_ns, payload)  # type: ignore[arg-type]
+                elif kind == _DGRAM:
+                    self.taken += n
+                    rec.datagram(conn, _DIR_NAME[d], t_ns, payload)  # type: ignore[arg-type]
+                elif kind == _OPEN:
+                    rec.open(conn, t_ns=t_ns, **json.loads(payload))
+                elif kind == _CLOSE:
+                    rec.close(conn, t_ns=t_ns, reason=payload.decode("utf-8"))
+                else:
+                    rec.finish(t_ns=t_ns, reason="proxy stopped")
+                    stop = True
+                    break
+            except Exception as e:
+                self.fail(e)
+        del buf[:pos]
+        return stop
+
+    def publish(self) -> None:
+        """Counters to shared memory, frames (for ``on_frame``) and new paths to the proxy."""
+        _COUNTERS.pack_into(self.shared, 0, self.rec.frames, self.rec.problems, self.taken)
+        try:
+            if self.out_frames:
+                self.status.send(("frames", list(self.out_frames)))
+                self.out_frames.clear()
+            if self.writer.paths != self.paths:
+                self.paths = list(self.writer.paths)
+                self.status.send(("paths", self.paths))
+        except OSError:
+            self.out_frames.clear()  # the proxy is gone: record on regardless
 
 
 def _try_send(sock: socket.socket, data: bytes | bytearray) -> int:
