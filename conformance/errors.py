@@ -43,6 +43,9 @@ class Rule(str, enum.Enum):
     OVERSIZE = "oversize"
     #: Bytes before a frame head that are not a frame (garbage, preamble).
     GARBAGE = "garbage"
+    #: Printable text at the very start of a stream, before any frame (a banner or
+    #: a client's hello): a deviation lenient peers live with.
+    PREAMBLE = "preamble"
     #: NUL padding after a frame (clients sending fixed 4096-byte buffers).
     NUL_PADDING = "nul_padding"
     #: Stream ended inside a frame.

@@ -20,9 +20,9 @@ Two readings:
   a CNT beyond uint16, DATA that is not UTF-8);
 * **strict**: every deviation turns the frame into a :class:`Malformed` event.
 
-Skipped bytes (garbage, a bare preamble, NUL padding after a frame, a broken
-header) always come out as :class:`Malformed` events with the rule that explains
-them, in both readings.
+Skipped bytes (garbage, a bare text preamble at the start of the stream, NUL
+padding after a frame, a broken header) always come out as :class:`Malformed`
+events with the rule that explains them, in both readings.
 """
 
 from __future__ import annotations
@@ -62,6 +62,8 @@ CNT_MAX = 0xFFFF
 # to 4 bytes, three fields of up to 10 digits.
 _MAX_HEADER = 4 + 4 * 4 + 3 * 10
 _MAX_DIGITS = 10
+# A preamble: printable ASCII and line breaks / tabs only.
+_PRINTABLE_RE = re.compile(rb"[\x20-\x7e\r\n\t]+")
 # Progressive header reading: always matches; where it stops tells what broke.
 _HEADER_RE = re.compile(rb"/f/b(I*)(\d*)(I*)(\d*)(I*)(\d*)")
 # The fast path: a standard frame whose DATA (at most 4 KiB here) ends at the first
@@ -306,6 +308,9 @@ class FrameDecoder:
                 rule, detail = Rule.NUL_PADDING, f"{len(chunk)} NUL bytes"
                 if self._frames_seen:
                     detail += " after a frame"
+            elif offset == 0 and _PRINTABLE_RE.fullmatch(chunk):
+                rule = Rule.PREAMBLE
+                detail = f"{len(chunk)} bytes of text before the first frame"
             else:
                 rule = Rule.GARBAGE
                 where = "before the first frame" if not self._frames_seen else "between frames"

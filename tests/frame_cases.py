@@ -83,7 +83,9 @@ LENIENT_CASES: list[tuple[str, bytes, tuple[int, int, str], tuple[str, ...]]] = 
 
 #: Bytes that are never a frame: (id, bytes, rules of the Malformed events expected, in order).
 MALFORMED_CASES: list[tuple[str, bytes, tuple[str, ...]]] = [
-    ("garbage-only", b"hello world", ("garbage",)),
+    ("garbage-only", b"\x01\xfehello", ("garbage",)),
+    ("preamble-only", b"hello world\r\n", ("preamble",)),
+    ("preamble-then-frame", b"HELLO\n/f/bIII1III1III1IIIxIII/b/f", ("preamble",)),
     ("nul-only", b"\x00" * 16, ("nul_padding",)),
     ("non-numeric-cnt", b"/f/bIIIxIII201III1III1III/b/f", ("bad_cnt", "garbage")),
     ("non-numeric-id", b"/f/bIII4IIIabcIII1III1III/b/f", ("bad_cmd_id", "garbage")),

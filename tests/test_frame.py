@@ -126,7 +126,7 @@ def test_preamble_and_nul_padding() -> None:
     events = decode_all(b"HELLO\r\n" + padded + frame)
     kinds = [(type(e).__name__, getattr(e, "rule", None)) for e in events]
     assert kinds == [
-        ("Malformed", Rule.GARBAGE),
+        ("Malformed", Rule.PREAMBLE),
         ("Frame", None),
         ("Malformed", Rule.NUL_PADDING),
         ("Frame", None),
