@@ -13,6 +13,8 @@ For each example of each variant in the specs:
 
 from __future__ import annotations
 
+import re
+
 import pytest
 
 from conformance.data import check_reply
@@ -91,3 +93,19 @@ def test_example(command: Command, variant: Variant, index: int, example: Exampl
             assert example.errata, (
                 f"reply {rep.data!r} does not have the declared shape: {[v.detail for v in verdict.violations]}"
             )
+
+
+def test_no_damaged_call_is_read_as_raw_text() -> None:
+    """A 'raw' variant's DATA is free text; one that starts with the command's name is a
+    call the extraction failed to repair (it would make the emulator accept garbage)."""
+    for c in SPECS:
+        for v in c.variants:
+            if v.form != "raw":
+                continue
+            for e in v.examples:
+                if e.request is None:
+                    continue
+                (req,) = decode_all(e.request.encode("utf-8"))
+                assert isinstance(req, Frame)
+                letters = re.sub(r"[^a-z0-9]", "", req.data.lower())
+                assert not letters.startswith(c.name.lower()[:6]), (c.key, req.data)
