@@ -317,3 +317,18 @@ def test_recovered_rows_elsewhere(specs: SpecSet) -> None:
     assert ks == ["K1", "K2", "K3", "K4", "K5", "K6"]
     (circle,) = specs.by_name("Circle")
     assert len(circle.variants[0].params) == 48
+
+
+def test_every_parameter_and_return_name_is_an_identifier() -> None:
+    """No type, description or OCR debris left in a name ('int16_tport', 'errcode错误码', '')."""
+    import re
+
+    specs = load_specs()
+    names = [
+        (c.key, v.table, name)
+        for c in specs
+        for v in c.variants
+        for name in [p.name for p in v.params] + [r.name for r in v.returns.values]
+    ]
+    bad = [n for n in names if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", n[2])]
+    assert bad == []

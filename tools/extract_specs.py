@@ -20,6 +20,7 @@ with a unified diff when they differ.  Output is deterministic.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import difflib
 import json
 import re
@@ -842,6 +843,13 @@ def normalise_type(printed_type: str, name: str) -> dict[str, Any]:
     m2 = re.match(r"^([A-Za-z_][A-Za-z0-9_]*)\[(\d+)\]$", nm)
     if m2:
         nm, size = m2.group(1), int(m2.group(2))
+    # Text glued to the name: its CJK description ('errcode错误码'), or the type
+    # printed again ('int16_tport', 'float[6]coord[6]').
+    nm = re.sub(r"[^\x00-\x7f]+", "", nm)
+    nm = re.sub(r"^(?:u?int(?:8|16|32|64)_t|(?:float|double|int|char)\[\d+\])(?=[A-Za-z_])", "", nm)
+    m2 = re.match(r"^([A-Za-z_][A-Za-z0-9_]*)\[(\d+)\]$", nm)
+    if m2:
+        nm, size = m2.group(1), int(m2.group(2))
     m3 = re.match(r"^([A-Za-z_][A-Za-z0-9_]*)=\{(.*)\}$", nm)
     if m3:
         nm, size = m3.group(1), len(m3.group(2).split(","))
@@ -1661,7 +1669,25 @@ def check_frame(
         links.append((str(i), e))
 
 
+def recover_name(r: Row) -> Row:
+    """A row whose name cell came out empty: the name slid into the type or description cell.
+
+    'int errcode 错误码' (type cell) -> errcode; 'pointName[128] 目标点位名称...'
+    (description cell) -> pointName[128], description without it.
+    """
+    if normalise_type(r.printed_type, r.name)["name"]:
+        return r
+    words = r.printed_type.split()
+    if len(words) > 1 and re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*(?:\[\d+\])?", words[1]):
+        return dataclasses.replace(r, printed_type=words[0], name=words[1])
+    m = re.match(r"\s*([A-Za-z_][A-Za-z0-9_]*(?:\[\d+\])?)\s+(.*)", r.description, re.S)
+    if m:
+        return dataclasses.replace(r, name=m.group(1), description=m.group(2))
+    return r
+
+
 def row_to_param(r: Row) -> dict[str, Any]:
+    r = recover_name(r)
     t = normalise_type(r.printed_type, r.name)
     p: dict[str, Any] = {"name": t["name"], "type": t["type"], "printed_type": r.printed_type}
     p["length"] = t["length"]
@@ -1699,6 +1725,7 @@ def complete_param(p: dict[str, Any]) -> dict[str, Any]:
 
 
 def row_to_return(r: Row) -> dict[str, Any]:
+    r = recover_name(r)
     t = normalise_type(r.printed_type, r.name)
     return {
         "name": t["name"],
