@@ -273,7 +273,7 @@ def replay_to_target(
                     continue
                 cmd = specs.resolve(item.cmd_id, item.name)
                 c = result.cmd(item.cmd_id, item.name or (cmd.name if cmd else None))
-                ok, why = (safety.loopback, _UNKNOWN) if cmd is None else safety.permits(cmd)
+                ok, why = (safety.loopback, _UNKNOWN) if cmd is None else safety.permits(cmd, specs)
                 if not ok:
                     c.skipped[why] = c.skipped.get(why, 0) + 1
                     continue

@@ -11,7 +11,9 @@ safety class (specs) and the target, whether the kit may send it:
   ``allow_motion`` (which also covers program control, since programs move the
   arm) opt in; destructive commands only when named one by one.
 
-Every refusal carries a reason, reported as SKIPPED.
+A command whose ID the manual also gives to another command is judged by the more
+dangerous of the two, since the controller may read the ID either way.  Every
+refusal carries a reason, reported as SKIPPED.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ import ipaddress
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
-from .spec import Command, Safety
+from .spec import Command, Safety, SpecSet
 
 __all__ = ["SafetyPolicy", "is_loopback"]
 
@@ -69,8 +71,25 @@ class SafetyPolicy:
     def named(self, command: Command) -> bool:
         return command.name.lower() in self.destructive or str(command.cmd_id) in self.destructive
 
-    def permits(self, command: Command) -> tuple[bool, str]:
-        """(allowed, reason when not)."""
+    def permits(self, command: Command, specs: SpecSet | None = None) -> tuple[bool, str]:
+        """(allowed, reason when not).
+
+        With ``specs``, a command is judged with every command the manual gives its
+        ID: a controller may read ID 1042 as SingularAvoidStart when we mean the
+        query GetGripperRotNum, so the most dangerous reading decides.
+        """
+        ok, why = self._permits_one(command)
+        if not ok or specs is None:
+            return ok, why
+        for other in specs.by_id(command.cmd_id):
+            if other is command:
+                continue
+            ok, why = self._permits_one(other)
+            if not ok:
+                return False, f"ID {command.cmd_id} is also {other.name} in the manual: {why}"
+        return True, ""
+
+    def _permits_one(self, command: Command) -> tuple[bool, str]:
         s = command.safety
         if self.embedded:
             return True, ""

@@ -371,7 +371,7 @@ class SuiteRunner:
 
     def _run(self, case: Case) -> Verdict:
         if case.command is not None:
-            ok, why = self.config.safety.permits(case.command)
+            ok, why = self.config.safety.permits(case.command, self.specs)
             if not ok:
                 return Verdict(outcome=Outcome.SKIPPED, detail=why)
         if self.dead is not None:
