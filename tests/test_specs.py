@@ -332,3 +332,22 @@ def test_every_parameter_and_return_name_is_an_identifier() -> None:
     ]
     bad = [n for n in names if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", n[2])]
     assert bad == []
+
+
+def test_enums_have_no_gaps_the_manual_does_not_print() -> None:
+    """A gap in an enum's values usually means an item was swallowed by its neighbour's label.
+
+    StartJOG's motionCmd really is 0, 2, 4 (joint, base, tool frames).
+    """
+    specs = load_specs()
+    printed_gaps = {("2.4", "motionCmd")}
+    gaps = []
+    for c in specs:
+        for v in c.variants:
+            for p in v.params:
+                vals = sorted(int(x) for x, _ in p.enum or () if isinstance(x, (int, float)))
+                if vals and vals != list(range(vals[0], vals[-1] + 1)):
+                    gaps.append((c.key, p.name, vals))
+    assert [g for g in gaps if g[:2] not in printed_gaps] == []
+    (jog,) = specs.lookup("ExtAxisStartJog")
+    assert [x for x, _ in jog.variants[0].params[0].enum or ()] == list(range(11))

@@ -903,8 +903,10 @@ def parse_range(desc: str) -> list[dict[str, float | int]] | None:
 def parse_enum(desc: str) -> list[dict[str, Any]] | None:
     d = desc.translate(LOOKALIKES)
     items = re.findall(
-        rf"(?:^|[,;，；\s(（]|[{CJK}])(-?\d+)\s*(?:-|:|：|—|为)\s*([^,;，；\d\s()（）][^,;，；()（）]*?)"
-        rf"(?=\s*(?:[,;，；)）]|$|\s-?\d+\s*(?:-|:|：)))",
+        rf"(?:^|[,;，；:：\s(（]|[{CJK}])(-?\d+)\s*(?:-|:|：|—|为)\s*([^,;，；\d\s()（）][^,;，；()（）]*?)"
+        # An item ends at a separator, or where the next 'N:' starts, even after a
+        # colon typed for a comma ('...减速停止:2:基坐标开始', table 7-4-8).
+        rf"(?=\s*(?:[,;，；)）]|$|\s-?\d+\s*(?:-|:|：)|[:：]-?\d+\s*[:：]))",
         d,
     )
     if len(items) < 2:
