@@ -1,0 +1,94 @@
+"""Requests and replies judged against the specs; the three forms a refusal takes."""
+
+from __future__ import annotations
+
+import pytest
+
+from conformance.errors import Rule
+from conformance.frame import Frame, decode_all, encode_frame
+from conformance.spec import Returns, default_specs
+from conformance.validate import RefusalForm, classify_reply, validate_reply, validate_request
+
+SPECS = default_specs()
+
+
+def returns_of(name: str) -> Returns:
+    return SPECS.lookup(name)[0].variants[0].returns
+
+
+def frame(raw: bytes) -> Frame:
+    (f,) = decode_all(raw)
+    assert isinstance(f, Frame)
+    return f
+
+
+@pytest.mark.parametrize(
+    ("data", "refused", "form", "code"),
+    [
+        ("1", False, None, None),
+        ("0", True, RefusalForm.ZERO, 0),
+        ("4", True, RefusalForm.ERRCODE, 4),
+        ("robot errcode:14", True, RefusalForm.TEXT, 14),
+        ("Robot ErrCode = 3", True, RefusalForm.TEXT, 3),
+    ],
+)
+def test_errcode_only_replies(
+    data: str, refused: bool, form: RefusalForm | None, code: int | None
+) -> None:
+    v = classify_reply(returns_of("SetDO"), data, SPECS)
+    assert (v.refused, v.form, v.code) == (refused, form, code)
+    assert v.ok is (not refused)
+
+
+def test_errcode_only_reply_of_wrong_shape_is_not_a_refusal() -> None:
+    v = classify_reply(returns_of("SetDO"), "1,0", SPECS)
+    assert not v.refused and v.violations and v.violations[0].rule is Rule.REPLY_SHAPE
+
+
+def test_query_replies() -> None:
+    joints = returns_of("GetActualJointPosDegree")
+    assert classify_reply(joints, "1.0,2,3,4,5,6.5", SPECS).ok
+    code = classify_reply(joints, "4", SPECS)  # a lone chapter 9 code instead of six values
+    assert (code.refused, code.form, code.code) == (True, RefusalForm.ERRCODE, 4)
+    text = classify_reply(joints, "robot errcode:3", SPECS)
+    assert (text.refused, text.form) == (True, RefusalForm.TEXT)
+    short = classify_reply(joints, "1,2,3", SPECS)
+    assert not short.refused and short.violations[0].rule is Rule.REPLY_SHAPE
+
+
+def test_one_value_query_zero_is_a_value_not_a_refusal() -> None:
+    assert classify_reply(returns_of("GetDI"), "0", SPECS).ok
+
+
+def test_valid_request() -> None:
+    check = validate_request(frame(encode_frame(1, 204, "SetDO(0,1,0,0)")), SPECS)
+    assert check.ok and check.command is not None and check.command.name == "SetDO"
+    assert check.variant is not None and check.name == "SetDO"
+
+
+@pytest.mark.parametrize(
+    ("raw", "rules"),
+    [
+        (encode_frame(1, 65000, "Nope()"), {Rule.UNKNOWN_COMMAND}),
+        (encode_frame(1, 204, "GetDI(0,0)"), {Rule.NAME_MISMATCH}),
+        (encode_frame(1, 204, "SetDO(0,1,0)"), {Rule.ARG_COUNT}),
+        (encode_frame(1, 204, 'SetDO(0,"x",0,0)'), {Rule.ARG_TYPE}),
+        (encode_frame(1, 206, "SetSpeed(300)"), {Rule.ARG_RANGE}),
+        (encode_frame(1, 204, "SetDO(0, 1, 0, 0)"), {Rule.SPACE_IN_ARGS}),
+        (b"/f/bIII1III204III3IIISetDO(0,1,0,0)III/b/f", {Rule.LEN_MISMATCH}),
+        (encode_frame(1, 204, "SetDO(0,1"), {Rule.BAD_DATA}),
+    ],
+)
+def test_request_departures_name_their_rule(raw: bytes, rules: set[Rule]) -> None:
+    check = validate_request(frame(raw), SPECS)
+    assert {v.rule for v in check.violations} >= rules
+    assert not check.ok
+
+
+def test_reply_must_echo_cnt_and_cmd_id() -> None:
+    req = frame(encode_frame(7, 204, "SetDO(0,1,0,0)"))
+    variant = SPECS.lookup("SetDO")[0].variants[0]
+    verdict, framing = validate_reply(req, frame(encode_frame(7, 204, "1")), variant, SPECS)
+    assert verdict.ok and framing == []
+    _, framing = validate_reply(req, frame(encode_frame(8, 205, "1")), variant, SPECS)
+    assert {v.rule for v in framing} == {Rule.BAD_CNT, Rule.BAD_CMD_ID}
