@@ -1,0 +1,57 @@
+"""The public Hypothesis strategies generate what their docstrings say."""
+
+from __future__ import annotations
+
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from conformance.data import Array, Call, Number, parse_data
+from conformance.frame import Frame, decode_all
+from conformance.spec import Param, default_specs
+from conformance.strategies import cnts, invalid_kinds, param_values, request_frames
+from conformance.validate import validate_request
+
+SPECS = default_specs()
+PARAMS: list[Param] = [p for c in SPECS for v in c.variants for p in v.params]
+
+
+@settings(max_examples=300, suppress_health_check=[HealthCheck.too_slow])
+@given(raw=request_frames(SPECS))
+def test_request_frames_are_valid_requests(raw: bytes) -> None:
+    (f,) = decode_all(raw, strict=True)
+    assert isinstance(f, Frame)
+    check = validate_request(f, SPECS, strict=True)
+    assert check.ok, [v.detail for v in check.violations]
+
+
+@settings(max_examples=300)
+@given(data=st.data())
+def test_param_values_stay_in_their_domain(data: st.DataObject) -> None:
+    p = data.draw(st.sampled_from(PARAMS))
+    value = data.draw(param_values(p))
+    values = value if isinstance(value, list) else [value]
+    if p.is_array:
+        assert len(values) == p.length
+    for x in values:
+        assert isinstance(x, (int, float, str)) and p.allows(x), (p.name, x)
+        if isinstance(x, float):
+            assert round(x, 3) == x  # at most 3 decimals, as the manual writes them
+
+
+@given(cnt=cnts())
+def test_cnts_are_uint16(cnt: int) -> None:
+    assert 0 <= cnt <= 0xFFFF
+
+
+def test_invalid_kinds_only_where_the_table_allows() -> None:
+    setdo = SPECS.lookup("SetDO")[0]
+    assert set(invalid_kinds(setdo, setdo.variants[0])) == {"count", "type", "range"}
+    stop = SPECS.lookup("STOP")[0]
+    assert invalid_kinds(stop, stop.variants[0]) == ()
+
+
+def test_parsed_generated_numbers_keep_their_type() -> None:
+    parsed = parse_data("X({1,2.500},3)")
+    assert isinstance(parsed, Call)
+    first, second = parsed.args
+    assert isinstance(first, Array) and isinstance(second, Number) and second.is_int
