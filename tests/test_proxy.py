@@ -127,6 +127,8 @@ def test_forwards_and_records_both_directions(tmp_path: Path, upstream: Upstream
                 (reply,) = recv_frames(c, 1)
                 assert (reply.cnt, reply.cmd_id, reply.data) == (i, 201, "1")
         wait_for(lambda: p.stats.closed == 1)
+    # The counters outlive the recorder process (the CLI prints them after close).
+    assert p.recorder.frames == 40
     rec = read_recording(out)
     assert rec.complete
     req = [f for f in rec.frames if f.dir == "c2s"]

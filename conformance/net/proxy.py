@@ -160,8 +160,15 @@ class RecorderCounters:
 
     def __init__(self, shared: mmap.mmap) -> None:
         self._shared = shared
+        self._final: tuple[int, int, int] | None = None
+
+    def freeze(self) -> None:
+        """Keep the last values: the shared memory is about to be closed."""
+        self._final = self._get()
 
     def _get(self) -> tuple[int, int, int]:
+        if self._final is not None:
+            return self._final
         try:
             return _COUNTERS.unpack_from(self._shared)  # type: ignore[return-value]
         except ValueError:  # closed
@@ -445,6 +452,7 @@ class RecordingProxy:
                 self.error = RuntimeError(f"the recorder process ended early (exit code {code})")
         if self._status is not None:
             self._status.close()
+        self.recorder.freeze()
         self._shared.close()
         self._shared_file.close()
 
