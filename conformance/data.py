@@ -124,11 +124,10 @@ def _error(msg: str, data: str) -> RemoteProtocolError:
 
 
 class _ArgParser:
-    def __init__(self, text: str, *, strict: bool, sep: str = ",") -> None:
+    def __init__(self, text: str, *, strict: bool) -> None:
         self.s = text
         self.i = 0
         self.strict = strict
-        self.sep = sep
         self.spaces = False
 
     def skip_ws(self) -> None:
@@ -143,7 +142,7 @@ class _ArgParser:
 
     def items(self, close: str | None) -> list[Arg]:
         """Comma-separated items up to ``close`` (or end of text when None)."""
-        if close is None and self.sep == "," and _SIMPLE_LIST_RE.fullmatch(self.s, self.i):
+        if close is None and _SIMPLE_LIST_RE.fullmatch(self.s, self.i):
             # Fast path: a flat list of numbers and bare words, no spaces or nesting.
             out: list[Arg] = [
                 Number.of(t) if _NUMBER_RE.fullmatch(t) else Text(value=t, quoted=False)
@@ -163,7 +162,7 @@ class _ArgParser:
             out.append(self.item())
             self.skip_ws()
             c = self.peek()
-            if c == self.sep and self.sep != " ":
+            if c == ",":
                 self.i += 1
                 continue
             if close is not None and c == close:
@@ -182,10 +181,7 @@ class _ArgParser:
         c = self.peek()
         if c == "{":
             self.i += 1
-            saved, self.sep = self.sep, ","
-            items = self.items("}")
-            self.sep = saved
-            return Array(items=tuple(items))
+            return Array(items=tuple(self.items("}")))
         if c == '"':
             end = self.s.find('"', self.i + 1)
             if end < 0:
