@@ -47,7 +47,6 @@ __all__ = [
     "format_number",
     "format_value",
     "match_variant",
-    "parse_args",
     "parse_data",
     "parse_reply",
     "to_python",
@@ -205,13 +204,6 @@ def _number_value(token: str) -> int | float:
     if "." in token or "e" in token or "E" in token:
         return float(token)
     return int(token)
-
-
-def parse_args(text: str, *, strict: bool = False) -> tuple[tuple[Arg, ...], bool]:
-    """Parse a bare argument list ``a,b,{c,d}``; returns (args, had_spaces)."""
-    p = _ArgParser(text, strict=strict)
-    items = p.items(None)
-    return tuple(items), p.spaces
 
 
 def parse_data(data: str, *, strict: bool = False) -> Parsed:

@@ -12,10 +12,8 @@ from dataclasses import dataclass, field
 
 from .data import (
     Call,
-    Keyword,
     Number,
     Parsed,
-    RawData,
     Violation,
     check_reply,
     match_variant,
@@ -199,7 +197,3 @@ def validate_reply(
     if variant is None:
         return ReplyVerdict(refused=False), framing
     return classify_reply(variant.returns, reply.data, specs), framing
-
-
-def is_keyword_or_raw(parsed: Parsed | None) -> bool:
-    return isinstance(parsed, (Keyword, RawData))
