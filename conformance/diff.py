@@ -11,7 +11,7 @@ one recording, replies that differ, and latency changes.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -407,10 +407,3 @@ def _show(e: Exchange) -> str:
     f = e.request or e.reply
     assert f is not None
     return f.raw.decode("utf-8", "replace")
-
-
-def differences_by_command(diffs: Sequence[Difference]) -> dict[int, list[Difference]]:
-    out: dict[int, list[Difference]] = {}
-    for d in diffs:
-        out.setdefault(d.cmd_id, []).append(d)
-    return out

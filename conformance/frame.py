@@ -144,10 +144,6 @@ class Frame(_FrameFields):
     def data_len(self) -> int:
         return len(self.data.encode("utf-8"))
 
-    @property
-    def len_field(self) -> int:
-        return self.data_len if self.length is None else self.length
-
     def encode(self) -> bytes:
         """The frame's bytes with LEN computed from DATA (the raw bytes if it was decoded)."""
         return self.raw or encode_frame(self.cnt, self.cmd_id, self.data)

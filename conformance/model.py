@@ -145,8 +145,12 @@ def _pair(
     if not fields:
         return None
     return StatePair(
-        setter=setter, setter_variant=sv, getter=getter, getter_variant=gv,
-        keys=tuple(keys), fields=tuple(fields),
+        setter=setter,
+        setter_variant=sv,
+        getter=getter,
+        getter_variant=gv,
+        keys=tuple(keys),
+        fields=tuple(fields),
     )
 
 
@@ -181,9 +185,6 @@ class MotionTargets:
     joints: tuple[int, ...] | None = None
     tcp: tuple[int, ...] | None = None
     tcp_array: int | None = None
-
-    def joint_values(self, args: Sequence[float]) -> list[float] | None:
-        return None if self.joints is None else [float(args[i]) for i in self.joints]
 
 
 def _last_complete(params: Sequence[str], names: Sequence[str]) -> tuple[int, ...] | None:
@@ -347,9 +348,7 @@ _CODE_FOR = {
     Rule.BAD_DATA: ERR_ARG_VALUE,
 }
 #: Framing deviations a lenient decoder tolerates but the emulator refuses (1.1).
-_FRAMING = frozenset(
-    {Rule.LEN_MISMATCH, Rule.BAD_SEPARATOR, Rule.BAD_CNT, Rule.BAD_ENCODING}
-)
+_FRAMING = frozenset({Rule.LEN_MISMATCH, Rule.BAD_SEPARATOR, Rule.BAD_CNT, Rule.BAD_ENCODING})
 
 
 class Controller:

@@ -208,9 +208,7 @@ class Report:
 
     def render_terminal(self, *, width: int = 100, only_failures: bool = False) -> str:
         """Per-command table, failures first."""
-        rows = sorted(
-            self.commands().values(), key=lambda s: (_SEVERITY[s.outcome], s.cmd_id)
-        )
+        rows = sorted(self.commands().values(), key=lambda s: (_SEVERITY[s.outcome], s.cmd_id))
         lines = [f"{'ID':>5}  {'name':<34} {'outcome':<14} counts"]
         for s in rows:
             if only_failures and s.outcome in (Outcome.PASS, Outcome.SKIPPED):

@@ -125,21 +125,6 @@ def _erratum_json(e: Any) -> dict[str, Any]:
     }
 
 
-def _signature(c: Command) -> str:
-    sigs = []
-    for v in c.variants:
-        if v.form == "keyword":
-            sigs.append(c.name)
-        elif v.form == "raw":
-            sigs.append(f"{c.name} <text>")
-        else:
-            params = ",".join(
-                f"{p.type}{f'[{p.length}]' if p.length else ''} {p.name}" for p in v.params
-            )
-            sigs.append(f"{c.name}({params})")
-    return " | ".join(sigs)
-
-
 def _run_specs(args: argparse.Namespace) -> int:
     specs = _specs(args)
     out = sys.stdout

@@ -297,8 +297,4 @@ def _shutdown(s: socket.socket) -> None:
         s.close()
 
 
-def describe_faults(faults: Iterable[Fault]) -> str:
-    return ", ".join(str(f) for f in faults) or "none"
-
-
 _ = FaultKind, parse_fault  # re-exported
