@@ -258,6 +258,15 @@ def _suite_config(config: pytest.Config) -> SuiteConfig:
         seed = int(seed_opt) if seed_opt is not None else random.getrandbits(32)
     except ValueError:
         raise pytest.UsageError(f"--hypothesis-seed must be an integer, not {seed_opt!r}") from None
+    hyp_profile = config.getoption("hypothesis_profile", default=None)
+    if hyp_profile is not None:
+        from hypothesis import settings
+        from hypothesis.errors import InvalidArgument
+
+        try:
+            settings.get_profile(hyp_profile)
+        except InvalidArgument as e:
+            raise pytest.UsageError(f"--hypothesis-profile: {e}") from None
     host = target[0] if target else None
     safety = SafetyPolicy.for_target(
         host,
@@ -290,6 +299,7 @@ def _suite_config(config: pytest.Config) -> SuiteConfig:
         safety=safety,
         emulator_faults=tuple(config.getoption("fairino_emulator_fault")),
         expected_failures=load_expected_failures(expected) if expected else frozenset(),
+        hypothesis_profile=hyp_profile,
     )
 
 

@@ -174,3 +174,29 @@ def test_shell_printf_reproduces_the_bytes() -> None:
         ["sh", "-c", f"printf {shell_printf(raw)}"], capture_output=True, check=True
     )
     assert out.stdout == raw
+
+
+def test_hypothesis_profile_passes_through() -> None:
+    """``--hypothesis-profile NAME``: its example count replaces the kit profile's."""
+    from types import SimpleNamespace
+
+    import hypothesis
+    from hypothesis import Phase
+
+    from conformance.suite.cases import _settings
+    from conformance.suite.config import PROFILES
+
+    hypothesis.settings.register_profile(
+        "fairino-test-three", max_examples=3, phases=[Phase.generate]
+    )
+    kit = SimpleNamespace(
+        config=SimpleNamespace(hypothesis_profile=None, profile=PROFILES["default"])
+    )
+    own = _settings(kit, 10)  # type: ignore[arg-type]
+    assert own.max_examples == 10 and Phase.shrink in own.phases
+    named = SimpleNamespace(
+        config=SimpleNamespace(hypothesis_profile="fairino-test-three", profile=PROFILES["default"])
+    )
+    theirs = _settings(named, 10)  # type: ignore[arg-type]
+    assert theirs.max_examples == 3 and Phase.shrink not in theirs.phases
+    assert theirs.deadline is None and theirs.database is None  # the kit's, for network cases

@@ -47,8 +47,20 @@ PROTOCOL = "protocol"
 
 
 def _settings(runner: SuiteRunner, n: int) -> hypothesis.settings:
+    """Per-case settings: the kit profile's example count, or a Hypothesis profile's.
+
+    With ``--hypothesis-profile NAME`` that profile's ``max_examples``, phases and
+    verbosity apply; deadline, database and health checks stay the kit's, since
+    every example is a network exchange.
+    """
+    verbosity = hypothesis.Verbosity.quiet
     phases = [Phase.explicit, Phase.reuse, Phase.generate]
-    if runner.config.profile.shrink:
+    if runner.config.hypothesis_profile:
+        base = hypothesis.settings.get_profile(runner.config.hypothesis_profile)
+        n = base.max_examples
+        phases = [p for p in base.phases if p is not Phase.target and p is not Phase.explain]
+        verbosity = base.verbosity
+    elif runner.config.profile.shrink:
         phases.append(Phase.shrink)
     return hypothesis.settings(
         max_examples=max(1, n),
@@ -59,7 +71,7 @@ def _settings(runner: SuiteRunner, n: int) -> hypothesis.settings:
         suppress_health_check=list(HealthCheck),
         phases=phases,
         print_blob=False,
-        verbosity=hypothesis.Verbosity.quiet,
+        verbosity=verbosity,
     )
 
 

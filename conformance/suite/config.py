@@ -87,6 +87,8 @@ class SuiteConfig:
     #: Faults for the in-process emulator (to test the suite itself).
     emulator_faults: tuple[str, ...] = ()
     expected_failures: frozenset[str] = frozenset()
+    #: ``--hypothesis-profile``: its example counts replace the kit profile's.
+    hypothesis_profile: str | None = None
 
     def __post_init__(self) -> None:
         if self.transport not in ("tcp", "udp"):
