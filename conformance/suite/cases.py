@@ -29,6 +29,7 @@ from ..model import (
     flat_returns,
     motion_targets,
 )
+from ..net.client import Exchange
 from ..report import Outcome
 from ..spec import TYPE_BOUNDS, Command, SpecSet, Variant
 from ..strategies import garbage, invalid_calls, invalid_kinds, valid_args, valid_calls
@@ -522,16 +523,20 @@ def _run_pipelined(runner: SuiteRunner, case: Case) -> Verdict:
         ex = client.await_reply(c, cmd.cmd_id, request=raw)
         if ex.reply is None:
             runner.drop_client()
-        try:
-            runner.judge(ex, variant)
-        except CaseFailure as f:
-            raise CaseFailure(
-                Outcome.FAIL,
-                f"3 frames in one segment, reply to CNT {c}: {f.verdict.detail}",
-                frames=f.verdict.frames,
-                raw=raw,
-            ) from None
+        _judge_in(runner, ex, variant, f"3 frames in one segment, reply to CNT {c}", raw)
     return Verdict(outcome=Outcome.PASS)
+
+
+def _judge_in(
+    runner: SuiteRunner, ex: Exchange, variant: Variant, context: str, raw: bytes
+) -> None:
+    """Judge a reply of a transport case; a failure names the context and the bytes sent."""
+    try:
+        runner.judge(ex, variant)
+    except CaseFailure as f:
+        raise CaseFailure(
+            Outcome.FAIL, f"{context}: {f.verdict.detail}", frames=f.verdict.frames, raw=raw
+        ) from None
 
 
 def _run_split(runner: SuiteRunner, case: Case) -> Verdict:
@@ -541,15 +546,7 @@ def _run_split(runner: SuiteRunner, case: Case) -> Verdict:
     cnt = client.next_cnt()
     raw = encode_frame(cnt, cmd.cmd_id, default_data(cmd, variant))
     ex = runner.send_raw_exchange(raw, cnt, cmd.cmd_id, chunk=1)
-    try:
-        runner.judge(ex, variant)
-    except CaseFailure as f:
-        raise CaseFailure(
-            Outcome.FAIL,
-            f"frame sent byte by byte: {f.verdict.detail}",
-            frames=f.verdict.frames,
-            raw=raw,
-        ) from None
+    _judge_in(runner, ex, variant, "frame sent byte by byte", raw)
     return Verdict(outcome=Outcome.PASS)
 
 
