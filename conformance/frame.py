@@ -27,7 +27,6 @@ events with the rule that explains them, in both readings.
 
 from __future__ import annotations
 
-import functools
 import re
 from dataclasses import dataclass, field
 from typing import NamedTuple
@@ -66,19 +65,13 @@ _MAX_DIGITS = 10
 _PRINTABLE_RE = re.compile(rb"[\x20-\x7e\r\n\t]+")
 # Progressive header reading: always matches; where it stops tells what broke.
 _HEADER_RE = re.compile(rb"/f/b(I*)(\d*)(I*)(\d*)(I*)(\d*)")
-# The fast path: a standard frame whose DATA (at most 4 KiB here) ends at the first
-# tail.  A match only counts when DATA has LEN bytes, so it reads exactly what the
-# LEN-driven path would; the bound keeps a rescan of an incomplete frame cheap.
-_FAST_DATA_MAX = 4096
-# Header bytes at most: head, four III, CNT (5 digits), CMD_ID and LEN (10 each), tail.
-_FAST_OVERHEAD = 4 + 4 * 3 + 5 + 10 + 10 + 7
-
-
-@functools.lru_cache(maxsize=8)
-def _fast_frame_re(data_max: int) -> re.Pattern[bytes]:
-    return re.compile(
-        rb"(/f/bIII(\d{1,5})III(\d{1,10})III(\d{1,10})III(.{0,%d}?)III/b/f)" % data_max, re.S
-    )
+# The fast path: a standard header, read at the parse position only (an anchored
+# match: a search would rescan the rest of the buffer for every frame, which made
+# decoding quadratic on a stream of headers), then LEN says where the tail must be.
+# It accepts exactly what the careful path's standard reading accepts, and leaves
+# everything else (garbage, a deviation, an incomplete frame) to that path.
+_FAST_HEAD_RE = re.compile(rb"/f/bIII(\d{1,5})III(\d{1,10})III(\d{1,10})III")
+_FAST_END = b"III/b/f"
 
 
 _HEADER_FIELDS = (
@@ -190,6 +183,17 @@ def encode_frame(cnt: int, cmd_id: int, data: str | bytes) -> bytes:
     )
 
 
+class _Pending(NamedTuple):
+    """A frame whose header is read and which waits for more bytes."""
+
+    offset: int  # stream offset of its head
+    header_size: int  # head up to the end of LEN's digits
+    cnt: int
+    cmd_id: int
+    length: int
+    problems: tuple[Rule, ...]
+
+
 def _prefix_overlap(buf: bytearray, start: int) -> int:
     """How many trailing bytes of ``buf[start:]`` could begin a frame head."""
     for k in (3, 2, 1):
@@ -223,8 +227,17 @@ class FrameDecoder:
         self._frames_seen = 0
         self._events: list[Event] = []
         self._closed = False
-        # DATA bound of the fast path: never a frame larger than max_frame_size.
-        self._fast = _fast_frame_re(min(_FAST_DATA_MAX, max_frame_size - _FAST_OVERHEAD))
+        # A frame waiting for more bytes, so that each feed costs what it adds and
+        # not what is already buffered (a 256 KB frame fed a byte at a time was
+        # quadratic): its stream offset and header, read once ...
+        self._pending: _Pending | None = None
+        # ... the stream offset below which feeding cannot decide anything (its LEN
+        # bytes and tail are not in yet), and how far the searches for its tail and
+        # for the next head have got (stream offsets; -1 = not found yet).
+        self._need = 0
+        self._tail_scan = 0
+        self._head_scan = 0
+        self._head_found = -1
 
     # ------------------------------------------------------------------ public API
 
@@ -244,7 +257,8 @@ class FrameDecoder:
             raise RuntimeError("feed() after close()")
         if data:
             self._buf += data
-            self._parse(final=False)
+            if self._base + len(self._buf) >= self._need:
+                self._parse(final=False)
         return self._take()
 
     def resolve_pending(self) -> list[Event]:
@@ -280,16 +294,28 @@ class FrameDecoder:
         """Add ``_buf[start:end]`` to the pending skipped run, flushing full chunks."""
         if end <= start:
             return
-        if not self._run:
+        run = self._run
+        if not run:
             self._run_offset = self._base + start
             self._run_rule, self._run_detail = rule, detail
-        self._run += self._buf[start:end]
         limit = self.max_frame_size
-        while len(self._run) >= limit:
-            chunk = bytes(self._run[:limit])
-            del self._run[:limit]
-            self._emit_run(chunk, self._run_offset)
+        room = limit - len(run)
+        if end - start < room:
+            run += self._buf[start:end]
+            return
+        # Full chunks are cut from the buffer directly: cutting them one by one off
+        # the front of a long run would copy the rest of it each time.
+        buf = self._buf
+        run += buf[start : start + room]
+        self._emit_run(bytes(run), self._run_offset)
+        run.clear()
+        s = start + room
+        self._run_offset += limit
+        while end - s >= limit:
+            self._emit_run(bytes(buf[s : s + limit]), self._run_offset)
+            s += limit
             self._run_offset += limit
+        run += buf[s:end]
 
     def _flush_run(self) -> None:
         if self._run:
@@ -319,34 +345,47 @@ class FrameDecoder:
         buf = self._buf
         n = len(buf)
         append = self._events.append
-        frames = self._fast.finditer
+        header = _FAST_HEAD_RE.match
         new = tuple.__new__
         base = self._base
         pos = self._pos
         run = self._run
+        max_size = self.max_frame_size
         try:
             while pos < n:
                 # Fast path: standard frames back to back, each tail where LEN says.
-                # The regex engine does the scanning; anything unusual (garbage, a
-                # deviation, an incomplete frame) leaves for the careful path below.
+                # A frame already known to be pending goes straight to the careful
+                # path, which remembers what it has read of it.
                 fast_from = pos
-                for m in frames(buf, pos):
-                    if m.start() != pos:
+                pending = self._pending
+                while pending is None or pending.offset != base + pos:
+                    m = header(buf, pos)
+                    if m is None:
                         break
-                    raw, c, i, ln, payload = m.groups()
+                    c, i, ln = m.groups()
+                    ds = m.end()
                     length = int(ln)
+                    de = ds + length
+                    end = de + 7
                     cnt = int(c)
-                    if len(payload) != length or cnt > CNT_MAX:
-                        break  # the first tail is not where LEN says: careful path
+                    if (
+                        end > n
+                        or end - pos > max_size
+                        or cnt > CNT_MAX
+                        or not buf.startswith(_FAST_END, de)
+                    ):
+                        break  # incomplete, too large, or not where LEN says: careful path
                     try:
-                        data = payload.decode("utf-8")
+                        data = buf[ds:de].decode("utf-8")
                     except UnicodeDecodeError:
                         break
                     if run:
                         self._flush_run()
                     # Fields are checked above: skip Frame.__new__'s validation.
-                    append(new(Frame, (cnt, int(i), data, length, raw, (), base + pos)))
-                    pos += len(raw)
+                    append(
+                        new(Frame, (cnt, int(i), data, length, bytes(buf[pos:end]), (), base + pos))
+                    )
+                    pos = end
                 if pos != fast_from:
                     self._frames_seen += 1  # only "any frame yet?" matters
                 if pos >= n:
@@ -364,6 +403,8 @@ class FrameDecoder:
                 if nxt is None:
                     pos = head
                     break
+                self._pending = None
+                self._need = 0
                 pos = nxt
         finally:
             self._pos = pos
@@ -375,8 +416,8 @@ class FrameDecoder:
             self._base += self._pos
             self._pos = 0
 
-    def _frame_at(self, i: int, *, final: bool, quiet: bool) -> int | None:
-        """Decode the frame whose head is at ``i``; return where parsing goes on, or None to wait."""
+    def _read_header(self, i: int, *, final: bool) -> _Pending | int | None:
+        """The header at ``i``: its fields, or where parsing goes on after a broken one, or None to wait."""
         buf = self._buf
         m = _HEADER_RE.match(buf, i)
         assert m is not None  # every group may be empty
@@ -408,7 +449,22 @@ class FrameDecoder:
         cnt, cmd_id, length = int(groups[1]), int(groups[3]), int(groups[5])
         if cnt > CNT_MAX:
             problems.append(Rule.BAD_CNT)
-        p = hdr_end  # first byte after LEN's digits: the last separator
+        # Everything above is final: a non-digit follows LEN.
+        return _Pending(self._base + i, hdr_end - i, cnt, cmd_id, length, tuple(problems))
+
+    def _frame_at(self, i: int, *, final: bool, quiet: bool) -> int | None:
+        """Decode the frame whose head is at ``i``; return where parsing goes on, or None to wait."""
+        buf = self._buf
+        pending = self._pending
+        if pending is None or pending.offset != self._base + i:
+            got = self._read_header(i, final=final)
+            if not isinstance(got, _Pending):
+                return got
+            pending = self._pending = got
+            self._tail_scan = self._head_scan = 0
+            self._head_found = -1
+        _, header_size, cnt, cmd_id, length, problems = pending
+        p = i + header_size  # first byte after LEN's digits: the last separator
         run = 0
         while p + run < len(buf) and run < 5 and buf[p + run] == 0x49:  # b"I"
             run += 1
@@ -418,7 +474,6 @@ class FrameDecoder:
             self._skip(i, p, Rule.BAD_SEPARATOR, "no separator after LEN")
             self._flush_run()
             return p
-        header_size = p - i
         waiting_ok = not (final or quiet)
         if header_size + 3 + length + 7 <= self.max_frame_size:
             # LEN-driven: the tail must follow DATA exactly.  The standard reading
@@ -427,11 +482,14 @@ class FrameDecoder:
             ds, de = p + 3, p + 3 + length
             if len(buf) < de + 7:
                 if waiting_ok:
+                    if run >= 2:
+                        # Until LEN's bytes and the tail are in, nothing can change.
+                        self._need = self._base + de + 7
                     return None
             elif buf[p:ds] == SEP and buf[de : de + 7] == b"III/b/f":
-                return self._emit_frame(i, ds, de, de + 7, cnt, cmd_id, length, problems)
+                return self._emit_frame(i, ds, de, de + 7, cnt, cmd_id, length, list(problems))
         # LEN disagrees with DATA (or is absurd): look for the tail or the next head.
-        return self._search_tail(i, p, run, cnt, cmd_id, length, problems, final=final)
+        return self._search_tail(i, p, run, cnt, cmd_id, length, list(problems), final=final)
 
     def _search_tail(
         self,
@@ -453,20 +511,38 @@ class FrameDecoder:
         some choice allows it (a separator deviation), else the standard ones (a
         LEN mismatch).  Both are only ever decided from bytes up to that tail, so
         chunking does not change the result.
+
+        Each byte is searched once however the frame arrives: the searches resume
+        where the previous feed left them, and the tail is only looked for before
+        the next head (it used to be looked for to ``max_frame_size``, once per
+        head, which made a stream of headers quadratic).
         """
         buf = self._buf
+        base = self._base
         limit = min(len(buf), i + self.max_frame_size)
-        q = p + min(run, 3)
+        head_at = self._head_found - base if self._head_found >= 0 else -1
+        if head_at < 0:
+            h_from = max(p, self._head_scan - base)
+            head_at = buf.find(HEAD, h_from, limit)
+            if head_at >= 0:
+                self._head_found = base + head_at
+            else:
+                # A head may straddle the end of what is buffered.
+                self._head_scan = base + max(p, limit - len(HEAD) + 1)
+        # A tail starting at or after the head cannot come first.
+        t_limit = limit if head_at < 0 else min(limit, head_at + len(TAIL) - 1)
+        # A tail needs two I before it, after the separator's first two.
+        q = max(p + 4, self._tail_scan - base)
         tail_at = -1
         while True:
-            q = buf.find(TAIL, q, limit)
+            q = buf.find(TAIL, q, t_limit)
             if q < 0:
+                self._tail_scan = base + max(p + 4, t_limit - len(TAIL) + 1)
                 break
-            if buf[q - 2 : q] == b"II" and q - 2 >= p + 2:
+            if buf[q - 2 : q] == b"II":
                 tail_at = q
                 break
             q += 1
-        head_at = buf.find(HEAD, p, limit)
         if head_at >= 0 and (tail_at < 0 or head_at < tail_at):
             # A new frame starts before this one ended: the tail is missing.
             self._flush_run()
