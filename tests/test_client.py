@@ -11,7 +11,7 @@ import pytest
 from conformance.errors import UsageError
 from conformance.frame import encode_frame
 from conformance.net import format_address, parse_address
-from conformance.net.client import Client, TargetUnreachable
+from conformance.net.client import Client, Exchange, TargetUnreachable
 from conformance.net.emulator import EmulatorServer
 
 
@@ -140,3 +140,76 @@ def test_parse_address(text: str, expected: tuple[str, int]) -> None:
 def test_parse_address_rejects(text: str) -> None:
     with pytest.raises(UsageError):
         parse_address(text)
+
+
+# --------------------------------------------------------------------------- hostile peers
+
+
+def _in_thread(fn: Callable[[], object]) -> object:
+    """Run ``fn`` in a thread; fail (instead of hanging the suite) if it never returns."""
+    out: list[object] = []
+    t = threading.Thread(target=lambda: out.append(fn()), daemon=True)
+    t.start()
+    t.join(timeout=120)
+    assert not t.is_alive(), "the client kept waiting past its deadline"
+    return out[0]
+
+
+def test_endless_stream_ends_at_the_deadline_in_bounded_memory() -> None:
+    from tests.hostile_targets import HostileTarget
+
+    with HostileTarget("endless") as target:
+        with Client(*target.address, timeout=1.0, max_events=5, max_frame_size=4096) as c:
+            ex = _in_thread(lambda: c.request(201, 'MoveJ("P1")'))
+            assert isinstance(ex, Exchange)
+            assert ex.reply is None and not ex.closed
+            # Kept: the first 5 runs of bytes; counted: everything that came.
+            assert len(ex.malformed) == 5 and ex.malformed_count > 5
+            held = sum(len(m.raw) for m in ex.malformed)
+            assert held <= 5 * 4096 < ex.malformed_bytes
+            assert c._decoder.buffered <= 4096
+
+
+def test_a_50_mb_reply_blob_is_read_and_discarded_in_bounded_memory(peer) -> None:  # type: ignore[no-untyped-def]
+    size = 50 * 1024 * 1024
+
+    def script(conn: socket.socket) -> None:
+        _recv_frames(conn, 1)
+        conn.sendall(b"/f/bIII1III201III%dIII" % size)
+        block = b"A" * 65536
+        for _ in range(size // len(block)):
+            conn.sendall(block)
+        conn.sendall(b"III/b/f" + encode_frame(1, 201, "0"))
+        conn.recv(10)
+
+    p = peer(script)
+    with Client("127.0.0.1", p.port, timeout=300, max_events=3) as c:
+        ex = _in_thread(lambda: c.request(201, 'MoveJ("P1")'))
+        assert isinstance(ex, Exchange)
+        assert ex.reply is not None and ex.reply.data == "0"  # the frame after the blob
+        assert ex.malformed_bytes >= size and len(ex.malformed) == 3
+        assert sum(len(m.raw) for m in ex.malformed) <= 3 * c.max_frame_size
+
+
+def test_client_deadline_clips_every_wait(peer) -> None:  # type: ignore[no-untyped-def]
+    import time
+
+    def script(conn: socket.socket) -> None:
+        _recv_frames(conn, 1)
+        conn.recv(10)  # silent until the client hangs up
+
+    p = peer(script)
+    with Client("127.0.0.1", p.port, timeout=600) as c:
+        c.deadline = time.monotonic() + 0.2
+        ex = _in_thread(lambda: c.request(201, 'MoveJ("P1")'))
+        assert isinstance(ex, Exchange) and ex.timed_out
+        assert ex.elapsed < c.timeout  # ended by the deadline, not by the reply timeout
+
+
+def test_unreachable_reason_is_short() -> None:
+    s = socket.create_server(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()
+    with pytest.raises(TargetUnreachable) as info:
+        Client("127.0.0.1", port).connect()
+    assert info.value.reason == "connection refused"

@@ -6,6 +6,13 @@ command-ID 500 frames a controller sends when a Lua program fails) are kept as
 ``unsolicited`` rather than taken for a reply.  Bytes that are not frames come back
 as :class:`~conformance.frame.Malformed` events attributed to the wait in which
 they arrived.  TCP or UDP; an optional rate limit (frames per second).
+
+A hostile target must not outlast or outgrow the kit: every wait ends at its
+deadline (and at :attr:`Client.deadline`, when set) however fast bytes keep
+arriving, the decoder never holds more than ``max_frame_size`` bytes, and an
+exchange keeps only the first ``max_events`` malformed events and unpaired frames
+(their totals are counted), so a target streaming endless bytes or 50 MB reply
+blobs is read and discarded in bounded memory.
 """
 
 from __future__ import annotations
@@ -17,15 +24,32 @@ from dataclasses import dataclass, field
 from types import TracebackType
 
 from ..errors import ConformanceError
-from ..frame import CNT_MAX, Frame, FrameDecoder, Malformed, decode_all, encode_frame
+from ..frame import (
+    CNT_MAX,
+    DEFAULT_MAX_FRAME_SIZE,
+    Frame,
+    FrameDecoder,
+    Malformed,
+    decode_all,
+    encode_frame,
+)
 
-__all__ = ["Client", "Exchange", "TargetUnreachable"]
+__all__ = ["DEFAULT_MAX_EVENTS", "DEFAULT_MAX_INBOX", "Client", "Exchange", "TargetUnreachable"]
 
 _IDLE = 0.05  # silence after which a frame waiting on its LEN is decided on
+#: Malformed events (and unpaired frames) one exchange keeps; the rest are only counted.
+DEFAULT_MAX_EVENTS = 20
+#: Unpaired frames kept for later requests (a chatty peer must not grow it forever).
+DEFAULT_MAX_INBOX = 64
 
 
 class TargetUnreachable(ConformanceError):
     """The target refused or did not accept a connection."""
+
+    def __init__(self, message: str, *, reason: str = "") -> None:
+        super().__init__(message)
+        #: Why, in a few lower-case words (``connection refused``, ``timed out``).
+        self.reason = reason or message
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -45,6 +69,11 @@ class Exchange:
     elapsed: float = 0.0
     #: Bytes of an incomplete frame still buffered when the wait ended.
     pending: bytes = field(default=b"", repr=False)
+    #: Totals while waiting, including events past the ones kept in ``malformed``
+    #: and ``unsolicited`` (a hostile peer's stream is counted, not stored).
+    malformed_count: int = 0
+    malformed_bytes: int = 0
+    unsolicited_count: int = 0
 
     @property
     def timed_out(self) -> bool:
@@ -67,17 +96,29 @@ class Client:
         timeout: float = 2.0,
         rate: float | None = None,
         connect_timeout: float | None = None,
+        max_frame_size: int = DEFAULT_MAX_FRAME_SIZE,
+        max_events: int = DEFAULT_MAX_EVENTS,
+        max_inbox: int = DEFAULT_MAX_INBOX,
+        deadline: float | None = None,
     ) -> None:
         if transport not in ("tcp", "udp"):
             raise ValueError(f"transport must be tcp or udp, not {transport!r}")
+        if max_events < 1 or max_inbox < 1:
+            raise ValueError("max_events and max_inbox must be at least 1")
         self.host = host.strip("[]")
         self.port = port
         self.transport = transport
         self.timeout = timeout
         self.connect_timeout = connect_timeout if connect_timeout is not None else timeout
         self.rate = rate
+        self.max_frame_size = max_frame_size
+        self.max_events = max_events
+        self.max_inbox = max_inbox
+        #: ``time.monotonic()`` value no wait (connect, send, reply) extends past:
+        #: the suite sets it to the end of the case's time.
+        self.deadline = deadline
         self._sock: socket.socket | None = None
-        self._decoder = FrameDecoder()
+        self._decoder = FrameDecoder(max_frame_size=max_frame_size)
         self._inbox: list[Frame] = []
         self._closed = False
         self._cnt = 0
@@ -95,20 +136,32 @@ class Client:
             return self
         try:
             if self.transport == "tcp":
-                s = socket.create_connection((self.host, self.port), timeout=self.connect_timeout)
+                timeout = self._clip(self.connect_timeout)
+                if timeout <= 0:
+                    raise TimeoutError(0, "no time left")
+                s = socket.create_connection((self.host, self.port), timeout=timeout)
                 s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             else:
                 fam = socket.AF_INET6 if ":" in self.host else socket.AF_INET
                 s = socket.socket(fam, socket.SOCK_DGRAM)
                 s.connect((self.host, self.port))
         except OSError as e:
+            reason = str(e.strerror or e or type(e).__name__)
+            reason = reason[:1].lower() + reason[1:]
             raise TargetUnreachable(
-                f"cannot connect to {self.host}:{self.port} ({self.transport}): {e.strerror or e}"
+                f"cannot connect to {self.host}:{self.port} ({self.transport}): {reason}",
+                reason=reason,
             ) from None
         self._sock = s
         self._closed = False
-        self._decoder = FrameDecoder()
+        self._decoder = FrameDecoder(max_frame_size=self.max_frame_size)
         return self
+
+    def _clip(self, timeout: float) -> float:
+        """``timeout`` shortened to what is left before :attr:`deadline`."""
+        if self.deadline is None:
+            return timeout
+        return min(timeout, self.deadline - time.monotonic())
 
     def close(self) -> None:
         if self._sock is not None:
@@ -153,6 +206,8 @@ class Client:
         self._throttle()
         self.frames_sent += max(1, raw.count(b"/f/b"))
         try:
+            # A peer that does not read must not block us longer than a reply wait.
+            sock.settimeout(max(self._clip(self.timeout), 0.001))
             if self.transport == "udp":
                 sock.send(raw)
             elif chunk:
@@ -194,40 +249,57 @@ class Client:
         if not data:
             self._closed = True
             events = self._decoder.close()
-            self._decoder = FrameDecoder()
+            self._decoder = FrameDecoder(max_frame_size=self.max_frame_size)
             return events, True
         return self._decoder.feed(data), False
 
     def await_reply(
         self, cnt: int, cmd_id: int, *, request: bytes = b"", timeout: float | None = None
     ) -> Exchange:
-        """Wait for the frame echoing (cnt, cmd_id); frames for others stay in the inbox."""
+        """Wait for the frame echoing (cnt, cmd_id); frames for others stay in the inbox.
+
+        Ends at the deadline whatever arrives: a stream of frames or garbage that
+        never stops is read, counted and, past the first ``max_events``, dropped.
+        """
         start = time.monotonic()
         deadline = start + (self.timeout if timeout is None else timeout)
+        if self.deadline is not None:
+            deadline = min(deadline, self.deadline)
         unsolicited: list[Frame] = []
         malformed: list[Malformed] = []
+        n_malformed = n_bad_bytes = n_unsolicited = 0
         for i, f in enumerate(self._inbox):
             if f.cnt == cnt and f.cmd_id == cmd_id:
                 del self._inbox[i]
                 return Exchange(request=request, cnt=cnt, cmd_id=cmd_id, reply=f)
         closed = False
         reply: Frame | None = None
+        keep = self.max_events
         while reply is None and not closed:
             events, closed = self._read(deadline)
             for e in events:
                 if isinstance(e, Malformed):
-                    malformed.append(e)
+                    n_malformed += 1
+                    n_bad_bytes += len(e.raw)
+                    if len(malformed) < keep:
+                        malformed.append(e)
                 elif reply is None and e.cnt == cnt and e.cmd_id == cmd_id:
                     reply = e
                 else:
-                    unsolicited.append(e)
+                    n_unsolicited += 1
+                    if len(unsolicited) < keep:
+                        unsolicited.append(e)
                     self._inbox.append(e)
-            if not events and time.monotonic() >= deadline:
+            if len(self._inbox) > 2 * self.max_inbox:
+                del self._inbox[: -self.max_inbox]
+            # Checked after every read, not only after silent ones: a peer that
+            # never stops sending must not hold us past the deadline.
+            if time.monotonic() >= deadline:
                 break
         pending = b""
         if reply is None and self._decoder.buffered:
             pending = b"<%d bytes of an incomplete frame>" % self._decoder.buffered
-        del self._inbox[:-64]  # bounded: a chatty peer must not grow it forever
+        del self._inbox[: -self.max_inbox]
         return Exchange(
             request=request,
             cnt=cnt,
@@ -238,16 +310,26 @@ class Client:
             closed=closed,
             elapsed=time.monotonic() - start,
             pending=pending,
+            malformed_count=n_malformed,
+            malformed_bytes=n_bad_bytes,
+            unsolicited_count=n_unsolicited,
         )
 
     def collect(self, duration: float) -> tuple[list[Frame], list[Malformed], bool]:
-        """Everything that arrives within ``duration`` seconds (inbox included)."""
+        """What arrives within ``duration`` seconds (inbox included): the first
+        ``max_inbox`` frames and ``max_events`` malformed events; the rest is dropped."""
         frames, self._inbox = list(self._inbox), []
         malformed: list[Malformed] = []
         deadline = time.monotonic() + duration
+        if self.deadline is not None:
+            deadline = min(deadline, self.deadline)
         closed = False
         while time.monotonic() < deadline and not closed:
             events, closed = self._read(deadline)
             for e in events:
-                (malformed if isinstance(e, Malformed) else frames).append(e)  # type: ignore[arg-type]
+                if isinstance(e, Malformed):
+                    if len(malformed) < self.max_events:
+                        malformed.append(e)
+                elif len(frames) < self.max_inbox:
+                    frames.append(e)
         return frames, malformed, closed
