@@ -22,11 +22,12 @@ from __future__ import annotations
 import re
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Literal
 
 from .data import Arg, Array, Call, Number, Text, format_number
 from .errors import Rule
 from .faults import Fault, FaultKind, active_fault, mangle_reply
-from .frame import Frame, FrameDecoder, Malformed
+from .frame import DEFAULT_MAX_FRAME_SIZE, Frame, FrameDecoder, Malformed
 from .spec import Command, Returns, ReturnValue, SpecSet, Variant, default_specs
 from .validate import ERR_ARG_COUNT, ERR_ARG_VALUE, ERR_EXEC_FAILED, validate_request
 
@@ -35,6 +36,8 @@ __all__ = [
     "Action",
     "Controller",
     "ControllerConnection",
+    "DropKind",
+    "Dropped",
     "MotionTargets",
     "RobotModel",
     "StatePair",
@@ -360,8 +363,8 @@ class Controller:
         self.model = RobotModel(self.specs)
         self.frames_answered = 0
 
-    def connection(self) -> ControllerConnection:
-        return ControllerConnection(self)
+    def connection(self, *, max_frame_size: int = DEFAULT_MAX_FRAME_SIZE) -> ControllerConnection:
+        return ControllerConnection(self, max_frame_size=max_frame_size)
 
     def restart(self) -> None:
         """A crash loses the state, as a controller restart would."""
@@ -422,26 +425,62 @@ class Controller:
 
 
 class ControllerConnection:
-    """One client's byte stream to the controller (a TCP connection, or one UDP datagram)."""
+    """One client's byte stream to the controller (a TCP connection, or one UDP datagram).
 
-    def __init__(self, controller: Controller) -> None:
+    ``max_frame_size`` bounds what the decoder buffers for one frame (the
+    connection's memory).  Events are not kept beyond the call that decoded
+    them: a connection that streams garbage for hours must not grow.
+    """
+
+    def __init__(
+        self, controller: Controller, *, max_frame_size: int = DEFAULT_MAX_FRAME_SIZE
+    ) -> None:
         self.controller = controller
-        self.decoder = FrameDecoder()
+        self.decoder = FrameDecoder(max_frame_size=max_frame_size)
+        #: The events of the most recent call only.
         self.events: list[Frame | Malformed] = []
+        #: The event being answered; still set when answering it raised (whom to blame).
+        self.current: Frame | Malformed | None = None
 
-    def _answer(self, events: Iterable[Frame | Malformed]) -> list[Action]:
+    def answer(self, events: Iterable[Frame | Malformed]) -> list[Action]:
+        """The actions answering decoded ``events``, in order."""
+        self.events = list(events)
         out: list[Action] = []
-        for e in events:
-            self.events.append(e)
+        for e in self.events:
+            self.current = e
             out += self.controller.answer(e)
+        self.current = None
         return out
 
     def receive(self, data: bytes) -> list[Action]:
-        return self._answer(self.decoder.feed(data))
+        return self.answer(self.decoder.feed(data))
 
     def idle(self) -> list[Action]:
         """The client went quiet: decide on a frame whose LEN claims more than was sent."""
-        return self._answer(self.decoder.resolve_pending())
+        return self.answer(self.decoder.resolve_pending())
 
     def close(self) -> list[Action]:
-        return self._answer(self.decoder.close())
+        return self.answer(self.decoder.close())
+
+
+#: What closed a connection, in :attr:`Dropped.kind`.
+DropKind = Literal["error", "protocol", "limit", "slow"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class Dropped:
+    """Why the emulator closed a client's connection (or dropped a UDP datagram) itself.
+
+    ``kind``: ``"error"`` the kit failed on the peer's bytes (an exception it
+    should have turned into a verdict: a bug), ``"protocol"`` the kit's own
+    protocol error escaped while judging them, ``"limit"`` a server limit
+    (``--max-connections``, no thread left), ``"slow"`` the peer stopped reading
+    its replies.  ``cmd_id`` and ``raw`` name the frame being handled (``None``
+    and ``b""`` when it was not a frame).
+    """
+
+    peer: str
+    kind: DropKind
+    reason: str
+    cmd_id: int | None = None
+    raw: bytes = b""

@@ -3,9 +3,24 @@
 The protocol logic is sans-I/O in :mod:`conformance.model`; this module only moves
 bytes and performs the :class:`~conformance.model.Action` objects (delays,
 closes, crashes).  Loopback by default; port 0 binds an ephemeral port, and
-:attr:`EmulatorServer.address` tells which.  A failure in a background thread is
-kept and re-raised by :meth:`EmulatorServer.close` (or :meth:`check`) in the
-caller's thread.
+:attr:`EmulatorServer.address` tells which.
+
+A peer never ends the server.  Whatever one connection's bytes make the kit do
+(a decoder or parser exception, a model bug, an observer that raises, a reply
+that cannot be formatted), only that connection is closed, or that UDP
+datagram dropped, and the reason is kept in :attr:`EmulatorServer.dropped` and
+logged on the ``conformance.net.emulator`` logger (stderr when logging is not
+configured).  Resources are bounded per connection (``max_frame_size``: what the
+decoder buffers; events are not kept) and per server (``max_connections``: more
+are accepted and closed at once, so file descriptors stay bounded).  Accept
+errors such as EMFILE are retried with a backoff from 10 ms to 1 s, with one
+message per episode.
+
+A failure of the server's own threads (the accept loop, an unexpected socket
+error) is kept and re-raised by :meth:`EmulatorServer.close` (or :meth:`check`)
+in the caller's thread; so is the first kit exception a connection's bytes
+caused, unless ``reraise_kit_errors=False`` (the ``emulate`` and ``serve``
+commands, which must outlive any client).
 
 >>> with EmulatorServer() as emu:          # doctest: +SKIP
 ...     host, port = emu.address
@@ -13,34 +28,131 @@ caller's thread.
 
 from __future__ import annotations
 
+import collections
 import contextlib
+import errno
+import logging
 import socket
 import threading
 import time
 from collections.abc import Callable, Iterable
-from functools import partial
+from dataclasses import dataclass
 from types import TracebackType
 
+from ..errors import RemoteProtocolError
 from ..faults import Fault, FaultKind, parse_fault, parse_faults
-from ..frame import Frame, Malformed
-from ..model import Action, Controller, ControllerConnection
+from ..frame import DEFAULT_MAX_FRAME_SIZE, Frame, Malformed
+from ..model import Action, Controller, ControllerConnection, Dropped
 from ..spec import SpecSet
 
-__all__ = ["EmulatorServer", "Fault", "FaultKind", "Observer", "parse_fault"]
+__all__ = [
+    "DEFAULT_MAX_CONNECTIONS",
+    "Dropped",
+    "EmulatorServer",
+    "Fault",
+    "FaultKind",
+    "Observer",
+    "OnClose",
+    "parse_fault",
+]
 
 #: Called with (peer, event, actions) for every event a client sends (client mode).
+#: Connection threads call it concurrently: it must be thread-safe.
 Observer = Callable[[str, Frame | Malformed, list[Action]], None]
+#: Called with (peer, why) when a TCP connection ends (``why`` is None when the
+#: client closed it or went away), and with a :class:`Dropped` for a UDP datagram
+#: the server dropped.
+OnClose = Callable[[str, Dropped | None], None]
+
+#: Connections served at once; more are accepted and closed at once.  256 threads
+#: and descriptors stay well inside the usual ``ulimit -n`` of 1024.
+DEFAULT_MAX_CONNECTIONS = 256
+
+_log = logging.getLogger(__name__)
 
 _IDLE = 0.2  # seconds of silence before a pending frame is decided on
 _UDP_MAX = 65535
+_DROPPED_KEPT = 100  # Dropped records kept (the total is counted)
+_DROPS_LOGGED = 20  # drops logged one line each; the rest are counted
+_KIT_ERRORS_KEPT = 10
+_RAW_KEPT = 200  # bytes of the blamed frame kept in a Dropped record
+_REASON_MAX = 300
+_BACKOFF_MIN = 0.01
+_BACKOFF_MAX = 1.0
+#: Out of a resource: retrying at once would spin; wait, doubling up to _BACKOFF_MAX.
+_RESOURCE_ERRNOS = frozenset({errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM})
+#: A connection that died in the backlog, or a datagram's ICMP echo: just go on.
+_TRANSIENT_ERRNOS = frozenset(
+    {errno.ECONNABORTED, errno.ECONNRESET, errno.ECONNREFUSED, errno.EPROTO, errno.EPERM}
+)
 
 
 def _family(host: str) -> socket.AddressFamily:
     return socket.AF_INET6 if ":" in host else socket.AF_INET
 
 
+def _peer_name(addr: tuple[str, int] | tuple[str, int, int, int]) -> str:
+    return f"[{addr[0]}]:{addr[1]}" if ":" in addr[0] else f"{addr[0]}:{addr[1]}"
+
+
+def _errno_name(e: OSError) -> str:
+    return errno.errorcode.get(e.errno or 0, str(e.errno))
+
+
+@dataclass
+class _Session:
+    """One connection's (or datagram's) state as the server thread sees it."""
+
+    peer: str
+    cc: ControllerConnection
+    #: The event being handled: whom to blame if handling it raises.
+    current: Frame | Malformed | None = None
+    #: Set when the server itself decides to end the connection.
+    drop: Dropped | None = None
+
+
+class _Backoff:
+    """Retry waits for one kind of failure, and one message per episode."""
+
+    def __init__(self, what: str) -> None:
+        self.what = what
+        self.delay = 0.0
+        self.failures = 0
+
+    def failed(self, e: OSError, detail: str) -> float:
+        if not self.failures:
+            _log.warning(
+                "emulator: %s failed: %s (%s) with %s; retrying with a backoff up to %g s",
+                self.what,
+                e.strerror or e,
+                _errno_name(e),
+                detail,
+                _BACKOFF_MAX,
+            )
+        self.failures += 1
+        self.delay = min(_BACKOFF_MAX, self.delay * 2 or _BACKOFF_MIN)
+        return self.delay
+
+    def succeeded(self) -> None:
+        if self.failures:
+            _log.warning("emulator: %s works again after %d failure(s)", self.what, self.failures)
+            self.failures = 0
+            self.delay = 0.0
+
+
 class EmulatorServer:
-    """A simulated controller answering every command of ``specs`` (default: the bundled specs)."""
+    """A simulated controller answering every command of ``specs`` (default: the bundled specs).
+
+    ``max_connections`` (default :data:`DEFAULT_MAX_CONNECTIONS`): TCP
+    connections served at once; more are accepted and closed at once, counted in
+    :attr:`connections_refused`.  ``max_frame_size`` (default the decoder's 256
+    KiB): the largest frame a connection buffers; larger ones are malformed
+    (``oversize``), so a connection holds at most about that much.
+    ``reraise_kit_errors`` (default True): whether :meth:`check` and
+    :meth:`close` re-raise the first kit exception a peer's bytes caused (the
+    connection is closed either way).  ``on_close`` is told when a connection
+    ends, and why when the server ended it.
+    """
 
     def __init__(
         self,
@@ -51,21 +163,46 @@ class EmulatorServer:
         udp_port: int | None = None,
         faults: Iterable[Fault | str] = (),
         observer: Observer | None = None,
+        on_close: OnClose | None = None,
+        max_connections: int = DEFAULT_MAX_CONNECTIONS,
+        max_frame_size: int = DEFAULT_MAX_FRAME_SIZE,
+        reraise_kit_errors: bool = True,
     ) -> None:
+        if max_connections < 1:
+            raise ValueError("max_connections must be at least 1")
         self.controller = Controller(specs, faults=parse_faults(faults))
         self.host = host.strip("[]")
         self._port = port
         self._udp_port = udp_port
         self._observer = observer
+        self._on_close = on_close
+        self.max_connections = max_connections
+        self.max_frame_size = max_frame_size
+        self.reraise_kit_errors = reraise_kit_errors
+        # The model's lock: held for one event's answer at a time, never across
+        # socket I/O, so a slow or stalled client cannot hold up the others.
         self._lock = threading.RLock()
+        # Bookkeeping (connections, drop records), apart from the model's lock.
+        self._conns_lock = threading.Lock()
         self._tcp: socket.socket | None = None
         self._udp: socket.socket | None = None
         self._threads: list[threading.Thread] = []
         self._conns: set[socket.socket] = set()
         self._stop = threading.Event()
         self._down_until = 0.0
+        self._refusing = False
+        self._udp_pending = 0
+        #: Failures of the server's own threads (re-raised by check()).
         self.errors: list[BaseException] = []
+        #: The first kit exceptions a peer's bytes caused (each closed its connection).
+        self.kit_errors: list[BaseException] = []
+        #: The last connections (and datagrams) the server closed itself, and why.
+        self.dropped: collections.deque[Dropped] = collections.deque(maxlen=_DROPPED_KEPT)
+        self.dropped_total = 0
         self.connections_accepted = 0
+        self.connections_refused = 0
+        #: Set whenever a connection ends or is dropped (tests wait on it).
+        self.changed = threading.Condition(self._conns_lock)
 
     # ------------------------------------------------------------------ public API
 
@@ -90,6 +227,16 @@ class EmulatorServer:
         host, port = self.address
         return f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
 
+    @property
+    def open_connections(self) -> int:
+        with self._conns_lock:
+            return len(self._conns)
+
+    def wait_for(self, predicate: Callable[[], bool], timeout: float | None = None) -> bool:
+        """Block until ``predicate()`` holds; it is re-checked whenever a connection ends."""
+        with self.changed:
+            return self.changed.wait_for(predicate, timeout)
+
     def start(self) -> EmulatorServer:
         """Bind and listen; returns once the sockets accept traffic."""
         fam = _family(self.host)
@@ -97,7 +244,7 @@ class EmulatorServer:
         try:
             tcp.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
             tcp.bind((self.host, self._port))
-            tcp.listen(64)
+            tcp.listen(128)
             tcp.settimeout(0.1)
         except BaseException:
             tcp.close()
@@ -123,7 +270,7 @@ class EmulatorServer:
         for s in (self._tcp, self._udp):
             if s is not None:
                 s.close()
-        with self._lock:
+        with self._conns_lock:
             conns = list(self._conns)
         for c in conns:
             _shutdown(c)
@@ -133,10 +280,13 @@ class EmulatorServer:
         self.check()
 
     def check(self) -> None:
-        """Re-raise the first failure of a background thread, if any."""
+        """Re-raise the first failure of a background thread (and of the kit on a peer's bytes)."""
         if self.errors:
             err = self.errors[0]
             raise RuntimeError(f"emulator thread failed: {err!r}") from err
+        if self.reraise_kit_errors and self.kit_errors:
+            err = self.kit_errors[0]
+            raise RuntimeError(f"emulator failed on a client's bytes: {err!r}") from err
 
     def __enter__(self) -> EmulatorServer:
         return self.start()
@@ -161,54 +311,129 @@ class EmulatorServer:
 
         t = threading.Thread(target=run, name=name, daemon=True)
         self._threads = [x for x in self._threads if x.is_alive()]
+        t.start()  # RuntimeError when no thread can be started: the caller decides
         self._threads.append(t)
-        t.start()
 
     def _down(self) -> bool:
         return time.monotonic() < self._down_until
 
+    def _record(self, drop: Dropped, *, quiet: bool = False) -> None:
+        with self._conns_lock:
+            self.dropped.append(drop)
+            self.dropped_total += 1
+            n = self.dropped_total
+            self.changed.notify_all()
+        if quiet:
+            return
+        if n <= _DROPS_LOGGED:
+            blame = f" (command ID {drop.cmd_id})" if drop.cmd_id is not None else ""
+            _log.warning("emulator: closed %s: %s%s", drop.peer, drop.reason, blame)
+        elif n == _DROPS_LOGGED + 1:
+            _log.warning("emulator: further dropped connections are counted, not logged")
+
+    def _failed(self, s: _Session, e: Exception) -> Dropped:
+        """The kit raised on a peer's bytes: what to record against that peer."""
+        ev = s.current
+        protocol = isinstance(e, RemoteProtocolError)
+        if not protocol and len(self.kit_errors) < _KIT_ERRORS_KEPT:
+            self.kit_errors.append(e)
+        _log.debug("emulator: %s on %s's bytes", type(e).__name__, s.peer, exc_info=e)
+        text = f"{type(e).__name__}: {e}"
+        if len(text) > _REASON_MAX:
+            text = text[:_REASON_MAX] + "..."
+        what = "protocol error" if protocol else "kit error"
+        return Dropped(
+            peer=s.peer,
+            kind="protocol" if protocol else "error",
+            reason=f"{what} while handling its bytes: {text}",
+            cmd_id=ev.cmd_id if isinstance(ev, Frame) else None,
+            raw=bytes(ev.raw[:_RAW_KEPT]) if ev is not None else b"",
+        )
+
+    def _closed(self, peer: str, drop: Dropped | None) -> None:
+        if drop is not None:
+            self._record(drop)
+        if self._on_close is not None:
+            try:
+                self._on_close(peer, drop)
+            except Exception as e:  # the caller's bug, not the peer's: check() re-raises it
+                self.errors.append(e)
+        with self._conns_lock:
+            self.changed.notify_all()
+
     def _serve_tcp(self) -> None:
         assert self._tcp is not None
+        tcp = self._tcp
+        backoff = _Backoff("accept")
         while not self._stop.is_set():
             try:
-                conn, peer = self._tcp.accept()
+                conn, addr = tcp.accept()
             except TimeoutError:
                 continue
-            except OSError:
+            except OSError as e:
                 if self._stop.is_set():
                     return
-                raise
-            if self._down():
-                _shutdown(conn)  # restarting after a crash: refuse
+                if e.errno in _TRANSIENT_ERRNOS:
+                    continue
+                if e.errno not in _RESOURCE_ERRNOS:
+                    raise
+                # The pending connection stays in the backlog: it is accepted once
+                # a descriptor is free again (when a connection ends).
+                self._stop.wait(backoff.failed(e, f"{self.open_connections} connections open"))
                 continue
-            # Replies go out at once: with Nagle, a second reply waits for the
-            # client's delayed ACK (~40 ms) behind the first.
-            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            self.connections_accepted += 1
-            with self._lock:
-                self._conns.add(conn)
-            self._spawn(self._serve_conn, "emulator-conn", conn, f"{peer[0]}:{peer[1]}")
+            backoff.succeeded()
+            self._admit(conn, _peer_name(addr))
 
-    def _feed(
-        self, cc: ControllerConnection, fn: Callable[[], list[Action]], peer: str
-    ) -> list[Action]:
-        with self._lock:
-            n = len(cc.events)
-            actions = fn()
-            if self._observer is not None:
-                for e in cc.events[n:]:
-                    self._observer(peer, e, actions)
-        return actions
+    def _admit(self, conn: socket.socket, peer: str) -> None:
+        if self._down():
+            _shutdown(conn)  # restarting after a crash: refuse
+            return
+        with self._conns_lock:
+            full = len(self._conns) >= self.max_connections
+            if not full:
+                self._conns.add(conn)
+        if full:
+            self.connections_refused += 1
+            reason = f"refused: {self.max_connections} connections already open"
+            self._record(Dropped(peer=peer, kind="limit", reason=reason), quiet=True)
+            if not self._refusing:
+                self._refusing = True
+                _log.warning(
+                    "emulator: %d connections open (the maximum): closing new ones at once",
+                    self.max_connections,
+                )
+            _shutdown(conn)
+            return
+        if self._refusing:
+            self._refusing = False
+            _log.warning(
+                "emulator: accepting connections again (%d refused so far)",
+                self.connections_refused,
+            )
+        # Replies go out at once: with Nagle, a second reply waits for the
+        # client's delayed ACK (~40 ms) behind the first.
+        with contextlib.suppress(OSError):  # a peer that already reset it
+            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self.connections_accepted += 1
+        try:
+            self._spawn(self._serve_conn, "emulator-conn", conn, peer)
+        except RuntimeError as e:  # no thread can be started (memory, a limit)
+            with self._conns_lock:
+                self._conns.discard(conn)
+            _shutdown(conn)
+            self._record(Dropped(peer=peer, kind="limit", reason=f"no thread to serve it: {e}"))
+            self._stop.wait(_BACKOFF_MAX)
 
     def _crash(self, delay: float) -> None:
         with self._lock:
             self._down_until = time.monotonic() + delay
             self.controller.restart()
+        with self._conns_lock:
             conns = list(self._conns)
         for c in conns:
             _shutdown(c)
 
-    def _perform(self, conn: socket.socket, actions: list[Action]) -> bool:
+    def _perform(self, conn: socket.socket, s: _Session, actions: list[Action]) -> bool:
         """Carry out actions on a TCP connection; False when the connection must end."""
         for a in actions:
             if a.crash:
@@ -216,78 +441,138 @@ class EmulatorServer:
                 return False
             if a.delay and self._stop.wait(a.delay):
                 return False
-            if a.data:
-                conn.sendall(a.data)
+            try:
+                if a.data:
+                    conn.sendall(a.data)
+            except TimeoutError:
+                # Its receive buffer stayed full for the whole idle time: a client
+                # that sends without reading must not hold a thread forever.
+                reason = f"not reading its replies (none accepted for {_IDLE:g} s)"
+                s.drop = Dropped(peer=s.peer, kind="slow", reason=reason)
+                return False
+            except OSError:
+                return False  # the client went away mid-reply
             if a.close:
                 return False
         return True
 
+    def _answer(self, s: _Session, event: Frame | Malformed) -> list[Action]:
+        s.current = event
+        with self._lock:  # one event's work at a time
+            actions = s.cc.answer((event,))
+        if self._observer is not None:
+            self._observer(s.peer, event, actions)
+        return actions
+
+    def _handle(self, conn: socket.socket, s: _Session, events: list[Frame | Malformed]) -> bool:
+        # Every event is answered (and observed) before any reply is sent: a
+        # client that closes after its first reply is still judged on all it sent.
+        actions: list[Action] = []
+        for e in events:
+            actions += self._answer(s, e)
+        s.current = None
+        return self._perform(conn, s, actions)
+
+    def _converse(self, conn: socket.socket, s: _Session) -> None:
+        dec = s.cc.decoder
+        while not self._stop.is_set():
+            try:
+                data = conn.recv(65536)
+            except TimeoutError:
+                if dec.buffered and not self._handle(conn, s, dec.resolve_pending()):
+                    return
+                continue
+            except OSError:
+                return
+            if not data:
+                self._handle(conn, s, dec.close())
+                return
+            # The decoder works outside the model's lock: its work is this
+            # connection's alone (at most one recv's worth per call).
+            if not self._handle(conn, s, dec.feed(data)):
+                return
+
     def _serve_conn(self, conn: socket.socket, peer: str) -> None:
-        cc = self.controller.connection()
+        s = _Session(peer=peer, cc=self.controller.connection(max_frame_size=self.max_frame_size))
         conn.settimeout(_IDLE)
         try:
-            while not self._stop.is_set():
-                try:
-                    data = conn.recv(65536)
-                except TimeoutError:
-                    idle = cc.decoder.buffered and self._feed(cc, cc.idle, peer)
-                    if idle and not self._perform(conn, idle):
-                        return
-                    continue
-                except OSError:
-                    return
-                if not data:
-                    with contextlib.suppress(OSError):
-                        self._perform(conn, self._feed(cc, cc.close, peer))
-                    return
-                try:
-                    if not self._perform(conn, self._feed(cc, partial(cc.receive, data), peer)):
-                        return
-                except OSError:
-                    return  # the client went away mid-reply
+            self._converse(conn, s)
+        except Exception as e:  # the peer's bytes made the kit fail: close this one only
+            s.drop = self._failed(s, e)
         finally:
-            with self._lock:
+            with self._conns_lock:
                 self._conns.discard(conn)
             _shutdown(conn)
+        self._closed(peer, s.drop)
 
     def _serve_udp(self) -> None:
         assert self._udp is not None
         udp = self._udp
+        backoff = _Backoff("UDP receive")
         while not self._stop.is_set():
             try:
-                data, peer = udp.recvfrom(_UDP_MAX)
+                data, addr = udp.recvfrom(_UDP_MAX)
             except TimeoutError:
                 continue
-            except OSError:
+            except OSError as e:
                 if self._stop.is_set():
                     return
-                raise
+                if e.errno in _TRANSIENT_ERRNOS:
+                    continue
+                if e.errno not in _RESOURCE_ERRNOS:
+                    raise
+                self._stop.wait(backoff.failed(e, "the UDP socket"))
+                continue
+            backoff.succeeded()
             if self._down():
                 continue
-            # Each datagram is a stream of its own (frames do not span datagrams).
-            cc = self.controller.connection()
-            name = f"udp:{peer[0]}:{peer[1]}"
-            actions = self._feed(cc, partial(_whole, cc, data), name)
-            for a in actions:
-                if a.crash:
-                    self._crash(a.delay)
-                    break
-                if a.delay:
-                    # Answer later without holding up other datagrams.
-                    self._spawn(self._udp_later, "emulator-udp-slow", a, peer)
-                    continue
-                if a.data:
-                    with contextlib.suppress(OSError):
-                        udp.sendto(a.data, peer)
+            name = f"udp:{_peer_name(addr)}"
+            s = _Session(
+                peer=name, cc=self.controller.connection(max_frame_size=self.max_frame_size)
+            )
+            try:
+                # Each datagram is a stream of its own (frames do not span datagrams).
+                events = s.cc.decoder.feed(data) + s.cc.decoder.close()
+                for ev in events:
+                    if not self._udp_perform(udp, addr, self._answer(s, ev)):
+                        break
+            except Exception as e:  # this datagram only
+                self._closed(name, self._failed(s, e))
 
-    def _udp_later(self, action: Action, peer: tuple[str, int]) -> None:
-        if not self._stop.wait(action.delay) and self._udp is not None and action.data:
-            with contextlib.suppress(OSError):
-                self._udp.sendto(action.data, peer)
+    def _udp_perform(
+        self, udp: socket.socket, addr: tuple[str, int], actions: list[Action]
+    ) -> bool:
+        for a in actions:
+            if a.crash:
+                self._crash(a.delay)
+                return False
+            if a.delay:
+                # Answer later without holding up other datagrams, within the
+                # connection limit (a flood of slow requests must not spawn
+                # threads without bound).
+                with self._conns_lock:
+                    if self._udp_pending >= self.max_connections:
+                        continue
+                    self._udp_pending += 1
+                try:
+                    self._spawn(self._udp_later, "emulator-udp-slow", a, addr)
+                except RuntimeError:
+                    with self._conns_lock:
+                        self._udp_pending -= 1
+                continue
+            if a.data:
+                with contextlib.suppress(OSError):
+                    udp.sendto(a.data, addr)
+        return True
 
-
-def _whole(cc: ControllerConnection, data: bytes) -> list[Action]:
-    return cc.receive(data) + cc.close()
+    def _udp_later(self, action: Action, addr: tuple[str, int]) -> None:
+        try:
+            if not self._stop.wait(action.delay) and self._udp is not None and action.data:
+                with contextlib.suppress(OSError):
+                    self._udp.sendto(action.data, addr)
+        finally:
+            with self._conns_lock:
+                self._udp_pending -= 1
 
 
 def _shutdown(s: socket.socket) -> None:
