@@ -13,6 +13,7 @@ from conformance.frame import encode_frame
 from conformance.net import format_address, parse_address
 from conformance.net.client import Client, Exchange, TargetUnreachable
 from conformance.net.emulator import EmulatorServer
+from tests.hostile_targets import HostileTarget
 
 
 class RawPeer:
@@ -156,18 +157,18 @@ def _in_thread(fn: Callable[[], object]) -> object:
 
 
 def test_endless_stream_ends_at_the_deadline_in_bounded_memory() -> None:
-    from tests.hostile_targets import HostileTarget
-
-    with HostileTarget("endless") as target:
-        with Client(*target.address, timeout=1.0, max_events=5, max_frame_size=4096) as c:
-            ex = _in_thread(lambda: c.request(201, 'MoveJ("P1")'))
-            assert isinstance(ex, Exchange)
-            assert ex.reply is None and not ex.closed
-            # Kept: the first 5 runs of bytes; counted: everything that came.
-            assert len(ex.malformed) == 5 and ex.malformed_count > 5
-            held = sum(len(m.raw) for m in ex.malformed)
-            assert held <= 5 * 4096 < ex.malformed_bytes
-            assert c._decoder.buffered <= 4096
+    with (
+        HostileTarget("endless") as target,
+        Client(*target.address, timeout=1.0, max_events=5, max_frame_size=4096) as c,
+    ):
+        ex = _in_thread(lambda: c.request(201, 'MoveJ("P1")'))
+        assert isinstance(ex, Exchange)
+        assert ex.reply is None and not ex.closed
+        # Kept: the first 5 runs of bytes; counted: everything that came.
+        assert len(ex.malformed) == 5 and ex.malformed_count > 5
+        held = sum(len(m.raw) for m in ex.malformed)
+        assert held <= 5 * 4096 < ex.malformed_bytes
+        assert c._decoder.buffered <= 4096
 
 
 def test_a_50_mb_reply_blob_is_read_and_discarded_in_bounded_memory(peer) -> None:  # type: ignore[no-untyped-def]
