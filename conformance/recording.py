@@ -45,11 +45,12 @@ from pathlib import Path
 from typing import IO, Any, Literal, Protocol
 
 from . import __version__
-from .frame import DEFAULT_MAX_FRAME_SIZE, Event, Frame, FrameDecoder, Malformed, decode_all
+from .frame import DEFAULT_MAX_FRAME_SIZE, Event, Frame, FrameDecoder, Malformed
 from .spec import SpecSet
 
 __all__ = [
     "C2S",
+    "DECODE_SLICE",
     "FORMAT",
     "METADATA_NAME",
     "PROBLEM_RAW_LIMIT",
@@ -860,10 +861,21 @@ class RotatingWriter:
 # --------------------------------------------------------------------------- recorder
 
 
+#: Bytes handed to a frame decoder at once by :class:`StreamRecorder`: between two
+#: slices its ``checkpoint`` runs (the proxy's recorder flushes its file and notices a
+#: stop there), so a hostile stream cannot hold the recorder in one long decode.
+DECODE_SLICE = 2048
+# Arrival times remembered per stream while no event consumes them: a peer trickling
+# an endless frame a byte at a time would otherwise grow the list for ever.  Past the
+# bound, later arrivals are not noted and a frame starting there gets the last noted
+# time (earlier than its real first byte, never later than its last).
+_TIMELINE_MAX = 4096
+
+
 class _Stream:
     """One direction of one connection: decoder plus the times its bytes arrived."""
 
-    __slots__ = ("base", "bytes", "decoder", "frames", "last_ns", "timeline")
+    __slots__ = ("base", "bytes", "decoder", "frames", "last_ns", "raw", "timeline")
 
     def __init__(self, max_frame_size: int) -> None:
         self.decoder = FrameDecoder(max_frame_size=max_frame_size)
@@ -872,6 +884,7 @@ class _Stream:
         self.bytes = 0
         self.frames = 0
         self.last_ns = 0
+        self.raw = False  # bytes are being recorded undecoded (see stop_decoding)
 
     def first_ns(self, offset: int) -> int:
         tl = self.timeline
@@ -893,6 +906,14 @@ class StreamRecorder:
     """Bytes and times in, records out (sans-I/O): the proxy's and importer's one path.
 
     ``on_frame`` (for ``--print``) sees each frame record as it is written.
+
+    Bytes reach the decoder ``slice_size`` at a time, and ``checkpoint`` (if given)
+    is called after each slice: the caller may flush its sink there, or call
+    :meth:`stop_decoding`, after which every byte still to come (the rest of the
+    current call included) is recorded undecoded, as Problem records with rule
+    ``undecoded`` -- a recorder that must finish now keeps every byte, it only stops
+    reading frames out of them.  Memory per connection is bounded: the decoder holds
+    at most ``max_frame_size`` bytes of a frame and of a garbage run per direction.
     """
 
     def __init__(
@@ -902,11 +923,19 @@ class StreamRecorder:
         specs: SpecSet | None = None,
         max_frame_size: int = DEFAULT_MAX_FRAME_SIZE,
         on_frame: Callable[[FrameRecord], None] | None = None,
+        slice_size: int = DECODE_SLICE,
+        checkpoint: Callable[[], None] | None = None,
     ) -> None:
+        if slice_size < 1:
+            raise ValueError("slice_size must be positive")
         self.sink = sink
         self.specs = specs
         self.max_frame_size = max_frame_size
         self.on_frame = on_frame
+        self.slice_size = slice_size
+        self.checkpoint = checkpoint
+        #: Why bytes are now recorded undecoded (None: decoding as usual).
+        self.undecoded_reason: str | None = None
         self._conns: dict[int, _Conn] = {}
         self._names: dict[tuple[int, str | None], str | None] = {}
         # The sink's fast path for frames (RecordingWriter.write_frame), unless each
@@ -998,27 +1027,107 @@ class StreamRecorder:
 
     # -- traffic
 
+    def stop_decoding(self, reason: str) -> None:
+        """From now on record bytes as they are, undecoded (``reason`` goes in each record).
+
+        What each decoder already holds is decided at once (as at a close), so the
+        frames before this point are kept; the bytes after it are Problem records of
+        rule ``undecoded``, at their stream offsets.  Idempotent.
+        """
+        if self.undecoded_reason is None:
+            self.undecoded_reason = reason
+
     def data(self, conn: int, direction: Direction, t_ns: int, data: bytes) -> None:
         """Bytes of a TCP stream, in order, as they arrived at ``t_ns``."""
         c = self._conns[conn]
         st = c.streams[direction]
-        st.timeline.append((st.decoder.stream_offset, t_ns))
         st.bytes += len(data)
         st.last_ns = t_ns
-        self._emit(conn, c.transport, direction, st, st.decoder.feed(data), t_ns)
+        if self.undecoded_reason is not None:
+            self._raw(conn, c.transport, direction, st, t_ns, data)
+            return
+        tl = st.timeline
+        if len(tl) < _TIMELINE_MAX:
+            tl.append((st.decoder.stream_offset, t_ns))
+        step = self.slice_size
+        check = self.checkpoint
+        if len(data) <= step:
+            self._emit(conn, c.transport, direction, st, st.decoder.feed(data), t_ns)
+            if check is not None:
+                check()
+            return
+        view = memoryview(data)
+        for i in range(0, len(data), step):
+            self._emit(conn, c.transport, direction, st, st.decoder.feed(view[i : i + step]), t_ns)
+            if check is not None:
+                check()
+                if self.undecoded_reason is not None and i + step < len(data):
+                    self._raw(conn, c.transport, direction, st, t_ns, bytes(view[i + step :]))
+                    return
 
     def datagram(self, conn: int, direction: Direction, t_ns: int, data: bytes) -> None:
         """One UDP datagram: decoded on its own (a frame never spans datagrams)."""
         c = self._conns[conn]
         st = c.streams[direction]
-        events = decode_all(data, max_frame_size=max(self.max_frame_size, len(data) + 64))
+        st.bytes += len(data)
+        st.last_ns = t_ns
+        if self.undecoded_reason is not None:
+            self._raw(conn, c.transport, direction, st, t_ns, data)
+            return
+        dec = FrameDecoder(max_frame_size=max(self.max_frame_size, len(data) + 64))
         st.timeline.clear()
         st.timeline.append((0, t_ns))
         base = st.base
-        st.base += len(data)
-        st.bytes += len(data)
-        st.last_ns = t_ns
+        step = self.slice_size
+        check = self.checkpoint
+        events: list[Event] = []
+        done = 0
+        # In slices, as for a stream: the decoder gives the same events either way.
+        while done < len(data):
+            events += dec.feed(data[done : done + step])
+            done = min(len(data), done + step)
+            if check is not None:
+                check()
+                if self.undecoded_reason is not None:
+                    break
+        events += dec.close()
+        st.base += done
         self._emit(conn, c.transport, direction, st, events, t_ns, base=base)
+        if done < len(data):
+            self._raw(conn, c.transport, direction, st, t_ns, data[done:])
+
+    def _raw(
+        self, conn: int, transport: str, direction: Direction, st: _Stream, t_ns: int, data: bytes
+    ) -> None:
+        """Record ``data`` undecoded, after what the stream's decoder holds."""
+        if not st.raw:
+            st.raw = True
+            self._emit(conn, transport, direction, st, st.decoder.close(), t_ns)
+            st.base += st.decoder.stream_offset
+            st.decoder = FrameDecoder(max_frame_size=self.max_frame_size)
+            st.timeline.clear()
+        reason = self.undecoded_reason or "not decoded"
+        for k in range(0, len(data), PROBLEM_RAW_LIMIT):
+            piece = data[k : k + PROBLEM_RAW_LIMIT]
+            self.sink.write(
+                ProblemRecord(
+                    conn=conn,
+                    transport=transport,
+                    dir=direction,
+                    # "malformed" for every reader: the bytes are on the wire at this
+                    # offset (export-pcap puts them back); the rule says why.
+                    kind="malformed",
+                    rule="undecoded",
+                    detail=f"{len(piece)} bytes recorded undecoded: {reason}",
+                    offset=st.base,
+                    size=len(piece),
+                    raw=piece,
+                    first_ns=t_ns,
+                    complete_ns=t_ns,
+                )
+            )
+            self.problems += 1
+            st.base += len(piece)
 
     def gap(
         self, conn: int, direction: Direction, t_ns: int, missing: int, detail: str = ""

@@ -476,3 +476,226 @@ def test_close_without_start_writes_an_empty_recording(tmp_path: Path, upstream:
     RecordingProxy(upstream.address, out=out).close()
     rec = read_recording(out)
     assert rec.complete and not rec.frames and rec.metadata["upstream"]
+
+
+# --------------------------------------------------------------------------- hostile peers
+
+
+def _start_proxy_cli(
+    tmp_path: Path, upstream: tuple[str, int], *extra: str, nofile: int | None = None
+) -> tuple[subprocess.Popen[str], tuple[str, int], Path]:
+    """``proxy`` in a subprocess (optionally with a low descriptor limit); its address."""
+    out = tmp_path / "hostile.mcap"
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+
+    def limit() -> None:
+        if nofile is not None:
+            import resource
+
+            resource.setrlimit(resource.RLIMIT_NOFILE, (nofile, nofile))
+
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "conformance",
+            "proxy",
+            "--listen",
+            "127.0.0.1:0",
+            "--upstream",
+            f"127.0.0.1:{upstream[1]}",
+            "--out",
+            str(out),
+            *extra,
+        ],
+        stderr=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
+        text=True,
+        env=env,
+        cwd=ROOT,
+        preexec_fn=limit,
+    )
+    assert proc.stderr is not None
+    line = proc.stderr.readline()
+    m = re.search(r"listening on ([\d.]+):(\d+)", line)
+    assert m, line
+    return proc, parse_hostport(f"{m.group(1)}:{m.group(2)}"), out
+
+
+def _readline(proc: subprocess.Popen[str], timeout: float = 60) -> str:
+    """The next line of ``proc``'s stderr ('' if none comes in ``timeout``: a failure,
+    not a hang)."""
+    import queue
+
+    q: queue.Queue[str] = queue.Queue()
+    assert proc.stderr is not None
+    stream = proc.stderr
+    threading.Thread(target=lambda: q.put(stream.readline()), daemon=True).start()
+    try:
+        return q.get(timeout=timeout)
+    except queue.Empty:
+        return ""
+
+
+def _closed_by_peer(sock: socket.socket) -> bool:
+    """Wait (generously) for the peer to close: end of stream or a reset."""
+    sock.settimeout(30)
+    try:
+        return sock.recv(1) == b""
+    except ConnectionResetError:
+        return True
+
+
+def _exchange(addr: tuple[str, int], cnt: int) -> Frame:
+    with socket.create_connection(addr, timeout=30) as c:
+        c.sendall(encode_frame(cnt, 201, 'MoveJ("P1")'))
+        (reply,) = recv_frames(c, 1, timeout=30)
+    return reply
+
+
+def _stop(proc: subprocess.Popen[str]) -> tuple[int, str]:
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    return proc.returncode, err
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="RLIMIT_NOFILE semantics")
+def test_descriptor_exhaustion_backs_off_says_so_and_forwarding_goes_on(tmp_path: Path) -> None:
+    from conformance.net.emulator import EmulatorServer
+
+    with EmulatorServer() as emu:
+        # 64 descriptors, and no --max-connections cap below them: accept() or the
+        # upstream socket() runs out (EMFILE) long before 100 clients are in.
+        proc, addr, out = _start_proxy_cli(
+            tmp_path, emu.address, "--max-connections", "1000", nofile=64
+        )
+        clients: list[socket.socket] = []
+        try:
+            for _ in range(100):
+                clients.append(socket.create_connection(addr, timeout=30))
+            # The one message of the episode: the error and the connections open.
+            line = _readline(proc)
+            assert "cannot accept connections" in line and "Too many open files" in line, line
+            assert re.search(r"\(\d+ connections open\)", line), line
+        finally:
+            for c in clients:
+                c.close()
+        # Still alive, forwarding, and recording a normal exchange.
+        assert proc.poll() is None
+        deadline = time.monotonic() + 60
+        while True:  # the backlog of closed clients drains first
+            try:
+                reply = _exchange(addr, 4242)
+                break
+            except OSError:
+                if time.monotonic() > deadline:
+                    raise
+        assert reply.cnt == 4242
+        code, err = _stop(proc)
+    assert code == 0, err
+    assert "accepting connections again" in err
+    rec = read_recording(out)
+    assert rec.complete
+    assert [f.cnt for f in rec.frames if f.dir == "c2s"][-1:] == [4242]
+    assert [f.cnt for f in rec.frames if f.dir == "s2c"][-1:] == [4242]
+    # Clients accepted while the upstream socket could not be opened are recorded.
+    failed = [c for c in rec.connections if c.reason.startswith("upstream socket failed")]
+    assert all("Too many open files" in c.reason for c in failed)
+
+
+def test_max_connections_refuses_and_records_the_extra_clients(
+    tmp_path: Path, upstream: Upstream
+) -> None:
+    out = tmp_path / "r.mcap"
+    with RecordingProxy(upstream.address, out=out, max_connections=2) as p:
+        held = [socket.create_connection(p.address) for _ in range(2)]
+        for i, c in enumerate(held):  # both forwarded
+            c.sendall(encode_frame(i, 201, 'MoveJ("P1")'))
+            assert recv_frames(c, 1)[0].cnt == i
+        with socket.create_connection(p.address) as extra:
+            extra.settimeout(30)
+            assert extra.recv(1) == b""  # accepted and closed at once
+        wait_for(lambda: p.stats.rejected == 1, timeout=30)
+        assert p.open_connections == 2
+        for c in held:
+            c.close()
+        wait_for(lambda: p.open_connections == 0, timeout=30)
+        with socket.create_connection(p.address) as c:  # room again
+            c.sendall(encode_frame(9, 201, 'MoveJ("P1")'))
+            assert recv_frames(c, 1)[0].cnt == 9
+    rec = read_recording(out)
+    closes = [c for c in rec.connections if c.event == "close"]
+    assert [c.reason for c in closes].count("refused: too many connections (max 2)") == 1
+    assert len(closes) == 4
+
+
+def test_an_error_handling_one_connection_closes_that_connection_only(
+    tmp_path: Path, upstream: Upstream, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    out = tmp_path / "r.mcap"
+    messages: list[str] = []
+    with RecordingProxy(upstream.address, out=out, log=messages.append) as p:
+        real = RecordingProxy._recv
+
+        def recv(self: RecordingProxy, pair, *, from_client: bool) -> bool:  # type: ignore[no-untyped-def]
+            if pair.conn == 1:
+                raise ZeroDivisionError("a bug this peer found")
+            return real(self, pair, from_client=from_client)
+
+        monkeypatch.setattr(RecordingProxy, "_recv", recv)
+        with socket.create_connection(p.address) as bad:
+            bad.sendall(b"anything")
+            assert _closed_by_peer(bad)
+        with socket.create_connection(p.address) as good:
+            good.sendall(encode_frame(5, 201, 'MoveJ("P1")'))
+            assert recv_frames(good, 1)[0].cnt == 5
+        assert p.running and p.stats.errors == 1
+    assert any("ZeroDivisionError" in m for m in messages)
+    rec = read_recording(out)
+    reasons = {c.conn: c.reason for c in rec.connections if c.event == "close"}
+    assert reasons[1] == "proxy error: ZeroDivisionError: a bug this peer found"
+    assert [f.cnt for f in rec.frames if f.dir == "s2c"] == [5]
+
+
+def test_a_failed_io_loop_is_said_and_the_cli_exits_non_zero_with_a_finished_file(
+    tmp_path: Path, upstream: Upstream
+) -> None:
+    # The loop's own failure (a bug outside any one connection): simulated with a
+    # listener whose accept() raises something unexpected, in a subprocess.
+    code = (
+        "import socket, sys\n"
+        "from conformance.net import proxy\n"
+        "def boom(self):\n"
+        "    raise RuntimeError('loop bug')\n"
+        "proxy.RecordingProxy._accept = boom\n"
+        "from conformance.cli import main\n"
+        "sys.exit(main(sys.argv[1:]))\n"
+    )
+    out = tmp_path / "r.mcap"
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            code,
+            "proxy",
+            "--listen",
+            "127.0.0.1:0",
+            "--upstream",
+            f"127.0.0.1:{upstream.address[1]}",
+            "--out",
+            str(out),
+        ],
+        stderr=subprocess.PIPE,
+        text=True,
+        env=dict(os.environ, PYTHONPATH=str(ROOT)),
+        cwd=ROOT,
+    )
+    assert proc.stderr is not None
+    m = re.search(r"listening on ([\d.]+):(\d+)", proc.stderr.readline())
+    assert m
+    with contextlib.suppress(OSError):
+        socket.create_connection((m.group(1), int(m.group(2))), timeout=30).close()
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 2
+    assert "the I/O thread failed: RuntimeError: loop bug" in err
+    assert read_recording(out).complete

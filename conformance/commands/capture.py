@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import UsageError
+from ..frame import DEFAULT_MAX_FRAME_SIZE
 from ..recording import C2S, FrameRecord, read_recording, recover
 from ..spec import SpecSet, default_specs, load_specs
 
@@ -83,6 +84,30 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "--print", dest="print_frames", action="store_true", help="print one line per frame"
     )
     p.add_argument("--connect-timeout", type=float, default=5.0)
+    p.add_argument(
+        "--max-connections",
+        type=int,
+        metavar="N",
+        help="TCP connections forwarded at once; beyond, a new client is accepted, closed "
+        "and recorded as refused (default 512, fewer if the descriptor limit is lower)",
+    )
+    p.add_argument(
+        "--max-frame-size",
+        type=parse_size,
+        default=DEFAULT_MAX_FRAME_SIZE,
+        metavar="SIZE",
+        help="largest frame the recorder decodes; longer runs are recorded as problems "
+        "(default 256K; with the recorder's other buffers, memory per connection is a "
+        "few times this)",
+    )
+    p.add_argument(
+        "--stop-timeout",
+        type=float,
+        default=1.0,
+        metavar="SECONDS",
+        help="on SIGINT/SIGTERM, decode what the recorder is behind on for this long, then "
+        "write the rest to the file undecoded (default 1)",
+    )
     p.add_argument("--specs-dir", help="spec set directory")
     p.set_defaults(func=_run_proxy)
 
@@ -243,9 +268,14 @@ def _run_proxy(args: argparse.Namespace) -> int:
             split_duration=args.split_duration,
             connect_timeout=args.connect_timeout,
             on_frame=on_frame,
+            max_connections=args.max_connections,
+            max_frame_size=args.max_frame_size,
+            stop_timeout=args.stop_timeout,
         )
     except OSError as e:
         raise UsageError(f"cannot listen on {args.listen}: {e.strerror or e}") from None
+    except ValueError as e:
+        raise UsageError(str(e)) from None
     old = {s: signal.signal(s, _stop) for s in (signal.SIGINT, signal.SIGTERM)}
     # Hand the GIL over sooner (default 5 ms): the forwarding thread must not wait
     # long for the recorder thread when a frame arrives.
@@ -257,18 +287,34 @@ def _run_proxy(args: argparse.Namespace) -> int:
         ua, uu = proxy.udp_address, udp_upstream
         msg += f" (udp {ua[0]}:{ua[1]} -> {uu[0]}:{uu[1]})"
     print(msg + f", recording to {args.out}", file=sys.stderr, flush=True)
+    failure: BaseException | None = None
     try:
-        while not stop.wait(0.2):
+        # A failed I/O thread (a bug) ends the run: the file is finished below, and
+        # the exit code says it failed, rather than a live process forwarding nothing.
+        while not stop.wait(0.2) and proxy.running:
             pass
     finally:
         for s, h_ in old.items():
             signal.signal(s, h_)
-        proxy.close()
+        try:
+            proxy.close()
+        except Exception as e:
+            failure = e
+    st = proxy.stats
+    extra = ""
+    if st.rejected or st.accept_errors or st.errors:
+        extra = (
+            f" ({st.rejected} refused for --max-connections, {st.accept_errors} accept "
+            f"errors, {st.errors} closed by an error)"
+        )
     print(
-        f"proxy: stopped; {proxy.stats.connections} connections, {proxy.frames_recorded} frames "
+        f"proxy: stopped; {st.connections} connections{extra}, {proxy.frames_recorded} frames "
         f"recorded to {', '.join(proxy.paths)}",
         file=sys.stderr,
     )
+    if failure is not None:
+        print(f"proxy: failed: {type(failure).__name__}: {failure}", file=sys.stderr)
+        return 2
     return 0
 
 

@@ -54,6 +54,7 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
+from ..frame import DEFAULT_MAX_FRAME_SIZE
 from ..recording import (
     C2S,
     S2C,
@@ -65,9 +66,22 @@ from ..recording import (
 )
 from ..spec import SpecSet
 
-__all__ = ["ProxyStats", "RecordingProxy", "ReplayServer", "format_addr", "parse_hostport"]
+__all__ = [
+    "ProxyStats",
+    "RecordingProxy",
+    "ReplayServer",
+    "default_max_connections",
+    "format_addr",
+    "parse_hostport",
+]
 
 _READ = selectors.EVENT_READ
+# accept() or socket() failing for want of a resource: the process (EMFILE) or the
+# system (ENFILE) is out of descriptors, or the kernel out of memory.  Retrying at
+# once would spin; the listener rests with a growing delay instead.
+_RESOURCE_ERRNOS = frozenset({errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM})
+_BACKOFF_FIRST = 0.01
+_BACKOFF_MAX = 1.0
 _WRITE = selectors.EVENT_WRITE
 _RECV = 256 * 1024
 _UDP_RECV = 65535
@@ -112,6 +126,9 @@ class ProxyStats:
     refused: int = 0
     closed: int = 0
     paused: int = 0  # times the I/O thread waited for the recorder
+    rejected: int = 0  # clients closed at once: --max-connections reached
+    accept_errors: int = 0  # accept()/socket() failures for want of a resource
+    errors: int = 0  # connections closed by an unexpected error while handling them
 
 
 @dataclass(eq=False)
@@ -153,6 +170,11 @@ _F_SETPIPE_SZ = 1031  # Linux fcntl: grow the pipe (1 MiB, the unprivileged maxi
 _PIPE_SIZE = 1 << 20
 # Counters the recorder process keeps in shared memory: frames, problems, bytes taken.
 _COUNTERS = struct.Struct("<qqq")
+# And one value the proxy writes there: when stopping, the time.monotonic() (one clock
+# for every process on the machine) after which the recorder stops decoding and
+# copies what is left to the file undecoded, so that a stop never waits on a backlog.
+_STOP_AT = struct.Struct("<d")
+_STOP_AT_OFFSET = 64
 
 
 class RecorderCounters:
@@ -218,7 +240,13 @@ class RecordingProxy:
         max_backlog: int = 64 << 20,
         record_tick: float = 0.01,
         on_frame: Callable[[FrameRecord], None] | None = None,
+        max_connections: int | None = None,
+        max_frame_size: int = DEFAULT_MAX_FRAME_SIZE,
+        stop_timeout: float = 1.0,
+        log: Callable[[str], None] | None = None,
     ) -> None:
+        if max_frame_size < 64:
+            raise ValueError("max_frame_size must be at least 64 bytes")
         if specs is None:
             from ..spec import default_specs
 
@@ -234,8 +262,20 @@ class RecordingProxy:
         self.max_pending = max_pending
         self.max_backlog = max_backlog
         self.record_tick = record_tick
+        self.max_frame_size = max_frame_size
+        self.stop_timeout = stop_timeout
+        self.max_connections = (
+            max_connections if max_connections is not None else default_max_connections()
+        )
+        self.log = log if log is not None else _log_stderr
         self.stats = ProxyStats()
         self.error: BaseException | None = None
+        self._open_pairs = 0
+        self._backoff = 0.0  # current accept delay (0: accepting)
+        self._accept_at = 0.0  # monotonic time the listener listens again
+        self._listening = True
+        self._episode_start = 0.0  # when the current shortage began
+        self._io_done = threading.Event()
 
         self._listener = socket.create_server(listen, family=_family(listen[0]), backlog=512)
         self._listener.setblocking(False)
@@ -316,6 +356,10 @@ class RecordingProxy:
         if self._closed:
             return
         self._closed = True
+        # The recorder decodes what it is behind on for stop_timeout at most, then
+        # copies the rest to the file undecoded: a stop never waits on a backlog.
+        with contextlib.suppress(ValueError):
+            _STOP_AT.pack_into(self._shared, _STOP_AT_OFFSET, time.monotonic() + self.stop_timeout)
         self._stopping.set()
         with contextlib.suppress(OSError):
             self._wake_w.send(b"x")
@@ -351,6 +395,21 @@ class RecordingProxy:
         return list(self._paths)
 
     @property
+    def running(self) -> bool:
+        """False once the I/O thread has ended (after :meth:`close`, or if it failed:
+        then :attr:`error` says why and :meth:`close` raises it)."""
+        return self._io_thread is not None and not self._io_done.is_set()
+
+    def wait(self, timeout: float | None = None) -> bool:
+        """Wait until the I/O thread ends; True if it has."""
+        return self._io_done.wait(timeout)
+
+    @property
+    def open_connections(self) -> int:
+        """TCP connections being forwarded now."""
+        return self._open_pairs
+
+    @property
     def frames_recorded(self) -> int:
         return self.recorder.frames
 
@@ -380,6 +439,8 @@ class RecordingProxy:
             "specs": self.specs,
             "frames": self.on_frame is not None,
             "parent": os.getpid(),
+            "max_frame_size": self.max_frame_size,
+            "stop_timeout": self.stop_timeout,
         }
         shared = self._shared_file.fileno()
         root = str(Path(__file__).resolve().parent.parent.parent)
@@ -513,16 +574,28 @@ class RecordingProxy:
                     tag = key.data
                     # Forwarding first: a pair's event is the hot path.
                     if type(tag) is pairs:
-                        self._pair_event(tag, key.fileobj, mask)  # type: ignore[arg-type]
+                        try:
+                            self._pair_event(tag, key.fileobj, mask)  # type: ignore[arg-type]
+                        except Exception as e:
+                            # One connection's trouble (a bug its bytes found) ends
+                            # that connection, with the reason, never the proxy.
+                            self._pair_failed(tag, e)
                     elif tag == "listen":
                         self._accept()
                     elif tag == "wake":
                         with contextlib.suppress(OSError):
                             self._wake_r.recv(64)
                     elif tag == "udp":
-                        self._udp_from_client()
+                        try:
+                            self._udp_from_client()
+                        except Exception as e:
+                            self.stats.errors += 1
+                            self.log(f"proxy: UDP: {type(e).__name__}: {e}")
                     elif isinstance(tag, _UdpSession):
-                        self._udp_from_upstream(tag)
+                        try:
+                            self._udp_from_upstream(tag)
+                        except Exception as e:
+                            self._session_failed(tag, e)
                     elif tag == "rec":
                         writable = True
                 now = monotonic()
@@ -543,10 +616,16 @@ class RecordingProxy:
                         self._rec_since = 0.0
                 if now >= self._next_deadlines:
                     self._deadlines()
-        except Exception as e:  # pragma: no cover - a bug; do not hang the caller
+        except Exception as e:
+            # The loop itself failed (a bug): say so, and stop; the caller sees
+            # running go False, and close() finishes the file and raises this.
             self.error = e
+            self.log(f"proxy: the I/O thread failed: {type(e).__name__}: {e}; stopping")
         finally:
-            self._shutdown_all()
+            try:
+                self._shutdown_all()
+            finally:
+                self._io_done.set()
 
     _reply_due = False
     _rec_since = 0.0
@@ -569,36 +648,121 @@ class RecordingProxy:
                 client, addr = self._listener.accept()
             except (BlockingIOError, InterruptedError):
                 return
-            except OSError:
+            except OSError as e:
+                if e.errno in _RESOURCE_ERRNOS:
+                    self._accept_failed(e)
+                # Otherwise that one client is gone already (ECONNABORTED...), or
+                # the listener is closing: nothing to record.
                 return
-            client.setblocking(False)
-            client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            conn = self._new_conn()
-            self.stats.connections += 1
-            t = time.time_ns()
+            try:
+                self._new_pair(client, addr)
+            except Exception as e:
+                with contextlib.suppress(OSError):
+                    client.close()
+                self.stats.errors += 1
+                self.log(f"proxy: a new connection failed: {type(e).__name__}: {e}")
+            if not self._listening:
+                return  # resting after a shortage (see _accept_failed)
+
+    def _new_pair(self, client: socket.socket, addr: Any) -> None:
+        client.setblocking(False)
+        conn = self._new_conn()
+        self.stats.connections += 1
+        t = time.time_ns()
+        self._put(_OPEN, conn, "", t, _addresses("tcp", addr, self.upstream, self.address))
+        if self._open_pairs >= self.max_connections:
+            # Accepted and closed at once: the client learns at once, and the queue
+            # behind it does not fill with clients that would wait in vain.
+            self.stats.rejected += 1
+            with contextlib.suppress(OSError):
+                client.close()
+            reason = f"refused: too many connections (max {self.max_connections})"
+            self._put(_CLOSE, conn, "", t, reason.encode("utf-8"))
+            return
+        client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        try:
             up = socket.socket(_family(self.upstream[0]), socket.SOCK_STREAM)
-            up.setblocking(False)
-            up.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            pair = _Pair(
-                conn=conn,
-                client=client,
-                upstream=up,
-                deadline=time.monotonic() + self.connect_timeout,
+        except OSError as e:
+            self.stats.refused += 1
+            with contextlib.suppress(OSError):
+                client.close()
+            reason = f"upstream socket failed: {e.strerror or e}"
+            self._put(_CLOSE, conn, "", t, reason.encode("utf-8"))
+            if e.errno in _RESOURCE_ERRNOS:
+                self._accept_failed(e)
+            return
+        up.setblocking(False)
+        up.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        pair = _Pair(
+            conn=conn,
+            client=client,
+            upstream=up,
+            deadline=time.monotonic() + self.connect_timeout,
+        )
+        self._pairs[client] = pair
+        self._pairs[up] = pair
+        self._open_pairs += 1
+        self._accepted()  # a whole pair: the end of a shortage episode, if one was on
+        err = up.connect_ex(self.upstream)
+        if err not in (0, errno.EINPROGRESS, errno.EWOULDBLOCK, errno.EAGAIN):
+            self._refused(pair, err)
+            return
+        self._update(pair)
+
+    def _accept_failed(self, e: OSError) -> None:
+        """Out of descriptors or memory: rest the listener, 10 ms doubling to 1 s."""
+        self.stats.accept_errors += 1
+        if not self._backoff:
+            self._episode_start = time.monotonic()
+            self._backoff = _BACKOFF_FIRST
+            self.log(
+                f"proxy: cannot accept connections: {e.strerror or e} "
+                f"({self._open_pairs} connections open); retrying with a backoff of up to "
+                f"{_BACKOFF_MAX:g} s"
             )
-            self._put(
-                _OPEN,
-                conn,
-                "",
-                t,
-                _addresses("tcp", addr, self.upstream, self.address),
+        else:
+            self._backoff = min(_BACKOFF_MAX, self._backoff * 2)
+        self._accept_at = time.monotonic() + self._backoff
+        if self._listening:
+            with contextlib.suppress(KeyError, ValueError):
+                self._sel.unregister(self._listener)
+            self._listening = False
+        self._next_deadlines = min(self._next_deadlines, self._accept_at)
+
+    def _accepted(self) -> None:
+        if self._backoff:
+            waited = time.monotonic() - self._episode_start
+            self.log(
+                f"proxy: accepting connections again after {waited:.1f} s "
+                f"({self._open_pairs} connections open)"
             )
-            self._pairs[client] = pair
-            self._pairs[up] = pair
-            err = up.connect_ex(self.upstream)
-            if err not in (0, errno.EINPROGRESS, errno.EWOULDBLOCK, errno.EAGAIN):
-                self._refused(pair, err)
-                continue
-            self._update(pair)
+            self._backoff = 0.0
+
+    def _resume_accepting(self) -> None:
+        if not self._listening and not self._stopping.is_set():
+            with contextlib.suppress(KeyError, ValueError, OSError):
+                self._sel.register(self._listener, _READ, "listen")
+            self._listening = True
+
+    def _pair_failed(self, p: _Pair, e: BaseException) -> None:
+        self.stats.errors += 1
+        if self.stats.errors <= 10 or self.stats.errors % 1000 == 0:
+            self.log(f"proxy: connection {p.conn} closed: {type(e).__name__}: {e}")
+        with contextlib.suppress(Exception):
+            self._close_pair(p, f"proxy error: {type(e).__name__}: {e}")
+        # Whatever state it failed in, the pair's sockets go (idempotent).
+        for sock in (p.client, p.upstream):
+            self._pairs.pop(sock, None)
+            with contextlib.suppress(Exception):
+                self._sel.unregister(sock)
+            with contextlib.suppress(OSError):
+                sock.close()
+
+    def _session_failed(self, s: _UdpSession, e: BaseException) -> None:
+        self.stats.errors += 1
+        self.log(f"proxy: UDP session {s.conn} closed: {type(e).__name__}: {e}")
+        with contextlib.suppress(Exception):
+            self._close_session(s, f"proxy error: {type(e).__name__}: {e}")
 
     def _refused(self, pair: _Pair, err: int) -> None:
         self.stats.refused += 1
@@ -767,6 +931,11 @@ class RecordingProxy:
         now = time.monotonic()
         # Timeouts are checked 20 times a second, not on every event.
         self._next_deadlines = now + 0.05
+        if not self._listening:
+            if now >= self._accept_at:
+                self._resume_accepting()
+            else:
+                self._next_deadlines = min(self._next_deadlines, self._accept_at)
         seen: set[int] = set()
         for p in list(self._pairs.values()):
             if p.conn in seen or p.closed:
@@ -799,6 +968,7 @@ class RecordingProxy:
             self._put(_DATA, p.conn, d, t, data)
         p.closed = True
         self.stats.closed += 1
+        self._open_pairs -= 1
         for sock in (p.client, p.upstream):
             if p.interest.get(sock.fileno(), 0):
                 with contextlib.suppress(KeyError, ValueError):
@@ -822,7 +992,14 @@ class RecordingProxy:
             t = time.time_ns()
             s = self._sessions.get(addr)
             if s is None:
-                sock = socket.socket(_family(self.udp_upstream[0]), socket.SOCK_DGRAM)
+                try:
+                    sock = socket.socket(_family(self.udp_upstream[0]), socket.SOCK_DGRAM)
+                except OSError as e:
+                    # Out of descriptors: this datagram is lost, as UDP may lose it.
+                    self.stats.accept_errors += 1
+                    if self.stats.accept_errors == 1 or e.errno not in _RESOURCE_ERRNOS:
+                        self.log(f"proxy: UDP: cannot open a session: {e.strerror or e}")
+                    continue
                 sock.setblocking(False)
                 try:
                     sock.connect(self.udp_upstream)
@@ -891,6 +1068,28 @@ class RecordingProxy:
                     sock.close()
 
 
+def default_max_connections() -> int:
+    """512 TCP connections, or fewer if the descriptor limit allows fewer pairs.
+
+    Each connection takes two descriptors (client and upstream) and the proxy a
+    dozen of its own; beyond this, new clients are accepted and closed at once.
+    """
+    try:
+        import resource
+
+        soft = resource.getrlimit(resource.RLIMIT_NOFILE)[0]
+    except (ImportError, OSError, ValueError):
+        return 512
+    if soft == resource.RLIM_INFINITY:
+        return 512
+    return max(1, min(512, (soft - 32) // 2))
+
+
+def _log_stderr(msg: str) -> None:
+    with contextlib.suppress(OSError, ValueError):
+        print(msg, file=sys.stderr, flush=True)
+
+
 def _addresses(transport: str, client: Any, upstream: Any, local: Any) -> bytes:
     """An open event's payload."""
     doc = {
@@ -937,7 +1136,10 @@ def _recorder_main(argv: list[str]) -> None:
     status.send(("ready", writer.paths))
     out_frames: list[FrameRecord] = []
     rec = StreamRecorder(
-        writer, specs=config["specs"], on_frame=out_frames.append if config["frames"] else None
+        writer,
+        specs=config["specs"],
+        on_frame=out_frames.append if config["frames"] else None,
+        max_frame_size=config["max_frame_size"],
     )
     _Recorder(config, fd, status, shared, writer, rec, out_frames).run()
 
@@ -984,9 +1186,14 @@ class _Recorder:
         self.flush_interval = config["flush_interval"]
         self.idle_ns = config["idle_resolve_ns"]
         self.tick = config["record_tick"]
+        self.stop_timeout = config["stop_timeout"]
         self.taken = 0
         self.error_sent = False
         self.paths = list(writer.paths)
+        self.last_flush = time.monotonic()
+        self.latest_ns = 0  # arrival time of the newest event taken from the pipe
+        self.next_poll = 0.0
+        rec.checkpoint = self.checkpoint
 
     def fail(self, e: BaseException) -> None:
         """The recording failed (disk full...): tell the proxy once, and carry on."""
@@ -995,29 +1202,60 @@ class _Recorder:
             with contextlib.suppress(OSError):
                 self.status.send(("error", _picklable(e)))
 
+    def checkpoint(self) -> None:
+        """Between two decoder slices (see StreamRecorder): keep the flush promise,
+        and once the proxy's stop deadline has passed, record the rest undecoded."""
+        now = time.monotonic()
+        if now - self.last_flush >= self.flush_interval:
+            # Idle decisions use the newest arrival time taken from the pipe: the
+            # recorder is behind, and the bytes still queued may complete a frame.
+            self.flush(now, self.latest_ns)
+        if now >= self.next_poll and self.rec.undecoded_reason is None:
+            self.next_poll = now + 0.01
+            deadline = _STOP_AT.unpack_from(self.shared, _STOP_AT_OFFSET)[0]
+            if deadline and now >= deadline:
+                self.rec.stop_decoding(
+                    f"the proxy was stopping and these bytes were not decoded within "
+                    f"{self.stop_timeout:g} s"
+                )
+            elif os.getppid() != self.parent:
+                self.rec.stop_decoding("the proxy died")
+
+    def flush(self, now: float, idle_now_ns: int) -> None:
+        self.last_flush = now
+        try:
+            self.rec.idle(idle_now_ns, self.idle_ns)
+            self.writer.flush()
+        except Exception as e:
+            self.fail(e)
+        self.publish()
+
     def run(self) -> None:
         import select
 
         fd = self.fd
-        rec = self.rec
         buf = bytearray()
-        last_flush = time.monotonic()
         stopped = eof = False
         got = True
+        drained = True
         os.set_blocking(fd, False)
         while not (stopped or eof):
-            # Work in ticks while traffic flows; wait for it when it does not.
-            if got and self.tick:
+            # Work in ticks while traffic flows; wait for it when it does not.  A
+            # recorder that has stopped decoding (the proxy is stopping) only copies
+            # bytes to the file: it takes them as fast as it can.
+            if got and self.tick and self.rec.undecoded_reason is None:
                 time.sleep(self.tick)
-            else:
+            elif not got:
                 select.select([fd], [], [], min(0.2, self.flush_interval))
             got = False
             # Bounded reads: a recorder far behind leaves the rest in the pipe, and the
             # proxy, finding the pipe full, stops reading from its sockets.
+            drained = False
             for _ in range(4):
                 try:
                     chunk = os.read(fd, 1 << 20)
                 except BlockingIOError:
+                    drained = True
                     break
                 if not chunk:
                     eof = True
@@ -1026,21 +1264,17 @@ class _Recorder:
                 buf += chunk
                 stopped = self.events(buf)
                 if stopped or len(chunk) < (1 << 20):
+                    drained = True
                     break
             if os.getppid() != self.parent:
                 eof = True  # the proxy is gone (SIGKILL) and someone else holds the pipe
             self.publish()
             now = time.monotonic()
-            if now - last_flush >= self.flush_interval:
-                last_flush = now
-                try:
-                    rec.idle(time.time_ns(), self.idle_ns)
-                    self.writer.flush()
-                except Exception as e:
-                    self.fail(e)
+            if now - self.last_flush >= self.flush_interval:
+                self.flush(now, time.time_ns() if drained else self.latest_ns)
         if not stopped:
             try:
-                rec.finish(t_ns=time.time_ns(), reason="proxy died")
+                self.rec.finish(t_ns=time.time_ns(), reason="proxy died")
             except Exception as e:
                 self.fail(e)
         try:
@@ -1065,6 +1299,7 @@ class _Recorder:
                 break
             payload = bytes(buf[pos + size : pos + size + n])
             pos += size + n
+            self.latest_ns = max(self.latest_ns, t_ns)
             try:
                 if kind == _DATA:
                     self.taken += n
