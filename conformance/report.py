@@ -18,6 +18,9 @@ from typing import Any
 from . import __version__
 
 __all__ = [
+    "MAX_DETAIL",
+    "MAX_FRAME_LINE",
+    "MAX_FRAME_LINES",
     "CaseResult",
     "CommandSummary",
     "Outcome",
@@ -55,8 +58,23 @@ _SEVERITY = {
 }
 
 
+#: Bounds on one case's failure text, so that a report stays small whatever the
+#: target sends: characters of ``detail``, lines of ``frames``, characters a line.
+MAX_DETAIL = 2000
+MAX_FRAME_LINES = 20
+MAX_FRAME_LINE = 400
+
+
+def _clip(text: str, limit: int) -> str:
+    if len(text) <= limit:
+        return text
+    return f"{text[:limit]}...(+{len(text) - limit} more characters)"
+
+
 @dataclass(frozen=True, kw_only=True)
 class CaseResult:
+    """One case's outcome; ``detail``, ``frames`` and ``reproduce`` are bounded on construction."""
+
     id: str
     cmd_id: int
     name: str
@@ -66,9 +84,20 @@ class CaseResult:
     reproduce: str = ""
     #: Frames involved (request/reply text), shown for failures.
     frames: tuple[str, ...] = ()
+    #: The case never ran: the run stopped before it (``Report.stopped`` says why).
+    not_run: bool = False
+
+    def __post_init__(self) -> None:
+        # Frozen: the bounds are applied once, here, so no front-end can forget them.
+        object.__setattr__(self, "detail", _clip(self.detail, MAX_DETAIL))
+        object.__setattr__(self, "reproduce", _clip(self.reproduce, MAX_DETAIL))
+        frames = tuple(_clip(f, MAX_FRAME_LINE) for f in self.frames[:MAX_FRAME_LINES])
+        if len(self.frames) > MAX_FRAME_LINES:
+            frames += (f"(+{len(self.frames) - MAX_FRAME_LINES} more lines)",)
+        object.__setattr__(self, "frames", frames)
 
     def to_json(self) -> dict[str, Any]:
-        return {
+        out: dict[str, Any] = {
             "id": self.id,
             "group": self.group,
             "outcome": self.outcome.value,
@@ -76,6 +105,9 @@ class CaseResult:
             "reproduce": self.reproduce,
             "frames": list(self.frames),
         }
+        if self.not_run:
+            out["not_run"] = True
+        return out
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -119,6 +151,8 @@ class Report:
     strict: bool = False
     meta: dict[str, Any] = field(default_factory=dict)
     cases: list[CaseResult] = field(default_factory=list)
+    #: Why the run stopped early (target unreachable or dead, budget used up), in one line.
+    stopped: str | None = None
 
     def add(self, case: CaseResult) -> None:
         self.cases.append(case)
@@ -163,6 +197,7 @@ class Report:
             "spec_version": self.spec_version,
             "seed": self.seed,
             "strict": self.strict,
+            "stopped": self.stopped,
             "meta": self.meta,
             "totals": self.totals(),
             "commands": {
@@ -189,6 +224,7 @@ class Report:
             transport=doc.get("transport", "tcp"),
             strict=doc.get("strict", False),
             meta=dict(doc.get("meta", {})),
+            stopped=doc.get("stopped"),
         )
         for cid, cmd in doc["commands"].items():
             for c in cmd["cases"]:
@@ -202,14 +238,26 @@ class Report:
                         detail=c.get("detail", ""),
                         reproduce=c.get("reproduce", ""),
                         frames=tuple(c.get("frames", ())),
+                        not_run=bool(c.get("not_run", False)),
                     )
                 )
         return r
 
     def render_terminal(self, *, width: int = 100, only_failures: bool = False) -> str:
-        """Per-command table, failures first."""
-        rows = sorted(self.commands().values(), key=lambda s: (_SEVERITY[s.outcome], s.cmd_id))
-        lines = [f"{'ID':>5}  {'name':<34} {'outcome':<14} counts"]
+        """Per-command table, failures first.
+
+        Cases that never ran (the run stopped) are left out of the rows: one line
+        counts them and gives the reason, instead of a table of ERROR rows without
+        one.  (They still count as ERROR in the totals, the JSON and the exit code.)
+        """
+        ran = [
+            CommandSummary(
+                cmd_id=s.cmd_id, name=s.name, cases=tuple(c for c in s.cases if not c.not_run)
+            )
+            for s in self.commands().values()
+        ]
+        rows = sorted((s for s in ran if s.cases), key=lambda s: (_SEVERITY[s.outcome], s.cmd_id))
+        lines = [f"{'ID':>5}  {'name':<34} {'outcome':<14} counts"] if rows else []
         for s in rows:
             if only_failures and s.outcome in (Outcome.PASS, Outcome.SKIPPED):
                 continue
@@ -217,6 +265,9 @@ class Report:
             lines.append(f"{s.cmd_id:>5}  {s.name[:34]:<34} {s.outcome.value:<14} {counts}"[:width])
         t = self.totals()
         counts = ", ".join(f"{v} {k}" for k, v in t.items() if v)
+        not_run = sum(c.not_run for c in self.cases)
+        if not_run:
+            lines.append(f"{not_run} cases not run: {self.stopped or 'the run stopped'}")
         lines.append(f"commands: {counts} (target {self.target})")
         return "\n".join(lines)
 

@@ -65,3 +65,44 @@ def test_report_merge_cli(tmp_path: Path) -> None:
     bad = subprocess.run([*cli, "show", str(out)], capture_output=True, text=True)
     assert bad.returncode == 2 and "not a JSON conformance report" in bad.stderr
     assert "Traceback" not in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
+
+
+def test_case_text_is_bounded_on_construction() -> None:
+    from conformance.report import MAX_DETAIL, MAX_FRAME_LINE, MAX_FRAME_LINES
+
+    c = CaseResult(
+        id="1/x/framing/y",
+        cmd_id=1,
+        name="x",
+        group="framing",
+        outcome=Outcome.FAIL,
+        detail="d" * 100_000,
+        frames=tuple("<< " + "f" * 10_000 for _ in range(500)),
+    )
+    assert len(c.detail) < MAX_DETAIL + 50 and c.detail.endswith("(+98000 more characters)")
+    assert len(c.frames) == MAX_FRAME_LINES + 1 and c.frames[-1] == "(+480 more lines)"
+    assert all(len(f) < MAX_FRAME_LINE + 50 for f in c.frames)
+    assert len(json.dumps(c.to_json())) < 15_000
+
+
+def test_cases_not_run_are_one_line_not_a_table() -> None:
+    r = _report("alpha:1", Outcome.FAIL)
+    r.stopped = "target alpha:1 died after case 201/MoveJ/framing/2-1: unreachable: refused"
+    for i in range(300):
+        r.add(
+            CaseResult(
+                id=f"{300 + i}/C{i}/valid/1",
+                cmd_id=300 + i,
+                name=f"C{i}",
+                group="valid",
+                outcome=Outcome.ERROR,
+                detail=f"not run: {r.stopped}",
+                not_run=True,
+            )
+        )
+    lines = r.render_terminal().splitlines()
+    assert len(lines) == 5  # header, 201, 212, the not-run line, totals
+    assert lines[3] == f"300 cases not run: {r.stopped}"
+    assert r.exit_code() == 2  # still an error run
+    again = Report.from_json(json.loads(r.dumps()))
+    assert again.stopped == r.stopped and sum(c.not_run for c in again.cases) == 300
