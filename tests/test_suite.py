@@ -7,14 +7,23 @@ on; neighbouring commands stay PASS.  The cases run through SuiteRunner directly
 
 from __future__ import annotations
 
+import contextlib
+import json
+import math
+import socket
+import threading
+
 import pytest
 
 from conformance.faults import FaultKind
-from conformance.report import Outcome, Report
+from conformance.frame import encode_frame
+from conformance.net.emulator import EmulatorServer
+from conformance.report import CaseResult, Outcome, Report
 from conformance.spec import Command, default_specs
 from conformance.suite.cases import PROTOCOL_ID, build_cases
 from conformance.suite.config import GROUPS, PROFILES, SuiteConfig
-from conformance.suite.runner import SuiteRunner, shell_printf
+from conformance.suite.runner import SuiteRunner, describe_exchange, shell_printf
+from tests.hostile_targets import HostileTarget, refusing_port
 
 SPECS = default_specs()
 
@@ -134,6 +143,7 @@ def test_fault_is_detected_and_blamed_on_its_command(kind: FaultKind) -> None:
     for n in NEIGHBOURS:
         assert report.commands()[n.cmd_id].outcome is Outcome.PASS
     assert report.exit_code() == 1
+    assert report.stopped is None  # a fault on one command never stops the run
 
 
 def test_fault_on_every_command_fails_everything() -> None:
@@ -200,3 +210,167 @@ def test_hypothesis_profile_passes_through() -> None:
     theirs = _settings(named, 10)  # type: ignore[arg-type]
     assert theirs.max_examples == 3 and Phase.shrink not in theirs.phases
     assert theirs.deadline is None and theirs.database is None  # the kit's, for network cases
+
+
+# --------------------------------------------------------------------------- hostile targets
+
+
+def _run_against(address: tuple[str, int], **kw: object) -> SuiteRunner:
+    """The whole suite (every case, quick profile) against ``address``; the runner after."""
+    config = SuiteConfig(
+        target=address,
+        profile=PROFILES["quick"],
+        reply_timeout=0.5,
+        recovery_timeout=1.0,
+        seed=12345,
+        **kw,  # type: ignore[arg-type]
+    )
+    runner = SuiteRunner(config, SPECS)
+    runner.start()
+    try:
+        for case in build_cases(SPECS, config):
+            runner.run(case)
+    finally:
+        runner.close()
+    return runner
+
+
+HEALTH = SuiteRunner(SuiteConfig(), SPECS).health_command
+ASKED = f"{HEALTH.name} (ID {HEALTH.cmd_id})"
+
+
+@pytest.mark.parametrize(
+    ("behaviour", "why"),
+    [
+        ("refusing", "unreachable: connection refused"),
+        ("silent", f"accepted a connection but did not answer {ASKED} within 0.5 s"),
+        ("closing", f"accepted a connection but closed it instead of answering {ASKED}"),
+        ("endless", f"accepted a connection but did not answer {ASKED} within 0.5 s (it sent "),
+        ("blob", f"accepted a connection but did not answer {ASKED} within 0.5 s (it sent "),
+    ],
+)
+def test_a_target_that_does_not_answer_at_the_start_stops_the_run_in_one_line(
+    behaviour: str, why: str
+) -> None:
+    if behaviour == "refusing":
+        address, target = ("127.0.0.1", refusing_port()), None
+    else:
+        target = HostileTarget(behaviour)
+        address = target.address
+    try:
+        runner = _run_against(address)
+    finally:
+        if target is not None:
+            target.close()
+    report = runner.report
+    assert runner.stopped is not None
+    assert runner.stopped.startswith(f"target 127.0.0.1:{address[1]} {why}"), runner.stopped
+    assert report.stopped == runner.stopped
+    # Nothing ran: each case is ERROR with that one reason, and the kit sent one frame.
+    assert all(c.not_run and c.outcome is Outcome.ERROR for c in report.cases)
+    assert {c.detail for c in report.cases} == {f"not run: {runner.stopped}"}
+    assert len(report.cases) == len(build_cases(SPECS, runner.config))
+    if target is not None:
+        assert target.frames <= 1 and target.connections == 1
+    assert report.exit_code() == 2
+    text = report.render_terminal()
+    assert f"{len(report.cases)} cases not run: {runner.stopped}" in text
+    assert len(text.splitlines()) == 2  # no table of ERROR rows
+
+
+def test_a_target_dying_mid_run_stops_it_naming_the_case() -> None:
+    with (
+        EmulatorServer(SPECS) as emu,
+        HostileTarget("dies", upstream=emu.address, frames_before_death=150) as target,
+    ):
+        runner = _run_against(target.address)
+    assert target.died.is_set()
+    assert runner.stopped is not None and runner.last_case is not None
+    assert runner.stopped.startswith(
+        f"target {target.label} died after case {runner.last_case}: unreachable: "
+    ), runner.stopped
+    ran = [c for c in runner.report.cases if not c.not_run]
+    not_run = [c for c in runner.report.cases if c.not_run]
+    assert ran and ran[-1].id == runner.last_case and ran[-1].outcome is not Outcome.PASS
+    assert len(not_run) > 2000
+    # Bounded: the kit stopped sending once the target was gone.
+    assert target.frames <= 150 + 10
+    assert runner.report.exit_code() == 2
+
+
+def test_the_case_deadline_clips_the_reply_wait() -> None:
+    """A silent command with a reply timeout longer than the case: ERROR at the case's end."""
+    config = SuiteConfig(
+        commands=(str(FAULTED.cmd_id),),
+        groups=("framing",),
+        reply_timeout=600,
+        case_timeout=0.5,
+        emulator_faults=(f"no_reply:{FAULTED.cmd_id}",),
+    )
+    runner = SuiteRunner(config, SPECS)
+    runner.start()
+    try:
+        (result,) = [runner.run(c) for c in build_cases(SPECS, config)]
+    finally:
+        runner.close()
+    assert result.outcome is Outcome.ERROR
+    assert result.detail == "case exceeded its time budget of 0.5 s"
+    assert runner.stopped is None  # the health query still works: the run goes on
+
+
+def test_the_run_budget_stops_the_run() -> None:
+    # Every reply 50 ms late: the whole suite cannot fit in a 1 s budget.
+    config = SuiteConfig(profile=PROFILES["quick"], budget=1.0, emulator_faults=("slow@0.05",))
+    runner = SuiteRunner(config, SPECS)
+    runner.start()
+    try:
+        results = [runner.run(c) for c in build_cases(SPECS, config)]
+    finally:
+        runner.close()
+    assert runner.stopped is not None
+    assert runner.stopped == f"run budget of 1 s used up after case {runner.last_case}"
+    first = next(i for i, r in enumerate(results) if r.not_run)
+    assert 0 < first < len(results) - 1000
+    assert all(r.not_run and r.detail == f"not run: {runner.stopped}" for r in results[first:])
+    assert runner.report.exit_code() == 2
+
+
+def test_failure_text_is_bounded_whatever_the_target_sends() -> None:
+    """A reply of 200 unpaired frames and endless garbage: the case's text stays small."""
+
+    def flood(conn: socket.socket) -> None:
+        conn.recv(65536)
+        conn.sendall(b"".join(encode_frame(7, 9, "x" * 3000) for _ in range(200)))
+        conn.sendall(b"\xff" * 3_000_000)
+
+    server = socket.create_server(("127.0.0.1", 0))
+
+    def serve() -> None:
+        with contextlib.suppress(OSError):
+            while True:
+                conn, _ = server.accept()
+                threading.Thread(target=flood, args=(conn,), daemon=True).start()
+
+    threading.Thread(target=serve, daemon=True).start()
+    config = SuiteConfig(target=("127.0.0.1", server.getsockname()[1]), reply_timeout=1.0)
+    runner = SuiteRunner(config, SPECS)
+    try:
+        ex = runner._fresh_client(math.inf).connect().request(HEALTH.cmd_id, "x()")
+        lines = describe_exchange(ex)
+        result = CaseResult(
+            id="1/x/framing/y",
+            cmd_id=1,
+            name="x",
+            group="framing",
+            outcome=Outcome.FAIL,
+            detail="; ".join(runner.framing_problems(ex)) * 100,
+            frames=lines,
+        )
+    finally:
+        server.shutdown(socket.SHUT_RDWR)
+        server.close()
+    assert ex.unsolicited_count == 200 and len(ex.unsolicited) <= 20
+    assert len(result.frames) <= 21 and all(len(f) <= 450 for f in result.frames)
+    assert result.frames[-1].startswith("(+")
+    assert len(result.detail) <= 2100
+    assert len(json.dumps(result.to_json())) < 20_000

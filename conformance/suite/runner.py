@@ -1,7 +1,23 @@
-"""Runs cases against a target: connections, health checks, verdicts, reproduction lines."""
+"""Runs cases against a target: connections, health checks, verdicts, reproduction lines.
+
+Bounded against hostile targets (a kit must outlive the peer it tests):
+
+* each case has a deadline (``case_timeout``): every wait of the case is clipped
+  to it, so a case overruns it by at most one reply timeout, and a case that runs
+  out is ERROR;
+* the run has a budget (``budget``): when it runs out, the run stops;
+* the run stops at once, with one line naming the address and the reason, when
+  the target does not answer the health query at the start (refused, silent,
+  closing, garbage) or when, after a case that ended with the target silent or
+  gone, it does not answer again within the recovery timeout.
+
+A stopped run leaves every remaining case ERROR with that one reason
+(``Report.stopped``; the cases are marked ``not_run``).
+"""
 
 from __future__ import annotations
 
+import math
 import shlex
 import time
 import zlib
@@ -33,6 +49,8 @@ class Verdict:
     detail: str = ""
     frames: tuple[str, ...] = ()
     raw: bytes = b""
+    #: The run had stopped before the case (``SuiteRunner.stopped``).
+    not_run: bool = False
 
 
 class CaseFailure(Exception):
@@ -103,8 +121,15 @@ def describe_exchange(ex: Exchange) -> tuple[str, ...]:
     lines = [f">> {show(ex.request)}"] if ex.request else []
     for m in ex.malformed:
         lines.append(f"<< (not a frame: {m.rule.value}) {show(m.raw)}")
+    if ex.malformed_count > len(ex.malformed):
+        lines.append(
+            f"<< (+{ex.malformed_count - len(ex.malformed)} more runs of bytes that are not "
+            f"frames; {ex.malformed_bytes} bytes in all)"
+        )
     for f in ex.unsolicited:
         lines.append(f"<< (unpaired) {show(f.raw or f.encode())}")
+    if ex.unsolicited_count > len(ex.unsolicited):
+        lines.append(f"<< (+{ex.unsolicited_count - len(ex.unsolicited)} more unpaired frames)")
     if ex.reply is not None:
         lines.append(f"<< {show(ex.reply.raw or ex.reply.encode())}")
     elif ex.closed:
@@ -127,7 +152,8 @@ class SuiteRunner:
         self._unknown: tuple[str, ReplyVerdict] | None = None
         self._unknown_learnt = False
         self.health_command, self.health_variant = _health_query(specs)
-        self.dead: str | None = None
+        #: Why the run stopped (one line naming the target), or None while it goes on.
+        self.stopped: str | None = None
         self.last_case: str | None = None
         self.report = Report(
             target=config.target_label(),
@@ -138,10 +164,18 @@ class SuiteRunner:
             meta={"profile": config.profile.name},
         )
         self.case_started = 0.0
+        #: ``time.monotonic()`` values: the end of the current case, of the run.
+        self.case_deadline = math.inf
+        self.run_deadline = math.inf
+        # The last exchange of the case ended with nothing from the target (silent,
+        # closed): after the case, make sure it is still alive.
+        self._suspect = False
 
     # ------------------------------------------------------------------ lifecycle
 
     def start(self) -> None:
+        """Start the budget's clock; check the target (the emulator is started instead)."""
+        self.run_deadline = time.monotonic() + self.config.budget
         if self.config.embedded:
             from ..net.emulator import EmulatorServer
 
@@ -154,13 +188,17 @@ class SuiteRunner:
             self.emulator = emu
             self.address = emu.udp_address if self.config.transport == "udp" else emu.address
             self.report.meta["emulator_faults"] = list(self.config.emulator_faults)
-        elif self.config.transport == "tcp":
-            # Fail fast: an endpoint that refuses connections at the start is an
-            # ERROR for every case at once, not a recovery wait per case.
-            try:
-                self.new_client().connect().close()
-            except TargetUnreachable as e:
-                self.dead = f"the start of the session ({e})"
+        else:
+            # Fail fast: a target that does not answer the harmless query at the
+            # start (refused, silent, closing, sending garbage) would make every
+            # case wait and fail; stop with one line instead.
+            why = self.probe()
+            if why is not None:
+                self.stopped = f"target {self.target_label()} {why}"
+                self.report.stopped = self.stopped
+
+    def target_label(self) -> str:
+        return self.config.target_label(self.address)
 
     def close(self) -> None:
         if self._client is not None:
@@ -172,7 +210,7 @@ class SuiteRunner:
 
     # ------------------------------------------------------------------ connections
 
-    def new_client(self) -> Client:
+    def _fresh_client(self, deadline: float) -> Client:
         assert self.address is not None
         host, port = self.address
         return Client(
@@ -181,13 +219,23 @@ class SuiteRunner:
             transport=self.config.transport,
             timeout=self.config.reply_timeout,
             rate=self.config.rate,
+            max_frame_size=self.config.max_reply_size,
+            deadline=None if math.isinf(deadline) else deadline,
         )
 
+    def new_client(self) -> Client:
+        """A new connection for the current case (its waits end with the case's time)."""
+        self.check_budget()
+        return self._fresh_client(self.case_deadline)
+
     def client(self) -> Client:
+        """The case's connection (kept between cases while the target behaves)."""
+        self.check_budget()
         if self._client is None or not self._client.connected:
             if self._client is not None:
                 self._client.close()
-            self._client = self.new_client().connect()
+            self._client = self._fresh_client(self.case_deadline).connect()
+        self._client.deadline = None if math.isinf(self.case_deadline) else self.case_deadline
         return self._client
 
     def drop_client(self) -> None:
@@ -195,19 +243,34 @@ class SuiteRunner:
             self._client.close()
             self._client = None
 
+    def overrun(self) -> CaseFailure:
+        """The case's time is up (its own timeout, or the run's budget)."""
+        if self.case_deadline >= self.run_deadline:
+            detail = f"the run budget of {self.config.budget:g} s ran out during the case"
+        else:
+            detail = f"case exceeded its time budget of {self.config.case_timeout:g} s"
+        # Sticky: the examples Hypothesis would still try must end at once too.
+        return CaseFailure(Outcome.ERROR, detail, sticky=True)
+
     def check_budget(self) -> None:
-        if time.monotonic() - self.case_started > self.config.case_timeout:
-            raise CaseFailure(
-                Outcome.ERROR, f"case exceeded its time budget of {self.config.case_timeout:g} s"
-            )
+        if time.monotonic() >= self.case_deadline:
+            raise self.overrun()
+
+    def _waited(self, ex: Exchange) -> None:
+        """Note an exchange without a reply: silence past the case's end is not the target's fault."""
+        if ex.reply is None:
+            if not ex.unsolicited_count:
+                self._suspect = True
+            if time.monotonic() >= self.case_deadline:
+                raise self.overrun()
 
     def exchange(self, cmd_id: int, data: str, *, client: Client | None = None) -> Exchange:
-        self.check_budget()
         c = client or self.client()
         ex = c.request(cmd_id, data)
         if ex.reply is None and client is None:
             # Closed, or silent: a late reply or a half frame would pollute the next case.
             self.drop_client()
+        self._waited(ex)
         return ex
 
     def send_raw_exchange(
@@ -220,22 +283,26 @@ class SuiteRunner:
         client: Client | None = None,
         timeout: float | None = None,
     ) -> Exchange:
-        self.check_budget()
         c = client or self.client()
         c.send_raw(raw, chunk=chunk)
         ex = c.await_reply(cnt, cmd_id, request=raw, timeout=timeout)
         if ex.reply is None and client is None:
             self.drop_client()
+        self._waited(ex)
         return ex
 
     # ------------------------------------------------------------------ health / unknown
 
+    def _health_exchange(self) -> Exchange:
+        """The harmless query on a fresh connection (waits bounded by the run's budget)."""
+        data = default_data(self.health_command, self.health_variant)
+        with self._fresh_client(self.run_deadline) as c:
+            return c.request(self.health_command.cmd_id, data)
+
     def health(self) -> tuple[bool, str]:
         """A harmless query on a fresh connection; (ok, what went wrong)."""
-        data = default_data(self.health_command, self.health_variant)
         try:
-            with self.new_client() as c:
-                ex = c.request(self.health_command.cmd_id, data)
+            ex = self._health_exchange()
         except TargetUnreachable as e:
             return False, str(e)
         if ex.reply is None:
@@ -243,16 +310,59 @@ class SuiteRunner:
         verdict = classify_reply(self.health_variant.returns, ex.reply.data, self.specs)
         if not verdict.ok:
             return False, f"reply {ex.reply.data!r}"
+        self._suspect = False
         return True, ""
 
-    def recover(self) -> bool:
-        """Wait (up to the recovery timeout) for the target to answer again."""
+    def probe(self) -> str | None:
+        """Is the target alive?  None when it answers the health query with any frame.
+
+        Otherwise why not, as words that follow the address: ``unreachable:
+        connection refused``, ``accepted a connection but did not answer GetX
+        (ID n) within 2 s``...  A reply that breaks the protocol still counts as
+        alive: judging it is the cases' business, not a reason to stop.
+        """
+        name = f"{self.health_command.name} (ID {self.health_command.cmd_id})"
+        try:
+            ex = self._health_exchange()
+        except TargetUnreachable as e:
+            return f"unreachable: {e.reason}"
+        if ex.reply is not None or ex.unsolicited_count:
+            return None
+        accepted = "accepted a connection but " if self.config.transport == "tcp" else ""
+        if ex.closed:
+            why = f"{accepted}closed it instead of answering {name}"
+        else:
+            why = f"{accepted}did not answer {name} within {self.config.reply_timeout:g} s"
+        if ex.malformed_count:
+            why += f" (it sent {ex.malformed_bytes} bytes that are not frames)"
+        elif ex.pending:
+            why += " (it sent the start of a frame and no more)"
+        return why
+
+    def wait_alive(self, until: float) -> str | None:
+        """Probe until the target answers or ``until``; None, or why it is not alive."""
+        why = self.probe()
+        while why is not None and time.monotonic() < min(until, self.run_deadline):
+            time.sleep(0.05)
+            why = self.probe()
+        return why
+
+    def recover(self, until: float | None = None) -> bool:
+        """Wait (up to the recovery timeout, or ``until``) for the target to answer again."""
         deadline = time.monotonic() + self.config.recovery_timeout
+        deadline = min(deadline, self.run_deadline, until if until is not None else math.inf)
         while time.monotonic() < deadline:
             if self.health()[0]:
                 return True
             time.sleep(0.05)
         return False
+
+    def _stop_dead(self, case: Case, why: str) -> None:
+        self.stopped = (
+            f"target {self.target_label()} died after case {case.id}: {why} "
+            f"(no answer for {self.config.recovery_timeout:g} s)"
+        )
+        self.report.stopped = self.stopped
 
     def unknown_fingerprint(self) -> tuple[str, ReplyVerdict] | None:
         """How the target answers an unknown command ID (None: it stays silent)."""
@@ -261,6 +371,9 @@ class SuiteRunner:
             unknown = next(i for i in range(9999, 100000) if not self.specs.by_id(i))
             with self.new_client() as c:
                 ex = c.request(unknown, "Conformance()")
+            if ex.reply is None and time.monotonic() >= self.case_deadline:
+                self._unknown_learnt = False  # cut short: learn it in a later case
+                raise self.overrun()
             if ex.reply is None:
                 self._unknown = None
             else:
@@ -278,8 +391,9 @@ class SuiteRunner:
         out: list[str] = []
         bad = [m for m in ex.malformed]
         if bad:
+            total = max(ex.malformed_bytes, sum(len(m.raw) for m in bad))
             out.append(
-                f"{sum(len(m.raw) for m in bad)} bytes that are not a frame arrived "
+                f"{total} bytes that are not a frame arrived "
                 f"({', '.join(sorted({m.rule.value for m in bad}))})"
             )
         if ex.reply is None:
@@ -307,6 +421,7 @@ class SuiteRunner:
 
     def judge(self, ex: Exchange, variant: Variant | None) -> ReplyVerdict | None:
         """Raise CaseFailure for framing problems; else the reply's classification."""
+        self._waited(ex)
         probs = self.framing_problems(ex)
         frames = describe_exchange(ex)
         if probs:
@@ -343,7 +458,9 @@ class SuiteRunner:
             f"pytest -p no:cacheprovider {where} --case {shlex.quote(case.id)} "
             f"--hypothesis-seed={self.config.seed}"
         )
-        if raw and self.address is not None:
+        # A request too long for a command line (the 300 KB oversize frame) stays
+        # in the case's frames only.
+        if raw and len(raw) <= 2048 and self.address is not None:
             host, port = self.address
             nc = "nc -u -w1" if self.config.transport == "udp" else "nc -w1"
             line += f"  # or: printf {shell_printf(raw)} | {nc} {host} {port}"
@@ -352,8 +469,18 @@ class SuiteRunner:
     def run(self, case: Case) -> CaseResult:
         """Run one case (never raises): safety, a dead target and kit errors become outcomes."""
         verdict = self._run(case)
+        if self._suspect and self.stopped is None:
+            # The case ended with the target silent or gone: alive, or the run stops.
+            self._suspect = False
+            why = self.wait_alive(time.monotonic() + self.config.recovery_timeout)
+            if why is not None:
+                self.drop_client()
+                self._stop_dead(case, why)
         reproduce = ""
-        if verdict.outcome in (Outcome.FAIL, Outcome.ERROR, Outcome.NON_STRICT):
+        if (
+            verdict.outcome in (Outcome.FAIL, Outcome.ERROR, Outcome.NON_STRICT)
+            and not verdict.not_run
+        ):
             reproduce = self.reproduce(case, verdict.raw)
         result = CaseResult(
             id=case.id,
@@ -364,9 +491,25 @@ class SuiteRunner:
             detail=verdict.detail,
             reproduce=reproduce,
             frames=verdict.frames,
+            not_run=verdict.not_run,
         )
         self.report.add(result)
-        self.last_case = case.id
+        if not verdict.not_run:
+            self.last_case = case.id
+        return result
+
+    def not_run(self, case: Case) -> CaseResult:
+        """Record a case the run never reached (it stopped: ``stopped`` says why)."""
+        result = CaseResult(
+            id=case.id,
+            cmd_id=case.cmd_id,
+            name=case.name,
+            group=case.group,
+            outcome=Outcome.ERROR,
+            detail=f"not run: {self.stopped or 'the run stopped'}",
+            not_run=True,
+        )
+        self.report.add(result)
         return result
 
     def _run(self, case: Case) -> Verdict:
@@ -374,17 +517,26 @@ class SuiteRunner:
             ok, why = self.config.safety.permits(case.command, self.specs)
             if not ok:
                 return Verdict(outcome=Outcome.SKIPPED, detail=why)
-        if self.dead is not None:
-            return Verdict(outcome=Outcome.ERROR, detail=f"target down since {self.dead}")
-        self.case_started = time.monotonic()
+        now = time.monotonic()
+        if self.stopped is None and now >= self.run_deadline:
+            after = f" after case {self.last_case}" if self.last_case else ""
+            self.stopped = f"run budget of {self.config.budget:g} s used up{after}"
+            self.report.stopped = self.stopped
+        if self.stopped is not None:
+            return Verdict(outcome=Outcome.ERROR, detail=f"not run: {self.stopped}", not_run=True)
+        self.case_started = now
+        self.case_deadline = min(now + self.config.case_timeout, self.run_deadline)
+        self._suspect = False
         try:
             return case.run(self, case)
         except CaseFailure as f:
             return f.verdict
         except TargetUnreachable as e:
-            if self.recover():
+            self._suspect = False
+            gone = self.wait_alive(time.monotonic() + self.config.recovery_timeout)
+            if gone is None:
                 return Verdict(outcome=Outcome.FAIL, detail=f"target dropped during the case: {e}")
-            self.dead = f"case {case.id}"
+            self._stop_dead(case, gone)
             return Verdict(outcome=Outcome.ERROR, detail=str(e))
         except ConformanceError as e:
             return Verdict(outcome=Outcome.ERROR, detail=f"kit error: {e}")
@@ -392,14 +544,18 @@ class SuiteRunner:
             return Verdict(outcome=Outcome.ERROR, detail=f"connection error: {e}")
 
     def after_disturbance(self, case: Case, frames: tuple[str, ...], raw: bytes) -> Verdict | None:
-        """Health check on a fresh connection; a failure is blamed on ``case``."""
+        """Health check on a fresh connection; a failure is blamed on ``case``.
+
+        The wait for recovery ends with the case's time; a target still silent
+        then is checked again after the case (and may stop the run).
+        """
         ok, why = self.health()
         if ok:
             return None
         self.drop_client()
         detail = f"a harmless query on a fresh connection failed afterwards ({why})"
-        if not self.recover():
-            self.dead = f"case {case.id}"
+        if not self.recover(until=self.case_deadline):
+            self._suspect = True
             detail += f"; target did not recover within {self.config.recovery_timeout:g} s"
         return Verdict(outcome=Outcome.FAIL, detail=detail, frames=frames, raw=raw)
 
