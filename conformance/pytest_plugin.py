@@ -17,6 +17,12 @@ Exit status of plain pytest: 0 conformant (NON-STRICT and UNIMPLEMENTED pass,
 as xfail for the latter), 1 conformance failures, 2 when a case ended in ERROR
 (kit or connection error), pytest's own codes otherwise (4 usage, 5 nothing
 collected).
+
+Bounded against hostile targets: ``--case-timeout`` ends a case, ``--budget``
+the run (default 3 hours, see ``SuiteConfig.budget``).  When the target does not
+answer at the start, dies mid-run, or the budget runs out, the session stops
+with one line naming the address and the reason (pytest's "Interrupted"), exit
+status 2, and the report lists the cases not run.
 """
 
 from __future__ import annotations
@@ -34,7 +40,7 @@ from .errors import ConformanceError
 from .net import parse_address
 from .report import CaseResult, Outcome
 from .safety import SafetyPolicy
-from .suite.config import GROUPS, PROFILES, SuiteConfig
+from .suite.config import DEFAULT_BUDGET, GROUPS, PROFILES, SuiteConfig
 from .suite.runner import Case, SuiteRunner
 
 __all__ = ["CaseItem", "CommandNode", "load_expected_failures"]
@@ -61,6 +67,13 @@ _SETTINGS: tuple[tuple[str, str, str, str, str | None], ...] = (
         "FAIRINO_CASE_TIMEOUT",
         "time budget of one case, seconds (60)",
         "60",
+    ),
+    (
+        "budget",
+        "fairino_budget",
+        "FAIRINO_BUDGET",
+        "time budget of the whole run, seconds (10800: 3 hours)",
+        None,
     ),
     ("rate", "fairino_rate", "FAIRINO_RATE", "at most this many frames per second", None),
     (
@@ -209,6 +222,15 @@ def _float(config: pytest.Config, dest: str) -> float | None:
         raise pytest.UsageError(f"--{dest.replace('_', '-')}: {v!r} is not a number") from None
 
 
+def _positive(config: pytest.Config, dest: str, default: float) -> float:
+    v = _float(config, dest)
+    if v is None:
+        return default
+    if not v > 0:
+        raise pytest.UsageError(f"--{dest.replace('_', '-')} must be positive, not {v:g}")
+    return v
+
+
 def load_expected_failures(path: str) -> frozenset[str]:
     """Case IDs, one a line; ``#`` starts a comment.  A JSON report works too (its FAILs)."""
     try:
@@ -294,6 +316,7 @@ def _suite_config(config: pytest.Config) -> SuiteConfig:
         strict=bool(strict),
         reply_timeout=_float(config, "reply_timeout") or 2.0,
         case_timeout=_float(config, "case_timeout") or 60.0,
+        budget=_positive(config, "budget", DEFAULT_BUDGET),
         rate=_float(config, "rate"),
         seed=seed,
         safety=safety,
@@ -359,6 +382,9 @@ class CaseItem(pytest.Item):
             pytest.skip("dry run: would run")
         runner = _runner(self.config)
         result = runner.run(self.case)
+        if runner.stopped is not None:
+            # Unreachable, dead, or out of budget: the rest would only repeat it.
+            self.session.shouldstop = runner.stopped
         expected = self.case.id in config.expected_failures
         outcome = result.outcome
         if outcome is Outcome.NON_STRICT and config.strict:
@@ -463,6 +489,12 @@ def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
     except Exception as e:  # the emulator's thread failed: a kit error
         print(f"fairino-conformance: emulator failure: {e}", file=sys.stderr)
         session.exitstatus = 2
+    if runner.stopped is not None:
+        # The session stopped early: the report still lists every selected case.
+        done = {c.id for c in runner.report.cases}
+        for item in session.items:
+            if isinstance(item, CaseItem) and item.case.id not in done:
+                runner.not_run(item.case)
     _write_reports(config, runner)
     if runner.report.exit_code() == 2 and int(exitstatus) in (0, 1):
         session.exitstatus = 2

@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from conformance.spec import default_specs
+from tests.hostile_targets import HostileTarget, refusing_port
 
 SPECS = default_specs()
 QUERY = next(
@@ -185,3 +186,54 @@ def test_bad_options_are_usage_errors(
     assert result.ret == pytest.ExitCode.USAGE_ERROR
     assert message in result.stderr.str()
     assert "Traceback" not in result.stderr.str()
+
+
+def test_unreachable_target_stops_the_session_in_one_line(
+    pytester: pytest.Pytester, tmp_path: Path
+) -> None:
+    port = refusing_port()
+    rj = tmp_path / "r.json"
+    result = pytester.runpytest(
+        "-p", "no:cacheprovider", "--target", f"127.0.0.1:{port}", "--report-json", str(rj)
+    )  # fmt: skip
+    assert result.ret == 2
+    line = f"target 127.0.0.1:{port} unreachable: connection refused"
+    out = result.stdout.str()
+    assert f"Interrupted: {line}" in out
+    result.assert_outcomes(failed=1)  # the first case says why; the rest are not run
+    assert f"cases not run: {line}" in out
+    doc = json.loads(rj.read_text())
+    cases = [c for cmd in doc["commands"].values() for c in cmd["cases"]]
+    assert doc["stopped"] == line and len(cases) > 3000
+    assert all(c["outcome"] == "ERROR" for c in cases)
+    assert sum(c.get("not_run", False) for c in cases) == len(cases)
+
+
+def test_silent_target_gets_one_frame_before_the_session_stops(
+    pytester: pytest.Pytester,
+) -> None:
+    with HostileTarget("silent") as target:
+        result = pytester.runpytest(*BASE, "--target", target.label)
+    assert result.ret == 2
+    assert (
+        f"Interrupted: target {target.label} accepted a connection but did not answer "
+        in result.stdout.str()
+    )
+    assert target.frames == 1 and target.connections == 1
+
+
+def test_budget_from_the_ini_file_stops_the_run(pytester: pytest.Pytester) -> None:
+    pytester.makeini("[pytest]\nfairino_budget = 0.5\n")
+    result = pytester.runpytest(*BASE, "--conformance", "--emulator-fault", "slow@0.05")
+    assert result.ret == 2
+    assert "Interrupted: run budget of 0.5 s used up after case " in result.stdout.str()
+
+
+@pytest.mark.parametrize(("value", "message"), [("0", "must be positive"), ("x", "not a number")])
+def test_budget_from_the_environment_is_checked(
+    pytester: pytest.Pytester, monkeypatch: pytest.MonkeyPatch, value: str, message: str
+) -> None:
+    monkeypatch.setenv("FAIRINO_BUDGET", value)
+    result = pytester.runpytest("-p", "no:cacheprovider", "--conformance")
+    assert result.ret == pytest.ExitCode.USAGE_ERROR
+    assert "--budget" in result.stderr.str() and message in result.stderr.str()
