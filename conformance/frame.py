@@ -57,14 +57,20 @@ DEFAULT_MAX_FRAME_SIZE = 256 * 1024
 #: CNT is a uint16_t (1.1, table 1-1-2 row 5).
 CNT_MAX = 0xFFFF
 
-# Longest header we wait for before calling it broken: head, 4 separators of up
-# to 4 bytes, three fields of up to 10 digits.
-_MAX_HEADER = 4 + 4 * 4 + 3 * 10
 _MAX_DIGITS = 10
+_MAX_SEP = 4
 # A preamble: printable ASCII and line breaks / tabs only.
 _PRINTABLE_RE = re.compile(rb"[\x20-\x7e\r\n\t]+")
 # Progressive header reading: always matches; where it stops tells what broke.
-_HEADER_RE = re.compile(rb"/f/b(I*)(\d*)(I*)(\d*)(I*)(\d*)")
+# Each field is read one byte past its bound at most, so that the match (and the
+# bytes a broken header is reported with) never depends on how the stream was cut:
+# an unbounded ``\d*`` ran to the end of whatever was buffered.
+_HEADER_RE = re.compile(
+    rb"/f/b(I{0,%d})(\d{0,%d})(I{0,%d})(\d{0,%d})(I{0,%d})(\d{0,%d})"
+    % ((_MAX_SEP + 1, _MAX_DIGITS + 1) * 3)
+)
+# The longest match: past it a header is decided whatever follows.
+_MAX_HEADER = len(HEAD) + 3 * (_MAX_SEP + 1) + 3 * (_MAX_DIGITS + 1)
 # The fast path: a standard header, read at the parse position only (an anchored
 # match: a search would rescan the rest of the buffer for every frame, which made
 # decoding quadratic on a stream of headers), then LEN says where the tail must be.
@@ -165,7 +171,12 @@ def encode_frame(cnt: int, cmd_id: int, data: str | bytes) -> bytes:
         raise LocalProtocolError(f"CNT {cnt} is not a uint16", rule=Rule.BAD_CNT)
     if cmd_id < 0:
         raise LocalProtocolError(f"CMD_ID {cmd_id} is negative", rule=Rule.BAD_CMD_ID)
-    payload = data.encode("utf-8") if isinstance(data, str) else bytes(data)
+    try:
+        payload = data.encode("utf-8") if isinstance(data, str) else bytes(data)
+    except UnicodeEncodeError as e:  # a lone surrogate: no UTF-8 for it
+        raise LocalProtocolError(
+            f"DATA is not encodable as UTF-8 ({e.reason} at {e.start})", rule=Rule.UNENCODABLE
+        ) from None
     return b"".join(
         (
             HEAD,
@@ -423,17 +434,17 @@ class FrameDecoder:
         assert m is not None  # every group may be empty
         groups = m.groups()
         hdr_end = m.end()
-        complete = all(groups) and hdr_end < len(buf)
+        at_end = hdr_end == len(buf)
+        if at_end and not final and hdr_end - i < _MAX_HEADER:
+            return None  # the header may still complete
+        complete = all(groups) and not at_end
         if (
             not complete
             or len(groups[1]) > _MAX_DIGITS
             or len(groups[3]) > _MAX_DIGITS
             or len(groups[5]) > _MAX_DIGITS
         ):
-            at_end = hdr_end == len(buf)
-            if at_end and not final and hdr_end - i < _MAX_HEADER:
-                return None  # the header may still complete
-            return self._bad_header(i, groups, hdr_end, at_end)
+            return self._bad_header(i, groups, hdr_end, at_end and final)
         seps = (groups[0], groups[2], groups[4])
         problems: list[Rule] = []
         for s in seps:
@@ -596,7 +607,7 @@ class FrameDecoder:
     def _bad_header(self, i: int, groups: tuple[bytes, ...], hdr_end: int, at_end: bool) -> int:
         rule, what = Rule.BAD_HEAD, "header"
         for g, (r, name) in zip(groups, _HEADER_FIELDS, strict=True):
-            if not g or (r is not Rule.BAD_SEPARATOR and len(g) > _MAX_DIGITS):
+            if not g or len(g) > (_MAX_SEP if r is Rule.BAD_SEPARATOR else _MAX_DIGITS):
                 rule, what = r, name
                 break
         else:

@@ -9,7 +9,14 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from conformance.errors import LocalProtocolError, Rule
-from conformance.frame import Frame, FrameDecoder, Malformed, decode_all, encode_frame
+from conformance.frame import (
+    DEFAULT_MAX_FRAME_SIZE,
+    Frame,
+    FrameDecoder,
+    Malformed,
+    decode_all,
+    encode_frame,
+)
 from conformance.strategies import garbage
 
 from .frame_cases import FRAME_CASES, LENIENT_CASES, MALFORMED_CASES
@@ -214,9 +221,23 @@ def test_roundtrip_any_data(cnt: int, cmd_id: int, data: str) -> None:
         assert (ev.cnt, ev.cmd_id, ev.data, ev.problems) == (cnt, cmd_id, data, ())
 
 
+#: Pieces of adversarial streams: runs that used to make the decoder quadratic or
+#: its events depend on where the stream was cut.
+_HOSTILE_PIECES = [
+    b"/f/bIII1III2III3III" * 3,
+    b"/f/bIII" + b"9" * 15,
+    b"I" * 7,
+    b"9" * 12,
+    b"/b/f" * 3,
+    b"/f/bIII1III2III99999III",
+]
+
+
 @settings(suppress_health_check=[HealthCheck.too_slow])
 @given(
-    chunks=st.lists(garbage() | st.sampled_from([w for _, _, w in FRAME_CASES]), max_size=12),
+    chunks=st.lists(
+        garbage() | st.sampled_from([w for _, _, w in FRAME_CASES] + _HOSTILE_PIECES), max_size=12
+    ),
     strict=st.booleans(),
 )
 def test_any_bytes_give_events_only(chunks: list[bytes], strict: bool) -> None:
@@ -230,9 +251,9 @@ def test_any_bytes_give_events_only(chunks: list[bytes], strict: bool) -> None:
 
 
 @given(
-    data=st.lists(st.sampled_from([w for _, _, w in FRAME_CASES]) | garbage(), max_size=8).map(
-        b"".join
-    ),
+    data=st.lists(
+        st.sampled_from([w for _, _, w in FRAME_CASES] + _HOSTILE_PIECES) | garbage(), max_size=8
+    ).map(b"".join),
     cuts=st.lists(st.integers(0, 400), max_size=10),
 )
 def test_chunking_never_changes_result(data: bytes, cuts: list[int]) -> None:
@@ -262,3 +283,79 @@ def test_skipped_runs_say_where_they_were() -> None:
     assert len(details) == 5
     assert all(x.endswith("before the first frame") for x in details[:4])
     assert details[4].endswith("between frames")
+
+
+# ------------------------------------------------------------------- adversarial input
+
+#: Inputs a hostile peer sends; the benchmark (tools/bench_codec.py) shows each is linear.
+ADVERSARIAL: list[tuple[str, bytes]] = [
+    ("repeated-headers", b"/f/bIII1III2III3III" * 50),
+    ("long-cnt", b"/f/bIII" + b"9" * 300 + b"III1III1IIIxIII/b/f"),
+    ("long-len", b"/f/bIII1III1III" + b"7" * 40 + b"IIIxIII/b/f"),
+    ("long-separator", b"/f/b" + b"I" * 80 + b"1III1III1IIIxIII/b/f"),
+    ("head-flood", b"/f/b" * 60 + encode_frame(1, 2, "x")),
+    ("tail-flood", b"/f/bIII1III2III900III" + b"/b/f" * 60 + b"II/b/f"),
+    ("huge-len", b"/f/bIII1III2III99999999IIIabcIII/b/f" + encode_frame(3, 4, "y")),
+    ("nul-flood", encode_frame(1, 2, "z") + b"\x00" * 700),
+]
+
+
+@pytest.mark.parametrize("data", [d for _, d in ADVERSARIAL], ids=[i for i, _ in ADVERSARIAL])
+@pytest.mark.parametrize("strict", [False, True])
+def test_adversarial_whole_equals_bytewise(data: bytes, strict: bool) -> None:
+    """A header with 300 digits or 80 I gave other events when cut inside the run."""
+    whole = decode_all(data, strict=strict, max_frame_size=256)
+    assert b"".join(e.raw for e in whole) == data
+    assert feed_bytewise(data, strict=strict, max_frame_size=256) == whole
+    for step in (3, 7, 64):
+        assert feed_chunks(data, list(range(step, len(data), step)), strict=strict) == decode_all(
+            data, strict=strict
+        )
+
+
+def test_repeated_headers_are_each_a_missing_tail() -> None:
+    events = decode_all(b"/f/bIII1III2III3III" * 800)
+    assert [e.rule for e in events if isinstance(e, Malformed)] == [Rule.BAD_TAIL] * 799 + [
+        Rule.TRUNCATED
+    ]
+    assert all(len(e.raw) == 19 for e in events)
+
+
+def test_long_header_field_is_cut_at_its_bound() -> None:
+    # The broken header is reported with a bounded number of bytes; the rest is garbage.
+    bad, rest, frame = decode_all(b"/f/bIII" + b"9" * 5000 + encode_frame(1, 2, "x"))
+    assert isinstance(bad, Malformed) and bad.rule is Rule.BAD_CNT
+    assert bad.raw.startswith(b"/f/bIII" + b"9" * 11) and len(bad.raw) <= 64
+    assert isinstance(rest, Malformed) and rest.rule is Rule.GARBAGE
+    assert len(bad.raw) + len(rest.raw) == 5007
+    assert isinstance(frame, Frame) and frame.data == "x"
+
+
+def test_large_frame_byte_at_a_time() -> None:
+    """A 256 KB frame fed a byte at a time (minutes before; linear now, see the benchmark)."""
+    data = "x" * (DEFAULT_MAX_FRAME_SIZE - 64)
+    wire = encode_frame(1, 2, data)
+    (ev,) = feed_bytewise(wire)
+    assert isinstance(ev, Frame) and ev.data == data and ev.raw == wire
+    # The same with LEN wrong: the tail search resumes where it stopped.
+    bad = wire.replace(b"III%dIII" % len(data), b"III5III", 1)
+    (ev,) = feed_bytewise(bad)
+    assert isinstance(ev, Frame) and ev.problems == (Rule.LEN_MISMATCH,) and ev.data == data
+
+
+def test_pending_frame_with_wrong_len_decided_on_next_head() -> None:
+    d = FrameDecoder()
+    assert d.feed(b"/f/bIII1III2III999IIIabc") == []
+    assert d.feed(b"def") == []
+    # LEN decides: nothing is judged before LEN bytes are in, unless the peer goes quiet.
+    assert d.feed(encode_frame(3, 4, "y")) == []
+    ev, frame = d.resolve_pending()
+    assert isinstance(ev, Malformed) and ev.rule is Rule.BAD_TAIL
+    assert ev.raw == b"/f/bIII1III2III999IIIabcdef"
+    assert isinstance(frame, Frame) and frame.cnt == 3
+
+
+def test_encode_rejects_lone_surrogate() -> None:
+    with pytest.raises(LocalProtocolError) as exc:
+        encode_frame(1, 2, "F(\ud800)")
+    assert exc.value.rule is Rule.UNENCODABLE
