@@ -13,7 +13,11 @@ gripper queries reply ``0 0``).
 
 Parsing is sans-I/O and never raises anything but :class:`RemoteProtocolError`
 (for bytes the peer sent) or :class:`LocalProtocolError` (for values we were asked
-to format).  Lenient parsing accepts whitespace after commas and reports it as
+to format), whatever the string.  It is linear in its input and bounded: at most
+:data:`MAX_NUMBER_DIGITS` digits per number, :data:`MAX_DEPTH` nested arrays and
+:data:`MAX_ITEMS` values per DATA; a non-finite number (``1e999``) is refused with
+``Rule.BAD_NUMBER``, the other bounds with ``Rule.DATA_LIMIT``.  Messages show at
+most :data:`SHOWN_CHARS` characters of the DATA.  Lenient parsing accepts whitespace after commas and reports it as
 ``Rule.SPACE_IN_ARGS``; strict parsing refuses it.
 
 Validation of parsed arguments against a spec variant lives here too
@@ -32,6 +36,10 @@ from .errors import LocalProtocolError, RemoteProtocolError, Rule
 from .spec import Command, Param, Returns, ReturnValue, Variant
 
 __all__ = [
+    "MAX_DEPTH",
+    "MAX_ITEMS",
+    "MAX_NUMBER_DIGITS",
+    "SHOWN_CHARS",
     "Arg",
     "Array",
     "Call",
@@ -53,6 +61,32 @@ __all__ = [
 ]
 
 
+#: Most digits one number token may hold (integer, fraction and exponent digits
+#: together).  The protocol carries C integers (uint64: 20 digits) and doubles; the
+#: manual writes numbers out in full with a few decimals (``-116.061``), and a
+#: finite double written so has at most 309 integer digits, which is what
+#: :func:`format_number` may produce for the largest one.  Past this a token is no
+#: number a controller sends, and reading it costs: CPython's ``int()`` is
+#: quadratic in the digits and refuses more than 4300.
+MAX_NUMBER_DIGITS = 320
+#: Deepest nesting of brace arrays.  The manual's deepest is 1 (``{5,5,5,5,5,5}``
+#: in SetCollisionStrategy, 5.x); the parser recurses once per level.
+MAX_DEPTH = 16
+#: Most values one DATA may hold, array items and arrays counted alike.  The
+#: manual's longest list is 75 values (specs/); this bounds the memory one DATA
+#: can cost (a 256 KB frame of ``1,1,1,...`` would otherwise be 128 K objects).
+MAX_ITEMS = 10_000
+#: Characters of an offending DATA a message shows (it says how long the DATA was).
+SHOWN_CHARS = 80
+
+
+def _shown(text: str, *, quote: bool = True) -> str:
+    """``text`` for a message (its repr), cut to :data:`SHOWN_CHARS` characters with its length."""
+    cut = text[:SHOWN_CHARS]
+    shown = repr(cut) if quote else cut
+    return shown if len(text) <= SHOWN_CHARS else f"{shown}... ({len(text)} chars)"
+
+
 @dataclass(frozen=True, kw_only=True)
 class Number:
     """A numeric argument, with the text it was written as (``.000`` stays ``.000``)."""
@@ -62,7 +96,11 @@ class Number:
 
     @classmethod
     def of(cls, text: str) -> Number:
-        """From a token already known to match the number grammar (no re-validation)."""
+        """From a token already known to match the number grammar (no re-validation).
+
+        Raises :class:`RemoteProtocolError` (``Rule.BAD_NUMBER``) for a number the
+        kit will not read: non-finite, beyond a double's range, or too many digits.
+        """
         obj = object.__new__(cls)
         obj.__dict__.update(text=text, value=_number_value(text))
         return obj
@@ -110,7 +148,9 @@ class RawData:
 Parsed = Call | Keyword | RawData
 
 _NAME_RE = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
-_NUMBER_RE = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
+# ASCII digits only (the protocol's), and unambiguous: "\d+\.?\d*" backtracked
+# quadratically over a long run of digits followed by a non-digit.
+_NUMBER_RE = re.compile(r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?", re.ASCII)
 _KEYWORD_RE = re.compile(r"[A-Z][A-Z_]*")
 # A flat argument list: tokens without quotes, braces, parens or blanks, one comma apart.
 _SIMPLE_LIST_RE = re.compile(r'[^\s,(){}"]+(?:,[^\s,(){}"]+)*')
@@ -118,16 +158,19 @@ _SIMPLE_LIST_RE = re.compile(r'[^\s,(){}"]+(?:,[^\s,(){}"]+)*')
 _BARE_STOP = frozenset(',(){}"')
 
 
-def _error(msg: str, data: str) -> RemoteProtocolError:
-    return RemoteProtocolError(msg, rule=Rule.BAD_DATA, raw=data.encode("utf-8", "replace"))
+def _error(msg: str, data: str, rule: Rule = Rule.BAD_DATA) -> RemoteProtocolError:
+    return RemoteProtocolError(msg, rule=rule, raw=data.encode("utf-8", "replace"))
 
 
 class _ArgParser:
-    def __init__(self, text: str, *, strict: bool) -> None:
+    def __init__(self, text: str, *, strict: bool, count: int = 0) -> None:
         self.s = text
         self.i = 0
         self.strict = strict
         self.spaces = False
+        self.depth = 0
+        #: Values read so far (bounded by MAX_ITEMS).
+        self.count = count
 
     def skip_ws(self) -> None:
         j = self.i
@@ -135,17 +178,26 @@ class _ArgParser:
             j += 1
         if j != self.i:
             if self.strict:
-                raise _error(f"whitespace at offset {self.i} in {self.s!r}", self.s)
+                raise _error(f"whitespace at offset {self.i} in {_shown(self.s)}", self.s)
             self.spaces = True
             self.i = j
+
+    def counted(self, n: int) -> None:
+        self.count += n
+        if self.count > MAX_ITEMS:
+            raise _error(
+                f"more than {MAX_ITEMS} values in {_shown(self.s)}", self.s, Rule.DATA_LIMIT
+            )
 
     def items(self, close: str | None) -> list[Arg]:
         """Comma-separated items up to ``close`` (or end of text when None)."""
         if close is None and _SIMPLE_LIST_RE.fullmatch(self.s, self.i):
             # Fast path: a flat list of numbers and bare words, no spaces or nesting.
+            tokens = self.s[self.i :].split(",")
+            self.counted(len(tokens))
             out: list[Arg] = [
-                Number.of(t) if _NUMBER_RE.fullmatch(t) else Text(value=t, quoted=False)
-                for t in self.s[self.i :].split(",")
+                _number(t, self.s) if _NUMBER_RE.fullmatch(t) else Text(value=t, quoted=False)
+                for t in tokens
             ]
             self.i = len(self.s)
             return out
@@ -170,21 +222,31 @@ class _ArgParser:
             if close is None and c == "":
                 return out
             if c == "":
-                raise _error(f"unterminated argument list in {self.s!r}", self.s)
-            raise _error(f"unexpected {c!r} at offset {self.i} in {self.s!r}", self.s)
+                raise _error(f"unterminated argument list in {_shown(self.s)}", self.s)
+            raise _error(f"unexpected {c!r} at offset {self.i} in {_shown(self.s)}", self.s)
 
     def peek(self) -> str:
         return self.s[self.i] if self.i < len(self.s) else ""
 
     def item(self) -> Arg:
+        self.counted(1)
         c = self.peek()
         if c == "{":
+            if self.depth >= MAX_DEPTH:
+                raise _error(
+                    f"arrays nested deeper than {MAX_DEPTH} in {_shown(self.s)}",
+                    self.s,
+                    Rule.DATA_LIMIT,
+                )
             self.i += 1
-            return Array(items=tuple(self.items("}")))
+            self.depth += 1
+            array = Array(items=tuple(self.items("}")))
+            self.depth -= 1
+            return array
         if c == '"':
             end = self.s.find('"', self.i + 1)
             if end < 0:
-                raise _error(f"unterminated string in {self.s!r}", self.s)
+                raise _error(f"unterminated string in {_shown(self.s)}", self.s)
             value = self.s[self.i + 1 : end]
             self.i = end + 1
             return Text(value=value, quoted=True)
@@ -193,17 +255,47 @@ class _ArgParser:
             j += 1
         token = self.s[self.i : j]
         if not token:
-            raise _error(f"empty argument at offset {self.i} in {self.s!r}", self.s)
+            raise _error(f"empty argument at offset {self.i} in {_shown(self.s)}", self.s)
         self.i = self.i + len(token)
         if _NUMBER_RE.fullmatch(token):
-            return Number.of(token)
+            return _number(token, self.s)
         return Text(value=token, quoted=False)
 
 
+def _number(token: str, data: str) -> Number:
+    """A number token of ``data`` as a :class:`Number`; the error names the whole DATA."""
+    try:
+        return Number.of(token)
+    except RemoteProtocolError as e:
+        raise _error(f"{e.message} in {_shown(data)}", data, e.rule) from None
+
+
 def _number_value(token: str) -> int | float:
+    # Only a long token can break a bound; count its digits then (the grammar
+    # leaves at most a sign, a point, an e and the exponent's sign besides).
+    if len(token) > MAX_NUMBER_DIGITS and (
+        len(token) - sum(token.count(c) for c in "+-.eE") > MAX_NUMBER_DIGITS
+    ):
+        raise _error(
+            f"number {_shown(token)} has more than {MAX_NUMBER_DIGITS} digits",
+            token,
+            Rule.BAD_NUMBER,
+        )
     if "." in token or "e" in token or "E" in token:
-        return float(token)
-    return int(token)
+        value = float(token)
+        if not math.isfinite(value):
+            raise _error(f"number {_shown(token)} is not finite", token, Rule.BAD_NUMBER)
+        return value
+    n = int(token)
+    if len(token) > 300:
+        # Every value must convert to a finite double (ranges compare as floats).
+        try:
+            float(n)
+        except OverflowError:
+            raise _error(
+                f"number {_shown(token)} is beyond a double's range", token, Rule.BAD_NUMBER
+            ) from None
+    return n
 
 
 def parse_data(data: str, *, strict: bool = False) -> Parsed:
@@ -214,13 +306,14 @@ def parse_data(data: str, *, strict: bool = False) -> Parsed:
     """
     m = _NAME_RE.match(data)
     if m and data[m.end() : m.end() + 1] == "(":
+        name = _shown(m.group()) if m.end() > SHOWN_CHARS else m.group()
         if not data.endswith(")"):
-            raise _error(f"call {m.group()!r} does not end with ')'", data)
+            raise _error(f"call {name} does not end with ')'", data)
         p = _ArgParser(data[m.end() + 1 : -1], strict=strict)
         try:
             items = p.items(None)
         except RemoteProtocolError as e:
-            raise _error(f"{m.group()}: {e.message}", data) from None
+            raise _error(f"{name}: {e.message}", data, e.rule) from None
         problems = (Rule.SPACE_IN_ARGS,) if p.spaces else ()
         return Call(name=m.group(), args=tuple(items), problems=problems)
     if _KEYWORD_RE.fullmatch(data):
@@ -236,10 +329,14 @@ def parse_reply(
         separator = "," if "," in data else " " if " " in data.strip() else ","
     if separator == " ":
         parts = [x for x in data.split(" ") if x != ""] if not strict else data.split(" ")
+        if len(parts) > MAX_ITEMS:
+            raise _error(f"more than {MAX_ITEMS} values in {_shown(data)}", data, Rule.DATA_LIMIT)
         out: list[Arg] = []
+        count = 0
         for part in parts:
-            p = _ArgParser(part, strict=True)
+            p = _ArgParser(part, strict=True, count=count)
             out.extend(p.items(None) or [Text(value="", quoted=False)])
+            count = p.count
         return tuple(out)
     p = _ArgParser(data, strict=strict)
     return tuple(p.items(None))
@@ -327,7 +424,7 @@ def _check_scalar(p: Param, arg: Arg, where: str) -> Violation | None:
             )
         return None
     if not isinstance(arg, Number):
-        kind = "an array" if isinstance(arg, Array) else f"text {arg.value!r}"
+        kind = "an array" if isinstance(arg, Array) else f"text {_shown(arg.value)}"
         return Violation(rule=Rule.ARG_TYPE, detail=f"{where}: expected {p.type}, got {kind}")
     # An integer written as 1.000 is tolerated; 1.5 is not.
     if p.is_integer and not arg.is_int and not float(arg.value).is_integer():
@@ -468,7 +565,7 @@ def check_reply(returns: Returns, data: str) -> list[Violation]:
             out.append(
                 Violation(
                     rule=Rule.REPLY_SHAPE,
-                    detail=f"value {i + 1} ({rv.name}): expected {rv.type}, got {a!r}",
+                    detail=f"value {i + 1} ({rv.name}): expected {rv.type}, got {_shown(repr(a), quote=False)}",
                     index=i,
                 )
             )

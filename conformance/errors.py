@@ -54,6 +54,14 @@ class Rule(str, enum.Enum):
     BAD_ENCODING = "bad_encoding"
     #: DATA does not follow the call grammar ``Name(arg,...)``.
     BAD_DATA = "bad_data"
+    #: A number the kit will not read: non-finite (``1e999``), beyond a double's
+    #: range, or more digits than ``data.MAX_NUMBER_DIGITS``.  1.1 and chapter 2
+    #: carry C ints and doubles, which are finite and print in a few hundred digits.
+    BAD_NUMBER = "bad_number"
+    #: DATA beyond the parser's bounds (``data.MAX_DEPTH`` nested arrays,
+    #: ``data.MAX_ITEMS`` values): far past anything the manual's tables list, and
+    #: a bound on the time and memory one DATA can cost.
+    DATA_LIMIT = "data_limit"
     #: Whitespace after a comma in an argument list (lenient peers send it).
     SPACE_IN_ARGS = "space_in_args"
     #: Command ID not in the specs.

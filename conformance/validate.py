@@ -11,6 +11,7 @@ import re
 from dataclasses import dataclass, field
 
 from .data import (
+    SHOWN_CHARS,
     Call,
     Number,
     Parsed,
@@ -20,6 +21,7 @@ from .data import (
     parse_data,
     parse_reply,
 )
+from .data import _shown as shown
 from .errors import RemoteProtocolError, Rule
 from .frame import Frame
 from .spec import Command, Returns, SpecSet, Variant
@@ -39,7 +41,14 @@ ERR_ARG_VALUE = 4
 #: Chapter 9: 14 = 指令执行失败 (execution failed), used for unknown commands by the emulator.
 ERR_EXEC_FAILED = 14
 
-_TEXT_ERR_RE = re.compile(r"robot\s*err(?:or)?\s*code\s*[:=]\s*(-?\d+)", re.IGNORECASE)
+_TEXT_ERR_RE = re.compile(r"robot\s*err(?:or)?\s*code\s*[:=]\s*(-?\d+)", re.IGNORECASE | re.ASCII)
+# An error code is an int (chapter 9 lists two- and three-digit ones); a longer
+# run of digits is no code (and int() refuses more than 4300 digits).
+_CODE_DIGITS = 18
+
+
+def _code(digits: str) -> int | None:
+    return int(digits) if len(digits.lstrip("-")) <= _CODE_DIGITS else None
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -73,8 +82,9 @@ def validate_request(frame: Frame, specs: SpecSet, *, strict: bool = False) -> R
     try:
         parsed: Parsed | None = parse_data(frame.data, strict=strict)
     except RemoteProtocolError as e:
+        # BAD_DATA, or BAD_NUMBER / DATA_LIMIT for a number or a size past the parser's bounds.
         parsed = None
-        viols.append(Violation(rule=Rule.BAD_DATA, detail=e.message))
+        viols.append(Violation(rule=e.rule, detail=e.message))
     name = parsed.name if isinstance(parsed, Call) else None
     command = specs.resolve(frame.cmd_id, name)
     if command is None:
@@ -89,10 +99,11 @@ def validate_request(frame: Frame, specs: SpecSet, *, strict: bool = False) -> R
     if isinstance(parsed, Call):
         viols += [Violation(rule=r, detail=f"DATA: {r.value}") for r in parsed.problems]
         if parsed.name.lower() != command.name.lower():
+            called = parsed.name if len(parsed.name) <= SHOWN_CHARS else shown(parsed.name)
             viols.append(
                 Violation(
                     rule=Rule.NAME_MISMATCH,
-                    detail=f"DATA calls {parsed.name} but ID {frame.cmd_id} is {command.name}",
+                    detail=f"DATA calls {called} but ID {frame.cmd_id} is {command.name}",
                 )
             )
     variant: Variant | None = None
@@ -135,7 +146,7 @@ def classify_reply(returns: Returns, data: str, specs: SpecSet | None = None) ->
     text = data.strip()
     m = _TEXT_ERR_RE.search(text)
     if m:
-        return ReplyVerdict(refused=True, form=RefusalForm.TEXT, code=int(m.group(1)))
+        return ReplyVerdict(refused=True, form=RefusalForm.TEXT, code=_code(m.group(1)))
     if returns.errcode_only:
         try:
             values = parse_reply(text, returns.separator)
@@ -153,7 +164,9 @@ def classify_reply(returns: Returns, data: str, specs: SpecSet | None = None) ->
         return ReplyVerdict(
             refused=False,
             violations=(
-                Violation(rule=Rule.REPLY_SHAPE, detail=f"expected an error code, got {text!r}"),
+                Violation(
+                    rule=Rule.REPLY_SHAPE, detail=f"expected an error code, got {shown(text)}"
+                ),
             ),
         )
     viols = check_reply(returns, text)

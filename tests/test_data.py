@@ -7,6 +7,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from conformance.data import (
+    MAX_DEPTH,
+    MAX_ITEMS,
+    MAX_NUMBER_DIGITS,
     Array,
     Call,
     Keyword,
@@ -253,3 +256,107 @@ def test_check_reply_array_returns_need_every_element() -> None:
     (v,) = check_reply(array_returns, "3")
     assert v.rule is Rule.REPLY_SHAPE
     assert check_reply(array_returns, "{1,2,3}")
+
+
+# ------------------------------------------------------------------- bounds (hostile DATA)
+
+
+def _refused(data: str, rule: Rule, *, reply: bool = False) -> RemoteProtocolError:
+    with pytest.raises(RemoteProtocolError) as exc:
+        parse_reply(data) if reply else parse_data(data)
+    assert exc.value.rule is rule, exc.value
+    # The message shows a bounded part of the DATA, whatever its size.
+    assert len(exc.value.message) < 400
+    return exc.value
+
+
+@pytest.mark.parametrize("digits", [MAX_NUMBER_DIGITS + 1, 4301, 5000, 100_000])
+def test_number_with_too_many_digits_is_refused(digits: int) -> None:
+    """Past 4300 digits int() raised ValueError; any count past the bound is BAD_NUMBER."""
+    _refused(f"MoveJ({'9' * digits})", Rule.BAD_NUMBER)
+    _refused(f"MoveJ(1,{'1' * digits},{{2}})", Rule.BAD_NUMBER)
+    _refused(f"1,{'1' * digits}", Rule.BAD_NUMBER, reply=True)
+    _refused(f"0.{'0' * digits}1", Rule.BAD_NUMBER, reply=True)
+
+
+@pytest.mark.parametrize("token", ["1e999", "-1e999", "1E400", "9" * 310, "-" + "9" * 310 + ".5"])
+def test_non_finite_number_is_refused(token: str) -> None:
+    """1e999 became inf, which the emulator could not send back ("inf cannot be sent")."""
+    err = _refused(f"SetAO(0,{token},0)", Rule.BAD_NUMBER)
+    assert token[:20] in err.message
+    _refused(f"{token} 1", Rule.BAD_NUMBER, reply=True)
+
+
+def test_numbers_within_bounds_are_read() -> None:
+    big = format_number(1.7976931348623157e308)  # the largest double, as we write it
+    parsed = parse_data(f"F({big},1e-999,{'1' * 300},1e308)")
+    assert isinstance(parsed, Call)
+    values = [to_python(a) for a in parsed.args]
+    assert values == [float(big), 0.0, int("1" * 300), 1e308]
+
+
+def test_unicode_digits_are_not_numbers() -> None:
+    # The protocol's digits are ASCII; int() would read Arabic-Indic ones.
+    parsed = parse_data("F(\u0661\u0662)")
+    assert isinstance(parsed, Call) and parsed.args == (Text(value="\u0661\u0662", quoted=False),)
+
+
+def test_nesting_is_bounded() -> None:
+    ok = "{" * MAX_DEPTH + "1" + "}" * MAX_DEPTH
+    parsed = parse_data(f"F({ok})")
+    assert isinstance(parsed, Call)
+    depth, arg = 0, parsed.args[0]
+    while isinstance(arg, Array):
+        depth, arg = depth + 1, arg.items[0]
+    assert depth == MAX_DEPTH
+    too_deep = "{" * (MAX_DEPTH + 1) + "1" + "}" * (MAX_DEPTH + 1)
+    _refused(f"F({too_deep})", Rule.DATA_LIMIT)
+    # 5000 levels raised RecursionError; unterminated ones too.
+    _refused("F(" + "{" * 5000 + "}" * 5000 + ")", Rule.DATA_LIMIT)
+    _refused("F(" + "{" * 5000 + ")", Rule.DATA_LIMIT)
+    _refused("{" * 5000, Rule.DATA_LIMIT, reply=True)
+
+
+@pytest.mark.parametrize(
+    "data",
+    [
+        "F(" + ",".join(["1"] * (MAX_ITEMS + 1)) + ")",  # flat list
+        "F(" + ", ".join(["1"] * (MAX_ITEMS + 1)) + ")",  # with spaces (the careful path)
+        "F({" + ",".join(["1"] * MAX_ITEMS) + "})",  # the array counts too
+    ],
+    ids=["flat", "spaces", "array"],
+)
+def test_value_count_is_bounded(data: str) -> None:
+    _refused(data, Rule.DATA_LIMIT)
+
+
+def test_reply_value_count_is_bounded() -> None:
+    _refused(" ".join(["1"] * (MAX_ITEMS + 1)), Rule.DATA_LIMIT, reply=True)
+    _refused(",".join(["1"] * (MAX_ITEMS + 1)), Rule.DATA_LIMIT, reply=True)
+    assert len(parse_reply(" ".join(["1"] * MAX_ITEMS))) == MAX_ITEMS
+
+
+def test_messages_are_bounded() -> None:
+    huge = "x" * 262_144
+    for data in (f'F("{huge})', f"F({huge},,)", f"{huge}(1,)", f"F({{{huge})"):
+        err = _refused(data, Rule.BAD_DATA)
+        assert "262" in err.message  # says how long the DATA (or the name) was
+        assert err.raw == data.encode()  # the typed field keeps it all
+    _refused(f"F({huge}", Rule.BAD_DATA)
+    variant = CALL_VARIANTS[0][1]
+    viols = check_args(variant, [Text(value=huge, quoted=False)] * len(variant.params))
+    assert viols and all(len(v.detail) < 400 for v in viols)
+
+
+def test_long_digit_run_before_non_digit_is_text() -> None:
+    # "\d+\.?\d*" backtracked quadratically here; the answer is a bare word either way.
+    token = "1" * 50_000 + "x"
+    parsed = parse_data(f"F({token},{token})")
+    assert isinstance(parsed, Call) and parsed.args[0] == Text(value=token, quoted=False)
+
+
+def test_lone_surrogates_are_data() -> None:
+    parsed = parse_data('F(\ud800,"\udc80")')
+    assert isinstance(parsed, Call) and len(parsed.args) == 2
+    with pytest.raises(RemoteProtocolError):
+        parse_data("F(\ud800")

@@ -92,3 +92,49 @@ def test_reply_must_echo_cnt_and_cmd_id() -> None:
     assert verdict.ok and framing == []
     _, framing = validate_reply(req, frame(encode_frame(8, 205, "1")), variant, SPECS)
     assert {v.rule for v in framing} == {Rule.BAD_CNT, Rule.BAD_CMD_ID}
+
+
+# ------------------------------------------------------------------- hostile DATA
+
+
+@pytest.mark.parametrize(
+    ("data", "rule"),
+    [
+        ("MoveJ(" + "9" * 5000 + ")", Rule.BAD_NUMBER),
+        ("SetDO(0,1e999,0,0)", Rule.BAD_NUMBER),
+        ("SetDO(" + "{" * 5000 + ")", Rule.DATA_LIMIT),
+        ("SetDO(0,1,0,0" + ",0" * 20_000 + ")", Rule.DATA_LIMIT),
+        ('SetDO(0,1,0,"0)', Rule.BAD_DATA),
+    ],
+    ids=["5000-digits", "1e999", "5000-braces", "20000-values", "unterminated"],
+)
+def test_request_past_parser_bounds_is_a_violation(data: str, rule: Rule) -> None:
+    """These raised ValueError / RecursionError, or became inf; now the judge names the rule."""
+    check = validate_request(frame(encode_frame(1, 204, data)), SPECS)
+    assert check.parsed is None and check.command is not None
+    assert [v.rule for v in check.violations] == [rule]
+    assert all(len(v.detail) < 400 for v in check.violations)
+
+
+def test_text_error_code_with_huge_digits() -> None:
+    # int() refused this many digits; the refusal is still a refusal, without a code.
+    verdict = classify_reply(returns_of("SetDO"), "robot errcode:" + "9" * 5000, SPECS)
+    assert verdict.refused and verdict.form is RefusalForm.TEXT and verdict.code is None
+    verdict = classify_reply(returns_of("SetDO"), "robot errcode:-123", SPECS)
+    assert verdict.code == -123
+
+
+@pytest.mark.parametrize(
+    "data", ["1e999", "9" * 5000, "{" * 5000, "1 " * 20_000, "x" * 100_000, '1,{2,"3']
+)
+def test_hostile_replies_are_violations(data: str) -> None:
+    for name in ("SetDO", "GetActualJointPosDegree"):
+        verdict = classify_reply(returns_of(name), data, SPECS)
+        assert not verdict.ok
+        assert all(len(v.detail) < 400 for v in verdict.violations)
+
+
+def test_name_mismatch_detail_is_bounded() -> None:
+    check = validate_request(frame(encode_frame(1, 204, "X" * 100_000 + "(1)")), SPECS)
+    (v,) = [v for v in check.violations if v.rule is Rule.NAME_MISMATCH]
+    assert len(v.detail) < 400
