@@ -69,6 +69,13 @@ _SETTINGS: tuple[tuple[str, str, str, str, str | None], ...] = (
         "60",
     ),
     (
+        "recovery_timeout",
+        "fairino_recovery_timeout",
+        "FAIRINO_RECOVERY_TIMEOUT",
+        "how long a silent or crashed target may take to answer again, seconds (10)",
+        None,
+    ),
+    (
         "budget",
         "fairino_budget",
         "FAIRINO_BUDGET",
@@ -316,6 +323,7 @@ def _suite_config(config: pytest.Config) -> SuiteConfig:
         strict=bool(strict),
         reply_timeout=_float(config, "reply_timeout") or 2.0,
         case_timeout=_float(config, "case_timeout") or 60.0,
+        recovery_timeout=_positive(config, "recovery_timeout", 10.0),
         budget=_positive(config, "budget", DEFAULT_BUDGET),
         rate=_float(config, "rate"),
         seed=seed,

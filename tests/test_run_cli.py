@@ -3,10 +3,16 @@
 from __future__ import annotations
 
 import json
+import re
 import socket
 import subprocess
 import sys
 from pathlib import Path
+
+import pytest
+
+from conformance.net.emulator import EmulatorServer
+from tests.hostile_targets import HostileTarget, refusing_port
 
 
 def run(*argv: str, cwd: Path) -> subprocess.CompletedProcess[str]:
@@ -47,6 +53,56 @@ def test_unreachable_target_is_an_error(tmp_path: Path) -> None:
     proc = run("--target", f"127.0.0.1:{port}", "--commands", "375", cwd=tmp_path)
     assert proc.returncode == 2, proc.stdout + proc.stderr
     assert "Traceback" not in proc.stderr
+
+
+def test_whole_suite_against_a_refusing_target_stops_in_one_line(tmp_path: Path) -> None:
+    port = refusing_port()
+    proc = run("--target", f"127.0.0.1:{port}", "--report-json", "r.json", cwd=tmp_path)
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    line = f"target 127.0.0.1:{port} unreachable: connection refused"
+    assert proc.stderr.strip().splitlines()[-1] == f"fairino-conformance run: {line}"
+    # A compact summary, not a table of ERROR rows without a reason.
+    assert re.search(rf"^\d+ cases not run: {re.escape(line)}$", proc.stdout, re.M)
+    assert len(proc.stdout.strip().splitlines()) == 2
+    doc = json.loads((tmp_path / "r.json").read_text(encoding="utf-8"))
+    assert doc["stopped"] == line
+
+
+@pytest.mark.parametrize("behaviour", ["silent", "endless", "blob"])
+def test_whole_suite_against_a_hostile_target_is_bounded(tmp_path: Path, behaviour: str) -> None:
+    with HostileTarget(behaviour) as target:
+        proc = run("--target", target.label, "--reply-timeout", "1", "-q", cwd=tmp_path)
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last.startswith(f"fairino-conformance run: target {target.label} accepted a connection")
+    assert "did not answer" in last and "within 1 s" in last
+    # Bounded: the kit sent its health query, saw what came back, and stopped.
+    assert target.frames <= 1 and target.connections == 1
+
+
+def test_target_dying_mid_run_is_named_with_the_case(tmp_path: Path) -> None:
+    with (
+        EmulatorServer() as emu,
+        HostileTarget("dies", upstream=emu.address, frames_before_death=100) as target,
+    ):
+        proc = run(
+            "--target", target.label, "--reply-timeout", "1", "--recovery-timeout", "1",
+            "--report-json", "r.json",
+            cwd=tmp_path,
+        )  # fmt: skip
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    doc = json.loads((tmp_path / "r.json").read_text(encoding="utf-8"))
+    ran = [c for cmd in doc["commands"].values() for c in cmd["cases"] if not c.get("not_run")]
+    assert ran and doc["stopped"].startswith(f"target {target.label} died after case ")
+    assert any(doc["stopped"].startswith(f"target {target.label} died after case {c['id']}: ")
+               for c in ran)  # fmt: skip
+    assert proc.stderr.strip().splitlines()[-1] == f"fairino-conformance run: {doc['stopped']}"
+    assert target.frames <= 100 + 10
+
+
+def test_budget_must_be_positive(tmp_path: Path) -> None:
+    proc = run("--budget", "0", cwd=tmp_path)
+    assert proc.returncode == 2 and "--budget must be positive" in proc.stderr
 
 
 def test_bad_option_is_a_one_line_error(tmp_path: Path) -> None:

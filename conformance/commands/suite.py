@@ -100,7 +100,23 @@ def _add_run(sub: Any) -> None:
     p.add_argument("--strict", action="store_true", help="NON-STRICT departures fail")
     p.add_argument("--expected-failures", metavar="FILE", help="baseline of case IDs")
     p.add_argument("--reply-timeout", type=float, default=None, metavar="SECONDS")
-    p.add_argument("--case-timeout", type=float, default=None, metavar="SECONDS")
+    p.add_argument(
+        "--case-timeout", type=float, default=None, metavar="SECONDS", help="one case (60)"
+    )
+    p.add_argument(
+        "--recovery-timeout",
+        type=float,
+        default=None,
+        metavar="SECONDS",
+        help="wait for a silent or crashed target to answer again (10); then the run stops",
+    )
+    p.add_argument(
+        "--budget",
+        type=float,
+        default=None,
+        metavar="SECONDS",
+        help="the whole run (10800: 3 hours); then the run stops, exit 2",
+    )
     p.add_argument("--rate", type=float, default=None, help="at most this many frames/s")
     p.add_argument("--seed", type=int, default=None, help="Hypothesis seed")
     p.add_argument("--report-json", metavar="PATH")
@@ -165,7 +181,7 @@ def _run(args: argparse.Namespace) -> int:
         parse_fault(f)
     if args.emulator_fault and args.target:
         raise UsageError("--emulator-fault applies only to the built-in emulator (no --target)")
-    for name in ("reply_timeout", "case_timeout", "rate"):
+    for name in ("reply_timeout", "case_timeout", "recovery_timeout", "budget", "rate"):
         v = getattr(args, name)
         if v is not None and v <= 0:
             raise UsageError(f"--{name.replace('_', '-')} must be positive")
@@ -181,16 +197,15 @@ def _run(args: argparse.Namespace) -> int:
         for opt in ("commands", "exclude", "groups", "case", "allow_destructive", "emulator_fault"):
             for v in getattr(args, opt):
                 argv += [f"--{opt.replace('_', '-')}", v]
-        for opt in ("expected_failures", "reply_timeout", "case_timeout", "rate", "junitxml"):
+        timing = ("reply_timeout", "case_timeout", "recovery_timeout", "budget", "rate")
+        for opt in ("expected_failures", *timing):
             v = getattr(args, opt)
             if v is not None:
                 argv += [f"--{opt.replace('_', '-')}", str(v)]
-        for opt in ("report_json", "report_html"):
+        for opt in ("report_json", "report_html", "junitxml"):
             v = getattr(args, opt)
             if v is not None:
                 argv += [f"--{opt.replace('_', '-')}", os.path.abspath(v)]
-        if args.junitxml:
-            argv[-1] = os.path.abspath(args.junitxml)
         for flag in ("allow_motion", "allow_io", "allow_config"):
             if getattr(args, flag):
                 argv.append(f"--{flag.replace('_', '-')}")
@@ -201,6 +216,9 @@ def _run(args: argparse.Namespace) -> int:
         progress = _Progress(args.quiet)
         code = int(pytest.main(argv, plugins=[progress]))
     report = progress.report
+    if report is not None and report.stopped:
+        # The one line that says why the run stopped early (unreachable, dead, budget).
+        print(f"fairino-conformance run: {report.stopped}", file=sys.stderr)
     if report is not None and report.cases:
         print(report.render_terminal())
         if code in (0, 1):
