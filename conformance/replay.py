@@ -34,6 +34,26 @@ from .spec import SpecSet
 
 __all__ = ["ReplayResult", "ReplyBook", "replay_to_target"]
 
+# ``nearest``: DATA compared on this many characters, against this many distinct
+# recorded requests of the same command ID at most.
+_NEAREST_CHARS = 256
+_NEAREST_CANDIDATES = 64
+
+
+def _nearest_candidates(
+    cands: list[tuple[str, FrameRecord]],
+) -> list[tuple[str, FrameRecord]]:
+    seen: set[str] = set()
+    out: list[tuple[str, FrameRecord]] = []
+    for c in cands:
+        if c[0] not in seen:
+            seen.add(c[0])
+            out.append(c)
+            if len(out) >= _NEAREST_CANDIDATES:
+                break
+    return out
+
+
 _UNKNOWN = "command ID not in the specs: not sent to a non-loopback target"
 
 
@@ -89,10 +109,16 @@ class ReplyBook:
         if self.unmatched == "drop":
             return None
         if self.unmatched == "nearest":
-            cands = self._by_id.get(frame.cmd_id, [])
+            cands = _nearest_candidates(self._by_id.get(frame.cmd_id, []))
             if cands:
+                # Bounded work whatever the peer sends: a similarity over the first
+                # characters only (SequenceMatcher is quadratic in the worst case).
+                probe = frame.data[:_NEAREST_CHARS]
                 best = max(
-                    cands, key=lambda c: difflib.SequenceMatcher(None, c[0], frame.data).ratio()
+                    cands,
+                    key=lambda c: difflib.SequenceMatcher(
+                        None, c[0][:_NEAREST_CHARS], probe
+                    ).ratio(),
                 )
                 r = best[1]
                 return encode_frame(frame.cnt, r.cmd_id, r.data)

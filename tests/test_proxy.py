@@ -699,3 +699,87 @@ def test_a_failed_io_loop_is_said_and_the_cli_exits_non_zero_with_a_finished_fil
     assert proc.returncode == 2
     assert "the I/O thread failed: RuntimeError: loop bug" in err
     assert read_recording(out).complete
+
+
+class Sink:
+    """An upstream that reads everything and answers ``1`` to each complete normal frame
+    (found by its tail), without decoding: hostile bytes cost it nothing."""
+
+    def __init__(self) -> None:
+        self.srv = socket.create_server(("127.0.0.1", 0))
+        self.address: tuple[str, int] = self.srv.getsockname()[:2]
+        self.received = 0
+        self.lock = threading.Lock()
+        threading.Thread(target=self._accept, daemon=True).start()
+
+    def _accept(self) -> None:
+        while True:
+            try:
+                c, _ = self.srv.accept()
+            except OSError:
+                return
+            threading.Thread(target=self._serve, args=(c,), daemon=True).start()
+
+    def _serve(self, c: socket.socket) -> None:
+        with c:
+            try:
+                while b := c.recv(1 << 20):
+                    with self.lock:
+                        self.received += len(b)
+                    for _ in range(b.count(b"III/b/f")):
+                        c.sendall(encode_frame(1, 201, "1"))
+            except OSError:
+                pass
+
+
+HEADER_FLOOD = b"/f/bIII1III2III3III" * 60_000  # 1.1 MB of headers that never complete
+GARBAGE_5MB = bytes(range(256)).replace(b"/", b".") * (5 * 4096)
+
+
+def _recorded_c2s(path: Path) -> list[int]:
+    """CNTs of the c2s frames in a (possibly unfinished) recording."""
+    try:
+        return [f.cnt for f in read_recording(path).frames if f.dir == "c2s"]
+    except Exception:
+        return []  # not even a header yet
+
+
+def test_hostile_traffic_keeps_the_flush_promise_and_sigterm_keeps_every_byte(
+    tmp_path: Path,
+) -> None:
+    sink = Sink()
+    proc, addr, out = _start_proxy_cli(tmp_path, sink.address)
+    normal = encode_frame(77, 201, 'MoveJ("P1")')
+    hostile = HEADER_FLOOD[:200_000] + GARBAGE_5MB + ENDLESS + normal
+    sent = [hostile, normal, HEADER_FLOOD + GARBAGE_5MB + ENDLESS]
+    try:
+        with socket.create_connection(addr) as a:
+            a.sendall(hostile)
+            with socket.create_connection(addr) as b:
+                b.sendall(normal)
+                b.settimeout(60)
+                assert recv_frames(b, 1, timeout=60)[0].cnt == 1
+                # The proxy runs; its file is unfinished, and still the normal frame of
+                # the second connection is in it (flushed between decoder slices).
+                wait_for(lambda: 77 in _recorded_c2s(out), timeout=120)
+                assert proc.poll() is None
+                with socket.create_connection(addr) as c:
+                    c.sendall(sent[2])
+                    # Everything forwarded (so read, so queued for the recorder)...
+                    wait_for(lambda: sink.received == sum(map(len, sent)), timeout=120)
+                    # ...then stopped, whatever the recorder is behind on.
+                    t0 = time.monotonic()
+                    code, err = _stop(proc)
+                    took = time.monotonic() - t0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    print(f"SIGTERM to exit: {took:.2f} s")
+    assert code == 0, err
+    rec = read_recording(out)
+    assert rec.complete
+    # Every byte each client sent is in the file, decoded or not.
+    for conn, data in enumerate(sent, 1):
+        assert sent_bytes(rec, conn, "c2s") == data
+    assert all(c.reason for c in rec.connections if c.event == "close")

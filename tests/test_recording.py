@@ -198,6 +198,63 @@ def sent_bytes(rec: Recording, conn: int, direction: str) -> bytes:
     return bytes(out)
 
 
+def test_checkpoint_runs_between_slices_and_stop_decoding_keeps_every_byte(
+    tmp_path: Path,
+) -> None:
+    out = tmp_path / "stop.mcap"
+    calls = 0
+    with RecordingWriter(out) as w:
+        r = StreamRecorder(w, specs=default_specs(), slice_size=1000)
+
+        def checkpoint() -> None:
+            nonlocal calls
+            calls += 1
+            if calls == 50:  # 50 KB into the garbage flood: "stop now"
+                r.stop_decoding("the proxy was stopping")
+
+        r.checkpoint = checkpoint
+        r.open(1, t_ns=1)
+        r.open(2, t_ns=1, transport="udp")
+        first = encode_frame(1, 201, 'MoveJ("P1")') + b"/f/bIII2III201III11IIIMoveJ("
+        r.data(1, "c2s", 5, first)  # a frame, then half of one: held by the decoder
+        r.data(1, "c2s", 10, FLOOD_STREAM)
+        r.data(1, "c2s", 20, encode_frame(9, 201, 'MoveJ("P1")'))
+        r.datagram(2, "c2s", 30, encode_frame(3, 201, "x"))
+        r.close(1, t_ns=40, reason="client closed")
+        r.close(2, t_ns=40, reason="idle")
+    # One slice of the flood at a time, with the checkpoint after each one.
+    assert calls == 50
+    rec = read_recording(out)
+    assert [f.cnt for f in rec.frames] == [1]  # decoded before the stop; none after
+    undecoded = [p for p in rec.problems if p.rule == "undecoded"]
+    assert undecoded and all("the proxy was stopping" in p.detail for p in undecoded)
+    assert all(len(p.raw) <= PROBLEM_RAW_LIMIT for p in undecoded)
+    # Every byte is in the file, at its offset: decoded, malformed or undecoded.
+    stream = first + FLOOD_STREAM + encode_frame(9, 201, 'MoveJ("P1")')
+    assert sent_bytes(rec, 1, "c2s") == stream
+    assert sent_bytes(rec, 2, "c2s") == encode_frame(3, 201, "x")
+    closes = {c.conn: c for c in rec.connections if c.event == "close"}
+    assert closes[1].bytes_c2s == len(stream)
+
+
+def test_datagram_decoding_is_sliced_with_the_same_result(tmp_path: Path) -> None:
+    blob = b"".join(encode_frame(i, 201, "x" * 50) for i in range(200))
+    out = tmp_path / "udp.mcap"
+    seen = 0
+
+    def checkpoint() -> None:
+        nonlocal seen
+        seen += 1
+
+    with RecordingWriter(out) as w:
+        r = StreamRecorder(w, slice_size=512, checkpoint=checkpoint)
+        r.open(1, t_ns=1, transport="udp")
+        r.datagram(1, "c2s", 5, blob)
+        r.close(1, t_ns=9, reason="idle")
+    assert seen == -(-len(blob) // 512)
+    assert [f.cnt for f in read_recording(out).frames] == list(range(200))
+
+
 def test_long_malformed_runs_are_kept_whole_in_the_file(tmp_path: Path) -> None:
     out = tmp_path / "flood.mcap"
     with RecordingWriter(out) as w:

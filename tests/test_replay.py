@@ -135,3 +135,119 @@ def test_serve_unmatched_policies(session) -> None:  # type: ignore[no-untyped-d
     book = ReplyBook(faults)
     out = book.answer(Frame(cnt=40, cmd_id=201, data='MoveJ("P1")'))
     assert out is not None and not out.startswith(b"/f/bIII40III")
+
+
+# --------------------------------------------------------------------------- hostile peers
+
+
+def _closed_by_server(c: socket.socket) -> bool:
+    c.settimeout(30)
+    try:
+        while c.recv(65536):
+            pass
+    except ConnectionResetError:
+        pass
+    return True
+
+
+def test_serve_survives_hostile_clients_and_answers_the_next_one(session) -> None:  # type: ignore[no-untyped-def]
+    book = ReplyBook(session, unmatched="drop")
+    flood = b"/f/bIII1III2III3III" * 20_000
+    garbage = bytes(range(256)).replace(b"/", b".") * 8192
+    endless = b"/f/bIII1III201III99999999III" + b"x" * (600 * 1024)
+    with ReplayServer(book, max_frame_size=4096) as srv:
+        for hostile in (flood, garbage, endless):
+            with socket.create_connection(srv.address) as c:
+                c.sendall(hostile)
+                c.shutdown(socket.SHUT_WR)
+                assert _closed_by_server(c)
+        got = _ask(srv.address, [encode_frame(9, 201, 'MoveJ("P1")')])
+        assert (got[0].cnt, got[0].data) == (9, "1")
+        assert srv.errors == []
+
+
+def test_serve_an_error_closes_only_that_connection(session) -> None:  # type: ignore[no-untyped-def]
+    class Book(ReplyBook):
+        def answer(self, frame: Frame) -> bytes | None:
+            if frame.data == "boom":
+                raise ZeroDivisionError("a bug this request found")
+            return super().answer(frame)
+
+    with ReplayServer(Book(session), log=lambda m: None) as srv:
+        with socket.create_connection(srv.address) as c:
+            c.sendall(encode_frame(1, 201, "boom"))
+            assert _closed_by_server(c)
+        got = _ask(srv.address, [encode_frame(9, 201, 'MoveJ("P1")')])
+        assert got[0].cnt == 9
+    assert srv.close_reasons == {"replay error: ZeroDivisionError: a bug this request found": 1}
+    assert len(srv.errors) == 1
+
+
+def test_serve_max_connections_refuses_the_extra_client(session) -> None:  # type: ignore[no-untyped-def]
+    with ReplayServer(ReplyBook(session), max_connections=1) as srv:
+        held = socket.create_connection(srv.address)
+        with held:
+            held.sendall(encode_frame(9, 201, 'MoveJ("P1")'))
+            held.settimeout(30)
+            assert held.recv(4096)  # served: the one slot is taken
+            with socket.create_connection(srv.address) as extra:
+                assert _closed_by_server(extra)
+            assert srv.refused == 1
+
+
+def test_serve_descriptor_exhaustion_backs_off_and_serving_goes_on() -> None:
+    import os
+    import queue
+    import re
+    import resource
+    import subprocess
+    import sys
+    import threading
+
+    root = Path(__file__).resolve().parent.parent
+
+    def limit() -> None:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (40, 40))
+
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "conformance",
+            "replay",
+            str(CAPTURES / "session.mcap"),
+            "--serve",
+            "127.0.0.1:0",
+            "--unmatched",
+            "drop",
+        ],
+        stderr=subprocess.PIPE,
+        text=True,
+        env=dict(os.environ, PYTHONPATH=str(root)),
+        cwd=root,
+        preexec_fn=limit,
+    )
+    assert proc.stderr is not None
+    stream = proc.stderr
+    lines: queue.Queue[str] = queue.Queue()
+
+    def pump() -> None:
+        for x in stream:
+            lines.put(x)
+
+    threading.Thread(target=pump, daemon=True).start()
+    try:
+        m = re.search(r"on ([\d.]+):(\d+)", lines.get(timeout=60))
+        assert m
+        addr = (m.group(1), int(m.group(2)))
+        clients = [socket.create_connection(addr, timeout=30) for _ in range(60)]
+        line = lines.get(timeout=60)  # a failure, not a hang, if it never comes
+        assert "cannot accept connections" in line and "Too many open files" in line, line
+        for c in clients:
+            c.close()
+        got = _ask(addr, [encode_frame(9, 201, 'MoveJ("P1")')])
+        assert (got[0].cnt, got[0].data) == (9, "1")
+        assert proc.poll() is None
+    finally:
+        proc.terminate()
+        proc.wait(60)

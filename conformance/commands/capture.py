@@ -169,6 +169,21 @@ def _register_more(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
         "the nearest recorded reply of its command ID, or none",
     )
     rp.add_argument("--count", type=int, default=0, help="serve: stop after this many connections")
+    rp.add_argument(
+        "--max-connections",
+        type=int,
+        default=64,
+        metavar="N",
+        help="serve: clients served at once; more are accepted and closed (default 64)",
+    )
+    rp.add_argument(
+        "--max-frame-size",
+        type=parse_size,
+        default=DEFAULT_MAX_FRAME_SIZE,
+        metavar="SIZE",
+        help="serve: largest request frame read; longer runs are skipped as malformed, so "
+        "a connection holds about this much (default 256K)",
+    )
     rp.add_argument("--allow-motion", action="store_true")
     rp.add_argument("--allow-io", action="store_true")
     rp.add_argument("--allow-config", action="store_true")
@@ -372,9 +387,16 @@ def _run_replay(args: argparse.Namespace) -> int:
         stop = threading.Event()
         old = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
         try:
-            server = ReplayServer(book, listen=listen).start()
+            server = ReplayServer(
+                book,
+                listen=listen,
+                max_connections=args.max_connections,
+                max_frame_size=args.max_frame_size,
+            ).start()
         except OSError as e:
             raise UsageError(f"cannot listen on {args.serve}: {e.strerror or e}") from None
+        except ValueError as e:
+            raise UsageError(str(e)) from None
         h, p = server.address
         print(
             f"replay: serving {args.capture} on {h}:{p} (unmatched: {args.unmatched})",
@@ -389,9 +411,15 @@ def _run_replay(args: argparse.Namespace) -> int:
             for s, h_ in old.items():
                 signal.signal(s, h_)
             server.close()
+        dropped = ""
+        if server.refused or server.close_reasons:
+            reasons = ", ".join(f"{n} {r}" for r, n in server.close_reasons.most_common(3))
+            dropped = f"; {server.refused} clients refused (--max-connections)" + (
+                f", connections closed: {reasons}" if reasons else ""
+            )
         print(
             f"replay: {book.answered} requests answered from the recording, "
-            f"{book.unmatched_count} unmatched",
+            f"{book.unmatched_count} unmatched{dropped}",
             file=sys.stderr,
         )
         return 0
