@@ -8,14 +8,25 @@ Prints frames/s for
 and full decodes/s for a MoveJ frame (framing + DATA grammar + typed arguments checked
 against the spec variant), with ratios against the regex baseline.
 
-Usage: python tools/bench_codec.py [--frames N] [--repeat R]
+Then hostile input (``--section adversarial``), which must cost time linear in its
+size: 7.6, 15, 30 and 60 KB of repeated headers ``/f/bIII1III2III3III`` fed whole and
+in 4 KiB chunks (with the ratio 30 KB / 15 KB: near 2 when linear, near 4 when
+quadratic), a 256 KB frame fed a byte at a time (LEN right, and LEN wrong so that
+the tail is searched for), 1 MB of random garbage, and DATA with 5000 digits, 5000
+nested braces or 100 000 values through the DATA parser.  Each figure is cut off at
+``--limit`` seconds (shown as ``>``), so that a quadratic decoder still finishes.
+
+Usage: python tools/bench_codec.py [--frames N] [--repeat R] [--section S] [--limit SECONDS]
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import functools
+import random
 import re
+import signal
 import statistics
 import sys
 import time
@@ -25,7 +36,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from conformance.data import match_variant, parse_data
-from conformance.frame import Frame, FrameDecoder, encode_frame
+from conformance.errors import ProtocolError
+from conformance.frame import DEFAULT_MAX_FRAME_SIZE, Frame, FrameDecoder, encode_frame
 from conformance.spec import default_specs
 
 NAIVE = re.compile(rb"/f/bIII(\d*?)III(\d*?)III(\d*)III(.*?)III/b/f", re.S)
@@ -123,13 +135,108 @@ def ours(data: bytes, *, strict: bool, chunk: int | None) -> int:
     return n
 
 
+class _TooSlow(Exception):
+    pass
+
+
+def _alarm(signum: int, frame: object) -> None:
+    raise _TooSlow
+
+
+def cut_off(limit: float, fn: Callable[[], object]) -> float | None:
+    """CPU seconds ``fn`` took, or None if it ran past ``limit`` (wall) seconds."""
+    old = signal.signal(signal.SIGALRM, _alarm)
+    signal.setitimer(signal.ITIMER_REAL, limit)
+    t0 = time.process_time()
+    try:
+        fn()
+    except _TooSlow:
+        return None
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)
+    return time.process_time() - t0
+
+
+def _fmt(t: float | None, limit: float) -> str:
+    return f">{limit:.0f} s" if t is None else f"{t * 1000:.1f} ms"
+
+
+def _decode(data: bytes, chunk: int | None) -> int:
+    d = FrameDecoder()
+    n = 0
+    step = chunk or len(data) or 1
+    for i in range(0, len(data), step):
+        n += len(d.feed(data[i : i + step]))
+    return n + len(d.close())
+
+
+def adversarial(limit: float) -> None:
+    print(f"hostile input (CPU time; cut off at {limit:.0f} s wall):")
+    header = b"/f/bIII1III2III3III"
+    print(f"  {'repeated headers':<22}{'whole':>12}{'4 KiB chunks':>14}")
+    got: dict[int, tuple[float | None, float | None]] = {}
+    for kb in (7.6, 15.2, 30.4, 60.8):
+        data = header * int(kb * 1000 / len(header))
+        whole = cut_off(limit, lambda d=data: _decode(d, None))  # type: ignore[misc]
+        chunked = cut_off(limit, lambda d=data: _decode(d, 4096))  # type: ignore[misc]
+        got[int(kb)] = (whole, chunked)
+        print(
+            f"  {f'{len(data) / 1000:.1f} KB':<22}{_fmt(whole, limit):>12}{_fmt(chunked, limit):>14}"
+        )
+    for i, label in ((0, "whole"), (1, "4 KiB chunks")):
+        a, b = got[15][i], got[30][i]
+        ratio = f"{b / a:.2f}" if a and b else "n/a"
+        print(f"  ratio 30 KB / 15 KB, {label}: {ratio}")
+
+    def bytewise(data: bytes) -> None:
+        d = FrameDecoder()
+        for i in range(len(data)):
+            d.feed(data[i : i + 1])
+        d.close()
+
+    payload = "x" * (DEFAULT_MAX_FRAME_SIZE - 64)
+    frame = encode_frame(1, 2, payload)
+    wrong_len = frame.replace(b"III%dIII" % len(payload), b"III5III", 1)
+    garbage = random.Random(1).randbytes(1 << 20)
+    for label, fn in (
+        (f"{len(frame) // 1024} KB frame, a byte at a time", lambda: bytewise(frame)),
+        (
+            f"{len(frame) // 1024} KB frame, LEN wrong, a byte at a time",
+            lambda: bytewise(wrong_len),
+        ),
+        ("1 MB random garbage, whole", lambda: _decode(garbage, None)),
+        ("1 MB random garbage, 4 KiB chunks", lambda: _decode(garbage, 4096)),
+    ):
+        print(f"  {label:<46}{_fmt(cut_off(limit, fn), limit):>12}")
+
+    def parse(text: str) -> None:
+        with contextlib.suppress(ProtocolError):
+            parse_data(text)
+
+    for label, text in (
+        ("DATA: a 5000-digit number", "MoveJ(" + "9" * 5000 + ")"),
+        ("DATA: 5000 nested braces", "MoveJ(" + "{" * 5000 + "}" * 5000 + ")"),
+        ("DATA: 100 000 values", "MoveJ(" + ",".join(["1"] * 100_000) + ")"),
+        ("DATA: 100 000 digits then x", "MoveJ(" + "1" * 100_000 + "x)"),
+    ):
+        print(f"  {label:<46}{_fmt(cut_off(limit, lambda t=text: parse(t)), limit):>12}")  # type: ignore[misc]
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     ap.add_argument("--frames", type=int, default=100_000)
     ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--section", choices=("all", "ordinary", "adversarial"), default="all")
+    ap.add_argument("--limit", type=float, default=60.0, help="cut-off per hostile figure (s)")
     args = ap.parse_args()
+    if args.section != "ordinary":
+        adversarial(args.limit)
+        if args.section == "adversarial":
+            return 0
+        print()
     data = build_stream(args.frames)
     print(f"stream: {args.frames} frames, {len(data) / 1e6:.1f} MB, best of {args.repeat}")
     runs: list[tuple[str, Callable[[], int]]] = [
