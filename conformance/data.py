@@ -418,7 +418,8 @@ def _check_scalar(p: Param, arg: Arg, where: str) -> Violation | None:
         if isinstance(arg, Array):
             return Violation(rule=Rule.ARG_TYPE, detail=f"{where}: expected a string, got an array")
         value = arg.value if isinstance(arg, Text) else arg.text
-        if p.max_length is not None and len(value.encode("utf-8")) > p.max_length:
+        # surrogatepass: a str built locally may hold a lone surrogate (3 bytes as CESU).
+        if p.max_length is not None and len(value.encode("utf-8", "surrogatepass")) > p.max_length:
             return Violation(
                 rule=Rule.ARG_RANGE, detail=f"{where}: string longer than {p.max_length} bytes"
             )

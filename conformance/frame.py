@@ -141,7 +141,7 @@ class Frame(_FrameFields):
 
     @property
     def data_len(self) -> int:
-        return len(self.data.encode("utf-8"))
+        return len(self.data.encode("utf-8", "surrogatepass"))
 
     def encode(self) -> bytes:
         """The frame's bytes with LEN computed from DATA (the raw bytes if it was decoded)."""

@@ -138,3 +138,11 @@ def test_name_mismatch_detail_is_bounded() -> None:
     check = validate_request(frame(encode_frame(1, 204, "X" * 100_000 + "(1)")), SPECS)
     (v,) = [v for v in check.violations if v.rule is Rule.NAME_MISMATCH]
     assert len(v.detail) < 400
+
+
+def test_lone_surrogate_in_a_local_frame_is_judged() -> None:
+    # A Frame built from a str (not decoded) may hold one; its length check raised.
+    check = validate_request(Frame(cnt=1, cmd_id=201, data='MoveJ("\udfffP1")'), SPECS)
+    assert check.ok and check.variant is not None
+    check = validate_request(Frame(cnt=1, cmd_id=201, data='MoveJ("' + "\udfff" * 50 + '")'), SPECS)
+    assert [v.rule for v in check.violations] == [Rule.ARG_RANGE]  # 150 bytes > 128
