@@ -10,11 +10,12 @@ import pytest
 from conformance.data import format_call, format_number
 from conformance.errors import UsageError
 from conformance.faults import Fault, FaultKind, parse_fault
-from conformance.frame import Frame, decode_all, encode_frame
+from conformance.frame import Frame, Malformed, decode_all, encode_frame
 from conformance.model import (
     POSITION_QUERIES,
     Action,
     Controller,
+    Dropped,
     derive_pairs,
     flat_returns,
     motion_targets,
@@ -362,3 +363,128 @@ def test_server_reraises_background_failure() -> None:
         s.recv(100)
     with pytest.raises(RuntimeError, match="boom"):
         emu.close()
+
+
+# --------------------------------------------------------------------------- hostile clients
+
+HEALTH = encode_frame(1, 375, "GetActualJointPosDegree()")  # an argument-less query
+
+
+def _health(emu: EmulatorServer) -> bytes:
+    with socket.create_connection(emu.address, timeout=10) as s:
+        return _exchange(s, HEALTH)
+
+
+def _recv_all(sock: socket.socket) -> bytes:
+    """Everything until the server closes the connection."""
+    buf = b""
+    while chunk := sock.recv(65536):
+        buf += chunk
+    return buf
+
+
+def _seed_kit_error(monkeypatch: pytest.MonkeyPatch, cmd_id: int) -> None:
+    """The model raises (as a kit bug would) on every frame of ``cmd_id``."""
+    answer = Controller.answer
+
+    def failing(self: Controller, event: Frame | Malformed) -> list[Action]:
+        if isinstance(event, Frame) and event.cmd_id == cmd_id:
+            raise ValueError("seeded kit failure")
+        return answer(self, event)
+
+    monkeypatch.setattr(Controller, "answer", failing)
+
+
+def test_connection_events_are_not_kept() -> None:
+    cc = Controller(SPECS).connection()
+    for _ in range(200):
+        cc.receive(b"garbage /f/b" + encode_frame(1, 375, "GetActualJointPosDegree()"))
+    # Only the last call's events: a connection streaming for hours must not grow.
+    assert 1 <= len(cc.events) <= 3
+
+
+def test_kit_failure_closes_only_that_connection(monkeypatch: pytest.MonkeyPatch) -> None:
+    _seed_kit_error(monkeypatch, 204)
+    emu = EmulatorServer(udp_port=0).start()
+    try:
+        with socket.create_connection(emu.address, timeout=10) as other:
+            assert _exchange(other, HEALTH).startswith(b"/f/bIII1III375III")
+            with socket.create_connection(emu.address, timeout=10) as bad:
+                bad.sendall(encode_frame(5, 204, "SetDO(0,1,0,0)"))
+                assert _recv_all(bad) == b""  # closed, no reply
+            assert emu.wait_for(lambda: emu.dropped_total == 1, timeout=10)
+            # The other connection, and new ones, are still served.
+            assert _exchange(other, HEALTH).startswith(b"/f/bIII1III375III")
+            assert _health(emu).startswith(b"/f/bIII1III375III")
+        (drop,) = emu.dropped
+        assert (drop.kind, drop.cmd_id) == ("error", 204)
+        assert "seeded kit failure" in drop.reason and drop.raw.startswith(b"/f/bIII5III204")
+        # One UDP datagram the same: dropped, the next one answered.
+        assert emu.udp_address is not None
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as u:
+            u.settimeout(10)
+            u.sendto(encode_frame(6, 204, "SetDO(0,1,0,0)"), emu.udp_address)
+            assert emu.wait_for(lambda: emu.dropped_total == 2, timeout=10)
+            u.sendto(HEALTH, emu.udp_address)
+            assert u.recvfrom(4096)[0].startswith(b"/f/bIII1III375III")
+        assert emu.dropped[-1].peer.startswith("udp:") and emu.dropped[-1].cmd_id == 204
+    finally:
+        # The kit's own failure still reaches the test (reraise_kit_errors=True).
+        with pytest.raises(RuntimeError, match="seeded kit failure"):
+            emu.close()
+
+
+def test_kit_failures_not_reraised_when_told(monkeypatch: pytest.MonkeyPatch) -> None:
+    _seed_kit_error(monkeypatch, 204)
+    closed: list[tuple[str, object]] = []
+    with EmulatorServer(
+        reraise_kit_errors=False, on_close=lambda p, d: closed.append((p, d))
+    ) as emu:
+        with socket.create_connection(emu.address, timeout=10) as bad:
+            bad.sendall(encode_frame(5, 204, "SetDO(0,1,0,0)"))
+            assert _recv_all(bad) == b""
+        assert emu.wait_for(lambda: len(closed) == 1, timeout=10)
+        emu.check()  # no exception: the peer cannot end the process
+    assert len(emu.kit_errors) == 1
+    ((peer, drop),) = closed
+    assert isinstance(drop, Dropped) and drop.peer == peer and drop.cmd_id == 204
+
+
+def test_max_connections_refuses_the_extra_ones() -> None:
+    with EmulatorServer(max_connections=2) as emu:
+        a = socket.create_connection(emu.address, timeout=10)
+        b = socket.create_connection(emu.address, timeout=10)
+        try:
+            # Both served (so both are counted as open)...
+            assert _exchange(a, HEALTH) and _exchange(b, HEALTH)
+            # ...the third is accepted and closed at once, with a recorded reason.
+            with socket.create_connection(emu.address, timeout=10) as c:
+                c.sendall(HEALTH)
+                assert _recv_all(c) == b""
+            assert emu.connections_refused == 1
+            assert emu.dropped[-1].kind == "limit" and "2 connections" in emu.dropped[-1].reason
+        finally:
+            a.close()
+        assert emu.wait_for(lambda: emu.open_connections == 1, timeout=10)
+        assert _health(emu).startswith(b"/f/bIII1III375III")  # a slot is free again
+        b.close()
+
+
+def test_a_slow_client_does_not_hold_up_the_others() -> None:
+    with EmulatorServer() as emu, socket.create_connection(emu.address, timeout=10) as slow:
+        # A byte at a time, and then silence inside a frame whose LEN claims more.
+        for byte in b"/f/bIII1III375III900IIIGetActual":
+            slow.send(bytes([byte]))
+        for _ in range(5):
+            assert _health(emu).startswith(b"/f/bIII1III375III")
+        assert emu.dropped_total == 0
+
+
+def test_frame_size_is_configurable() -> None:
+    with EmulatorServer(max_frame_size=1024) as emu:
+        cc = emu.controller.connection(max_frame_size=emu.max_frame_size)
+        assert cc.decoder.max_frame_size == 1024
+        big = encode_frame(2, 201, 'MoveJ("' + "P" * 2000 + '")')
+        with socket.create_connection(emu.address, timeout=10) as s:
+            s.sendall(big)  # oversize: malformed, not answered, not buffered
+            assert _exchange(s, HEALTH).startswith(b"/f/bIII1III375III")

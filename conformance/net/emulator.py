@@ -229,11 +229,15 @@ class EmulatorServer:
 
     @property
     def open_connections(self) -> int:
-        with self._conns_lock:
-            return len(self._conns)
+        # No lock: wait_for() predicates read it while holding the lock.
+        return len(self._conns)
 
     def wait_for(self, predicate: Callable[[], bool], timeout: float | None = None) -> bool:
-        """Block until ``predicate()`` holds; it is re-checked whenever a connection ends."""
+        """Block until ``predicate()`` holds; re-checked whenever a connection ends or is dropped.
+
+        The predicate runs with the server's bookkeeping lock held: it may read
+        counters and :attr:`open_connections`, not call back into the server.
+        """
         with self.changed:
             return self.changed.wait_for(predicate, timeout)
 
