@@ -9,7 +9,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-from conformance.frame import decode_all, encode_frame
+from conformance.frame import Frame, decode_all, encode_frame
+from conformance.model import Dropped
 from conformance.report import Outcome
 from conformance.spec import default_specs
 from conformance.suite.client_mode import ClientValidator
@@ -104,3 +105,131 @@ def test_serve_command_end_to_end(tmp_path: Path) -> None:
     doc = json.loads(report_path.read_text(encoding="utf-8"))
     assert {k: c["outcome"] for k, c in doc["commands"].items()} == expected_outcomes()
     assert "SetDO" in out  # the terminal table
+
+
+# --------------------------------------------------------------------------- hostile clients
+
+
+def test_closing_a_connection_forgets_its_cnt() -> None:
+    v = ClientValidator(SPECS)
+    for ev in decode_all(GOOD_SETDO[2]):
+        v.observe("peer-1", ev)
+    v.connection_closed("peer-1")
+    # A new connection from the same address starts counting afresh.
+    for ev in decode_all(CNT_JUMP[2]):
+        v.observe("peer-1", ev)
+    assert v.report().commands()[213].outcome is Outcome.PASS
+
+
+def test_unknown_command_ids_are_bounded() -> None:
+    v = ClientValidator(SPECS)
+    first = max(SPECS.cmd_ids) + 1
+    n = 5000
+    for k in range(n):
+        v.observe("peer-1", Frame(cnt=k % 65536, cmd_id=first + k, data="X()"))
+    commands = v.report().commands()
+    unknown = [cid for cid in commands if cid >= first]
+    assert len(unknown) < 100  # not 5000 entries
+    lumped = [c for c in commands[0].cases if c.group == "client-unknown"]
+    (entry,) = lumped
+    assert entry.outcome is Outcome.FAIL
+    assert f"{n - len(unknown)} more frame(s)" in entry.detail
+    assert v.frames == n
+
+
+def test_dropped_connection_is_blamed_on_its_command() -> None:
+    v = ClientValidator(SPECS)
+    for ev in decode_all(GOOD_SETDO[2]):
+        v.observe("peer-1", ev)
+    raw = encode_frame(9, 201, "MoveJ(1)")
+    v.connection_closed(
+        "peer-1",
+        Dropped(peer="peer-1", kind="error", reason="kit error: X", cmd_id=201, raw=raw),
+    )
+    v.connection_closed("peer-2", Dropped(peer="peer-2", kind="protocol", reason="not a frame"))
+    v.connection_closed("peer-3", Dropped(peer="peer-3", kind="limit", reason="refused"))
+    report = v.report()
+    commands = report.commands()
+    assert commands[201].outcome is Outcome.ERROR and commands[201].name == "MoveJ"
+    assert "kit error: X" in commands[201].cases[0].detail
+    assert commands[0].outcome is Outcome.FAIL
+    assert commands[204].outcome is Outcome.PASS
+    assert report.meta["connections_dropped"] == {"error": 1, "limit": 1, "protocol": 1}
+    assert report.exit_code() == 2
+
+
+# The model fails (as a kit bug would) on SetDO frames whose DATA has "7777": run
+# ``serve`` with that seeded, then the CLI.
+_SEEDED_SERVE = """
+import sys
+from conformance import model
+from conformance.cli import main
+answer = model.Controller.answer
+def failing(self, event):
+    if isinstance(event, model.Frame) and event.cmd_id == 204 and "7777" in event.data:
+        raise ValueError("seeded kit failure")
+    return answer(self, event)
+model.Controller.answer = failing
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def _frame(cnt: int, cmd_id: int, data: bytes) -> bytes:
+    return b"/f/bIII%dIII%dIII%dIII%sIII/b/f" % (cnt, cmd_id, len(data), data)
+
+
+HOSTILE = [
+    _frame(1, 201, b"MoveJ(" + b"9" * 5000 + b")"),  # past int()'s 4300 digits
+    _frame(1, 203, b"MoveL(" + b"{" * 5000 + b"}" * 5000 + b")"),  # deep nesting
+    _frame(1, 206, b"SetSpeed(1e999)"),  # not finite
+    b"/f/bIII1III2III3III" * 1600,  # 30 KB of headers
+    bytes(range(256)) * 20480,  # 5 MB of garbage
+    encode_frame(1, 204, "SetDO(7777,1,0,0)"),  # the seeded kit failure
+]
+
+
+def test_serve_survives_hostile_clients(tmp_path: Path) -> None:
+    """Hostile clients, then a normal one: serve answers, reports, blames the right IDs."""
+    report_path = tmp_path / "client.json"
+    proc = subprocess.Popen(
+        [
+            sys.executable, "-c", _SEEDED_SERVE, "serve",
+            "--listen", "127.0.0.1:0",
+            "--duration", "120",
+            "--report-json", str(report_path),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )  # fmt: skip
+    try:
+        assert proc.stdout is not None
+        m = re.search(r"127\.0\.0\.1:(\d+)", proc.stdout.readline())
+        assert m
+        address = ("127.0.0.1", int(m.group(1)))
+        for raw in HOSTILE:
+            with socket.create_connection(address, timeout=30) as s:
+                s.sendall(raw)
+                s.shutdown(socket.SHUT_WR)
+                while s.recv(65536):  # until the server is done with it
+                    pass
+        # A normal client afterwards is answered.
+        with socket.create_connection(address, timeout=30) as s:
+            s.sendall(GOOD_JOINTS[2])
+            s.settimeout(30)
+            assert s.recv(65536).startswith(b"/f/bIII2III375III")
+        proc.terminate()  # SIGTERM: serve stops and still writes its report
+        out, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert "Traceback" not in err and "thread failed" not in err
+    assert "GetActualJointPosDegree" in out  # the terminal table
+    assert "seeded kit failure" in err  # the one line naming the dropped connection
+    assert proc.returncode == 2, err  # a kit ERROR in the report
+    doc = json.loads(report_path.read_text(encoding="utf-8"))
+    got = {k: c["outcome"] for k, c in doc["commands"].items()}
+    assert got["375"] == "PASS"
+    assert got["204"] == "ERROR"  # blamed on SetDO, whose frame made the kit fail
+    for cid in ("201", "203", "206", "0"):
+        assert got[cid] in ("FAIL", "ERROR"), (cid, got)
+    assert doc["meta"]["connections_dropped"] == {"error": 1}

@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
+import signal
 import sys
+import threading
 import time
+from collections.abc import Iterator
 from typing import Any
 
 from ..errors import UsageError
@@ -33,7 +37,63 @@ def _add_emulate(sub: Any) -> None:
     )
     p.add_argument("--specs", default=None, help="spec set directory (default: bundled)")
     p.add_argument("--duration", type=float, default=None, help="stop after SECONDS")
+    _add_limits(p)
     p.set_defaults(func=_emulate)
+
+
+def _add_limits(p: Any) -> None:
+    """What one client may cost the emulator (``emulate`` and ``serve``)."""
+    from ..frame import DEFAULT_MAX_FRAME_SIZE
+    from ..net.emulator import DEFAULT_MAX_CONNECTIONS
+
+    p.add_argument(
+        "--max-connections",
+        type=int,
+        default=DEFAULT_MAX_CONNECTIONS,
+        metavar="N",
+        help="TCP connections served at once; more are accepted and closed at once "
+        f"(default {DEFAULT_MAX_CONNECTIONS})",
+    )
+    p.add_argument(
+        "--max-frame-size",
+        type=int,
+        default=DEFAULT_MAX_FRAME_SIZE,
+        metavar="BYTES",
+        help="largest frame a connection buffers; larger ones are malformed (oversize), "
+        f"which bounds each connection's memory (default {DEFAULT_MAX_FRAME_SIZE})",
+    )
+
+
+def _limits(args: argparse.Namespace) -> dict[str, Any]:
+    """EmulatorServer keywords from ``--max-connections`` / ``--max-frame-size``.
+
+    A peer never ends the process (``reraise_kit_errors=False``): the connection
+    it broke is closed and the reason logged on stderr.
+    """
+    if args.max_connections < 1:
+        raise UsageError("--max-connections must be at least 1")
+    if args.max_frame_size < 64:
+        raise UsageError("--max-frame-size must be at least 64 bytes")
+    return {
+        "max_connections": args.max_connections,
+        "max_frame_size": args.max_frame_size,
+        "reraise_kit_errors": False,
+    }
+
+
+def _drop_summary(server: Any) -> str | None:
+    """One line on what the server had to close itself, or None."""
+    if not server.dropped_total:
+        return None
+    kinds: dict[str, int] = {}
+    for d in server.dropped:
+        kinds[d.kind] = kinds.get(d.kind, 0) + 1
+    last = ", ".join(f"{k} {n}" for k, n in sorted(kinds.items()))
+    return (
+        f"{server.dropped_total} connection(s) closed by the server "
+        f"({server.connections_refused} refused at --max-connections; "
+        f"last {len(server.dropped)}: {last})"
+    )
 
 
 def _load_specs(path: str | None) -> Any:
@@ -61,7 +121,12 @@ def _emulate(args: argparse.Namespace) -> int:
     if args.duration is not None and args.duration < 0:
         raise UsageError("--duration must not be negative")
     server = EmulatorServer(
-        _load_specs(args.specs), host=host, port=port, udp_port=udp_port, faults=faults
+        _load_specs(args.specs),
+        host=host,
+        port=port,
+        udp_port=udp_port,
+        faults=faults,
+        **_limits(args),
     )
     server.start()
     try:
@@ -78,6 +143,9 @@ def _emulate(args: argparse.Namespace) -> int:
         print("stopped", file=sys.stderr)
     finally:
         server.close()
+        summary = _drop_summary(server)
+        if summary:
+            print(f"emulator: {summary}", file=sys.stderr)
     return 0
 
 
@@ -238,7 +306,9 @@ def _add_serve(sub: Any) -> None:
         help="client mode: play the controller and validate every frame a client sends",
         description="Play the controller (the emulator) and report, per command ID, how the "
         "connecting client departs from the protocol. Stops on Ctrl-C, --duration or "
-        "--max-frames; exit code 0 conformant, 1 departures, 2 error.",
+        "--max-frames (SIGTERM too); the report is written in every case. A client "
+        "cannot stop it: a connection the kit fails on is closed and blamed on the command "
+        "ID of the frame that caused it. Exit code 0 conformant, 1 departures, 2 error.",
     )
     p.add_argument("--listen", default="127.0.0.1:8080", help="TCP HOST:PORT")
     p.add_argument("--udp", default=None, metavar="HOST:PORT", help="also listen on UDP")
@@ -247,6 +317,7 @@ def _add_serve(sub: Any) -> None:
     p.add_argument("--report-json", metavar="PATH")
     p.add_argument("--report-html", metavar="PATH")
     p.add_argument("--strict", action="store_true", help="NON-STRICT departures fail")
+    _add_limits(p)
     p.set_defaults(func=_serve)
 
 
@@ -265,32 +336,72 @@ def _serve(args: argparse.Namespace) -> int:
         raise UsageError("--max-frames must be positive")
     specs = default_specs()
     validator = ClientValidator(specs, target=f"client of {args.listen}", strict=args.strict)
+    limits = _limits(args)
     server = EmulatorServer(
-        specs, host=host, port=port, udp_port=udp_port, observer=validator.observe
+        specs,
+        host=host,
+        port=port,
+        udp_port=udp_port,
+        observer=validator.observe,
+        on_close=validator.connection_closed,
+        **limits,
     )
     server.start()
     validator.target = f"client of {format_address(*server.address)}"
-    print(
-        f"playing the controller on {format_address(*server.address)}; Ctrl-C to stop", flush=True
-    )
     deadline = None if args.duration is None else time.monotonic() + args.duration
-    try:
-        while deadline is None or time.monotonic() < deadline:
-            if args.max_frames is not None and validator.frames >= args.max_frames:
-                break
-            time.sleep(0.05)
-            server.check()
-    except KeyboardInterrupt:
-        pass
-    finally:
-        server.close()
+    failure: str | None = None
+    with _sigterm_interrupts():
+        try:
+            print(
+                f"playing the controller on {format_address(*server.address)}; Ctrl-C to stop",
+                flush=True,
+            )
+            while deadline is None or time.monotonic() < deadline:
+                if args.max_frames is not None and validator.frames >= args.max_frames:
+                    break
+                time.sleep(0.05)
+                server.check()
+        except KeyboardInterrupt:
+            pass
+        except RuntimeError as e:  # the server's own machinery failed: still report
+            failure = str(e)
+        finally:
+            try:
+                server.close()
+            except RuntimeError as e:
+                failure = failure or str(e)
     report = validator.report()
+    if server.connections_refused:
+        report.meta["connections_refused"] = server.connections_refused
+    summary = _drop_summary(server)
+    if summary:
+        print(f"serve: {summary}", file=sys.stderr)
     print(report.render_terminal())
     if args.report_json:
         Path(args.report_json).write_text(report.dumps(), encoding="utf-8")
     if args.report_html:
         Path(args.report_html).write_text(render_html([report]), encoding="utf-8")
+    if failure is not None:
+        print(f"fairino-conformance serve: error: {failure}", file=sys.stderr)
+        return 2
     return report.exit_code()
+
+
+@contextlib.contextmanager
+def _sigterm_interrupts() -> Iterator[None]:
+    """SIGTERM ends ``serve`` as Ctrl-C does (the report is still written)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt
+
+    old = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
 
 
 # --------------------------------------------------------------------------- report
