@@ -488,3 +488,60 @@ def test_frame_size_is_configurable() -> None:
         with socket.create_connection(emu.address, timeout=10) as s:
             s.sendall(big)  # oversize: malformed, not answered, not buffered
             assert _exchange(s, HEALTH).startswith(b"/f/bIII1III375III")
+
+
+def test_emulate_survives_descriptor_exhaustion() -> None:
+    """``emulate`` at a low ``ulimit -n``: more clients than descriptors, then a health query."""
+    import queue
+    import re
+    import resource
+    import subprocess
+    import sys
+
+    def low_limit() -> None:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (64, 64))
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "conformance", "emulate", "--listen", "127.0.0.1:0"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=low_limit,
+    )
+    lines: queue.Queue[str] = queue.Queue()
+
+    def read_stderr() -> None:
+        assert proc.stderr is not None
+        for line in proc.stderr:
+            lines.put(line)
+
+    reader = threading.Thread(target=read_stderr, daemon=True)
+    reader.start()
+    clients: list[socket.socket] = []
+    try:
+        assert proc.stdout is not None
+        m = re.search(r"TCP 127\.0\.0\.1:(\d+)", proc.stdout.readline())
+        assert m
+        address = ("127.0.0.1", int(m.group(1)))
+        for _ in range(100):  # more than its 64 descriptors (the rest wait in the backlog)
+            clients.append(socket.create_connection(address, timeout=30))
+        first = lines.get(timeout=60)  # the one message of the episode
+        assert "accept failed" in first and "EMFILE" in first and "connections open" in first
+        for c in clients:
+            c.close()
+        with socket.create_connection(address, timeout=30) as s:
+            s.settimeout(60)
+            assert _exchange(s, HEALTH).startswith(b"/f/bIII1III375III")
+        assert proc.poll() is None  # still up
+        proc.terminate()
+        proc.wait(timeout=30)
+        reader.join(timeout=30)
+    finally:
+        for c in clients:
+            c.close()
+        proc.kill()
+    rest = []
+    while not lines.empty():
+        rest.append(lines.get())
+    assert "Traceback" not in "".join(rest) and "thread failed" not in "".join(rest)
+    assert sum("accept failed" in line for line in [first, *rest]) == 1

@@ -112,15 +112,24 @@ class _Session:
 
 
 class _Backoff:
-    """Retry waits for one kind of failure, and one message per episode."""
+    """Retry waits for one kind of failure, and one message per episode.
+
+    An episode that starts within ``_QUIET`` seconds of the last message is not
+    announced again: a server flapping at its descriptor limit says so once.
+    """
+
+    _QUIET = 10.0
 
     def __init__(self, what: str) -> None:
         self.what = what
         self.delay = 0.0
         self.failures = 0
+        self._logged = False
+        self._last_message = -self._QUIET
 
     def failed(self, e: OSError, detail: str) -> float:
-        if not self.failures:
+        now = time.monotonic()
+        if not self.delay and now - self._last_message >= self._QUIET:
             _log.warning(
                 "emulator: %s failed: %s (%s) with %s; retrying with a backoff up to %g s",
                 self.what,
@@ -129,15 +138,21 @@ class _Backoff:
                 detail,
                 _BACKOFF_MAX,
             )
+            self._logged = True
+            self._last_message = now
         self.failures += 1
         self.delay = min(_BACKOFF_MAX, self.delay * 2 or _BACKOFF_MIN)
         return self.delay
 
     def succeeded(self) -> None:
-        if self.failures:
+        if not self.delay:
+            return
+        self.delay = 0.0
+        if self._logged:
             _log.warning("emulator: %s works again after %d failure(s)", self.what, self.failures)
+            self._logged = False
+            self._last_message = time.monotonic()
             self.failures = 0
-            self.delay = 0.0
 
 
 class EmulatorServer:
@@ -498,8 +513,8 @@ class EmulatorServer:
 
     def _serve_conn(self, conn: socket.socket, peer: str) -> None:
         s = _Session(peer=peer, cc=self.controller.connection(max_frame_size=self.max_frame_size))
-        conn.settimeout(_IDLE)
         try:
+            conn.settimeout(_IDLE)
             self._converse(conn, s)
         except Exception as e:  # the peer's bytes made the kit fail: close this one only
             s.drop = self._failed(s, e)
