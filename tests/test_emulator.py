@@ -545,3 +545,26 @@ def test_emulate_survives_descriptor_exhaustion() -> None:
         rest.append(lines.get())
     assert "Traceback" not in "".join(rest) and "thread failed" not in "".join(rest)
     assert sum("accept failed" in line for line in [first, *rest]) == 1
+
+
+def test_decoder_failure_closes_only_that_connection(monkeypatch: pytest.MonkeyPatch) -> None:
+    from conformance.frame import FrameDecoder
+
+    feed = FrameDecoder.feed
+
+    def failing(self: FrameDecoder, data: bytes | bytearray | memoryview) -> list[object]:
+        if b"BOOM" in bytes(data):
+            raise RecursionError("seeded decoder failure")
+        return feed(self, data)  # type: ignore[return-value]
+
+    monkeypatch.setattr(FrameDecoder, "feed", failing)
+    with EmulatorServer(reraise_kit_errors=False) as emu:
+        with socket.create_connection(emu.address, timeout=10) as bad:
+            bad.sendall(b"BOOM")
+            assert _recv_all(bad) == b""
+        assert emu.wait_for(lambda: emu.dropped_total == 1, timeout=10)
+        assert _health(emu).startswith(b"/f/bIII1III375III")
+    (drop,) = emu.dropped
+    # Not a frame: nothing to blame but the protocol as a whole (client mode's ID 0).
+    assert (drop.kind, drop.cmd_id, drop.raw) == ("error", None, b"")
+    assert "RecursionError: seeded decoder failure" in drop.reason
