@@ -79,6 +79,7 @@ _RAW_KEPT = 200  # bytes of the blamed frame kept in a Dropped record
 _REASON_MAX = 300
 _BACKOFF_MIN = 0.01
 _BACKOFF_MAX = 1.0
+_QUIET = 10.0  # seconds: an episode starting this soon after the last message is not announced
 #: Out of a resource: retrying at once would spin; wait, doubling up to _BACKOFF_MAX.
 _RESOURCE_ERRNOS = frozenset({errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM})
 #: A connection that died in the backlog, or a datagram's ICMP echo: just go on.
@@ -118,18 +119,16 @@ class _Backoff:
     announced again: a server flapping at its descriptor limit says so once.
     """
 
-    _QUIET = 10.0
-
     def __init__(self, what: str) -> None:
         self.what = what
         self.delay = 0.0
         self.failures = 0
         self._logged = False
-        self._last_message = -self._QUIET
+        self._last_message = -_QUIET
 
     def failed(self, e: OSError, detail: str) -> float:
         now = time.monotonic()
-        if not self.delay and now - self._last_message >= self._QUIET:
+        if not self.delay and now - self._last_message >= _QUIET:
             _log.warning(
                 "emulator: %s failed: %s (%s) with %s; retrying with a backoff up to %g s",
                 self.what,
@@ -206,6 +205,8 @@ class EmulatorServer:
         self._stop = threading.Event()
         self._down_until = 0.0
         self._refusing = False
+        self._refusing_logged = False
+        self._refusing_said = -_QUIET
         self._udp_pending = 0
         #: Failures of the server's own threads (re-raised by check()).
         self.errors: list[BaseException] = []
@@ -357,7 +358,10 @@ class EmulatorServer:
         if not protocol and len(self.kit_errors) < _KIT_ERRORS_KEPT:
             self.kit_errors.append(e)
         _log.debug("emulator: %s on %s's bytes", type(e).__name__, s.peer, exc_info=e)
-        text = f"{type(e).__name__}: {e}"
+        try:
+            text = f"{type(e).__name__}: {e}"
+        except Exception:  # an exception that cannot even say what it is
+            text = type(e).__name__
         if len(text) > _REASON_MAX:
             text = text[:_REASON_MAX] + "..."
         what = "protocol error" if protocol else "kit error"
@@ -417,18 +421,27 @@ class EmulatorServer:
             self._record(Dropped(peer=peer, kind="limit", reason=reason), quiet=True)
             if not self._refusing:
                 self._refusing = True
-                _log.warning(
-                    "emulator: %d connections open (the maximum): closing new ones at once",
-                    self.max_connections,
-                )
+                # Once per episode, and episodes close together are one: a
+                # client flapping at the limit must not flood stderr.
+                now = time.monotonic()
+                if now - self._refusing_said >= _QUIET:
+                    self._refusing_said = now
+                    self._refusing_logged = True
+                    _log.warning(
+                        "emulator: %d connections open (the maximum): closing new ones at once",
+                        self.max_connections,
+                    )
             _shutdown(conn)
             return
         if self._refusing:
             self._refusing = False
-            _log.warning(
-                "emulator: accepting connections again (%d refused so far)",
-                self.connections_refused,
-            )
+            if self._refusing_logged:
+                self._refusing_logged = False
+                self._refusing_said = time.monotonic()
+                _log.warning(
+                    "emulator: accepting connections again (%d refused so far)",
+                    self.connections_refused,
+                )
         # Replies go out at once: with Nagle, a second reply waits for the
         # client's delayed ACK (~40 ms) behind the first.
         with contextlib.suppress(OSError):  # a peer that already reset it
