@@ -22,7 +22,9 @@ def _add_emulate(sub: Any) -> None:
     p = sub.add_parser(
         "emulate",
         help="run the simulated controller (generic over the specs)",
-        description="Run the simulated controller until interrupted.",
+        description="Run the simulated controller until interrupted. A client cannot stop "
+        "it: a connection whose bytes make the kit fail is closed and the reason printed on "
+        "stderr; --max-connections and --max-frame-size bound what clients cost.",
     )
     p.add_argument(
         "--listen", default="127.0.0.1:8080", help="TCP HOST:PORT (default 127.0.0.1:8080)"
