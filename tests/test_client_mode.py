@@ -195,6 +195,7 @@ def test_serve_survives_hostile_clients(tmp_path: Path) -> None:
         [
             sys.executable, "-c", _SEEDED_SERVE, "serve",
             "--listen", "127.0.0.1:0",
+            "--udp", "127.0.0.1:0",
             "--duration", "120",
             "--report-json", str(report_path),
         ],
@@ -204,9 +205,19 @@ def test_serve_survives_hostile_clients(tmp_path: Path) -> None:
     )  # fmt: skip
     try:
         assert proc.stdout is not None
-        m = re.search(r"127\.0\.0\.1:(\d+)", proc.stdout.readline())
+        m = re.search(r"127\.0\.0\.1:(\d+), UDP 127\.0\.0\.1:(\d+)", proc.stdout.readline())
         assert m
         address = ("127.0.0.1", int(m.group(1)))
+        # One datagram each (those that fit), the seeded failure among them.
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as u:
+            for raw in HOSTILE:
+                if len(raw) < 65000:
+                    u.sendto(raw, ("127.0.0.1", int(m.group(2))))
+            # One thread takes datagrams in order: this reply means all were handled.
+            u.settimeout(30)
+            u.sendto(GOOD_JOINTS[2], ("127.0.0.1", int(m.group(2))))
+            while not u.recvfrom(65536)[0].startswith(b"/f/bIII2III375III"):
+                pass  # the refusals of the hostile frames come first
         for raw in HOSTILE:
             with socket.create_connection(address, timeout=30) as s:
                 s.sendall(raw)
@@ -232,4 +243,4 @@ def test_serve_survives_hostile_clients(tmp_path: Path) -> None:
     assert got["204"] == "ERROR"  # blamed on SetDO, whose frame made the kit fail
     for cid in ("201", "203", "206", "0"):
         assert got[cid] in ("FAIL", "ERROR"), (cid, got)
-    assert doc["meta"]["connections_dropped"] == {"error": 1}
+    assert doc["meta"]["connections_dropped"] == {"error": 2}  # one TCP, one UDP

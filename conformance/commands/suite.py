@@ -354,10 +354,9 @@ def _serve(args: argparse.Namespace) -> int:
     failure: str | None = None
     with _sigterm_interrupts():
         try:
-            print(
-                f"playing the controller on {format_address(*server.address)}; Ctrl-C to stop",
-                flush=True,
-            )
+            udp = f", UDP {format_address(*server.udp_address)}" if server.udp_address else ""
+            where = format_address(*server.address)
+            print(f"playing the controller on {where}{udp}; Ctrl-C to stop", flush=True)
             while deadline is None or time.monotonic() < deadline:
                 if args.max_frames is not None and validator.frames >= args.max_frames:
                     break
