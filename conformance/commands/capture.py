@@ -101,6 +101,23 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "few times this)",
     )
     p.add_argument(
+        "--max-pending",
+        type=parse_size,
+        default=1 << 20,
+        metavar="SIZE",
+        help="unsent bytes buffered per direction of a connection; beyond, the proxy stops "
+        "reading from the sender until the receiver catches up (default 1M)",
+    )
+    p.add_argument(
+        "--max-backlog",
+        type=parse_size,
+        default=64 << 20,
+        metavar="SIZE",
+        help="bytes read but not yet taken by the recorder, all connections together; "
+        "beyond, the proxy stops reading until the recorder catches up, so nothing is "
+        "dropped (default 64M; the proxy's memory peaks at about twice this)",
+    )
+    p.add_argument(
         "--stop-timeout",
         type=float,
         default=1.0,
@@ -286,6 +303,8 @@ def _run_proxy(args: argparse.Namespace) -> int:
             max_connections=args.max_connections,
             max_frame_size=args.max_frame_size,
             stop_timeout=args.stop_timeout,
+            max_pending=args.max_pending,
+            max_backlog=args.max_backlog,
         )
     except OSError as e:
         raise UsageError(f"cannot listen on {args.listen}: {e.strerror or e}") from None

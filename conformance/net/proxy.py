@@ -21,14 +21,30 @@ buffer in front of it has grown that large), the I/O thread stops reading until
 it catches up, so nothing is ever dropped: every byte read is recorded, as a
 frame or as a problem event.
 
+The recorder decodes in slices of a few KiB (``recording.DECODE_SLICE``) and, between
+two slices, flushes the file when ``flush_interval`` has passed: no input, however
+hostile, holds the flush back longer than one slice takes.  Its decoder holds at most
+``max_frame_size`` bytes of a frame (and of a garbage run) per direction.
+
 The recorder process ignores SIGINT and SIGTERM (a Ctrl-C reaches the whole
-process group): the proxy stops it by closing the pipe after a stop event.  If
+process group): the proxy stops it by closing the pipe after a stop event.
+Stopping never waits on a backlog: ``close()`` gives the recorder ``stop_timeout``
+seconds to decode what it is behind on, after which it copies the rest to the file
+undecoded (Problem records with rule ``undecoded``, at their stream offsets), so
+every byte read is still in the file.  If
 the proxy dies (SIGKILL), the recorder sees the pipe end, or its parent change,
 records the connections still open as closed ("proxy died") and finishes the
 file; if both die, the file is unfinished but flushed, and ``recover`` repairs it.
 
 An upstream that refuses, times out or dies is recorded (a ``close`` event with
-the reason) and the client's connection is closed; the proxy carries on.
+the reason) and the client's connection is closed; the proxy carries on.  So is a
+client accepted while no upstream socket can be had (EMFILE...), or beyond
+``max_connections`` (accepted and closed at once).  When accept() itself fails for
+want of descriptors or memory, the listener rests (10 ms, doubling to 1 s) and
+``log`` says so once per episode, with the number of connections open.  An
+exception while handling one connection closes that connection, with the reason
+recorded; if the I/O loop itself fails, ``log`` says so, :attr:`running` turns
+False and :meth:`close` finishes the file and raises the error (the CLI exits 2).
 """
 
 from __future__ import annotations
