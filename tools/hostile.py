@@ -347,7 +347,11 @@ def _wait_with_limit(p: subprocess.Popen[bytes], limit: float) -> bool:
 
 def _reason(lines: list[str]) -> str:
     """The line that says why the run ended (the early-stop line if any, else the last)."""
-    for pat in (r"unreachable|did not answer|died|budget|stopp", r"FAIL|ERROR|error"):
+    for pat in (
+        r"cases not run:",
+        r"unreachable|did not answer|died|budget|stopp",
+        r"FAIL|ERROR|error",
+    ):
         for x in reversed(lines):
             if re.search(pat, x):
                 return x.strip()[:140]
