@@ -374,3 +374,18 @@ def test_failure_text_is_bounded_whatever_the_target_sends() -> None:
     assert result.frames[-1].startswith("(+")
     assert len(result.detail) <= 2100
     assert len(json.dumps(result.to_json())) < 20_000
+
+
+def test_udp_targets_that_do_not_answer_stop_the_run_in_one_line() -> None:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as silent:
+        silent.bind(("127.0.0.1", 0))
+        port = silent.getsockname()[1]
+        runner = _run_against(("127.0.0.1", port), transport="udp", commands=(str(HEALTH.cmd_id),))
+        assert runner.stopped == (f"target 127.0.0.1:{port} did not answer {ASKED} within 0.5 s"), (
+            runner.stopped
+        )
+        assert silent.recv(65536).startswith(b"/f/bIII")  # the one frame the kit sent
+    # Nothing listens on the port any more: the ICMP answer says so.
+    runner = _run_against(("127.0.0.1", port), transport="udp", commands=(str(HEALTH.cmd_id),))
+    assert runner.stopped == f"target 127.0.0.1:{port} unreachable: connection refused"
+    assert all(c.not_run for c in runner.report.cases) and runner.report.exit_code() == 2

@@ -43,6 +43,12 @@ DEFAULT_MAX_EVENTS = 20
 DEFAULT_MAX_INBOX = 64
 
 
+def _reason(e: OSError) -> str:
+    """An OS error in a few lower-case words (``connection refused``)."""
+    text = str(e.strerror or e or type(e).__name__)
+    return text[:1].lower() + text[1:]
+
+
 class TargetUnreachable(ConformanceError):
     """The target refused or did not accept a connection."""
 
@@ -74,6 +80,9 @@ class Exchange:
     malformed_count: int = 0
     malformed_bytes: int = 0
     unsolicited_count: int = 0
+    #: The socket error that ended the connection (``connection reset by peer``;
+    #: over UDP, ``connection refused`` when nothing listens), if one did.
+    error: str = ""
 
     @property
     def timed_out(self) -> bool:
@@ -121,6 +130,7 @@ class Client:
         self._decoder = FrameDecoder(max_frame_size=max_frame_size)
         self._inbox: list[Frame] = []
         self._closed = False
+        self._error = ""
         self._cnt = 0
         self._last_send = 0.0
         self.frames_sent = 0
@@ -146,14 +156,14 @@ class Client:
                 s = socket.socket(fam, socket.SOCK_DGRAM)
                 s.connect((self.host, self.port))
         except OSError as e:
-            reason = str(e.strerror or e or type(e).__name__)
-            reason = reason[:1].lower() + reason[1:]
+            reason = _reason(e)
             raise TargetUnreachable(
                 f"cannot connect to {self.host}:{self.port} ({self.transport}): {reason}",
                 reason=reason,
             ) from None
         self._sock = s
         self._closed = False
+        self._error = ""
         self._decoder = FrameDecoder(max_frame_size=self.max_frame_size)
         return self
 
@@ -215,8 +225,9 @@ class Client:
                     sock.sendall(raw[i : i + chunk])
             else:
                 sock.sendall(raw)
-        except OSError:
+        except OSError as e:
             self._closed = True
+            self._error = _reason(e)
 
     def request(self, cmd_id: int, data: str, *, cnt: int | None = None) -> Exchange:
         """Send one frame and wait for its reply."""
@@ -241,8 +252,9 @@ class Client:
             data = sock.recv(65536)
         except (TimeoutError, BlockingIOError):
             return (self._decoder.resolve_pending() if pending else []), False
-        except OSError:
+        except OSError as e:
             self._closed = True
+            self._error = _reason(e)
             return self._decoder.close(), True
         if self.transport == "udp":
             return decode_all(data), False
@@ -313,6 +325,7 @@ class Client:
             malformed_count=n_malformed,
             malformed_bytes=n_bad_bytes,
             unsolicited_count=n_unsolicited,
+            error=self._error if closed else "",
         )
 
     def collect(self, duration: float) -> tuple[list[Frame], list[Malformed], bool]:

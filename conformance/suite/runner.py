@@ -329,8 +329,12 @@ class SuiteRunner:
         if ex.reply is not None or ex.unsolicited_count:
             return None
         accepted = "accepted a connection but " if self.config.transport == "tcp" else ""
+        if ex.closed and ex.error and not accepted:
+            return f"unreachable: {ex.error}"  # UDP: the ICMP answer to a closed port
         if ex.closed:
+            # A reset or an orderly close: which one is a race between its close and our send.
             why = f"{accepted}closed it instead of answering {name}"
+            why += f" ({ex.error})" if ex.error else ""
         else:
             why = f"{accepted}did not answer {name} within {self.config.reply_timeout:g} s"
         if ex.malformed_count:
