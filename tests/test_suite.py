@@ -12,6 +12,7 @@ import json
 import math
 import socket
 import threading
+import time
 
 import pytest
 
@@ -22,7 +23,7 @@ from conformance.report import CaseResult, Outcome, Report
 from conformance.spec import Command, default_specs
 from conformance.suite.cases import PROTOCOL_ID, build_cases
 from conformance.suite.config import GROUPS, PROFILES, SuiteConfig
-from conformance.suite.runner import SuiteRunner, describe_exchange, shell_printf
+from conformance.suite.runner import Case, SuiteRunner, Verdict, describe_exchange, shell_printf
 from tests.hostile_targets import HostileTarget, refusing_port
 
 SPECS = default_specs()
@@ -389,3 +390,17 @@ def test_udp_targets_that_do_not_answer_stop_the_run_in_one_line() -> None:
     runner = _run_against(("127.0.0.1", port), transport="udp", commands=(str(HEALTH.cmd_id),))
     assert runner.stopped == f"target 127.0.0.1:{port} unreachable: connection refused"
     assert all(c.not_run for c in runner.report.cases) and runner.report.exit_code() == 2
+
+
+def test_a_budget_running_out_while_waiting_for_the_target_is_not_its_death() -> None:
+    def case_that_ends_with_silence(runner: SuiteRunner, case: Case) -> Verdict:
+        runner._suspect = True  # as after an exchange with no reply
+        runner.run_deadline = time.monotonic()  # and the budget ends with the case
+        return Verdict(outcome=Outcome.PASS)
+
+    config = SuiteConfig(target=("127.0.0.1", refusing_port()), budget=5.0)
+    runner = SuiteRunner(config, SPECS)  # not started: the target is only probed after the case
+    case = Case(id="0/protocol/transport/x", group="transport", cmd_id=0, name="protocol",
+                run=case_that_ends_with_silence)  # fmt: skip
+    assert runner.run(case).outcome is Outcome.PASS
+    assert runner.stopped == "run budget of 5 s used up after case 0/protocol/transport/x"

@@ -362,10 +362,14 @@ class SuiteRunner:
         return False
 
     def _stop_dead(self, case: Case, why: str) -> None:
-        self.stopped = (
-            f"target {self.target_label()} died after case {case.id}: {why} "
-            f"(no answer for {self.config.recovery_timeout:g} s)"
-        )
+        if time.monotonic() >= self.run_deadline:
+            # The wait for the target was cut short by the budget: that is the reason.
+            self.stopped = f"run budget of {self.config.budget:g} s used up after case {case.id}"
+        else:
+            self.stopped = (
+                f"target {self.target_label()} died after case {case.id}: {why} "
+                f"(no answer for {self.config.recovery_timeout:g} s)"
+            )
         self.report.stopped = self.stopped
 
     def unknown_fingerprint(self) -> tuple[str, ReplyVerdict] | None:
