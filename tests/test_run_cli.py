@@ -86,7 +86,7 @@ def test_target_dying_mid_run_is_named_with_the_case(tmp_path: Path) -> None:
         HostileTarget("dies", upstream=emu.address, frames_before_death=100) as target,
     ):
         proc = run(
-            "--target", target.label, "--reply-timeout", "1", "--recovery-timeout", "1",
+            "--target", target.label, "--reply-timeout", "5", "--recovery-timeout", "2",
             "--report-json", "r.json",
             cwd=tmp_path,
         )  # fmt: skip
