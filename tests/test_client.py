@@ -214,3 +214,16 @@ def test_unreachable_reason_is_short() -> None:
     with pytest.raises(TargetUnreachable) as info:
         Client("127.0.0.1", port).connect()
     assert info.value.reason == "connection refused"
+
+
+def test_collect_keeps_a_bounded_number_of_events(peer) -> None:  # type: ignore[no-untyped-def]
+    def script(conn: socket.socket) -> None:
+        _recv_frames(conn, 1)
+        conn.sendall(b"".join(encode_frame(i, 500, "lua error") + b"\xff" for i in range(500)))
+
+    p = peer(script)
+    with Client("127.0.0.1", p.port, timeout=5, max_inbox=10, max_events=4) as c:
+        c.send_raw(encode_frame(1, 201, 'MoveJ("P1")'))
+        frames, malformed, closed = c.collect(300)  # ends when the peer closes
+    assert closed
+    assert [f.cnt for f in frames] == list(range(10)) and len(malformed) == 4
