@@ -403,3 +403,22 @@ def test_a_budget_running_out_while_waiting_for_the_target_is_not_its_death() ->
                 run=case_that_ends_with_silence)  # fmt: skip
     assert runner.run(case).outcome is Outcome.PASS
     assert runner.stopped == "run budget of 5 s used up after case 0/protocol/transport/x"
+
+
+def test_a_transport_case_out_of_time_is_an_error_not_a_failure() -> None:
+    config = SuiteConfig(
+        commands=(str(FAULTED.cmd_id),),
+        groups=("transport",),
+        reply_timeout=600,
+        case_timeout=0.5,
+        emulator_faults=(f"no_reply:{FAULTED.cmd_id}",),
+    )
+    runner = SuiteRunner(config, SPECS)
+    runner.start()
+    try:
+        results = [runner.run(c) for c in build_cases(SPECS, config)]
+    finally:
+        runner.close()
+    assert {r.id.rsplit("/", 1)[1] for r in results} == {"pipelined", "byte-by-byte"}
+    assert all(r.outcome is Outcome.ERROR for r in results), results
+    assert {r.detail for r in results} == {"case exceeded its time budget of 0.5 s"}

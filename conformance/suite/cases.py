@@ -534,6 +534,8 @@ def _judge_in(
     try:
         runner.judge(ex, variant)
     except CaseFailure as f:
+        if f.verdict.outcome is not Outcome.FAIL:
+            raise  # the case's time ran out (ERROR): not the target's failure
         raise CaseFailure(
             Outcome.FAIL, f"{context}: {f.verdict.detail}", frames=f.verdict.frames, raw=raw
         ) from None
