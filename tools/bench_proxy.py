@@ -79,6 +79,10 @@ def start_proxy(upstream_port: int, out: Path) -> tuple[subprocess.Popen[str], i
             f"127.0.0.1:{upstream_port}",
             "--out",
             str(out),
+            # Measure decoding to the end: by default a stop copies what the recorder
+            # is still behind on after 1 s to the file undecoded.
+            "--stop-timeout",
+            "600",
         ],
         stderr=subprocess.PIPE,
         text=True,
