@@ -28,10 +28,11 @@ hostile, holds the flush back longer than one slice takes.  Its decoder holds at
 
 The recorder process ignores SIGINT and SIGTERM (a Ctrl-C reaches the whole
 process group): the proxy stops it by closing the pipe after a stop event.
-Stopping never waits on a backlog: ``close()`` gives the recorder ``stop_timeout``
-seconds to decode what it is behind on, after which it copies the rest to the file
-undecoded (Problem records with rule ``undecoded``, at their stream offsets), so
-every byte read is still in the file.  If
+With ``stop_timeout`` (the CLI's ``--stop-timeout``, 1 s), stopping never waits on
+a backlog: ``close()`` gives the recorder that long to decode what it is behind on,
+after which it copies the rest to the file undecoded (Problem records with rule
+``undecoded``, at their stream offsets), so every byte read is still in the file.
+Without it (None, the default here), ``close()`` waits until everything is decoded.  If
 the proxy dies (SIGKILL), the recorder sees the pipe end, or its parent change,
 records the connections still open as closed ("proxy died") and finishes the
 file; if both die, the file is unfinished but flushed, and ``recover`` repairs it.
@@ -261,7 +262,7 @@ class RecordingProxy:
         on_frame: Callable[[FrameRecord], None] | None = None,
         max_connections: int | None = None,
         max_frame_size: int = DEFAULT_MAX_FRAME_SIZE,
-        stop_timeout: float = 1.0,
+        stop_timeout: float | None = None,
         log: Callable[[str], None] | None = None,
     ) -> None:
         if max_frame_size < 64:
@@ -377,8 +378,12 @@ class RecordingProxy:
         self._closed = True
         # The recorder decodes what it is behind on for stop_timeout at most, then
         # copies the rest to the file undecoded: a stop never waits on a backlog.
-        with contextlib.suppress(ValueError):
-            _STOP_AT.pack_into(self._shared, _STOP_AT_OFFSET, time.monotonic() + self.stop_timeout)
+        # (None, the library's default: decode everything; the CLI passes 1 s.)
+        if self.stop_timeout is not None:
+            with contextlib.suppress(ValueError):
+                _STOP_AT.pack_into(
+                    self._shared, _STOP_AT_OFFSET, time.monotonic() + self.stop_timeout
+                )
         self._stopping.set()
         with contextlib.suppress(OSError):
             self._wake_w.send(b"x")
