@@ -783,3 +783,41 @@ def test_hostile_traffic_keeps_the_flush_promise_and_sigterm_keeps_every_byte(
     for conn, data in enumerate(sent, 1):
         assert sent_bytes(rec, conn, "c2s") == data
     assert all(c.reason for c in rec.connections if c.event == "close")
+
+
+def test_udp_sessions_beyond_max_connections_are_recorded_not_forwarded(tmp_path: Path) -> None:
+    usock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    usock.bind(("127.0.0.1", 0))
+    got: list[bytes] = []
+    arrived = threading.Event()
+
+    def serve() -> None:
+        while True:
+            try:
+                data, _ = usock.recvfrom(65535)
+            except OSError:
+                return
+            got.append(data)
+            arrived.set()
+
+    threading.Thread(target=serve, daemon=True).start()
+    tcp = Upstream()
+    out = tmp_path / "r.mcap"
+    first, second = encode_frame(1, 201, "a"), encode_frame(2, 201, "b")
+    with RecordingProxy(
+        tcp.address, out=out, udp_upstream=usock.getsockname()[:2], max_connections=1
+    ) as p:
+        assert p.udp_address is not None
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as a:
+            a.sendto(first, p.udp_address)
+            assert arrived.wait(30)
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as b:
+                b.sendto(second, p.udp_address)  # a second session: one too many
+                wait_for(lambda: p.stats.rejected == 1, timeout=30)
+    usock.close()
+    tcp.close()
+    assert got == [first]
+    rec = read_recording(out)
+    assert sorted(f.raw for f in rec.frames) == [first, second]  # both recorded
+    closes = {c.conn: c.reason for c in rec.connections if c.event == "close"}
+    assert closes[2] == "refused: too many UDP sessions (max 1)"

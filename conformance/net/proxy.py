@@ -1015,6 +1015,19 @@ class RecordingProxy:
                 return
             t = time.time_ns()
             s = self._sessions.get(addr)
+            if s is None and len(self._sessions) >= self.max_connections:
+                # Not forwarded, but recorded: a session of its own, closed at once.
+                self.stats.rejected += 1
+                conn = self._new_conn()
+                self.stats.connections += 1
+                self._put(
+                    _OPEN, conn, "", t, _addresses("udp", addr, self.udp_upstream, self.udp_address)
+                )
+                self.stats.bytes_c2s += len(data)
+                self._put(_DGRAM, conn, C2S, t, data)
+                reason = f"refused: too many UDP sessions (max {self.max_connections})"
+                self._put(_CLOSE, conn, "", t, reason.encode("utf-8"))
+                continue
             if s is None:
                 try:
                     sock = socket.socket(_family(self.udp_upstream[0]), socket.SOCK_DGRAM)
