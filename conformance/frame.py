@@ -11,7 +11,9 @@ bytes with :meth:`FrameDecoder.feed` and returns :class:`Frame` and
 ``/b/f``), resynchronises on the next ``/f/b`` after garbage, reports every byte
 it skips, and never buffers more than ``max_frame_size`` bytes of one frame or of
 one garbage run.  Feeding a stream whole or one byte at a time gives the same
-events.
+events, and its work is linear in the bytes fed however they are cut: no byte is
+scanned twice while a frame waits for the rest of it (``tools/bench_codec.py
+--section adversarial`` measures it on hostile input).
 
 Two readings:
 
@@ -243,8 +245,8 @@ class FrameDecoder:
         # quadratic): its stream offset and header, read once ...
         self._pending: _Pending | None = None
         # ... the stream offset below which feeding cannot decide anything (its LEN
-        # bytes and tail are not in yet), and how far the searches for its tail and
-        # for the next head have got (stream offsets; -1 = not found yet).
+        # bytes and tail are not in yet), how far the searches for its tail and for
+        # the next head have got, and that head once found (stream offsets; -1: none).
         self._need = 0
         self._tail_scan = 0
         self._head_scan = 0
