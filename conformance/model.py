@@ -349,6 +349,9 @@ _CODE_FOR = {
     Rule.ARG_TYPE: ERR_ARG_VALUE,
     Rule.ARG_RANGE: ERR_ARG_VALUE,
     Rule.BAD_DATA: ERR_ARG_VALUE,
+    # A number the kit will not read (1e999) or DATA past the parser's bounds.
+    Rule.BAD_NUMBER: ERR_ARG_VALUE,
+    Rule.DATA_LIMIT: ERR_ARG_VALUE,
 }
 #: Framing deviations a lenient decoder tolerates but the emulator refuses (1.1).
 _FRAMING = frozenset({Rule.LEN_MISMATCH, Rule.BAD_SEPARATOR, Rule.BAD_CNT, Rule.BAD_ENCODING})
@@ -394,7 +397,7 @@ class Controller:
         if ignore_len:
             framing = [r for r in framing if r is not Rule.LEN_MISMATCH]
             rules = [r for r in rules if r is not Rule.LEN_MISMATCH]
-        if framing or Rule.BAD_DATA in rules:
+        if framing or not {Rule.BAD_DATA, Rule.BAD_NUMBER, Rule.DATA_LIMIT}.isdisjoint(rules):
             crash = self._crash(frame.cmd_id)
             if crash is not None:
                 return crash

@@ -126,9 +126,9 @@ def test_model_refuses_non_finite_and_huge_numbers(text: str) -> None:
     assert isinstance(reply, Frame) and (reply.cnt, reply.cmd_id) == (9, command.cmd_id)
     check = validate_request(Frame(cnt=9, cmd_id=command.cmd_id, data=text), SPECS)
     assert [v.rule for v in check.violations] == [Rule.BAD_NUMBER]
-    # A refusal, in the form the command's replies take.
+    # A refusal with chapter 9's 4 (参数值异常, argument value), as for other bad arguments.
     verdict = classify_reply(check.command.variants[0].returns, reply.data, SPECS)  # type: ignore[union-attr]
-    assert verdict.refused
+    assert verdict.refused and verdict.code == 4
 
 
 def test_seeded_corpus_through_every_api() -> None:
