@@ -334,34 +334,14 @@ def test_rotation_by_size(tmp_path: Path, upstream: Upstream) -> None:
 def _start_proxy_process(
     tmp_path: Path, upstream: Upstream, *extra: str, new_session: bool = False
 ) -> tuple[subprocess.Popen[str], tuple[str, int], Path]:
-    out = tmp_path / "killed.mcap"
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "conformance",
-            "proxy",
-            "--listen",
-            "127.0.0.1:0",
-            "--upstream",
-            f"127.0.0.1:{upstream.address[1]}",
-            "--out",
-            str(out),
-            *extra,
-        ],
-        stderr=subprocess.PIPE,
+    return _start_proxy_cli(
+        tmp_path,
+        upstream.address,
+        *extra,
+        new_session=new_session,
+        name="killed.mcap",
         stdout=subprocess.PIPE,
-        text=True,
-        env=env,
-        cwd=ROOT,
-        start_new_session=new_session,
     )
-    assert proc.stderr is not None
-    line = proc.stderr.readline()
-    m = re.search(r"listening on ([\d.]+):(\d+)", line)
-    assert m, line
-    return proc, parse_hostport(f"{m.group(1)}:{m.group(2)}"), out
 
 
 def _children(pid: int) -> list[int]:
@@ -482,10 +462,16 @@ def test_close_without_start_writes_an_empty_recording(tmp_path: Path, upstream:
 
 
 def _start_proxy_cli(
-    tmp_path: Path, upstream: tuple[str, int], *extra: str, nofile: int | None = None
+    tmp_path: Path,
+    upstream: tuple[str, int],
+    *extra: str,
+    nofile: int | None = None,
+    new_session: bool = False,
+    name: str = "hostile.mcap",
+    stdout: int = subprocess.DEVNULL,
 ) -> tuple[subprocess.Popen[str], tuple[str, int], Path]:
     """``proxy`` in a subprocess (optionally with a low descriptor limit); its address."""
-    out = tmp_path / "hostile.mcap"
+    out = tmp_path / name
     env = dict(os.environ, PYTHONPATH=str(ROOT))
 
     def limit() -> None:
@@ -509,11 +495,12 @@ def _start_proxy_cli(
             *extra,
         ],
         stderr=subprocess.PIPE,
-        stdout=subprocess.DEVNULL,
+        stdout=stdout,
         text=True,
         env=env,
         cwd=ROOT,
         preexec_fn=limit,
+        start_new_session=new_session,
     )
     assert proc.stderr is not None
     line = proc.stderr.readline()
