@@ -502,7 +502,21 @@ def match_variant(command: Command, parsed: Parsed) -> tuple[Variant | None, lis
     if isinstance(parsed, Keyword):
         for v in command.variants:
             if v.form == "keyword":
-                return v, []
+                if parsed.word == command.name:
+                    return v, []
+                if parsed.word.upper() == command.name.upper():
+                    return v, [
+                        Violation(
+                            rule=Rule.NAME_CASE,
+                            detail=f"keyword {parsed.word}; the manual spells it {command.name}",
+                        )
+                    ]
+                return v, [
+                    Violation(
+                        rule=Rule.NAME_MISMATCH,
+                        detail=f"DATA is the keyword {_shown(parsed.word)} but the command is {command.name}",
+                    )
+                ]
         return None, [
             Violation(rule=Rule.BAD_DATA, detail=f"{command.name} is not a keyword command")
         ]
@@ -510,6 +524,15 @@ def match_variant(command: Command, parsed: Parsed) -> tuple[Variant | None, lis
         for v in command.variants:
             if v.form == "raw":
                 return v, []
+        for v in command.variants:
+            # ``Stop`` for the manual's ``STOP``: the keyword in another letter case.
+            if v.form == "keyword" and parsed.text.upper() == command.name.upper():
+                return v, [
+                    Violation(
+                        rule=Rule.NAME_CASE,
+                        detail=f"keyword {parsed.text}; the manual spells it {command.name}",
+                    )
+                ]
         return None, [Violation(rule=Rule.BAD_DATA, detail=f"DATA is not a call of {command.name}")]
     best: tuple[Variant | None, list[Violation]] = (None, [])
     for v in command.variants:

@@ -68,6 +68,10 @@ class Rule(str, enum.Enum):
     UNKNOWN_COMMAND = "unknown_command"
     #: DATA names another command than CMD_ID's.
     NAME_MISMATCH = "name_mismatch"
+    #: The call name or keyword in another letter case than the manual's
+    #: (``movej``, ``Stop`` for ``STOP``): the manual does not say whether the
+    #: controller matches case, so lenient peers' spelling is NON-STRICT.
+    NAME_CASE = "name_case"
     #: Argument count differs from every variant of the command.
     ARG_COUNT = "arg_count"
     #: An argument has the wrong type.

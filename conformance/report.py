@@ -39,6 +39,8 @@ class Outcome(str, enum.Enum):
     FAIL = "FAIL"
     #: Departs from a reading the manual itself leaves ambiguous (fails only under --strict).
     NON_STRICT = "NON-STRICT"
+    #: Follows a recorded field dialect, not the manual (fails only under ``--reference manual``).
+    DIALECT = "DIALECT"
     #: The target refuses the command as unknown.
     UNIMPLEMENTED = "UNIMPLEMENTED"
     #: Not run: safety profile or selection.
@@ -52,9 +54,10 @@ _SEVERITY = {
     Outcome.ERROR: 0,
     Outcome.FAIL: 1,
     Outcome.NON_STRICT: 2,
-    Outcome.UNIMPLEMENTED: 3,
-    Outcome.PASS: 4,
-    Outcome.SKIPPED: 5,
+    Outcome.DIALECT: 3,
+    Outcome.UNIMPLEMENTED: 4,
+    Outcome.PASS: 5,
+    Outcome.SKIPPED: 6,
 }
 
 

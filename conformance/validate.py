@@ -98,7 +98,14 @@ def validate_request(frame: Frame, specs: SpecSet, *, strict: bool = False) -> R
         )
     if isinstance(parsed, Call):
         viols += [Violation(rule=r, detail=f"DATA: {r.value}") for r in parsed.problems]
-        if parsed.name.lower() != command.name.lower():
+        if parsed.name != command.name and parsed.name.lower() == command.name.lower():
+            viols.append(
+                Violation(
+                    rule=Rule.NAME_CASE,
+                    detail=f"DATA calls {parsed.name}; the manual spells it {command.name}",
+                )
+            )
+        elif parsed.name.lower() != command.name.lower():
             called = parsed.name if len(parsed.name) <= SHOWN_CHARS else shown(parsed.name)
             viols.append(
                 Violation(

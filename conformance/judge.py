@@ -1,0 +1,598 @@
+"""The judge: the one place that decides what a frame on the wire is worth.
+
+Given a frame, its direction (a request from a client, or a controller's reply),
+the request a reply answers and the chosen reference, :class:`Judge` returns a
+:class:`Verdict`: an outcome, the rule that decided it, the source that rule
+rests on (a section of the manual, or a field dialect entry and its evidence)
+and a message with the numbers in it (``LEN 25, DATA is 26 bytes``).  Every
+front-end presents these verdicts and none judges on its own: the suite, the
+emulator's argument checks, ``serve``, ``check``, ``info``, ``replay``,
+``diff`` and ``decode``.
+
+Outcomes of one frame:
+
+* PASS: it follows the manual.
+* NON-STRICT: it departs from the manual only in ways lenient peers live with
+  and the manual leaves open (spaces after commas, ``II``/``IIII`` separators,
+  NUL padding, a printable preamble, a call name or keyword in another letter
+  case); a failure only under ``--strict``.
+* DIALECT: it does not follow the manual but follows a recorded field dialect
+  (:mod:`conformance.dialects`), named with its evidence; a failure only under
+  the manual-only reference (``--reference manual``).
+* FAIL: it follows neither (a LEN that disagrees with DATA is always FAIL).
+
+The reference does not change the outcome, only whether it fails
+(:meth:`Verdict.fails`), so that one verdict reads the same in every report.
+"""
+
+from __future__ import annotations
+
+import enum
+import os
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+from .data import Call, Keyword, Parsed, RawData, Violation, check_args, parse_data
+from .data import _shown as shown
+from .dialects import Dialect, DialectSet, manual_command
+from .errors import ProtocolError, Rule, UsageError
+from .frame import Frame, Malformed
+from .report import Outcome
+from .spec import Command, Returns, SpecSet, Variant
+from .validate import RefusalForm, ReplyVerdict, classify_reply, validate_request
+
+__all__ = [
+    "LENIENT",
+    "REFERENCE_ENV",
+    "Direction",
+    "Finding",
+    "Judge",
+    "Reference",
+    "Verdict",
+    "reference_from",
+]
+
+REFERENCE_ENV = "FAIRINO_REFERENCE"
+
+
+class Reference(str, enum.Enum):
+    """What a frame is held to.
+
+    ``field`` (the default): the manual, or failing that a recorded field dialect
+    (DIALECT, not a failure).  ``manual``: the manual alone (DIALECT fails).
+    """
+
+    MANUAL = "manual"
+    FIELD = "field"
+
+
+def reference_from(value: str | None, *, env: bool = True) -> Reference:
+    """A reference from an option value, else ``$FAIRINO_REFERENCE``, else ``field``."""
+    if value is None and env:
+        value = os.environ.get(REFERENCE_ENV) or None
+    if value is None:
+        return Reference.FIELD
+    try:
+        return Reference(value.strip().lower())
+    except ValueError:
+        where = "" if value is not None else f" (from ${REFERENCE_ENV})"
+        raise UsageError(
+            f"reference must be 'manual' or 'field', not {value!r}{where}"
+        ) from None
+
+
+class Direction(str, enum.Enum):
+    """Which way a frame went: a client's request or a controller's reply."""
+
+    REQUEST = "c2s"
+    REPLY = "s2c"
+
+
+#: Deviations real peers commonly show that the manual leaves open: NON-STRICT.
+LENIENT = frozenset(
+    {
+        Rule.SPACE_IN_ARGS,
+        Rule.BAD_SEPARATOR,
+        Rule.NUL_PADDING,
+        Rule.PREAMBLE,
+        Rule.NAME_CASE,
+    }
+)
+
+#: 1.1 and table 1-1-1 (frame layout), cited for framing rules.
+_FRAMING_SOURCE = "manual 1.1"
+_FRAMING_RULES = frozenset(
+    {
+        Rule.BAD_HEAD,
+        Rule.BAD_TAIL,
+        Rule.BAD_SEPARATOR,
+        Rule.BAD_CNT,
+        Rule.BAD_CMD_ID,
+        Rule.BAD_LEN,
+        Rule.LEN_MISMATCH,
+        Rule.OVERSIZE,
+        Rule.GARBAGE,
+        Rule.PREAMBLE,
+        Rule.NUL_PADDING,
+        Rule.TRUNCATED,
+        Rule.BAD_ENCODING,
+    }
+)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Finding:
+    """One way a frame departs from the reference: rule, outcome, source and message."""
+
+    rule: str
+    outcome: Outcome
+    source: str
+    message: str
+
+
+_RANK = {Outcome.FAIL: 0, Outcome.DIALECT: 1, Outcome.NON_STRICT: 2, Outcome.PASS: 3}
+
+
+@dataclass(frozen=True, kw_only=True)
+class Verdict:
+    """What one frame (or undecodable stretch of bytes) is worth.
+
+    ``command`` / ``variant``: what the frame means (for a dispatched call, the
+    command its DATA names); ``dialect``: the field entry it follows, if any;
+    for replies, ``refused``/``form``/``code`` say whether the controller said no.
+    """
+
+    direction: Direction
+    cmd_id: int | None
+    name: str | None
+    outcome: Outcome
+    findings: tuple[Finding, ...] = ()
+    command: Command | None = None
+    variant: Variant | None = None
+    dialect: Dialect | None = None
+    parsed: Parsed | None = None
+    refused: bool = False
+    form: RefusalForm | None = None
+    code: int | None = None
+    #: Where the frame's reading comes from when it passes (manual section / dialect).
+    basis: str = ""
+
+    @property
+    def rule(self) -> str:
+        """The deciding rule: the worst finding's, ``dialect`` or ``ok``."""
+        worst = self._worst()
+        return worst.rule if worst is not None else "ok"
+
+    @property
+    def source(self) -> str:
+        worst = self._worst()
+        return worst.source if worst is not None else self.basis
+
+    @property
+    def message(self) -> str:
+        if not self.findings:
+            what = "refusal" if self.refused else "conforms"
+            return f"{what} ({self.basis})" if self.basis else what
+        return "; ".join(f.message for f in self.findings)
+
+    def _worst(self) -> Finding | None:
+        if not self.findings:
+            return None
+        return min(self.findings, key=lambda f: _RANK.get(f.outcome, 0))
+
+    def fails(self, reference: Reference = Reference.FIELD, *, strict: bool = False) -> bool:
+        """Whether this verdict fails under ``reference`` (and ``--strict``)."""
+        if self.outcome is Outcome.FAIL:
+            return True
+        if self.outcome is Outcome.DIALECT:
+            return reference is Reference.MANUAL
+        if self.outcome is Outcome.NON_STRICT:
+            return strict
+        return False
+
+    def to_json(self) -> dict[str, object]:
+        out: dict[str, object] = {
+            "direction": self.direction.value,
+            "outcome": self.outcome.value,
+            "rule": self.rule,
+            "source": self.source,
+            "message": self.message,
+        }
+        if self.dialect is not None:
+            out["dialect"] = self.dialect.id
+        if self.refused:
+            out["refused"] = True
+            out["code"] = self.code
+        out["findings"] = [
+            {"rule": f.rule, "outcome": f.outcome.value, "source": f.source, "message": f.message}
+            for f in self.findings
+        ]
+        return out
+
+
+def _outcome(findings: Iterable[Finding]) -> Outcome:
+    fs = list(findings)
+    if not fs:
+        return Outcome.PASS
+    return min((f.outcome for f in fs), key=lambda o: _RANK.get(o, 0))
+
+
+def _manual_source(command: Command | None, variant: Variant | None) -> str:
+    if command is None:
+        return "manual"
+    if variant is not None:
+        return f"manual {command.section}, table {variant.table}"
+    return f"manual {command.section}"
+
+
+def _framing_message(frame: Frame, rule: Rule) -> str:
+    if rule is Rule.LEN_MISMATCH:
+        return f"LEN {frame.length}, DATA is {frame.data_len} bytes"
+    return f"framing: {rule.value}"
+
+
+class Judge:
+    """Judges frames against the manual (``specs``) and the field (``dialects``).
+
+    ``strict``: the strict DATA grammar (no spaces after commas) and NON-STRICT
+    counting as failure.  ``dispatch``: which calls naming another command than
+    their ID's are read by the name (``"recorded"``: the dialect entries'
+    ID/name pairs; ``"any"``: every known name; ``"off"``).
+    """
+
+    def __init__(
+        self,
+        specs: SpecSet,
+        dialects: DialectSet | None = None,
+        *,
+        reference: Reference = Reference.FIELD,
+        strict: bool = False,
+    ) -> None:
+        self.specs = specs
+        self.dialects = dialects if dialects is not None else DialectSet()
+        self.reference = reference
+        self.strict = strict
+        self._unsolicited = self._unsolicited_ids()
+
+    def _unsolicited_ids(self) -> frozenset[int]:
+        sem = getattr(self.specs, "semantics", None)
+        ids = getattr(sem, "unsolicited_ids", None)
+        return frozenset(ids) if ids is not None else frozenset({500})
+
+    # ------------------------------------------------------------------ requests
+
+    def request(self, frame: Frame, *, transport: str | None = None) -> Verdict:
+        """A client's request: framing, known ID, DATA grammar, name, arguments; then dialects."""
+        framing = [
+            Finding(
+                rule=r.value,
+                outcome=Outcome.NON_STRICT if r in LENIENT else Outcome.FAIL,
+                source=_FRAMING_SOURCE,
+                message=_framing_message(frame, r),
+            )
+            for r in frame.problems
+        ]
+        check = validate_request(frame, self.specs, strict=self.strict)
+        content = [v for v in check.violations if v.rule not in _FRAMING_RULES]
+        hard = [v for v in content if v.rule not in LENIENT]
+        source = _manual_source(check.command, check.variant)
+        if not hard:
+            findings = framing + [
+                Finding(
+                    rule=v.rule.value, outcome=Outcome.NON_STRICT, source=source, message=v.detail
+                )
+                for v in content
+            ]
+            return Verdict(
+                direction=Direction.REQUEST,
+                cmd_id=frame.cmd_id,
+                name=check.name,
+                outcome=_outcome(findings),
+                findings=tuple(findings),
+                command=check.command,
+                variant=check.variant,
+                parsed=check.parsed,
+                basis=source,
+            )
+        dialect = self._match_request(frame, check.parsed, transport)
+        if dialect is not None:
+            d, variant = dialect
+            what = (
+                f"follows field dialect {d.id}: {d.describe()} ({d.kind}); "
+                f"the manual: {self._manual_summary(check.command, hard)}"
+            )
+            findings = [
+                *framing,
+                Finding(rule="dialect", outcome=Outcome.DIALECT, source=d.cite(), message=what),
+            ]
+            command = manual_command(d, self.specs)
+            if d.kind == "dispatch" and command is not None and not d.params:
+                variant = next((v for v in command.variants if v.form == "call"), variant)
+            return Verdict(
+                direction=Direction.REQUEST,
+                cmd_id=frame.cmd_id,
+                name=d.name,
+                outcome=_outcome(findings),
+                findings=tuple(findings),
+                command=command,
+                variant=variant,
+                dialect=d,
+                parsed=check.parsed,
+                basis=d.cite(),
+            )
+        findings = framing + [
+            Finding(
+                rule=v.rule.value,
+                outcome=Outcome.NON_STRICT if v.rule in LENIENT else Outcome.FAIL,
+                source=source if v.rule is not Rule.UNKNOWN_COMMAND else "manual",
+                message=v.detail,
+            )
+            for v in content
+        ]
+        return Verdict(
+            direction=Direction.REQUEST,
+            cmd_id=frame.cmd_id,
+            name=check.name,
+            outcome=_outcome(findings),
+            findings=tuple(findings),
+            command=check.command,
+            variant=check.variant,
+            parsed=check.parsed,
+            basis=source,
+        )
+
+    @staticmethod
+    def _manual_summary(command: Command | None, viols: list[Violation]) -> str:
+        if command is None:
+            return viols[0].detail if viols else "not in the manual"
+        return "; ".join(v.detail for v in viols[:2])
+
+    def _match_request(
+        self, frame: Frame, parsed: Parsed | None, transport: str | None
+    ) -> tuple[Dialect, Variant] | None:
+        """The first recorded dialect whose form and arguments DATA follows."""
+        cands = self.dialects.by_id(frame.cmd_id)
+        if not cands:
+            return None
+        call = parsed if isinstance(parsed, Call) else None
+        keyword = isinstance(parsed, Keyword)
+        data = frame.data
+        for d in cands:
+            if transport is not None and transport not in d.transport:
+                continue
+            if not d.matches_request(data, call.name if call else None, keyword):
+                continue
+            v = d.variant
+            if d.form == "call":
+                assert call is not None
+                if d.params is None and d.kind == "dispatch":
+                    cmd = manual_command(d, self.specs)
+                    ok = cmd is not None and any(
+                        not check_args(cv, call.args) for cv in cmd.variants if cv.form == "call"
+                    )
+                    if ok:
+                        return d, v
+                    continue
+                if check_args(v, call.args):
+                    continue
+            return d, v
+        return None
+
+    # ------------------------------------------------------------------ replies
+
+    def reply(
+        self,
+        frame: Frame,
+        request: Frame | None,
+        request_verdict: Verdict | None = None,
+        *,
+        transport: str | None = None,
+    ) -> Verdict:
+        """A controller's reply to ``request``: framing, echo, and DATA against the returns."""
+        findings = [
+            Finding(
+                rule=r.value,
+                outcome=Outcome.NON_STRICT if r in LENIENT else Outcome.FAIL,
+                source=_FRAMING_SOURCE,
+                message="reply " + _framing_message(frame, r),
+            )
+            for r in frame.problems
+        ]
+        if request is None:
+            if frame.cmd_id in self._unsolicited:
+                return Verdict(
+                    direction=Direction.REPLY,
+                    cmd_id=frame.cmd_id,
+                    name=None,
+                    outcome=_outcome(findings),
+                    findings=tuple(findings),
+                    basis="manual: a frame the controller sends on its own",
+                )
+            findings.append(
+                Finding(
+                    rule="unsolicited",
+                    outcome=Outcome.FAIL,
+                    source=_FRAMING_SOURCE,
+                    message=f"reply CNT {frame.cnt} ID {frame.cmd_id} answers no request",
+                )
+            )
+            return Verdict(
+                direction=Direction.REPLY,
+                cmd_id=frame.cmd_id,
+                name=None,
+                outcome=_outcome(findings),
+                findings=tuple(findings),
+            )
+        rv = request_verdict if request_verdict is not None else self.request(request)
+        if frame.cnt != request.cnt:
+            findings.append(
+                Finding(
+                    rule=Rule.BAD_CNT.value,
+                    outcome=Outcome.FAIL,
+                    source=_FRAMING_SOURCE,
+                    message=f"reply CNT {frame.cnt}, request CNT {request.cnt}",
+                )
+            )
+        if frame.cmd_id != request.cmd_id:
+            findings.append(
+                Finding(
+                    rule=Rule.BAD_CMD_ID.value,
+                    outcome=Outcome.FAIL,
+                    source=_FRAMING_SOURCE,
+                    message=f"reply CMD_ID {frame.cmd_id}, request {request.cmd_id}",
+                )
+            )
+        returns, basis = self._returns_for(rv)
+        if returns is None:
+            return Verdict(
+                direction=Direction.REPLY,
+                cmd_id=frame.cmd_id,
+                name=rv.name,
+                outcome=_outcome(findings),
+                findings=tuple(findings),
+                command=rv.command,
+                variant=rv.variant,
+                dialect=rv.dialect,
+                basis="no reply form known for this request",
+            )
+        verdict = classify_reply(returns, frame.data, self.specs)
+        dialect = rv.dialect
+        if verdict.violations:
+            alt = self._match_reply(frame, rv, transport)
+            if alt is not None:
+                d, alt_verdict = alt
+                findings.append(
+                    Finding(
+                        rule="dialect",
+                        outcome=Outcome.DIALECT,
+                        source=d.cite(),
+                        message=f"follows field dialect {d.id}: {d.describe()}; the manual: "
+                        + "; ".join(v.detail for v in verdict.violations[:2]),
+                    )
+                )
+                verdict, dialect = alt_verdict, d
+            else:
+                findings += [
+                    Finding(
+                        rule=v.rule.value,
+                        outcome=Outcome.FAIL,
+                        source=basis,
+                        message=f"{v.detail} (reply {shown(frame.data)})",
+                    )
+                    for v in verdict.violations
+                ]
+        return Verdict(
+            direction=Direction.REPLY,
+            cmd_id=frame.cmd_id,
+            name=rv.name,
+            outcome=_outcome(findings),
+            findings=tuple(findings),
+            command=rv.command,
+            variant=rv.variant,
+            dialect=dialect,
+            refused=verdict.refused,
+            form=verdict.form,
+            code=verdict.code,
+            basis=basis,
+        )
+
+    def _returns_for(self, rv: Verdict) -> tuple[Returns | None, str]:
+        if rv.dialect is not None:
+            d = rv.dialect
+            if d.returns is not None:
+                return d.returns, d.cite()
+            cmd = manual_command(d, self.specs)
+            if cmd is not None:
+                v = next((x for x in cmd.variants if x.form == "call"), cmd.variants[0])
+                return v.returns, _manual_source(cmd, v)
+            return d.variant.returns, d.cite()
+        if rv.variant is not None:
+            return rv.variant.returns, _manual_source(rv.command, rv.variant)
+        if rv.command is not None:
+            return rv.command.variants[0].returns, _manual_source(rv.command, None)
+        return None, ""
+
+    def _match_reply(
+        self, frame: Frame, rv: Verdict, transport: str | None
+    ) -> tuple[Dialect, ReplyVerdict] | None:
+        name = (rv.command.name if rv.command is not None else rv.name or "").lower()
+        for d in self.dialects.by_id(frame.cmd_id):
+            if d.kind != "reply" or d.returns is None or d.name.lower() != name:
+                continue
+            if transport is not None and transport not in d.transport:
+                continue
+            v = classify_reply(d.returns, frame.data, self.specs)
+            if not v.violations:
+                return d, v
+        return None
+
+    # ------------------------------------------------------------------ other events
+
+    def malformed(self, event: Malformed, direction: Direction) -> Verdict:
+        """Bytes that are not a frame: NON-STRICT for padding and preambles, else FAIL."""
+        lenient = event.rule in LENIENT
+        f = Finding(
+            rule=event.rule.value,
+            outcome=Outcome.NON_STRICT if lenient else Outcome.FAIL,
+            source=_FRAMING_SOURCE,
+            message=f"{event.rule.value}: {event.detail}",
+        )
+        return Verdict(
+            direction=direction, cmd_id=None, name=None, outcome=f.outcome, findings=(f,)
+        )
+
+    def looks_like_reply(self, frame: Frame) -> bool:
+        """A frame's shape says reply: its DATA is no call, keyword or recorded text form.
+
+        Value lists (``1``, ``0,0,0``), error texts and empty DATA read as replies;
+        ``MoveJ(...)``, ``STOP`` and recorded field texts (a program path) as requests.
+        """
+        data = frame.data
+        try:
+            parsed = parse_data(data)
+        except ProtocolError:
+            return not data.rstrip().endswith(")")
+        if isinstance(parsed, (Call, Keyword)):
+            return False
+        assert isinstance(parsed, RawData)
+        for d in self.dialects.by_id(frame.cmd_id):
+            if d.kind != "reply" and d.matches_request(data, None, False):
+                return False
+        return True
+
+
+class Pairing:
+    """Tells requests from replies in one stream (``decode --dir auto``).
+
+    A frame echoing the CNT and CMD_ID of an earlier request still unanswered is
+    its reply; otherwise the frame's shape decides (:meth:`Judge.looks_like_reply`).
+    At most ``limit`` requests wait for a reply (a stream of requests never answered
+    stays bounded).
+    """
+
+    def __init__(self, judge: Judge, *, limit: int = 4096) -> None:
+        self.judge = judge
+        self.limit = limit
+        self._waiting: dict[tuple[int, int], tuple[Frame, Verdict]] = {}
+
+    def judge_frame(
+        self, frame: Frame, direction: Direction | None = None, *, transport: str | None = None
+    ) -> Verdict:
+        key = (frame.cnt, frame.cmd_id)
+        if direction is None:
+            direction = (
+                Direction.REPLY
+                if key in self._waiting or self.judge.looks_like_reply(frame)
+                else Direction.REQUEST
+            )
+        if direction is Direction.REPLY:
+            req = self._waiting.pop(key, None)
+            if req is None:
+                return self.judge.reply(frame, None, transport=transport)
+            return self.judge.reply(frame, req[0], req[1], transport=transport)
+        v = self.judge.request(frame, transport=transport)
+        self._waiting.pop(key, None)
+        self._waiting[key] = (frame, v)
+        if len(self._waiting) > self.limit:
+            self._waiting.pop(next(iter(self._waiting)))
+        return v
