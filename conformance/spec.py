@@ -2,8 +2,10 @@
 
 The spec is data; the code is generic over it (STYLE.md, convention 2).  This
 module turns the JSON files of one spec set (``commands.json``, ``errata.json``,
-``error_codes.json``) into frozen dataclasses and offers the look-ups the rest of
-the kit needs: by command ID, by name, by key (section).
+``error_codes.json``, ``semantics.json``) into frozen dataclasses and offers the
+look-ups the rest of the kit needs: by command ID, by name, by key (section).
+What the semantics mean to the emulator and the suite is read in one place,
+:mod:`conformance.knowledge`.
 """
 
 from __future__ import annotations
@@ -21,15 +23,18 @@ from .errors import SpecError
 
 __all__ = [
     "DEFAULT_SPEC_SET",
+    "POSITION_KINDS",
     "Command",
     "Erratum",
     "ErrorCode",
     "Example",
+    "ExplicitPair",
     "Interval",
     "Param",
     "ReturnValue",
     "Returns",
     "Safety",
+    "Semantics",
     "SpecSet",
     "Variant",
     "default_specs",
@@ -51,6 +56,9 @@ class Safety(str, enum.Enum):
     PROGRAM = "program"
     DESTRUCTIVE = "destructive"
 
+
+#: What a position query reports (specs/spec.schema.json, ``positionQuery``).
+POSITION_KINDS = frozenset({"joints", "tcp"})
 
 INTEGER_TYPES = frozenset({"int", "uint8_t", "uint16_t", "uint32_t"})
 REAL_TYPES = frozenset({"float", "double"})
@@ -208,14 +216,52 @@ class ErrorCode:
 
 
 @dataclass(frozen=True, kw_only=True)
+class ExplicitPair:
+    """A setter whose values a getter of another name reads back (``semantics.json``).
+
+    ``keys``: setter parameter -> getter parameter addressing the stored record.
+    """
+
+    setter: str
+    getter: str
+    keys: Mapping[str, str]
+    reason: str = ""
+
+
+@dataclass(frozen=True, kw_only=True)
+class Semantics:
+    """What particular commands mean beyond their tables (``semantics.json``).
+
+    ``position_queries``: lower-cased command name -> ``"joints"`` or ``"tcp"``;
+    ``explicit_pairs``: Set/Get pairs named differently; ``unsolicited_ids``:
+    command IDs of frames a controller sends on its own.  Empty by default: a
+    spec set without semantics has no position queries and no explicit pairs.
+    """
+
+    position_queries: Mapping[str, str] = field(default_factory=dict)
+    explicit_pairs: tuple[ExplicitPair, ...] = ()
+    unsolicited_ids: frozenset[int] = frozenset()
+
+    def __post_init__(self) -> None:
+        bad = sorted(set(self.position_queries.values()) - POSITION_KINDS)
+        if bad:
+            raise SpecError(
+                f"unknown position-query kind(s) {bad}; known: {sorted(POSITION_KINDS)}"
+            )
+        lowered = {k.lower(): v for k, v in self.position_queries.items()}
+        object.__setattr__(self, "position_queries", lowered)
+
+
+@dataclass(frozen=True, kw_only=True)
 class SpecSet:
-    """All commands, errata and error codes of one manual version."""
+    """All commands, errata, error codes and semantics of one manual version."""
 
     spec_version: str
     source: str
     commands: tuple[Command, ...]
     errata: tuple[Erratum, ...]
     error_codes: tuple[ErrorCode, ...]
+    semantics: Semantics = field(default_factory=Semantics)
     _by_id: Mapping[int, tuple[Command, ...]] = field(default_factory=dict, repr=False)
     _by_name: Mapping[str, tuple[Command, ...]] = field(default_factory=dict, repr=False)
     _by_key: Mapping[str, Command] = field(default_factory=dict, repr=False)
@@ -229,6 +275,7 @@ class SpecSet:
         commands: Iterable[Command],
         errata: Iterable[Erratum],
         error_codes: Iterable[ErrorCode],
+        semantics: Semantics | None = None,
     ) -> SpecSet:
         cmds = tuple(commands)
         by_id: dict[int, list[Command]] = {}
@@ -247,6 +294,7 @@ class SpecSet:
             commands=cmds,
             errata=tuple(errata),
             error_codes=tuple(error_codes),
+            semantics=semantics if semantics is not None else Semantics(),
             _by_id={k: tuple(v) for k, v in by_id.items()},
             _by_name={k: tuple(v) for k, v in by_name.items()},
             _by_key=by_key,
@@ -431,15 +479,40 @@ def _command(raw: Mapping[str, Any]) -> Command:
     )
 
 
+def _semantics(raw: Mapping[str, Any]) -> Semantics:
+    return Semantics(
+        position_queries={n: q["reports"] for n, q in raw["position_queries"].items()},
+        explicit_pairs=tuple(
+            ExplicitPair(
+                setter=p["setter"], getter=p["getter"], keys=dict(p["keys"]), reason=p["reason"]
+            )
+            for p in raw["explicit_pairs"]
+        ),
+        unsolicited_ids=frozenset(u["cmd_id"] for u in raw["unsolicited_ids"]),
+    )
+
+
+def _check_semantics(specs: SpecSet, *, path: str) -> None:
+    """Every command the semantics name is in the set (a typo would silently drop a pair)."""
+    sem = specs.semantics
+    named = [*sem.position_queries, *(n for p in sem.explicit_pairs for n in (p.setter, p.getter))]
+    missing = sorted({n for n in named if not specs.by_name(n)})
+    if missing:
+        raise SpecError(f"semantics name commands the set lacks: {', '.join(missing)}", path=path)
+
+
+_SPEC_FILES = ("commands", "errata", "error_codes", "semantics")
+
+
 def load_specs(directory: Path | str | None = None, *, validate: bool = True) -> SpecSet:
     """Load one spec set (default: ``specs/fairino-3.8.2``), validating it against the schema."""
     d = Path(directory) if directory is not None else specs_root() / DEFAULT_SPEC_SET
-    docs = {name: _read_json(d / f"{name}.json") for name in ("commands", "errata", "error_codes")}
+    docs = {name: _read_json(d / f"{name}.json") for name in _SPEC_FILES}
     if validate:
         for name, doc in docs.items():
             validate_document(doc, path=str(d / f"{name}.json"))
     cdoc = docs["commands"]
-    return SpecSet.build(
+    specs = SpecSet.build(
         spec_version=cdoc["spec_version"],
         source=cdoc["source"],
         commands=(_command(c) for c in cdoc["commands"]),
@@ -460,7 +533,11 @@ def load_specs(directory: Path | str | None = None, *, validate: bool = True) ->
             ErrorCode(code=e["code"], meaning=e["meaning"], remedy=e["remedy"])
             for e in docs["error_codes"]["error_codes"]
         ),
+        semantics=_semantics(docs["semantics"]),
     )
+    if validate:
+        _check_semantics(specs, path=str(d / "semantics.json"))
+    return specs
 
 
 @functools.lru_cache(maxsize=1)
