@@ -1,14 +1,10 @@
 """The emulated controller, sans-I/O: its state model and how it answers frames.
 
-Everything that depends on what a particular command *does* lives here (STYLE.md,
-convention 2, like h11's ``_state.py``); the rest of the kit reads the specs
-generically.  Three parts:
+What particular commands *mean* (Set/Get pairs, motion targets, position
+queries) is read from the specs by :mod:`conformance.knowledge`, which the suite
+shares; this module holds only the state that meaning drives (STYLE.md,
+convention 2, like h11's ``_state.py``).  Two parts:
 
-* :func:`derive_pairs`: the Set/Get pairs the specs reveal (``SetX``/``GetX``
-  with parameters and return values of the same names, plus a few explicit rules
-  where the manual names them differently), and :func:`motion_targets` /
-  :data:`POSITION_QUERIES`, which tie motion commands to the position queries.
-  The suite's stateful cases use the same functions against any target.
 * :class:`RobotModel`: what was set can be read back, motion moves the joints and
   the TCP that the position queries return.
 * :class:`Controller` / :class:`ControllerConnection`: bytes in, :class:`Action`
@@ -20,7 +16,7 @@ generically.  Three parts:
 from __future__ import annotations
 
 import re
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
@@ -28,204 +24,26 @@ from .data import Arg, Array, Call, Number, Text, format_number
 from .errors import Rule
 from .faults import Fault, FaultKind, active_fault, mangle_reply
 from .frame import DEFAULT_MAX_FRAME_SIZE, Frame, FrameDecoder, Malformed
-from .spec import Command, Returns, ReturnValue, SpecSet, Variant, default_specs
+from .knowledge import (
+    MotionTargets,
+    StatePair,
+    derive_pairs,
+    flat_returns,
+    motion_targets,
+    position_query,
+    refusal_data,
+)
+from .spec import Command, ReturnValue, SpecSet, Variant, default_specs
 from .validate import ERR_ARG_COUNT, ERR_ARG_VALUE, ERR_EXEC_FAILED, validate_request
 
 __all__ = [
-    "POSITION_QUERIES",
     "Action",
     "Controller",
     "ControllerConnection",
     "DropKind",
     "Dropped",
-    "MotionTargets",
     "RobotModel",
-    "StatePair",
-    "derive_pairs",
-    "flat_returns",
-    "motion_targets",
-    "refusal_data",
 ]
-
-#: Position queries and what they report (joint angles or a Cartesian pose).
-POSITION_QUERIES: Mapping[str, str] = {
-    "getactualjointposdegree": "joints",
-    "getactualtcppose": "tcp",
-    "gettargettcppose": "tcp",
-    "getactualtoolflangepose": "tcp",
-}
-
-#: Set/Get pairs whose names do not follow ``SetX``/``GetX``: (setter, getter,
-#: {setter parameter: getter parameter} addressing the stored record).  Fields
-#: are matched by name as for derived pairs.
-EXPLICIT_PAIRS: tuple[tuple[str, str, Mapping[str, str]], ...] = (
-    ("SetLoadWeight", "GetLoadData", {"loadNo": "loadNo"}),
-    ("SetLoadcoord", "GetLoadData", {"loadNo": "loadNo"}),
-    ("SetPayload", "GetLoadData", {"loadNo": "loadNo"}),
-    ("SetToolList", "GetToolData", {"toolNum": "toolNo"}),
-    ("SetWObjCoord", "GetWorkpieceData", {"frameNo": "workpieceNo"}),
-    ("SetWObjList", "GetWorkpieceData", {"frameNo": "workpieceNo"}),
-)
-
-_JOINTS = ("j1", "j2", "j3", "j4", "j5", "j6")
-_CART = ("x", "y", "z", "rx", "ry", "rz")
-
-
-def flat_returns(returns: Returns) -> list[ReturnValue]:
-    """Return values with arrays expanded element by element (the reply's value order)."""
-    out: list[ReturnValue] = []
-    for v in returns.values:
-        out += [v] * (v.length or 1)
-    return out
-
-
-def _replies_with_code(returns: Returns) -> bool:
-    return returns.errcode_only or returns.arity == 0
-
-
-def refusal_data(returns: Returns | None, code: int) -> str:
-    """DATA the emulator refuses with: the code where it cannot be mistaken for data.
-
-    Errcode-only commands reply the code (``1`` is success); commands with
-    several return values reply a lone code (validate.classify_reply reads it as a
-    refusal); where a lone number would read as a value (one-value queries,
-    commands declaring no value) the text form ``robot errcode:N`` is used.
-    """
-    if returns is not None and (returns.errcode_only or len(returns.values) > 1):
-        return str(code)
-    return f"robot errcode:{code}"
-
-
-# --------------------------------------------------------------------------- pairs
-
-
-@dataclass(frozen=True, kw_only=True)
-class StatePair:
-    """A setter whose values a getter reads back.
-
-    ``keys``: (setter parameter index, getter parameter index) pairs that address
-    the record (an I/O number, a tool number); ``fields``: (setter parameter
-    index, getter flat return index) pairs that must read back equal.
-    """
-
-    setter: Command
-    setter_variant: Variant
-    getter: Command
-    getter_variant: Variant
-    keys: tuple[tuple[int, int], ...]
-    fields: tuple[tuple[int, int], ...]
-
-    @property
-    def id(self) -> str:
-        return f"{self.setter.name}->{self.getter.name}"
-
-
-def _pair(
-    setter: Command, sv: Variant, getter: Command, gv: Variant, key_map: Mapping[str, str]
-) -> StatePair | None:
-    if sv.form != "call" or gv.form != "call" or not _replies_with_code(sv.returns):
-        return None
-    sparams = {p.name.lower(): i for i, p in enumerate(sv.params) if not p.is_array}
-    kmap = {k.lower(): v.lower() for k, v in key_map.items()}
-    keys: list[tuple[int, int]] = []
-    for gi, gp in enumerate(gv.params):
-        if gp.is_array:
-            return None
-        src = next((s for s, g in kmap.items() if g == gp.name.lower()), gp.name.lower())
-        if src in sparams:
-            keys.append((sparams[src], gi))
-    key_setter = {s for s, _ in keys}
-    fields: list[tuple[int, int]] = []
-    seen: set[int] = set()
-    for fi, rv in enumerate(flat_returns(gv.returns)):
-        si = sparams.get(rv.name.lower())
-        if si is None or si in key_setter or si in seen or rv.length is not None:
-            continue
-        if sv.params[si].is_string != (rv.type == "string"):
-            continue
-        seen.add(si)
-        fields.append((si, fi))
-    if not fields:
-        return None
-    return StatePair(
-        setter=setter,
-        setter_variant=sv,
-        getter=getter,
-        getter_variant=gv,
-        keys=tuple(keys),
-        fields=tuple(fields),
-    )
-
-
-def derive_pairs(specs: SpecSet) -> tuple[StatePair, ...]:
-    """Every Set/Get pair of ``specs``: by name (``SetX``/``GetX``) and by the explicit rules."""
-    found: list[StatePair] = []
-    rules: list[tuple[Command, Command, Mapping[str, str]]] = []
-    for c in specs:
-        if "Set" in c.name:
-            for g in specs.by_name(c.name.replace("Set", "Get", 1)):
-                rules.append((c, g, {}))
-    for sname, gname, kmap in EXPLICIT_PAIRS:
-        for s in specs.by_name(sname):
-            for g in specs.by_name(gname):
-                rules.append((s, g, kmap))
-    for s, g, kmap in rules:
-        for sv in s.variants:
-            for gv in g.variants:
-                p = _pair(s, sv, g, gv, kmap)
-                if p is not None:
-                    found.append(p)
-    return tuple(found)
-
-
-# --------------------------------------------------------------------------- motion
-
-
-@dataclass(frozen=True, kw_only=True)
-class MotionTargets:
-    """Where a motion variant's arguments put the arm: parameter indices (or an array's)."""
-
-    joints: tuple[int, ...] | None = None
-    tcp: tuple[int, ...] | None = None
-    tcp_array: int | None = None
-
-
-def _last_complete(params: Sequence[str], names: Sequence[str]) -> tuple[int, ...] | None:
-    idx: dict[str, int] = {}
-    for i, n in enumerate(params):
-        if n in names:
-            idx[n] = i
-    if len(idx) != len(names):
-        return None
-    out = tuple(idx[n] for n in names)
-    return out if list(out) == sorted(out) else None
-
-
-def motion_targets(command: Command, variant: Variant) -> MotionTargets | None:
-    """Joint / Cartesian targets of a motion variant with explicit positions, else None.
-
-    The last complete ``J1..J6`` (and ``x..rz``) run counts: MoveC's second point
-    is where the arm ends.  Named points (``MoveJ("P1")``) carry no position.
-    """
-    if command.safety.value != "motion" or variant.form != "call":
-        return None
-    names = [p.name.lower() for p in variant.params]
-    scalar = [n if not variant.params[i].is_array else "" for i, n in enumerate(names)]
-    joints = _last_complete(scalar, _JOINTS)
-    tcp = _last_complete(scalar, _CART)
-    arr = next(
-        (
-            i
-            for i, p in enumerate(variant.params)
-            if p.is_array and p.length == 6 and p.name.lower() == "pos"
-        ),
-        None,
-    )
-    if joints is None and tcp is None and arr is None:
-        return None
-    if any(variant.params[i].is_string for i in (*(joints or ()), *(tcp or ()))):
-        return None
-    return MotionTargets(joints=joints, tcp=tcp, tcp_array=arr if tcp is None else None)
 
 
 # --------------------------------------------------------------------------- state
@@ -307,7 +125,7 @@ class RobotModel:
                 rec = self.records.get((command.key, variant.table, key), rec)
                 if rec:
                     break
-        pos = POSITION_QUERIES.get(command.name.lower())
+        pos = position_query(self.specs, command.name)
         pnames = {p.name.lower(): i for i, p in enumerate(variant.params)}
         out: list[str] = []
         for i, rv in enumerate(flat):

@@ -11,18 +11,17 @@ from conformance.data import format_call, format_number
 from conformance.errors import UsageError
 from conformance.faults import Fault, FaultKind, parse_fault
 from conformance.frame import Frame, Malformed, decode_all, encode_frame
-from conformance.model import (
-    POSITION_QUERIES,
-    Action,
-    Controller,
-    Dropped,
+from conformance.knowledge import (
+    default_args,
+    default_data,
     derive_pairs,
     flat_returns,
     motion_targets,
+    position_query,
 )
+from conformance.model import Action, Controller, Dropped
 from conformance.net.emulator import EmulatorServer
 from conformance.spec import Command, Safety, Variant, default_specs
-from conformance.suite.requests import default_args, default_data
 from conformance.validate import classify_reply
 
 SPECS = default_specs()
@@ -169,7 +168,7 @@ def test_set_value_is_kept_per_key() -> None:
 
 
 def test_motion_moves_the_reported_joint_position() -> None:
-    query = next(c for c in SPECS if POSITION_QUERIES.get(c.name.lower()) == "joints")
+    query = next(c for c in SPECS if position_query(SPECS, c.name) == "joints")
     c, v, t = next(
         (c, v, t)
         for c, v in _variants()

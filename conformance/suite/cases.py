@@ -1,4 +1,4 @@
-"""The cases, by group, built from the specs (no per-command logic: see conformance.model).
+"""The cases, by group, built from the specs (no per-command logic: see conformance.knowledge).
 
 Case IDs are derived from content, never position:
 ``{cmd_id}/{name}/{group}/{what}`` (``what`` names the variant table, the
@@ -21,13 +21,15 @@ from hypothesis.stateful import RuleBasedStateMachine, get_state_machine_test, p
 
 from ..data import Value, format_call, format_number, parse_reply, to_python
 from ..frame import Frame, decode_all, encode_frame
-from ..model import (
-    POSITION_QUERIES,
+from ..knowledge import (
     MotionTargets,
     StatePair,
+    default_args,
+    default_data,
     derive_pairs,
     flat_returns,
     motion_targets,
+    position_query,
 )
 from ..net.client import Exchange
 from ..report import Outcome
@@ -35,7 +37,6 @@ from ..spec import TYPE_BOUNDS, Command, SpecSet, Variant
 from ..strategies import garbage, invalid_calls, invalid_kinds, valid_args, valid_calls
 from ..validate import ERR_ARG_COUNT, ERR_ARG_VALUE, RefusalForm, ReplyVerdict
 from .config import GROUPS, SuiteConfig, select_commands
-from .requests import default_args, default_data
 from .runner import Case, CaseFailure, SuiteRunner, Verdict, describe_exchange
 
 __all__ = ["PROTOCOL_ID", "build_cases"]
@@ -832,7 +833,7 @@ def build_cases(specs: SpecSet, config: SuiteConfig) -> list[Case]:
 def _position_queries(specs: SpecSet, targets: Any) -> list[tuple[Command, Variant, str]]:
     out: list[tuple[Command, Variant, str]] = []
     for c in specs:
-        kind = POSITION_QUERIES.get(c.name.lower())
+        kind = position_query(specs, c.name)
         if (
             kind is None
             or (kind == "joints" and targets.joints is None)

@@ -28,19 +28,17 @@ from typing import Any
 from ..data import Call
 from ..errors import ConformanceError
 from ..frame import Frame, Malformed, encode_frame
+from ..knowledge import default_data, health_query, unsolicited_ids
 from ..net.client import Client, Exchange, TargetUnreachable
 from ..report import CaseResult, Outcome, Report
 from ..spec import Command, Returns, ReturnValue, SpecSet, Variant
 from ..validate import ReplyVerdict, classify_reply, validate_request
 from .config import SuiteConfig
-from .requests import default_data
 
 __all__ = ["Case", "CaseFailure", "SuiteRunner", "Verdict", "shell_printf"]
 
 #: Reply read for an unknown command: a lone error code.
 _ERRCODE = Returns(separator=",", values=(ReturnValue(name="errcode", type="int"),))
-#: Command ID of the frames a controller sends on its own (Lua program errors).
-UNSOLICITED_IDS = frozenset({500})
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -151,7 +149,7 @@ class SuiteRunner:
         self._client: Client | None = None
         self._unknown: tuple[str, ReplyVerdict] | None = None
         self._unknown_learnt = False
-        self.health_command, self.health_variant = _health_query(specs)
+        self.health_command, self.health_variant = health_query(specs)
         #: Why the run stopped (one line naming the target), or None while it goes on.
         self.stopped: str | None = None
         self.last_case: str | None = None
@@ -408,7 +406,7 @@ class SuiteRunner:
             if ex.closed:
                 out.append("the target closed the connection instead of replying")
             else:
-                near = [f for f in ex.near_misses() if f.cmd_id not in UNSOLICITED_IDS]
+                near = [f for f in ex.near_misses() if f.cmd_id not in unsolicited_ids(self.specs)]
                 if near:
                     f = near[0]
                     if f.cnt == ex.cnt and f.cmd_id != ex.cmd_id:
@@ -566,27 +564,6 @@ class SuiteRunner:
             self._suspect = True
             detail += f"; target did not recover within {self.config.recovery_timeout:g} s"
         return Verdict(outcome=Outcome.FAIL, detail=detail, frames=frames, raw=raw)
-
-
-def _health_query(specs: SpecSet) -> tuple[Command, Variant]:
-    """The harmless query: the lowest-ID query taking no arguments and returning values."""
-    cands = sorted(
-        (
-            (c, v)
-            for c in specs
-            if c.safety.value == "query"
-            for v in c.variants
-            if v.form == "call"
-            and not v.params
-            and v.returns.arity >= 1
-            and not v.returns.errcode_only
-            and len(specs.by_id(c.cmd_id)) == 1
-        ),
-        key=lambda cv: cv[0].cmd_id,
-    )
-    if not cands:
-        raise ConformanceError("the specs list no argument-less query to use as a health check")
-    return cands[0]
 
 
 def parsed_is_call(x: object) -> bool:
