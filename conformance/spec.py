@@ -394,6 +394,15 @@ def validate_document(doc: Mapping[str, Any], *, path: str = "<document>") -> No
 
     with schema_path().open(encoding="utf-8") as f:
         schema = json.load(f)
+    # The top-level oneOf would report a mistake deep in one file as "not valid
+    # under any of the given schemas" at "/": check the file kind the document names
+    # instead, so that the error points at the offending key.
+    kind = doc.get("kind")
+    for name, d in schema.get("$defs", {}).items():
+        if d.get("properties", {}).get("kind", {}).get("const", object()) == kind:
+            schema = {k: v for k, v in schema.items() if k != "oneOf"}
+            schema["$ref"] = f"#/$defs/{name}"
+            break
     validator = jsonschema.Draft202012Validator(schema)
     errors = sorted(validator.iter_errors(doc), key=lambda e: list(e.absolute_path))
     if errors:
