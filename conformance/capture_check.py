@@ -12,20 +12,18 @@ a report of readable size.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from .errors import Rule
+from .dialects import default_dialects
+from .judge import Direction, Judge, Verdict
 from .recording import C2S, FrameRecord, Recording
 from .report import CaseResult, Outcome, Report
 from .spec import SpecSet
-from .validate import classify_reply, validate_reply, validate_request
 
 __all__ = ["CommandFigures", "check_recording", "percentile", "summarize"]
 
-#: Deviations real peers commonly show that the manual leaves open (NON-STRICT).
-_LENIENT = frozenset({Rule.SPACE_IN_ARGS.value, Rule.BAD_SEPARATOR.value, Rule.NUL_PADDING.value})
 #: cmd_id used in reports for problems that belong to no command (garbage, gaps).
 FRAMING_ID = 0
 
@@ -47,6 +45,8 @@ class CommandFigures:
     replies: int = 0
     unanswered: int = 0
     error_replies: int = 0
+    #: Frames (both directions) by the judge's outcome, e.g. {"PASS": 9, "DIALECT": 2}.
+    verdicts: dict[str, int] = field(default_factory=dict)
     latencies_ns: list[int] = field(default_factory=list)
 
     def to_json(self) -> dict[str, Any]:
@@ -58,6 +58,7 @@ class CommandFigures:
             "replies": self.replies,
             "unanswered": self.unanswered,
             "error_replies": self.error_replies,
+            "verdicts": dict(sorted(self.verdicts.items())),
             "latency_p50_ms": None if p50 is None else round(p50 / 1e6, 3),
             "latency_p99_ms": None if p99 is None else round(p99 / 1e6, 3),
         }
@@ -73,9 +74,21 @@ def _name(specs: SpecSet | None, f: FrameRecord) -> str:
     return "?"
 
 
-def summarize(rec: Recording, specs: SpecSet | None = None) -> dict[str, Any]:
-    """Duration, connections, frames and error replies per command ID, reply latency p50/p99."""
+def summarize(
+    rec: Recording, specs: SpecSet | None = None, *, judge: Judge | None = None
+) -> dict[str, Any]:
+    """Duration, connections, frames, verdicts and error replies per command ID, latency p50/p99.
+
+    With ``specs``, each frame is judged (:class:`~conformance.judge.Judge`; the
+    shipped dialects unless ``judge`` is given): refusals are counted as error
+    replies and the outcomes per command.
+    """
     figures: dict[int, CommandFigures] = {}
+    if judge is None and specs is not None:
+        judge = Judge(specs, default_dialects())
+
+    def count(g: CommandFigures, v: Verdict) -> None:
+        g.verdicts[v.outcome.value] = g.verdicts.get(v.outcome.value, 0) + 1
 
     def fig(f: FrameRecord) -> CommandFigures:
         g = figures.get(f.cmd_id)
@@ -84,18 +97,26 @@ def summarize(rec: Recording, specs: SpecSet | None = None) -> dict[str, Any]:
         return g
 
     for ex in rec.exchanges():
+        rv: Verdict | None = None
         if ex.request is not None:
             g = fig(ex.request)
             g.requests += 1
             if ex.reply is None:
                 g.unanswered += 1
+            if judge is not None:
+                rv = judge.request(ex.request.frame(), transport=ex.request.transport)
+                count(g, rv)
         if ex.reply is not None:
             g = fig(ex.reply)
             g.replies += 1
             if ex.latency_ns is not None:
                 g.latencies_ns.append(ex.latency_ns)
-            if specs is not None and _is_refusal(ex.reply, specs):
-                g.error_replies += 1
+            if judge is not None:
+                req = ex.request.frame() if ex.request is not None else None
+                v = judge.reply(ex.reply.frame(), req, rv, transport=ex.reply.transport)
+                count(g, v)
+                if v.refused:
+                    g.error_replies += 1
     problems: dict[str, int] = {}
     for p in rec.problems:
         problems[p.rule] = problems.get(p.rule, 0) + 1
@@ -128,14 +149,6 @@ def summarize(rec: Recording, specs: SpecSet | None = None) -> dict[str, Any]:
     }
 
 
-def _is_refusal(reply: FrameRecord, specs: SpecSet) -> bool:
-    cmd = specs.resolve(reply.cmd_id, reply.name)
-    if cmd is None:
-        return False
-    verdict = classify_reply(cmd.variants[0].returns, reply.data, specs)
-    return verdict.refused
-
-
 def render_info(info: dict[str, Any]) -> str:
     md = info["metadata"]
     lines = [
@@ -148,7 +161,7 @@ def render_info(info: dict[str, Any]) -> str:
     ]
     if info["problems"]:
         lines.append("problems   " + ", ".join(f"{k}={v}" for k, v in info["problems"].items()))
-    head = ("req", "rep", "noreply", "errors")
+    head = ("req", "rep", "noreply", "errors", "dialect", "fail")
     lines.append(
         f"{'ID':>5}  {'name':<28} "
         + " ".join(f"{h:>7}" for h in head)
@@ -159,7 +172,8 @@ def render_info(info: dict[str, Any]) -> str:
         p99 = "-" if c["latency_p99_ms"] is None else f"{c['latency_p99_ms']:.3f}"
         lines.append(
             f"{cid:>5}  {c['name'][:28]:<28} {c['requests']:>7} {c['replies']:>7} "
-            f"{c['unanswered']:>7} {c['error_replies']:>7} {p50:>9} {p99:>9}"
+            f"{c['unanswered']:>7} {c['error_replies']:>7} "
+            f"{c['verdicts'].get('DIALECT', 0):>7} {c['verdicts'].get('FAIL', 0):>7} {p50:>9} {p99:>9}"
         )
     return "\n".join(lines)
 
@@ -174,6 +188,7 @@ class _Bucket:
     group: str
     outcome: Outcome
     detail: str
+    source: str = ""
     count: int = 0
     frames: list[str] = field(default_factory=list)
 
@@ -193,12 +208,13 @@ class _Cases:
         key: str,
         detail: str,
         frames: Sequence[bytes],
+        source: str = "",
     ) -> None:
         k = (cmd_id, group, outcome.value, key)
         b = self.buckets.get(k)
         if b is None:
             b = self.buckets[k] = _Bucket(
-                cmd_id=cmd_id, name=name, group=group, outcome=outcome, detail=detail
+                cmd_id=cmd_id, name=name, group=group, outcome=outcome, detail=detail, source=source
             )
         b.count += 1
         if len(b.frames) < 4:
@@ -220,69 +236,85 @@ class _Cases:
                     outcome=b.outcome,
                     detail=detail,
                     frames=tuple(b.frames[:4]),
+                    source=b.source,
                 )
             )
         return out
 
 
-def check_recording(rec: Recording, specs: SpecSet, *, strict: bool = False) -> Report:
-    """Validate every exchange of a recording, both directions, against the specs."""
+def check_recording(
+    rec: Recording,
+    specs: SpecSet,
+    *,
+    strict: bool = False,
+    judge: Judge | None = None,
+    on_verdict: Callable[[FrameRecord, Verdict], None] | None = None,
+) -> Report:
+    """Judge every frame of a recording, both directions (:class:`~conformance.judge.Judge`).
+
+    ``judge``: the judge to use (default: the shipped dialects, the ``field``
+    reference); ``on_verdict`` is called with each frame and its verdict (``check
+    --verdicts`` writes them one JSON line each).
+    """
+    if judge is None:
+        judge = Judge(specs, default_dialects(), strict=strict)
     cases = _Cases()
+
+    def add(f: FrameRecord, group: str, v: Verdict, frames: Sequence[bytes]) -> None:
+        name = v.name or _name(specs, f)
+        if v.command is not None:
+            name = v.command.name if v.dialect is None else v.dialect.name
+        if on_verdict is not None:
+            on_verdict(f, v)
+        if not v.findings:
+            cases.add(f.cmd_id, name, group, Outcome.PASS, "ok", "", (), v.basis)
+        for fd in v.findings:
+            key = (
+                fd.rule if fd.rule != "dialect" or v.dialect is None else f"dialect-{v.dialect.id}"
+            )
+            cases.add(f.cmd_id, name, group, fd.outcome, key, fd.message, frames, fd.source)
+
     for ex in rec.exchanges():
         req, rep = ex.request, ex.reply
-        variant = None
+        rv: Verdict | None = None
         if req is not None:
-            chk = validate_request(req.frame(), specs, strict=strict)
-            variant = chk.variant
-            name = chk.command.name if chk.command else _name(specs, req)
-            if not chk.violations:
-                cases.add(req.cmd_id, name, "client", Outcome.PASS, "ok", "", ())
-            for v in chk.violations:
-                outcome = Outcome.NON_STRICT if v.rule.value in _LENIENT else Outcome.FAIL
-                cases.add(req.cmd_id, name, "client", outcome, v.rule.value, v.detail, (req.raw,))
+            rv = judge.request(req.frame(), transport=req.transport)
+            add(req, "client", rv, (req.raw,))
             if rep is None:
                 cases.add(
                     req.cmd_id,
-                    name,
+                    rv.name or _name(specs, req),
                     "controller",
                     Outcome.FAIL,
                     "no_reply",
                     "request without a recorded reply",
                     (req.raw,),
+                    "manual 1.1",
                 )
                 continue
         assert rep is not None
-        name = _name(specs, rep)
-        if req is None:
-            cases.add(
-                rep.cmd_id,
-                name,
-                "controller",
-                Outcome.FAIL,
-                "unsolicited",
-                "reply without a matching request",
-                (rep.raw,),
-            )
-            continue
-        verdict, framing = validate_reply(req.frame(), rep.frame(), variant, specs)
-        viols = list(framing) + list(verdict.violations)
-        if not viols:
-            cases.add(rep.cmd_id, name, "controller", Outcome.PASS, "ok", "", ())
-        for v in viols:
-            outcome = Outcome.NON_STRICT if v.rule.value in _LENIENT else Outcome.FAIL
-            cases.add(
-                rep.cmd_id, name, "controller", outcome, v.rule.value, v.detail, (req.raw, rep.raw)
-            )
+        v = judge.reply(
+            rep.frame(), req.frame() if req is not None else None, rv, transport=rep.transport
+        )
+        add(rep, "controller", v, (req.raw, rep.raw) if req is not None else (rep.raw,))
     for p in rec.problems:
         group = "client" if p.dir == C2S else "controller"
-        outcome = Outcome.NON_STRICT if p.rule in _LENIENT else Outcome.FAIL
+        pv = judge.problem(p.rule, p.detail, Direction.REQUEST if p.dir == C2S else Direction.REPLY)
         cases.add(
-            FRAMING_ID, "(framing)", group, outcome, p.rule, f"{p.rule}: {p.detail}", (p.raw[:200],)
+            FRAMING_ID,
+            "(framing)",
+            group,
+            pv.outcome,
+            p.rule,
+            pv.message,
+            (p.raw[:200],),
+            pv.source,
         )
     report = Report(
         target=rec.metadata.get("upstream", rec.path),
         spec_version=specs.spec_version,
-        strict=strict,
+        strict=judge.strict,
+        reference=judge.reference.value,
         meta={
             "recording": rec.path,
             "source": rec.metadata.get("source", ""),

@@ -113,8 +113,10 @@ class Dialect:
     def describe(self) -> str:
         """What the form is, in a few words (``ServoJ with 8 arguments``)."""
         if self.kind == "reply":
-            n = self.returns.arity if self.returns is not None else 0
-            return f"{self.name} reply of {n} values"
+            if self.returns is None:
+                return f"{self.name} reply text"
+            n = self.returns.arity
+            return f"{self.name} reply of {n} value{'s' if n != 1 else ''}"
         if self.form == "keyword":
             return f"keyword {self.name}"
         if self.form == "text":
@@ -151,7 +153,9 @@ class DialectSet:
                 raise SpecError(f"duplicate dialect id {e.id!r}")
             seen.add(e.id)
             by_id.setdefault(e.cmd_id, []).append(e)
-        return cls(entries=es, sources=dict(sources), _by_id={k: tuple(v) for k, v in by_id.items()})
+        return cls(
+            entries=es, sources=dict(sources), _by_id={k: tuple(v) for k, v in by_id.items()}
+        )
 
     def __iter__(self) -> Iterator[Dialect]:
         return iter(self.entries)
@@ -210,8 +214,11 @@ def _entry(raw: Mapping[str, Any], source: str, path: str) -> Dialect:
             separator=raw["returns"]["separator"],
             values=tuple(_return_value(v) for v in raw["returns"]["values"]),
         )
-    if raw["kind"] == "reply" and returns is None:
-        raise SpecError(f"dialect {eid}: kind 'reply' needs 'returns'", path=path)
+    if raw["kind"] == "reply" and returns is None and pattern is None:
+        raise SpecError(
+            f"dialect {eid}: kind 'reply' needs 'returns' (or form 'text' and a 'pattern')",
+            path=path,
+        )
     return Dialect(
         id=eid,
         source=source,
@@ -238,13 +245,17 @@ def _check_against_manual(d: Dialect, specs: SpecSet, path: str) -> None:
     named = [c for c in on_id if c.name.lower() == d.name.lower()]
     if d.kind == "command" and named and any(v.form != "raw" for c in named for v in c.variants):
         if d.form == "call" and not any(
-            v.form == "call" and len(v.params) == len(d.params or ()) for c in named for v in c.variants
+            v.form == "call" and len(v.params) == len(d.params or ())
+            for c in named
+            for v in c.variants
         ):
             return  # the manual has the name on this ID, with another argument count
         raise SpecError(
             f"dialect {d.id}: kind 'command' but the manual has {d.name} on ID {d.cmd_id}",
             path=path,
         )
+    if d.kind == "reply" and not on_id:
+        return  # a frame the controller sends unasked (ID 500), which the manual lacks
     if d.kind in ("arguments", "reply") and not named:
         raise SpecError(
             f"dialect {d.id}: kind {d.kind!r} but the manual has no {d.name} on ID {d.cmd_id}",

@@ -47,6 +47,7 @@ __all__ = [
     "Direction",
     "Finding",
     "Judge",
+    "Pairing",
     "Reference",
     "Verdict",
     "reference_from",
@@ -76,9 +77,7 @@ def reference_from(value: str | None, *, env: bool = True) -> Reference:
         return Reference(value.strip().lower())
     except ValueError:
         where = "" if value is not None else f" (from ${REFERENCE_ENV})"
-        raise UsageError(
-            f"reference must be 'manual' or 'field', not {value!r}{where}"
-        ) from None
+        raise UsageError(f"reference must be 'manual' or 'field', not {value!r}{where}") from None
 
 
 class Direction(str, enum.Enum):
@@ -276,7 +275,10 @@ class Judge:
         content = [v for v in check.violations if v.rule not in _FRAMING_RULES]
         hard = [v for v in content if v.rule not in LENIENT]
         source = _manual_source(check.command, check.variant)
-        if not hard:
+        # A spelling (``Stop``) is NON-STRICT by itself, DIALECT where a source records it.
+        spelled = any(v.rule is Rule.NAME_CASE for v in content)
+        matches = self._match_request(frame, check.parsed, transport) if hard or spelled else []
+        if not hard and not matches:
             findings = framing + [
                 Finding(
                     rule=v.rule.value, outcome=Outcome.NON_STRICT, source=source, message=v.detail
@@ -294,12 +296,13 @@ class Judge:
                 parsed=check.parsed,
                 basis=source,
             )
-        dialect = self._match_request(frame, check.parsed, transport)
-        if dialect is not None:
-            d, variant = dialect
+        if matches:
+            d, variant = matches[0]
+            also = [m.id for m, _ in matches[1:]]
+            seen = f" (also {', '.join(also)})" if also else ""
             what = (
-                f"follows field dialect {d.id}: {d.describe()} ({d.kind}); "
-                f"the manual: {self._manual_summary(check.command, hard)}"
+                f"follows field dialect {d.id}{seen}: {d.describe()} ({d.kind}); "
+                f"the manual: {self._manual_summary(check.command, hard or content)}"
             )
             findings = [
                 *framing,
@@ -349,15 +352,13 @@ class Judge:
 
     def _match_request(
         self, frame: Frame, parsed: Parsed | None, transport: str | None
-    ) -> tuple[Dialect, Variant] | None:
-        """The first recorded dialect whose form and arguments DATA follows."""
-        cands = self.dialects.by_id(frame.cmd_id)
-        if not cands:
-            return None
+    ) -> list[tuple[Dialect, Variant]]:
+        """Every recorded dialect whose form and arguments DATA follows (file order)."""
+        out: list[tuple[Dialect, Variant]] = []
         call = parsed if isinstance(parsed, Call) else None
         keyword = isinstance(parsed, Keyword)
         data = frame.data
-        for d in cands:
+        for d in self.dialects.by_id(frame.cmd_id):
             if transport is not None and transport not in d.transport:
                 continue
             if not d.matches_request(data, call.name if call else None, keyword):
@@ -367,16 +368,14 @@ class Judge:
                 assert call is not None
                 if d.params is None and d.kind == "dispatch":
                     cmd = manual_command(d, self.specs)
-                    ok = cmd is not None and any(
-                        not check_args(cv, call.args) for cv in cmd.variants if cv.form == "call"
-                    )
-                    if ok:
-                        return d, v
+                    if cmd is None or all(
+                        check_args(cv, call.args) for cv in cmd.variants if cv.form == "call"
+                    ):
+                        continue
+                elif check_args(v, call.args):
                     continue
-                if check_args(v, call.args):
-                    continue
-            return d, v
-        return None
+            out.append((d, v))
+        return out
 
     # ------------------------------------------------------------------ replies
 
@@ -387,8 +386,15 @@ class Judge:
         request_verdict: Verdict | None = None,
         *,
         transport: str | None = None,
+        paired: bool = True,
     ) -> Verdict:
-        """A controller's reply to ``request``: framing, echo, and DATA against the returns."""
+        """A controller's reply to ``request``: framing, echo, and DATA against the returns.
+
+        ``request`` None: with ``paired`` (both directions were seen, as in a
+        recording) the reply answers nothing and FAILs, unless its ID is one a
+        controller sends unasked (500); without (a one-way dump) it is read
+        against the command its ID names.
+        """
         findings = [
             Finding(
                 rule=r.value,
@@ -400,48 +406,53 @@ class Judge:
         ]
         if request is None:
             if frame.cmd_id in self._unsolicited:
+                d = self._match_unsolicited(frame, transport)
+                return Verdict(
+                    direction=Direction.REPLY,
+                    cmd_id=frame.cmd_id,
+                    name=d.name if d is not None else None,
+                    outcome=_outcome(findings),
+                    findings=tuple(findings),
+                    dialect=d,
+                    basis=d.cite() if d is not None else "a frame the controller sends unasked",
+                )
+            if paired:
+                findings.append(
+                    Finding(
+                        rule="unsolicited",
+                        outcome=Outcome.FAIL,
+                        source=_FRAMING_SOURCE,
+                        message=f"reply CNT {frame.cnt} ID {frame.cmd_id} answers no request",
+                    )
+                )
                 return Verdict(
                     direction=Direction.REPLY,
                     cmd_id=frame.cmd_id,
                     name=None,
                     outcome=_outcome(findings),
                     findings=tuple(findings),
-                    basis="manual: a frame the controller sends on its own",
                 )
-            findings.append(
-                Finding(
-                    rule="unsolicited",
-                    outcome=Outcome.FAIL,
-                    source=_FRAMING_SOURCE,
-                    message=f"reply CNT {frame.cnt} ID {frame.cmd_id} answers no request",
+            rv = self._by_id(frame.cmd_id)
+        else:
+            rv = request_verdict if request_verdict is not None else self.request(request)
+            if frame.cnt != request.cnt:
+                findings.append(
+                    Finding(
+                        rule=Rule.BAD_CNT.value,
+                        outcome=Outcome.FAIL,
+                        source=_FRAMING_SOURCE,
+                        message=f"reply CNT {frame.cnt}, request CNT {request.cnt}",
+                    )
                 )
-            )
-            return Verdict(
-                direction=Direction.REPLY,
-                cmd_id=frame.cmd_id,
-                name=None,
-                outcome=_outcome(findings),
-                findings=tuple(findings),
-            )
-        rv = request_verdict if request_verdict is not None else self.request(request)
-        if frame.cnt != request.cnt:
-            findings.append(
-                Finding(
-                    rule=Rule.BAD_CNT.value,
-                    outcome=Outcome.FAIL,
-                    source=_FRAMING_SOURCE,
-                    message=f"reply CNT {frame.cnt}, request CNT {request.cnt}",
+            if frame.cmd_id != request.cmd_id:
+                findings.append(
+                    Finding(
+                        rule=Rule.BAD_CMD_ID.value,
+                        outcome=Outcome.FAIL,
+                        source=_FRAMING_SOURCE,
+                        message=f"reply CMD_ID {frame.cmd_id}, request {request.cmd_id}",
+                    )
                 )
-            )
-        if frame.cmd_id != request.cmd_id:
-            findings.append(
-                Finding(
-                    rule=Rule.BAD_CMD_ID.value,
-                    outcome=Outcome.FAIL,
-                    source=_FRAMING_SOURCE,
-                    message=f"reply CMD_ID {frame.cmd_id}, request {request.cmd_id}",
-                )
-            )
         returns, basis = self._returns_for(rv)
         if returns is None:
             return Verdict(
@@ -496,6 +507,27 @@ class Judge:
             basis=basis,
         )
 
+    def _by_id(self, cmd_id: int) -> Verdict:
+        """What a reply on ``cmd_id`` answers when its request is unknown."""
+        command = self.specs.resolve(cmd_id)
+        if command is not None:
+            return Verdict(
+                direction=Direction.REQUEST,
+                cmd_id=cmd_id,
+                name=command.name,
+                outcome=Outcome.PASS,
+                command=command,
+                variant=command.variants[0],
+            )
+        d = next((x for x in self.dialects.by_id(cmd_id) if x.kind == "command"), None)
+        return Verdict(
+            direction=Direction.REQUEST,
+            cmd_id=cmd_id,
+            name=d.name if d is not None else None,
+            outcome=Outcome.DIALECT if d is not None else Outcome.FAIL,
+            dialect=d,
+        )
+
     def _returns_for(self, rv: Verdict) -> tuple[Returns | None, str]:
         if rv.dialect is not None:
             d = rv.dialect
@@ -526,16 +558,31 @@ class Judge:
                 return d, v
         return None
 
+    def _match_unsolicited(self, frame: Frame, transport: str | None) -> Dialect | None:
+        """A recorded reply text for a frame nobody asked for (an ID 500 program error)."""
+        for d in self.dialects.by_id(frame.cmd_id):
+            if d.kind != "reply" or d.pattern is None:
+                continue
+            if transport is not None and transport not in d.transport:
+                continue
+            if d.pattern.fullmatch(frame.data) is not None:
+                return d
+        return None
+
     # ------------------------------------------------------------------ other events
 
     def malformed(self, event: Malformed, direction: Direction) -> Verdict:
         """Bytes that are not a frame: NON-STRICT for padding and preambles, else FAIL."""
-        lenient = event.rule in LENIENT
+        return self.problem(event.rule.value, event.detail, direction)
+
+    def problem(self, rule: str, detail: str, direction: Direction) -> Verdict:
+        """A recorded stretch of non-frame bytes (``rule`` as the decoder named it)."""
+        lenient = rule in {r.value for r in LENIENT}
         f = Finding(
-            rule=event.rule.value,
+            rule=rule,
             outcome=Outcome.NON_STRICT if lenient else Outcome.FAIL,
             source=_FRAMING_SOURCE,
-            message=f"{event.rule.value}: {event.detail}",
+            message=f"{rule}: {detail}",
         )
         return Verdict(
             direction=direction, cmd_id=None, name=None, outcome=f.outcome, findings=(f,)
@@ -588,7 +635,7 @@ class Pairing:
         if direction is Direction.REPLY:
             req = self._waiting.pop(key, None)
             if req is None:
-                return self.judge.reply(frame, None, transport=transport)
+                return self.judge.reply(frame, None, transport=transport, paired=False)
             return self.judge.reply(frame, req[0], req[1], transport=transport)
         v = self.judge.request(frame, transport=transport)
         self._waiting.pop(key, None)

@@ -89,6 +89,8 @@ class CaseResult:
     frames: tuple[str, ...] = ()
     #: The case never ran: the run stopped before it (``Report.stopped`` says why).
     not_run: bool = False
+    #: What the verdict rests on: a manual section, or a field dialect entry and its evidence.
+    source: str = ""
 
     def __post_init__(self) -> None:
         # Frozen: the bounds are applied once, here, so no front-end can forget them.
@@ -110,6 +112,8 @@ class CaseResult:
         }
         if self.not_run:
             out["not_run"] = True
+        if self.source:
+            out["source"] = self.source
         return out
 
 
@@ -152,6 +156,8 @@ class Report:
     kit_version: str = __version__
     transport: str = "tcp"
     strict: bool = False
+    #: ``field`` (DIALECT is not a failure) or ``manual`` (it is): see conformance/judge.py.
+    reference: str = "field"
     meta: dict[str, Any] = field(default_factory=dict)
     cases: list[CaseResult] = field(default_factory=list)
     #: Why the run stopped early (target unreachable or dead, budget used up), in one line.
@@ -172,9 +178,11 @@ class Report:
         }
 
     def effective(self, outcome: Outcome) -> Outcome:
-        """NON-STRICT counts as FAIL under --strict, as PASS otherwise."""
+        """NON-STRICT counts as FAIL under --strict, DIALECT under the manual reference."""
         if outcome is Outcome.NON_STRICT:
             return Outcome.FAIL if self.strict else Outcome.PASS
+        if outcome is Outcome.DIALECT:
+            return Outcome.FAIL if self.reference == "manual" else Outcome.PASS
         return outcome
 
     def exit_code(self) -> int:
@@ -200,6 +208,7 @@ class Report:
             "spec_version": self.spec_version,
             "seed": self.seed,
             "strict": self.strict,
+            "reference": self.reference,
             "stopped": self.stopped,
             "meta": self.meta,
             "totals": self.totals(),
@@ -226,6 +235,7 @@ class Report:
             kit_version=doc.get("kit_version", ""),
             transport=doc.get("transport", "tcp"),
             strict=doc.get("strict", False),
+            reference=doc.get("reference", "field"),
             meta=dict(doc.get("meta", {})),
             stopped=doc.get("stopped"),
         )
@@ -242,9 +252,30 @@ class Report:
                         reproduce=c.get("reproduce", ""),
                         frames=tuple(c.get("frames", ())),
                         not_run=bool(c.get("not_run", False)),
+                        source=c.get("source", ""),
                     )
                 )
         return r
+
+    def _dialect_lines(self, limit: int = 20) -> list[str]:
+        """One line per command ID and dialect entry matched, with its source."""
+        seen: dict[tuple[int, str], tuple[str, int]] = {}
+        for c in self.cases:
+            if c.outcome is Outcome.DIALECT:
+                key = (c.cmd_id, c.source)
+                name, n = seen.get(key, (c.name, 0))
+                seen[key] = (name, n + 1)
+        if not seen:
+            return []
+        verdict = (
+            "FAIL under the manual reference" if self.reference == "manual" else "not failures"
+        )
+        out = [f"field dialects ({verdict}):"]
+        for (cid, src), (name, n) in sorted(seen.items())[:limit]:
+            out.append(f"{cid:>5}  {name[:34]:<34} {n}x {src}")
+        if len(seen) > limit:
+            out.append(f"       (+{len(seen) - limit} more; the JSON report lists them all)")
+        return out
 
     def render_terminal(self, *, width: int = 100, only_failures: bool = False) -> str:
         """Per-command table, failures first.
@@ -271,6 +302,7 @@ class Report:
         not_run = sum(c.not_run for c in self.cases)
         if not_run:
             lines.append(f"{not_run} cases not run: {self.stopped or 'the run stopped'}")
+        lines += self._dialect_lines()
         lines.append(f"commands: {counts} (target {self.target})")
         return "\n".join(lines)
 
@@ -291,6 +323,7 @@ _COLORS = {
     Outcome.PASS: "#2e7d32",
     Outcome.FAIL: "#c62828",
     Outcome.NON_STRICT: "#ef6c00",
+    Outcome.DIALECT: "#1565c0",
     Outcome.UNIMPLEMENTED: "#6a1b9a",
     Outcome.SKIPPED: "#9e9e9e",
     Outcome.ERROR: "#000000",
@@ -332,6 +365,8 @@ def _cell(cases: list[CaseResult], groups: list[str]) -> str:
         for c in bad[:50]:
             frames = "".join(f"<div class=frame>{_esc(f)}</div>" for f in c.frames)
             repro = f"<div class=repro>{_esc(c.reproduce)}</div>" if c.reproduce else ""
+            if c.source:
+                repro = f"<div class=repro>source: {_esc(c.source)}</div>" + repro
             color = _COLORS[c.outcome]
             items.append(
                 f"<li><b>{_esc(c.id)}</b> <span class=o style='color:{color}'>"
@@ -378,6 +413,7 @@ def render_html(reports: list[Report], *, title: str = "FAIRINO conformance") ->
     totals = []
     for r in reports:
         strict = " · strict" if r.strict else ""
+        strict += f" · reference {_esc(r.reference)}"
         faults = r.meta.get("emulator_faults")
         if faults:
             strict += f" · faults {_esc(', '.join(map(str, faults)))}"

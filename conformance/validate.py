@@ -97,7 +97,15 @@ def validate_request(frame: Frame, specs: SpecSet, *, strict: bool = False) -> R
             frame=frame, command=None, variant=None, parsed=parsed, violations=tuple(viols)
         )
     if isinstance(parsed, Call):
-        viols += [Violation(rule=r, detail=f"DATA: {r.value}") for r in parsed.problems]
+        viols += [
+            Violation(
+                rule=r,
+                detail="spaces after commas in the arguments"
+                if r is Rule.SPACE_IN_ARGS
+                else f"DATA: {r.value}",
+            )
+            for r in parsed.problems
+        ]
         if parsed.name != command.name and parsed.name.lower() == command.name.lower():
             viols.append(
                 Violation(

@@ -17,6 +17,7 @@ from ..errors import UsageError
 from ..frame import DEFAULT_MAX_FRAME_SIZE
 from ..recording import C2S, FrameRecord, read_recording, recover
 from ..spec import SpecSet, default_specs, load_specs
+from ._judging import add_judge_options, judge_from, verdict_line, verdict_sink as _verdict_sink
 
 __all__ = ["format_frame_line", "parse_duration", "parse_size", "register"]
 
@@ -139,6 +140,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     i.add_argument("capture")
     i.add_argument("--json", action="store_true")
     i.add_argument("--specs-dir", help="spec set directory")
+    add_judge_options(i)
     i.set_defaults(func=_run_info)
 
     c = sub.add_parser(
@@ -149,6 +151,12 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     c.add_argument("--strict", action="store_true", help="NON-STRICT deviations count as failures")
     c.add_argument("--only-failures", action="store_true")
     c.add_argument("--specs-dir", help="spec set directory")
+    c.add_argument(
+        "--verdicts",
+        metavar="PATH",
+        help="write every frame's verdict, one JSON line each (- for stdout)",
+    )
+    add_judge_options(c)
     c.set_defaults(func=_run_check)
 
     _register_more(sub)
@@ -369,7 +377,8 @@ def _run_recover(args: argparse.Namespace) -> int:
 def _run_info(args: argparse.Namespace) -> int:
     from ..capture_check import render_info, summarize
 
-    info = summarize(read_recording(args.capture), _specs(args))
+    specs = _specs(args)
+    info = summarize(read_recording(args.capture), specs, judge=judge_from(args, specs))
     if args.json:
         _write_json("-", info)
     else:
@@ -380,7 +389,16 @@ def _run_info(args: argparse.Namespace) -> int:
 def _run_check(args: argparse.Namespace) -> int:
     from ..capture_check import check_recording
 
-    report = check_recording(read_recording(args.capture), _specs(args), strict=args.strict)
+    specs = _specs(args)
+    judge = judge_from(args, specs, strict=args.strict)
+    rec = read_recording(args.capture)
+    if args.verdicts:
+        with _verdict_sink(args.verdicts) as sink:
+            report = check_recording(
+                rec, specs, judge=judge, on_verdict=lambda f, v: sink(verdict_line(f, v))
+            )
+    else:
+        report = check_recording(rec, specs, judge=judge)
     if args.report_json:
         _write_json(args.report_json, report.to_json())
     if args.report_json != "-":

@@ -11,8 +11,10 @@ from typing import Any
 from ..data import Call
 from ..errors import UsageError
 from ..frame import DEFAULT_MAX_FRAME_SIZE, Event, FrameDecoder, Malformed
+from ..dialects import default_dialects
+from ..judge import Direction, Judge, Pairing, Verdict
 from ..spec import Command, Param, ReturnValue, SpecSet, default_specs, load_specs
-from ..validate import validate_request
+from ._judging import add_judge_options, judge_from
 
 __all__ = ["command_json", "decode_stream", "event_json", "register"]
 
@@ -44,6 +46,14 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     )
     d.add_argument("--max-frame-size", type=int, default=DEFAULT_MAX_FRAME_SIZE)
     d.add_argument("--specs-dir", help="spec set directory")
+    d.add_argument(
+        "--dir",
+        choices=["auto", "c2s", "s2c"],
+        default="auto",
+        help="the bytes' direction: c2s (requests), s2c (replies), or auto (default): a frame "
+        "echoing an earlier request's CNT and ID is its reply, else its shape decides",
+    )
+    add_judge_options(d)
     d.set_defaults(func=_run_decode)
 
 
@@ -230,8 +240,36 @@ def _show_text(c: Command, specs: SpecSet, out: Any) -> None:
 # --------------------------------------------------------------------------- decode
 
 
-def event_json(ev: Event, specs: SpecSet, *, strict: bool = False) -> dict[str, Any]:
-    """One decoded event as the JSON object ``decode --json`` prints."""
+def event_json(
+    ev: Event,
+    specs: SpecSet,
+    *,
+    strict: bool = False,
+    verdict: Verdict | None = None,
+    judge: Judge | None = None,
+) -> dict[str, Any]:
+    """One decoded event and its verdict as the JSON object ``decode --json`` prints.
+
+    ``verdict``: the judge's verdict on the event (default: judged as a request
+    by ``judge``, else by a judge of the shipped dialects).
+    """
+    if verdict is None:
+        judge = judge or Judge(specs, default_dialects(), strict=strict)
+        verdict = (
+            judge.malformed(ev, Direction.REQUEST)
+            if isinstance(ev, Malformed)
+            else judge.request(ev)
+        )
+    problems = list(dict.fromkeys(f.rule for f in verdict.findings if f.rule != "dialect"))
+    judged = {
+        "dir": verdict.direction.value,
+        "outcome": verdict.outcome.value,
+        "rule": verdict.rule,
+        "source": verdict.source,
+        "message": verdict.message,
+    }
+    if verdict.dialect is not None:
+        judged["dialect"] = verdict.dialect.id
     if isinstance(ev, Malformed):
         return {
             "kind": "malformed",
@@ -244,10 +282,11 @@ def event_json(ev: Event, specs: SpecSet, *, strict: bool = False) -> dict[str, 
             "problems": [ev.rule.value],
             "detail": ev.detail,
             "raw": ev.raw.decode("latin-1"),
+            **judged,
         }
-    check = validate_request(ev, specs, strict=strict)
-    problems = list(dict.fromkeys(v.rule.value for v in check.violations))
-    name = check.command.name if check.command is not None else None
+    name = verdict.command.name if verdict.command is not None else None
+    if verdict.dialect is not None:
+        name = verdict.dialect.name
     out: dict[str, Any] = {
         "kind": "frame",
         "offset": ev.offset,
@@ -258,10 +297,14 @@ def event_json(ev: Event, specs: SpecSet, *, strict: bool = False) -> dict[str, 
         "name": name,
         "problems": problems,
     }
-    if isinstance(check.parsed, Call):
-        out["call"] = check.parsed.name
-    if check.violations:
-        out["details"] = [v.detail for v in check.violations]
+    if isinstance(verdict.parsed, Call):
+        out["call"] = verdict.parsed.name
+    if verdict.findings:
+        out["details"] = [f.message for f in verdict.findings]
+    if verdict.refused:
+        out["refused"] = True
+        out["code"] = verdict.code
+    out.update(judged)
     return out
 
 
@@ -300,24 +343,43 @@ def _run_decode(args: argparse.Namespace) -> int:
     if args.max_frame_size < 64:
         raise UsageError("--max-frame-size must be at least 64")
     specs = _specs(args)
+    judge = judge_from(args, specs, strict=args.strict)
+    pairing = Pairing(judge)
+    forced = None if args.dir == "auto" else Direction(args.dir)
     out = sys.stdout
     bad = 0
     for ev in decode_stream(
         _read_chunks(args), strict=args.strict, max_frame_size=args.max_frame_size
     ):
-        doc = event_json(ev, specs, strict=args.strict)
-        if doc["kind"] == "malformed" or (args.strict and doc["problems"]):
+        if isinstance(ev, Malformed):
+            verdict = judge.malformed(ev, forced or Direction.REQUEST)
+        else:
+            verdict = pairing.judge_frame(ev, forced)
+        doc = event_json(ev, specs, verdict=verdict)
+        if doc["kind"] == "malformed" or verdict.fails(judge.reference, strict=args.strict):
             bad += 1
         if args.json:
             out.write(json.dumps(doc, ensure_ascii=False) + "\n")
-        elif doc["kind"] == "frame":
+            continue
+        if doc["kind"] == "frame":
             name = doc["name"] or "?"
-            probs = f"  problems: {','.join(doc['problems'])}" if doc["problems"] else ""
-            out.write(
-                f"frame  cnt={doc['cnt']} id={doc['cmd_id']} ({name}) len={doc['len']} data={doc['data']!r}{probs}\n"
+            arrow = ">>" if verdict.direction is Direction.REQUEST else "<<"
+            line = (
+                f"frame {arrow} cnt={doc['cnt']} id={doc['cmd_id']} ({name}) len={doc['len']} "
+                f"data={doc['data']!r}  {verdict.outcome.value}"
             )
+            if verdict.findings:
+                line += f" {verdict.rule}: {_clip(verdict.message)} [{verdict.source}]"
+            elif verdict.refused:
+                line += f" (refusal, code {verdict.code})"
+            out.write(line + "\n")
         else:
             out.write(
-                f"malformed @{doc['offset']}  {doc['problems'][0]}: {doc['detail']}  raw={ev.raw[:60]!r}\n"
+                f"malformed @{doc['offset']}  {doc['problems'][0]}: {doc['detail']}  "
+                f"raw={ev.raw[:60]!r}  {verdict.outcome.value}\n"
             )
     return 1 if args.strict and bad else 0
+
+
+def _clip(text: str, limit: int = 300) -> str:
+    return text if len(text) <= limit else text[:limit] + "..."

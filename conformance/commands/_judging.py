@@ -1,0 +1,122 @@
+"""The options every judging sub-command shares: ``--reference`` and ``--dialects-dir``.
+
+One definition, so that ``check``, ``info``, ``decode``, ``replay``, ``diff``,
+``serve``, ``emulate`` and ``run`` read them alike and build the same
+:class:`~conformance.judge.Judge`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import sys
+import threading
+from collections.abc import Callable, Iterator
+
+from ..dialects import DialectSet, default_dialects, load_dialects
+from ..errors import SpecError, UsageError
+from ..frame import Frame
+from ..judge import REFERENCE_ENV, Judge, Reference, Verdict, reference_from
+from ..recording import FrameRecord
+from ..spec import SpecSet
+
+__all__ = [
+    "DIALECTS_ENV",
+    "add_judge_options",
+    "dialects_from",
+    "judge_from",
+    "reference_of",
+    "verdict_line",
+    "verdict_sink",
+]
+
+#: Environment variable naming another directory of dialect files.
+DIALECTS_ENV = "FAIRINO_DIALECTS_DIR"
+
+REFERENCE_HELP = (
+    "what frames are held to: 'field' (default; a recorded field dialect is DIALECT, "
+    "not a failure) or 'manual' (the manual alone: DIALECT fails); "
+    f"env {REFERENCE_ENV}"
+)
+
+
+def add_judge_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--reference", choices=[r.value for r in Reference], default=None, help=REFERENCE_HELP
+    )
+    p.add_argument(
+        "--dialects-dir",
+        metavar="DIR",
+        default=None,
+        help=f"field dialect files (default: the shipped specs/fairino-field; env {DIALECTS_ENV})",
+    )
+
+
+def reference_of(args: argparse.Namespace) -> Reference:
+    return reference_from(getattr(args, "reference", None))
+
+
+def dialects_from(directory: str | None, specs: SpecSet) -> DialectSet:
+    """The dialects of ``directory`` (else ``$FAIRINO_DIALECTS_DIR``, else the shipped ones)."""
+    directory = directory or os.environ.get(DIALECTS_ENV) or None
+    try:
+        if directory is None:
+            return default_dialects()
+        return load_dialects(directory, specs)
+    except SpecError as e:
+        raise UsageError(f"dialects: {e}") from None
+
+
+def judge_from(args: argparse.Namespace, specs: SpecSet, *, strict: bool = False) -> Judge:
+    return Judge(
+        specs,
+        dialects_from(getattr(args, "dialects_dir", None), specs),
+        reference=reference_of(args),
+        strict=strict,
+    )
+
+
+def verdict_line(frame: FrameRecord | Frame, verdict: Verdict, **extra: object) -> str:
+    """One frame and its verdict as a JSON line (``check --verdicts``, ``serve --verdicts``).
+
+    The same keys from every front-end, so that their outputs compare line for line.
+    """
+    doc: dict[str, object] = {
+        "dir": verdict.direction.value,
+        "cnt": frame.cnt,
+        "cmd_id": frame.cmd_id,
+        "data": frame.data,
+        **extra,
+        **verdict.to_json(),
+    }
+    return json.dumps(doc, ensure_ascii=False)
+
+
+@contextlib.contextmanager
+def verdict_sink(path: str) -> Iterator[Callable[[str], None]]:
+    """A line writer to ``path`` (``-``: stdout), flushed line by line, closed on exit."""
+    if path == "-":
+
+        def write_out(line: str) -> None:
+            sys.stdout.write(line + "\n")
+
+        yield write_out
+        sys.stdout.flush()
+        return
+    try:
+        f = open(path, "w", encoding="utf-8")  # noqa: SIM115 - closed below
+    except OSError as e:
+        raise UsageError(f"cannot write {path}: {e.strerror}") from None
+    lock = threading.Lock()
+
+    def write(line: str) -> None:
+        with lock:
+            f.write(line + "\n")
+            f.flush()
+
+    try:
+        yield write
+    finally:
+        f.close()
