@@ -17,9 +17,8 @@ from __future__ import annotations
 
 import re
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
-from typing import Literal
 
+from .actions import Action, DropKind, Dropped
 from .data import Arg, Array, Call, Number, Text, format_number
 from .errors import Rule
 from .faults import Fault, FaultKind, active_fault, mangle_reply
@@ -141,17 +140,6 @@ class RobotModel:
 
 
 # --------------------------------------------------------------------------- controller
-
-
-@dataclass(frozen=True, kw_only=True)
-class Action:
-    """What the transport must do: send ``data`` after ``delay`` s, then maybe close or crash."""
-
-    data: bytes = b""
-    delay: float = 0.0
-    close: bool = False
-    #: Drop every connection and refuse new ones for ``delay`` seconds (a restart).
-    crash: bool = False
 
 
 _IDS_RE = re.compile(rb"/f/bI{2,4}\d+I{2,4}(\d+)")
@@ -282,26 +270,3 @@ class ControllerConnection:
 
     def close(self) -> list[Action]:
         return self.answer(self.decoder.close())
-
-
-#: What closed a connection, in :attr:`Dropped.kind`.
-DropKind = Literal["error", "protocol", "limit", "slow"]
-
-
-@dataclass(frozen=True, kw_only=True)
-class Dropped:
-    """Why the emulator closed a client's connection (or dropped a UDP datagram) itself.
-
-    ``kind``: ``"error"`` the kit failed on the peer's bytes (an exception it
-    should have turned into a verdict: a bug), ``"protocol"`` the kit's own
-    protocol error escaped while judging them, ``"limit"`` a server limit
-    (``--max-connections``, no thread left), ``"slow"`` the peer stopped reading
-    its replies.  ``cmd_id`` and ``raw`` name the frame being handled (``None``
-    and ``b""`` when it was not a frame).
-    """
-
-    peer: str
-    kind: DropKind
-    reason: str
-    cmd_id: int | None = None
-    raw: bytes = b""

@@ -42,7 +42,8 @@ from types import TracebackType
 from ..errors import RemoteProtocolError
 from ..faults import Fault, FaultKind, parse_fault, parse_faults
 from ..frame import DEFAULT_MAX_FRAME_SIZE, Frame, Malformed
-from ..model import Action, Controller, ControllerConnection, Dropped
+from ..actions import Action, Dropped
+from ..model import Controller, ControllerConnection
 from ..spec import SpecSet
 
 __all__ = [

@@ -23,7 +23,7 @@ from collections.abc import Sequence
 
 from ..errors import Rule
 from ..frame import Frame, Malformed
-from ..model import Action, Dropped
+from ..actions import Action, Dropped
 from ..report import CaseResult, Outcome, Report
 from ..spec import SpecSet
 from ..validate import validate_request
