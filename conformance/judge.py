@@ -30,7 +30,7 @@ from __future__ import annotations
 import enum
 import os
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from .data import Call, Keyword, Parsed, RawData, Violation, check_args, parse_data
 from .data import _shown as shown
@@ -311,6 +311,10 @@ class Judge:
             command = manual_command(d, self.specs)
             if d.kind == "dispatch" and command is not None and not d.params:
                 variant = next((v for v in command.variants if v.form == "call"), variant)
+            elif d.returns is None and command is not None:
+                # An argument form or a spelling replies as the manual command does.
+                same = next((v for v in command.variants if v.form == variant.form), None)
+                variant = replace(variant, returns=(same or command.variants[0]).returns)
             return Verdict(
                 direction=Direction.REQUEST,
                 cmd_id=frame.cmd_id,
@@ -376,6 +380,18 @@ class Judge:
                     continue
             out.append((d, v))
         return out
+
+    def cnt_step(self, previous: int | None, frame: Frame) -> Finding | None:
+        """CNT not counting up by one on a connection: NON-STRICT (1.1 calls CNT a frame
+        counter, but does not say a client must increment it)."""
+        if previous is None or frame.cnt == (previous + 1) % 0x10000:
+            return None
+        return Finding(
+            rule="cnt_step",
+            outcome=Outcome.NON_STRICT,
+            source=_FRAMING_SOURCE,
+            message=f"CNT {frame.cnt} after {previous} on this connection (not counting up by one)",
+        )
 
     # ------------------------------------------------------------------ replies
 

@@ -19,10 +19,12 @@ import re
 from collections.abc import Iterable, Sequence
 
 from .actions import Action, DropKind, Dropped
-from .data import Arg, Array, Call, Number, Text, format_number
-from .errors import Rule
+from .data import Arg, Array, Call, Number, Text, format_number, parse_reply
+from .dialects import Dialect, default_dialects
+from .errors import ProtocolError, Rule
 from .faults import Fault, FaultKind, active_fault, mangle_reply
-from .frame import DEFAULT_MAX_FRAME_SIZE, Frame, FrameDecoder, Malformed
+from .frame import DEFAULT_MAX_FRAME_SIZE, Frame, FrameDecoder, Malformed, decode_all
+from .judge import LENIENT, Judge, Reference, Verdict
 from .knowledge import (
     MotionTargets,
     StatePair,
@@ -32,8 +34,9 @@ from .knowledge import (
     position_query,
     refusal_data,
 )
-from .spec import Command, ReturnValue, SpecSet, Variant, default_specs
-from .validate import ERR_ARG_COUNT, ERR_ARG_VALUE, ERR_EXEC_FAILED, validate_request
+from .report import Outcome
+from .spec import Command, Returns, ReturnValue, SpecSet, Variant, default_specs
+from .validate import ERR_ARG_COUNT, ERR_ARG_VALUE, ERR_EXEC_FAILED
 
 __all__ = [
     "Action",
@@ -57,11 +60,46 @@ def _arg_text(a: Arg) -> str | None:
 
 
 def _default(rv: ReturnValue) -> str:
+    """A value nobody set and the manual shows no example of: a typed zero."""
     if rv.type == "string":
-        return re.sub(r"[^A-Za-z0-9_.]", "", rv.name) or "0"
+        return "0"
     if rv.type in ("float", "double"):
         return "0.000"
     return "0"
+
+
+def _example_values(variant: Variant) -> list[str] | None:
+    """The values of the variant's first example reply that reads as its reply, if any."""
+    if variant.returns.errcode_only or not variant.returns.values:
+        return None
+    want = len(flat_returns(variant.returns))
+    for e in variant.examples:
+        if not e.reply:
+            continue
+        frames = [f for f in decode_all(e.reply.encode("utf-8")) if isinstance(f, Frame)]
+        if len(frames) != 1:
+            continue
+        try:
+            values = parse_reply(frames[0].data, variant.returns.separator)
+        except ProtocolError:
+            continue
+        texts = [_arg_text(a) for a in values]
+        if len(texts) == want and all(t is not None for t in texts):
+            return [t for t in texts if t is not None]
+    return None
+
+
+def _typed(returns: Returns, example: str | None) -> list[str]:
+    """A dialect's reply: its recorded example when it reads as ``returns``, else typed zeros."""
+    flat = flat_returns(returns)
+    if example is not None:
+        try:
+            values = [_arg_text(a) for a in parse_reply(example, returns.separator)]
+        except ProtocolError:
+            values = []
+        if len(values) == len(flat) and all(t is not None for t in values):
+            return [t for t in values if t is not None]
+    return [_default(rv) for rv in flat]
 
 
 class RobotModel:
@@ -82,6 +120,14 @@ class RobotModel:
         self.records: dict[tuple[str, str, tuple[str, ...]], dict[int, str]] = {}
         self.joints: list[str] = ["0.000"] * 6
         self.tcp: list[str] = ["0.000"] * 6
+        #: Reply values of each query variant's example in the manual, where one
+        #: reads as that variant's reply: what a value nobody set looks like.
+        self._examples: dict[tuple[str, str], list[str]] = {}
+        for c in specs:
+            for v in c.variants:
+                ex = _example_values(v)
+                if ex is not None:
+                    self._examples[(c.key, v.table)] = ex
 
     def execute(self, command: Command, variant: Variant, args: Sequence[Arg]) -> list[str]:
         """Apply a (valid) call and return the reply's values."""
@@ -107,6 +153,13 @@ class RobotModel:
                     self.tcp = [_arg_text(a) or "0.000" for a in arr.items]
         return self.reply_values(command, variant, args)
 
+    def dialect_values(self, d: Dialect) -> list[str]:
+        """Reply values for a command the manual lacks (a field dialect): ``1`` if an error code."""
+        returns = d.variant.returns
+        if returns.errcode_only:
+            return ["1"]
+        return _typed(returns, d.reply_example)
+
     def reply_values(self, command: Command, variant: Variant, args: Sequence[Arg]) -> list[str]:
         returns = variant.returns
         if returns.errcode_only:
@@ -124,6 +177,7 @@ class RobotModel:
                 rec = self.records.get((command.key, variant.table, key), rec)
                 if rec:
                     break
+        example = self._examples.get((command.key, variant.table))
         pos = position_query(self.specs, command.name)
         pnames = {p.name.lower(): i for i, p in enumerate(variant.params)}
         out: list[str] = []
@@ -134,6 +188,8 @@ class RobotModel:
                 out.append((self.joints if pos == "joints" else self.tcp)[i])
             elif rv.name.lower() in pnames and pnames[rv.name.lower()] < len(texts):
                 out.append(texts[pnames[rv.name.lower()]] or _default(rv))
+            elif example is not None:
+                out.append(example[i])
             else:
                 out.append(_default(rv))
         return out
@@ -159,21 +215,57 @@ _CODE_FOR = {
     Rule.BAD_NUMBER: ERR_ARG_VALUE,
     Rule.DATA_LIMIT: ERR_ARG_VALUE,
 }
-#: Framing deviations a lenient decoder tolerates but the emulator refuses (1.1).
+#: Framing faults the emulator refuses with chapter 9's 14 (1.1); BAD_SEPARATOR is
+#: among them under the strict reading only (the judge's LENIENT otherwise).
 _FRAMING = frozenset({Rule.LEN_MISMATCH, Rule.BAD_SEPARATOR, Rule.BAD_CNT, Rule.BAD_ENCODING})
+_RULE_VALUES = {r.value: r for r in Rule}
+
+
+def _rules(v: Verdict) -> list[Rule]:
+    """The protocol rules among a verdict's findings (not ``dialect`` or ``cnt_step``)."""
+    return [_RULE_VALUES[f.rule] for f in v.findings if f.rule in _RULE_VALUES]
+
+
+#: How the emulator reads a call that names another command than its ID's.
+DISPATCH_MODES = ("recorded", "any", "off")
 
 
 class Controller:
-    """The emulated controller: shared state, faults, and the answer to each event."""
+    """The emulated controller: shared state, faults, and the answer to each event.
 
-    def __init__(self, specs: SpecSet | None = None, *, faults: Iterable[Fault] = ()) -> None:
+    What a frame means is the judge's verdict (:mod:`conformance.judge`): the
+    emulator accepts what passes, what is only NON-STRICT and, under the
+    ``field`` reference, what follows a recorded field dialect; it refuses the
+    rest with chapter 9's codes.  ``dispatch``: calls naming another command
+    than their ID's (``GetActualTCPPose()`` on ID 377, which field clients send
+    and a real controller answers by the name, see specs/fairino-field/drivers.json)
+    are answered by the name when a dialect entry records that ID/name pair
+    (``recorded``, the default), for every known name (``any``), or never (``off``).
+    """
+
+    def __init__(
+        self,
+        specs: SpecSet | None = None,
+        *,
+        faults: Iterable[Fault] = (),
+        judge: Judge | None = None,
+        dispatch: str = "recorded",
+    ) -> None:
         self.specs = specs if specs is not None else default_specs()
+        if dispatch not in DISPATCH_MODES:
+            raise ValueError(f"dispatch must be one of {', '.join(DISPATCH_MODES)}")
         self.faults = tuple(faults)
+        self.judge = judge if judge is not None else Judge(self.specs, default_dialects())
+        self.dispatch = dispatch
+        #: The manual alone: the codes a refused dialect frame gets.
+        self._manual = Judge(self.specs, strict=self.judge.strict)
         self.model = RobotModel(self.specs)
         self.frames_answered = 0
 
-    def connection(self, *, max_frame_size: int = DEFAULT_MAX_FRAME_SIZE) -> ControllerConnection:
-        return ControllerConnection(self, max_frame_size=max_frame_size)
+    def connection(
+        self, *, max_frame_size: int = DEFAULT_MAX_FRAME_SIZE, transport: str | None = None
+    ) -> ControllerConnection:
+        return ControllerConnection(self, max_frame_size=max_frame_size, transport=transport)
 
     def restart(self) -> None:
         """A crash loses the state, as a controller restart would."""
@@ -186,40 +278,76 @@ class Controller:
         f = self._fault(FaultKind.CRASH_ON_MALFORMED, cmd_id)
         return None if f is None else [Action(crash=True, delay=f.seconds)]
 
-    def answer(self, event: Frame | Malformed) -> list[Action]:
+    def _accepts(self, v: Verdict) -> bool:
+        d = v.dialect
+        if v.outcome is not Outcome.DIALECT or d is None:
+            return False
+        if self.judge.reference is not Reference.FIELD:
+            return False
+        return d.kind != "dispatch" or self.dispatch != "off"
+
+    def answer(self, event: Frame | Malformed, transport: str | None = None) -> list[Action]:
         """The actions answering one decoded event."""
         if isinstance(event, Malformed):
             # Not a frame: a controller cannot echo CNT/CMD_ID, so it stays silent.
             return self._crash(_cmd_id_of(event.raw)) or []
         frame = event
-        check = validate_request(frame, self.specs)
-        cmd, variant = check.command, check.variant
-        returns = variant.returns if variant is not None else None
-        if cmd is None:
-            return self._reply(frame, refusal_data(None, ERR_EXEC_FAILED))
-        rules = [v.rule for v in check.violations if v.rule is not Rule.SPACE_IN_ARGS]
-        framing = [r for r in rules if r in _FRAMING]
-        ignore_len = self._fault(FaultKind.IGNORE_LEN, frame.cmd_id) is not None
-        if ignore_len:
+        v = self.judge.request(frame, transport=transport)
+        framing = [r for r in self._hard(v) if r in _FRAMING]
+        if self._fault(FaultKind.IGNORE_LEN, frame.cmd_id) is not None:
             framing = [r for r in framing if r is not Rule.LEN_MISMATCH]
+        if not framing and self._accepts(v):
+            return self._execute(frame, v)
+        if v.outcome is Outcome.DIALECT:
+            v = self._manual.request(frame)  # refused: the manual's reasons and codes
+        if self.dispatch == "any" and v.command is not None:
+            named = self._by_name(frame, v)
+            if named is not None:
+                v = named
+        rules = self._hard(v)
+        if self._fault(FaultKind.IGNORE_LEN, frame.cmd_id) is not None:
             rules = [r for r in rules if r is not Rule.LEN_MISMATCH]
+        returns = v.variant.returns if v.variant is not None else None
         if framing or not {Rule.BAD_DATA, Rule.BAD_NUMBER, Rule.DATA_LIMIT}.isdisjoint(rules):
             crash = self._crash(frame.cmd_id)
             if crash is not None:
                 return crash
         if framing:
             return self._reply(frame, refusal_data(returns, ERR_EXEC_FAILED))
+        if v.command is None:
+            return self._reply(frame, refusal_data(None, ERR_EXEC_FAILED))
         if self._fault(FaultKind.ACCEPT_OUT_OF_RANGE, frame.cmd_id) is not None:
             rules = [r for r in rules if r is not Rule.ARG_RANGE]
         if rules:
             code = next((_CODE_FOR[r] for r in rules if r in _CODE_FOR), ERR_EXEC_FAILED)
             return self._reply(frame, refusal_data(returns, code))
-        assert variant is not None
-        if isinstance(check.parsed, Call):
-            values = self.model.execute(cmd, variant, check.parsed.args)
-        else:
-            values = self.model.reply_values(cmd, variant, ())
-        return self._reply(frame, variant.returns.separator.join(values))
+        return self._execute(frame, v)
+
+    def _hard(self, v: Verdict) -> list[Rule]:
+        """The rules a verdict breaks that the emulator refuses for (lenient ones only if strict)."""
+        return [r for r in _rules(v) if self.judge.strict or r not in LENIENT]
+
+    def _by_name(self, frame: Frame, v: Verdict) -> Verdict | None:
+        """``dispatch="any"``: a call naming another known command, read as that command."""
+        if not isinstance(v.parsed, Call) or Rule.NAME_MISMATCH not in _rules(v):
+            return None
+        for c in self.specs.by_name(v.parsed.name):
+            alt = self._manual.request(
+                Frame(cnt=frame.cnt, cmd_id=c.cmd_id, data=frame.data, length=frame.length)
+            )
+            if alt.outcome in (Outcome.PASS, Outcome.NON_STRICT):
+                return alt
+        return None
+
+    def _execute(self, frame: Frame, v: Verdict) -> list[Action]:
+        args = v.parsed.args if isinstance(v.parsed, Call) else ()
+        d = v.dialect
+        if v.command is not None and v.variant is not None:
+            values = self.model.execute(v.command, v.variant, args)
+            return self._reply(frame, v.variant.returns.separator.join(values))
+        assert d is not None  # a verdict without a command that was accepted: a dialect's
+        returns = d.variant.returns
+        return self._reply(frame, returns.separator.join(self.model.dialect_values(d)))
 
     def _reply(self, frame: Frame, data: str) -> list[Action]:
         cid = frame.cmd_id
@@ -242,9 +370,15 @@ class ControllerConnection:
     """
 
     def __init__(
-        self, controller: Controller, *, max_frame_size: int = DEFAULT_MAX_FRAME_SIZE
+        self,
+        controller: Controller,
+        *,
+        max_frame_size: int = DEFAULT_MAX_FRAME_SIZE,
+        transport: str | None = None,
     ) -> None:
         self.controller = controller
+        #: ``tcp`` or ``udp`` (dialects recorded on one transport only match there).
+        self.transport = transport
         self.decoder = FrameDecoder(max_frame_size=max_frame_size)
         #: The events of the most recent call only.
         self.events: list[Frame | Malformed] = []
@@ -257,7 +391,7 @@ class ControllerConnection:
         out: list[Action] = []
         for e in self.events:
             self.current = e
-            out += self.controller.answer(e)
+            out += self.controller.answer(e, self.transport)
         self.current = None
         return out
 

@@ -60,11 +60,22 @@ def test_cnt_jump_fails_only_under_strict() -> None:
 
 def test_garbage_is_reported_not_fatal() -> None:
     v = ClientValidator(SPECS)
-    for ev in decode_all(b"hello" + GOOD_SETDO[2]):
+    for ev in decode_all(GOOD_SETDO[2] + b"\xff\xfe\x01junk" + GOOD_JOINTS[2]):
         v.observe("peer-1", ev)
     outcomes = {k: s.outcome for k, s in v.report().commands().items()}
     assert outcomes[204] is Outcome.PASS
     assert outcomes[0] is Outcome.FAIL  # the protocol-wide bucket holds the garbage
+
+
+def test_preamble_and_padding_are_lenient_as_everywhere() -> None:
+    """A printable preamble and NUL padding are NON-STRICT, as in check and decode."""
+    v = ClientValidator(SPECS)
+    for ev in decode_all(b"hello" + GOOD_SETDO[2] + b"\x00" * 64):
+        v.observe("peer-1", ev)
+    cases = v.report().commands()[0].cases
+    assert {c.outcome for c in cases} == {Outcome.NON_STRICT}
+    assert sorted(c.detail.split(":")[0] for c in cases) == ["nul_padding", "preamble"]
+    assert v.report().exit_code() == 0
 
 
 def test_serve_command_end_to_end(tmp_path: Path) -> None:
@@ -165,10 +176,10 @@ import sys
 from conformance import model
 from conformance.cli import main
 answer = model.Controller.answer
-def failing(self, event):
+def failing(self, event, transport=None):
     if isinstance(event, model.Frame) and event.cmd_id == 204 and "7777" in event.data:
         raise ValueError("seeded kit failure")
-    return answer(self, event)
+    return answer(self, event, transport)
 model.Controller.answer = failing
 sys.exit(main(sys.argv[1:]))
 """

@@ -386,10 +386,12 @@ def _seed_kit_error(monkeypatch: pytest.MonkeyPatch, cmd_id: int) -> None:
     """The model raises (as a kit bug would) on every frame of ``cmd_id``."""
     answer = Controller.answer
 
-    def failing(self: Controller, event: Frame | Malformed) -> list[Action]:
+    def failing(
+        self: Controller, event: Frame | Malformed, transport: str | None = None
+    ) -> list[Action]:
         if isinstance(event, Frame) and event.cmd_id == cmd_id:
             raise ValueError("seeded kit failure")
-        return answer(self, event)
+        return answer(self, event, transport)
 
     monkeypatch.setattr(Controller, "answer", failing)
 

@@ -43,6 +43,7 @@ from ..errors import RemoteProtocolError
 from ..faults import Fault, FaultKind, parse_fault, parse_faults
 from ..frame import DEFAULT_MAX_FRAME_SIZE, Frame, Malformed
 from ..actions import Action, Dropped
+from ..judge import Judge
 from ..model import Controller, ControllerConnection
 from ..spec import SpecSet
 
@@ -158,6 +159,8 @@ class _Backoff:
 class EmulatorServer:
     """A simulated controller answering every command of ``specs`` (default: the bundled specs).
 
+    ``judge`` and ``dispatch``: what the controller accepts (default: the shipped
+    field dialects; see :class:`~conformance.model.Controller`).
     ``max_connections`` (default :data:`DEFAULT_MAX_CONNECTIONS`): TCP
     connections served at once; more are accepted and closed at once, counted in
     :attr:`connections_refused`.  ``max_frame_size`` (default the decoder's 256
@@ -182,10 +185,14 @@ class EmulatorServer:
         max_connections: int = DEFAULT_MAX_CONNECTIONS,
         max_frame_size: int = DEFAULT_MAX_FRAME_SIZE,
         reraise_kit_errors: bool = True,
+        judge: Judge | None = None,
+        dispatch: str = "recorded",
     ) -> None:
         if max_connections < 1:
             raise ValueError("max_connections must be at least 1")
-        self.controller = Controller(specs, faults=parse_faults(faults))
+        self.controller = Controller(
+            specs, faults=parse_faults(faults), judge=judge, dispatch=dispatch
+        )
         self.host = host.strip("[]")
         self._port = port
         self._udp_port = udp_port
@@ -526,7 +533,10 @@ class EmulatorServer:
                 return
 
     def _serve_conn(self, conn: socket.socket, peer: str) -> None:
-        s = _Session(peer=peer, cc=self.controller.connection(max_frame_size=self.max_frame_size))
+        s = _Session(
+            peer=peer,
+            cc=self.controller.connection(max_frame_size=self.max_frame_size, transport="tcp"),
+        )
         try:
             conn.settimeout(_IDLE)
             self._converse(conn, s)
@@ -561,7 +571,8 @@ class EmulatorServer:
                 continue
             name = f"udp:{_peer_name(addr)}"
             s = _Session(
-                peer=name, cc=self.controller.connection(max_frame_size=self.max_frame_size)
+                peer=name,
+                cc=self.controller.connection(max_frame_size=self.max_frame_size, transport="udp"),
             )
             try:
                 # Each datagram is a stream of its own (frames do not span datagrams).

@@ -19,15 +19,17 @@ from __future__ import annotations
 
 import threading
 from collections import OrderedDict
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from typing import Any
 
+from ..dialects import default_dialects
 from ..errors import Rule
 from ..frame import Frame, Malformed
+from ..judge import Direction, Judge, Reference, Verdict
 from ..actions import Action, Dropped
 from ..report import CaseResult, Outcome, Report
 from ..spec import SpecSet
-from ..validate import validate_request
-from .runner import show
+from .runner import shell_printf, show
 
 __all__ = ["ClientValidator"]
 
@@ -35,20 +37,45 @@ _PER_COMMAND = 50  # failing frames kept per command (the rest are counted)
 _MAX_UNKNOWN_IDS = 64  # unknown command IDs judged one by one (the rest are lumped)
 _MAX_PEERS = 4096  # peers whose last CNT is remembered (UDP peers never "close")
 _DETAIL_MAX = 500  # characters of a failure's text
+_REPRO_MAX = 4096  # bytes of a frame put into its reproduction line
+#: Rules that make a failing frame a framing failure rather than an argument one.
+_FRAMING = frozenset(
+    {Rule.LEN_MISMATCH.value, Rule.BAD_SEPARATOR.value, Rule.BAD_CNT.value, Rule.BAD_ENCODING.value}
+)
 
 
 class ClientValidator:
-    def __init__(self, specs: SpecSet, *, target: str = "client", strict: bool = False) -> None:
+    """Judges every frame a client sends (the judge decides; this keeps the report bounded).
+
+    ``judge``: the :class:`~conformance.judge.Judge` whose verdicts are reported
+    (default: the shipped dialects, the ``field`` reference).  ``on_verdict`` is
+    told every frame's verdict (``serve --verdicts``).
+    """
+
+    def __init__(
+        self,
+        specs: SpecSet,
+        *,
+        target: str = "client",
+        strict: bool = False,
+        judge: Judge | None = None,
+        on_verdict: Callable[[str, Frame, Verdict], None] | None = None,
+    ) -> None:
         self.specs = specs
+        self.judge = judge if judge is not None else Judge(specs, default_dialects(), strict=strict)
         self.target = target
-        self.strict = strict
+        self.strict = strict or self.judge.strict
+        self.on_verdict = on_verdict
         self.frames = 0
         self._lock = threading.Lock()
         self._cases: dict[int, list[CaseResult]] = {}
         self._passes: dict[int, int] = {}
+        #: DIALECT frames per (command ID, entry): count, first frame, source, message.
+        self._dialects: dict[tuple[int, str], list[Any]] = {}
         self._names: dict[int, str] = {}
+        self._transports: dict[str, int] = {}
         self._last_cnt: OrderedDict[str, int] = OrderedDict()
-        self._known = frozenset(specs.cmd_ids)
+        self._known = frozenset(specs.cmd_ids) | frozenset(self.judge.dialects.cmd_ids)
         self._unknown_ids: set[int] = set()
         self._lumped = 0  # frames with an unknown command ID not tracked one by one
         self._lumped_example: int | None = None
@@ -56,16 +83,21 @@ class ClientValidator:
         self._drops: dict[str, int] = {}
 
     def observe(self, peer: str, event: Frame | Malformed, actions: Sequence[Action] = ()) -> None:
+        transport = "udp" if peer.startswith("udp:") else "tcp"
         with self._lock:
             self.frames += 1
+            self._transports[transport] = self._transports.get(transport, 0) + 1
             if isinstance(event, Malformed):
+                mv = self.judge.malformed(event, Direction.REQUEST)
                 self._add(
                     0,
                     "protocol",
                     "framing",
-                    Outcome.FAIL,
-                    f"{event.rule.value}: {event.detail}",
+                    mv.outcome,
+                    mv.message,
                     event.raw,
+                    transport,
+                    mv.source,
                 )
                 return
             cid = event.cmd_id
@@ -75,41 +107,36 @@ class ClientValidator:
                     self._lumped_example = cid
                 self._count_cnt(peer, event.cnt)
                 return
-            check = validate_request(event, self.specs)
-            name = check.command.name if check.command else (check.name or "?")
+            v = self.judge.request(event, transport=transport)
+            if self.on_verdict is not None:
+                self.on_verdict(peer, event, v)
+            name = v.dialect.name if v.dialect is not None else v.name
+            if v.command is not None and v.dialect is None:
+                name = v.command.name
+            name = name or "?"
             self._names.setdefault(cid, name)
-            viols = [v for v in check.violations]
-            if viols:
+            raw = event.raw or event.encode()
+            if v.outcome is Outcome.PASS:
+                self._passes[cid] = self._passes.get(cid, 0) + 1
+            elif v.outcome is Outcome.DIALECT and v.dialect is not None:
+                entry = self._dialects.setdefault(
+                    (cid, v.dialect.id), [0, raw, v.source, v.message, transport, name]
+                )
+                entry[0] += 1
+            else:
+                rules = {f.rule for f in v.findings}
                 group = (
-                    "framing"
-                    if any(
-                        v.rule in (Rule.LEN_MISMATCH, Rule.BAD_SEPARATOR, Rule.BAD_CNT)
-                        for v in viols
-                    )
+                    "unknown"
+                    if Rule.UNKNOWN_COMMAND.value in rules
+                    else "framing"
+                    if rules & _FRAMING
                     else "arguments"
                 )
-                if any(v.rule is Rule.UNKNOWN_COMMAND for v in viols):
-                    group = "unknown"
-                self._add(
-                    cid,
-                    name,
-                    group,
-                    Outcome.FAIL,
-                    "; ".join(v.detail for v in viols),
-                    event.raw or event.encode(),
-                )
-            else:
-                self._passes[cid] = self._passes.get(cid, 0) + 1
+                self._add(cid, name, group, v.outcome, v.message, raw, transport, v.source)
             last = self._count_cnt(peer, event.cnt)
-            if last is not None and event.cnt != (last + 1) % 0x10000:
-                self._add(
-                    cid,
-                    name,
-                    "cnt",
-                    Outcome.NON_STRICT,
-                    f"CNT {event.cnt} after {last} on this connection (not counting up by one)",
-                    event.raw or event.encode(),
-                )
+            step = self.judge.cnt_step(last, event)
+            if step is not None:
+                self._add(cid, name, "cnt", step.outcome, step.message, raw, transport, step.source)
 
     def connection_closed(self, peer: str, drop: Dropped | None = None) -> None:
         """A connection ended (``EmulatorServer``'s ``on_close``): forget the peer's state.
@@ -150,7 +177,15 @@ class ClientValidator:
         return last
 
     def _add(
-        self, cid: int, name: str, group: str, outcome: Outcome, detail: str, raw: bytes
+        self,
+        cid: int,
+        name: str,
+        group: str,
+        outcome: Outcome,
+        detail: str,
+        raw: bytes,
+        transport: str = "tcp",
+        source: str = "",
     ) -> None:
         cases = self._cases.setdefault(cid, [])
         self._names.setdefault(cid, name)
@@ -161,14 +196,25 @@ class ClientValidator:
             detail = detail[:_DETAIL_MAX] + f"...(+{len(detail) - _DETAIL_MAX} characters)"
         cases.append(
             CaseResult(
-                id=f"{cid}/{name}/client/{group}-{len(cases) + 1}",
+                id=f"{cid}/{name}/client/{transport}/{group}-{len(cases) + 1}",
                 cmd_id=cid,
                 name=name,
                 group=f"client-{group}",
                 outcome=outcome,
                 detail=detail,
-                frames=(f">> {show(raw)}",),
+                frames=(f">> {transport.upper()} {show(raw)}",),
+                reproduce=self._reproduce(raw) if raw else "",
+                source=source,
             )
+        )
+
+    def _reproduce(self, raw: bytes) -> str:
+        """A shell line giving the same verdict offline: the frame through ``decode``."""
+        ref = " --reference manual" if self.judge.reference is Reference.MANUAL else ""
+        strict = " --strict" if self.strict else ""
+        return (
+            f"printf {shell_printf(raw[:_REPRO_MAX])} | "
+            f"fairino-conformance decode --dir c2s{ref}{strict}"
         )
 
     def report(self) -> Report:
@@ -177,13 +223,20 @@ class ClientValidator:
                 target=self.target,
                 spec_version=self.specs.spec_version,
                 strict=self.strict,
-                meta={"mode": "client", "frames": self.frames},
+                reference=self.judge.reference.value,
+                transport="+".join(sorted(self._transports)) or "tcp",
+                meta={
+                    "mode": "client",
+                    "frames": self.frames,
+                    "frames_by_transport": dict(sorted(self._transports.items())),
+                },
             )
             if self._unlisted:
                 r.meta["failing_frames_not_listed"] = self._unlisted
             if self._drops:
                 r.meta["connections_dropped"] = dict(sorted(self._drops.items()))
-            for cid in sorted(set(self._cases) | set(self._passes)):
+            dialect_ids = {cid for cid, _ in self._dialects}
+            for cid in sorted(set(self._cases) | set(self._passes) | dialect_ids):
                 name = self._names.get(cid, "?")
                 n = self._passes.get(cid, 0)
                 if n:
@@ -195,6 +248,24 @@ class ClientValidator:
                             group="client",
                             outcome=Outcome.PASS,
                             detail=f"{n} conforming frame(s)",
+                        )
+                    )
+                for (did, eid), (count, raw, source, message, tr, dname) in sorted(
+                    self._dialects.items()
+                ):
+                    if did != cid:
+                        continue
+                    r.add(
+                        CaseResult(
+                            id=f"{cid}/{dname}/client/{tr}/dialect-{eid}",
+                            cmd_id=cid,
+                            name=dname,
+                            group="client-dialect",
+                            outcome=Outcome.DIALECT,
+                            detail=f"{count} frame(s): {message}",
+                            frames=(f">> {tr.upper()} {show(raw)}",),
+                            reproduce=self._reproduce(raw),
+                            source=source,
                         )
                     )
                 for c in self._cases.get(cid, ()):
