@@ -17,7 +17,8 @@ from ..errors import UsageError
 from ..frame import DEFAULT_MAX_FRAME_SIZE
 from ..recording import C2S, FrameRecord, read_recording, recover
 from ..spec import SpecSet, default_specs, load_specs
-from ._judging import add_judge_options, judge_from, verdict_line, verdict_sink as _verdict_sink
+from ._judging import add_judge_options, judge_from, verdict_line
+from ._judging import verdict_sink as _verdict_sink
 
 __all__ = ["format_frame_line", "parse_duration", "parse_size", "register"]
 

@@ -9,9 +9,9 @@ from collections.abc import Iterable
 from typing import Any
 
 from ..data import Call
+from ..dialects import default_dialects
 from ..errors import UsageError
 from ..frame import DEFAULT_MAX_FRAME_SIZE, Event, FrameDecoder, Malformed
-from ..dialects import default_dialects
 from ..judge import Direction, Judge, Pairing, Verdict
 from ..spec import Command, Param, ReturnValue, SpecSet, default_specs, load_specs
 from ._judging import add_judge_options, judge_from

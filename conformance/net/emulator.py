@@ -39,10 +39,10 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from types import TracebackType
 
+from ..actions import Action, Dropped
 from ..errors import RemoteProtocolError
 from ..faults import Fault, FaultKind, parse_fault, parse_faults
 from ..frame import DEFAULT_MAX_FRAME_SIZE, Frame, Malformed
-from ..actions import Action, Dropped
 from ..judge import Judge
 from ..model import Controller, ControllerConnection
 from ..spec import SpecSet

@@ -22,11 +22,11 @@ from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from ..actions import Action, Dropped
 from ..dialects import default_dialects
 from ..errors import Rule
 from ..frame import Frame, Malformed
 from ..judge import Direction, Judge, Reference, Verdict
-from ..actions import Action, Dropped
 from ..report import CaseResult, Outcome, Report
 from ..spec import SpecSet
 from .runner import shell_printf, show
