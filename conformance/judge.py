@@ -34,7 +34,7 @@ from dataclasses import dataclass, replace
 
 from .data import Call, Keyword, Parsed, RawData, Violation, check_args, parse_data
 from .data import _shown as shown
-from .dialects import Dialect, DialectSet, manual_command
+from .dialects import ERRCODE_RETURNS, Dialect, DialectSet, manual_command
 from .errors import ProtocolError, Rule, UsageError
 from .frame import Frame, Malformed
 from .report import Outcome
@@ -403,13 +403,16 @@ class Judge:
         *,
         transport: str | None = None,
         paired: bool = True,
+        variant: Variant | None = None,
     ) -> Verdict:
         """A controller's reply to ``request``: framing, echo, and DATA against the returns.
 
         ``request`` None: with ``paired`` (both directions were seen, as in a
         recording) the reply answers nothing and FAILs, unless its ID is one a
         controller sends unasked (500); without (a one-way dump) it is read
-        against the command its ID names.
+        against the command its ID names.  ``variant``: the variant the request
+        was built from, when the sender knows it (the suite); its returns are
+        what the reply is read against.
         """
         findings = [
             Finding(
@@ -470,18 +473,8 @@ class Judge:
                     )
                 )
         returns, basis = self._returns_for(rv)
-        if returns is None:
-            return Verdict(
-                direction=Direction.REPLY,
-                cmd_id=frame.cmd_id,
-                name=rv.name,
-                outcome=_outcome(findings),
-                findings=tuple(findings),
-                command=rv.command,
-                variant=rv.variant,
-                dialect=rv.dialect,
-                basis="no reply form known for this request",
-            )
+        if variant is not None:
+            returns, basis = variant.returns, _manual_source(rv.command, variant)
         verdict = classify_reply(returns, frame.data, self.specs)
         dialect = rv.dialect
         if verdict.violations:
@@ -544,7 +537,7 @@ class Judge:
             dialect=d,
         )
 
-    def _returns_for(self, rv: Verdict) -> tuple[Returns | None, str]:
+    def _returns_for(self, rv: Verdict) -> tuple[Returns, str]:
         if rv.dialect is not None:
             d = rv.dialect
             if d.returns is not None:
@@ -558,7 +551,8 @@ class Judge:
             return rv.variant.returns, _manual_source(rv.command, rv.variant)
         if rv.command is not None:
             return rv.command.variants[0].returns, _manual_source(rv.command, None)
-        return None, ""
+        # An unknown command: a controller answers it with an error code (chapter 9).
+        return ERRCODE_RETURNS, "manual chapter 9 (error codes)"
 
     def _match_reply(
         self, frame: Frame, rv: Verdict, transport: str | None

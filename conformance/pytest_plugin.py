@@ -55,6 +55,14 @@ _SETTINGS: tuple[tuple[str, str, str, str, str | None], ...] = (
     ("transport", "fairino_transport", "FAIRINO_TRANSPORT", "tcp (default) or udp", "tcp"),
     ("profile", "fairino_profile", "FAIRINO_PROFILE", "quick, default or thorough", "default"),
     (
+        "reference",
+        "fairino_reference",
+        "FAIRINO_REFERENCE",
+        "field (default: a recorded field dialect is DIALECT, not a failure) or manual "
+        "(the manual alone)",
+        "field",
+    ),
+    (
         "reply_timeout",
         "fairino_reply_timeout",
         "FAIRINO_REPLY_TIMEOUT",
@@ -321,6 +329,7 @@ def _suite_config(config: pytest.Config) -> SuiteConfig:
         groups=groups or GROUPS,
         profile=PROFILES[profile_name],
         strict=bool(strict),
+        reference=(_setting(config, "reference") or "field").lower(),
         reply_timeout=_float(config, "reply_timeout") or 2.0,
         case_timeout=_float(config, "case_timeout") or 60.0,
         recovery_timeout=_positive(config, "recovery_timeout", 10.0),

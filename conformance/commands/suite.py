@@ -40,6 +40,7 @@ def _add_emulate(sub: Any) -> None:
     p.add_argument("--specs", default=None, help="spec set directory (default: bundled)")
     p.add_argument("--duration", type=float, default=None, help="stop after SECONDS")
     _add_limits(p)
+    _add_emulation(p)
     p.set_defaults(func=_emulate)
 
 
@@ -64,6 +65,29 @@ def _add_limits(p: Any) -> None:
         help="largest frame a connection buffers; larger ones are malformed (oversize), "
         f"which bounds each connection's memory (default {DEFAULT_MAX_FRAME_SIZE})",
     )
+
+
+def _add_emulation(p: Any) -> None:
+    """What the emulator accepts (``emulate`` and ``serve``): reference, dialects, dispatch."""
+    from ..model import DISPATCH_MODES
+    from ._judging import add_judge_options
+
+    add_judge_options(p)
+    p.add_argument(
+        "--dispatch",
+        choices=DISPATCH_MODES,
+        default="recorded",
+        help="answer a call naming another command than its ID's by the name: for the "
+        "ID/name pairs the field dialects record (default; e.g. GetActualTCPPose() on 377, "
+        "as real controllers do), for any known name, or never",
+    )
+
+
+def _emulation(args: argparse.Namespace, specs: Any, *, strict: bool = False) -> dict[str, Any]:
+    """EmulatorServer keywords from ``--reference``, ``--dialects-dir`` and ``--dispatch``."""
+    from ._judging import judge_from
+
+    return {"judge": judge_from(args, specs, strict=strict), "dispatch": args.dispatch}
 
 
 def _limits(args: argparse.Namespace) -> dict[str, Any]:
@@ -122,13 +146,15 @@ def _emulate(args: argparse.Namespace) -> int:
     faults = [parse_fault(f) for f in args.fault]
     if args.duration is not None and args.duration < 0:
         raise UsageError("--duration must not be negative")
+    specs = _load_specs(args.specs)
     server = EmulatorServer(
-        _load_specs(args.specs),
+        specs,
         host=host,
         port=port,
         udp_port=udp_port,
         faults=faults,
         **_limits(args),
+        **_emulation(args, specs),
     )
     server.start()
     try:
@@ -136,7 +162,13 @@ def _emulate(args: argparse.Namespace) -> int:
         udp = f", UDP {format_address(*server.udp_address)}" if server.udp_address else ""
         flts = ", ".join(str(f) for f in faults) or "none"
         n = len(server.controller.specs)
-        print(f"emulating {n} commands on TCP {where}{udp}; faults: {flts}", flush=True)
+        judge = server.controller.judge
+        dialects = (
+            f"{len(judge.dialects)} field dialects accepted"
+            if judge.reference.value == "field"
+            else "manual only"
+        )
+        print(f"emulating {n} commands on TCP {where}{udp}; {dialects}; faults: {flts}", flush=True)
         deadline = None if args.duration is None else time.monotonic() + args.duration
         while deadline is None or time.monotonic() < deadline:
             time.sleep(0.2)
@@ -168,6 +200,13 @@ def _add_run(sub: Any) -> None:
     p.add_argument("--groups", action="append", default=[], help="case groups to run")
     p.add_argument("--profile", choices=("quick", "default", "thorough"), default="default")
     p.add_argument("--strict", action="store_true", help="NON-STRICT departures fail")
+    p.add_argument(
+        "--reference",
+        choices=("field", "manual"),
+        default=None,
+        help="field (default): a reply in a recorded field dialect is DIALECT, not a failure; "
+        "manual: the manual alone [env FAIRINO_REFERENCE]",
+    )
     p.add_argument("--expected-failures", metavar="FILE", help="baseline of case IDs")
     p.add_argument("--reply-timeout", type=float, default=None, metavar="SECONDS")
     p.add_argument(
@@ -264,6 +303,8 @@ def _run(args: argparse.Namespace) -> int:
         argv = [tmp, "-c", ini, "--rootdir", tmp, "-p", "no:cacheprovider", "-p", "no:terminal"]
         argv += ["--target", args.target] if args.target else ["--conformance"]
         argv += ["--transport", args.transport, "--profile", args.profile]
+        if args.reference is not None:
+            argv += ["--reference", args.reference]
         for opt in ("commands", "exclude", "groups", "case", "allow_destructive", "emulator_fault"):
             for v in getattr(args, opt):
                 argv += [f"--{opt.replace('_', '-')}", v]
@@ -319,7 +360,13 @@ def _add_serve(sub: Any) -> None:
     p.add_argument("--report-json", metavar="PATH")
     p.add_argument("--report-html", metavar="PATH")
     p.add_argument("--strict", action="store_true", help="NON-STRICT departures fail")
+    p.add_argument(
+        "--verdicts",
+        metavar="PATH",
+        help="write every frame's verdict, one JSON line each (- for stdout)",
+    )
     _add_limits(p)
+    _add_emulation(p)
     p.set_defaults(func=_serve)
 
 
@@ -337,8 +384,26 @@ def _serve(args: argparse.Namespace) -> int:
     if args.max_frames is not None and args.max_frames <= 0:
         raise UsageError("--max-frames must be positive")
     specs = default_specs()
-    validator = ClientValidator(specs, target=f"client of {args.listen}", strict=args.strict)
     limits = _limits(args)
+    emulation = _emulation(args, specs, strict=args.strict)
+    sink = contextlib.ExitStack()
+    on_verdict = None
+    if args.verdicts:
+        from ._judging import verdict_line, verdict_sink
+
+        write = sink.enter_context(verdict_sink(args.verdicts))
+
+        def on_verdict(peer: str, frame: Any, verdict: Any) -> None:
+            transport = "udp" if peer.startswith("udp:") else "tcp"
+            write(verdict_line(frame, verdict, transport=transport))
+
+    validator = ClientValidator(
+        specs,
+        target=f"client of {args.listen}",
+        strict=args.strict,
+        judge=emulation["judge"],
+        on_verdict=on_verdict,
+    )
     server = EmulatorServer(
         specs,
         host=host,
@@ -347,6 +412,7 @@ def _serve(args: argparse.Namespace) -> int:
         observer=validator.observe,
         on_close=validator.connection_closed,
         **limits,
+        **emulation,
     )
     server.start()
     validator.target = f"client of {format_address(*server.address)}"
@@ -371,6 +437,7 @@ def _serve(args: argparse.Namespace) -> int:
                 server.close()
             except RuntimeError as e:
                 failure = failure or str(e)
+            sink.close()
     report = validator.report()
     if server.connections_refused:
         report.meta["connections_refused"] = server.connections_refused

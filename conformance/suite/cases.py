@@ -35,7 +35,7 @@ from ..net.client import Exchange
 from ..report import Outcome
 from ..spec import TYPE_BOUNDS, Command, SpecSet, Variant
 from ..strategies import garbage, invalid_calls, invalid_kinds, valid_args, valid_calls
-from ..validate import ERR_ARG_COUNT, ERR_ARG_VALUE, RefusalForm, ReplyVerdict
+from ..validate import ERR_ARG_COUNT, ERR_ARG_VALUE, RefusalForm
 from .config import GROUPS, SuiteConfig, select_commands
 from .runner import Case, CaseFailure, SuiteRunner, Verdict, describe_exchange
 
@@ -405,10 +405,7 @@ def _run_malformed_command(runner: SuiteRunner, case: Case) -> Verdict:
     ex = runner.send_raw_exchange(raw, cnt, cmd.cmd_id, timeout=_silence_window(runner))
     frames = describe_exchange(ex)
     if ex.reply is not None:
-        verdict: ReplyVerdict | None = None
-        from ..validate import classify_reply
-
-        verdict = classify_reply(variant.returns, ex.reply.data, runner.specs)
+        verdict = runner.reply_verdict(ex, variant)
         if not verdict.refused:
             what = (
                 "a frame whose LEN disagrees with DATA (the parser ignores LEN)"

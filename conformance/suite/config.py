@@ -84,6 +84,9 @@ class SuiteConfig:
     groups: tuple[str, ...] = GROUPS
     profile: Profile = PROFILES["default"]
     strict: bool = False
+    #: ``field`` (a reply in a recorded field dialect is DIALECT, not a failure)
+    #: or ``manual`` (it fails): see conformance/judge.py.
+    reference: str = "field"
     reply_timeout: float = 2.0
     #: Time of one case, seconds: waits are clipped to it, so a case overruns it by
     #: at most one reply timeout.
@@ -106,6 +109,8 @@ class SuiteConfig:
     hypothesis_profile: str | None = None
 
     def __post_init__(self) -> None:
+        if self.reference not in ("field", "manual"):
+            raise UsageError(f"--reference must be field or manual, not {self.reference!r}")
         if self.transport not in ("tcp", "udp"):
             raise UsageError(f"--transport must be tcp or udp, not {self.transport!r}")
         bad = [g for g in self.groups if g not in GROUPS]

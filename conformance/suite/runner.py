@@ -25,20 +25,20 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..data import Call
-from ..errors import ConformanceError
-from ..frame import Frame, Malformed, encode_frame
+from ..data import Call, Violation
+from ..dialects import default_dialects
+from ..errors import ConformanceError, Rule
+from ..frame import Frame, Malformed, decode_all, encode_frame
+from ..judge import Judge, Reference
+from ..judge import Verdict as FrameVerdict
 from ..knowledge import default_data, health_query, unsolicited_ids
 from ..net.client import Client, Exchange, TargetUnreachable
 from ..report import CaseResult, Outcome, Report
-from ..spec import Command, Returns, ReturnValue, SpecSet, Variant
-from ..validate import ReplyVerdict, classify_reply, validate_request
+from ..spec import Command, SpecSet, Variant
+from ..validate import ReplyVerdict
 from .config import SuiteConfig
 
 __all__ = ["Case", "CaseFailure", "SuiteRunner", "Verdict", "shell_printf"]
-
-#: Reply read for an unknown command: a lone error code.
-_ERRCODE = Returns(separator=",", values=(ReturnValue(name="errcode", type="int"),))
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -150,6 +150,13 @@ class SuiteRunner:
         self._unknown: tuple[str, ReplyVerdict] | None = None
         self._unknown_learnt = False
         self.health_command, self.health_variant = health_query(specs)
+        #: The one judge of every frame (conformance/judge.py), under the run's reference.
+        self.frame_judge = Judge(
+            specs,
+            default_dialects(),
+            reference=Reference(config.reference),
+            strict=config.strict,
+        )
         #: Why the run stopped (one line naming the target), or None while it goes on.
         self.stopped: str | None = None
         self.last_case: str | None = None
@@ -159,6 +166,7 @@ class SuiteRunner:
             seed=config.seed,
             transport=config.transport,
             strict=config.strict,
+            reference=config.reference,
             meta={"profile": config.profile.name},
         )
         self.case_started = 0.0
@@ -181,6 +189,7 @@ class SuiteRunner:
                 self.specs,
                 udp_port=0 if self.config.transport == "udp" else None,
                 faults=self.config.emulator_faults,
+                judge=self.frame_judge,  # it accepts what the run's reference accepts
             )
             emu.start()
             self.emulator = emu
@@ -305,8 +314,8 @@ class SuiteRunner:
             return False, str(e)
         if ex.reply is None:
             return False, "connection closed" if ex.closed else "no reply"
-        verdict = classify_reply(self.health_variant.returns, ex.reply.data, self.specs)
-        if not verdict.ok:
+        verdict = self.reply_verdict(ex, self.health_variant)
+        if verdict.refused or verdict.fails(self.frame_judge.reference):
             return False, f"reply {ex.reply.data!r}"
         self._suspect = False
         return True, ""
@@ -383,7 +392,7 @@ class SuiteRunner:
             if ex.reply is None:
                 self._unknown = None
             else:
-                self._unknown = (ex.reply.data, classify_reply(_ERRCODE, ex.reply.data, self.specs))
+                self._unknown = (ex.reply.data, self._classified(self.reply_verdict(ex, None)))
         return self._unknown
 
     def is_unimplemented(self, reply: Frame) -> bool:
@@ -420,10 +429,35 @@ class SuiteRunner:
                 else:
                     out.append(f"no reply within {self.config.reply_timeout:g} s")
         else:
-            probs = [p.value for p in ex.reply.problems]
-            if probs:
-                out.append(f"reply framing: {', '.join(probs)}")
+            v = self.reply_verdict(ex, None)
+            out += [
+                f.message
+                for f in v.findings
+                if f.rule != Rule.REPLY_SHAPE.value
+                and f.outcome is not Outcome.DIALECT
+                and (f.outcome is Outcome.FAIL or self.config.strict)
+            ]
         return out
+
+    def reply_verdict(self, ex: Exchange, variant: Variant | None) -> FrameVerdict:
+        """The judge's verdict on an exchange's reply (read against ``variant`` if given)."""
+        assert ex.reply is not None
+        return self.frame_judge.reply(
+            ex.reply,
+            _request_frame(ex),
+            transport=self.config.transport,
+            variant=variant,
+        )
+
+    def _classified(self, v: FrameVerdict) -> ReplyVerdict:
+        """A reply verdict as the cases read it: refused or not, and its shape's faults."""
+        shape = tuple(
+            Violation(rule=Rule.REPLY_SHAPE, detail=f.message)
+            for f in v.findings
+            if (f.rule == Rule.REPLY_SHAPE.value and f.outcome is Outcome.FAIL)
+            or (f.outcome is Outcome.DIALECT and v.fails(self.frame_judge.reference))
+        )
+        return ReplyVerdict(refused=v.refused, form=v.form, code=v.code, violations=shape)
 
     def judge(self, ex: Exchange, variant: Variant | None) -> ReplyVerdict | None:
         """Raise CaseFailure for framing problems; else the reply's classification."""
@@ -441,11 +475,18 @@ class SuiteRunner:
         assert ex.reply is not None
         if variant is None:
             return None
-        return classify_reply(variant.returns, ex.reply.data, self.specs)
+        return self._classified(self.reply_verdict(ex, variant))
 
     def check_request_valid(self, cmd_id: int, data: str) -> bool:
-        chk = validate_request(Frame(cnt=1, cmd_id=cmd_id, data=data), self.specs)
-        return chk.ok or all(v.rule.value == "space_in_args" for v in chk.violations)
+        """Whether the judge lets a request pass (NON-STRICT and, under ``field``, DIALECT too).
+
+        A generated "invalid" request that a recorded field dialect covers is
+        valid to a controller that speaks the dialect, so it is no invalid case.
+        """
+        v = self.frame_judge.request(
+            Frame(cnt=1, cmd_id=cmd_id, data=data), transport=self.config.transport
+        )
+        return not v.fails(self.frame_judge.reference)
 
     # ------------------------------------------------------------------ running cases
 
@@ -564,6 +605,16 @@ class SuiteRunner:
             self._suspect = True
             detail += f"; target did not recover within {self.config.recovery_timeout:g} s"
         return Verdict(outcome=Outcome.FAIL, detail=detail, frames=frames, raw=raw)
+
+
+def _request_frame(ex: Exchange) -> Frame:
+    """The request of an exchange as a frame (the bytes the suite sent, decoded)."""
+    frames = [e for e in decode_all(ex.request) if isinstance(e, Frame)]
+    # Pipelined requests travel together: the one this exchange waited for.
+    mine = [f for f in frames if f.cnt == ex.cnt and f.cmd_id == ex.cmd_id]
+    if mine or frames:
+        return (mine or frames)[0]
+    return Frame(cnt=ex.cnt, cmd_id=ex.cmd_id, data="")
 
 
 def parsed_is_call(x: object) -> bool:
