@@ -18,6 +18,7 @@ from typing import Any
 from .capture_check import percentile
 from .data import Arg, Array, Number, Text, parse_reply
 from .errors import RemoteProtocolError
+from .judge import Judge
 from .recording import Exchange, FrameRecord, Recording
 from .spec import ReturnValue, SpecSet
 
@@ -30,7 +31,17 @@ __all__ = [
 ]
 
 #: Difference kinds.
-KINDS = ("missing_reply", "extra_reply", "cnt", "cmd_id", "shape", "data", "framing", "closed")
+KINDS = (
+    "missing_reply",
+    "extra_reply",
+    "cnt",
+    "cmd_id",
+    "shape",
+    "data",
+    "framing",
+    "closed",
+    "verdict",
+)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -141,8 +152,13 @@ def compare_replies(
     noise: tuple[int, int] = (0, 0),
     specs: SpecSet | None = None,
     ignore: Ignore = Ignore(),
+    judge: Judge | None = None,
 ) -> list[Difference]:
     """Differences between a recorded reply and a new one (both may be missing).
+
+    With ``judge``, the two replies' verdicts (:mod:`conformance.judge`) are
+    compared too: a reply that now FAILs, or follows a field dialect where it
+    followed the manual, is a ``verdict`` difference.
 
     ``request`` is the recorded request, ``new_request`` the one the new reply
     answers (default: the same); each reply's echo is judged against its own.
@@ -195,6 +211,15 @@ def compare_replies(
         add("cmd_id", f"reply CMD_ID {new.cmd_id} (recorded {recorded.cmd_id})")
     if bool(noise[0]) != bool(noise[1]):
         add("framing", f"{noise[1]} malformed bytes before the reply (recorded {noise[0]})")
+    if judge is not None and "verdict" not in ignore.kinds:
+        vr = judge.reply(recorded.frame(), request.frame() if request is not None else None)
+        vn = judge.reply(new.frame(), new_req.frame() if new_req is not None else None)
+        if (vr.outcome, vr.rule, vr.source) != (vn.outcome, vn.rule, vn.source):
+            add(
+                "verdict",
+                f"{vn.outcome.value} {vn.rule}: {vn.message} "
+                f"(recorded {vr.outcome.value} {vr.rule})",
+            )
     if set(recorded.problems) != set(new.problems):
         add(
             "framing",
@@ -329,6 +354,7 @@ def diff_recordings(
     ignore: Ignore = Ignore(),
     latency_threshold: float = 0.5,
     latency_floor_ns: int = 200_000,
+    judge: Judge | None = None,
 ) -> DiffResult:
     """Align the exchanges of two recordings and compare them per command ID.
 
@@ -373,6 +399,7 @@ def diff_recordings(
             noise=(noise_a.get(id(e.reply), 0), noise_b.get(id(o.reply), 0)),
             specs=specs,
             ignore=ignore,
+            judge=judge,
         )
         if diffs:
             c.differing += 1

@@ -27,6 +27,7 @@ from typing import Any
 from .diff import Difference, Ignore, compare_replies
 from .errors import ConformanceError
 from .frame import Frame, encode_frame
+from .judge import Judge
 from .recording import C2S, S2C, FrameRecord, ProblemRecord, Recording
 from .report import CaseResult, Outcome, Report
 from .safety import SafetyPolicy
@@ -246,6 +247,7 @@ def replay_to_target(
     quiet_timeout: float = 0.2,
     ignore: Ignore = Ignore(),  # noqa: B008 (frozen)
     udp_port: int | None = None,
+    judge: Judge | None = None,
 ) -> ReplayResult:
     """Resend the recording's client side to ``host:port`` and compare the replies."""
     from .net.client import Client
@@ -337,6 +339,7 @@ def replay_to_target(
                     noise=(rec_noise, got_noise),
                     specs=specs,
                     ignore=ignore,
+                    judge=judge,
                 )
                 if (
                     ex.closed

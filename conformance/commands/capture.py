@@ -215,6 +215,7 @@ def _register_more(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
     rp.add_argument("--allow-config", action="store_true")
     rp.add_argument("--allow-destructive", action="append", default=[], metavar="NAME")
     rp.add_argument("--specs-dir", help="spec set directory")
+    add_judge_options(rp)
     rp.set_defaults(func=_run_replay)
 
     d = sub.add_parser("diff", help="compare two recordings per command ID")
@@ -235,6 +236,7 @@ def _register_more(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
         help="report p50 latency changes above this fraction (default 0.5 = 50%%)",
     )
     d.add_argument("--specs-dir", help="spec set directory")
+    add_judge_options(d)
     d.set_defaults(func=_run_diff)
 
     ip = sub.add_parser("import-pcap", help="turn a pcap/pcapng capture into a recording")
@@ -478,6 +480,7 @@ def _run_replay(args: argparse.Namespace) -> int:
         timing=args.timing,
         timeout=args.timeout,
         ignore=ignore,
+        judge=judge_from(args, specs),
     )
     report = result.to_report(specs.spec_version)
     if args.json:
@@ -493,12 +496,14 @@ def _run_replay(args: argparse.Namespace) -> int:
 def _run_diff(args: argparse.Namespace) -> int:
     from ..diff import Ignore, diff_recordings
 
+    specs = _specs(args)
     res = diff_recordings(
         read_recording(args.a),
         read_recording(args.b),
-        specs=_specs(args),
+        specs=specs,
         ignore=Ignore.parse(args.ignore),
         latency_threshold=args.latency_threshold,
+        judge=judge_from(args, specs),
     )
     if args.json:
         _write_json("-", res.to_json())
