@@ -156,6 +156,7 @@ _KEYWORD_RE = re.compile(r"[A-Z][A-Z_]*")
 _SIMPLE_LIST_RE = re.compile(r'[^\s,(){}"]+(?:,[^\s,(){}"]+)*')
 # Characters that end a bare (unquoted) token.
 _BARE_STOP = frozenset(',(){}"')
+_REPLY_STOP = frozenset(',{}"')
 
 
 def _error(msg: str, data: str, rule: Rule = Rule.BAD_DATA) -> RemoteProtocolError:
@@ -163,9 +164,12 @@ def _error(msg: str, data: str, rule: Rule = Rule.BAD_DATA) -> RemoteProtocolErr
 
 
 class _ArgParser:
-    def __init__(self, text: str, *, strict: bool, count: int = 0) -> None:
+    def __init__(self, text: str, *, strict: bool, count: int = 0, reply: bool = False) -> None:
         self.s = text
         self.i = 0
+        #: Reply values may hold parentheses (GetSoftwareVersion's ``FR16-V1-001(V6.0)``,
+        #: 6.1.4); in a call's arguments they end a bare word.
+        self.stop = _REPLY_STOP if reply else _BARE_STOP
         self.strict = strict
         self.spaces = False
         self.depth = 0
@@ -251,7 +255,7 @@ class _ArgParser:
             self.i = end + 1
             return Text(value=value, quoted=True)
         j = self.i
-        while j < len(self.s) and self.s[j] not in _BARE_STOP and self.s[j] not in " \t":
+        while j < len(self.s) and self.s[j] not in self.stop and self.s[j] not in " \t":
             j += 1
         token = self.s[self.i : j]
         if not token:
@@ -334,11 +338,11 @@ def parse_reply(
         out: list[Arg] = []
         count = 0
         for part in parts:
-            p = _ArgParser(part, strict=True, count=count)
+            p = _ArgParser(part, strict=True, count=count, reply=True)
             out.extend(p.items(None) or [Text(value="", quoted=False)])
             count = p.count
         return tuple(out)
-    p = _ArgParser(data, strict=strict)
+    p = _ArgParser(data, strict=strict, reply=True)
     return tuple(p.items(None))
 
 

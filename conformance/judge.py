@@ -69,14 +69,15 @@ class Reference(str, enum.Enum):
 
 def reference_from(value: str | None, *, env: bool = True) -> Reference:
     """A reference from an option value, else ``$FAIRINO_REFERENCE``, else ``field``."""
+    where = ""
     if value is None and env:
         value = os.environ.get(REFERENCE_ENV) or None
+        where = f" (from ${REFERENCE_ENV})"
     if value is None:
         return Reference.FIELD
     try:
         return Reference(value.strip().lower())
     except ValueError:
-        where = "" if value is not None else f" (from ${REFERENCE_ENV})"
         raise UsageError(f"reference must be 'manual' or 'field', not {value!r}{where}") from None
 
 
@@ -278,10 +279,23 @@ class Judge:
         # A spelling (``Stop``) is NON-STRICT by itself, DIALECT where a source records it.
         spelled = any(v.rule is Rule.NAME_CASE for v in content)
         matches = self._match_request(frame, check.parsed, transport) if hard or spelled else []
-        if not hard and not matches:
+        if not hard:
+            # Only lenient departures: NON-STRICT under either reference.  A spelling a
+            # source is recorded to send (``Stop``) names that source.
+            spelling = matches[0][0] if matches else None
             findings = framing + [
                 Finding(
-                    rule=v.rule.value, outcome=Outcome.NON_STRICT, source=source, message=v.detail
+                    rule=v.rule.value,
+                    outcome=Outcome.NON_STRICT,
+                    source=spelling.cite()
+                    if spelling is not None and v.rule is Rule.NAME_CASE
+                    else source,
+                    message=v.detail
+                    + (
+                        f"; sent so by field dialect {spelling.id}"
+                        if spelling is not None and v.rule is Rule.NAME_CASE
+                        else ""
+                    ),
                 )
                 for v in content
             ]
@@ -293,6 +307,7 @@ class Judge:
                 findings=tuple(findings),
                 command=check.command,
                 variant=check.variant,
+                dialect=spelling,
                 parsed=check.parsed,
                 basis=source,
             )

@@ -186,6 +186,14 @@ def _register_more(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
         "or ID / ID.INDEX / NAME (repeatable)",
     )
     rp.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for each reply")
+    rp.add_argument(
+        "--udp-port",
+        type=int,
+        default=None,
+        metavar="PORT",
+        help="--target: resend the recording's UDP sessions to this port of the target's host "
+        "(without it they are left out)",
+    )
     rp.add_argument("--json", metavar="PATH", help="write the comparison as JSON (- for stdout)")
     rp.add_argument(
         "--unmatched",
@@ -464,6 +472,8 @@ def _run_replay(args: argparse.Namespace) -> int:
         )
         return 0
     host, port = parse_hostport(args.target, default_port=8080)
+    if args.udp_port is not None and not 0 < args.udp_port < 65536:
+        raise UsageError(f"--udp-port must be 1..65535, not {args.udp_port}")
     safety = SafetyPolicy.for_target(
         host,
         allow_config=args.allow_config,
@@ -481,6 +491,7 @@ def _run_replay(args: argparse.Namespace) -> int:
         timeout=args.timeout,
         ignore=ignore,
         judge=judge_from(args, specs),
+        udp_port=args.udp_port,
     )
     report = result.to_report(specs.spec_version)
     if args.json:

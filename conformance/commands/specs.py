@@ -53,6 +53,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         help="the bytes' direction: c2s (requests), s2c (replies), or auto (default): a frame "
         "echoing an earlier request's CNT and ID is its reply, else its shape decides",
     )
+    d.add_argument(
+        "--transport",
+        choices=["tcp", "udp"],
+        default=None,
+        help="what carried the bytes: field dialects recorded on the other transport only "
+        "do not match (default: either)",
+    )
     add_judge_options(d)
     d.set_defaults(func=_run_decode)
 
@@ -354,7 +361,7 @@ def _run_decode(args: argparse.Namespace) -> int:
         if isinstance(ev, Malformed):
             verdict = judge.malformed(ev, forced or Direction.REQUEST)
         else:
-            verdict = pairing.judge_frame(ev, forced)
+            verdict = pairing.judge_frame(ev, forced, transport=args.transport)
         doc = event_json(ev, specs, verdict=verdict)
         if doc["kind"] == "malformed" or verdict.fails(judge.reference, strict=args.strict):
             bad += 1
