@@ -1,0 +1,365 @@
+"""Field traffic end to end: the official SDKs' frames, exactly as their code builds them.
+
+``tests/data/sdk_sessions/*.json`` hold, per SDK, the frames its code builds for
+TCP 8080 and UDP 20007, in the SDK's own order, each marked ``manual`` (the
+manual's form), ``dialect`` (a recorded field form) or ``defect`` (a bug of the
+SDK, such as a LEN that disagrees with DATA), with the function and line it
+comes from.  The emulator must answer every call but the defects with a reply its
+client would parse; ``serve`` must flag the defects and report the dialects; and
+every front-end must give every frame the same verdict.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+from collections import Counter
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from conformance.cli import main
+from conformance.dialects import default_dialects
+from conformance.frame import Frame, decode_all, encode_frame
+from conformance.judge import Judge, Reference
+from conformance.net.client import Client
+from conformance.net.emulator import EmulatorServer
+from conformance.net.proxy import RecordingProxy
+from conformance.recording import C2S, read_recording
+from conformance.report import Outcome
+from conformance.spec import default_specs
+
+SPECS = default_specs()
+FIELD = Judge(SPECS, default_dialects())
+SESSIONS = sorted((Path(__file__).parent / "data" / "sdk_sessions").glob("*.json"))
+#: Reply timeout: generous, since the test waits on the reply itself, not on the clock.
+WAIT = 20.0
+
+
+def session(path: Path) -> list[dict[str, Any]]:
+    frames: list[dict[str, Any]] = json.loads(path.read_text(encoding="utf-8"))["frames"]
+    return frames
+
+
+def requests_of(entry: dict[str, Any]) -> list[Frame]:
+    return [e for e in decode_all(entry["frame"].encode("utf-8")) if isinstance(e, Frame)]
+
+
+def exchange(clients: dict[str, Client], entry: dict[str, Any]) -> list[tuple[Frame, Frame | None]]:
+    """Send one session entry as the SDK does; the reply to each frame in it."""
+    c = clients[entry["transport"]]
+    raw = entry["frame"].encode("utf-8")
+    c.send_raw(raw)
+    out = []
+    for req in requests_of(entry):
+        ex = c.await_reply(req.cnt, req.cmd_id, request=raw, timeout=WAIT)
+        out.append((req, ex.reply))
+    return out
+
+
+def clients_for(emu: EmulatorServer) -> Iterator[dict[str, Client]]:
+    assert emu.udp_address is not None
+    tcp = Client(*emu.address, transport="tcp", timeout=WAIT)
+    udp = Client(*emu.udp_address, transport="udp", timeout=WAIT)
+    try:
+        yield {"tcp": tcp, "udp": udp}
+    finally:
+        tcp.close()
+        udp.close()
+
+
+def test_there_are_sessions_of_two_sdks() -> None:
+    names = {p.stem for p in SESSIONS}
+    assert {"python-sdk", "cpp-sdk"} <= names
+    for p in SESSIONS:
+        doc = json.loads(p.read_text(encoding="utf-8"))
+        assert re.fullmatch(r"[0-9a-f]{40}", doc["commit"]), p
+        assert all(f["line"] >= 1 and f["path"] for f in doc["frames"]), p
+
+
+@pytest.mark.parametrize("path", SESSIONS, ids=lambda p: p.stem)
+def test_sdk_session_against_the_emulator(path: Path) -> None:
+    """Every call an SDK makes gets a reply it would parse; its defects are refused."""
+    frames = session(path)
+    seen: Counter[str] = Counter()
+    with EmulatorServer(udp_port=0) as emu:
+        for clients in clients_for(emu):
+            for entry in frames:
+                for req, reply in exchange(clients, entry):
+                    where = f"{entry['function']} ({entry['path']}:{entry['line']})"
+                    assert reply is not None, f"no reply to {entry['frame']} from {where}"
+                    rv = FIELD.request(req, transport=entry["transport"])
+                    v = FIELD.reply(reply, req, rv, transport=entry["transport"])
+                    seen[entry["expect"]] += 1
+                    if entry["expect"] == "defect":
+                        assert rv.outcome is Outcome.FAIL, (where, rv.message)
+                        assert v.refused, (where, reply.data)
+                        continue
+                    if entry["expect"] == "dialect":
+                        # A recorded form (DIALECT), or a recorded spelling (NON-STRICT).
+                        assert rv.dialect is not None, (where, rv.message)
+                        assert rv.outcome in (Outcome.DIALECT, Outcome.NON_STRICT), where
+                    else:
+                        assert rv.outcome in (Outcome.PASS, Outcome.NON_STRICT), (where, rv.message)
+                    assert not v.refused, (where, reply.data)
+                    assert not v.fails(Reference.FIELD), (where, v.message)
+    assert seen["dialect"] >= 5 and seen["manual"] >= 3
+
+
+@pytest.mark.parametrize("path", SESSIONS, ids=lambda p: p.stem)
+def test_a_manual_only_emulator_refuses_the_dialects(path: Path) -> None:
+    """The dialects are selectable: under --reference manual they are refused."""
+    manual = Judge(SPECS, default_dialects(), reference=Reference.MANUAL)
+    dialects = [
+        e
+        for e in session(path)
+        if e["expect"] == "dialect"
+        and all(FIELD.request(f).outcome is Outcome.DIALECT for f in requests_of(e))
+    ]
+    assert dialects
+    with EmulatorServer(udp_port=0, judge=manual) as emu:
+        for clients in clients_for(emu):
+            for entry in dialects:
+                for req, reply in exchange(clients, entry):
+                    assert reply is not None
+                    v = FIELD.reply(reply, req, manual.request(req), transport=entry["transport"])
+                    assert v.refused, entry["frame"]
+
+
+def test_dispatch_by_name() -> None:
+    """GetActualTCPPose() on ID 377 (ServoCart in the manual), as field clients send it."""
+    query = encode_frame(101, 377, "GetActualTCPPose()")
+    move = encode_frame(
+        1,
+        203,
+        "MoveL(" + ",".join(["0"] * 6 + ["100", "200", "300", "1", "2", "3"] + ["0"] * 19) + ")",
+    )
+    undocumented = encode_frame(5, 201, "GetActualJointPosDegree()")  # no source sends it on 201
+
+    def ask(emu: EmulatorServer, raw: bytes) -> Frame:
+        with Client(*emu.address, timeout=WAIT) as c:
+            f = requests_of({"frame": raw.decode()})[0]
+            c.send_raw(raw)
+            reply = c.await_reply(f.cnt, f.cmd_id, request=raw, timeout=WAIT).reply
+            assert reply is not None
+            return reply
+
+    with EmulatorServer() as emu:
+        moved = ask(emu, move)
+        assert moved.data == "1", moved
+        pose = ask(emu, query)
+        assert [float(x) for x in pose.data.split(",")] == [100, 200, 300, 1, 2, 3]
+        assert ask(emu, undocumented).data != "0.000,0.000,0.000,0.000,0.000,0.000"
+    with EmulatorServer(dispatch="any") as emu:
+        reply = ask(emu, undocumented)
+        assert (
+            len(reply.data.split(",")) == 6
+            and not FIELD.reply(
+                reply,
+                requests_of({"frame": "/f/bIII5III375III25IIIGetActualJointPosDegree()III/b/f"})[0],
+            ).refused
+        )
+    with EmulatorServer(dispatch="off") as emu:
+        refused = ask(emu, query)
+        assert FIELD.reply(refused, requests_of({"frame": query.decode()})[0]).refused
+
+
+def test_emulator_replies_look_real() -> None:
+    """GetSoftwareVersion answers the manual's example values, not its field names."""
+    with EmulatorServer() as emu, Client(*emu.address, timeout=WAIT) as c:
+        ex = c.request(905, "GetSoftwareVersion()")
+        assert ex.reply is not None
+        model, web, controller = ex.reply.data.split(",")
+        assert "robotModel" not in ex.reply.data
+        assert re.match(r"[vV]\d", web) and re.match(r"[vV]\d", controller), ex.reply.data
+        assert model
+
+
+# --------------------------------------------------------------------------- serve
+
+
+def _serve(tmp_path: Path, *extra: str, frames: int) -> tuple[subprocess.Popen[str], int, int]:
+    proc = subprocess.Popen(
+        [
+            sys.executable, "-m", "conformance", "serve",
+            "--listen", "127.0.0.1:0", "--udp", "127.0.0.1:0",
+            "--max-frames", str(frames), "--duration", "120",
+            "--report-json", str(tmp_path / "serve.json"), *extra,
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )  # fmt: skip
+    assert proc.stdout is not None
+    m = re.search(r"127\.0\.0\.1:(\d+), UDP 127\.0\.0\.1:(\d+)", proc.stdout.readline())
+    assert m
+    return proc, int(m.group(1)), int(m.group(2))
+
+
+def _send_session(tcp_port: int, udp_port: int, frames: list[dict[str, Any]]) -> None:
+    tcp = Client("127.0.0.1", tcp_port, transport="tcp", timeout=WAIT)
+    udp = Client("127.0.0.1", udp_port, transport="udp", timeout=WAIT)
+    try:
+        for entry in frames:
+            exchange({"tcp": tcp, "udp": udp}, entry)
+    finally:
+        tcp.close()
+        udp.close()
+
+
+def test_serve_as_an_sdk_authors_ci_gate(tmp_path: Path) -> None:
+    """The Python SDK's traffic: its LEN defect fails with the frame, the numbers and a
+    reproduction that gives the same verdict; its dialects are DIALECT with sources;
+    UDP frames are reported as UDP."""
+    frames = session(next(p for p in SESSIONS if p.stem == "python-sdk"))
+    n = sum(len(requests_of(f)) for f in frames)
+    proc, tcp_port, udp_port = _serve(tmp_path, frames=n)
+    try:
+        _send_session(tcp_port, udp_port, frames)
+        out, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert proc.returncode == 1, err  # the defect fails the gate, nothing else does
+    doc = json.loads((tmp_path / "serve.json").read_text(encoding="utf-8"))
+    assert doc["transport"] == "tcp+udp" and doc["reference"] == "field"
+    cases = [(int(k), c) for k, cmd in doc["commands"].items() for c in cmd["cases"]]
+    failing = [(k, c) for k, c in cases if c["outcome"] == "FAIL"]
+    assert [k for k, _ in failing] == [1149]
+    (_, defect) = failing[0]
+    assert "LEN 25, DATA is 26 bytes" in defect["detail"]
+    assert "ConveyorComDetectTrigger()" in defect["frames"][0]
+    assert defect["frames"][0].startswith(">> TCP ")
+    # The reproduction gives the same verdict offline.
+    repro = subprocess.run(
+        [
+            "bash",
+            "-c",
+            defect["reproduce"].replace("fairino-conformance", f"{sys.executable} -m conformance"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert "FAIL len_mismatch: LEN 25, DATA is 26 bytes" in repro.stdout, repro
+    dialect = [c for _, c in cases if c["outcome"] == "DIALECT"]
+    assert len(dialect) >= 8
+    assert all(re.search(r"[a-z]+-sdk-\d{3} \(FAIR-INNOVATION/", c["source"]) for c in dialect)
+    assert any(c["frames"][0].startswith(">> UDP ") for c in dialect)
+    assert "field dialects (not failures)" in out
+    # Under the manual reference the same traffic fails on the dialects as well.
+    sound = [f for f in frames if f["expect"] != "defect"]
+    m = sum(len(requests_of(f)) for f in sound)
+    proc, tcp_port, udp_port = _serve(tmp_path, "--reference", "manual", frames=m)
+    try:
+        _send_session(tcp_port, udp_port, sound)
+        proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    manual = json.loads((tmp_path / "serve.json").read_text(encoding="utf-8"))
+    assert manual["reference"] == "manual"
+    assert proc.returncode == 1
+
+
+# --------------------------------------------------------------------------- agreement
+
+
+def _lines(text: str) -> list[dict[str, Any]]:
+    return [json.loads(line) for line in text.splitlines() if line.strip()]
+
+
+def _key(d: dict[str, Any]) -> tuple[Any, ...]:
+    return (d["dir"], d["cnt"], d["cmd_id"], d["data"], d["outcome"], d["rule"], d["source"])
+
+
+def test_front_ends_agree_frame_by_frame(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Field-style traffic (both SDK sessions) recorded through the proxy; ``check``,
+    ``decode``, ``serve`` (the recording replayed into it), ``info`` and ``replay``
+    give every frame the same verdict."""
+    rec_path = tmp_path / "field.mcap"
+    everything = [f for p in SESSIONS for f in session(p)]
+    with EmulatorServer(udp_port=0) as emu:
+        assert emu.udp_address is not None
+        with RecordingProxy(
+            emu.address,
+            out=rec_path,
+            udp_upstream=emu.udp_address,
+            udp_listen=("127.0.0.1", 0),
+        ) as proxy:
+            assert proxy.udp_address is not None
+            _send_session(proxy.address[1], proxy.udp_address[1], everything)
+    rec = read_recording(rec_path)
+    n_req = sum(1 for f in rec.frames if f.dir == C2S)
+    assert n_req == sum(len(requests_of(f)) for f in everything)
+
+    # check
+    assert main(["check", str(rec_path), "--verdicts", str(tmp_path / "check.jsonl")]) in (0, 1)
+    capsys.readouterr()
+    checked = _lines((tmp_path / "check.jsonl").read_text(encoding="utf-8"))
+    assert len(checked) == len(rec.frames)
+    outcomes = Counter(d["outcome"] for d in checked)
+    assert outcomes["DIALECT"] >= 10 and outcomes["FAIL"] >= 1 and outcomes["PASS"] >= 10
+
+    # decode, one connection's bytes at a time, directions told apart automatically
+    decoded: list[dict[str, Any]] = []
+    transports = {c.conn: c.transport for c in rec.connections if c.event == "open"}
+    for conn in sorted({f.conn for f in rec.frames}):
+        stream = tmp_path / f"conn{conn}.bin"
+        stream.write_bytes(b"".join(f.raw for f in rec.frames if f.conn == conn))
+        assert main(["decode", str(stream), "--json", "--transport", transports[conn]]) == 0
+        decoded += _lines(capsys.readouterr().out)
+    assert Counter(map(_key, decoded)) == Counter(map(_key, checked))
+
+    # serve, fed the recording's requests by replay
+    proc, tcp_port, udp_port = _serve(
+        tmp_path, "--verdicts", str(tmp_path / "serve.jsonl"), frames=n_req
+    )
+    try:
+        code = main(
+            [
+                "replay", str(rec_path), "--target", f"127.0.0.1:{tcp_port}",
+                "--udp-port", str(udp_port), "--json", str(tmp_path / "replay.json"),
+            ]
+        )  # fmt: skip
+        proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    capsys.readouterr()
+    served = _lines((tmp_path / "serve.jsonl").read_text(encoding="utf-8"))
+    assert Counter(map(_key, served)) == Counter(_key(d) for d in checked if d["dir"] == "c2s")
+    # replay judged serve's replies as the recording's: no verdict changed
+    replayed = json.loads((tmp_path / "replay.json").read_text(encoding="utf-8"))
+    kinds = {d["kind"] for c in replayed["commands"].values() for d in c["differences"]}
+    assert "verdict" not in kinds, replayed
+    assert code == 0
+
+    # info counts the same verdicts per command
+    assert main(["info", str(rec_path), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    per_cmd: dict[str, Counter[str]] = {}
+    for d in checked:
+        per_cmd.setdefault(str(d["cmd_id"]), Counter())[d["outcome"]] += 1
+    assert {k: dict(v) for k, v in per_cmd.items()} == {
+        k: c["verdicts"] for k, c in info["commands"].items()
+    }
+
+
+def test_decode_tells_the_bug_reports_reply_from_a_request(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    assert main(["decode", "--hex", b"/f/bIII52III201III1III1III/b/f".hex(), "--json"]) == 0
+    (doc,) = _lines(capsys.readouterr().out)
+    assert (doc["dir"], doc["outcome"]) == ("s2c", "PASS")
+    assert (
+        main(["decode", "--dir", "c2s", "--hex", b"/f/bIII52III201III1III1III/b/f".hex(), "--json"])
+        == 0
+    )
+    (doc,) = _lines(capsys.readouterr().out)
+    assert (doc["dir"], doc["outcome"], doc["rule"]) == ("c2s", "FAIL", "bad_data")
+
+
