@@ -32,7 +32,7 @@ import os
 from collections.abc import Iterable
 from dataclasses import dataclass, replace
 
-from .data import Call, Keyword, Parsed, RawData, Violation, check_args, parse_data
+from .data import Call, Keyword, Parsed, Violation, check_args, parse_data
 from .data import _shown as shown
 from .dialects import ERRCODE_RETURNS, Dialect, DialectSet, manual_command
 from .errors import ProtocolError, Rule, UsageError
@@ -614,10 +614,11 @@ class Judge:
         )
 
     def looks_like_reply(self, frame: Frame) -> bool:
-        """A frame's shape says reply: its DATA is no call, keyword or recorded text form.
+        """A frame's shape says reply: its DATA is no call or keyword and reads as no request.
 
         Value lists (``1``, ``0,0,0``), error texts and empty DATA read as replies;
-        ``MoveJ(...)``, ``STOP`` and recorded field texts (a program path) as requests.
+        ``MoveJ(...)``, ``STOP``, ``sTOP`` and recorded field texts (a program path)
+        as requests.
         """
         data = frame.data
         try:
@@ -626,11 +627,7 @@ class Judge:
             return not data.rstrip().endswith(")")
         if isinstance(parsed, (Call, Keyword)):
             return False
-        assert isinstance(parsed, RawData)
-        for d in self.dialects.by_id(frame.cmd_id):
-            if d.kind != "reply" and d.matches_request(data, None, False):
-                return False
-        return True
+        return self.request(frame).outcome is Outcome.FAIL
 
 
 class Pairing:
