@@ -14,13 +14,14 @@ from __future__ import annotations
 
 import functools
 import json
+import os
 import re
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .errors import SpecError
+from .errors import SpecError, UsageError
 from .spec import (
     Command,
     Param,
@@ -36,12 +37,14 @@ from .spec import (
 )
 
 __all__ = [
+    "DIALECTS_ENV",
     "DIALECT_KINDS",
     "FIELD_DIR",
     "Dialect",
     "DialectSet",
     "Evidence",
     "default_dialects",
+    "dialects_from",
     "load_dialects",
     "manual_command",
 ]
@@ -310,6 +313,24 @@ def load_dialects(
         return DialectSet.build(entries, sources)
     except SpecError as e:
         raise SpecError(str(e), path=str(d)) from None
+
+
+#: Environment variable naming another directory of dialect files.
+DIALECTS_ENV = "FAIRINO_DIALECTS_DIR"
+
+
+def dialects_from(directory: str | None, specs: SpecSet) -> DialectSet:
+    """The dialects of ``directory`` (else ``$FAIRINO_DIALECTS_DIR``, else the shipped ones).
+
+    A missing or malformed directory is the user's mistake: :class:`UsageError`.
+    """
+    directory = directory or os.environ.get(DIALECTS_ENV) or None
+    try:
+        if directory is None:
+            return default_dialects()
+        return load_dialects(directory, specs)
+    except SpecError as e:
+        raise UsageError(f"dialects: {e}") from None
 
 
 @functools.lru_cache(maxsize=1)

@@ -406,6 +406,11 @@ class CaseItem(pytest.Item):
         outcome = result.outcome
         if outcome is Outcome.NON_STRICT and config.strict:
             outcome = Outcome.FAIL
+        if outcome is Outcome.DIALECT:
+            # JUnit shows the dialect and its source as properties of the testcase.
+            self.user_properties.append(("dialect", result.source))
+            if config.reference == "manual":
+                outcome = Outcome.FAIL
         if expected:
             if outcome in (Outcome.FAIL, Outcome.ERROR):
                 pytest.xfail(f"expected failure: {result.detail}")

@@ -315,3 +315,72 @@ def test_decode_tells_the_bug_reports_reply_from_a_request(
     )
     (doc,) = _lines(capsys.readouterr().out)
     assert (doc["dir"], doc["outcome"], doc["rule"]) == ("c2s", "FAIL", "bad_data")
+
+
+# --------------------------------------------------------------------------- the suite
+
+
+def _reply_dialect(tmp: Path) -> Path:
+    """A dialect file recording GetAI (214) replying two values: what the seeded fault sends."""
+    d = tmp / "dialects"
+    d.mkdir()
+    entry = {
+        "id": "lab-001",
+        "kind": "reply",
+        "cmd_id": 214,
+        "name": "GetAI",
+        "form": "call",
+        "returns": {
+            "separator": ",",
+            "values": [{"name": "value", "type": "float"}, {"name": "extra", "type": "int"}],
+        },
+        "transport": ["tcp"],
+        "example": "/f/bIII1III214III9IIIGetAI(0,0)III/b/f",
+        "evidence": [{"repo": "lab/controller", "path": "x.c", "commit": "a" * 40, "line": 7}],
+        "note": "a controller seen answering GetAI with a second value",
+    }
+    doc = {
+        "kind": "dialects",
+        "spec_version": "3.8.2",
+        "source": {"name": "lab", "summary": "test"},
+        "entries": [entry],
+    }
+    (d / "lab.json").write_text(json.dumps(doc), encoding="utf-8")
+    return d
+
+
+def _run(tmp: Path, *extra: str, env: dict[str, str]) -> tuple[int, dict[str, Any]]:
+    report = tmp / "run.json"
+    p = subprocess.run(
+        [
+            sys.executable, "-m", "conformance", "run", "-q", "--profile", "quick",
+            "--commands", "214", "--groups", "examples,valid",
+            "--emulator-fault", "wrong_count:214", "--report-json", str(report), *extra,
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+    )  # fmt: skip
+    assert "Traceback" not in p.stderr, p.stderr
+    return p.returncode, json.loads(report.read_text(encoding="utf-8"))
+
+
+def test_suite_reports_a_reply_dialect(tmp_path: Path) -> None:
+    """A target whose replies follow a recorded dialect: DIALECT with its source under the
+    field reference (exit 0), FAIL under the manual reference, FAIL without the record."""
+    import os
+
+    env = {k: v for k, v in os.environ.items() if not k.startswith("FAIRINO_")}
+    with_dialect = {**env, "FAIRINO_DIALECTS_DIR": str(_reply_dialect(tmp_path))}
+    code, doc = _run(tmp_path, "--junitxml", str(tmp_path / "j.xml"), env=with_dialect)
+    cases = doc["commands"]["214"]["cases"]
+    assert code == 0, cases
+    assert {c["outcome"] for c in cases} == {"DIALECT"}
+    assert all(c["source"].startswith("lab-001 (lab/controller@aaaaaaaaaa x.c:7") for c in cases)
+    assert 'name="dialect" value="lab-001' in (tmp_path / "j.xml").read_text(encoding="utf-8")
+    code, doc = _run(tmp_path, "--reference", "manual", env=with_dialect)
+    assert code == 1 and doc["reference"] == "manual"
+    code, doc = _run(tmp_path, env=env)
+    assert code == 1
+    assert {c["outcome"] for c in doc["commands"]["214"]["cases"]} == {"FAIL"}

@@ -10,13 +10,12 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
-import os
 import sys
 import threading
 from collections.abc import Callable, Iterator
 
-from ..dialects import DialectSet, default_dialects, load_dialects
-from ..errors import SpecError, UsageError
+from ..dialects import DIALECTS_ENV, dialects_from
+from ..errors import UsageError
 from ..frame import Frame
 from ..judge import REFERENCE_ENV, Judge, Reference, Verdict, reference_from
 from ..recording import FrameRecord
@@ -31,9 +30,6 @@ __all__ = [
     "verdict_line",
     "verdict_sink",
 ]
-
-#: Environment variable naming another directory of dialect files.
-DIALECTS_ENV = "FAIRINO_DIALECTS_DIR"
 
 REFERENCE_HELP = (
     "what frames are held to: 'field' (default; a recorded field dialect is DIALECT, "
@@ -56,17 +52,6 @@ def add_judge_options(p: argparse.ArgumentParser) -> None:
 
 def reference_of(args: argparse.Namespace) -> Reference:
     return reference_from(getattr(args, "reference", None))
-
-
-def dialects_from(directory: str | None, specs: SpecSet) -> DialectSet:
-    """The dialects of ``directory`` (else ``$FAIRINO_DIALECTS_DIR``, else the shipped ones)."""
-    directory = directory or os.environ.get(DIALECTS_ENV) or None
-    try:
-        if directory is None:
-            return default_dialects()
-        return load_dialects(directory, specs)
-    except SpecError as e:
-        raise UsageError(f"dialects: {e}") from None
 
 
 def judge_from(args: argparse.Namespace, specs: SpecSet, *, strict: bool = False) -> Judge:

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ..data import Call, Violation
-from ..dialects import default_dialects
+from ..dialects import dialects_from
 from ..errors import ConformanceError, Rule
 from ..frame import Frame, Malformed, decode_all, encode_frame
 from ..judge import Judge, Reference
@@ -153,7 +153,7 @@ class SuiteRunner:
         #: The one judge of every frame (conformance/judge.py), under the run's reference.
         self.frame_judge = Judge(
             specs,
-            default_dialects(),
+            dialects_from(None, specs),
             reference=Reference(config.reference),
             strict=config.strict,
         )
@@ -170,6 +170,8 @@ class SuiteRunner:
             meta={"profile": config.profile.name},
         )
         self.case_started = 0.0
+        #: Replies of the current case that followed a field dialect: (source, message).
+        self._dialects: list[tuple[str, str]] = []
         #: ``time.monotonic()`` values: the end of the current case, of the run.
         self.case_deadline = math.inf
         self.run_deadline = math.inf
@@ -442,12 +444,15 @@ class SuiteRunner:
     def reply_verdict(self, ex: Exchange, variant: Variant | None) -> FrameVerdict:
         """The judge's verdict on an exchange's reply (read against ``variant`` if given)."""
         assert ex.reply is not None
-        return self.frame_judge.reply(
+        v = self.frame_judge.reply(
             ex.reply,
             _request_frame(ex),
             transport=self.config.transport,
             variant=variant,
         )
+        if v.outcome is Outcome.DIALECT and len(self._dialects) < 8:
+            self._dialects.append((v.source, v.message))
+        return v
 
     def _classified(self, v: FrameVerdict) -> ReplyVerdict:
         """A reply verdict as the cases read it: refused or not, and its shape's faults."""
@@ -515,7 +520,19 @@ class SuiteRunner:
 
     def run(self, case: Case) -> CaseResult:
         """Run one case (never raises): safety, a dead target and kit errors become outcomes."""
+        self._dialects = []
         verdict = self._run(case)
+        source = ""
+        if verdict.outcome is Outcome.PASS and self._dialects:
+            # Passed, with a reply in a recorded field dialect (a failure only under the
+            # manual reference, where the reply's check already failed the case).
+            source = self._dialects[0][0]
+            verdict = Verdict(
+                outcome=Outcome.DIALECT,
+                detail=f"{verdict.detail}; {self._dialects[0][1]}".lstrip("; "),
+                frames=verdict.frames,
+                raw=verdict.raw,
+            )
         if self._suspect and self.stopped is None:
             # The case ended with the target silent or gone: alive, or the run stops.
             self._suspect = False
@@ -539,6 +556,7 @@ class SuiteRunner:
             reproduce=reproduce,
             frames=verdict.frames,
             not_run=verdict.not_run,
+            source=source,
         )
         self.report.add(result)
         if not verdict.not_run:
