@@ -317,3 +317,18 @@ def test_a_dialect_file_changes_the_verdict(tmp_path: Path) -> None:
     # Wrong argument type: the entry does not match.
     g = frame(encode_frame(1, 61000, 'Hello("x")'))
     assert Judge(SPECS, load_dialects(tmp_path, SPECS)).request(g).outcome is Outcome.FAIL
+
+
+def test_readme_dialect_table_matches_the_data() -> None:
+    readme = (Path(__file__).resolve().parent.parent / "README.md").read_text(encoding="utf-8")
+    rows = re.findall(
+        r"^\| `([a-z-]+)` \([^)]*\) \| (\d+) \| (\d+) \| (\d+) \| (\d+) \| (\d+) \| (\d+) \|$",
+        readme,
+        re.M,
+    )
+    table = {name: [int(x) for x in nums] for name, *nums in rows}
+    counts = default_dialects().counts()
+    kinds = ("command", "arguments", "keyword", "dispatch", "reply")
+    assert table == {
+        src: [row[k] for k in kinds] + [sum(row.values())] for src, row in counts.items()
+    }
