@@ -211,10 +211,15 @@ def compare_replies(
         add("cmd_id", f"reply CMD_ID {new.cmd_id} (recorded {recorded.cmd_id})")
     if bool(noise[0]) != bool(noise[1]):
         add("framing", f"{noise[1]} malformed bytes before the reply (recorded {noise[0]})")
-    if judge is not None and "verdict" not in ignore.kinds:
+    returns = _flat_returns(specs, cid, name)
+    if judge is not None:
         vr = judge.reply(recorded.frame(), request.frame() if request is not None else None)
         vn = judge.reply(new.frame(), new_req.frame() if new_req is not None else None)
-        if (vr.outcome, vr.rule, vr.source) != (vn.outcome, vn.rule, vn.source):
+        if vr.variant is not None:
+            # What the request means to the judge (a dispatched query's own returns).
+            returns = [v for v in vr.variant.returns.values for _ in range(v.length or 1)]
+        changed = (vr.outcome, vr.rule, vr.source) != (vn.outcome, vn.rule, vn.source)
+        if changed and "verdict" not in ignore.kinds:
             add(
                 "verdict",
                 f"{vn.outcome.value} {vn.rule}: {vn.message} "
@@ -236,7 +241,6 @@ def compare_replies(
             f"{new.data[:60]!r} vs {recorded.data[:60]!r}",
         )
         return out
-    returns = _flat_returns(specs, cid, name)
     for i, (a, b) in enumerate(zip(rv, nv, strict=True)):
         if (cid, i) in ignore.values:
             continue
