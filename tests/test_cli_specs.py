@@ -155,3 +155,63 @@ def test_unexpected_error_is_one_line(
     monkeypatch.setenv("FAIRINO_DEBUG", "1")
     with pytest.raises(ZeroDivisionError):
         main(["specs", "list"])
+
+
+def _unrecoverable_requests() -> list[tuple[str, str, str]]:
+    """(command name, erratum ID, printed text) of every example whose request is lost."""
+    out = []
+    for c in SPECS:
+        for v in c.variants:
+            for e in v.examples:
+                if e.request is None:
+                    (eid,) = [
+                        x
+                        for x in e.errata
+                        if (err := SPECS.erratum(x)) is not None
+                        and err.kind == "unrecoverable_example"
+                        and err.adopted.startswith("request")
+                    ]
+                    out.append((c.name, eid, e.printed_request))
+    return out
+
+
+def test_specs_show_text_never_prints_none(capsys: pytest.CaptureFixture[str]) -> None:
+    # An example whose request could not be recovered from the manual prints the manual's
+    # text and the erratum that says so, not the Python value None.
+    code, out, _ = run(capsys, "specs", "show", "MoveJ")
+    assert code == 0
+    assert "None" not in out
+    lost = [(eid, printed) for name, eid, printed in _unrecoverable_requests() if name == "MoveJ"]
+    assert lost
+    for eid, printed in lost:
+        assert f"example: (not recoverable, see erratum {eid})" in out
+        assert f"printed: {printed}" in out
+
+
+def test_specs_show_text_none_nowhere(capsys: pytest.CaptureFixture[str]) -> None:
+    names = sorted({name for name, _, _ in _unrecoverable_requests()})
+    for name in names:
+        code, out, _ = run(capsys, "specs", "show", name)
+        assert code == 0
+        assert "example: None" not in out and "reply:   None" not in out, name
+
+
+def test_specs_show_json_names_the_erratum_of_a_lost_example(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    code, out, _ = run(capsys, "specs", "show", "MoveJ", "--json")
+    assert code == 0
+    (cmd,) = json.loads(out)
+    first = cmd["variants"][0]["examples"][0]
+    assert first["request"] is None
+    assert first["not_recoverable"] == {"request": "E002", "reply": "E001"}
+    last = cmd["variants"][2]["examples"][0]
+    assert last["request"].startswith("/f/b") and "not_recoverable" not in last
+
+
+def test_specs_errata_unknown_kind_lists_the_kinds(capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, err = run(capsys, "specs", "errata", "--kind", "nope")
+    assert code == 2 and out == ""
+    assert err.count("\n") == 1 and "'nope'" in err
+    for kind in {e.kind for e in SPECS.errata}:
+        assert kind in err

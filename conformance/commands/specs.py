@@ -13,7 +13,7 @@ from ..dialects import default_dialects
 from ..errors import UsageError
 from ..frame import DEFAULT_MAX_FRAME_SIZE, Event, FrameDecoder, Malformed
 from ..judge import Direction, Judge, Pairing, Verdict
-from ..spec import Command, Param, ReturnValue, SpecSet, default_specs, load_specs
+from ..spec import Command, Example, Param, ReturnValue, SpecSet, default_specs, load_specs
 from ._judging import add_judge_options, judge_from
 
 __all__ = ["command_json", "decode_stream", "event_json", "register"]
@@ -119,6 +119,7 @@ def command_json(c: Command, specs: SpecSet) -> dict[str, Any]:
                         "printed_request": e.printed_request,
                         "printed_reply": e.printed_reply,
                         "errata": list(e.errata),
+                        **_not_recoverable_json(e, specs),
                     }
                     for e in v.examples
                 ],
@@ -127,6 +128,32 @@ def command_json(c: Command, specs: SpecSet) -> dict[str, Any]:
         ],
         "errata": [e.id for e in specs.errata_for(c.key)],
     }
+
+
+def _lost(e: Example, part: str, specs: SpecSet) -> str | None:
+    """The erratum saying the example's ``part`` (request or reply) cannot be recovered.
+
+    None when that part is there, or when no erratum explains its absence (a
+    table that prints no reply at all).
+    """
+    if getattr(e, part) is not None:
+        return None
+    for eid in e.errata:
+        err = specs.erratum(eid)
+        # errata.json: kind unrecoverable_example, adopted "request: null" / "reply: null".
+        if (
+            err is not None
+            and err.kind == "unrecoverable_example"
+            and err.adopted.split(":", 1)[0].strip() == part
+        ):
+            return err.id
+    return None
+
+
+def _not_recoverable_json(e: Example, specs: SpecSet) -> dict[str, Any]:
+    """``{"not_recoverable": {part: erratum ID}}`` for a lost request or reply, else ``{}``."""
+    lost = {p: eid for p in ("request", "reply") if (eid := _lost(e, p, specs)) is not None}
+    return {"not_recoverable": lost} if lost else {}
 
 
 def _erratum_json(e: Any) -> dict[str, Any]:
@@ -184,6 +211,9 @@ def _run_specs(args: argparse.Namespace) -> int:
             _show_text(c, specs, out)
         return 0
     if action == "errata":
+        kinds = sorted({e.kind for e in specs.errata})
+        if args.kind is not None and args.kind not in kinds:
+            raise UsageError(f"--kind: no erratum kind {args.kind!r} (kinds: {', '.join(kinds)})")
         errata = [e for e in specs.errata if not args.kind or e.kind == args.kind]
         if args.json:
             json.dump([_erratum_json(e) for e in errata], out, ensure_ascii=False, indent=2)
@@ -235,13 +265,25 @@ def _show_text(c: Command, specs: SpecSet, out: Any) -> None:
         rets = f" {v.returns.separator!r} ".join(r.name for r in v.returns.values)
         out.write(f"    returns: {rets}\n")
         for e in v.examples:
-            out.write(f"    example: {e.request}\n")
-            if e.reply:
-                out.write(f"    reply:   {e.reply}\n")
+            _show_frame(out, "example", e.request, e.printed_request, _lost(e, "request", specs))
+            if e.reply is not None or e.printed_reply or _lost(e, "reply", specs):
+                _show_frame(out, "reply", e.reply, e.printed_reply, _lost(e, "reply", specs))
             if e.errata:
                 out.write(f"    errata:  {', '.join(e.errata)}\n")
     for err in specs.errata_for(c.key):
         out.write(f"  {err.id} {err.kind}: {err.adopted}\n")
+
+
+def _show_frame(out: Any, label: str, frame: str | None, printed: str, erratum: str | None) -> None:
+    """One example frame; a lost one as what the manual prints and the erratum explaining it."""
+    head = f"    {label + ':':<8} "
+    if frame is not None:
+        out.write(f"{head}{frame}\n")
+        return
+    why = f"see erratum {erratum}" if erratum else "the manual prints none"
+    out.write(f"{head}(not recoverable, {why})\n")
+    if printed:
+        out.write(f"{' ' * len(head)}printed: {printed}\n")
 
 
 # --------------------------------------------------------------------------- decode
