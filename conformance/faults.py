@@ -11,13 +11,22 @@ applies them and :mod:`conformance.net.emulator` performs the actions.
 from __future__ import annotations
 
 import enum
+import math
 from collections.abc import Iterable
 from dataclasses import dataclass
 
 from .errors import UsageError
 from .frame import HEAD, SEP, TAIL
 
-__all__ = ["Fault", "FaultKind", "active_fault", "mangle_reply", "parse_fault", "parse_faults"]
+__all__ = [
+    "Fault",
+    "FaultKind",
+    "active_fault",
+    "known_cmd_ids",
+    "mangle_reply",
+    "parse_fault",
+    "parse_faults",
+]
 
 
 class FaultKind(str, enum.Enum):
@@ -89,8 +98,27 @@ class Fault:
         return text
 
 
-def parse_fault(text: str) -> Fault:
-    """Read ``KIND[:CMD_ID,...][@SECONDS]``, e.g. ``wrong_cnt:201,203`` or ``slow:201@0.5``."""
+#: The most digits a command ID may have (the manual's IDs have at most 4; CMD_ID is a
+#: decimal number, 1.1).  Longer runs are refused before ``int`` reads them.
+_MAX_ID_DIGITS = 9
+
+
+def known_cmd_ids() -> frozenset[int]:
+    """The command IDs a fault may name: the bundled specs' and the field dialects'."""
+    from .dialects import default_dialects
+    from .spec import default_specs
+
+    return frozenset(default_specs().cmd_ids) | frozenset(default_dialects().cmd_ids)
+
+
+def parse_fault(text: str, *, known: Iterable[int] | None = None) -> Fault:
+    """Read ``KIND[:CMD_ID,...][@SECONDS]``, e.g. ``wrong_cnt:201,203`` or ``slow:201@0.5``.
+
+    Every command ID must be one of ``known`` (default: :func:`known_cmd_ids`), so a
+    typo does not silently inject nothing; ``@SECONDS`` is a finite, non-negative
+    number and only for the kinds that wait (``slow``, ``crash_on_malformed``).
+    Anything else is a :class:`UsageError` naming the part that is wrong.
+    """
     raw = text.strip()
     delay: float | None = None
     if "@" in raw:
@@ -98,20 +126,48 @@ def parse_fault(text: str) -> Fault:
         try:
             delay = float(secs)
         except ValueError:
-            raise UsageError(f"fault {text!r}: {secs!r} is not a number of seconds") from None
-    name, _, ids = raw.partition(":")
+            delay = math.nan
+        if not math.isfinite(delay) or delay < 0:
+            raise UsageError(
+                f"fault {_shown(text)}: SECONDS {_shown(secs)} is not a finite, non-negative number"
+            )
+    name, colon, ids = raw.partition(":")
     try:
         kind = FaultKind(name.strip().lower().replace("-", "_"))
     except ValueError:
         kinds = ", ".join(k.value for k in FaultKind)
-        raise UsageError(f"unknown fault kind {name!r} (one of: {kinds})") from None
+        raise UsageError(f"unknown fault kind {_shown(name)} (one of: {kinds})") from None
+    if delay is not None and kind not in _DEFAULT_DELAY:
+        waits = " and ".join(k.value for k in _DEFAULT_DELAY)
+        raise UsageError(f"fault {_shown(text)}: @SECONDS applies only to {waits}")
+    if colon and not ids.strip():
+        raise UsageError(
+            f"fault {_shown(text)}: no command ID after ':' (omit ':' for every command)"
+        )
     cmd_ids: set[int] = set()
-    for part in ids.split(",") if ids.strip() else ():
+    for part in ids.split(",") if colon else ():
         part = part.strip()
-        if not part.isdigit():
-            raise UsageError(f"fault {text!r}: command ID {part!r} is not a number")
+        if not (part.isascii() and part.isdigit() and len(part) <= _MAX_ID_DIGITS):
+            shown = part if len(part) <= 20 else part[:20] + "..."
+            raise UsageError(f"fault {_shown(text)}: {shown!r} is not a command ID")
         cmd_ids.add(int(part))
+    allowed = known_cmd_ids() if known is None else frozenset(known)
+    unknown = sorted(cmd_ids - allowed)
+    if unknown:
+        listed = ", ".join(map(str, unknown[:5])) + (
+            f" (+{len(unknown) - 5} more)" if len(unknown) > 5 else ""
+        )
+        ids_word = "command IDs" if len(unknown) > 1 else "command ID"
+        raise UsageError(
+            f"fault {_shown(text)}: {ids_word} {listed} in neither the specs nor the field "
+            "dialects (see 'specs list')"
+        )
     return Fault(kind=kind, cmd_ids=frozenset(cmd_ids), delay=delay)
+
+
+def _shown(text: str) -> str:
+    """The option's text for a message, at most 60 characters of it."""
+    return repr(text) if len(text) <= 60 else repr(text[:60]) + "..."
 
 
 def parse_faults(items: Iterable[Fault | str]) -> tuple[Fault, ...]:

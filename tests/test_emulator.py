@@ -208,6 +208,41 @@ def test_parse_fault_rejects(text: str) -> None:
         parse_fault(text)
 
 
+@pytest.mark.parametrize(
+    ("text", "named"),
+    [
+        ("wrong_cnt:99999", "99999"),
+        ("wrong_cnt:201,99999", "99999"),
+        ("slow:1@0.5", "1"),
+        (f"wrong_cnt:{'9' * 5000}", "is not a command ID"),
+        ("slow@nan", "'nan'"),
+        ("slow@inf", "'inf'"),
+        ("slow@1e999", "'1e999'"),
+        ("slow@", "''"),
+        ("slow:201@-1", "'-1'"),
+        ("wrong_cnt@1", "slow"),
+        ("wrong_cnt:", "no command ID"),
+        ("wrong_cnt:201,,203", "''"),
+    ],
+)
+def test_parse_fault_names_what_is_wrong(text: str, named: str) -> None:
+    with pytest.raises(UsageError) as exc:
+        parse_fault(text)
+    msg = str(exc.value)
+    assert named in msg and "\n" not in msg and len(msg) < 300
+
+
+def test_parse_fault_accepts_field_dialect_ids() -> None:
+    # 103 (PAUSE) is not in the manual's specs, but the SDKs send it (specs/fairino-field/).
+    assert 103 not in SPECS.cmd_ids
+    assert parse_fault("no_reply:103,201") == Fault(
+        kind=FaultKind.NO_REPLY, cmd_ids=frozenset({103, 201})
+    )
+    assert parse_fault("crash_on_malformed:201@0") == Fault(
+        kind=FaultKind.CRASH_ON_MALFORMED, cmd_ids=frozenset({201}), delay=0.0
+    )
+
+
 def _errcode_command() -> tuple[Command, Variant]:
     return next((c, v) for c, v in _variants() if v.returns.errcode_only and v.form == "call")
 
