@@ -40,12 +40,13 @@ from dataclasses import dataclass
 from types import TracebackType
 
 from ..actions import Action, Dropped
-from ..errors import RemoteProtocolError
+from ..errors import RemoteProtocolError, UsageError
 from ..faults import Fault, FaultKind, parse_fault, parse_faults
 from ..frame import DEFAULT_MAX_FRAME_SIZE, Frame, Malformed
 from ..judge import Judge
 from ..model import Controller, ControllerConnection
 from ..spec import SpecSet
+from . import format_address
 
 __all__ = [
     "DEFAULT_MAX_CONNECTIONS",
@@ -154,6 +155,17 @@ class _Backoff:
             self._logged = False
             self._last_message = time.monotonic()
             self.failures = 0
+
+
+def _bind_error(transport: str, host: str, port: int, e: OSError) -> UsageError:
+    """A socket that would not bind, as one line naming the transport and the address.
+
+    Raised from :meth:`EmulatorServer.start` (a port in use, an address this host
+    does not have, a privileged port), so ``emulate`` and ``serve`` print it in one
+    line instead of a bare ``Address already in use``.
+    """
+    reason = e.strerror or str(e)
+    return UsageError(f"cannot listen on {transport} {format_address(host, port)}: {reason}")
 
 
 class EmulatorServer:
@@ -274,6 +286,9 @@ class EmulatorServer:
             tcp.bind((self.host, self._port))
             tcp.listen(128)
             tcp.settimeout(0.1)
+        except OSError as e:
+            tcp.close()
+            raise _bind_error("TCP", self.host, self._port, e) from e
         except BaseException:
             tcp.close()
             raise
@@ -283,9 +298,12 @@ class EmulatorServer:
             try:
                 udp.bind((self.host, self._udp_port))
                 udp.settimeout(0.1)
-            except BaseException:
+            except BaseException as e:
                 udp.close()
                 tcp.close()
+                self._tcp = None
+                if isinstance(e, OSError):
+                    raise _bind_error("UDP", self.host, self._udp_port, e) from e
                 raise
             self._udp = udp
             self._spawn(self._serve_udp, "emulator-udp")
