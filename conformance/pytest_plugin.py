@@ -1,300 +1,123 @@
-"""pytest plugin: the packaged conformance suite, one test item per case.
+"""pytest plugin: the packaged conformance suite as test items, and fixtures for your own tests.
 
 Registered through the ``pytest11`` entry point, so any ``pytest`` in any
-directory has the options.  The suite is **off** unless switched on by one of:
+directory has the options (each also an ini key ``fairino_*`` and a
+``FAIRINO_*`` environment variable: :data:`conformance.suite.options.OPTIONS`).
+The suite is **off** unless switched on by one of:
 
-* ``--target HOST:PORT`` (or ini key ``fairino_target``, or ``$FAIRINO_TARGET``):
-  run it against that endpoint;
-* ``--conformance`` (or ``$FAIRINO_CONFORMANCE=1``): run it against an in-process
+* ``--target HOST:PORT`` (ini ``fairino_target``, ``$FAIRINO_TARGET``): run it
+  against that endpoint;
+* ``--conformance`` (``$FAIRINO_CONFORMANCE=1``): run it against an in-process
   emulator on an ephemeral loopback port.
 
-When on, the cases are added to whatever else pytest collected (the project's
-own ``pytest`` run, without these options, stays as it is).  Items are named
-``{cmd_id}::{name}/{group}/{what}``: JUnit's classname is the command ID.  Select
-one case with ``--case ID`` (what the reproduction lines use), or with ``-k``.
+When on, the cases are added to whatever else pytest collected.  Items are named
+``{cmd_id}::{name}/{group}/{what}``: JUnit's classname is the command ID.  This
+plugin is a thin front-end: the engine (:mod:`conformance.suite.engine`) selects
+and runs the cases, exactly as for ``fairino-conformance run``.
 
-Exit status of plain pytest: 0 conformant (NON-STRICT and UNIMPLEMENTED pass,
-as xfail for the latter), 1 conformance failures, 2 when a case ended in ERROR
-(kit or connection error), pytest's own codes otherwise (4 usage, 5 nothing
-collected).
+Under ``pytest -n`` (xdist) each worker runs its share against its own engine
+and sends each case's result to the controller with the test report, which
+writes the JSON, HTML and JUnit reports whole.
 
-Bounded against hostile targets: ``--case-timeout`` ends a case, ``--budget``
-the run (default 3 hours, see ``SuiteConfig.budget``).  When the target does not
-answer at the start, dies mid-run, or the budget runs out, the session stops
-with one line naming the address and the reason (pytest's "Interrupted"), exit
-status 2, and the report lists the cases not run.
+Fixtures for a project's own tests (no option needed):
+
+* ``fairino_emulator``: a fresh emulator (TCP and UDP, ports chosen by the
+  kernel) for one test; its own failures are raised at teardown;
+* ``fairino_emulator_factory``: ``factory(faults=(...), reference=..., dispatch=...)``
+  starts more, closed at the end of the session;
+* ``fairino_target``: the endpoint under test, a :class:`Target` (``host``,
+  ``port``, ``transport``, ``address``): ``--target`` if given, else a session
+  emulator;
+* ``fairino_client``: a :class:`~conformance.net.client.Client` connected to
+  ``fairino_target`` for one test.
+
+Exit status of plain pytest: 0 conformant, 1 conformance failures, 2 when a case
+ended in ERROR (kit or connection error), pytest's own codes otherwise.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import random
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import pytest
 
 from .errors import ConformanceError
-from .net import parse_address
-from .report import CaseResult, Outcome
-from .safety import SafetyPolicy
-from .suite.config import DEFAULT_BUDGET, GROUPS, PROFILES, SuiteConfig
-from .suite.runner import Case, SuiteRunner
+from .net.client import Client
+from .net.emulator import EmulatorServer
+from .report import CaseResult, Outcome, Report
+from .suite.config import SuiteConfig
+from .suite.engine import Engine
+from .suite.options import OPTIONS, option, resolve, suite_config
+from .suite.runner import Case
 
-__all__ = ["CaseItem", "CommandNode", "load_expected_failures"]
+__all__ = ["CaseItem", "CommandNode", "Target"]
 
 _CONFIG_KEY = pytest.StashKey[SuiteConfig]()
-_RUNNER_KEY = pytest.StashKey["SuiteRunner | None"]()
+_ENGINE_KEY = pytest.StashKey["Engine | None"]()
 _CASES_KEY = pytest.StashKey["list[Case]"]()
-
-#: (option dest, ini key, environment variable, help, default)
-_SETTINGS: tuple[tuple[str, str, str, str, str | None], ...] = (
-    ("target", "fairino_target", "FAIRINO_TARGET", "HOST:PORT of the endpoint under test", None),
-    ("transport", "fairino_transport", "FAIRINO_TRANSPORT", "tcp (default) or udp", "tcp"),
-    ("profile", "fairino_profile", "FAIRINO_PROFILE", "quick, default or thorough", "default"),
-    (
-        "reference",
-        "fairino_reference",
-        "FAIRINO_REFERENCE",
-        "field (default: a recorded field dialect is DIALECT, not a failure) or manual "
-        "(the manual alone)",
-        "field",
-    ),
-    (
-        "reply_timeout",
-        "fairino_reply_timeout",
-        "FAIRINO_REPLY_TIMEOUT",
-        "seconds to wait for a reply (2)",
-        "2",
-    ),
-    (
-        "case_timeout",
-        "fairino_case_timeout",
-        "FAIRINO_CASE_TIMEOUT",
-        "time budget of one case, seconds (60)",
-        "60",
-    ),
-    (
-        "recovery_timeout",
-        "fairino_recovery_timeout",
-        "FAIRINO_RECOVERY_TIMEOUT",
-        "how long a silent or crashed target may take to answer again, seconds (10)",
-        None,
-    ),
-    (
-        "budget",
-        "fairino_budget",
-        "FAIRINO_BUDGET",
-        "time budget of the whole run, seconds (10800: 3 hours)",
-        None,
-    ),
-    ("rate", "fairino_rate", "FAIRINO_RATE", "at most this many frames per second", None),
-    (
-        "report_json",
-        "fairino_report_json",
-        "FAIRINO_REPORT_JSON",
-        "write the JSON report here",
-        None,
-    ),
-    (
-        "report_html",
-        "fairino_report_html",
-        "FAIRINO_REPORT_HTML",
-        "write the HTML report here",
-        None,
-    ),
-    (
-        "expected_failures",
-        "fairino_expected_failures",
-        "FAIRINO_EXPECTED_FAILURES",
-        "baseline file of case IDs expected to fail",
-        None,
-    ),
-)
+_MERGED_KEY = pytest.StashKey[Report]()
+#: The user property carrying a case's result from a worker to the controller.
+_RESULT_PROP = "fairino_result"
+_STOPPED_PROP = "fairino_stopped"
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
     g = parser.getgroup("fairino-conformance", "FAIRINO protocol conformance suite")
-    for dest, ini, env, help_text, _default in _SETTINGS:
-        g.addoption(
-            f"--{dest.replace('_', '-')}",
-            dest=f"fairino_{dest}",
-            default=None,
-            help=f"{help_text} [ini {ini}, env {env}]",
-        )
-        parser.addini(ini, help_text, default=None)
+    for o in OPTIONS:
+        help_text = f"{o.help} [ini {o.ini}, env {o.env}]"
+        parser.addini(o.ini, o.help, default=None)
+        if o.pytest is None:
+            continue
+        if o.kind == "flag":
+            g.addoption(o.pytest, action="store_true", default=False, dest=o.ini, help=help_text)
+        elif o.kind == "list":
+            g.addoption(
+                o.pytest, action="append", default=[], dest=o.ini, metavar=o.metavar, help=help_text
+            )
+        else:
+            g.addoption(o.pytest, default=None, dest=o.ini, metavar=o.metavar, help=help_text)
     g.addoption(
         "--conformance",
         action="store_true",
         default=False,
         dest="fairino_conformance",
-        help="run the suite (against the in-process emulator unless --target is given)",
-    )
-    g.addoption(
-        "--commands",
-        action="append",
-        default=[],
-        dest="fairino_commands",
-        help="only these commands: IDs, names, globs, comma-separated [env FAIRINO_COMMANDS]",
-    )
-    g.addoption(
-        "--exclude",
-        action="append",
-        default=[],
-        dest="fairino_exclude",
-        help="leave these commands out (IDs, names, globs) [env FAIRINO_EXCLUDE]",
-    )
-    g.addoption(
-        "--groups",
-        action="append",
-        default=[],
-        dest="fairino_groups",
-        help=f"only these case groups ({', '.join(GROUPS)})",
-    )
-    g.addoption(
-        "--case",
-        action="append",
-        default=[],
-        dest="fairino_case",
-        help="run only the case with this ID (repeatable)",
-    )
-    # pytest owns --strict (an alias of --strict-markers); ``fairino-conformance run --strict``
-    # maps to this.
-    g.addoption(
-        "--strict-conformance",
-        action="store_true",
-        default=False,
-        dest="fairino_strict",
-        help="NON-STRICT departures fail [env FAIRINO_STRICT=1]",
-    )
-    g.addoption(
-        "--allow-motion",
-        action="store_true",
-        default=False,
-        dest="fairino_allow_motion",
-        help="send motion and program commands to a non-loopback target",
-    )
-    g.addoption(
-        "--allow-io",
-        action="store_true",
-        default=False,
-        dest="fairino_allow_io",
-        help="send I/O commands to a non-loopback target",
-    )
-    g.addoption(
-        "--allow-config",
-        action="store_true",
-        default=False,
-        dest="fairino_allow_config",
-        help="send configuration commands to a non-loopback target",
-    )
-    g.addoption(
-        "--allow-destructive",
-        action="append",
-        default=[],
-        dest="fairino_allow_destructive",
-        metavar="NAME",
-        help="send this destructive command (by name or ID; repeatable)",
-    )
-    g.addoption(
-        "--emulator-fault",
-        action="append",
-        default=[],
-        dest="fairino_emulator_fault",
-        metavar="KIND[:CMD_IDS]",
-        help="inject a fault into the in-process emulator (kit self-test)",
-    )
-    g.addoption(
-        "--dry-run",
-        action="store_true",
-        default=False,
-        dest="fairino_dry_run",
-        help="decide every case (safety, selection) but send nothing",
+        help="run the suite (against the in-process emulator unless --target is given) "
+        "[env FAIRINO_CONFORMANCE=1]",
     )
 
 
-def _setting(config: pytest.Config, dest: str) -> str | None:
-    for d, ini, env, _h, default in _SETTINGS:
-        if d == dest:
-            v = config.getoption(f"fairino_{dest}")
-            if v is None:
-                v = config.getini(ini) or None
-            if v is None:
-                v = os.environ.get(env) or None
-            return str(v) if v is not None else default
-    raise KeyError(dest)
-
-
-def _float(config: pytest.Config, dest: str) -> float | None:
-    v = _setting(config, dest)
-    if v is None:
-        return None
-    try:
-        return float(v)
-    except ValueError:
-        raise pytest.UsageError(f"--{dest.replace('_', '-')}: {v!r} is not a number") from None
-
-
-def _positive(config: pytest.Config, dest: str, default: float) -> float:
-    v = _float(config, dest)
-    if v is None:
-        return default
-    if not v > 0:
-        raise pytest.UsageError(f"--{dest.replace('_', '-')} must be positive, not {v:g}")
-    return v
-
-
-def load_expected_failures(path: str) -> frozenset[str]:
-    """Case IDs, one a line; ``#`` starts a comment.  A JSON report works too (its FAILs)."""
-    try:
-        text = Path(path).read_text(encoding="utf-8")
-    except OSError as e:
-        raise pytest.UsageError(
-            f"--expected-failures: cannot read {path}: {e.strerror or e}"
-        ) from None
-    if text.lstrip().startswith("{"):
-        import json
-
-        from .report import Report
-
-        try:
-            rep = Report.from_json(json.loads(text))
-        except (ValueError, KeyError, TypeError) as e:
-            raise pytest.UsageError(f"--expected-failures: {path} is not a report: {e}") from None
-        return frozenset(c.id for c in rep.cases if c.outcome in (Outcome.FAIL, Outcome.ERROR))
-    ids = (line.split("#", 1)[0].strip() for line in text.splitlines())
-    return frozenset(i for i in ids if i)
+def _values(config: pytest.Config) -> dict[str, Any]:
+    cli: dict[str, Any] = {}
+    for o in OPTIONS:
+        if o.pytest is not None:
+            cli[o.name] = config.getoption(o.ini)
+    cli["seed"] = config.getoption("hypothesis_seed", default=None)
+    if config.getoption("xmlpath", default=None):
+        cli["junitxml"] = None  # pytest writes its own
+    return resolve(cli, ini=lambda key: config.getini(key) or None)
 
 
 def _enabled(config: pytest.Config) -> bool:
-    return bool(
-        config.getoption("fairino_conformance")
-        or os.environ.get("FAIRINO_CONFORMANCE", "").strip() not in ("", "0")
-        or _setting(config, "target")
-    )
-
-
-def _split_env(values: list[str], env: str) -> tuple[str, ...]:
-    if not values and os.environ.get(env):
-        values = [os.environ[env]]
-    return tuple(values)
+    env_on = os.environ.get("FAIRINO_CONFORMANCE", "").strip() not in ("", "0")
+    if config.getoption("fairino_conformance") or env_on:
+        return True
+    t = option("target")
+    return bool(config.getoption(t.ini) or config.getini(t.ini) or os.environ.get(t.env))
 
 
 def _suite_config(config: pytest.Config) -> SuiteConfig:
-    target_text = _setting(config, "target")
-    target = parse_address(target_text, default_port=8080) if target_text else None
-    profile_name = _setting(config, "profile") or "default"
-    if profile_name not in PROFILES:
-        raise pytest.UsageError(
-            f"--profile must be one of {', '.join(PROFILES)}, not {profile_name!r}"
-        )
-    seed_opt = config.getoption("hypothesis_seed", default=None)
-    try:
-        seed = int(seed_opt) if seed_opt is not None else random.getrandbits(32)
-    except ValueError:
-        raise pytest.UsageError(f"--hypothesis-seed must be an integer, not {seed_opt!r}") from None
+    values = _values(config)
+    seed = None
+    workerinput = getattr(config, "workerinput", None)
+    if workerinput is not None and values["seed"] is None:
+        seed = workerinput.get("fairino_seed")
     hyp_profile = config.getoption("hypothesis_profile", default=None)
     if hyp_profile is not None:
         from hypothesis import settings
@@ -304,43 +127,12 @@ def _suite_config(config: pytest.Config) -> SuiteConfig:
             settings.get_profile(hyp_profile)
         except InvalidArgument as e:
             raise pytest.UsageError(f"--hypothesis-profile: {e}") from None
-    host = target[0] if target else None
-    safety = SafetyPolicy.for_target(
-        host,
-        embedded=target is None,
-        allow_config=config.getoption("fairino_allow_config"),
-        allow_io=config.getoption("fairino_allow_io"),
-        allow_motion=config.getoption("fairino_allow_motion"),
-        destructive=config.getoption("fairino_allow_destructive"),
-    )
-    groups = tuple(
-        g.strip() for v in config.getoption("fairino_groups") for g in v.split(",") if g.strip()
-    )
-    expected = _setting(config, "expected_failures")
-    strict = config.getoption("fairino_strict") or os.environ.get("FAIRINO_STRICT", "") not in (
-        "",
-        "0",
-    )
-    return SuiteConfig(
-        target=target,
-        transport=(_setting(config, "transport") or "tcp").lower(),
-        commands=_split_env(config.getoption("fairino_commands"), "FAIRINO_COMMANDS"),
-        exclude=_split_env(config.getoption("fairino_exclude"), "FAIRINO_EXCLUDE"),
-        groups=groups or GROUPS,
-        profile=PROFILES[profile_name],
-        strict=bool(strict),
-        reference=(_setting(config, "reference") or "field").lower(),
-        reply_timeout=_float(config, "reply_timeout") or 2.0,
-        case_timeout=_float(config, "case_timeout") or 60.0,
-        recovery_timeout=_positive(config, "recovery_timeout", 10.0),
-        budget=_positive(config, "budget", DEFAULT_BUDGET),
-        rate=_float(config, "rate"),
-        seed=seed,
-        safety=safety,
-        emulator_faults=tuple(config.getoption("fairino_emulator_fault")),
-        expected_failures=load_expected_failures(expected) if expected else frozenset(),
-        hypothesis_profile=hyp_profile,
-    )
+    sc = suite_config(values, seed=seed if seed is not None else random.getrandbits(32))
+    if hyp_profile is not None:
+        from dataclasses import replace
+
+        sc = replace(sc, hypothesis_profile=hyp_profile)
+    return sc
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -350,10 +142,43 @@ def pytest_configure(config: pytest.Config) -> None:
     if not _enabled(config):
         return
     try:
-        config.stash[_CONFIG_KEY] = _suite_config(config)
+        sc = _suite_config(config)
     except ConformanceError as e:
         raise pytest.UsageError(str(e)) from None
-    config.stash[_RUNNER_KEY] = None
+    config.stash[_CONFIG_KEY] = sc
+    config.stash[_ENGINE_KEY] = None
+    merged = Report(
+        target=sc.target_label(),
+        spec_version="",
+        seed=sc.seed,
+        transport=sc.transport,
+        strict=sc.strict,
+        reference=sc.reference,
+        meta={"profile": sc.profile.name},
+    )
+    config.stash[_MERGED_KEY] = merged
+    if not _is_worker(config):
+        config.pluginmanager.register(_Collector(merged), "fairino-conformance-collector")
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_configure_node(node: Any) -> None:
+    """xdist: every worker uses the controller's seed (one reproduction for the run)."""
+    sc = node.config.stash.get(_CONFIG_KEY, None)
+    if sc is not None:
+        node.workerinput["fairino_seed"] = sc.seed
+
+
+def _is_worker(config: pytest.Config) -> bool:
+    return hasattr(config, "workerinput")
+
+
+def _engine(config: pytest.Config) -> Engine:
+    engine = config.stash.get(_ENGINE_KEY, None)
+    if engine is None:
+        engine = Engine(config.stash[_CONFIG_KEY])
+        config.stash[_ENGINE_KEY] = engine
+    return engine
 
 
 # --------------------------------------------------------------------------- collection
@@ -371,14 +196,13 @@ class CommandNode(pytest.Collector):
 
 
 class CaseFailed(Exception):
-    def __init__(self, result: CaseResult, prefix: str = "") -> None:
+    def __init__(self, result: CaseResult) -> None:
         super().__init__(result.detail)
         self.result = result
-        self.prefix = prefix
 
 
 class CaseItem(pytest.Item):
-    """One conformance case."""
+    """One conformance case: the engine runs it; pytest shows the outcome."""
 
     def __init__(self, *, case: Case, **kwargs: Any) -> None:
         super().__init__(**kwargs)
@@ -389,20 +213,14 @@ class CaseItem(pytest.Item):
 
     def runtest(self) -> None:
         config = self.config.stash[_CONFIG_KEY]
-        if self.config.getoption("fairino_dry_run"):
-            if self.case.command is not None:
-                from .spec import default_specs
-
-                ok, why = config.safety.permits(self.case.command, default_specs())
-                if not ok:
-                    pytest.skip(why)
-            pytest.skip("dry run: would run")
-        runner = _runner(self.config)
-        result = runner.run(self.case)
-        if runner.stopped is not None:
+        engine = _engine(self.config)
+        result = engine.run_case(self.case)
+        # The controller (xdist) or this process rebuilds the report from these.
+        self.user_properties.append((_RESULT_PROP, json.dumps(_result_json(result))))
+        if engine.runner.stopped is not None:
             # Unreachable, dead, or out of budget: the rest would only repeat it.
-            self.session.shouldstop = runner.stopped
-        expected = self.case.id in config.expected_failures
+            self.session.shouldstop = engine.runner.stopped
+            self.user_properties.append((_STOPPED_PROP, engine.runner.stopped))
         outcome = result.outcome
         if outcome is Outcome.NON_STRICT and config.strict:
             outcome = Outcome.FAIL
@@ -411,11 +229,8 @@ class CaseItem(pytest.Item):
             self.user_properties.append(("dialect", result.source))
             if config.reference == "manual":
                 outcome = Outcome.FAIL
-        if expected:
-            if outcome in (Outcome.FAIL, Outcome.ERROR):
-                pytest.xfail(f"expected failure: {result.detail}")
-            if outcome is Outcome.PASS:
-                raise CaseFailed(result, "listed in --expected-failures but passed: ")
+        if result.expected:
+            pytest.xfail(f"expected failure: {result.detail}")
         if outcome in (Outcome.FAIL, Outcome.ERROR):
             raise CaseFailed(result)
         if outcome is Outcome.SKIPPED:
@@ -426,7 +241,7 @@ class CaseItem(pytest.Item):
     def repr_failure(self, excinfo: pytest.ExceptionInfo[BaseException], style: Any = None) -> str:
         if isinstance(excinfo.value, CaseFailed):
             r = excinfo.value.result
-            lines = [f"{r.outcome.value}: {excinfo.value.prefix}{r.detail}"]
+            lines = [f"{r.outcome.value}: {r.detail}"]
             lines += [f"  {f}" for f in r.frames]
             if r.reproduce:
                 lines.append(f"reproduce: {r.reproduce}")
@@ -437,15 +252,24 @@ class CaseItem(pytest.Item):
         return Path(__file__).parent / "suite" / "cases.py", None, self.case.id
 
 
-def _runner(config: pytest.Config) -> SuiteRunner:
-    runner = config.stash.get(_RUNNER_KEY, None)
-    if runner is None:
-        from .spec import default_specs
+def _result_json(r: CaseResult) -> dict[str, Any]:
+    return {"cmd_id": r.cmd_id, "name": r.name, **r.to_json()}
 
-        runner = SuiteRunner(config.stash[_CONFIG_KEY], default_specs())
-        runner.start()
-        config.stash[_RUNNER_KEY] = runner
-    return runner
+
+def _result_from(doc: dict[str, Any]) -> CaseResult:
+    return CaseResult(
+        id=doc["id"],
+        cmd_id=doc["cmd_id"],
+        name=doc["name"],
+        group=doc["group"],
+        outcome=Outcome(doc["outcome"]),
+        detail=doc.get("detail", ""),
+        reproduce=doc.get("reproduce", ""),
+        frames=tuple(doc.get("frames", ())),
+        not_run=bool(doc.get("not_run", False)),
+        source=doc.get("source", ""),
+        expected=bool(doc.get("expected", False)),
+    )
 
 
 @pytest.hookimpl(tryfirst=True)
@@ -454,31 +278,22 @@ def pytest_collection_modifyitems(
 ) -> None:
     if _CONFIG_KEY not in config.stash:
         return
-    from .spec import default_specs
-    from .suite.cases import build_cases
-
-    sc = config.stash[_CONFIG_KEY]
+    engine = _engine(config)
     try:
-        cases = build_cases(default_specs(), sc)
+        cases = engine.select(_values(config)["case"])
     except ConformanceError as e:
         raise pytest.UsageError(str(e)) from None
-    wanted = set(config.getoption("fairino_case"))
-    if wanted:
-        unknown = wanted - {c.id for c in cases}
-        if unknown:
-            raise pytest.UsageError(f"--case: no case {sorted(unknown)[0]!r} in this selection")
-        cases = [c for c in cases if c.id in wanted]
     config.stash[_CASES_KEY] = cases
+    if not _is_worker(config):
+        for w in engine.warnings(cases):
+            config.stash[_MERGED_KEY].meta.setdefault("warnings", []).append(w)
+            print(f"fairino-conformance: warning: {w}", file=sys.stderr)
     nodes: dict[int, list[Case]] = {}
-    order: list[int] = []
     for c in cases:
-        if c.cmd_id not in nodes:
-            nodes[c.cmd_id] = []
-            order.append(c.cmd_id)
-        nodes[c.cmd_id].append(c)
+        nodes.setdefault(c.cmd_id, []).append(c)
     collectors = {
-        cid: CommandNode.from_parent(session, name=str(cid), nodeid=str(cid), cases=nodes[cid])
-        for cid in order
+        cid: CommandNode.from_parent(session, name=str(cid), nodeid=str(cid), cases=cs)
+        for cid, cs in nodes.items()
     }
     by_id = {cid: {i.name: i for i in col.collect()} for cid, col in collectors.items()}
     items.extend(by_id[c.cmd_id][c.item_name] for c in cases)
@@ -487,58 +302,196 @@ def pytest_collection_modifyitems(
 # --------------------------------------------------------------------------- reporting
 
 
+class _Collector:
+    """Each case's result, from this process or an xdist worker, into the session's report."""
+
+    def __init__(self, report: Report) -> None:
+        self.report = report
+
+    def pytest_runtest_logreport(self, report: pytest.TestReport) -> None:
+        props = dict(report.user_properties)
+        raw = props.get(_RESULT_PROP)
+        if raw is None or report.when != "call":
+            return
+        self.report.add(_result_from(json.loads(str(raw))))
+        stopped = props.get(_STOPPED_PROP)
+        if stopped and self.report.stopped is None:
+            self.report.stopped = str(stopped)
+
+
 def pytest_terminal_summary(terminalreporter: Any, exitstatus: int, config: pytest.Config) -> None:
-    runner = config.stash.get(_RUNNER_KEY, None)
-    if runner is None or not runner.report.cases:
+    report = config.stash.get(_MERGED_KEY, None)
+    if report is None or not report.cases or _is_worker(config):
         return
     tr = terminalreporter
     tr.section("FAIRINO conformance: results per command ID")
     width = getattr(tr, "_tw", None)
-    tr.write_line(runner.report.render_terminal(width=max(getattr(width, "fullwidth", 100), 80)))
-    for path_key in ("report_json", "report_html"):
-        path = _setting(config, path_key)
-        if path:
-            tr.write_line(f"{path_key.replace('_', ' ')} written to {path}")
+    tr.write_line(report.render_terminal(width=max(getattr(width, "fullwidth", 100), 80)))
+    values = _values(config)
+    for key in ("report_json", "report_html", "junitxml"):
+        if values[key]:
+            tr.write_line(f"{key.replace('_', ' ')} written to {values[key]}")
 
 
 def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
     config = session.config
-    runner = config.stash.get(_RUNNER_KEY, None)
-    if runner is None:
+    if _CONFIG_KEY not in config.stash:
         return
-    try:
-        runner.close()
-    except Exception as e:  # the emulator's thread failed: a kit error
-        print(f"fairino-conformance: emulator failure: {e}", file=sys.stderr)
-        session.exitstatus = 2
-    if runner.stopped is not None:
-        # The session stopped early: the report still lists every selected case.
-        done = {c.id for c in runner.report.cases}
-        for item in session.items:
-            if isinstance(item, CaseItem) and item.case.id not in done:
-                runner.not_run(item.case)
-    _write_reports(config, runner)
-    if runner.report.exit_code() == 2 and int(exitstatus) in (0, 1):
+    engine = config.stash.get(_ENGINE_KEY, None)
+    if engine is not None:
+        engine.note_address()
+        try:
+            engine.close()
+        except Exception as e:  # the emulator's thread failed: a kit error
+            print(f"fairino-conformance: emulator failure: {e}", file=sys.stderr)
+            session.exitstatus = 2
+    if _is_worker(config):
+        return
+    report = config.stash[_MERGED_KEY]
+    _finish_report(config, report, engine)
+    _write_reports(config, report)
+    if report.exit_code() == 2 and int(exitstatus) in (0, 1):
         session.exitstatus = 2
 
 
-def _write_reports(config: pytest.Config, runner: SuiteRunner) -> None:
-    if runner.address is not None and runner.config.embedded:
-        runner.report.meta["emulator_address"] = f"{runner.address[0]}:{runner.address[1]}"
-    jpath = _setting(config, "report_json")
-    if jpath:
-        Path(jpath).write_text(runner.report.dumps(), encoding="utf-8")
-    hpath = _setting(config, "report_html")
-    if hpath:
+def _finish_report(config: pytest.Config, report: Report, engine: Engine | None) -> None:
+    """Spec version, the emulator's address, and the cases a stopped session never ran."""
+    from .spec import default_specs
+
+    report.spec_version = default_specs().spec_version
+    if engine is not None:
+        report.meta.update({k: v for k, v in engine.report.meta.items() if k not in report.meta})
+    cases = config.stash.get(_CASES_KEY, None)
+    if cases is None:  # the xdist controller collects nothing itself
+        try:
+            cases = _engine(config).select(_values(config)["case"])
+        except ConformanceError:
+            cases = []
+    done = {c.id for c in report.cases}
+    missing = [c for c in cases if c.id not in done]
+    if report.stopped is not None and missing:
+        for c in missing:
+            report.add(
+                CaseResult(
+                    id=c.id,
+                    cmd_id=c.cmd_id,
+                    name=c.name,
+                    group=c.group,
+                    outcome=Outcome.ERROR,
+                    detail=f"not run: {report.stopped}",
+                    not_run=True,
+                )
+            )
+
+
+def _write_reports(config: pytest.Config, report: Report) -> None:
+    values = _values(config)
+    if values["report_json"]:
+        Path(values["report_json"]).write_text(report.dumps(), encoding="utf-8")
+    if values["report_html"]:
         from .report import render_html
 
-        Path(hpath).write_text(render_html([runner.report]), encoding="utf-8")
+        Path(values["report_html"]).write_text(render_html([report]), encoding="utf-8")
+    if values["junitxml"]:
+        from .suite.present import write_junit
+
+        write_junit(report, values["junitxml"])
 
 
-def current_runner(config: pytest.Config) -> SuiteRunner | None:
-    """The session's runner (for ``fairino-conformance run`` and tests)."""
-    return config.stash.get(_RUNNER_KEY, None)
+# --------------------------------------------------------------------------- fixtures
 
 
-def iter_cases(config: pytest.Config) -> Iterator[Case]:
-    yield from config.stash.get(_CASES_KEY, [])
+@dataclass(frozen=True)
+class Target:
+    """The endpoint under test: ``--target`` (ini, env), or the session's emulator."""
+
+    host: str
+    port: int
+    transport: str = "tcp"
+
+    @property
+    def address(self) -> str:
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        return f"{host}:{self.port}"
+
+
+EmulatorFactory = Callable[..., EmulatorServer]
+
+
+@pytest.fixture(scope="session")
+def fairino_emulator_factory() -> Iterator[EmulatorFactory]:
+    """Start emulators for the session: ``factory(faults=("wrong_cnt:201",), reference="manual",
+    dispatch="any", udp=True)``; each listens on 127.0.0.1, ports chosen by the kernel.
+    Closed at the end of the session, re-raising any failure of their own."""
+    servers: list[EmulatorServer] = []
+
+    def make(
+        *,
+        faults: Iterable[str] = (),
+        reference: str = "field",
+        dispatch: str = "recorded",
+        udp: bool = True,
+    ) -> EmulatorServer:
+        from .dialects import default_dialects
+        from .judge import Judge, Reference
+        from .spec import default_specs
+
+        judge = Judge(default_specs(), default_dialects(), reference=Reference(reference))
+        emu = EmulatorServer(
+            udp_port=0 if udp else None, faults=tuple(faults), judge=judge, dispatch=dispatch
+        )
+        emu.start()
+        servers.append(emu)
+        return emu
+
+    yield make
+    errors = []
+    for emu in servers:
+        try:
+            emu.close()
+        except RuntimeError as e:
+            errors.append(e)
+    if errors:
+        raise errors[0]
+
+
+@pytest.fixture
+def fairino_emulator() -> Iterator[EmulatorServer]:
+    """A fresh emulator for one test (TCP and UDP on 127.0.0.1, ports chosen by the kernel).
+
+    Its ``address`` / ``udp_address`` are where to connect; a failure of its own
+    (a kit bug) is raised at teardown."""
+    with EmulatorServer(udp_port=0) as emu:
+        yield emu
+
+
+@pytest.fixture(scope="session")
+def fairino_target(
+    request: pytest.FixtureRequest, fairino_emulator_factory: EmulatorFactory
+) -> Target:
+    """The endpoint under test: ``--target`` / ini ``fairino_target`` / ``$FAIRINO_TARGET``,
+    else an emulator started for the session."""
+    from .net import parse_address
+
+    config = request.config
+    values = resolve(
+        {o.name: config.getoption(o.ini) for o in OPTIONS if o.pytest is not None},
+        ini=lambda key: config.getini(key) or None,
+    )
+    if values["target"]:
+        host, port = parse_address(values["target"], default_port=8080)
+        return Target(host, port, values["transport"])
+    emu = fairino_emulator_factory(udp=values["transport"] == "udp")
+    if values["transport"] == "udp":
+        assert emu.udp_address is not None
+        return Target(emu.udp_address[0], emu.udp_address[1], "udp")
+    return Target(emu.address[0], emu.address[1], "tcp")
+
+
+@pytest.fixture
+def fairino_client(fairino_target: Target) -> Iterator[Client]:
+    """A client connected to ``fairino_target`` for one test (closed after it)."""
+    with Client(
+        fairino_target.host, fairino_target.port, transport=fairino_target.transport, timeout=5
+    ) as c:
+        yield c

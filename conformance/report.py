@@ -91,6 +91,8 @@ class CaseResult:
     not_run: bool = False
     #: What the verdict rests on: a manual section, or a field dialect entry and its evidence.
     source: str = ""
+    #: A failure the baseline (``--expected-failures``) lists: shown, but not failing the run.
+    expected: bool = False
 
     def __post_init__(self) -> None:
         # Frozen: the bounds are applied once, here, so no front-end can forget them.
@@ -114,6 +116,8 @@ class CaseResult:
             out["not_run"] = True
         if self.source:
             out["source"] = self.source
+        if self.expected:
+            out["expected"] = True
         return out
 
 
@@ -125,12 +129,15 @@ class CommandSummary:
 
     @property
     def outcome(self) -> Outcome:
-        return aggregate(c.outcome for c in self.cases)
+        """The worst case's outcome; a baseline's expected failure counts as passed."""
+        return aggregate(Outcome.PASS if c.expected else c.outcome for c in self.cases)
 
     def counts(self) -> dict[str, int]:
+        """Cases by outcome; expected failures (the baseline) as ``XFAIL``."""
         out: dict[str, int] = {}
         for c in self.cases:
-            out[c.outcome.value] = out.get(c.outcome.value, 0) + 1
+            key = "XFAIL" if c.expected else c.outcome.value
+            out[key] = out.get(key, 0) + 1
         return out
 
 
@@ -187,7 +194,7 @@ class Report:
 
     def exit_code(self) -> int:
         """0 conformant, 1 conformance failures, 2 kit or connection error."""
-        outs = [self.effective(c.outcome) for c in self.cases]
+        outs = [self.effective(c.outcome) for c in self.cases if not c.expected]
         if Outcome.ERROR in outs:
             return 2
         if Outcome.FAIL in outs:
@@ -253,6 +260,7 @@ class Report:
                         frames=tuple(c.get("frames", ())),
                         not_run=bool(c.get("not_run", False)),
                         source=c.get("source", ""),
+                        expected=bool(c.get("expected", False)),
                     )
                 )
         return r

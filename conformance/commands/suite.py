@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import os
 import signal
 import sys
 import threading
@@ -187,157 +188,77 @@ def _emulate(args: argparse.Namespace) -> int:
 
 
 def _add_run(sub: Any) -> None:
+    from ..suite.options import add_to_argparse
+
     p = sub.add_parser(
         "run",
         help="run the conformance suite against an endpoint (default: the built-in emulator)",
-        description="Run the packaged conformance suite (pytest in-process, with a progress bar). "
-        "Exit code: 0 conformant, 1 conformance failures, 2 kit or connection error.",
+        description="Run the packaged conformance suite with a progress line, then print each "
+        "failure with its reproduction and the per-command table. Every option is also an "
+        "ini key (fairino_*, in pytest.ini) for pytest and a FAIRINO_* environment variable. "
+        "Exit code: 0 conformant, 1 conformance failures, 2 kit or connection error or "
+        "interrupted.",
     )
-    p.add_argument("--target", help="HOST:PORT of the endpoint (default: in-process emulator)")
-    p.add_argument("--transport", choices=("tcp", "udp"), default="tcp")
-    p.add_argument("--commands", action="append", default=[], help="IDs, names, globs")
-    p.add_argument("--exclude", action="append", default=[], help="IDs, names, globs")
-    p.add_argument("--groups", action="append", default=[], help="case groups to run")
-    p.add_argument("--profile", choices=("quick", "default", "thorough"), default="default")
-    p.add_argument("--strict", action="store_true", help="NON-STRICT departures fail")
-    p.add_argument(
-        "--reference",
-        choices=("field", "manual"),
-        default=None,
-        help="field (default): a reply in a recorded field dialect is DIALECT, not a failure; "
-        "manual: the manual alone [env FAIRINO_REFERENCE]",
-    )
-    p.add_argument("--expected-failures", metavar="FILE", help="baseline of case IDs")
-    p.add_argument("--reply-timeout", type=float, default=None, metavar="SECONDS")
-    p.add_argument(
-        "--case-timeout", type=float, default=None, metavar="SECONDS", help="one case (60)"
-    )
-    p.add_argument(
-        "--recovery-timeout",
-        type=float,
-        default=None,
-        metavar="SECONDS",
-        help="wait for a silent or crashed target to answer again (10); then the run stops",
-    )
-    p.add_argument(
-        "--budget",
-        type=float,
-        default=None,
-        metavar="SECONDS",
-        help="the whole run (10800: 3 hours); then the run stops, exit 2",
-    )
-    p.add_argument("--rate", type=float, default=None, help="at most this many frames/s")
-    p.add_argument("--seed", type=int, default=None, help="Hypothesis seed")
-    p.add_argument("--report-json", metavar="PATH")
-    p.add_argument("--report-html", metavar="PATH")
-    p.add_argument("--junitxml", metavar="PATH")
-    p.add_argument("--allow-motion", action="store_true")
-    p.add_argument("--allow-io", action="store_true")
-    p.add_argument("--allow-config", action="store_true")
-    p.add_argument("--allow-destructive", action="append", default=[], metavar="NAME")
-    p.add_argument("--emulator-fault", action="append", default=[], metavar="KIND[:CMD_IDS]")
-    p.add_argument("--case", action="append", default=[], metavar="ID")
-    p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
+    add_to_argparse(p)
     p.set_defaults(func=_run)
 
 
-class _Progress:
-    """pytest plugin object: a one-line progress bar on stderr, and the final report."""
-
-    def __init__(self, quiet: bool) -> None:
-        self.quiet = quiet
-        self.total = 0
-        self.done = 0
-        self.failed = 0
-        self.report: Any = None
-        self.usage_error: str | None = None
-
-    def pytest_collection_finish(self, session: Any) -> None:
-        self.total = len(session.items)
-
-    def pytest_runtest_logreport(self, report: Any) -> None:
-        if report.when == "call" or (report.when == "setup" and report.outcome != "passed"):
-            self.done += 1
-            self.failed += report.outcome == "failed"
-            if not self.quiet and (self.done % 25 == 0 or self.done == self.total):
-                width = 30
-                filled = int(width * self.done / max(self.total, 1))
-                bar = "#" * filled + "-" * (width - filled)
-                sys.stderr.write(f"\r[{bar}] {self.done}/{self.total} cases, {self.failed} failed")
-                sys.stderr.flush()
-
-    def pytest_sessionfinish(self, session: Any) -> None:
-        from ..pytest_plugin import current_runner
-
-        runner = current_runner(session.config)
-        if runner is not None:
-            self.report = runner.report
-        if not self.quiet and self.total:
-            sys.stderr.write("\n")
-
-
 def _run(args: argparse.Namespace) -> int:
-    import os
-    import tempfile
+    """``run``: the engine's events drawn on stderr; reports written, each to its own path."""
+    from pathlib import Path
 
-    import pytest
+    from ..cli import EXIT_ERROR, EXIT_OK
+    from ..report import render_html
+    from ..suite.engine import Engine, RunFinished
+    from ..suite.options import OPTIONS, resolve, suite_config
+    from ..suite.present import Progress, failure_lines, write_junit
 
-    from ..cli import EXIT_ERROR, EXIT_FAIL, EXIT_OK
-
-    if args.target:
-        parse_address(args.target, default_port=8080)  # a clear error before pytest starts
-    for f in args.emulator_fault:
-        parse_fault(f)
-    if args.emulator_fault and args.target:
+    values = resolve({o.name: getattr(args, o.name, None) for o in OPTIONS if o.run})
+    if values["emulator_fault"] and values["target"]:
         raise UsageError("--emulator-fault applies only to the built-in emulator (no --target)")
-    for name in ("reply_timeout", "case_timeout", "recovery_timeout", "budget", "rate"):
-        v = getattr(args, name)
-        if v is not None and v <= 0:
-            raise UsageError(f"--{name.replace('_', '-')} must be positive")
-    if args.expected_failures and not os.path.isfile(args.expected_failures):
-        raise UsageError(f"--expected-failures: no such file: {args.expected_failures}")
-    with tempfile.TemporaryDirectory(prefix="fairino-run-") as tmp:
-        ini = os.path.join(tmp, "pytest.ini")
-        with open(ini, "w", encoding="utf-8") as f:
-            f.write("[pytest]\n")
-        argv = [tmp, "-c", ini, "--rootdir", tmp, "-p", "no:cacheprovider", "-p", "no:terminal"]
-        argv += ["--target", args.target] if args.target else ["--conformance"]
-        argv += ["--transport", args.transport, "--profile", args.profile]
-        if args.reference is not None:
-            argv += ["--reference", args.reference]
-        for opt in ("commands", "exclude", "groups", "case", "allow_destructive", "emulator_fault"):
-            for v in getattr(args, opt):
-                argv += [f"--{opt.replace('_', '-')}", v]
-        timing = ("reply_timeout", "case_timeout", "recovery_timeout", "budget", "rate")
-        for opt in ("expected_failures", *timing):
-            v = getattr(args, opt)
-            if v is not None:
-                argv += [f"--{opt.replace('_', '-')}", str(v)]
-        for opt in ("report_json", "report_html", "junitxml"):
-            v = getattr(args, opt)
-            if v is not None:
-                argv += [f"--{opt.replace('_', '-')}", os.path.abspath(v)]
-        for flag in ("allow_motion", "allow_io", "allow_config"):
-            if getattr(args, flag):
-                argv.append(f"--{flag.replace('_', '-')}")
-        if args.strict:
-            argv.append("--strict-conformance")
-        if args.seed is not None:
-            argv.append(f"--hypothesis-seed={args.seed}")
-        progress = _Progress(args.quiet)
-        code = int(pytest.main(argv, plugins=[progress]))
-    report = progress.report
-    if report is not None and report.stopped:
-        # The one line that says why the run stopped early (unreachable, dead, budget).
+    outputs = [values[k] for k in ("report_json", "report_html", "junitxml") if values[k]]
+    if len(set(map(os.path.abspath, outputs))) != len(outputs):
+        raise UsageError("--report-json, --report-html and --junitxml must be different files")
+    for path in outputs:
+        parent = Path(path).resolve().parent
+        if not parent.is_dir():
+            raise UsageError(f"cannot write {path}: no directory {parent}")
+    engine = Engine(suite_config(values))
+    cases = engine.select(values["case"])
+    progress = Progress(sys.stderr, quiet=values["quiet"])
+    finished: RunFinished | None = None
+    failure: str | None = None
+    try:
+        for ev in engine.events(cases):
+            progress.handle(ev)
+            if isinstance(ev, RunFinished):
+                finished = ev
+    finally:
+        try:
+            engine.close()
+        except RuntimeError as e:  # the emulator's own machinery failed: a kit error
+            failure = str(e)
+    report = engine.report
+    if values["report_json"]:
+        Path(values["report_json"]).write_text(report.dumps(), encoding="utf-8")
+    if values["report_html"]:
+        Path(values["report_html"]).write_text(render_html([report]), encoding="utf-8")
+    if values["junitxml"]:
+        write_junit(report, values["junitxml"])
+    lines = failure_lines(report)
+    if lines:
+        print("\n".join(lines))
+        print()
+    print(report.render_terminal())
+    if report.stopped:
+        # The one line that says why the run stopped early (unreachable, dead, budget, Ctrl-C).
         print(f"fairino-conformance run: {report.stopped}", file=sys.stderr)
-    if report is not None and report.cases:
-        print(report.render_terminal())
-        if code in (0, 1):
-            return EXIT_OK if code == 0 else max(EXIT_FAIL, report.exit_code())
+    if failure is not None:
+        print(f"fairino-conformance run: error: {failure}", file=sys.stderr)
         return EXIT_ERROR
-    if code == 4:
-        raise UsageError("bad options for the suite (see the message above)")
-    return EXIT_ERROR if code != 0 else EXIT_OK
+    if finished is not None and finished.interrupted:
+        return EXIT_ERROR
+    return EXIT_OK if not report.cases else report.exit_code()
 
 
 # --------------------------------------------------------------------------- serve

@@ -107,6 +107,8 @@ class SuiteConfig:
     expected_failures: frozenset[str] = frozenset()
     #: ``--hypothesis-profile``: its example counts replace the kit profile's.
     hypothesis_profile: str | None = None
+    #: Decide every case (selection, safety) but send nothing.
+    dry_run: bool = False
 
     def __post_init__(self) -> None:
         if self.reference not in ("field", "manual"):

@@ -1,0 +1,212 @@
+"""The suite's engine: select cases, run them, emit typed events, keep the report.
+
+Two front-ends sit on it and nothing else runs cases (schemathesis' shape):
+``fairino-conformance run`` (:mod:`conformance.commands.suite`) consumes
+:meth:`Engine.events` and draws a progress line; the pytest plugin
+(:mod:`conformance.pytest_plugin`) makes one test item per case and calls
+:meth:`Engine.run_case`.  Both read the options from one definition
+(:mod:`conformance.suite.options`), so a case gives the same result, the same
+reproduction and the same report whichever front-end ran it.
+
+Baseline (``--expected-failures``): a listed case that fails is reported with
+its outcome and ``expected`` set, and does not fail the run; a listed case that
+passes fails the run ("listed in --expected-failures but passed"); listed IDs
+that match no selected case are a :class:`RunWarning`.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, replace
+
+from ..errors import UsageError
+from ..report import CaseResult, Outcome, Report
+from ..spec import SpecSet, default_specs
+from .cases import build_cases
+from .config import SuiteConfig
+from .runner import Case, SuiteRunner
+
+__all__ = [
+    "CaseFinished",
+    "Engine",
+    "Event",
+    "RunFinished",
+    "RunStarted",
+    "RunWarning",
+]
+
+
+@dataclass(frozen=True, kw_only=True)
+class RunStarted:
+    total: int
+    target: str
+    seed: int
+
+
+@dataclass(frozen=True, kw_only=True)
+class RunWarning:
+    message: str
+
+
+@dataclass(frozen=True, kw_only=True)
+class CaseFinished:
+    index: int
+    total: int
+    case: Case
+    result: CaseResult
+    #: Seconds since the run started.
+    elapsed: float
+
+
+@dataclass(frozen=True, kw_only=True)
+class RunFinished:
+    report: Report
+    elapsed: float
+    interrupted: bool = False
+
+
+Event = RunStarted | RunWarning | CaseFinished | RunFinished
+
+_FAILING = (Outcome.FAIL, Outcome.ERROR)
+
+
+class Engine:
+    """Runs the conformance suite for one :class:`SuiteConfig`."""
+
+    def __init__(self, config: SuiteConfig, specs: SpecSet | None = None) -> None:
+        self.config = config
+        self.specs = specs if specs is not None else default_specs()
+        self.runner = SuiteRunner(config, self.specs)
+        self._started = False
+
+    @property
+    def report(self) -> Report:
+        return self.runner.report
+
+    # ------------------------------------------------------------------ selection
+
+    def select(self, case_ids: Sequence[str] = ()) -> list[Case]:
+        """The selected cases in run order; ``case_ids`` narrows them (an unknown one is an error)."""
+        cases = build_cases(self.specs, self.config)
+        wanted = set(case_ids)
+        if wanted:
+            unknown = sorted(wanted - {c.id for c in cases})
+            if unknown:
+                raise UsageError(f"--case: no case {unknown[0]!r} in this selection")
+            cases = [c for c in cases if c.id in wanted]
+        return cases
+
+    def warnings(self, cases: Sequence[Case]) -> list[str]:
+        """What the user should know before the run: baseline IDs that match no case."""
+        stale = sorted(self.config.expected_failures - {c.id for c in cases})
+        if not stale:
+            return []
+        shown = ", ".join(stale[:3]) + (f" (+{len(stale) - 3} more)" if len(stale) > 3 else "")
+        return [
+            f"--expected-failures: {len(stale)} listed case ID(s) match no case in this "
+            f"selection: {shown}"
+        ]
+
+    # ------------------------------------------------------------------ running
+
+    def start(self) -> None:
+        """Start the target (the emulator) or check it; a dry run starts nothing."""
+        if not self._started and not self.config.dry_run:
+            self.runner.start()
+        self._started = True
+
+    def run_case(self, case: Case) -> CaseResult:
+        """Run one case (never raises); the result is in the report, baseline applied."""
+        self.start()
+        if self.config.dry_run:
+            result = self._dry(case)
+            self.report.add(result)
+            return result
+        result = self.runner.run(case)
+        baselined = self._baseline(result)
+        if baselined is not result:
+            self.report.cases[-1] = baselined
+        return baselined
+
+    def _dry(self, case: Case) -> CaseResult:
+        why = "dry run: would run"
+        if case.command is not None:
+            ok, reason = self.config.safety.permits(case.command, self.specs)
+            if not ok:
+                why = f"dry run: {reason}"
+        return CaseResult(
+            id=case.id,
+            cmd_id=case.cmd_id,
+            name=case.name,
+            group=case.group,
+            outcome=Outcome.SKIPPED,
+            detail=why,
+        )
+
+    def _baseline(self, result: CaseResult) -> CaseResult:
+        if result.id not in self.config.expected_failures:
+            return result
+        if result.outcome in _FAILING:
+            return replace(result, expected=True)
+        if result.outcome in (Outcome.PASS, Outcome.DIALECT, Outcome.NON_STRICT):
+            return replace(
+                result,
+                outcome=Outcome.FAIL,
+                detail=f"listed in --expected-failures but passed ({result.outcome.value}"
+                + (f": {result.detail}" if result.detail else "")
+                + "); remove it from the baseline",
+            )
+        return result
+
+    def not_run(self, case: Case) -> CaseResult:
+        return self.runner.not_run(case)
+
+    def events(self, cases: Sequence[Case]) -> Iterator[Event]:
+        """Run ``cases`` in order: RunStarted, warnings, CaseFinished each, RunFinished.
+
+        A KeyboardInterrupt stops the run: the cases not run are listed as such
+        and RunFinished says ``interrupted``.
+        """
+        t0 = time.monotonic()
+        yield RunStarted(total=len(cases), target=self.runner.target_label(), seed=self.config.seed)
+        for w in self.warnings(cases):
+            self.report.meta.setdefault("warnings", []).append(w)
+            yield RunWarning(message=w)
+        interrupted = False
+        i = 0
+        try:
+            for i, case in enumerate(cases, 1):
+                if self.runner.stopped is not None:
+                    result = self.not_run(case)
+                else:
+                    result = self.run_case(case)
+                yield CaseFinished(
+                    index=i,
+                    total=len(cases),
+                    case=case,
+                    result=result,
+                    elapsed=time.monotonic() - t0,
+                )
+        except KeyboardInterrupt:
+            interrupted = True
+            done = {c.id for c in self.report.cases}
+            self.runner.stopped = self.report.stopped = (
+                f"interrupted after {len(done)} of {len(cases)} cases"
+            )
+            for case in cases:
+                if case.id not in done:
+                    self.not_run(case)
+        self.note_address()
+        yield RunFinished(
+            report=self.report, elapsed=time.monotonic() - t0, interrupted=interrupted
+        )
+
+    def note_address(self) -> None:
+        """Record where the built-in emulator listened (its port is the kernel's choice)."""
+        r = self.runner
+        if r.address is not None and r.config.embedded:
+            self.report.meta["emulator_address"] = f"{r.address[0]}:{r.address[1]}"
+
+    def close(self) -> None:
+        self.runner.close()
