@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 import socket
+import subprocess
+import sys
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -79,13 +81,22 @@ def test_failure_prints_reproduction_that_selects_exactly_that_case(
     assert result.ret == 1
     out = result.stdout.str()
     assert "does not echo the request's" in out
-    line = next(x for x in out.splitlines() if x.startswith("reproduce: pytest"))
-    assert "printf '/f/bIII" in line and "| nc -w1 127.0.0.1" in line
-    args = line.split("reproduce: pytest ", 1)[1].split("  # or:")[0].split()
+    line = next(x for x in out.splitlines() if x.startswith("reproduce: fairino-conformance run"))
+    run_part, send_part = line.split("reproduce: ", 1)[1].split("  # or: ")
+    # Not this run's temporary emulator port: an emulator the user starts, same fault.
+    assert f"emulate --listen 127.0.0.1:8080 --fault {fault} &" in send_part
+    assert "fairino-conformance send 127.0.0.1:8080 --hex 2f662f62" in send_part
+    args = run_part.split()[1:]  # after "fairino-conformance"
     case_id = args[args.index("--case") + 1]
-    again = pytester.runpytest(*args[:], "--reply-timeout", "0.3")
-    again.assert_outcomes(failed=1)
-    assert case_id in again.stdout.str()
+    again = subprocess.run(
+        [sys.executable, "-m", "conformance", *args, "--reply-timeout", "0.3", "-q"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert again.returncode == 1, again.stderr
+    assert f"FAIL {case_id}:" in again.stdout
+    assert "1 FAIL" in again.stdout.splitlines()[-1]
 
 
 def test_expected_failures_baseline(pytester: pytest.Pytester, tmp_path: Path) -> None:

@@ -229,10 +229,14 @@ def _run(args: argparse.Namespace) -> int:
     finished: RunFinished | None = None
     failure: str | None = None
     try:
-        for ev in engine.events(cases):
-            progress.handle(ev)
-            if isinstance(ev, RunFinished):
-                finished = ev
+        try:
+            for ev in engine.events(cases):
+                progress.handle(ev)
+                if isinstance(ev, RunFinished):
+                    finished = ev
+        except KeyboardInterrupt:  # between two cases, outside the engine
+            finished = engine.interrupt(cases)
+            progress.handle(finished)
     finally:
         try:
             engine.close()
@@ -257,7 +261,7 @@ def _run(args: argparse.Namespace) -> int:
         print(f"fairino-conformance run: error: {failure}", file=sys.stderr)
         return EXIT_ERROR
     if finished is not None and finished.interrupted:
-        return EXIT_ERROR
+        return 130  # as for any interrupted command (conformance/cli.py)
     return EXIT_OK if not report.cases else report.exit_code()
 
 

@@ -79,6 +79,7 @@ class Engine:
         self.specs = specs if specs is not None else default_specs()
         self.runner = SuiteRunner(config, self.specs)
         self._started = False
+        self._t0 = time.monotonic()
 
     @property
     def report(self) -> Report:
@@ -173,8 +174,7 @@ class Engine:
         for w in self.warnings(cases):
             self.report.meta.setdefault("warnings", []).append(w)
             yield RunWarning(message=w)
-        interrupted = False
-        i = 0
+        self._t0 = t0
         try:
             for i, case in enumerate(cases, 1):
                 if self.runner.stopped is not None:
@@ -189,17 +189,23 @@ class Engine:
                     elapsed=time.monotonic() - t0,
                 )
         except KeyboardInterrupt:
-            interrupted = True
-            done = {c.id for c in self.report.cases}
-            self.runner.stopped = self.report.stopped = (
-                f"interrupted after {len(done)} of {len(cases)} cases"
-            )
-            for case in cases:
-                if case.id not in done:
-                    self.not_run(case)
+            yield self.interrupt(cases)
+            return
         self.note_address()
-        yield RunFinished(
-            report=self.report, elapsed=time.monotonic() - t0, interrupted=interrupted
+        yield RunFinished(report=self.report, elapsed=time.monotonic() - t0)
+
+    def interrupt(self, cases: Sequence[Case]) -> RunFinished:
+        """Ctrl-C: the run stops; the cases not run are listed as such, the report says why."""
+        done = {c.id for c in self.report.cases}
+        self.runner.stopped = self.report.stopped = (
+            f"interrupted after {len(done)} of {len(cases)} cases"
+        )
+        for case in cases:
+            if case.id not in done:
+                self.not_run(case)
+        self.note_address()
+        return RunFinished(
+            report=self.report, elapsed=time.monotonic() - self._t0, interrupted=True
         )
 
     def note_address(self) -> None:

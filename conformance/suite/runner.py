@@ -496,26 +496,35 @@ class SuiteRunner:
     # ------------------------------------------------------------------ running cases
 
     def reproduce(self, case: Case, raw: bytes) -> str:
+        """A shell line re-running exactly this case, and one sending its frame with ``send``.
+
+        Against the built-in emulator the frame goes to an emulator the user starts
+        (with the same faults) on 127.0.0.1:8080, never to this run's temporary port.
+        """
+        faults = self.config.emulator_faults
         if self.config.embedded:
-            where = "--conformance"
-            faults = "".join(
-                f" --emulator-fault {shlex.quote(f)}" for f in self.config.emulator_faults
-            )
-            where += faults
+            where = "".join(f" --emulator-fault {shlex.quote(f)}" for f in faults)
         else:
-            where = f"--target {shlex.quote(self.config.target_label())}"
+            where = f" --target {shlex.quote(self.config.target_label())}"
             if self.config.transport != "tcp":
                 where += f" --transport {self.config.transport}"
         line = (
-            f"pytest -p no:cacheprovider {where} --case {shlex.quote(case.id)} "
-            f"--hypothesis-seed={self.config.seed}"
+            f"fairino-conformance run{where} --case {shlex.quote(case.id)} "
+            f"--seed {self.config.seed}"
         )
         # A request too long for a command line (the 300 KB oversize frame) stays
         # in the case's frames only.
-        if raw and len(raw) <= 2048 and self.address is not None:
-            host, port = self.address
-            nc = "nc -u -w1" if self.config.transport == "udp" else "nc -w1"
-            line += f"  # or: printf {shell_printf(raw)} | {nc} {host} {port}"
+        if raw and len(raw) <= 2048:
+            udp = " --udp" if self.config.transport == "udp" else ""
+            if self.config.embedded:
+                listen = "--udp 127.0.0.1:20007 " if udp else ""
+                emulate = "fairino-conformance emulate --listen 127.0.0.1:8080 " + listen
+                emulate += "".join(f"--fault {shlex.quote(f)} " for f in faults)
+                addr = "127.0.0.1:20007" if udp else "127.0.0.1:8080"
+                line += f"  # or: {emulate}& fairino-conformance send {addr}{udp} --hex {raw.hex()}"
+            else:
+                addr = shlex.quote(self.config.target_label())
+                line += f"  # or: fairino-conformance send {addr}{udp} --hex {raw.hex()}"
         return line
 
     def run(self, case: Case) -> CaseResult:

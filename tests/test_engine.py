@@ -1,0 +1,222 @@
+"""One engine, two thin front-ends: ``run`` and the pytest plugin, as a new user meets them."""
+
+from __future__ import annotations
+
+import ast
+import json
+import os
+import signal
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from conformance.spec import default_specs
+
+ROOT = Path(__file__).resolve().parent.parent
+SPECS = default_specs()
+QUERY = next(c for c in SPECS if c.cmd_id == 212)  # GetDI
+FRAMING = f"{QUERY.cmd_id}/{QUERY.name}/framing/{QUERY.variants[0].table}"
+
+
+def run(
+    *args: str, cwd: Path, env: dict[str, str] | None = None
+) -> subprocess.CompletedProcess[str]:
+    base = {k: v for k, v in os.environ.items() if not k.startswith("FAIRINO_")}
+    return subprocess.run(
+        [sys.executable, "-m", "conformance", "run", *args],
+        capture_output=True,
+        text=True,
+        cwd=cwd,
+        env={**base, **(env or {})},
+        timeout=300,
+    )
+
+
+def test_run_does_not_call_pytest() -> None:
+    """``run`` drives the engine itself; it neither imports pytest nor builds a command line."""
+    tree = ast.parse((ROOT / "conformance" / "commands" / "suite.py").read_text(encoding="utf-8"))
+    imported = {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+    imported |= {n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
+    assert not {m for m in imported if m.split(".")[0] == "pytest"}
+    assert "..suite.engine" in (ROOT / "conformance" / "commands" / "suite.py").read_text() or any(
+        m.endswith("suite.engine") for m in imported
+    )
+
+
+def test_each_report_goes_to_its_own_file(tmp_path: Path) -> None:
+    """``run --report-html h.html --junitxml j.xml`` once wrote HTML into j.xml."""
+    p = run(
+        "-q", "--commands", "212", "--groups", "framing,examples",
+        "--report-json", "r.json", "--report-html", "h.html", "--junitxml", "j.xml",
+        cwd=tmp_path,
+    )  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    assert json.loads((tmp_path / "r.json").read_text())["commands"]["212"]["outcome"] == "PASS"
+    assert (tmp_path / "h.html").read_text().startswith("<!DOCTYPE html>")
+    root = ET.fromstring((tmp_path / "j.xml").read_text())
+    cases = root.findall(".//testcase")
+    assert cases and {c.get("classname") for c in cases} == {"212"}
+    same = run("-q", "--commands", "212", "--report-json", "x", "--junitxml", "x", cwd=tmp_path)
+    assert same.returncode == 2 and "must be different files" in same.stderr
+
+
+def test_run_prints_failures_and_a_reproduction_not_tied_to_its_port(tmp_path: Path) -> None:
+    fault = "wrong_cnt:212"
+    p = run(
+        "-q", "--commands", "212", "--groups", "framing", "--emulator-fault", fault,
+        "--seed", "5", "--report-json", "r.json",
+        cwd=tmp_path,
+    )  # fmt: skip
+    assert p.returncode == 1, p.stderr
+    assert f"FAIL {FRAMING}: reply CNT 2 does not echo the request's 1" in p.stdout
+    assert "reproduce: fairino-conformance run --emulator-fault wrong_cnt:212 --case" in p.stdout
+    doc = json.loads((tmp_path / "r.json").read_text())
+    (case,) = doc["commands"]["212"]["cases"]
+    port = doc["meta"]["emulator_address"].rsplit(":", 1)[1]
+    assert port not in case["reproduce"].replace("127.0.0.1:8080", "")
+    assert "fairino-conformance send 127.0.0.1:8080 --hex " in case["reproduce"]
+
+
+def test_dry_run_decides_every_case_and_sends_nothing(tmp_path: Path) -> None:
+    # 192.0.2.1 (TEST-NET-1) is never contacted: a dry run starts nothing.
+    p = run("--dry-run", "-q", "--target", "192.0.2.1:8080", "--commands", "201,212",
+            "--report-json", "r.json", cwd=tmp_path)  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    doc = json.loads((tmp_path / "r.json").read_text())
+    details = {c["detail"] for cmd in doc["commands"].values() for c in cmd["cases"]}
+    assert "dry run: would run" in details  # the query
+    assert any("dry run" in d and "--allow-motion" in d for d in details)  # MoveJ
+
+
+def test_progress_in_a_log_is_plain_lines_with_elapsed_and_eta(tmp_path: Path) -> None:
+    p = run("--commands", "201,204,212", "--profile", "quick", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    assert "\r" not in p.stderr  # stderr is a pipe here, as in a CI log
+    lines = [x for x in p.stderr.splitlines() if "cases," in x]
+    assert 3 <= len(lines) <= 13  # about one a 10 %, and the last
+    assert all("elapsed" in x for x in lines)
+    assert any("left" in x for x in lines)
+    assert lines[-1].startswith("done: ")
+
+
+def test_ctrl_c_says_interrupted(tmp_path: Path) -> None:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("FAIRINO_")}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "conformance", "run", "--emulator-fault", "slow@0.05",
+         "--commands", "201,204,212", "--report-json", "r.json"],
+        cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    assert proc.stderr is not None
+    first = proc.stderr.readline()  # "running N cases ...": the run has begun
+    assert first.startswith("running ")
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert "interrupted" in err
+    doc = json.loads((tmp_path / "r.json").read_text())
+    assert doc["stopped"].startswith("interrupted after ")
+    not_run = [c for cmd in doc["commands"].values() for c in cmd["cases"] if c.get("not_run")]
+    assert not_run  # the table does not say all PASS
+    assert "cases not run: interrupted" in out
+
+
+def test_baseline_warns_shows_xfail_and_says_why_a_listed_case_fails(tmp_path: Path) -> None:
+    baseline = tmp_path / "baseline.txt"
+    baseline.write_text(f"{FRAMING}\n999/Nope/framing/x\n")
+    p = run(
+        "-q", "--commands", "212", "--groups", "framing",
+        "--emulator-fault", "wrong_cnt:212", "--expected-failures", str(baseline),
+        "--report-json", "r.json",
+        cwd=tmp_path,
+    )  # fmt: skip
+    assert "1 listed case ID(s) match no case in this selection: 999/Nope/framing/x" in p.stderr
+    doc = json.loads((tmp_path / "r.json").read_text())
+    cases = {c["id"]: c for c in doc["commands"]["212"]["cases"]}
+    assert cases[FRAMING]["expected"] is True and cases[FRAMING]["outcome"] == "FAIL"
+    assert p.returncode == 0, p.stdout  # the one failure is expected
+    row = next(x for x in p.stdout.splitlines() if x.strip().startswith("212 "))
+    assert "XFAIL=1" in row and "PASS" in row and "FAIL " not in row
+
+
+def test_listed_case_that_passes_fails_the_run_with_a_reason(tmp_path: Path) -> None:
+    baseline = tmp_path / "baseline.txt"
+    baseline.write_text(f"{FRAMING}\n")
+    p = run("-q", "--commands", "212", "--groups", "framing",
+            "--expected-failures", str(baseline), cwd=tmp_path)  # fmt: skip
+    assert p.returncode == 1
+    assert f"FAIL {FRAMING}: listed in --expected-failures but passed (PASS)" in p.stdout
+
+
+# --------------------------------------------------------------------------- pytest front-end
+
+
+def test_every_option_is_an_ini_key(pytester: pytest.Pytester) -> None:
+    """``fairino_commands = 204`` in pytest.ini was an unknown option."""
+    pytester.makeini(
+        "[pytest]\nfairino_commands = 204\nfairino_groups = framing, examples\n"
+        "fairino_dry_run = true\n"
+    )
+    result = pytester.runpytest("-p", "no:cacheprovider", "--conformance", "-rs")
+    out = result.stdout.str()
+    assert "Unknown config option" not in out + result.stderr.str()
+    assert result.ret == 0
+    assert result.parseoutcomes() == {"skipped": 2}  # 204's framing and example case
+    assert "dry run: would run" in out and "204  SetDO" in out
+
+
+def test_every_option_is_an_environment_variable(
+    pytester: pytest.Pytester, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("FAIRINO_COMMANDS", "204")
+    monkeypatch.setenv("FAIRINO_GROUPS", "framing")
+    monkeypatch.setenv("FAIRINO_DRY_RUN", "1")
+    result = pytester.runpytest("-p", "no:cacheprovider", "--conformance", "--collect-only", "-q")
+    ids = [x for x in result.stdout.str().splitlines() if "::" in x]
+    assert ids and all(x.startswith("204::") and "/framing/" in x for x in ids)
+
+
+def test_report_stays_whole_under_xdist(pytester: pytest.Pytester) -> None:
+    args = ("-p", "no:cacheprovider", "--conformance", "--commands", "201,204,212",
+            "--profile", "quick")  # fmt: skip
+    one = pytester.runpytest(*args, "--report-json", "one.json")
+    two = pytester.runpytest(*args, "-n", "2", "--report-json", "two.json")
+    assert one.ret == 0 and two.ret == 0
+    a = json.loads((pytester.path / "one.json").read_text())
+    b = json.loads((pytester.path / "two.json").read_text())
+
+    def ids(doc: dict[str, Any]) -> set[str]:
+        return {c["id"] for cmd in doc["commands"].values() for c in cmd["cases"]}
+
+    assert ids(a) == ids(b) and len(ids(b)) > 30
+    assert a["seed"] is not None and b["spec_version"] == "3.8.2"
+
+
+def test_fixtures_for_a_projects_own_tests(pytester: pytest.Pytester) -> None:
+    pytester.makepyfile(
+        """
+        from conformance.frame import encode_frame
+
+        def test_emulator_answers(fairino_emulator):
+            from conformance.net.client import Client
+            with Client(*fairino_emulator.address) as c:
+                assert c.request(201, 'MoveJ("P1")').reply.data == "1"
+
+        def test_target_and_client(fairino_target, fairino_client):
+            assert fairino_target.transport == "tcp" and fairino_target.port > 0
+            assert fairino_client.request(212, "GetDI(0,0)").reply is not None
+
+        def test_factory_with_a_fault(fairino_emulator_factory):
+            from conformance.net.client import Client
+            emu = fairino_emulator_factory(faults=("wrong_cnt:201",))
+            with Client(*emu.address, timeout=5) as c:
+                c.send_raw(encode_frame(7, 201, 'MoveJ("P1")'))
+                ex = c.await_reply(7, 201, timeout=5)
+                assert [f.cnt for f in ex.near_misses()] == [8]
+        """
+    )
+    result = pytester.runpytest("-p", "no:cacheprovider")
+    result.assert_outcomes(passed=3)
