@@ -389,3 +389,37 @@ def suite_config(values: Mapping[str, Any], *, seed: int | None = None) -> Suite
         expected_failures=load_expected_failures(expected) if expected else frozenset(),
         dry_run=values["dry_run"],
     )
+
+
+def options_table() -> str:
+    """The README's option table (markdown), generated from :data:`OPTIONS`."""
+    rows = [
+        "| `run` | pytest | ini key | environment | default | what |",
+        "|---|---|---|---|---|---|",
+    ]
+    for o in OPTIONS:
+        if o.kind == "flag":
+            default = "off"
+        elif o.kind == "list":
+            default = "all" if o.name in ("commands", "groups") else "none"
+        elif o.default is None:
+            default = "-"
+        else:
+            default = f"{o.default:g}" if isinstance(o.default, float) else str(o.default)
+        run_flag = f"`{o.run}`" if o.run else "-"
+        py_flag = (
+            f"`{o.pytest}`"
+            if o.pytest
+            else {
+                "seed": "`--hypothesis-seed`",
+                "junitxml": "`--junitxml` (pytest's)",
+                "quiet": "`-q` (pytest's)",
+            }.get(o.name, "-")
+        )
+        what = o.help
+        rows.append(f"| {run_flag} | {py_flag} | `{o.ini}` | `{o.env}` | {default} | {what} |")
+    return "\n".join(rows)
+
+
+if __name__ == "__main__":  # python -m conformance.suite.options: the README's table
+    print(options_table())
