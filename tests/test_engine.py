@@ -228,3 +228,14 @@ def test_readme_option_table_is_the_one_definition() -> None:
     readme = (ROOT / "README.md").read_text(encoding="utf-8")
     block = readme.split("<!-- options:start -->\n", 1)[1].split("\n<!-- options:end -->", 1)[0]
     assert block == options_table(), "regenerate with: python -m conformance.suite.options"
+
+
+def test_emulate_takes_specs_dir_like_every_other_command(tmp_path: Path) -> None:
+    from conformance.cli import build_parser
+
+    specs_dir = str(ROOT / "specs" / "fairino-3.8.2")
+    for flag in ("--specs-dir", "--specs"):
+        args = build_parser().parse_args(["emulate", flag, specs_dir])
+        assert args.specs == specs_dir
+    for cmd in (["check", "x.mcap"], ["decode"], ["info", "x.mcap"]):
+        assert build_parser().parse_args([*cmd, "--specs-dir", specs_dir]).specs_dir == specs_dir

@@ -38,7 +38,13 @@ def _add_emulate(sub: Any) -> None:
         metavar="KIND[:CMD_IDS][@SECONDS]",
         help="inject a fault (repeatable), e.g. wrong_cnt:201,203",
     )
-    p.add_argument("--specs", default=None, help="spec set directory (default: bundled)")
+    p.add_argument(
+        "--specs-dir",
+        "--specs",  # the old spelling, kept working
+        dest="specs",
+        default=None,
+        help="spec set directory (default: specs/fairino-3.8.2), as --specs-dir elsewhere",
+    )
     p.add_argument("--duration", type=float, default=None, help="stop after SECONDS")
     _add_limits(p)
     _add_emulation(p)
