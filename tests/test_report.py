@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import re
 import subprocess
 import sys
@@ -106,3 +107,211 @@ def test_cases_not_run_are_one_line_not_a_table() -> None:
     assert r.exit_code() == 2  # still an error run
     again = Report.from_json(json.loads(r.dumps()))
     assert again.stopped == r.stopped and sum(c.not_run for c in again.cases) == 300
+
+
+# --------------------------------------------------------------------------- shared helpers
+
+
+class _Node:
+    """An element of a parsed HTML page: tag, attributes, children and text."""
+
+    def __init__(self, tag: str, attrs: dict[str, str | None]) -> None:
+        self.tag, self.attrs = tag, attrs
+        self.children: list[_Node] = []
+        self.parts: list[str] = []
+
+    @property
+    def text(self) -> str:
+        return "".join(self.parts) + "".join(c.text for c in self.children)
+
+    def find_all(self, tag: str, **attrs: str) -> list[_Node]:
+        out = []
+        for c in self.children:
+            if c.tag == tag and all(
+                v in (c.attrs.get(k.rstrip("_")) or "").split() for k, v in attrs.items()
+            ):
+                out.append(c)
+            out += c.find_all(tag, **attrs)
+        return out
+
+
+_VOID = {"meta", "br", "input", "hr", "img", "link"}
+
+
+def _parse(page: str) -> _Node:
+    from html.parser import HTMLParser
+
+    root = _Node("#root", {})
+    stack = [root]
+
+    class P(HTMLParser):
+        def handle_starttag(self, tag: str, attrs: list[tuple[str, str | None]]) -> None:
+            node = _Node(tag, dict(attrs))
+            stack[-1].children.append(node)
+            if tag not in _VOID:
+                stack.append(node)
+
+        def handle_endtag(self, tag: str) -> None:
+            while len(stack) > 1:
+                if stack.pop().tag == tag:
+                    break
+
+        def handle_data(self, data: str) -> None:
+            stack[-1].parts.append(data)
+
+    p = P()
+    p.feed(page)
+    p.close()
+    return root
+
+
+def _case(cmd_id: int, name: str, group: str, outcome: Outcome, n: int = 1) -> CaseResult:
+    return CaseResult(
+        id=f"{cmd_id}/{name}/{group}/{n}",
+        cmd_id=cmd_id,
+        name=name,
+        group=group,
+        outcome=outcome,
+        detail=f"{name} {outcome.value}",
+        frames=(f">> /f/bIII{n}III{cmd_id}III2IIIxxIII/b/f",),
+        reproduce=f"pytest --case {cmd_id}/{name}/{group}/{n}",
+    )
+
+
+# --------------------------------------------------------------------------- terminal names
+
+
+def test_terminal_table_prints_the_longest_spec_name_whole() -> None:
+    from conformance.spec import default_specs
+
+    longest = max((c for c in default_specs()), key=lambda c: len(c.name))
+    assert len(longest.name) > 34  # the old column cut it
+    r = _report("a:1", Outcome.FAIL)
+    r.add(_case(longest.cmd_id, longest.name, "valid", Outcome.DIALECT))
+    text = r.render_terminal()
+    assert re.search(rf"\b{longest.name}\s+DIALECT\b", text), text
+    rows = [ln for ln in text.splitlines()[:4] if re.match(r"\s*(ID|\d+)\s", ln)]
+    assert len(rows) == 4
+    # One column for every row: the outcome starts at the same place on each.
+    starts = {len(re.sub(r"(outcome|FAIL|PASS|DIALECT).*", "", ln)) for ln in rows}
+    assert len(starts) == 1
+    assert longest.name in r._dialect_lines()[1]
+
+
+def test_terminal_table_cuts_an_overlong_name_with_a_marker() -> None:
+    r = _report("a:1", Outcome.FAIL)
+    long_name = "Nope" + "X" * 200
+    r.add(_case(9999, long_name, "client-unknown", Outcome.FAIL))
+    text = r.render_terminal()
+    row = next(ln for ln in text.splitlines() if ln.lstrip().startswith("9999"))
+    assert "…" in row and long_name not in row and "FAIL" in row
+    assert len(row) <= 100
+    # The short names are not padded out to the overlong one's width.
+    head = text.splitlines()[0]
+    assert head.index("outcome") < 70
+
+
+# --------------------------------------------------------------------------- HTML labels
+
+
+def test_matrix_gives_each_case_group_a_distinct_label_and_a_legend() -> None:
+    r = Report(target="client of 127.0.0.1:1", spec_version="3.8.2")
+    groups = ["client-framing", "client-arguments", "client-dialect", "client-unknown", "client"]
+    for n, g in enumerate(groups):
+        r.add(_case(201, "MoveJ", g, Outcome.FAIL, n))
+    r.add(_case(201, "MoveJ", "framing", Outcome.PASS))
+    page = _parse(render_html([r]))
+    labels = {
+        str(b.attrs["title"]).split(":")[0]: b.text
+        for b in page.find_all("span", class_="box")
+        if b.text.strip()
+    }
+    assert set(labels) == {*groups, "framing"}
+    assert len(set(labels.values())) == len(labels), labels
+    assert all(1 <= len(lab) <= 3 for lab in labels.values())
+    (legend,) = page.find_all("small", class_="glegend")
+    pairs = dict(re.findall(r"(\S+) = (\S+?)(?:,|$)", legend.text))
+    assert pairs == {lab: g for g, lab in labels.items()}
+
+
+# --------------------------------------------------------------------------- HTML order
+
+
+def _mixed() -> Report:
+    r = Report(target="t:1", spec_version="3.8.2")
+    r.add(_case(100, "Aaa", "valid", Outcome.PASS))
+    r.add(_case(150, "Bbb", "valid", Outcome.NON_STRICT))
+    r.add(_case(300, "Ccc", "valid", Outcome.FAIL))
+    r.add(_case(250, "Ddd", "valid", Outcome.ERROR))
+    r.add(_case(120, "Eee", "framing", Outcome.FAIL))
+    r.add(_case(50, "Fff", "valid", Outcome.SKIPPED))
+    return r
+
+
+def test_html_lists_failing_commands_first_with_their_details_open() -> None:
+    page = _parse(render_html([_mixed()]))
+    rows = page.find_all("tr")[1:]
+    assert [int(tr.find_all("td", class_="id")[0].text) for tr in rows] == [
+        250,
+        120,
+        300,
+        150,
+        100,
+        50,
+    ]
+    opened = {
+        int(tr.find_all("td", class_="id")[0].text): "open" in d.attrs
+        for tr in rows
+        for d in tr.find_all("details")
+    }
+    assert opened == {250: True, 120: True, 300: True, 150: False}
+
+
+# --------------------------------------------------------------------------- html vs merge
+
+
+def test_report_html_is_sections_and_merge_is_a_matrix(tmp_path: Path) -> None:
+
+    a, b = tmp_path / "a.json", tmp_path / "b.json"
+    a.write_text(_report("alpha:1", Outcome.FAIL).dumps())
+    b.write_text(_report("beta:2", Outcome.PASS).dumps())
+    cli = [sys.executable, "-m", "conformance", "report"]
+    pages = {}
+    for action in ("html", "merge"):
+        out = tmp_path / f"{action}.html"
+        done = subprocess.run(
+            [*cli, action, str(a), str(b), "-o", str(out)], capture_output=True, text=True
+        )
+        assert done.returncode == 0, done.stderr
+        pages[action] = _parse(out.read_text(encoding="utf-8"))
+    assert pages["html"].text != pages["merge"].text
+
+    # html: "each report as its own section: one target per table, its failing cases
+    # listed with frames and reproduction".
+    sections = pages["html"].find_all("section", class_="report")
+    assert [s.attrs["data-target"] for s in sections] == ["alpha:1", "beta:2"]
+    for s in sections:
+        (table,) = s.find_all("table")
+        assert len(table.find_all("th")) == 3  # ID, command, this one target
+        (body,) = table.find_all("tbody")
+        assert all(len(tr.find_all("td", class_="cell")) == 1 for tr in body.find_all("tr"))
+    (fails,) = sections[0].find_all("ol", class_="failures")
+    assert "201/MoveJ/framing/2-1" in fails.text
+    assert "/f/bIII1III201III2IIIxxIII/b/f" in fails.text and "pytest --case x" in fails.text
+    assert not sections[1].find_all("ol", class_="failures")
+
+    # merge: "side-by-side matrix": one table, one column per target.
+    assert not pages["merge"].find_all("section")
+    (table,) = pages["merge"].find_all("table")
+    heads = [th.text for th in table.find_all("th")]
+    assert heads[2].startswith("alpha:1") and heads[3].startswith("beta:2")
+    row = next(tr for tr in table.find_all("tr") if tr.attrs.get("data-key") == "201 movej")
+    assert len(row.find_all("td", class_="cell")) == 2
+
+    # The help says so.
+    env = {**os.environ, "COLUMNS": "300"}
+    helped = subprocess.run([*cli, "--help"], capture_output=True, text=True, env=env).stdout
+    html_help = next(ln for ln in helped.splitlines() if ln.strip().startswith("html "))
+    merge_help = next(ln for ln in helped.splitlines() if ln.strip().startswith("merge "))
+    assert "own section" in html_help and "failing cases" in html_help
+    assert "side by side" in merge_help and "a column per target" in merge_help

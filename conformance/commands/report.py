@@ -17,14 +17,29 @@ def _add_report(sub: Any) -> None:
     show = rs.add_parser("show", help="per-command table of a JSON report")
     show.add_argument("report")
     show.set_defaults(func=_report_show)
-    html = rs.add_parser("html", help="render one or more JSON reports as one HTML page")
-    html.add_argument("reports", nargs="+")
-    html.add_argument("-o", "--output", required=True)
-    html.set_defaults(func=_report_html)
-    merge = rs.add_parser("merge", help="side-by-side matrix of several targets' reports")
-    merge.add_argument("reports", nargs="+")
-    merge.add_argument("-o", "--output", required=True)
-    merge.set_defaults(func=_report_html)
+    html = rs.add_parser(
+        "html",
+        help="one HTML page, each report its own section: its target's table, then its "
+        "failing cases with frames and reproduction",
+        description="Render each JSON report as its own section of one self-contained HTML "
+        "page: what it ran against, its totals, its failing cases (worst first) with the "
+        "frames and a reproduction line, and a per-command table of that one target. "
+        "To compare targets side by side, use 'report merge'.",
+    )
+    html.add_argument("reports", nargs="+", metavar="REPORT.json")
+    html.add_argument("-o", "--output", required=True, metavar="PAGE.html")
+    html.set_defaults(func=_report_html, render="sections")
+    merge = rs.add_parser(
+        "merge",
+        help="one HTML matrix of several targets' reports side by side: a row per command, "
+        "a column per target",
+        description="Merge JSON reports into one self-contained HTML matrix: one row per "
+        "command ID (failing commands first), one column per report's target, each cell "
+        "the outcome and one box per case group, failing cases unfolded.",
+    )
+    merge.add_argument("reports", nargs="+", metavar="REPORT.json")
+    merge.add_argument("-o", "--output", required=True, metavar="PAGE.html")
+    merge.set_defaults(func=_report_html, render="matrix")
 
 
 def _load(path: str) -> Any:
@@ -54,11 +69,13 @@ def _report_show(args: argparse.Namespace) -> int:
 def _report_html(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from ..report import render_html
+    from ..report import render_html, render_html_sections
 
     reports = [_load(p) for p in args.reports]
-    Path(args.output).write_text(render_html(reports), encoding="utf-8")
-    print(f"wrote {args.output} ({len(reports)} report(s))")
+    render = render_html_sections if args.render == "sections" else render_html
+    Path(args.output).write_text(render(reports), encoding="utf-8")
+    shape = "sections" if args.render == "sections" else "side by side"
+    print(f"wrote {args.output} ({len(reports)} report(s), {shape})")
     return 0
 
 
