@@ -9,7 +9,8 @@ safety profile (:mod:`conformance.safety`) decides what may be sent to a
 non-loopback target; what it holds back is reported as SKIPPED.
 
 ``replay --serve``: :class:`ReplyBook` answers requests with the recorded
-replies, matched by command ID and DATA; a request the recording never saw is
+replies, matched by command ID and DATA, each echoing the request's CNT and
+CMD_ID (the recorded request's CNT is irrelevant); a request the recording never saw is
 answered by the ``unmatched`` policy: ``error`` (DATA ``0``, the manual's
 refusal), ``nearest`` (the recorded reply of the same command ID whose request
 DATA is most alike) or ``drop`` (no reply).  The socket side is
@@ -19,6 +20,7 @@ DATA is most alike) or ``drop`` (no reply).  The socket side is
 from __future__ import annotations
 
 import difflib
+import re
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -39,20 +41,7 @@ __all__ = ["ReplayResult", "ReplyBook", "replay_to_target"]
 # recorded requests of the same command ID at most.
 _NEAREST_CHARS = 256
 _NEAREST_CANDIDATES = 64
-
-
-def _nearest_candidates(
-    cands: list[tuple[str, FrameRecord]],
-) -> list[tuple[str, FrameRecord]]:
-    seen: set[str] = set()
-    out: list[tuple[str, FrameRecord]] = []
-    for c in cands:
-        if c[0] not in seen:
-            seen.add(c[0])
-            out.append(c)
-            if len(out) >= _NEAREST_CANDIDATES:
-                break
-    return out
+_NEAREST_CACHE = 4096  # nearest choices remembered
 
 
 _UNKNOWN = "command ID not in the specs: not sent to a non-loopback target"
@@ -61,16 +50,35 @@ _UNKNOWN = "command ID not in the specs: not sent to a non-loopback target"
 # --------------------------------------------------------------------------- serve
 
 
-def _with_cnt(raw: bytes, old_cnt: int, new_cnt: int) -> bytes:
-    """The recorded reply's bytes with its CNT replaced (everything else as recorded)."""
-    prefix = b"/f/bIII%dIII" % old_cnt
-    if raw.startswith(prefix):
-        return b"/f/bIII%dIII" % new_cnt + raw[len(prefix) :]
-    return raw
+# The header of a recorded reply, separators as recorded (a lenient reading may have
+# accepted ``II`` or ``IIII``, manual 1.1): the CNT and CMD_ID fields are replaced.
+_HEADER = re.compile(rb"/f/b(I{2,4})(\d+)(I{2,4})(\d+)(I{2,4})")
+
+
+def _echoing(raw: bytes, data: str, cnt: int, cmd_id: int) -> bytes:
+    """The recorded reply's bytes answering request ``cnt``/``cmd_id``.
+
+    A reply always echoes its request's CNT and CMD_ID (manual 1.1), whatever CNT
+    the recorded request had: a client matches replies by them, and one that waits
+    for its own CNT would otherwise time out on every reply.  Everything after the
+    header (LEN, DATA, framing deviations) is as recorded.
+    """
+    m = _HEADER.match(raw)
+    if m is None:
+        return encode_frame(cnt, cmd_id, data)
+    s1, _, s2, _, s3 = m.groups()
+    return b"/f/b%s%d%s%d%s" % (s1, cnt, s2, cmd_id, s3) + raw[m.end() :]
 
 
 class ReplyBook:
-    """The controller's side of a recording, as answers to requests (sans-I/O)."""
+    """The controller's side of a recording, as answers to requests (sans-I/O).
+
+    Every answer echoes the request's CNT and CMD_ID.  Lookups are dictionary
+    lookups; ``nearest`` compares against at most ``_NEAREST_CANDIDATES`` distinct
+    recorded requests of the command ID (chosen once, when the book is built) and
+    remembers its last ``_NEAREST_CACHE`` choices, so a long recording answers as fast
+    as a short one.
+    """
 
     def __init__(self, rec: Recording, *, unmatched: str = "error") -> None:
         if unmatched not in ("error", "nearest", "drop"):
@@ -78,15 +86,16 @@ class ReplyBook:
         self.unmatched = unmatched
         self._book: dict[tuple[int, str], deque[FrameRecord]] = {}
         self._last: dict[tuple[int, str], FrameRecord] = {}
-        self._by_id: dict[int, list[tuple[str, FrameRecord]]] = {}
-        self._requests: dict[tuple[int, str], FrameRecord] = {}
+        self._by_id: dict[int, dict[str, FrameRecord]] = {}
+        self._nearest: dict[tuple[int, str], FrameRecord] = {}
         for ex in rec.exchanges():
             if ex.request is None or ex.reply is None:
                 continue
             key = (ex.request.cmd_id, ex.request.data)
             self._book.setdefault(key, deque()).append(ex.reply)
-            self._requests.setdefault(key, ex.request)
-            self._by_id.setdefault(ex.request.cmd_id, []).append((ex.request.data, ex.reply))
+            cands = self._by_id.setdefault(ex.request.cmd_id, {})
+            if len(cands) < _NEAREST_CANDIDATES:
+                cands.setdefault(ex.request.data, ex.reply)
         self.answered = 0
         self.unmatched_count = 0
 
@@ -98,32 +107,42 @@ class ReplyBook:
         if q:
             rep = q.popleft()  # recorded replies in order, then the last one again
             self._last[key] = rep
-        elif key in self._last:
-            rep = self._last[key]
+        else:
+            rep = self._last.get(key)
         if rep is not None:
             self.answered += 1
-            req = self._requests[key]
-            if rep.cnt == req.cnt:
-                return _with_cnt(rep.raw, rep.cnt, frame.cnt)
-            return rep.raw  # the recorded reply did not echo CNT: neither do we
+            return _echoing(rep.raw, rep.data, frame.cnt, frame.cmd_id)
         self.unmatched_count += 1
         if self.unmatched == "drop":
             return None
         if self.unmatched == "nearest":
-            cands = _nearest_candidates(self._by_id.get(frame.cmd_id, []))
-            if cands:
-                # Bounded work whatever the peer sends: a similarity over the first
-                # characters only (SequenceMatcher is quadratic in the worst case).
-                probe = frame.data[:_NEAREST_CHARS]
-                best = max(
-                    cands,
-                    key=lambda c: difflib.SequenceMatcher(
-                        None, c[0][:_NEAREST_CHARS], probe
-                    ).ratio(),
-                )
-                r = best[1]
-                return encode_frame(frame.cnt, r.cmd_id, r.data)
+            near = self._nearest_reply(frame)
+            if near is not None:
+                return encode_frame(frame.cnt, frame.cmd_id, near.data)
         return encode_frame(frame.cnt, frame.cmd_id, "0")
+
+    def _nearest_reply(self, frame: Frame) -> FrameRecord | None:
+        cands = self._by_id.get(frame.cmd_id)
+        if not cands:
+            return None
+        probe = frame.data[:_NEAREST_CHARS]
+        key = (frame.cmd_id, probe)
+        got = self._nearest.get(key)
+        if got is None:
+            # Bounded work whatever the peer sends: a similarity over the first
+            # characters only (SequenceMatcher is quadratic in the worst case).
+            matcher = difflib.SequenceMatcher(None, "", probe)  # b is cached: set it once
+            best_ratio = -1.0
+            for data, reply in cands.items():
+                matcher.set_seq1(data[:_NEAREST_CHARS])
+                r = matcher.ratio()
+                if r > best_ratio:
+                    best_ratio, got = r, reply
+            assert got is not None
+            if len(self._nearest) >= _NEAREST_CACHE:
+                self._nearest.clear()
+            self._nearest[key] = got
+        return got
 
 
 # --------------------------------------------------------------------------- target

@@ -16,6 +16,13 @@
    (best of ``--rounds``, each with a fresh proxy).
 3. ``import-pcap`` frames/s on a pcap exported from that recording (specs loaded
    beforehand, as a long-lived process would have them; best of two).
+4. ``replay --serve``: a recording of ``--serve-requests`` exchanges with the
+   emulator (made through a recording proxy by two clients taking turns, each with
+   its own CNTs, so the same request is recorded with many CNTs) is replayed with ``replay --target``,
+   once against the emulator (the baseline) and once against a
+   :class:`ReplayServer` serving the recording, in the same run: requests/s
+   answered, and replies that did not echo the request's CNT (must be 0).
+   ``--section replay-serve`` runs this section only.
 
 Everything runs on 127.0.0.1 with ports chosen by the OS.
 """
@@ -154,6 +161,57 @@ def throughput(port: int, n: int) -> float:
     return time.perf_counter() - t0
 
 
+def bench_replay_serve(tmp: Path, n: int) -> None:
+    """Section 4: replay against the emulator vs against ``replay --serve``."""
+    from conformance.net.client import Client
+    from conformance.net.emulator import EmulatorServer
+    from conformance.net.proxy import RecordingProxy, ReplayServer
+    from conformance.recording import read_recording
+    from conformance.replay import ReplyBook, replay_to_target
+    from conformance.safety import SafetyPolicy
+    from conformance.spec import default_specs
+
+    specs = default_specs()
+    loopback = SafetyPolicy.for_target("127.0.0.1")
+    calls = [(400, "GetVersion()"), (212, "GetDI(0,0)"), (201, 'MoveJ("P1")')]
+    out = tmp / "serve.mcap"
+    with EmulatorServer() as em:
+        # Two clients taking turns, each with its own CNTs (as the suite's
+        # connections do): the same request recorded with many CNTs.
+        proxy = RecordingProxy(em.address, out=out, specs=specs, log=lambda m: None).start()
+        try:
+            with Client(*proxy.address, timeout=5.0) as a, Client(*proxy.address) as b:
+                for i in range(n):
+                    c, cnt = (a, 1 + i // 2) if i % 2 == 0 else (b, 5000 + i // 2)
+                    c.request(*calls[i // 2 % len(calls)], cnt=cnt)
+        finally:
+            proxy.close()
+        rec = read_recording(out)
+        t0 = time.perf_counter()
+        base = replay_to_target(rec, *em.address, specs=specs, safety=loopback, timeout=2.0)
+        t_base = time.perf_counter() - t0
+    book = ReplyBook(rec)
+    with ReplayServer(book) as srv:
+        t0 = time.perf_counter()
+        served = replay_to_target(rec, *srv.address, specs=specs, safety=loopback, timeout=2.0)
+        t_served = time.perf_counter() - t0
+    bad = sum(
+        1 for c in served.commands.values() for d in c.differences if d.kind in ("cnt", "closed")
+    )
+    sent = sum(c.sent for c in served.commands.values())
+    print(f"\nreplay --serve: a recording of {n} exchanges replayed with replay --target:")
+    print(f"  against the emulator:      {t_base:7.2f} s = {n / t_base:8.0f} requests/s")
+    print(
+        f"  against replay --serve:    {t_served:7.2f} s = {n / t_served:8.0f} requests/s "
+        f"({book.answered} answered from the recording, {sent} sent)"
+    )
+    print(
+        f"  replies not echoing CNT or missing: {bad}; differing command IDs: "
+        f"{sorted(served.differing_ids) or 'none'} (emulator: "
+        f"{sorted(base.differing_ids) or 'none'})"
+    )
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -161,7 +219,18 @@ def main() -> int:
     ap.add_argument("--requests", type=int, default=3000)
     ap.add_argument("--frames", type=int, default=200_000)
     ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--serve-requests", type=int, default=2000)
+    ap.add_argument("--section", choices=("all", "replay-serve"), default="all")
     args = ap.parse_args()
+    if args.section == "replay-serve":
+        tmp = Path(tempfile.mkdtemp(prefix="bench_proxy_"))
+        try:
+            bench_replay_serve(tmp, args.serve_requests)
+        finally:
+            for p in tmp.iterdir():
+                p.unlink()
+            tmp.rmdir()
+        return 0
     from conformance.pcap import export_pcap, import_pcap
     from conformance.recording import read_recording
     from conformance.spec import default_specs
@@ -236,6 +305,7 @@ def main() -> int:
             f"\nimport-pcap: {st.packets} packets, {st.frames} frames in {best_imp:.2f} s = "
             f"{st.frames / best_imp:.0f} frames/s, {st.packets / best_imp:.0f} packets/s"
         )
+        bench_replay_serve(tmp, args.serve_requests)
     finally:
         echo.kill()
         echo.wait()

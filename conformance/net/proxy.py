@@ -1491,6 +1491,8 @@ class ReplayServer:
         reason = ""
         try:
             dec = FrameDecoder(max_frame_size=self.max_frame_size)
+            # One reply per request: send it now rather than wait for an ACK (Nagle).
+            c.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             c.settimeout(0.5)
             while not self._stop.is_set():
                 try:
