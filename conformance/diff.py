@@ -6,11 +6,13 @@ values the specs mark ``volatile`` (positions, sensor readings, versions, times)
 by shape only, and reports every other difference.  :func:`diff_recordings`
 aligns the exchanges of two recordings (the k-th ``(CMD_ID, DATA)`` request of
 one with the k-th of the other) and reports per command ID: exchanges only in
-one recording, replies that differ, and latency changes.
+one recording, replies that differ, and latency changes.  ``--ignore`` rules are
+:data:`IGNORE_RULES`.
 """
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
@@ -23,6 +25,8 @@ from .recording import Exchange, FrameRecord, Recording
 from .spec import ReturnValue, SpecSet
 
 __all__ = [
+    "IGNORE_RULES",
+    "KINDS",
     "DiffResult",
     "Difference",
     "Ignore",
@@ -64,11 +68,46 @@ class Difference:
         }
 
 
+#: The ``--ignore`` rules (``replay``, ``diff``), each with what it hides: every
+#: difference kind, then the rules that are not kinds.  The CLI's help and the README
+#: list exactly these (a test checks both).
+IGNORE_RULES: dict[str, str] = {
+    "missing_reply": "no reply now where the recording (A) has one",
+    "extra_reply": "a reply now where the recording (A) has none",
+    "cnt": "a reply's CNT echo changed",
+    "cmd_id": "a reply's CMD_ID echo changed",
+    "shape": "the number or types of a reply's values changed",
+    "data": "a reply's values changed",
+    "framing": "framing problems or malformed bytes before a reply changed",
+    "closed": "the target closed the connection instead of replying",
+    "verdict": "the judge's verdict on a reply changed",
+    "volatile": "volatile values changed type too",
+    "latency": "a command's p50 latency changed (diff)",
+    "missing": "missing_reply, and requests only in A (diff)",
+    "extra": "extra_reply, and requests only in B (diff)",
+}
+assert set(KINDS) <= set(IGNORE_RULES)
+#: Rules that stand for more than themselves.
+_IMPLIES = {"missing": ("missing_reply",), "extra": ("extra_reply",)}
+
+
+def ignore_help() -> str:
+    """The ``--ignore`` help of ``replay`` and ``diff``, from :data:`IGNORE_RULES`."""
+    return (
+        "a difference not to report: "
+        + ", ".join(IGNORE_RULES)
+        + "; or a command (ID or NAME) or one value (ID.INDEX) (repeatable)"
+    )
+
+
 @dataclass(frozen=True, kw_only=True)
 class Ignore:
-    """What not to report: difference kinds, commands (ID or name), values (``ID.INDEX``).
+    """What not to report: rules (:data:`IGNORE_RULES`), commands (ID or name), values
+    (``ID.INDEX``).
 
-    ``volatile`` makes volatile values count as equal even when their shape changed.
+    ``volatile`` makes volatile values count as equal even when their shape changed;
+    ``missing`` and ``extra`` also hide, in ``diff``, the requests found only in A
+    (missing from B) and only in B (extra in B).
     """
 
     kinds: frozenset[str] = frozenset()
@@ -76,28 +115,39 @@ class Ignore:
     values: frozenset[tuple[int, int]] = frozenset()
 
     @classmethod
-    def parse(cls, items: Iterable[str]) -> Ignore:
+    def parse(cls, items: Iterable[str], *, specs: SpecSet | None = None) -> Ignore:
+        """Read ``--ignore`` items (comma-separated lists too); a name must be a command
+        of ``specs`` (default: the kit's)."""
         from .errors import UsageError
 
         kinds: set[str] = set()
         commands: set[str] = set()
         values: set[tuple[int, int]] = set()
-        known = {*KINDS, "volatile", "latency", "missing", "extra"}
         for raw in items:
             for item in raw.split(","):
                 it = item.strip()
                 if not it:
                     continue
-                if it.lower() in known:
-                    k = it.lower()
-                    kinds.add({"missing": "missing_reply", "extra": "extra_reply"}.get(k, k))
-                elif it.replace(".", "", 1).isdigit() and "." in it:
+                k = it.lower()
+                if k in IGNORE_RULES:
+                    kinds.add(k)
+                    kinds.update(_IMPLIES.get(k, ()))
+                elif re.fullmatch(r"\d+\.\d+", it):
                     a, b = it.split(".")
                     values.add((int(a), int(b)))
-                elif it.isdigit() or it.replace("_", "").isalnum():
-                    commands.add(it.lower())
+                elif it.isdigit():
+                    commands.add(it)  # any ID: a recording may hold IDs the specs lack
                 else:
-                    raise UsageError(f"--ignore {it!r}: not a difference kind, command or ID.INDEX")
+                    if specs is None:
+                        from .spec import default_specs
+
+                        specs = default_specs()
+                    if not specs.by_name(it.removesuffix("()")):
+                        raise UsageError(
+                            f"--ignore {it!r}: not a rule ({', '.join(IGNORE_RULES)}), "
+                            "a command ID or name, or ID.INDEX"
+                        )
+                    commands.add(k.removesuffix("()"))
         return cls(kinds=frozenset(kinds), commands=frozenset(commands), values=frozenset(values))
 
     def skips_command(self, cmd_id: int, name: str | None) -> bool:
@@ -391,7 +441,8 @@ def diff_recordings(
         i = used.get(k, 0)
         peers = groups_b.get(k, [])
         if i >= len(peers):
-            c.only_a.append(_show(e))
+            if "missing" not in ignore.kinds:  # in A only: missing from B
+                c.only_a.append(_show(e))
             continue
         used[k] = i + 1
         o = peers[i]
@@ -411,7 +462,7 @@ def diff_recordings(
     for k, peers in groups_b.items():
         for o in peers[used.get(k, 0) :]:
             c = cd(o)
-            if ignore.skips_command(c.cmd_id, c.name):
+            if ignore.skips_command(c.cmd_id, c.name) or "extra" in ignore.kinds:
                 continue
             c.only_b.append(_show(o))
     for e in ex_b:

@@ -64,3 +64,105 @@ def test_serve_always_echoes_the_requests_cnt_and_cmd_id(tmp_path: Path, unmatch
         got = _ask_each(srv.address, [encode_frame(*a) for a in asks])
     assert [(g.cnt, g.cmd_id) for g in got] == [(c, i) for c, i, _ in asks]
     assert all(g.data in ("1", "0") for g in got)
+
+
+# --------------------------------------------------------------------------- 2. --ignore
+
+ROOT = Path(__file__).resolve().parent.parent
+SESSION = str(ROOT / "captures" / "session.mcap")
+
+
+def _recording(path: Path, calls: list[tuple[int, str]]) -> str:
+    with RecordingWriter(path) as w:
+        rec = StreamRecorder(w, specs=default_specs())
+        rec.open(1, t_ns=1, client="127.0.0.1:5000", upstream="127.0.0.1:8080")
+        for cnt, (cmd_id, data) in enumerate(calls, 1):
+            rec.data(1, "c2s", 10 * cnt, encode_frame(cnt, cmd_id, data))
+            rec.data(1, "s2c", 10 * cnt + 1, encode_frame(cnt, cmd_id, "1"))
+        rec.close(1, t_ns=10_000, reason="client closed")
+    return str(path)
+
+
+def test_diff_ignore_missing_and_extra_hide_requests_in_one_recording_only(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from conformance.cli import main
+    from conformance.diff import Ignore, diff_recordings
+
+    a = _recording(tmp_path / "a.mcap", [(400, "GetVersion()"), (203, 'MoveL("P2")')])
+    b = _recording(tmp_path / "b.mcap", [(400, "GetVersion()"), (212, "GetDI(0,0)")])
+    ra, rb = read_recording(a), read_recording(b)
+
+    def changed(*rules: str) -> set[int]:
+        res = diff_recordings(ra, rb, specs=default_specs(), ignore=Ignore.parse(rules))
+        return {k for k, c in res.commands.items() if c.changed}
+
+    assert changed("latency") == {203, 212}
+    assert changed("latency", "missing") == {212}  # 203 is in A only: missing from B
+    assert changed("latency", "extra") == {203}  # 212 is in B only: extra in B
+    assert changed("latency", "missing", "extra") == set()
+    # The counts stay: only the verdict "differs" is hidden.
+    res = diff_recordings(ra, rb, ignore=Ignore.parse(["missing", "extra", "latency"]))
+    assert res.commands[203].count_a == 1 and res.commands[212].count_b == 1
+    args = ["diff", a, b, "--ignore", "latency"]
+    assert main(args) == 1
+    assert main([*args, "--ignore", "missing", "--ignore", "extra"]) == 0
+    capsys.readouterr()
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["diff", SESSION, SESSION, "--ignore", "bogus"],
+        ["diff", SESSION, SESSION, "--ignore", "data,bogus"],
+        ["replay", SESSION, "--target", "127.0.0.1:9", "--ignore", "bogus"],
+        ["replay", SESSION, "--serve", "127.0.0.1:0", "--ignore", "bogus"],
+    ],
+)
+def test_an_unknown_ignore_rule_is_a_usage_error_listing_the_rules(
+    argv: list[str], capsys: pytest.CaptureFixture[str]
+) -> None:
+    from conformance.cli import main
+    from conformance.diff import IGNORE_RULES
+
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "'bogus'" in err
+    assert all(rule in err for rule in IGNORE_RULES)
+
+
+def test_ignore_accepts_every_rule_a_command_and_a_value() -> None:
+    from conformance.diff import IGNORE_RULES, KINDS, Ignore
+
+    assert set(KINDS) <= set(IGNORE_RULES)
+    ig = Ignore.parse([",".join(IGNORE_RULES), "212", "GetDI", "movej", "212.0", "9999"])
+    assert set(KINDS) <= ig.kinds
+    assert ig.commands == {"212", "getdi", "movej", "9999"}
+    assert ig.values == {(212, 0)}
+
+
+@pytest.mark.parametrize("command", ["diff", "replay"])
+def test_help_lists_every_ignore_rule(command: str, capsys: pytest.CaptureFixture[str]) -> None:
+    import re
+
+    from conformance.cli import main
+    from conformance.diff import IGNORE_RULES
+
+    with pytest.raises(SystemExit):
+        main([command, "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    m = re.search(r"--ignore RULE (.*?)\(repeatable\)", text)
+    assert m, text
+    listed = re.findall(r"[a-z_]+", m.group(1).split(";")[0].split(":", 1)[1])
+    assert listed == list(IGNORE_RULES)
+
+
+def test_readme_lists_exactly_the_ignore_rules() -> None:
+    import re
+
+    from conformance.diff import IGNORE_RULES
+
+    readme = " ".join((ROOT / "README.md").read_text(encoding="utf-8").split())
+    m = re.search(r"`--ignore` takes (.*?), a command", readme)
+    assert m, "README: the sentence listing the --ignore rules"
+    assert re.findall(r"`([a-z_]+)`", m.group(1)) == list(IGNORE_RULES)

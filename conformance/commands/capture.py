@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from ..diff import ignore_help
 from ..errors import UsageError
 from ..frame import DEFAULT_MAX_FRAME_SIZE
 from ..recording import C2S, FrameRecord, read_recording, recover
@@ -182,8 +183,7 @@ def _register_more(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
         action="append",
         default=[],
         metavar="RULE",
-        help="difference to ignore: volatile, data, cnt, latency, missing, extra, "
-        "or ID / ID.INDEX / NAME (repeatable)",
+        help=ignore_help(),
     )
     rp.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for each reply")
     rp.add_argument(
@@ -235,7 +235,7 @@ def _register_more(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
         action="append",
         default=[],
         metavar="RULE",
-        help="volatile, data, latency, or ID / NAME (repeatable)",
+        help=ignore_help(),
     )
     d.add_argument(
         "--latency-threshold",
@@ -428,7 +428,7 @@ def _run_replay(args: argparse.Namespace) -> int:
 
     rec = read_recording(args.capture)
     specs = _specs(args)
-    ignore = Ignore.parse(args.ignore)
+    ignore = Ignore.parse(args.ignore, specs=specs)
     if args.serve:
         listen = parse_hostport(args.serve, default_port=8080)
         book = ReplyBook(rec, unmatched=args.unmatched)
@@ -512,7 +512,7 @@ def _run_diff(args: argparse.Namespace) -> int:
         read_recording(args.a),
         read_recording(args.b),
         specs=specs,
-        ignore=Ignore.parse(args.ignore),
+        ignore=Ignore.parse(args.ignore, specs=specs),
         latency_threshold=args.latency_threshold,
         judge=judge_from(args, specs),
     )
