@@ -139,7 +139,7 @@ def test_fault_is_detected_and_blamed_on_its_command(kind: FaultKind) -> None:
     assert failing and all(c.cmd_id == FAULTED.cmd_id for c in failing)
     for c in failing:
         assert f"--case {c.id}" in c.reproduce
-        assert "--hypothesis-seed=12345" in c.reproduce
+        assert "--seed 12345" in c.reproduce
         assert f"--emulator-fault {fault}" in c.reproduce
     for n in NEIGHBOURS:
         assert report.commands()[n.cmd_id].outcome is Outcome.PASS
