@@ -22,10 +22,28 @@ from .recording import C2S, FrameRecord, Recording
 from .report import CaseResult, Outcome, Report
 from .spec import SpecSet
 
-__all__ = ["CommandFigures", "check_recording", "percentile", "summarize"]
+__all__ = [
+    "SIDES",
+    "CommandFigures",
+    "check_recording",
+    "failing_ids_by_side",
+    "percentile",
+    "summarize",
+]
 
 #: cmd_id used in reports for problems that belong to no command (garbage, gaps).
 FRAMING_ID = 0
+#: ``check --side``: whose frames are judged (the case group says whose each case is).
+SIDES = ("both", "client", "controller")
+
+
+def failing_ids_by_side(report: Report) -> dict[str, int]:
+    """Per side (case group ``client`` / ``controller``), the command IDs with a failure."""
+    out: dict[str, set[int]] = {"client": set(), "controller": set()}
+    for c in report.cases:
+        if c.group in out and report.effective(c.outcome) is Outcome.FAIL and not c.expected:
+            out[c.group].add(c.cmd_id)
+    return {k: len(v) for k, v in out.items()}
 
 
 def percentile(values: Sequence[float], q: float) -> float | None:
@@ -249,18 +267,28 @@ def check_recording(
     strict: bool = False,
     judge: Judge | None = None,
     on_verdict: Callable[[FrameRecord, Verdict], None] | None = None,
+    side: str = "both",
 ) -> Report:
     """Judge every frame of a recording, both directions (:class:`~conformance.judge.Judge`).
 
     ``judge``: the judge to use (default: the shipped dialects, the ``field``
     reference); ``on_verdict`` is called with each frame and its verdict (``check
-    --verdicts`` writes them one JSON line each).
+    --verdicts`` writes them one JSON line each).  ``side``: ``client`` judges the
+    requests (and the client's malformed bytes) only, ``controller`` the replies
+    (and missing replies, the controller's malformed bytes) only, ``both`` both; the
+    requests are still read on the controller side, to know what each reply answers.
+    A recording of this kit's own suite is judged with ``controller``: the suite
+    sends invalid requests on purpose.
     """
+    if side not in SIDES:
+        raise ValueError(f"side must be one of {', '.join(SIDES)}, not {side!r}")
     if judge is None:
         judge = Judge(specs, default_dialects(), strict=strict)
     cases = _Cases()
 
     def add(f: FrameRecord, group: str, v: Verdict, frames: Sequence[bytes]) -> None:
+        if side != "both" and group != side:
+            return
         name = v.name or _name(specs, f)
         if v.command is not None:
             name = v.command.name if v.dialect is None else v.dialect.name
@@ -281,6 +309,8 @@ def check_recording(
             rv = judge.request(req.frame(), transport=req.transport)
             add(req, "client", rv, (req.raw,))
             if rep is None:
+                if side == "client":
+                    continue
                 cases.add(
                     req.cmd_id,
                     rv.name or _name(specs, req),
@@ -299,6 +329,8 @@ def check_recording(
         add(rep, "controller", v, (req.raw, rep.raw) if req is not None else (rep.raw,))
     for p in rec.problems:
         group = "client" if p.dir == C2S else "controller"
+        if side != "both" and group != side:
+            continue
         pv = judge.problem(p.rule, p.detail, Direction.REQUEST if p.dir == C2S else Direction.REPLY)
         cases.add(
             FRAMING_ID,
@@ -319,6 +351,7 @@ def check_recording(
             "recording": rec.path,
             "source": rec.metadata.get("source", ""),
             "complete": rec.complete,
+            "side": side,
         },
     )
     for c in cases.results():

@@ -166,3 +166,49 @@ def test_readme_lists_exactly_the_ignore_rules() -> None:
     m = re.search(r"`--ignore` takes (.*?), a command", readme)
     assert m, "README: the sentence listing the --ignore rules"
     assert re.findall(r"`([a-z_]+)`", m.group(1)) == list(IGNORE_RULES)
+
+
+# --------------------------------------------------------------------------- 3. check --side
+
+FAULTS = str(ROOT / "captures" / "session_faults.mcap")
+
+
+def _failing_ids(doc: dict, side: str) -> set[str]:  # type: ignore[type-arg]
+    return {
+        k
+        for k, c in doc["commands"].items()
+        for case in c["cases"]
+        if case["group"] == side and case["outcome"] == "FAIL"
+    }
+
+
+def test_check_says_which_side_fails_and_side_judges_one_side_only(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import json
+
+    from conformance.cli import main
+
+    rj = tmp_path / "both.json"
+    assert main(["check", FAULTS, "--report-json", str(rj)]) == 1
+    both = json.loads(rj.read_text())
+    client, controller = _failing_ids(both, "client"), _failing_ids(both, "controller")
+    assert "9999" in client and "201" in controller
+    out = capsys.readouterr().out
+    assert f"client: {len(client)} failing IDs, controller: {len(controller)} failing IDs" in out
+    assert "--side controller" in out  # the client side fails: say how to judge the other
+    for side, failing in (("controller", controller), ("client", client)):
+        path = tmp_path / f"{side}.json"
+        assert main(["check", FAULTS, "--side", side, "--report-json", str(path)]) == 1
+        doc = json.loads(path.read_text())
+        groups = {case["group"] for c in doc["commands"].values() for case in c["cases"]}
+        assert groups == {side}
+        assert _failing_ids(doc, side) == failing
+        out = capsys.readouterr().out
+        assert f"{side}: {len(failing)} failing IDs" in out
+        other = "client" if side == "controller" else "controller"
+        assert f"{other}:" not in out.splitlines()[-1]
+    verdicts = tmp_path / "v.jsonl"
+    assert main(["check", FAULTS, "--side", "controller", "--verdicts", str(verdicts)]) == 1
+    dirs = {json.loads(line)["dir"] for line in verdicts.read_text().splitlines()}
+    assert dirs == {"s2c"}

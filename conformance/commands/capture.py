@@ -158,6 +158,14 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         metavar="PATH",
         help="write every frame's verdict, one JSON line each (- for stdout)",
     )
+    c.add_argument(
+        "--side",
+        choices=("both", "client", "controller"),
+        default="both",
+        help="whose frames to judge: the client's requests, the controller's replies, or both "
+        "(default); a recording of this kit's own suite, which sends invalid requests on "
+        "purpose, is judged with --side controller",
+    )
     add_judge_options(c)
     c.set_defaults(func=_run_check)
 
@@ -398,22 +406,37 @@ def _run_info(args: argparse.Namespace) -> int:
 
 
 def _run_check(args: argparse.Namespace) -> int:
-    from ..capture_check import check_recording
+    from ..capture_check import check_recording, failing_ids_by_side
 
     specs = _specs(args)
     judge = judge_from(args, specs, strict=args.strict)
     rec = read_recording(args.capture)
+    side = args.side
     if args.verdicts:
         with _verdict_sink(args.verdicts) as sink:
             report = check_recording(
-                rec, specs, judge=judge, on_verdict=lambda f, v: sink(verdict_line(f, v))
+                rec,
+                specs,
+                judge=judge,
+                on_verdict=lambda f, v: sink(verdict_line(f, v)),
+                side=side,
             )
     else:
-        report = check_recording(rec, specs, judge=judge)
+        report = check_recording(rec, specs, judge=judge, side=side)
     if args.report_json:
         _write_json(args.report_json, report.to_json())
     if args.report_json != "-":
         print(report.render_terminal(only_failures=args.only_failures))
+        # Whose the failures are (each case's group says so too: client / controller).
+        counts = failing_ids_by_side(report)
+        sides = ("client", "controller") if side == "both" else (side,)
+        line = ", ".join(f"{s}: {counts[s]} failing IDs" for s in sides)
+        if side == "both" and counts["client"]:
+            line += (
+                " (the client's requests are judged too: for a recording of this kit's own "
+                "suite, which sends invalid requests on purpose, use --side controller)"
+            )
+        print(line)
     return report.exit_code()
 
 
