@@ -343,7 +343,10 @@ def check_recording(
             pv.source,
         )
     report = Report(
-        target=rec.metadata.get("upstream", rec.path),
+        # An imported capture has no proxy upstream: its connections say whom they reached.
+        target=rec.metadata.get("upstream")
+        or next((c.upstream for c in rec.connections if c.upstream), "")
+        or rec.path,
         spec_version=specs.spec_version,
         strict=judge.strict,
         reference=judge.reference.value,

@@ -68,6 +68,7 @@ __all__ = [
     "RecordingWriter",
     "RotatingWriter",
     "StreamRecorder",
+    "atomic_output",
     "default_metadata",
     "dump_json",
     "read_recording",
@@ -1441,6 +1442,33 @@ def read_recording(path: str | os.PathLike[str]) -> Recording:
     )
 
 
+@contextlib.contextmanager
+def atomic_output(dst: str | os.PathLike[str]) -> Iterator[str]:
+    """A temporary path next to ``dst`` to write the output to: renamed to ``dst`` when
+    the block succeeds, removed when it fails, so a failed command never leaves a
+    half-written file (``recover``, ``import-pcap``).  A directory that cannot be
+    written is a usage error naming ``dst``."""
+    import secrets
+
+    from .errors import UsageError
+
+    final = os.fspath(dst)
+    head, name = os.path.split(final)
+    tmp = os.path.join(head, f".{name}.{secrets.token_hex(4)}.part")
+    try:
+        # O_EXCL: a name nobody else has; mode 0o666 less the umask, as open() gives.
+        os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+    except OSError as e:
+        raise UsageError(f"cannot write {final}: {e.strerror or e}") from None
+    try:
+        yield tmp
+        os.replace(tmp, final)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
 @dataclass(frozen=True, kw_only=True)
 class RecoverResult:
     messages: int
@@ -1465,8 +1493,7 @@ def recover(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> Recover
         fin = open(src, "rb")  # noqa: SIM115
     except FileNotFoundError:
         raise UsageError(f"no such recording: {os.fspath(src)}") from None
-    tmp = os.fspath(dst) + ".part"
-    with fin, open(tmp, "wb") as fout:
+    with fin, atomic_output(dst) as tmp, open(tmp, "wb") as fout:
         if fin.read(8) != b"\x89MCAP0\r\n":
             raise UsageError(f"{os.fspath(src)} is not an MCAP file")
         fin.seek(0)
@@ -1500,7 +1527,6 @@ def recover(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> Recover
             elif isinstance(rec, Footer):
                 complete = True
         out.finish()  # type: ignore[no-untyped-call]
-    os.replace(tmp, dst)
     return RecoverResult(messages=n, was_complete=complete, stopped=stopped)
 
 

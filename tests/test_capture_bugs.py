@@ -212,3 +212,142 @@ def test_check_says_which_side_fails_and_side_judges_one_side_only(
     assert main(["check", FAULTS, "--side", "controller", "--verdicts", str(verdicts)]) == 1
     dirs = {json.loads(line)["dir"] for line in verdicts.read_text().splitlines()}
     assert dirs == {"s2c"}
+
+
+# --------------------------------------------------------------------------- 4. CAPTURE may be a pcap
+
+
+@pytest.mark.parametrize("fmt", ["pcap", "pcapng"])
+def test_info_and_check_read_a_pcap_as_they_read_its_recording(
+    tmp_path: Path, fmt: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import json
+
+    from scapy.utils import rdpcap, wrpcapng
+
+    from conformance.cli import main
+    from conformance.pcap import export_pcap
+
+    pcap = tmp_path / "s.pcap"
+    export_pcap(read_recording(FAULTS), pcap)
+    if fmt == "pcapng":
+        ng = tmp_path / "s.pcapng"
+        wrpcapng(str(ng), rdpcap(str(pcap)))
+        pcap = ng
+    before = set(tmp_path.iterdir())
+    assert main(["info", FAULTS, "--json"]) == 0
+    want = json.loads(capsys.readouterr().out)
+    assert main(["info", str(pcap), "--json"]) == 0
+    got = json.loads(capsys.readouterr().out)
+    assert got["frames"] == want["frames"]
+
+    def counts(doc: dict) -> dict:  # type: ignore[type-arg]
+        # pcapng as scapy writes it keeps microseconds: latencies may round apart.
+        return {
+            k: {f: v for f, v in c.items() if "latency" not in f}
+            for k, c in doc["commands"].items()
+        }
+
+    assert counts(got) == counts(want)
+    assert main(["check", FAULTS, "--only-failures"]) == 1
+    want_check = capsys.readouterr().out.splitlines()[1:]
+    assert main(["check", str(pcap), "--only-failures"]) == 1
+    assert capsys.readouterr().out.splitlines()[1:] == want_check
+    assert set(tmp_path.iterdir()) == before  # imported in a temporary place, and gone
+
+
+@pytest.mark.parametrize("command", ["info", "check"])
+def test_a_capture_neither_mcap_nor_pcap_is_a_usage_error_naming_it(
+    tmp_path: Path, command: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from conformance.cli import main
+
+    bad = tmp_path / "notes.txt"
+    bad.write_text("hello, not a capture\n")
+    assert main([command, str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert str(bad) in err and "neither an MCAP recording nor a pcap/pcapng capture" in err
+
+
+# --------------------------------------------------------------------------- 6. no partial files
+
+
+def _left(d: Path) -> set[str]:
+    return {p.name for p in d.iterdir()}
+
+
+def test_failed_import_pcap_leaves_no_file(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import conformance.pcap as pcap_mod
+    from conformance.cli import main
+    from conformance.pcap import export_pcap, import_pcap
+
+    src = tmp_path / "in"
+    src.mkdir()
+    out = tmp_path / "out"
+    out.mkdir()
+    bad = src / "bad.pcap"
+    bad.write_text("not a pcap")
+    assert main(["import-pcap", str(bad), "-o", str(out / "x.mcap")]) == 2
+    assert _left(out) == set()
+    # Failing half-way (a bug, a full disk...): the error goes on, no file stays.
+    good = src / "good.pcap"
+    export_pcap(read_recording(FAULTS), good)
+    real = pcap_mod.parse_packet
+    seen = []
+
+    def parse(*a):  # type: ignore[no-untyped-def]
+        seen.append(1)
+        if len(seen) > 10:
+            raise OSError(28, "No space left on device")
+        return real(*a)
+
+    monkeypatch.setattr(pcap_mod, "parse_packet", parse)
+    with pytest.raises(OSError):
+        import_pcap(good, out / "x.mcap")
+    assert _left(out) == set()
+    monkeypatch.setattr(pcap_mod, "parse_packet", real)
+    assert main(["import-pcap", str(good), "-o", str(out / "x.mcap")]) == 0
+    assert _left(out) == {"x.mcap"}
+    capsys.readouterr()
+
+
+def test_failed_recover_leaves_no_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from conformance.cli import main
+
+    out = tmp_path / "out"
+    out.mkdir()
+    bad = tmp_path / "bad.mcap"
+    bad.write_text("not mcap at all")
+    assert main(["recover", str(bad), "-o", str(out / "fixed.mcap")]) == 2
+    assert _left(out) == set()
+    # An MCAP file cut inside its magic/header: nothing to recover, nothing left.
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(Path(FAULTS).read_bytes()[:8])
+    main(["recover", str(cut), "-o", str(out / "fixed.mcap")])
+    assert _left(out) <= {"fixed.mcap"}  # a valid file, or none
+    nowhere = tmp_path / "no" / "such" / "dir" / "fixed.mcap"
+    capsys.readouterr()
+    assert main(["recover", FAULTS, "-o", str(nowhere)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and str(nowhere) in err
+
+
+@pytest.mark.parametrize(
+    "flag, value",
+    [("--port", "99999"), ("--port", "0"), ("--udp-port", "65536"), ("--udp-port", "-1")],
+)
+def test_import_pcap_ports_must_be_1_to_65535(
+    tmp_path: Path, flag: str, value: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from conformance.cli import main
+    from conformance.pcap import export_pcap
+
+    pcap = tmp_path / "s.pcap"
+    export_pcap(read_recording(FAULTS), pcap)
+    assert main(["import-pcap", str(pcap), "-o", str(tmp_path / "x.mcap"), flag, value]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and flag in err and value in err and "1..65535" in err
+    assert not (tmp_path / "x.mcap").exists()

@@ -16,7 +16,8 @@ from typing import Any
 from ..diff import ignore_help
 from ..errors import UsageError
 from ..frame import DEFAULT_MAX_FRAME_SIZE
-from ..recording import C2S, FrameRecord, read_recording, recover
+from ..pcap import read_capture
+from ..recording import C2S, FrameRecord, recover
 from ..spec import SpecSet, default_specs, load_specs
 from ._judging import add_judge_options, judge_from, verdict_line
 from ._judging import verdict_sink as _verdict_sink
@@ -397,7 +398,7 @@ def _run_info(args: argparse.Namespace) -> int:
     from ..capture_check import render_info, summarize
 
     specs = _specs(args)
-    info = summarize(read_recording(args.capture), specs, judge=judge_from(args, specs))
+    info = summarize(read_capture(args.capture), specs, judge=judge_from(args, specs))
     if args.json:
         _write_json("-", info)
     else:
@@ -410,7 +411,7 @@ def _run_check(args: argparse.Namespace) -> int:
 
     specs = _specs(args)
     judge = judge_from(args, specs, strict=args.strict)
-    rec = read_recording(args.capture)
+    rec = read_capture(args.capture)
     side = args.side
     if args.verdicts:
         with _verdict_sink(args.verdicts) as sink:
@@ -449,7 +450,7 @@ def _run_replay(args: argparse.Namespace) -> int:
     from ..replay import ReplyBook, replay_to_target
     from ..safety import SafetyPolicy
 
-    rec = read_recording(args.capture)
+    rec = read_capture(args.capture)
     specs = _specs(args)
     ignore = Ignore.parse(args.ignore, specs=specs)
     if args.serve:
@@ -532,8 +533,8 @@ def _run_diff(args: argparse.Namespace) -> int:
 
     specs = _specs(args)
     res = diff_recordings(
-        read_recording(args.a),
-        read_recording(args.b),
+        read_capture(args.a),
+        read_capture(args.b),
         specs=specs,
         ignore=Ignore.parse(args.ignore, specs=specs),
         latency_threshold=args.latency_threshold,
@@ -549,6 +550,10 @@ def _run_diff(args: argparse.Namespace) -> int:
 def _run_import_pcap(args: argparse.Namespace) -> int:
     from ..pcap import DEFAULT_TCP_PORTS, DEFAULT_UDP_PORTS, import_pcap
 
+    for flag, ports in (("--port", args.port), ("--udp-port", args.udp_port)):
+        for port in ports:
+            if not 0 < port < 65536:
+                raise UsageError(f"{flag} {port}: a port is 1..65535")
     t0 = time.perf_counter()
     st = import_pcap(
         args.pcap,
@@ -569,6 +574,6 @@ def _run_import_pcap(args: argparse.Namespace) -> int:
 def _run_export_pcap(args: argparse.Namespace) -> int:
     from ..pcap import export_pcap
 
-    n = export_pcap(read_recording(args.capture), args.out)
+    n = export_pcap(read_capture(args.capture), args.out)
     print(f"wrote {n} packets to {args.out}")
     return 0
