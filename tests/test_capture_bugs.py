@@ -351,3 +351,63 @@ def test_import_pcap_ports_must_be_1_to_65535(
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and flag in err and value in err and "1..65535" in err
     assert not (tmp_path / "x.mcap").exists()
+
+
+# --------------------------------------------------------------------------- 5. proxy
+
+
+def test_proxy_out_that_cannot_be_written_is_named(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from conformance.cli import main
+
+    out = tmp_path / "no" / "such" / "dir" / "x.mcap"
+    argv = ["proxy", "--listen", "127.0.0.1:0", "--upstream", "127.0.0.1:9", "--out", str(out)]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert "cannot write" in err and str(out) in err and "listen" not in err
+
+
+def _refused_client(addr: tuple[str, int]) -> None:
+    import contextlib
+
+    with socket.create_connection(addr) as c:
+        c.settimeout(30)
+        with contextlib.suppress(ConnectionResetError):
+            assert c.recv(100) == b""
+
+
+def test_proxy_says_once_per_episode_that_the_upstream_refuses(tmp_path: Path) -> None:
+    from conformance.net.proxy import RecordingProxy
+
+    from .test_proxy import wait_for
+
+    # Bound but not listening: connecting is refused, and the port stays ours.
+    up = socket.socket()
+    up.bind(("127.0.0.1", 0))
+    addr = "{}:{}".format(*up.getsockname()[:2])
+    lines: list[str] = []
+    out = tmp_path / "r.mcap"
+    with RecordingProxy(up.getsockname()[:2], out=out, log=lines.append) as p:
+        for n in (1, 2, 3):
+            _refused_client(p.address)
+            wait_for(lambda n=n: p.stats.refused == n, 60)  # type: ignore[misc]
+        assert len(lines) == 1, lines
+        assert addr in lines[0] and "refused" in lines[0]
+        up.listen()  # the controller is back: the episode ends
+        with socket.create_connection(p.address) as c:
+            served, _ = up.accept()
+            served.close()
+            c.settimeout(30)
+            assert c.recv(100) == b""
+        wait_for(lambda: len(lines) == 2, 60)
+        assert addr in lines[1] and "again" in lines[1]
+        up.close()  # and gone again: a new episode, said once more
+        _refused_client(p.address)
+        _refused_client(p.address)
+        wait_for(lambda: p.stats.refused == 5, 60)
+        assert len(lines) == 3 and addr in lines[2] and "refused" in lines[2]
+    rec = read_recording(out)
+    reasons = [c.reason for c in rec.connections if c.event == "close"]
+    assert sum(1 for r in reasons if f"upstream {addr} refused" in r) == 5

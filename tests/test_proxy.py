@@ -212,7 +212,8 @@ def test_upstream_refusal_closes_client_and_is_recorded(tmp_path: Path) -> None:
     rec = read_recording(out)
     closes = [c for c in rec.connections if c.event == "close"]
     assert len(closes) == 2
-    assert all("upstream refused" in c.reason for c in closes)
+    up = f"{dead[0]}:{dead[1]}"
+    assert all(c.reason.startswith(f"upstream {up} refused") for c in closes)
 
 
 def test_upstream_dies_mid_connection(tmp_path: Path) -> None:

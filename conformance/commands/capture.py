@@ -335,6 +335,10 @@ def _run_proxy(args: argparse.Namespace) -> int:
             max_backlog=args.max_backlog,
         )
     except OSError as e:
+        if e.filename is not None:  # the output file, not a socket
+            raise UsageError(
+                f"cannot write the recording {e.filename}: {e.strerror or e}"
+            ) from None
         raise UsageError(f"cannot listen on {args.listen}: {e.strerror or e}") from None
     except ValueError as e:
         raise UsageError(str(e)) from None

@@ -38,7 +38,9 @@ records the connections still open as closed ("proxy died") and finishes the
 file; if both die, the file is unfinished but flushed, and ``recover`` repairs it.
 
 An upstream that refuses, times out or dies is recorded (a ``close`` event with
-the reason) and the client's connection is closed; the proxy carries on.  So is a
+the reason, naming the upstream) and the client's connection is closed; the proxy
+carries on, and ``log`` says so once per episode (until a connection to the
+upstream succeeds again, which it says too).  So is a
 client accepted while no upstream socket can be had (EMFILE...), or beyond
 ``max_connections`` (accepted and closed at once).  When accept() itself fails for
 want of descriptors or memory, the listener rests (10 ms, doubling to 1 s) and
@@ -295,6 +297,7 @@ class RecordingProxy:
         self._accept_at = 0.0  # monotonic time the listener listens again
         self._listening = True
         self._episode_start = 0.0  # when the current shortage began
+        self._upstream_down = False  # the last connection to the upstream failed (said once)
         self._io_done = threading.Event()
 
         self._listener = socket.create_server(listen, family=_family(listen[0]), backlog=512)
@@ -329,8 +332,14 @@ class RecordingProxy:
         first = segment_path(self.out, 1) if rotating else self.out
         # Fail here, as before the recorder moved out, if the file cannot be written;
         # the recorder process writes it afresh.
-        with open(first, "wb"):
-            pass
+        try:
+            with open(first, "wb"):
+                pass
+        except OSError:
+            self._listener.close()
+            if self._udp is not None:
+                self._udp.close()
+            raise
         self._paths: list[str] = [first]
 
         self._sel = selectors.DefaultSelector()
@@ -790,7 +799,24 @@ class RecordingProxy:
 
     def _refused(self, pair: _Pair, err: int) -> None:
         self.stats.refused += 1
-        self._close_pair(pair, f"upstream refused: {os.strerror(err)}")
+        self._upstream_failed(pair, f"refused: {os.strerror(err)}")
+
+    def _upstream_failed(self, pair: _Pair, why: str) -> None:
+        """The upstream would not take a client's connection: close it, with the reason
+        in the file; say so once per episode (until a connection to it succeeds)."""
+        up = format_addr(self.upstream)
+        if not self._upstream_down:
+            self._upstream_down = True
+            self.log(
+                f"proxy: upstream {up} {why}; closing each client until it accepts "
+                "connections again (said once)"
+            )
+        self._close_pair(pair, f"upstream {up} {why}")
+
+    def _upstream_up(self) -> None:
+        if self._upstream_down:
+            self._upstream_down = False
+            self.log(f"proxy: upstream {format_addr(self.upstream)} accepts connections again")
 
     def _update(self, p: _Pair) -> None:
         """Register what each socket of the pair should wait for."""
@@ -837,6 +863,7 @@ class RecordingProxy:
                 return
             p.connected = True
             p.deadline = 0.0
+            self._upstream_up()
             if p.to_upstream:
                 self._send(p, to_client=False)
             if p.client_eof and not p.to_upstream:
@@ -968,9 +995,7 @@ class RecordingProxy:
             if p.deadline and now >= p.deadline:
                 if not p.connected:
                     self.stats.refused += 1
-                    self._close_pair(
-                        p, f"upstream connect timed out after {self.connect_timeout:g} s"
-                    )
+                    self._upstream_failed(p, f"connect timed out after {self.connect_timeout:g} s")
                 else:
                     self._close_pair(p, p.first_close or "linger timeout")
         if self._sessions:
