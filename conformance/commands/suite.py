@@ -1,4 +1,4 @@
-"""Sub-commands of the conformance suite: ``run``, ``emulate``, ``serve``, ``report``."""
+"""Sub-commands of the conformance suite: ``run``, ``emulate``, ``serve``."""
 
 from __future__ import annotations
 
@@ -150,10 +150,13 @@ def _emulate(args: argparse.Namespace) -> int:
     from ..net.emulator import EmulatorServer
 
     host, port, udp_port = _listen_addresses(args)
-    faults = [parse_fault(f) for f in args.fault]
     if args.duration is not None and args.duration < 0:
         raise UsageError("--duration must not be negative")
     specs = _load_specs(args.specs)
+    emulation = _emulation(args, specs)
+    # A fault's IDs are checked against what this emulator knows: its specs and dialects.
+    known = {*specs.cmd_ids, *emulation["judge"].dialects.cmd_ids}
+    faults = [parse_fault(f, known=known) for f in args.fault]
     server = EmulatorServer(
         specs,
         host=host,
@@ -161,7 +164,7 @@ def _emulate(args: argparse.Namespace) -> int:
         udp_port=udp_port,
         faults=faults,
         **_limits(args),
-        **_emulation(args, specs),
+        **emulation,
     )
     server.start()
     try:
