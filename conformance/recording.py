@@ -1340,10 +1340,15 @@ class Recording:
 
     def exchanges(self) -> list[Exchange]:
         """Pair each reply with the oldest unanswered request of its connection with the same
-        CNT and CMD_ID (else the same CMD_ID); unpaired frames stand alone."""
+        CNT and CMD_ID (else the same CMD_ID); unpaired frames stand alone.
+
+        Frames are taken in the order their first byte arrived, not file order: a frame
+        the recorder could decide only once its sender went quiet (a LEN that does not
+        fit, odd separators) is written after the reply that already answered it.
+        """
         out: list[Exchange | None] = []
         pending: dict[int, list[tuple[int, FrameRecord]]] = {}
-        for f in self.frames:
+        for f in sorted(self.frames, key=lambda f: f.first_ns or f.complete_ns):
             if f.dir == C2S:
                 pending.setdefault(f.conn, []).append((len(out), f))
                 out.append(Exchange(conn=f.conn, request=f, reply=None))

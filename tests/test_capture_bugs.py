@@ -411,3 +411,45 @@ def test_proxy_says_once_per_episode_that_the_upstream_refuses(tmp_path: Path) -
     rec = read_recording(out)
     reasons = [c.reason for c in rec.connections if c.event == "close"]
     assert sum(1 for r in reasons if f"upstream {addr} refused" in r) == 5
+
+
+def test_a_request_decided_after_its_reply_still_pairs_with_it(tmp_path: Path) -> None:
+    """The suite's broken frames (``II`` separators, LEN 0) are decided only when the
+    client goes quiet, after the controller has replied: the reply is first in the file,
+    yet it answers that request (not a missing reply and an unsolicited one)."""
+    from conformance.capture_check import check_recording, failing_ids_by_side
+
+    path = tmp_path / "late.mcap"
+    with RecordingWriter(path) as w:
+        rec = StreamRecorder(w, specs=default_specs())
+        rec.open(1, t_ns=1, client="127.0.0.1:5000", upstream="127.0.0.1:8080")
+        rec.data(1, "c2s", 10, b"/f/bII1II229II0IIIII/b/f")
+        rec.data(1, "s2c", 20, b"/f/bIII1III229III15IIIrobot errcode:4III/b/f")
+        rec.idle(1_000_000_000, 500_000_000)
+        rec.close(1, t_ns=2_000_000_000, reason="client closed")
+    recording = read_recording(path)
+    assert [f.dir for f in recording.frames] == ["s2c", "c2s"]  # as the recorder wrote them
+    ex = recording.exchanges()
+    assert len(ex) == 1 and ex[0].request is not None and ex[0].reply is not None
+    report = check_recording(recording, default_specs(), side="controller")
+    assert failing_ids_by_side(report)["controller"] == 0, [(c.id, c.detail) for c in report.cases]
+
+
+def test_serve_answers_a_request_it_can_decide_only_once_the_client_is_quiet(
+    tmp_path: Path,
+) -> None:
+    """Replaying the suite's recording waited a whole --timeout for the frame with ``II``
+    separators: the server never decided it (the emulator does, when the client goes
+    quiet)."""
+    path = tmp_path / "late.mcap"
+    odd = b"/f/bII1II229II0IIIII/b/f"
+    with RecordingWriter(path) as w:
+        rec = StreamRecorder(w, specs=default_specs())
+        rec.open(1, t_ns=1, client="127.0.0.1:5000", upstream="127.0.0.1:8080")
+        rec.data(1, "c2s", 10, odd)
+        rec.data(1, "s2c", 20, b"/f/bIII1III229III15IIIrobot errcode:4III/b/f")
+        rec.idle(1_000_000_000, 500_000_000)
+        rec.close(1, t_ns=2_000_000_000, reason="client closed")
+    with ReplayServer(ReplyBook(read_recording(path))) as srv:
+        got = _ask_each(srv.address, [odd.replace(b"II1II", b"II7II")])
+    assert [(g.cnt, g.cmd_id, g.data) for g in got] == [(7, 229, "robot errcode:4")]

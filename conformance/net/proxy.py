@@ -68,13 +68,13 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
-from ..frame import DEFAULT_MAX_FRAME_SIZE
+from ..frame import DEFAULT_MAX_FRAME_SIZE, Frame, Malformed
 from ..recording import (
     C2S,
     S2C,
@@ -1511,7 +1511,7 @@ class ReplayServer:
                 c.close()
 
     def _serve(self, c: socket.socket) -> None:
-        from ..frame import Frame, FrameDecoder
+        from ..frame import FrameDecoder
 
         reason = ""
         try:
@@ -1523,23 +1523,15 @@ class ReplayServer:
                 try:
                     data = c.recv(65536)
                 except TimeoutError:
+                    # Quiet inside a frame (a LEN too large, odd separators): decide on
+                    # it now and answer it, as the emulator does.
+                    if dec.buffered:
+                        self._answer(c, dec.resolve_pending())
                     continue
                 if not data:
                     break
-                out: list[bytes] = []
-                size = 0
-                for ev in dec.feed(data):
-                    if isinstance(ev, Frame):
-                        with self._lock:
-                            r = self.book.answer(ev)
-                        if r:
-                            out.append(r)
-                            size += len(r)
-                            if size >= _REPLY_BATCH:  # a MiB at most waits here
-                                self._send(c, out)
-                                out, size = [], 0
-                if out:
-                    self._send(c, out)
+                self._answer(c, dec.feed(data))
+
         except TimeoutError:
             reason = "client not reading its replies"
         except OSError as e:
@@ -1557,6 +1549,23 @@ class ReplayServer:
                     self.close_reasons[reason] += 1
             with contextlib.suppress(OSError):
                 c.close()
+
+    def _answer(self, c: socket.socket, events: Iterable[Frame | Malformed]) -> None:
+        """Answer the frames among ``events``, replies joined into sends of a MiB at most."""
+        out: list[bytes] = []
+        size = 0
+        for ev in events:
+            if isinstance(ev, Frame):
+                with self._lock:
+                    r = self.book.answer(ev)
+                if r:
+                    out.append(r)
+                    size += len(r)
+                    if size >= _REPLY_BATCH:  # a MiB at most waits here
+                        self._send(c, out)
+                        out, size = [], 0
+        if out:
+            self._send(c, out)
 
     @staticmethod
     def _send(c: socket.socket, out: list[bytes]) -> None:
