@@ -738,61 +738,63 @@ def export_pcap(rec: Recording, out: str | os.PathLike[str]) -> int:
         events.append((max(t1, last_t[cid]), 1 << 62, cid, "close", None))
     events.sort(key=lambda e: (e[0], e[1]))
 
-    w = _PcapWriter(out)
-    state: dict[int, dict[str, Any]] = {}
-    try:
-        for t, _, cid, kind, payload in events:
-            st = state.get(cid)
-            if st is None:
-                o = opened.get(cid)
-                csrc, cport = _addr(o.client if o else "", "10.0.0.1")
-                sdst, sport = _addr(o.upstream if o else "", "10.0.0.2")
-                transport = o.transport if o else "tcp"
-                st = state[cid] = {
-                    "c": (csrc, cport or 40000 + cid % 20000),
-                    "s": (sdst, sport or 8080),
-                    "udp": transport == "udp",
-                    "isn": {C2S: 1000, S2C: 5000},
-                    "sent": {C2S: 0, S2C: 0},
-                    "open": False,
-                }
-            (ca, cp), (sa, sp) = st["c"], st["s"]
-            if st["udp"]:
-                if kind in (C2S, S2C):
-                    _, raw = payload
-                    if kind == C2S:
-                        w.ip_packet(t, True, _ipv4(ca, sa, 17, _udp(ca, sa, cp, sp, raw), cid))
-                    else:
-                        w.ip_packet(t, False, _ipv4(sa, ca, 17, _udp(sa, ca, sp, cp, raw), cid))
-                continue
-            isn, sent = st["isn"], st["sent"]
-
-            seg = functools.partial(w.tcp_segment, t, (ca, cp), (sa, sp))
-
-            if kind == "open" or (not st["open"] and kind != "close"):
-                if not st["open"]:
-                    st["open"] = True
-                    seg(True, isn[C2S] - 1, 0, _SYN)
-                    seg(False, isn[S2C] - 1, isn[C2S], _SYN | _ACK)
-                    seg(True, isn[C2S], isn[S2C], _ACK)
-                if kind == "open":
+    # Written next to ``out`` and renamed when complete: a failure leaves no file.
+    with atomic_output(out) as tmp:
+        w = _PcapWriter(tmp)
+        state: dict[int, dict[str, Any]] = {}
+        try:
+            for t, _, cid, kind, payload in events:
+                st = state.get(cid)
+                if st is None:
+                    o = opened.get(cid)
+                    csrc, cport = _addr(o.client if o else "", "10.0.0.1")
+                    sdst, sport = _addr(o.upstream if o else "", "10.0.0.2")
+                    transport = o.transport if o else "tcp"
+                    st = state[cid] = {
+                        "c": (csrc, cport or 40000 + cid % 20000),
+                        "s": (sdst, sport or 8080),
+                        "udp": transport == "udp",
+                        "isn": {C2S: 1000, S2C: 5000},
+                        "sent": {C2S: 0, S2C: 0},
+                        "open": False,
+                    }
+                (ca, cp), (sa, sp) = st["c"], st["s"]
+                if st["udp"]:
+                    if kind in (C2S, S2C):
+                        _, raw = payload
+                        if kind == C2S:
+                            w.ip_packet(t, True, _ipv4(ca, sa, 17, _udp(ca, sa, cp, sp, raw), cid))
+                        else:
+                            w.ip_packet(t, False, _ipv4(sa, ca, 17, _udp(sa, ca, sp, cp, raw), cid))
                     continue
-            if kind == "close":
-                if st["open"]:
-                    seg(True, isn[C2S] + sent[C2S], isn[S2C] + sent[S2C], _FIN | _ACK)
-                    seg(False, isn[S2C] + sent[S2C], isn[C2S] + sent[C2S] + 1, _FIN | _ACK)
-                    seg(True, isn[C2S] + sent[C2S] + 1, isn[S2C] + sent[S2C] + 1, _ACK)
-                continue
-            offset, raw = payload
-            d = kind
-            other = S2C if d == C2S else C2S
-            for i in range(0, len(raw), _MSS):
-                chunk = raw[i : i + _MSS]
-                seq = isn[d] + offset + i
-                seg(d == C2S, seq, isn[other] + sent[other], _ACK | 0x08, chunk)
-            sent[d] = max(sent[d], offset + len(raw))
-    finally:
-        w.close()
+                isn, sent = st["isn"], st["sent"]
+
+                seg = functools.partial(w.tcp_segment, t, (ca, cp), (sa, sp))
+
+                if kind == "open" or (not st["open"] and kind != "close"):
+                    if not st["open"]:
+                        st["open"] = True
+                        seg(True, isn[C2S] - 1, 0, _SYN)
+                        seg(False, isn[S2C] - 1, isn[C2S], _SYN | _ACK)
+                        seg(True, isn[C2S], isn[S2C], _ACK)
+                    if kind == "open":
+                        continue
+                if kind == "close":
+                    if st["open"]:
+                        seg(True, isn[C2S] + sent[C2S], isn[S2C] + sent[S2C], _FIN | _ACK)
+                        seg(False, isn[S2C] + sent[S2C], isn[C2S] + sent[C2S] + 1, _FIN | _ACK)
+                        seg(True, isn[C2S] + sent[C2S] + 1, isn[S2C] + sent[S2C] + 1, _ACK)
+                    continue
+                offset, raw = payload
+                d = kind
+                other = S2C if d == C2S else C2S
+                for i in range(0, len(raw), _MSS):
+                    chunk = raw[i : i + _MSS]
+                    seq = isn[d] + offset + i
+                    seg(d == C2S, seq, isn[other] + sent[other], _ACK | 0x08, chunk)
+                sent[d] = max(sent[d], offset + len(raw))
+        finally:
+            w.close()
     return w.count
 
 

@@ -453,3 +453,26 @@ def test_serve_answers_a_request_it_can_decide_only_once_the_client_is_quiet(
     with ReplayServer(ReplyBook(read_recording(path))) as srv:
         got = _ask_each(srv.address, [odd.replace(b"II1II", b"II7II")])
     assert [(g.cnt, g.cmd_id, g.data) for g in got] == [(7, 229, "robot errcode:4")]
+
+
+def test_failed_export_pcap_leaves_no_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import conformance.pcap as pcap_mod
+    from conformance.pcap import export_pcap
+
+    rec = read_recording(FAULTS)
+    real = pcap_mod._PcapWriter.ip_packet
+    seen = []
+
+    def ip_packet(self, *a):  # type: ignore[no-untyped-def]
+        seen.append(1)
+        if len(seen) > 5:
+            raise OSError(28, "No space left on device")
+        return real(self, *a)
+
+    monkeypatch.setattr(pcap_mod._PcapWriter, "ip_packet", ip_packet)
+    with pytest.raises(OSError):
+        export_pcap(rec, tmp_path / "x.pcap")
+    assert _left(tmp_path) == set()
+    monkeypatch.setattr(pcap_mod._PcapWriter, "ip_packet", real)
+    assert export_pcap(rec, tmp_path / "x.pcap") > 5
+    assert _left(tmp_path) == {"x.pcap"}
