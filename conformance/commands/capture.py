@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from ..capture_check import SIDES
 from ..diff import ignore_help
 from ..errors import UsageError
 from ..frame import DEFAULT_MAX_FRAME_SIZE
@@ -161,7 +162,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     )
     c.add_argument(
         "--side",
-        choices=("both", "client", "controller"),
+        choices=SIDES,
         default="both",
         help="whose frames to judge: the client's requests, the controller's replies, or both "
         "(default); a recording of this kit's own suite, which sends invalid requests on "
