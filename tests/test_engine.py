@@ -239,3 +239,23 @@ def test_emulate_takes_specs_dir_like_every_other_command(tmp_path: Path) -> Non
         assert args.specs == specs_dir
     for cmd in (["check", "x.mcap"], ["decode"], ["info", "x.mcap"]):
         assert build_parser().parse_args([*cmd, "--specs-dir", specs_dir]).specs_dir == specs_dir
+
+
+def test_baseline_counts_what_fails_under_the_run_options() -> None:
+    """Under --strict a listed NON-STRICT case is an expected failure, not 'listed but passed'."""
+    from dataclasses import replace as dc_replace
+
+    from conformance.report import CaseResult, Outcome
+    from conformance.suite.config import SuiteConfig
+    from conformance.suite.engine import Engine
+
+    case = CaseResult(
+        id="1/x/g/w", cmd_id=1, name="x", group="g", outcome=Outcome.NON_STRICT, detail="d"
+    )
+    base = SuiteConfig(expected_failures=frozenset({case.id}))
+    lenient = Engine(base)._baseline(case)
+    strict = Engine(dc_replace(base, strict=True))._baseline(case)
+    assert lenient.outcome is Outcome.FAIL and "listed in --expected-failures but passed" in (
+        lenient.detail
+    )
+    assert strict.outcome is Outcome.NON_STRICT and strict.expected

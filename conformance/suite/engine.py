@@ -148,7 +148,12 @@ class Engine:
     def _baseline(self, result: CaseResult) -> CaseResult:
         if result.id not in self.config.expected_failures:
             return result
-        if result.outcome in _FAILING:
+        failing = (
+            result.outcome in _FAILING
+            or (result.outcome is Outcome.NON_STRICT and self.config.strict)
+            or (result.outcome is Outcome.DIALECT and self.config.reference == "manual")
+        )
+        if failing:
             return replace(result, expected=True)
         if result.outcome in (Outcome.PASS, Outcome.DIALECT, Outcome.NON_STRICT):
             return replace(
