@@ -33,8 +33,16 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     ep = ssub.add_parser("errata", help="the manual's contradictions and the readings adopted")
     ep.add_argument("--json", action="store_true")
     ep.add_argument("--kind", help="only this erratum kind")
-    xp = ssub.add_parser("export", help="the complete spec set as one JSON document")
-    xp.add_argument("--json", action="store_true", required=True, help="JSON (the only format)")
+    xp = ssub.add_parser(
+        "export", help="the complete spec set as one JSON document, or a Wireshark dissector"
+    )
+    xfmt = xp.add_mutually_exclusive_group(required=True)
+    xfmt.add_argument("--json", action="store_true", help="JSON on standard output")
+    xfmt.add_argument(
+        "--wireshark",
+        metavar="PATH",
+        help="write a Wireshark Lua dissector (wireshark -X lua_script:PATH)",
+    )
     p.set_defaults(func=_run_specs)
 
     d = sub.add_parser("decode", help="decode frames from bytes (file, stdin or --hex)")
@@ -232,6 +240,9 @@ def _run_specs(args: argparse.Namespace) -> int:
             out.write(f"{len(errata)} errata\n")
         return 0
     # export
+    if args.wireshark:
+        _write_wireshark(args.wireshark, specs)
+        return 0
     doc = {
         "spec_version": specs.spec_version,
         "source": specs.source,
@@ -244,6 +255,17 @@ def _run_specs(args: argparse.Namespace) -> int:
     json.dump(doc, out, ensure_ascii=False, indent=2)
     out.write("\n")
     return 0
+
+
+def _write_wireshark(path: str, specs: SpecSet) -> None:
+    from ..wireshark import lua_dissector
+
+    text = lua_dissector(specs, default_dialects())
+    try:
+        with open(path, "w", encoding="utf-8") as f:
+            f.write(text)
+    except OSError as e:
+        raise UsageError(f"--wireshark: cannot write {path}: {e.strerror or e}") from None
 
 
 def _show_text(c: Command, specs: SpecSet, out: Any) -> None:
