@@ -106,16 +106,60 @@ def read_packets(path: str | os.PathLike[str]) -> Iterator[tuple[int, int, bytes
         raise UsageError(f"{os.fspath(path)}: {e}") from None
     with reader:
         if isinstance(reader, RawPcapNgReader):
+            # Iterating scapy's readers asks for ``size=MTU`` (65,535) and silently cuts
+            # longer packets; a loopback capture with TSO/GRO holds 65,536+ byte ones.
+            # ``_read_packet(size=...)`` is the reader's own call with a size: a block
+            # is read whole (its length is in the file), so nothing is cut.
             ng: Any = reader
-            for data, md in ng:
+            while True:
+                try:
+                    data, md = ng._read_packet(size=_MAX_PACKET)
+                except EOFError:
+                    return
                 ts = (md.tshigh << 32) | md.tslow
                 res = md.tsresol or 1_000_000
                 yield md.linktype, ts * 1_000_000_000 // res, data
         else:
-            lt = reader.linktype
-            mult = 1 if reader.nano else 1000
-            for data, md in reader:
-                yield lt, md.sec * 1_000_000_000 + md.usec * mult, data
+            # Classic pcap: scapy's ``RawPcapReader`` cuts a record at ``size`` and at
+            # 4 x MTU whatever the size (scapy 2.6+ utils.py ``_read_packet``), so the
+            # 16-byte record headers are read here, from the header scapy parsed
+            # (byte order, ns or µs, link type), and every byte of a record is kept.
+            yield from _classic_records(reader.f, reader.endian, reader.nano, reader.linktype)
+
+
+#: Largest packet read whole (a pcapng block or pcap record claiming more is cut here,
+#: bounding memory against a corrupt length field; Linux BIG TCP packets reach 512 KB).
+_MAX_PACKET = 16 << 20
+
+
+def _classic_records(
+    f: Any, endian: str, nano: bool, linktype: int
+) -> Iterator[tuple[int, int, bytes]]:
+    """(link type, time in ns, bytes) of each record of a classic pcap, read from ``f``
+    positioned after the file header; a record cut short by the end of the file is the
+    last one."""
+    head = struct.Struct(endian + "IIII").unpack
+    mult = 1 if nano else 1000
+    read = f.read
+    while True:
+        hdr = read(16)
+        if len(hdr) < 16:
+            return
+        sec, frac, caplen, _wirelen = head(hdr)
+        data = read(min(caplen, _MAX_PACKET))
+        if len(data) < min(caplen, _MAX_PACKET):
+            # The file ends inside this record: its bytes are the last packet (as
+            # scapy's reader gives them), and nothing follows.
+            yield linktype, sec * 1_000_000_000 + frac * mult, data
+            return
+        if caplen > _MAX_PACKET:
+            rest = caplen - _MAX_PACKET
+            while rest > 0:  # skip what is beyond the bound, in bounded reads
+                got = len(read(min(rest, 1 << 20)))
+                if not got:
+                    return
+                rest -= got
+        yield linktype, sec * 1_000_000_000 + frac * mult, data
 
 
 def _link(linktype: int, data: bytes) -> tuple[int, int] | None:
@@ -210,7 +254,9 @@ def parse_packet(linktype: int, t_ns: int, data: bytes) -> Packet | None:
         src = _ip_text(data[off + 8 : off + 24])
         dst = _ip_text(data[off + 24 : off + 40])
         l4 = off + 40
-        end = l4 + plen
+        # Payload length 0 with a payload: a GSO/BIG TCP packet over 64 KB as Linux
+        # hands it to the capture (the jumbo option removed), as IPv4's total 0 above.
+        end = l4 + plen if plen else len(data)
         while proto in _V6_EXT and len(data) >= l4 + 2:
             proto, hlen = data[l4], (data[l4 + 1] + 1) * 8
             l4 += hlen

@@ -33,11 +33,7 @@ import json
 import os
 import re
 import socket
-import struct
-import sys
 import time
-import zlib
-from array import array
 from collections import deque
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
@@ -397,235 +393,18 @@ def default_metadata(**extra: str) -> dict[str, str]:
     return md
 
 
-_MAGIC = b"\x89MCAP0\r\n"
-# Message record (opcode 0x05): record length, channel id, sequence, log and publish time.
-_MSG_HEAD = struct.Struct("<BQHIQQ").pack
-# Message Index record (opcode 0x07) header: record length, channel id, entries length.
-_INDEX_HEAD = struct.Struct("<BQHI").pack
-_OP_MESSAGE = 0x05
-_OP_MESSAGE_INDEX = 0x07
-_NATIVE_LE = sys.byteorder == "little"
+def _flush_chunk(writer: Any) -> None:
+    """End ``writer``'s chunk in progress and write it out, indexed.
 
-
-def _end(builder: Any) -> bytes:
-    """``RecordBuilder.end()``: the bytes built so far (the builder starts afresh)."""
-    data: bytes = builder.end()
-    return data
-
-
-class _McapWriter:
-    """An MCAP writer for records whose data is already serialised.
-
-    It writes the same records, in the same order and with the same bytes, as
-    ``mcap.writer.Writer`` with its defaults (chunked, every index, statistics,
-    summary offsets, chunk CRCs; ``tests/test_recording.py`` compares the two),
-    but a message costs two ``bytearray`` appends and two ``array`` appends
-    instead of a ``Message`` object and a dozen small writes: that call was a
-    third of the recorder's time per frame.  The non-message records (header,
-    schemas, channels, metadata, chunks, indexes, summary, footer) are written by
-    the ``mcap`` library's record classes.
+    ``mcap.Writer.flush()`` does exactly that (public in mcap 1.6, installed here);
+    an ``mcap`` without it has only the private, name-mangled ``__finalize_chunk``,
+    the least private way there to close a partial chunk: a fallback, nothing more.
     """
-
-    def __init__(self, stream: IO[bytes], *, chunk_size: int, compression: str) -> None:
-        from mcap.data_stream import RecordBuilder
-
-        if compression == "zstd":
-            import zstandard
-
-            self._compress: Callable[[bytes], bytes] | None = zstandard.compress
-        elif compression == "lz4":
-            import lz4.frame  # type: ignore[import-untyped]
-
-            self._compress = lz4.frame.compress
-        elif compression == "none":
-            self._compress = None
-        else:
-            raise ValueError(f"unknown compression {compression!r}")
-        self._compression = "" if compression == "none" else compression
-        self._stream = stream
-        self._chunk_size = chunk_size
-        self._rb = RecordBuilder()
-        self._chunk = bytearray()  # records of the chunk in progress
-        self._index: dict[int, array[int]] = {}  # channel → [log_time, offset, ...] this chunk
-        self._schemas: list[Any] = []
-        self._channels: list[Any] = []
-        self._chunk_indexes: list[Any] = []
-        self._metadata_indexes: list[Any] = []
-        self._counts: dict[int, int] = {}  # messages per channel, in first-message order
-        self._first = self._last = 0
-        self.message_count = 0
-        self.chunk_count = 0
-        self.metadata_count = 0
-
-    def _out(self) -> None:
-        self._stream.write(_end(self._rb))
-
-    def start(self, *, profile: str, library: str) -> None:
-        from mcap.records import Header
-
-        self._stream.write(_MAGIC)
-        Header(profile, library).write(self._rb)
-        self._out()
-
-    def register_schema(self, name: str, encoding: str, data: bytes) -> int:
-        from mcap.records import Schema
-
-        schema = Schema(id=len(self._schemas) + 1, name=name, encoding=encoding, data=data)
-        self._schemas.append(schema)
-        schema.write(self._rb)
-        self._chunk += _end(self._rb)
-        return schema.id
-
-    def register_channel(self, topic: str, message_encoding: str, schema_id: int) -> int:
-        from mcap.records import Channel
-
-        channel = Channel(
-            id=len(self._channels) + 1,
-            topic=topic,
-            message_encoding=message_encoding,
-            schema_id=schema_id,
-            metadata={},
-        )
-        self._channels.append(channel)
-        channel.write(self._rb)
-        self._chunk += _end(self._rb)
-        return channel.id
-
-    def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
-        from mcap.records import Metadata, MetadataIndex
-
-        offset = self._stream.tell()
-        Metadata(name=name, metadata=dict(data)).write(self._rb)
-        self.metadata_count += 1
-        self._metadata_indexes.append(
-            MetadataIndex(offset=offset, length=self._rb.count, name=name)
-        )
-        self._out()
-
-    def message(
-        self, channel: int, sequence: int, log_time: int, publish_time: int, data: bytes
-    ) -> None:
-        chunk = self._chunk
-        index = self._index.get(channel)
-        if index is None:
-            index = self._index[channel] = array("Q")
-        index.append(log_time)
-        index.append(len(chunk))
-        chunk += _MSG_HEAD(_OP_MESSAGE, 22 + len(data), channel, sequence, log_time, publish_time)
-        chunk += data
-        if len(chunk) > self._chunk_size:
-            self.end_chunk()
-
-    def end_chunk(self) -> None:
-        """Write the chunk in progress and its message indexes (nothing if it has no message)."""
-        from mcap.records import Chunk, ChunkIndex
-
-        if not self._index:
-            return
-        data = bytes(self._chunk)
-        compressed = self._compress(data) if self._compress is not None else data
-        start = end = -1
-        n = 0
-        for ch, index in self._index.items():
-            times = index[0::2]
-            lo, hi = min(times), max(times)
-            start = lo if start < 0 else min(start, lo)
-            end = max(end, hi)
-            self._counts[ch] = self._counts.get(ch, 0) + len(times)
-            n += len(times)
-        self._first = start if self.message_count == 0 else min(self._first, start)
-        self._last = max(self._last, end)
-        self.message_count += n
-        self.chunk_count += 1
-        chunk = Chunk(
-            message_start_time=start,
-            message_end_time=end,
-            uncompressed_size=len(data),
-            uncompressed_crc=zlib.crc32(data),
-            compression=self._compression,
-            data=compressed,
-        )
-        chunk_offset = self._stream.tell()
-        chunk.write(self._rb)
-        chunk_length = self._rb.count
-        self._out()
-        index_offset = self._stream.tell()
-        offsets: dict[int, int] = {}
-        parts: list[bytes] = []
-        pos = 0
-        for ch, index in self._index.items():
-            if not _NATIVE_LE:
-                index.byteswap()
-            body = index.tobytes()
-            offsets[ch] = index_offset + pos
-            parts.append(_INDEX_HEAD(_OP_MESSAGE_INDEX, 6 + len(body), ch, len(body)))
-            parts.append(body)
-            pos += 15 + len(body)
-        self._stream.write(b"".join(parts))
-        self._chunk_indexes.append(
-            ChunkIndex(
-                message_start_time=start,
-                message_end_time=end,
-                chunk_start_offset=chunk_offset,
-                chunk_length=chunk_length,
-                message_index_offsets=offsets,
-                message_index_length=pos,
-                compression=self._compression,
-                compressed_size=len(compressed),
-                uncompressed_size=len(data),
-            )
-        )
-        self._chunk = bytearray()
-        self._index = {}
-
-    def finish(self) -> None:
-        """Last chunk, data end, summary (as ``mcap.writer.Writer.finish`` lays it out), footer."""
-        from mcap.data_stream import RecordBuilder
-        from mcap.opcode import Opcode
-        from mcap.records import DataEnd, Footer, Statistics, SummaryOffset
-
-        self.end_chunk()
-        DataEnd(0).write(self._rb)
-        self._out()
-        summary_start = self._stream.tell()
-        sb = RecordBuilder()
-        offsets: list[SummaryOffset] = []
-
-        def group(opcode: int, records: list[Any]) -> None:
-            begin = sb.count
-            for r in records:
-                r.write(sb)
-            offsets.append(SummaryOffset(opcode, summary_start + begin, sb.count - begin))
-
-        stats = Statistics(
-            message_count=self.message_count,
-            schema_count=len(self._schemas),
-            channel_count=len(self._channels),
-            attachment_count=0,
-            metadata_count=self.metadata_count,
-            chunk_count=self.chunk_count,
-            message_start_time=self._first,
-            message_end_time=self._last,
-            channel_message_counts=self._counts,
-        )
-        group(Opcode.SCHEMA, self._schemas)
-        group(Opcode.CHANNEL, self._channels)
-        group(Opcode.STATISTICS, [stats])
-        group(Opcode.CHUNK_INDEX, self._chunk_indexes)
-        group(Opcode.ATTACHMENT_INDEX, [])
-        group(Opcode.METADATA_INDEX, self._metadata_indexes)
-        offset_start = summary_start + sb.count
-        for o in offsets:
-            o.write(sb)
-        summary = _end(sb)
-        crc = zlib.crc32(summary)
-        crc = zlib.crc32(struct.pack("<BQQQ", Opcode.FOOTER, 20, summary_start, offset_start), crc)
-        self._stream.write(summary)
-        Footer(
-            summary_start=summary_start, summary_offset_start=offset_start, summary_crc=crc
-        ).write(self._rb)
-        self._out()
-        self._stream.write(_MAGIC)
+    flush = getattr(writer, "flush", None)
+    if flush is not None:
+        flush()
+    else:  # pragma: no cover - mcap < 1.3
+        writer._Writer__finalize_chunk()
 
 
 class RecordingWriter:
@@ -657,7 +436,13 @@ class RecordingWriter:
             stream = output
             self.path = None
         self._stream = stream
-        self._mcap = _McapWriter(stream, chunk_size=chunk_size, compression=compression)
+        from mcap.writer import CompressionType, Writer
+
+        try:
+            kind = CompressionType[compression.upper()]
+        except KeyError:
+            raise ValueError(f"unknown compression {compression!r}") from None
+        self._mcap = Writer(stream, chunk_size=chunk_size, compression=kind)
         self._mcap.start(profile="", library=f"fairino-conformance/{__version__}")
         schema_ids = {
             name: self._mcap.register_schema(name, "jsonschema", json.dumps(s).encode("utf-8"))
@@ -676,7 +461,7 @@ class RecordingWriter:
             S2C: self._channels[TOPIC_S2C],
         }
         self._json_str: dict[str | None, str] = {None: "null"}
-        self._message = self._mcap.message
+        self._add = self._mcap.add_message
         self._closed = False
         self._stream.flush()
 
@@ -711,9 +496,7 @@ class RecordingWriter:
     ) -> None:
         ch = self._channels[topic]
         seq = self._seq[ch] = self._seq[ch] + 1
-        self._message(
-            ch, seq & 0xFFFFFFFF, log_time, publish_time, self._dumps(doc).encode("utf-8")
-        )
+        self._add(ch, log_time, self._dumps(doc).encode("utf-8"), publish_time, seq & 0xFFFFFFFF)
 
     def write_frame(
         self,
@@ -758,14 +541,12 @@ class RecordingWriter:
         )
         ch = self._frame_channel[direction]
         seq = self._seq[ch] = self._seq[ch] + 1
-        self._message(
-            ch, seq & 0xFFFFFFFF, complete_ns, first_ns or complete_ns, doc.encode("utf-8")
-        )
+        self._add(ch, complete_ns, doc.encode("utf-8"), first_ns or complete_ns, seq & 0xFFFFFFFF)
 
     def flush(self) -> None:
         """End the chunk in progress and hand everything to the OS."""
         if not self._closed:
-            self._mcap.end_chunk()
+            _flush_chunk(self._mcap)
             self._stream.flush()
 
     def close(self) -> None:
@@ -773,7 +554,7 @@ class RecordingWriter:
         if self._closed:
             return
         self._closed = True
-        self._mcap.finish()
+        self._mcap.finish()  # type: ignore[no-untyped-call]
         self._stream.flush()
         if self._file is not None:
             self._file.close()

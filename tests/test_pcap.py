@@ -284,3 +284,33 @@ def test_scapy_layer_dissects_and_builds() -> None:
     assert bytes(layer(cnt=4, cmd_id=201, data=b'MoveJ("P1")')) == encode_frame(
         4, 201, 'MoveJ("P1")'
     )
+
+
+@pytest.mark.parametrize("name", ["big.pcap", "big.pcapng"])
+@pytest.mark.parametrize("ip", ["v4", "v6"])
+def test_packets_longer_than_64k_are_read_whole(tmp_path: Path, name: str, ip: str) -> None:
+    """A loopback capture with TSO/GRO holds one TCP packet of ~200 KB (IP length 0, as
+    Linux writes a packet over 64 KB): every frame in it is imported, with no gap."""
+    reqs = [encode_frame(i, 201, "SetSysVarValue(1," + "9" * 4000 + ")") for i in range(1, 51)]
+    big = b"".join(reqs)
+    assert len(big) > 3 * 65_536
+    c, s = (
+        (("10.1.0.5", 40001), ("10.1.0.2", 8080)) if ip == "v4" else (("::1", 40001), ("::2", 8080))
+    )
+    l3 = IP(src=c[0], dst=s[0], len=0) if ip == "v4" else IPv6(src=c[0], dst=s[0], plen=0)
+    pk = Loopback() / l3 / TCP(sport=c[1], dport=s[1], seq=1000, flags="PA", chksum=0)
+    pk = pk / Raw(load=big)
+    pk.time = 1_700_000_000
+    tail = Loopback() / l3 / TCP(sport=c[1], dport=s[1], seq=1000 + len(big), flags="PA")
+    tail = tail / Raw(load=REQ[0])
+    tail.time = 1_700_000_001
+    path = tmp_path / name
+    if name.endswith(".pcapng"):
+        wrpcapng(str(path), [pk, tail])
+    else:
+        wrpcap(str(path), [pk, tail])
+    stats = import_pcap(path, tmp_path / "out.mcap")
+    rec = read_recording(tmp_path / "out.mcap")
+    assert [f.raw for f in rec.frames] == [*reqs, REQ[0]]
+    assert not rec.problems  # no gap, nothing malformed
+    assert stats.frames == len(reqs) + 1

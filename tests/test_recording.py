@@ -339,8 +339,9 @@ def test_write_frame_is_write_of_the_frame_record(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("compression", ["zstd", "lz4", "none"])
 def test_same_bytes_as_the_mcap_library_writer(tmp_path: Path, compression: str) -> None:
-    """Our chunk writer lays a file out exactly as ``mcap.writer.Writer`` does: same
-    records, same chunking, indexes, statistics, summary and CRCs."""
+    """A recording is laid out exactly as ``mcap.writer.Writer`` used directly lays it out
+    (it is written through it): same records, chunking, indexes, statistics, summary and
+    CRCs, and ``flush`` ends the chunk in progress as ``Writer.flush`` does."""
     from mcap.writer import CompressionType, Writer
 
     metadata = {"format": "x", "host": "h"}

@@ -25,6 +25,16 @@
    ``--section replay-serve`` runs this section only; ``--serve-capture PATH``
    replays that recording instead (e.g. the suite's traffic through the proxy).
 
+``--section record`` (no sockets) times the recorder path in this process, on
+``--frames`` frames each way: the pieces of the same run side by side, so the ratios
+say where the time goes (the proxy's recorder process runs this same path):
+decoding only (a sink that drops the frames), decoding and the JSON template (a sink
+that formats each message and drops it), ``mcap.Writer.add_message`` alone on
+messages made beforehand, and the whole path (StreamRecorder into RecordingWriter,
+to a complete file); then ``import-pcap`` of a pcap exported from that recording,
+against the same recording path fed from the reassembled stream (the recorder's
+frames/s is the ceiling of the importer's).
+
 Everything runs on 127.0.0.1 with ports chosen by the OS.
 """
 
@@ -39,6 +49,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -218,6 +229,111 @@ def bench_replay_serve(tmp: Path, n: int, capture: Path | None = None) -> None:
     )
 
 
+class _DropSink:
+    """A recorder sink that takes frames by the fast path and drops them."""
+
+    def write(self, record: object) -> None:
+        pass
+
+    def write_frame(self, *fields: object) -> None:
+        pass
+
+
+class _TemplateSink(_DropSink):
+    """A sink that formats each frame with RecordingWriter's JSON template, then drops it."""
+
+    def __init__(self, out: Path) -> None:
+        from conformance.recording import RecordingWriter
+
+        self._w = RecordingWriter(out, metadata={"format": "bench"})
+        self._w._add = lambda *a: None  # type: ignore[method-assign]
+        self.write_frame = self._w.write_frame  # type: ignore[method-assign,assignment]
+
+
+def _record(sink: object, stream: bytes, specs: object) -> None:
+    from conformance.recording import StreamRecorder
+
+    rec = StreamRecorder(sink, specs=specs)  # type: ignore[arg-type]
+    rec.open(1, t_ns=1, client="127.0.0.1:40000", upstream="127.0.0.1:8080")
+    t = 1_700_000_000_000_000_000
+    for k in range(0, len(stream), 65536):  # socket-read-sized pieces, both directions
+        t += 100_000
+        rec.data(1, "c2s", t, stream[k : k + 65536])
+        rec.data(1, "s2c", t + 50_000, stream[k : k + 65536])
+    rec.finish(t_ns=t + 1)
+
+
+def bench_record(tmp: Path, n: int, rounds: int) -> None:
+    """In-process recorder path and import-pcap, each against same-run baselines."""
+    from mcap.writer import Writer
+
+    from conformance.pcap import export_pcap, import_pcap
+    from conformance.recording import RecordingWriter, read_recording
+    from conformance.spec import default_specs
+
+    specs = default_specs()
+    stream = b"".join(encode_frame(i % 65536, 201, 'MoveJ("P1")') for i in range(n))
+    out = tmp / "rec.mcap"
+
+    def full() -> None:
+        with RecordingWriter(out, metadata={"format": "bench"}) as w:
+            _record(w, stream, specs)
+
+    def template() -> None:
+        _record(_TemplateSink(tmp / "tpl.mcap"), stream, specs)
+
+    msg = b'{"conn":1,"transport":"tcp","dir":"c2s","cnt":1,"cmd_id":201,"name":"MoveJ",' + (
+        b'"data":"MoveJ(\\"P1\\")","len":11,"problems":[],"offset":0,"first_ns":1,'
+        b'"complete_ns":1,"raw":"L2YvYklJSTFJSUkyMDFJSUkxMUlJSU1vdmVKKCJQMSIpSUlJL2IvZg=="}'
+    )
+
+    def library() -> None:
+        with open(tmp / "lib.mcap", "wb") as f:
+            w = Writer(f)
+            w.start()
+            ch = w.register_channel("/fairino/c2s", "json", 0)
+            add = w.add_message
+            for i in range(2 * n):
+                add(ch, i, msg, i, i)
+            w.finish()  # type: ignore[no-untyped-call]
+
+    figures: dict[str, float] = {}
+    runs: list[tuple[str, Callable[[], None]]] = [
+        ("decode only (frames dropped)", lambda: _record(_DropSink(), stream, specs)),
+        ("decode + JSON template", template),
+        ("mcap.Writer.add_message alone", library),
+        ("whole path to a complete file", full),
+    ]
+    for label, fn in runs:
+        best = float("inf")
+        for _ in range(rounds):
+            t0 = time.perf_counter()
+            fn()
+            best = min(best, time.perf_counter() - t0)
+        figures[label] = 2 * n / best
+    rec = read_recording(out)
+    ok = len(rec.frames) == 2 * n and not rec.problems
+    base = figures["decode only (frames dropped)"]
+    print(f"\nrecorder path in-process, {n} frames each way, best of {rounds} (frames/s):")
+    for label, fps in figures.items():
+        print(f"  {label:32s} {fps:10.0f}   {fps / base:5.2f}x decode-only")
+    print(f"  in the file {len(rec.frames)} frames: {'NO LOSS' if ok else 'LOSS'}")
+
+    pcap = tmp / "rec.pcap"
+    export_pcap(rec, pcap)
+    best_imp = float("inf")
+    for _ in range(rounds):
+        t0 = time.perf_counter()
+        st = import_pcap(pcap, tmp / "imp.mcap", tcp_ports=[8080], specs=specs)
+        best_imp = min(best_imp, time.perf_counter() - t0)
+    whole = figures["whole path to a complete file"]
+    print(
+        f"import-pcap: {st.packets} packets, {st.frames} frames in {best_imp:.2f} s = "
+        f"{st.frames / best_imp:.0f} frames/s ({st.frames / best_imp / whole:.2f}x the "
+        f"recorder path's {whole:.0f})"
+    )
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -229,8 +345,17 @@ def main() -> int:
     ap.add_argument(
         "--serve-capture", type=Path, help="replay-serve: replay this recording instead"
     )
-    ap.add_argument("--section", choices=("all", "replay-serve"), default="all")
+    ap.add_argument("--section", choices=("all", "replay-serve", "record"), default="all")
     args = ap.parse_args()
+    if args.section == "record":
+        tmp = Path(tempfile.mkdtemp(prefix="bench_proxy_"))
+        try:
+            bench_record(tmp, args.frames, args.rounds)
+        finally:
+            for p in tmp.iterdir():
+                p.unlink()
+            tmp.rmdir()
+        return 0
     if args.section == "replay-serve":
         tmp = Path(tempfile.mkdtemp(prefix="bench_proxy_"))
         try:
