@@ -36,6 +36,7 @@ from .recording import (
     S2C,
     Recording,
     RecordingWriter,
+    RecordSink,
     StreamRecorder,
     atomic_output,
     default_metadata,
@@ -48,6 +49,7 @@ __all__ = [
     "DEFAULT_UDP_PORTS",
     "ImportStats",
     "Packet",
+    "PacketRecorder",
     "TcpReassembler",
     "bind_scapy_layer",
     "capture_format",
@@ -520,92 +522,140 @@ def _import(
     md["upstream"] = ""
     md["listen"] = ""
     writer = RecordingWriter(out, metadata=md)
-    rec = StreamRecorder(writer, specs=specs)
-    conns: dict[tuple[tuple[str, int], tuple[str, int]], _TcpConn] = {}
-    udp: dict[tuple[tuple[str, int], tuple[str, int]], tuple[int, tuple[str, int]]] = {}
-    candidates: dict[tuple[tuple[str, int], tuple[str, int]], _Candidate] = {}
-    ignored_flows: set[tuple[tuple[str, int], tuple[str, int]]] = set()
-    finished: set[tuple[tuple[str, int], tuple[str, int]]] = set()  # closed: late ACKs ignored
-    next_conn = 0
-    packets = ignored = retrans = 0
-    last_t = 0
-    first_t: int | None = None
+    packets = PacketRecorder(writer, tcp_ports=tports, udp_ports=uports, specs=specs)
+    for lt, t, data in read_packets(path):
+        packets.feed(t, lt, data)
+    packets.finish()
+    writer.close()
+    return packets.stats()
 
-    def key(a: tuple[str, int], b: tuple[str, int]) -> tuple[tuple[str, int], tuple[str, int]]:
-        return (a, b) if a <= b else (b, a)
 
-    def open_tcp(client: tuple[str, int], server: tuple[str, int], t: int) -> _TcpConn:
-        nonlocal next_conn
-        next_conn += 1
+_Key = tuple[tuple[str, int], tuple[str, int]]
+
+
+def _key(a: tuple[str, int], b: tuple[str, int]) -> _Key:
+    return (a, b) if a <= b else (b, a)
+
+
+class PacketRecorder:
+    """Captured packets in, one at a time, records out: ``import-pcap``'s and ``capture``'s
+    one path from packets to a recording (sans-I/O: no file, socket or clock here).
+
+    :meth:`feed` takes ``(time in ns, link type, bytes)`` of one packet; TCP connections
+    to or from ``tcp_ports`` (and, with ``guess``, flows on other ports whose first payload
+    is a frame head) are reassembled (:class:`TcpReassembler`) and UDP datagrams to or from
+    ``udp_ports`` taken as they are, all into a :class:`~conformance.recording.StreamRecorder`
+    writing to ``sink``.  :meth:`finish` closes what is still open ("capture ended").
+    """
+
+    def __init__(
+        self,
+        sink: RecordSink,
+        *,
+        tcp_ports: Iterable[int] = DEFAULT_TCP_PORTS,
+        udp_ports: Iterable[int] = DEFAULT_UDP_PORTS,
+        specs: SpecSet | None = None,
+        guess: bool = True,
+    ) -> None:
+        self.tports, self.uports = frozenset(tcp_ports), frozenset(udp_ports)
+        self.guess = guess
+        self.rec = StreamRecorder(sink, specs=specs)
+        self.conns: dict[_Key, _TcpConn] = {}
+        self.udp: dict[_Key, tuple[int, tuple[str, int]]] = {}
+        self.candidates: dict[_Key, _Candidate] = {}
+        self.ignored_flows: set[_Key] = set()
+        self.finished: set[_Key] = set()  # closed: late ACKs ignored
+        self.next_conn = 0
+        self.packets = self.ignored = self.retrans = 0
+        self.last_t = 0
+        self.first_t: int | None = None
+
+    def stats(self) -> ImportStats:
+        return ImportStats(
+            packets=self.packets,
+            ignored=self.ignored,
+            connections=self.next_conn,
+            frames=self.rec.frames,
+            problems=self.rec.problems,
+            retransmitted_bytes=self.retrans,
+        )
+
+    def _open_tcp(self, client: tuple[str, int], server: tuple[str, int], t: int) -> _TcpConn:
+        self.next_conn += 1
         c = _TcpConn(
-            conn=next_conn,
+            conn=self.next_conn,
             client=client,
             server=server,
             halves={C2S: TcpReassembler(), S2C: TcpReassembler()},
         )
-        conns[key(client, server)] = c
-        rec.open(c.conn, t_ns=t, transport="tcp", client=_fmt(client), upstream=_fmt(server))
+        self.conns[_key(client, server)] = c
+        self.rec.open(c.conn, t_ns=t, transport="tcp", client=_fmt(client), upstream=_fmt(server))
         return c
 
-    def close_tcp(c: _TcpConn, t: int, reason: str) -> None:
-        nonlocal retrans
+    def _close_tcp(self, c: _TcpConn, t: int, reason: str) -> None:
         for d, r in c.halves.items():
-            deliver(c, d, r.flush())
-            retrans += r.retransmitted
-        rec.close(c.conn, t_ns=t, reason=reason)
-        conns.pop(key(c.client, c.server), None)
-        finished.add(key(c.client, c.server))
+            self._deliver(c, d, r.flush())
+            self.retrans += r.retransmitted
+        self.rec.close(c.conn, t_ns=t, reason=reason)
+        self.conns.pop(_key(c.client, c.server), None)
+        self.finished.add(_key(c.client, c.server))
 
-    def deliver(c: _TcpConn, d: str, items: list[tuple[str, int, Any]]) -> None:
+    def _deliver(self, c: _TcpConn, d: str, items: list[tuple[str, int, Any]]) -> None:
         for kind, t, x in items:
             if kind == "data":
-                rec.data(c.conn, d, t, x)  # type: ignore[arg-type]
+                self.rec.data(c.conn, d, t, x)  # type: ignore[arg-type]
             else:
-                rec.gap(c.conn, d, t, x)  # type: ignore[arg-type]
+                self.rec.gap(c.conn, d, t, x)  # type: ignore[arg-type]
 
-    def tcp_packet(c: _TcpConn, p: Packet) -> None:
+    def _tcp_packet(self, c: _TcpConn, p: Packet) -> None:
         d = C2S if p.src == c.client else S2C
         c.last_ns = p.t_ns
-        deliver(c, d, c.halves[d].segment(p.seq, p.flags, p.payload, p.t_ns))
+        self._deliver(c, d, c.halves[d].segment(p.seq, p.flags, p.payload, p.t_ns))
         if p.flags & _RST:
-            close_tcp(c, p.t_ns, ("client" if d == C2S else "server") + " reset")
+            self._close_tcp(c, p.t_ns, ("client" if d == C2S else "server") + " reset")
             return
         if p.flags & _FIN:
             if d not in c.fins:
                 c.fins.append(d)
             if len(c.fins) == 2:
-                close_tcp(c, p.t_ns, "client closed" if c.fins[0] == C2S else "server closed")
+                self._close_tcp(c, p.t_ns, "client closed" if c.fins[0] == C2S else "server closed")
 
-    for lt, t, data in read_packets(path):
-        packets += 1
-        p = parse_packet(lt, t, data)
+    def feed(self, t: int, linktype: int, data: bytes) -> None:
+        """One captured packet: its time (ns since the epoch), link type and bytes."""
+        self.packets += 1
+        p = parse_packet(linktype, t, data)
         if p is None:
-            ignored += 1
-            continue
-        first_t = t if first_t is None else first_t
-        last_t = max(last_t, t)
-        k = key(p.src, p.dst)
+            self.ignored += 1
+            return
+        self.first_t = t if self.first_t is None else self.first_t
+        self.last_t = max(self.last_t, t)
+        k = _key(p.src, p.dst)
         if p.proto == "udp":
-            known = udp.get(k)
+            known = self.udp.get(k)
             if known is None:
+                uports = self.uports
                 if p.dst[1] in uports:
                     client, server = p.src, p.dst
                 elif p.src[1] in uports:
                     client, server = p.dst, p.src
-                elif p.payload.startswith(HEAD):
+                elif self.guess and p.payload.startswith(HEAD):
                     client, server = p.src, p.dst
                 else:
-                    ignored += 1
-                    continue
-                next_conn += 1
-                known = udp[k] = (next_conn, client)
-                rec.open(
-                    next_conn, t_ns=t, transport="udp", client=_fmt(client), upstream=_fmt(server)
+                    self.ignored += 1
+                    return
+                self.next_conn += 1
+                known = self.udp[k] = (self.next_conn, client)
+                self.rec.open(
+                    self.next_conn,
+                    t_ns=t,
+                    transport="udp",
+                    client=_fmt(client),
+                    upstream=_fmt(server),
                 )
             conn, uclient = known
-            rec.datagram(conn, C2S if p.src == uclient else S2C, t, p.payload)
-            continue
-        c = conns.get(k)
+            self.rec.datagram(conn, C2S if p.src == uclient else S2C, t, p.payload)
+            return
+        c = self.conns.get(k)
         if (
             c is not None
             and p.flags & _SYN
@@ -613,48 +663,51 @@ def _import(
             and c.halves[C2S].h.next is not None
         ):
             # The 4-tuple is reused by a new connection.
-            close_tcp(c, t, "connection reused")
+            self._close_tcp(c, t, "connection reused")
             c = None
         if c is None:
-            if k in finished and not p.flags & _SYN:
-                ignored += 1
-                continue
-            if k in ignored_flows:
-                ignored += 1
-                continue
-            if p.dst[1] in tports:
-                c = open_tcp(p.src, p.dst, t)
-            elif p.src[1] in tports:
-                c = open_tcp(p.dst, p.src, t)
+            if k in self.finished and not p.flags & _SYN:
+                self.ignored += 1
+                return
+            if k in self.ignored_flows:
+                self.ignored += 1
+                return
+            if p.dst[1] in self.tports:
+                c = self._open_tcp(p.src, p.dst, t)
+            elif p.src[1] in self.tports:
+                c = self._open_tcp(p.dst, p.src, t)
+            elif not self.guess:
+                self.ignored += 1
+                return
             else:
-                cand = candidates.get(k)
+                cand = self.candidates.get(k)
                 if cand is None:
-                    cand = candidates[k] = _Candidate(first=p)
+                    cand = self.candidates[k] = _Candidate(first=p)
                 cand.segments.append(p)
                 if not p.payload:
-                    continue
-                del candidates[k]
+                    return
+                del self.candidates[k]
                 if not p.payload.startswith(HEAD):
-                    ignored_flows.add(k)
-                    ignored += len(cand.segments)
-                    continue
-                c = open_tcp(p.src, p.dst, cand.first.t_ns)
+                    self.ignored_flows.add(k)
+                    self.ignored += len(cand.segments)
+                    return
+                c = self._open_tcp(p.src, p.dst, cand.first.t_ns)
                 for q in cand.segments[:-1]:
-                    tcp_packet(c, q)
-        tcp_packet(c, p)
-    for c in list(conns.values()):
-        close_tcp(c, last_t, "capture ended")
-    for conn, _ in udp.values():
-        rec.close(conn, t_ns=last_t, reason="capture ended")
-    writer.close()
-    return ImportStats(
-        packets=packets,
-        ignored=ignored,
-        connections=next_conn,
-        frames=rec.frames,
-        problems=rec.problems,
-        retransmitted_bytes=retrans,
-    )
+                    self._tcp_packet(c, q)
+        self._tcp_packet(c, p)
+
+    def idle(self, now_ns: int, idle_ns: int) -> None:
+        """Live capture: decide frames whose sender went quiet mid-frame (see
+        :meth:`~conformance.recording.StreamRecorder.idle`)."""
+        self.rec.idle(now_ns, idle_ns)
+
+    def finish(self, t_ns: int | None = None, reason: str = "capture ended") -> None:
+        """Close every connection still open (at ``t_ns``, default the last packet's time)."""
+        t = self.last_t if t_ns is None else t_ns
+        for c in list(self.conns.values()):
+            self._close_tcp(c, t, reason)
+        for conn, _ in self.udp.values():
+            self.rec.close(conn, t_ns=t, reason=reason)
 
 
 # --------------------------------------------------------------------------- export

@@ -1,5 +1,5 @@
 """Traffic recorder sub-commands: ``proxy``, ``recover``, ``info``, ``check``, ``replay``,
-``diff``, ``import-pcap`` and ``export-pcap``."""
+``diff``, ``import-pcap``, ``export-pcap`` and ``capture``."""
 
 from __future__ import annotations
 
@@ -281,6 +281,40 @@ def _register_more(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
     ep.add_argument("capture")
     ep.add_argument("-o", "--out", required=True)
     ep.set_defaults(func=_run_export_pcap)
+
+    cp = sub.add_parser(
+        "capture",
+        help="record an interface's traffic passively to MCAP (raw packet socket; root)",
+        description="Tap an interface with a raw packet socket (needs CAP_NET_RAW) and record "
+        "the traffic to and from the given ports, as import-pcap would, without sitting in "
+        "its path. SIGINT/SIGTERM finish the file.",
+    )
+    cp.add_argument("--iface", "-i", required=True, help="interface to tap (e.g. eth0, lo)")
+    cp.add_argument(
+        "--port",
+        type=int,
+        action="append",
+        default=[],
+        help="controller TCP port (default 8080; repeatable)",
+    )
+    cp.add_argument(
+        "--udp-port",
+        type=int,
+        action="append",
+        default=[],
+        help="controller UDP port (default 20007; repeatable)",
+    )
+    cp.add_argument("--out", "-o", required=True, help="MCAP file to write")
+    cp.add_argument(
+        "--split-size", type=parse_size, help="start a new file after this size (e.g. 100M)"
+    )
+    cp.add_argument(
+        "--split-duration", type=parse_duration, help="start a new file after this time (e.g. 15m)"
+    )
+    cp.add_argument("--duration", type=parse_duration, help="stop after this long (e.g. 30s)")
+    cp.add_argument("--max-frames", type=int, metavar="N", help="stop once N frames are recorded")
+    cp.add_argument("--specs-dir", help="spec set directory")
+    cp.set_defaults(func=_run_capture)
 
 
 # --------------------------------------------------------------------------- proxy
@@ -581,4 +615,55 @@ def _run_export_pcap(args: argparse.Namespace) -> int:
 
     n = export_pcap(read_capture(args.capture), args.out)
     print(f"wrote {n} packets to {args.out}")
+    return 0
+
+
+def _run_capture(args: argparse.Namespace) -> int:
+    from ..net.capture import LiveCapture
+    from ..pcap import DEFAULT_TCP_PORTS, DEFAULT_UDP_PORTS
+
+    for flag, ports in (("--port", args.port), ("--udp-port", args.udp_port)):
+        for port in ports:
+            if not 0 < port < 65536:
+                raise UsageError(f"{flag} {port}: a port is 1..65535")
+    if args.max_frames is not None and args.max_frames < 1:
+        raise UsageError(f"--max-frames {args.max_frames}: at least 1")
+    tports = tuple(args.port) or DEFAULT_TCP_PORTS
+    uports = tuple(args.udp_port) or DEFAULT_UDP_PORTS
+    cap = LiveCapture(
+        args.iface,
+        args.out,
+        tcp_ports=tports,
+        udp_ports=uports,
+        specs=_specs(args),
+        split_size=args.split_size,
+        split_duration=args.split_duration,
+    )
+    stop = threading.Event()
+    old = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
+
+    def ready() -> None:
+        ports = ", ".join([f"tcp {p}" for p in tports] + [f"udp {p}" for p in uports])
+        print(
+            f"capture: listening on {args.iface} ({ports}), recording to {args.out}",
+            file=sys.stderr,
+            flush=True,
+        )
+
+    try:
+        st = cap.run(stop, duration=args.duration, max_frames=args.max_frames, ready=ready)
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+    drops = (
+        f"; the kernel dropped {st.kernel_drops} packets (recorded as gaps)"
+        if st.kernel_drops
+        else ""
+    )
+    print(
+        f"capture: stopped; {st.packets} packets ({st.ignored} not ours), {st.connections} "
+        f"connections, {st.frames} frames, {st.problems} problems recorded to "
+        f"{', '.join(st.paths)}{drops}",
+        file=sys.stderr,
+    )
     return 0

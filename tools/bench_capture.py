@@ -1,0 +1,267 @@
+"""The latency traffic sees with each way of recording it (prints figures; asserts nothing).
+
+    python tools/bench_capture.py [--requests 5000] [--rounds 2] [--rate 1000]
+
+A client sends one request and waits for its reply, at ``--rate`` per second, to an
+:class:`~conformance.net.emulator.EmulatorServer` running in its own process on
+127.0.0.1, in four ways, in the same run:
+
+- ``direct``: straight to the emulator (the baseline);
+- ``proxy``: through ``fairino-conformance proxy`` (in the path, recording);
+- ``socat``: through ``socat`` (in the path, not recording; a plain relay for scale);
+  the row is skipped, saying why, when socat is not installed;
+- ``capture``: straight to the emulator while ``fairino-conformance capture --iface lo``
+  records it with a raw packet socket (not in the path; needs CAP_NET_RAW, else
+  the row is skipped, saying why).
+
+The rows alternate ``--rounds`` times (a neighbour's busy spell does not favour one
+row) and each row's samples are pooled; p50/p99/p99.9 of each row are printed with
+what it adds to the direct baseline's same percentile.  For ``capture`` the frames
+in the file are counted against the frames sent and answered.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from conformance.frame import encode_frame  # noqa: E402
+
+EMULATOR = r"""
+import sys
+from conformance.net.emulator import EmulatorServer
+with EmulatorServer() as emu:
+    print(emu.address[1], flush=True)
+    sys.stdin.read()
+"""
+WARMUP = 200
+REQUEST = encode_frame(1, 400, "GetDI(1)")
+TAIL = b"III/b/f"
+
+
+def _env() -> dict[str, str]:
+    return dict(os.environ, PYTHONPATH=str(ROOT))
+
+
+def start_emulator() -> tuple[subprocess.Popen[str], int]:
+    p = subprocess.Popen(
+        [sys.executable, "-c", EMULATOR],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+        env=_env(),
+        cwd=ROOT,
+    )
+    assert p.stdout is not None
+    return p, int(p.stdout.readline())
+
+
+def start_cli(*args: str, pattern: str) -> tuple[subprocess.Popen[str], str]:
+    p = subprocess.Popen(
+        [sys.executable, "-m", "conformance", *args],
+        stderr=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
+        text=True,
+        env=_env(),
+        cwd=ROOT,
+    )
+    assert p.stderr is not None
+    line = p.stderr.readline()
+    if not re.search(pattern, line):
+        p.kill()
+        p.wait()
+        raise RuntimeError(line.strip() or "did not start")
+    return p, line
+
+
+def stop(p: subprocess.Popen[str]) -> str:
+    p.send_signal(signal.SIGTERM)
+    _, err = p.communicate(timeout=120)
+    return err
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def start_socat(upstream: int) -> tuple[subprocess.Popen[bytes], int]:
+    port = free_port()
+    p = subprocess.Popen(
+        [
+            "socat",
+            f"TCP-LISTEN:{port},bind=127.0.0.1,reuseaddr,fork,nodelay",
+            f"TCP:127.0.0.1:{upstream},nodelay",
+        ]
+    )
+    end = time.monotonic() + 10
+    while True:
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=1).close()
+            return p, port
+        except OSError:
+            if time.monotonic() > end:
+                p.kill()
+                raise
+            time.sleep(0.01)
+
+
+def rtt_run(port: int, n: int, rate_hz: float) -> list[float]:
+    """Round trips in µs of ``n`` request/reply exchanges (after a warm-up)."""
+    out: list[float] = []
+    with socket.create_connection(("127.0.0.1", port)) as c:
+        c.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        period = 1.0 / rate_hz
+        nxt = time.perf_counter()
+        for i in range(n + WARMUP):
+            ahead = nxt - time.perf_counter()
+            if ahead > 0.0003:
+                time.sleep(ahead - 0.00015)  # sleep overshoots by ~50-100 µs: spin the rest
+            while time.perf_counter() < nxt:
+                pass
+            nxt += period
+            t = time.perf_counter_ns()
+            c.sendall(REQUEST)
+            buf = b""
+            while not buf.endswith(TAIL):
+                b = c.recv(65536)
+                if not b:
+                    raise RuntimeError("the emulator closed the connection")
+                buf += b
+            if i >= WARMUP:
+                out.append((time.perf_counter_ns() - t) / 1000.0)
+    return out
+
+
+def pct(xs: list[float], q: float) -> float:
+    s = sorted(xs)
+    return s[min(len(s) - 1, int(q / 100 * len(s)))]
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--requests", type=int, default=5000, help="per row and round")
+    ap.add_argument("--rounds", type=int, default=2)
+    ap.add_argument("--rate", type=float, default=1000.0, help="requests per second")
+    args = ap.parse_args()
+    n, rate = args.requests, args.rate
+
+    emu, port = start_emulator()
+    samples: dict[str, list[float]] = {"direct": [], "proxy": [], "socat": [], "capture": []}
+    skipped: dict[str, str] = {}
+    recorded: list[tuple[int, int, int, str]] = []  # (c2s, s2c, sent, stderr line)
+    if shutil.which("socat") is None:
+        skipped["socat"] = "socat not installed (apt-get install -y socat)"
+    try:
+        with tempfile.TemporaryDirectory(prefix="bench-capture-") as d:
+            tmp = Path(d)
+
+            def direct() -> None:
+                samples["direct"] += rtt_run(port, n, rate)
+
+            def proxy() -> None:
+                p, line = start_cli(
+                    "proxy",
+                    "--listen",
+                    "127.0.0.1:0",
+                    "--upstream",
+                    f"127.0.0.1:{port}",
+                    "--out",
+                    str(tmp / "proxy.mcap"),
+                    pattern="listening on",
+                )
+                m = re.search(r"listening on [\d.]+:(\d+)", line)
+                assert m
+                try:
+                    samples["proxy"] += rtt_run(int(m.group(1)), n, rate)
+                finally:
+                    stop(p)
+
+            def socat() -> None:
+                if "socat" in skipped:
+                    return
+                p, sport = start_socat(port)
+                try:
+                    samples["socat"] += rtt_run(sport, n, rate)
+                finally:
+                    p.terminate()
+                    p.wait()
+
+            def capture() -> None:
+                if "capture" in skipped:
+                    return
+                from conformance.recording import read_recording
+
+                out = tmp / "capture.mcap"
+                try:
+                    p, _ = start_cli(
+                        "capture",
+                        "--iface",
+                        "lo",
+                        "--port",
+                        str(port),
+                        "--udp-port",
+                        "9",
+                        "--out",
+                        str(out),
+                        pattern="listening on",
+                    )
+                except RuntimeError as e:
+                    skipped["capture"] = str(e)
+                    return
+                try:
+                    samples["capture"] += rtt_run(port, n, rate)
+                finally:
+                    err = stop(p)
+                rec = read_recording(out)
+                c2s = sum(1 for f in rec.frames if f.dir == "c2s")
+                s2c = len(rec.frames) - c2s
+                recorded.append((c2s, s2c, n + WARMUP, err.strip().splitlines()[-1]))
+
+            rows: list[Callable[[], None]] = [direct, proxy, socat, capture]
+            for r in range(args.rounds):
+                for row in rows if r % 2 == 0 else rows[::-1]:
+                    row()
+    finally:
+        assert emu.stdin is not None
+        emu.stdin.close()
+        emu.wait(30)
+
+    base = samples["direct"]
+    print(
+        f"request/reply at {rate:g}/s on 127.0.0.1 to the emulator, "
+        f"{n} x {args.rounds} requests per row (after {WARMUP} warm-up each)"
+    )
+    print(f"{'row':<8} {'p50 µs':>9} {'p99 µs':>9} {'p99.9 µs':>9}   added: p50 / p99 / p99.9 µs")
+    for name, xs in samples.items():
+        if not xs:
+            print(f"{name:<8} skipped: {skipped.get(name, 'no samples')}")
+            continue
+        q = [pct(xs, p) for p in (50, 99, 99.9)]
+        added = [v - pct(base, p) for v, p in zip(q, (50, 99, 99.9), strict=True)]
+        extra = (
+            "   (baseline)" if name == "direct" else "   {:+.0f} / {:+.0f} / {:+.0f}".format(*added)
+        )
+        print(f"{name:<8} {q[0]:9.0f} {q[1]:9.0f} {q[2]:9.0f}{extra}")
+    for c2s, s2c, sent, line in recorded:
+        print(f"capture: {c2s} requests and {s2c} replies recorded of {sent} sent and answered")
+        print(f"  {line}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
