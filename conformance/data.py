@@ -33,7 +33,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from .errors import LocalProtocolError, RemoteProtocolError, Rule
-from .spec import Command, Param, Returns, ReturnValue, Variant
+from .spec import TYPE_BOUNDS, Command, Param, Returns, ReturnValue, Variant
 
 __all__ = [
     "MAX_DEPTH",
@@ -87,12 +87,37 @@ def _shown(text: str, *, quote: bool = True) -> str:
     return shown if len(text) <= SHOWN_CHARS else f"{shown}... ({len(text)} chars)"
 
 
-@dataclass(frozen=True, kw_only=True)
-class Number:
-    """A numeric argument, with the text it was written as (``.000`` stays ``.000``)."""
+class Number(tuple[str, "int | float"]):
+    """A numeric argument, with the text it was written as (``.000`` stays ``.000``).
 
-    text: str
-    value: int | float
+    Immutable like the other arguments, and built as ``Number(text=..., value=...)``;
+    a tuple underneath, because a call carries dozens of them and a tuple is the
+    cheapest immutable object to make (tools/bench_codec.py, full MoveJ decode).
+    """
+
+    __slots__ = ()
+
+    def __new__(cls, *, text: str, value: int | float) -> Number:
+        return tuple.__new__(cls, (text, value))
+
+    @property
+    def text(self) -> str:
+        return self[0]
+
+    @property
+    def value(self) -> int | float:
+        return self[1]
+
+    def __repr__(self) -> str:
+        return f"Number(text={self[0]!r}, value={self[1]!r})"
+
+    def __eq__(self, other: object) -> bool:
+        return type(other) is Number and tuple.__eq__(self, other)
+
+    def __ne__(self, other: object) -> bool:
+        return not self == other
+
+    __hash__ = tuple.__hash__
 
     @classmethod
     def of(cls, text: str) -> Number:
@@ -101,13 +126,11 @@ class Number:
         Raises :class:`RemoteProtocolError` (``Rule.BAD_NUMBER``) for a number the
         kit will not read: non-finite, beyond a double's range, or too many digits.
         """
-        obj = object.__new__(cls)
-        obj.__dict__.update(text=text, value=_number_value(text))
-        return obj
+        return tuple.__new__(cls, (text, _number_value(text)))
 
     @property
     def is_int(self) -> bool:
-        return isinstance(self.value, int)
+        return isinstance(self[1], int)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -154,6 +177,11 @@ _NUMBER_RE = re.compile(r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?", re.ASC
 _KEYWORD_RE = re.compile(r"[A-Z][A-Z_]*")
 # A flat argument list: tokens without quotes, braces, parens or blanks, one comma apart.
 _SIMPLE_LIST_RE = re.compile(r'[^\s,(){}"]+(?:,[^\s,(){}"]+)*')
+# A flat list of plain numbers without exponent (MoveJ's 29 values): each token is
+# a number of the grammar above, read by int() or float() without further checks
+# as long as it is short (see _number_value: the limits are past 300 characters).
+_PLAIN = r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)"
+_PLAIN_LIST_RE = re.compile(rf"{_PLAIN}(?:,{_PLAIN})*", re.ASCII)
 # Characters that end a bare (unquoted) token.
 _BARE_STOP = frozenset(',(){}"')
 _REPLY_STOP = frozenset(',{}"')
@@ -195,6 +223,21 @@ class _ArgParser:
 
     def items(self, close: str | None) -> list[Arg]:
         """Comma-separated items up to ``close`` (or end of text when None)."""
+        if close is None and self.i == 0 and _PLAIN_LIST_RE.fullmatch(self.s):
+            # Faster path: plain numbers only.  A token of at most 300 characters
+            # without exponent is one _number_value cannot refuse (always finite),
+            # so it is read by int() or float() directly.
+            tokens = self.s.split(",")
+            self.counted(len(tokens))
+            new = tuple.__new__
+            out_: list[Arg] = [
+                _number(t, self.s)
+                if len(t) > 300
+                else new(Number, (t, float(t) if "." in t else int(t)))
+                for t in tokens
+            ]
+            self.i = len(self.s)
+            return out_
         if close is None and _SIMPLE_LIST_RE.fullmatch(self.s, self.i):
             # Fast path: a flat list of numbers and bare words, no spaces or nesting.
             tokens = self.s[self.i :].split(",")
@@ -456,9 +499,64 @@ def _num(x: float) -> str:
     return str(int(x)) if float(x).is_integer() else str(x)
 
 
+#: Per-parameter checks compiled once per variant: (is_integer, type low, type high,
+#: intervals or None for no stated domain, numeric enum values), or None for a
+#: parameter the fast check leaves to :func:`_check_scalar` (strings, arrays).
+_Fast = tuple[bool, float, float, tuple[tuple[float, float], ...] | None, frozenset[float]]
+_FAST_TABLES: dict[int, tuple[Variant, tuple[_Fast | None, ...]]] = {}
+#: Off: every call goes the original way (tools/bench_codec.py measures both).
+FAST_CHECKS = True
+
+
+def _fast_table(variant: Variant) -> tuple[_Fast | None, ...]:
+    hit = _FAST_TABLES.get(id(variant))
+    if hit is not None and hit[0] is variant:
+        return hit[1]
+    table: list[_Fast | None] = []
+    for p in variant.params:
+        if p.is_string or p.is_array:
+            table.append(None)
+            continue
+        lo, hi = TYPE_BOUNDS.get(p.type, (-math.inf, math.inf))
+        ivs = (
+            None
+            if p.range is None and p.enum is None
+            else tuple((iv.min, iv.max) for iv in p.range or ())
+        )
+        enums = frozenset(float(v) for v, _ in p.enum or () if not isinstance(v, str))
+        table.append((p.is_integer, lo, hi, ivs, enums))
+    out = tuple(table)
+    _FAST_TABLES[id(variant)] = (variant, out)
+    return out
+
+
+def _fast_ok(table: tuple[_Fast | None, ...], args: Sequence[Arg]) -> bool:
+    """True when every argument is a number inside its domain (then check_args finds
+    nothing); False when in doubt, and check_args decides (and words) it."""
+    for t, a in zip(table, args, strict=True):
+        if t is None or type(a) is not Number:
+            return False
+        v = a[1]
+        is_int, lo, hi, ivs, enums = t
+        if is_int and type(v) is float and not v.is_integer():
+            return False
+        if not lo <= v <= hi:
+            return False
+        if ivs is not None:
+            for ilo, ihi in ivs:
+                if ilo <= v <= ihi:
+                    break
+            else:
+                if v not in enums:
+                    return False
+    return True
+
+
 def check_args(variant: Variant, args: Sequence[Arg]) -> list[Violation]:
     """Check arguments against a variant's table: count, types, ranges/enums."""
     params = variant.params
+    if FAST_CHECKS and len(args) == len(params) and _fast_ok(_fast_table(variant), args):
+        return []
     if len(args) != len(params):
         return [
             Violation(

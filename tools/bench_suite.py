@@ -1,6 +1,13 @@
 """Figures for the conformance suite against the embedded emulator.
 
     python tools/bench_suite.py [--profile quick|default|thorough] [--faults]
+    python tools/bench_suite.py --run [--baseline-rev HEAD] [--rounds N]
+
+``--run`` times ``fairino-conformance run -q`` (the default suite against the built-in
+emulator, as a user runs it) for the working tree and for the code of
+``--baseline-rev`` (exported by ``git archive`` to a temporary directory), rounds
+interleaved so that load from other processes hits both alike, and prints wall time,
+cases/s and the ratio.
 
 Runs the whole suite (every command, every group) through pytest in-process, as
 ``fairino-conformance run`` does, and prints cases/s and wall time.  With
@@ -12,7 +19,9 @@ command IDs the suite blamed.
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import subprocess
 import sys
 import tempfile
 import time
@@ -60,6 +69,71 @@ def bench(profile: str) -> None:
         f"profile {profile}: {counter.n} cases in {wall:.1f} s = {counter.n / wall:.0f} cases/s "
         f"(pytest exit {int(code)}; {counter.outcomes}) on {os.cpu_count()} CPU(s)"
     )
+
+
+def _timed_run(cwd: str, env: dict[str, str]) -> tuple[float, int, dict[str, int]]:
+    """Wall time, case count and totals of ``python -m conformance run -q`` in ``cwd``."""
+    with tempfile.TemporaryDirectory() as tmp:
+        report = os.path.join(tmp, "report.json")
+        t0 = time.perf_counter()
+        subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "conformance",
+                "run",
+                "-q",
+                "--seed",
+                "1",
+                "--report-json",
+                report,
+            ],
+            cwd=cwd,
+            env=env,
+            check=True,
+            stdout=subprocess.DEVNULL,
+        )
+        wall = time.perf_counter() - t0
+        with open(report) as f:
+            doc = json.load(f)
+    totals: dict[str, int] = {}
+    for c in doc["commands"].values():
+        for case in c["cases"]:
+            totals[case["outcome"]] = totals.get(case["outcome"], 0) + 1
+    return wall, sum(totals.values()), totals
+
+
+def compare_runs(rev: str, rounds: int) -> None:
+    root = os.path.abspath(os.path.join(os.path.dirname(__file__), ".."))
+    with tempfile.TemporaryDirectory() as base:
+        archive = subprocess.run(
+            ["git", "-C", root, "archive", rev, "conformance", "specs"],
+            check=True,
+            capture_output=True,
+        ).stdout
+        subprocess.run(["tar", "-x", "-C", base], input=archive, check=True)
+        envs = {
+            "working tree": (root, {**os.environ, "PYTHONPATH": root}),
+            f"{rev} (baseline)": (
+                base,
+                {
+                    **os.environ,
+                    "PYTHONPATH": base,
+                    "FAIRINO_SPECS_DIR": os.path.join(base, "specs"),
+                },
+            ),
+        }
+        best: dict[str, tuple[float, int, dict[str, int]]] = {}
+        for _ in range(rounds):
+            for label, (cwd, env) in envs.items():
+                r = _timed_run(cwd, env)
+                if label not in best or r[0] < best[label][0]:
+                    best[label] = r
+    print(f"fairino-conformance run -q, best of {rounds}, on {os.cpu_count()} CPU(s):")
+    for label, (wall, n, totals) in best.items():
+        print(f"  {label:<22} {n} cases in {wall:5.1f} s = {n / wall:4.0f} cases/s  {totals}")
+    new, old = best["working tree"][0], best[f"{rev} (baseline)"][0]
+    print(f"  speed-up: {old / new:.2f}x (wall {new / old:.0%} of the baseline's)")
 
 
 def faults() -> None:
@@ -113,7 +187,13 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
     p.add_argument("--profile", default="quick", choices=("quick", "default", "thorough"))
     p.add_argument("--faults", action="store_true", help="also print the fault-detection table")
+    p.add_argument("--run", action="store_true", help="time `run -q` against --baseline-rev")
+    p.add_argument("--baseline-rev", default="HEAD", help="git revision for --run's baseline")
+    p.add_argument("--rounds", type=int, default=2, help="rounds for --run (best of)")
     args = p.parse_args()
+    if args.run:
+        compare_runs(args.baseline_rev, args.rounds)
+        return 0
     bench(args.profile)
     if args.faults:
         faults()

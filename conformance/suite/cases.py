@@ -109,6 +109,9 @@ def _hypothesis(
             raise
 
     test = hypothesis.given(strategy)(body)
+    # The database is off (see _settings), so the key Hypothesis would derive from
+    # the test's source (inspect + ast + tokenize on every case) is never used.
+    test._hypothesis_internal_database_key = None  # type: ignore[attr-defined]
     test = _settings(runner, n)(test)
     test = hypothesis.seed(runner.config.seed ^ case.seed_offset)(test)
     try:
@@ -402,7 +405,7 @@ def _run_malformed_command(runner: SuiteRunner, case: Case) -> Verdict:
         )
     else:
         raw = encode_frame(cnt, cmd.cmd_id, data[:-1] + ",(")
-    ex = runner.send_raw_exchange(raw, cnt, cmd.cmd_id, timeout=_silence_window(runner))
+    ex = runner.send_raw_probed(raw, cnt, cmd.cmd_id, window=_silence_window(runner))
     frames = describe_exchange(ex)
     if ex.reply is not None:
         verdict = runner.reply_verdict(ex, variant)
@@ -448,13 +451,16 @@ def _run_protocol_input(runner: SuiteRunner, case: Case) -> Verdict:
             raw = raw % hid
     client = runner.client()
     client.send_raw(raw)
-    frames_in, _malformed, closed = client.collect(
-        _silence_window(runner) if name != "truncated" else 0.05
-    )
-    if closed:
-        runner.drop_client()
     if name == "truncated":
+        frames_in, _malformed, closed = client.collect(0.05)
         runner.drop_client()  # the partial frame would swallow the next request
+    else:
+        # What the input drew before the probe's reply (see SuiteRunner.probe_silence).
+        probe = runner.probe_silence(client, _silence_window(runner))
+        frames_in, _malformed, closed = client.collect(0.0)
+        closed = closed or probe.closed
+        if closed or probe.reply is None:
+            runner.drop_client()
     frames = (f">> {raw[:200]!r}", *tuple(f"<< {f.raw!r}" for f in frames_in))
     after = runner.after_disturbance(case, frames, raw)
     return after or Verdict(outcome=Outcome.PASS)
@@ -708,11 +714,18 @@ def _run_motion(runner: SuiteRunner, case: Case) -> Verdict:
     return _run_machine(runner, case, MotionMachine)
 
 
+_NO_SOURCE = f"{__name__}.<machine>"
+
+
 def _run_machine(runner: SuiteRunner, case: Case, machine: type[RuleBasedStateMachine]) -> Verdict:
     prof = runner.config.profile
     s = hypothesis.settings(
         _settings(runner, prof.stateful_examples), stateful_step_count=prof.stateful_steps
     )
+    # Hypothesis digests the machine class's source for its example database (off
+    # here): inspect.getsource on a class re-parses all of cases.py each time.  A
+    # module name outside sys.modules makes it fall back to the class name.
+    machine.__module__ = _NO_SOURCE
     test = get_state_machine_test(machine, settings=s)  # type: ignore[no-untyped-call]
     test = hypothesis.seed(runner.config.seed ^ case.seed_offset)(test)
     try:

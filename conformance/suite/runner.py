@@ -22,7 +22,7 @@ import shlex
 import time
 import zlib
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from ..data import Call, Violation
@@ -298,6 +298,47 @@ class SuiteRunner:
         if ex.reply is None and client is None:
             self.drop_client()
         self._waited(ex)
+        return ex
+
+    def probe_silence(self, client: Client, window: float) -> Exchange:
+        """Send the harmless query on ``client``; wait up to ``window`` for its reply.
+
+        A target answers one connection's frames in order (1.1: one reply per request,
+        in turn), so the probe's reply proves that the frames sent before it got no
+        reply but those already read: silence is decided on that event, not on a fixed
+        wait.  A probe swallowed by a broken frame leaves it unanswered after
+        ``window``, which is the old fixed wait.
+        """
+        cnt = client.next_cnt()
+        hid = self.health_command.cmd_id
+        raw = encode_frame(cnt, hid, default_data(self.health_command, self.health_variant))
+        client.send_raw(raw)
+        return client.await_reply(cnt, hid, request=raw, timeout=window)
+
+    def send_raw_probed(self, raw: bytes, cnt: int, cmd_id: int, *, window: float) -> Exchange:
+        """Like :meth:`send_raw_exchange` for a frame that may get no reply at all:
+        its silence is decided by :meth:`probe_silence` (at most ``window`` seconds)."""
+        c = self.client()
+        c.send_raw(raw)
+        probe = self.probe_silence(c, window)
+        ex = c.await_reply(cnt, cmd_id, request=raw, timeout=0.0)
+        if ex.reply is None:
+            ex = replace(
+                ex,
+                unsolicited=probe.unsolicited,
+                malformed=probe.malformed,
+                closed=probe.closed,
+                elapsed=probe.elapsed,
+                pending=probe.pending,
+                malformed_count=probe.malformed_count,
+                malformed_bytes=probe.malformed_bytes,
+                unsolicited_count=probe.unsolicited_count,
+                error=probe.error,
+            )
+        if probe.reply is None:
+            # Swallowed, closed or silent: as after a fixed wait without a reply.
+            self.drop_client()
+            self._waited(ex)
         return ex
 
     # ------------------------------------------------------------------ health / unknown
