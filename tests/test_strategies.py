@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -55,3 +57,10 @@ def test_parsed_generated_numbers_keep_their_type() -> None:
     assert isinstance(parsed, Call)
     first, second = parsed.args
     assert isinstance(first, Array) and isinstance(second, Number) and second.is_int
+
+
+@given(param_values(Param(name="ip", type="string", quoted=False)))
+def test_bare_string_values_are_dotted_quads(value: object) -> None:
+    """An unquoted string parameter gets [0-9]{1,3}(.[0-9]{1,3}){3} (without st.from_regex)."""
+    assert isinstance(value, str)
+    assert re.fullmatch(r"[0-9]{1,3}(\.[0-9]{1,3}){3}", value)
