@@ -39,7 +39,7 @@ from .errors import ProtocolError, Rule, UsageError
 from .frame import Frame, Malformed
 from .report import Outcome
 from .spec import Command, Returns, SpecSet, Variant
-from .validate import RefusalForm, ReplyVerdict, classify_reply, validate_request
+from .validate import RefusalForm, ReplyVerdict, RequestCheck, classify_reply, validate_request
 
 __all__ = [
     "LENIENT",
@@ -217,6 +217,32 @@ def _outcome(findings: Iterable[Finding]) -> Outcome:
     return min((f.outcome for f in fs), key=lambda o: _RANK.get(o, 0))
 
 
+def _requested(
+    frame: Frame,
+    check: RequestCheck,
+    findings: list[Finding],
+    *,
+    basis: str,
+    dialect: Dialect | None = None,
+    reading: tuple[Command | None, Variant | None] | None = None,
+) -> Verdict:
+    """A request's verdict; ``reading``: the (command, variant) a dialect gives it, else the
+    manual's (a dialect the manual lacks has no command)."""
+    command, variant = reading if reading is not None else (check.command, check.variant)
+    return Verdict(
+        direction=Direction.REQUEST,
+        cmd_id=frame.cmd_id,
+        name=dialect.name if reading is not None and dialect is not None else check.name,
+        outcome=_outcome(findings),
+        findings=tuple(findings),
+        command=command,
+        variant=variant,
+        dialect=dialect,
+        parsed=check.parsed,
+        basis=basis,
+    )
+
+
 def _manual_source(command: Command | None, variant: Variant | None) -> str:
     if command is None:
         return "manual"
@@ -235,9 +261,10 @@ class Judge:
     """Judges frames against the manual (``specs``) and the field (``dialects``).
 
     ``strict``: the strict DATA grammar (no spaces after commas) and NON-STRICT
-    counting as failure.  ``dispatch``: which calls naming another command than
-    their ID's are read by the name (``"recorded"``: the dialect entries'
-    ID/name pairs; ``"any"``: every known name; ``"off"``).
+    counting as failure.  A call naming another command than its ID's is read by
+    the name where a dialect entry records that ID/name pair (``dispatch``); what
+    the emulator answers beyond that is its own option
+    (:class:`~conformance.model.Controller`).
     """
 
     def __init__(
@@ -299,18 +326,7 @@ class Judge:
                 )
                 for v in content
             ]
-            return Verdict(
-                direction=Direction.REQUEST,
-                cmd_id=frame.cmd_id,
-                name=check.name,
-                outcome=_outcome(findings),
-                findings=tuple(findings),
-                command=check.command,
-                variant=check.variant,
-                dialect=spelling,
-                parsed=check.parsed,
-                basis=source,
-            )
+            return _requested(frame, check, findings, dialect=spelling, basis=source)
         if matches:
             d, variant = matches[0]
             also = [m.id for m, _ in matches[1:]]
@@ -330,17 +346,8 @@ class Judge:
                 # An argument form or a spelling replies as the manual command does.
                 same = next((v for v in command.variants if v.form == variant.form), None)
                 variant = replace(variant, returns=(same or command.variants[0]).returns)
-            return Verdict(
-                direction=Direction.REQUEST,
-                cmd_id=frame.cmd_id,
-                name=d.name,
-                outcome=_outcome(findings),
-                findings=tuple(findings),
-                command=command,
-                variant=variant,
-                dialect=d,
-                parsed=check.parsed,
-                basis=d.cite(),
+            return _requested(
+                frame, check, findings, dialect=d, reading=(command, variant), basis=d.cite()
             )
         findings = framing + [
             Finding(
@@ -351,17 +358,7 @@ class Judge:
             )
             for v in content
         ]
-        return Verdict(
-            direction=Direction.REQUEST,
-            cmd_id=frame.cmd_id,
-            name=check.name,
-            outcome=_outcome(findings),
-            findings=tuple(findings),
-            command=check.command,
-            variant=check.variant,
-            parsed=check.parsed,
-            basis=source,
-        )
+        return _requested(frame, check, findings, basis=source)
 
     @staticmethod
     def _manual_summary(command: Command | None, viols: list[Violation]) -> str:

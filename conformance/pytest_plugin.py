@@ -257,19 +257,7 @@ def _result_json(r: CaseResult) -> dict[str, Any]:
 
 
 def _result_from(doc: dict[str, Any]) -> CaseResult:
-    return CaseResult(
-        id=doc["id"],
-        cmd_id=doc["cmd_id"],
-        name=doc["name"],
-        group=doc["group"],
-        outcome=Outcome(doc["outcome"]),
-        detail=doc.get("detail", ""),
-        reproduce=doc.get("reproduce", ""),
-        frames=tuple(doc.get("frames", ())),
-        not_run=bool(doc.get("not_run", False)),
-        source=doc.get("source", ""),
-        expected=bool(doc.get("expected", False)),
-    )
+    return CaseResult.from_json(doc, cmd_id=doc["cmd_id"], name=doc["name"])
 
 
 @pytest.hookimpl(tryfirst=True)

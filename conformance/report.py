@@ -107,6 +107,23 @@ class CaseResult:
             frames += (f"(+{len(self.frames) - MAX_FRAME_LINES} more lines)",)
         object.__setattr__(self, "frames", frames)
 
+    @classmethod
+    def from_json(cls, doc: Mapping[str, Any], *, cmd_id: int, name: str) -> CaseResult:
+        """A case from :meth:`to_json`'s document (the command ID and name come from its command)."""
+        return cls(
+            id=doc["id"],
+            cmd_id=cmd_id,
+            name=name,
+            group=doc["group"],
+            outcome=Outcome(doc["outcome"]),
+            detail=doc.get("detail", ""),
+            reproduce=doc.get("reproduce", ""),
+            frames=tuple(doc.get("frames", ())),
+            not_run=bool(doc.get("not_run", False)),
+            source=doc.get("source", ""),
+            expected=bool(doc.get("expected", False)),
+        )
+
     def to_json(self) -> dict[str, Any]:
         out: dict[str, Any] = {
             "id": self.id,
@@ -252,21 +269,7 @@ class Report:
         )
         for cid, cmd in doc["commands"].items():
             for c in cmd["cases"]:
-                r.add(
-                    CaseResult(
-                        id=c["id"],
-                        cmd_id=int(cid),
-                        name=cmd["name"],
-                        group=c["group"],
-                        outcome=Outcome(c["outcome"]),
-                        detail=c.get("detail", ""),
-                        reproduce=c.get("reproduce", ""),
-                        frames=tuple(c.get("frames", ())),
-                        not_run=bool(c.get("not_run", False)),
-                        source=c.get("source", ""),
-                        expected=bool(c.get("expected", False)),
-                    )
-                )
+                r.add(CaseResult.from_json(c, cmd_id=int(cid), name=cmd["name"]))
         return r
 
     def _dialect_lines(self, limit: int = 20) -> list[str]:

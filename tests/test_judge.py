@@ -332,3 +332,12 @@ def test_readme_dialect_table_matches_the_data() -> None:
     assert table == {
         src: [row[k] for k in kinds] + [sum(row.values())] for src, row in counts.items()
     }
+
+
+def test_a_dispatched_call_the_manual_lacks_is_read_as_its_dialect_alone() -> None:
+    """GetInverseKin on 377 is no manual command: not ServoCart's reading, the entry's."""
+    d = next(d for d in default_dialects() if d.kind == "dispatch" and d.name == "GetInverseKin")
+    v = FIELD.request(frame(d.example.encode()))
+    assert v.outcome is Outcome.DIALECT and v.dialect is not None
+    assert v.command is None and v.name == "GetInverseKin"
+    assert v.variant is not None and len(v.variant.params) == len(d.params or ())
