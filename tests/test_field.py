@@ -182,32 +182,15 @@ def test_emulator_replies_look_real() -> None:
 
 
 def _serve(tmp_path: Path, *extra: str, frames: int) -> tuple[subprocess.Popen[str], int, int]:
-    proc = subprocess.Popen(
-        [
-            sys.executable, "-m", "conformance", "serve",
-            "--listen", "127.0.0.1:0", "--udp", "127.0.0.1:0",
-            "--max-frames", str(frames), "--duration", "120",
-            "--report-json", str(tmp_path / "serve.json"), *extra,
-        ],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )  # fmt: skip
-    assert proc.stdout is not None
-    m = re.search(r"127\.0\.0\.1:(\d+), UDP 127\.0\.0\.1:(\d+)", proc.stdout.readline())
-    assert m
-    return proc, int(m.group(1)), int(m.group(2))
+    report = str(tmp_path / "serve.json")
+    started: tuple[subprocess.Popen[str], int, int] = _agreement_tool().start_serve(
+        "--report-json", report, *extra, frames=frames
+    )
+    return started
 
 
 def _send_session(tcp_port: int, udp_port: int, frames: list[dict[str, Any]]) -> None:
-    tcp = Client("127.0.0.1", tcp_port, transport="tcp", timeout=WAIT)
-    udp = Client("127.0.0.1", udp_port, transport="udp", timeout=WAIT)
-    try:
-        for entry in frames:
-            exchange({"tcp": tcp, "udp": udp}, entry)
-    finally:
-        tcp.close()
-        udp.close()
+    _agreement_tool().send(("127.0.0.1", tcp_port), ("127.0.0.1", udp_port), frames)
 
 
 def test_serve_as_an_sdk_authors_ci_gate(tmp_path: Path) -> None:

@@ -108,6 +108,30 @@ def record(path: Path, entries: list[dict[str, Any]]) -> None:
             send(proxy.address, proxy.udp_address, entries)
 
 
+def start_serve(
+    *extra: str, frames: int, duration: float = 300
+) -> tuple[subprocess.Popen[str], int, int]:
+    """A ``serve`` process on 127.0.0.1 (TCP and UDP, ports chosen by the kernel) that stops
+    after ``frames`` events; its TCP and UDP ports, read from its first line."""
+    proc = subprocess.Popen(
+        [
+            sys.executable, "-m", "conformance", "serve",
+            "--listen", "127.0.0.1:0", "--udp", "127.0.0.1:0",
+            "--max-frames", str(frames), "--duration", str(duration), *extra,
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=ROOT,
+    )  # fmt: skip
+    assert proc.stdout is not None
+    m = re.search(r"127\.0\.0\.1:(\d+), UDP 127\.0\.0\.1:(\d+)", proc.stdout.readline())
+    if m is None:
+        proc.kill()
+        raise RuntimeError("serve did not start")
+    return proc, int(m.group(1)), int(m.group(2))
+
+
 def cli(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
         [sys.executable, "-m", "conformance", *args],
@@ -225,26 +249,13 @@ def agreement(work: Path, *, reference: str = "field") -> Agreement:
     # not frames (the recording keeps those too, and replay resends them).
     res.requests = sum(1 for f in rec.frames if f.dir == C2S)
     events = res.requests + sum(1 for q in rec.problems if q.dir == C2S and q.raw)
-    serve = subprocess.Popen(
-        [
-            sys.executable, "-m", "conformance", "serve",
-            "--listen", "127.0.0.1:0", "--udp", "127.0.0.1:0",
-            "--max-frames", str(events), "--duration", "300",
-            "--verdicts", str(work / "serve.jsonl"), *ref,
-        ],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        cwd=ROOT,
-    )  # fmt: skip
+    serve, tcp_port, udp_port = start_serve(
+        "--verdicts", str(work / "serve.jsonl"), *ref, frames=events
+    )
     try:
-        assert serve.stdout is not None
-        m = re.search(r"127\.0\.0\.1:(\d+), UDP 127\.0\.0\.1:(\d+)", serve.stdout.readline())
-        if m is None:
-            raise RuntimeError("serve did not start")
         p = cli(
-            "replay", str(rec_path), "--target", f"127.0.0.1:{m.group(1)}",
-            "--udp-port", m.group(2), "--json", str(work / "replay.json"), *ref,
+            "replay", str(rec_path), "--target", f"127.0.0.1:{tcp_port}",
+            "--udp-port", str(udp_port), "--json", str(work / "replay.json"), *ref,
         )  # fmt: skip
         if p.returncode not in (0, 1):
             res.errors.append(f"replay exited {p.returncode}: {p.stderr.strip()[-300:]}")
