@@ -37,6 +37,7 @@ from .data import _shown as shown
 from .dialects import ERRCODE_RETURNS, Dialect, DialectSet, manual_command
 from .errors import ProtocolError, Rule, UsageError
 from .frame import Frame, Malformed
+from .knowledge import unsolicited_ids
 from .report import Outcome
 from .spec import Command, Returns, SpecSet, Variant
 from .validate import RefusalForm, ReplyVerdict, RequestCheck, classify_reply, validate_request
@@ -279,12 +280,7 @@ class Judge:
         self.dialects = dialects if dialects is not None else DialectSet()
         self.reference = reference
         self.strict = strict
-        self._unsolicited = self._unsolicited_ids()
-
-    def _unsolicited_ids(self) -> frozenset[int]:
-        sem = getattr(self.specs, "semantics", None)
-        ids = getattr(sem, "unsolicited_ids", None)
-        return frozenset(ids) if ids is not None else frozenset({500})
+        self._unsolicited = unsolicited_ids(specs)
 
     # ------------------------------------------------------------------ requests
 
