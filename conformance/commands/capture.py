@@ -22,6 +22,7 @@ from ..recording import C2S, FrameRecord, recover
 from ..spec import SpecSet, default_specs, load_specs
 from ._judging import add_judge_options, judge_from, verdict_line
 from ._judging import verdict_sink as _verdict_sink
+from ._safety import add_safety_options
 
 __all__ = ["format_frame_line", "parse_duration", "parse_size", "register"]
 
@@ -228,10 +229,7 @@ def _register_more(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
         help="serve: largest request frame read; longer runs are skipped as malformed, so "
         "a connection holds about this much (default 256K)",
     )
-    rp.add_argument("--allow-motion", action="store_true")
-    rp.add_argument("--allow-io", action="store_true")
-    rp.add_argument("--allow-config", action="store_true")
-    rp.add_argument("--allow-destructive", action="append", default=[], metavar="NAME")
+    add_safety_options(rp)
     rp.add_argument("--specs-dir", help="spec set directory")
     add_judge_options(rp)
     rp.set_defaults(func=_run_replay)
@@ -487,7 +485,7 @@ def _run_replay(args: argparse.Namespace) -> int:
     from ..diff import Ignore
     from ..net.proxy import ReplayServer, parse_hostport
     from ..replay import ReplyBook, replay_to_target
-    from ..safety import SafetyPolicy
+    from ._safety import safety_policy
 
     rec = read_capture(args.capture)
     specs = _specs(args)
@@ -537,13 +535,7 @@ def _run_replay(args: argparse.Namespace) -> int:
     host, port = parse_hostport(args.target, default_port=8080)
     if args.udp_port is not None and not 0 < args.udp_port < 65536:
         raise UsageError(f"--udp-port must be 1..65535, not {args.udp_port}")
-    safety = SafetyPolicy.for_target(
-        host,
-        allow_config=args.allow_config,
-        allow_io=args.allow_io,
-        allow_motion=args.allow_motion,
-        destructive=args.allow_destructive,
-    )
+    safety = safety_policy(args, host)
     result = replay_to_target(
         rec,
         host,

@@ -28,6 +28,7 @@ from ..net.client import Client, Exchange, TargetUnreachable
 from ..safety import SafetyPolicy
 from ..spec import Command, SpecSet, default_specs, load_specs
 from ._judging import add_judge_options, judge_from, verdict_line
+from ._safety import add_safety_options, safety_policy
 
 __all__ = ["register"]
 
@@ -104,26 +105,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         help="wait this long for each reply, and for the connection (default 5)",
     )
     p.add_argument("--json", action="store_true", help="one JSON object per request and reply")
-    p.add_argument(
-        "--allow-motion",
-        action="store_true",
-        help="send motion and program commands to a non-loopback target",
-    )
-    p.add_argument(
-        "--allow-io", action="store_true", help="send I/O commands to a non-loopback target"
-    )
-    p.add_argument(
-        "--allow-config",
-        action="store_true",
-        help="send configuration commands to a non-loopback target",
-    )
-    p.add_argument(
-        "--allow-destructive",
-        action="append",
-        default=[],
-        metavar="NAME",
-        help="send this destructive command (by name or ID; repeatable)",
-    )
+    add_safety_options(p)
     p.add_argument(
         "--allow-unknown",
         action="store_true",
@@ -403,13 +385,7 @@ def _run_send(args: argparse.Namespace) -> int:
         if isinstance(ev, Frame)
     }
 
-    policy = SafetyPolicy.for_target(
-        host,
-        allow_config=args.allow_config,
-        allow_io=args.allow_io,
-        allow_motion=args.allow_motion,
-        destructive=args.allow_destructive,
-    )
+    policy = safety_policy(args, host)
     # Decided before any connection: nothing reaches a real arm unless opted in.  A
     # loopback target takes anything but an unnamed destructive command (SafetyPolicy).
     refused = _refusals(
