@@ -7,16 +7,26 @@ and the ``mcap`` command-line tools open it as it is.  The topics are stable:
 =========================  ====================  ===========================================
 topic                      schema                one message per
 =========================  ====================  ===========================================
-``/fairino/c2s``           ``fairino.Frame``     frame sent by a client to the controller
-``/fairino/s2c``           ``fairino.Frame``     frame sent by the controller to a client
+``/fairino/c2s``           ``fairino.Frames``    batch of frames sent by a client to the controller
+``/fairino/s2c``           ``fairino.Frames``    batch of frames sent by the controller to a client
 ``/fairino/problems``      ``fairino.Problem``   malformed bytes, partial frame, capture gap
 ``/fairino/connections``   ``fairino.Connection`` connection opened, closed or refused
 =========================  ====================  ===========================================
 
 and one metadata record, ``fairino.recording`` (kit and spec version, source,
-upstream, listen address, start time, host, segment number).  A frame message's
-log time is the time its last byte arrived, its publish time the time its first
-byte arrived (both ns since the Unix epoch).
+upstream, listen address, start time, host, segment number).
+
+A frame message is a batch, in columns: the frames of one connection and direction
+that the recorder completed from one read (so one ``complete_ns``), frame *k* being
+``cnt[k]``, ``cmd_id[k]``, ``data[k]``... and its exact bytes the next ``size[k]``
+bytes of ``raw``.  At 1 kHz request/reply a batch holds one frame; a pipelining
+client's read of 64 KiB holds hundreds, written as one message instead of one each
+(``mcap.Writer.add_message`` costs about 4 us a call, the JSON per frame less in
+columns than as objects: ``tools/bench_proxy.py --section record``).  The message's
+log time is the time the batch's last byte arrived, its publish time the time the
+first byte of its earliest frame arrived (ns since the Unix epoch).  Layout version
+1 (``format`` ``fairino-conformance/1`` in the metadata) had one ``fairino.Frame``
+object per frame; :func:`read_recording` reads both.
 
 :class:`StreamRecorder` is the one path from bytes to records: the proxy feeds it
 socket reads, the pcap importer reassembled segments, so both produce recordings
@@ -35,16 +45,19 @@ import re
 import socket
 import time
 from collections import deque
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
+from itertools import accumulate, repeat
 from pathlib import Path
-from typing import IO, Any, Literal, Protocol
+from typing import IO, Any, Literal, NamedTuple, Protocol
 
 from . import __version__
-from .frame import DEFAULT_MAX_FRAME_SIZE, Event, Frame, FrameDecoder, Malformed
+from .frame import DEFAULT_MAX_FRAME_SIZE, Event, Frame, FrameDecoder, FrameRun, Malformed
 from .spec import SpecSet
 
 __all__ = [
+    "BATCH_BYTES",
+    "BATCH_FRAMES",
     "C2S",
     "DECODE_SLICE",
     "FORMAT",
@@ -58,6 +71,7 @@ __all__ = [
     "TOPIC_S2C",
     "ConnectionRecord",
     "Exchange",
+    "FrameBatch",
     "FrameRecord",
     "ProblemRecord",
     "Recording",
@@ -83,7 +97,11 @@ TOPIC_PROBLEMS = "/fairino/problems"
 TOPIC_CONNECTIONS = "/fairino/connections"
 METADATA_NAME = "fairino.recording"
 #: Layout version, stored in the metadata; bump on incompatible changes.
-FORMAT = "fairino-conformance/1"
+FORMAT = "fairino-conformance/2"
+#: Most frames, and bytes of them, in one ``fairino.Frames`` message (RecordingWriter):
+#: a reader holds one message at a time, and a frame message stays well under a chunk.
+BATCH_FRAMES = 4096
+BATCH_BYTES = 256 * 1024
 #: Raw bytes in one Problem record: a longer malformed run is recorded as several
 #: records with consecutive offsets, each with its share of the bytes (its ``size``
 #: is ``len(raw)``), so no byte is lost and each record stays small.
@@ -94,29 +112,57 @@ _CONN = {"type": "integer", "description": "connection number, from 1, unique in
 _TRANSPORT = {"type": "string", "enum": ["tcp", "udp"]}
 _DIR = {"type": "string", "enum": ["c2s", "s2c"], "description": "c2s: client to controller"}
 
+
+def _column(items: Mapping[str, Any], description: str = "") -> dict[str, Any]:
+    col: dict[str, Any] = {"type": "array", "items": items}
+    if description:
+        col["description"] = description
+    return col
+
+
 #: The JSON schemas of the three message kinds (draft 2020-12).
 SCHEMAS: Mapping[str, Mapping[str, Any]] = {
-    "fairino.Frame": {
+    "fairino.Frames": {
         "$schema": "https://json-schema.org/draft/2020-12/schema",
-        "title": "fairino.Frame",
-        "description": "One frame /f/bIII{CNT}III{CMD_ID}III{LEN}III{DATA}III/b/f (manual 1.1)",
+        "title": "fairino.Frames",
+        "description": (
+            "Frames /f/bIII{CNT}III{CMD_ID}III{LEN}III{DATA}III/b/f (manual 1.1) one after "
+            "the other on one connection and direction, in columns: frame k is cnt[k], "
+            "cmd_id[k], data[k]..., its bytes the next size[k] bytes of raw"
+        ),
         "type": "object",
         "properties": {
             "conn": _CONN,
             "transport": _TRANSPORT,
             "dir": _DIR,
-            "cnt": {"type": "integer"},
-            "cmd_id": {"type": "integer"},
-            "name": {"type": ["string", "null"], "description": "command name from the specs"},
-            "data": {"type": "string", "description": "DATA as text (invalid UTF-8 replaced)"},
-            "len": {"type": "integer", "description": "LEN as sent"},
-            "problems": {"type": "array", "items": {"type": "string"}},
-            "offset": {"type": "integer", "description": "stream offset of the first byte"},
-            "first_ns": {"type": "integer"},
-            "complete_ns": {"type": "integer"},
-            "raw": _B64,
+            "cnt": _column({"type": "integer"}),
+            "cmd_id": _column({"type": "integer"}),
+            "name": _column({"type": ["string", "null"]}, "command name from the specs"),
+            "data": _column({"type": "string"}, "DATA as text (invalid UTF-8 replaced)"),
+            "len": _column({"type": "integer"}, "LEN as sent"),
+            "offset": _column({"type": "integer"}, "stream offset of the frame's first byte"),
+            "first_ns": _column({"type": "integer"}, "when the frame's first byte came"),
+            "complete_ns": _column({"type": "integer"}, "when the frame's last byte came"),
+            "size": _column({"type": "integer"}, "bytes of the frame in raw"),
+            "problems": _column(
+                {"type": "array", "items": {"type": "string"}},
+                "deviations tolerated (absent: none in the batch)",
+            ),
+            "raw": {**_B64, "description": "the frames' bytes, one after the other"},
         },
-        "required": ["conn", "transport", "dir", "cnt", "cmd_id", "data", "raw", "complete_ns"],
+        "required": [
+            "conn",
+            "transport",
+            "dir",
+            "cnt",
+            "cmd_id",
+            "data",
+            "len",
+            "offset",
+            "complete_ns",
+            "size",
+            "raw",
+        ],
     },
     "fairino.Problem": {
         "$schema": "https://json-schema.org/draft/2020-12/schema",
@@ -161,13 +207,16 @@ SCHEMAS: Mapping[str, Mapping[str, Any]] = {
 }
 
 _TOPICS = {
-    TOPIC_C2S: "fairino.Frame",
-    TOPIC_S2C: "fairino.Frame",
+    TOPIC_C2S: "fairino.Frames",
+    TOPIC_S2C: "fairino.Frames",
     TOPIC_PROBLEMS: "fairino.Problem",
     TOPIC_CONNECTIONS: "fairino.Connection",
 }
 
 _NAME_RE = re.compile(r"\s*([A-Za-z_][A-Za-z0-9_]*)")
+# StreamRecorder._id_names: not looked up yet / the ID alone does not decide the name.
+_UNSET = object()
+_BY_DATA = object()
 
 
 def _b64(raw: bytes) -> str:
@@ -177,11 +226,11 @@ def _b64(raw: bytes) -> str:
 #: ``json.dumps(s, ensure_ascii=False)`` for one string (the C encoder), quotes included.
 _json_str: Callable[[str], str] = json.encoder.encode_basestring  # type: ignore[attr-defined]
 
-#: A frame message as ``FrameRecord.to_json`` dumped compactly (the recorder's fast path):
-#: same keys, same order, same separators; strings are passed already JSON-encoded.
-_FRAME_JSON = (
-    '{"conn":%d,"transport":%s,"dir":"%s","cnt":%d,"cmd_id":%d,"name":%s,"data":%s,'
-    '"len":%d,"problems":%s,"offset":%d,"first_ns":%d,"complete_ns":%d,"raw":"%s"}'
+#: A batch message as ``FrameBatch.to_json`` dumped compactly (the recorder's fast path):
+#: same keys, same order, same separators; the parts are passed already JSON-encoded.
+_BATCH_JSON = (
+    '{"conn":%d,"transport":%s,"dir":"%s","cnt":%s,"cmd_id":%s,"name":%s,"data":%s,"len":%s,'
+    '"offset":%s,"first_ns":%s,"complete_ns":%s,"size":%s,%s"raw":"%s"}'
 )
 
 
@@ -258,6 +307,199 @@ class FrameRecord:
             problems=tuple(probs),
             offset=self.offset,
         )
+
+
+class FrameBatch(NamedTuple):
+    """Frames one after the other on one connection and direction, as columns: one
+    ``fairino.Frames`` message (see the module docstring).  Frame *k*'s bytes are the
+    ``sizes[k]`` bytes of ``raw`` after those of frames 0 to *k*-1."""
+
+    conn: int
+    transport: str
+    dir: Direction
+    cnts: Sequence[int]
+    cmd_ids: Sequence[int]
+    names: Sequence[str | None]
+    datas: Sequence[str]
+    lengths: Sequence[int]
+    offsets: Sequence[int]
+    first_ns: Sequence[int]
+    complete_ns: Sequence[int]
+    sizes: Sequence[int]
+    raw: bytes
+    #: Each frame's problems; None when no frame of the batch has any.
+    problems: Sequence[Sequence[str]] | None = None
+
+    @classmethod
+    def of(cls, records: Sequence[FrameRecord]) -> FrameBatch:
+        """The batch of ``records`` (all of one connection and direction)."""
+        r0 = records[0]
+        probs = [list(r.problems) for r in records]
+        return cls(
+            conn=r0.conn,
+            transport=r0.transport,
+            dir=r0.dir,
+            cnts=[r.cnt for r in records],
+            cmd_ids=[r.cmd_id for r in records],
+            names=[r.name for r in records],
+            datas=[r.data for r in records],
+            lengths=[
+                r.length if r.length is not None else len(r.data.encode("utf-8")) for r in records
+            ],
+            offsets=[r.offset for r in records],
+            first_ns=[r.first_ns or r.complete_ns for r in records],
+            complete_ns=[r.complete_ns for r in records],
+            sizes=[len(r.raw) for r in records],
+            raw=b"".join(r.raw for r in records),
+            problems=probs if any(probs) else None,
+        )
+
+    def records(self) -> list[FrameRecord]:
+        """The batch as one :class:`FrameRecord` per frame."""
+        out = []
+        starts = accumulate(self.sizes, initial=0)
+        probs = self.problems if self.problems is not None else repeat(())
+        for cnt, cmd_id, name, data, length, offset, first, complete, start, size, pr in zip(
+            self.cnts,
+            self.cmd_ids,
+            self.names,
+            self.datas,
+            self.lengths,
+            self.offsets,
+            self.first_ns,
+            self.complete_ns,
+            starts,
+            self.sizes,
+            probs,
+            strict=False,  # starts has one more, repeat() no end
+        ):
+            out.append(
+                FrameRecord(
+                    conn=self.conn,
+                    transport=self.transport,
+                    dir=self.dir,
+                    cnt=cnt,
+                    cmd_id=cmd_id,
+                    name=name,
+                    data=data,
+                    length=length,
+                    raw=self.raw[start : start + size],
+                    problems=tuple(pr),
+                    offset=offset,
+                    first_ns=first,
+                    complete_ns=complete,
+                )
+            )
+        return out
+
+    def to_json(self) -> dict[str, Any]:
+        doc: dict[str, Any] = {
+            "conn": self.conn,
+            "transport": self.transport,
+            "dir": self.dir,
+            "cnt": list(self.cnts),
+            "cmd_id": list(self.cmd_ids),
+            "name": list(self.names),
+            "data": list(self.datas),
+            "len": list(self.lengths),
+            "offset": list(self.offsets),
+            "first_ns": list(self.first_ns),
+            "complete_ns": list(self.complete_ns),
+            "size": list(self.sizes),
+        }
+        if self.problems is not None:
+            doc["problems"] = [list(p) for p in self.problems]
+        doc["raw"] = _b64(self.raw)
+        return doc
+
+    @classmethod
+    def from_json(cls, d: Mapping[str, Any]) -> FrameBatch:
+        """A batch as read back; columns of different lengths or a ``raw`` that does not
+        hold the sizes are a ``ValueError`` (the reader skips such a message)."""
+        n = len(d["cnt"])
+        complete = d["complete_ns"]
+        names = d.get("name", [None] * n)
+        first = d.get("first_ns", complete)
+        cols = (d["cmd_id"], names, d["data"], d["len"], d["offset"], first, complete, d["size"])
+        problems = d.get("problems")
+        if any(len(c) != n for c in cols) or (problems is not None and len(problems) != n):
+            raise ValueError("columns of different lengths")
+        raw = base64.b64decode(d["raw"])
+        if sum(d["size"]) != len(raw):
+            raise ValueError("sizes do not add up to raw")
+        return cls(
+            conn=d["conn"],
+            transport=d.get("transport", "tcp"),
+            dir=d["dir"],
+            cnts=d["cnt"],
+            cmd_ids=d["cmd_id"],
+            names=names,
+            datas=d["data"],
+            lengths=d["len"],
+            offsets=d["offset"],
+            first_ns=first,
+            complete_ns=complete,
+            sizes=d["size"],
+            raw=raw,
+            problems=problems,
+        )
+
+
+class _OpenBatch:
+    """The frames a :class:`RecordingWriter` holds until something else is written."""
+
+    __slots__ = (
+        "cmd_ids",
+        "cnts",
+        "complete_ns",
+        "conn",
+        "datas",
+        "dir",
+        "first_ns",
+        "lengths",
+        "names",
+        "offsets",
+        "problems",
+        "raw",
+        "raw_size",
+        "sizes",
+        "transport",
+    )
+
+    def __init__(self, b: FrameBatch) -> None:
+        self.conn, self.transport, self.dir = b.conn, b.transport, b.dir
+        self.cnts = list(b.cnts)
+        self.cmd_ids = list(b.cmd_ids)
+        self.names = list(b.names)
+        self.datas = list(b.datas)
+        self.lengths = list(b.lengths)
+        self.offsets = list(b.offsets)
+        self.first_ns = list(b.first_ns)
+        self.complete_ns = list(b.complete_ns)
+        self.sizes = list(b.sizes)
+        self.raw = [b.raw]
+        self.raw_size = len(b.raw)
+        self.problems: list[Sequence[str]] | None = (
+            list(b.problems) if b.problems is not None else None
+        )
+
+    def add(self, b: FrameBatch) -> None:
+        n = len(self.cnts)
+        self.cnts += b.cnts
+        self.cmd_ids += b.cmd_ids
+        self.names += b.names
+        self.datas += b.datas
+        self.lengths += b.lengths
+        self.offsets += b.offsets
+        self.first_ns += b.first_ns
+        self.complete_ns += b.complete_ns
+        self.sizes += b.sizes
+        self.raw.append(b.raw)
+        self.raw_size += len(b.raw)
+        if b.problems is not None or self.problems is not None:
+            if self.problems is None:
+                self.problems = [()] * n
+            self.problems += b.problems if b.problems is not None else [()] * len(b.cnts)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -414,9 +656,9 @@ class RecordingWriter:
     once a second loses at most that second if the process is killed, and
     :func:`recover` turns the unfinished file into a valid, indexed one.
 
-    :meth:`write_frame` is the recorder's fast path for frames: it fills a
-    precompiled JSON template instead of building a :class:`FrameRecord` and a
-    dict, and gives the same bytes as :meth:`write` would for that record.
+    :meth:`write_frames` is the recorder's fast path for frames: it fills a
+    precompiled JSON template with the batch's columns, each encoded by the C JSON
+    encoder, and gives the same bytes as ``json`` would for :meth:`FrameBatch.to_json`.
     """
 
     def __init__(
@@ -426,6 +668,8 @@ class RecordingWriter:
         metadata: Mapping[str, str] | None = None,
         compression: str = "zstd",
         chunk_size: int = 1024 * 1024,
+        batch_frames: int = BATCH_FRAMES,
+        batch_bytes: int = BATCH_BYTES,
     ) -> None:
         if isinstance(output, (str, os.PathLike)):
             self._file: IO[bytes] | None = open(output, "wb")  # noqa: SIM115 (closed in close())
@@ -462,6 +706,9 @@ class RecordingWriter:
         }
         self._json_str: dict[str | None, str] = {None: "null"}
         self._add = self._mcap.add_message
+        self._open: _OpenBatch | None = None
+        self.batch_frames = batch_frames
+        self.batch_bytes = batch_bytes
         self._closed = False
         self._stream.flush()
 
@@ -479,9 +726,9 @@ class RecordingWriter:
 
     def write(self, record: Record) -> None:
         if isinstance(record, FrameRecord):
-            topic = TOPIC_C2S if record.dir == C2S else TOPIC_S2C
-            log, pub = record.complete_ns, record.first_ns or record.complete_ns
-        elif isinstance(record, ProblemRecord):
+            self.write_frames(FrameBatch.of([record]))
+            return
+        if isinstance(record, ProblemRecord):
             topic, log, pub = (
                 TOPIC_PROBLEMS,
                 record.complete_ns,
@@ -494,58 +741,68 @@ class RecordingWriter:
     def write_json(
         self, topic: str, doc: Mapping[str, Any], *, log_time: int, publish_time: int
     ) -> None:
+        if self._open is not None:
+            self._write_open()
         ch = self._channels[topic]
         seq = self._seq[ch] = self._seq[ch] + 1
         self._add(ch, log_time, self._dumps(doc).encode("utf-8"), publish_time, seq & 0xFFFFFFFF)
 
-    def write_frame(
-        self,
-        conn: int,
-        transport: str,
-        direction: str,
-        cnt: int,
-        cmd_id: int,
-        name: str | None,
-        data: str,
-        length: int | None,
-        problems: tuple[str, ...],
-        offset: int,
-        first_ns: int,
-        complete_ns: int,
-        raw: bytes,
-    ) -> None:
-        """The frame record of these fields, as :meth:`write` would write it, but faster."""
+    def write_frames(self, b: FrameBatch) -> None:
+        """Frames of one connection and direction, in order.
+
+        They join the frames held since the last other write if those are of the same
+        connection and direction, and are written as one ``fairino.Frames`` message
+        when anything else is written, at :meth:`flush` and :meth:`close`, or when the
+        batch holds ``batch_frames`` frames or ``batch_bytes`` bytes.  Messages keep
+        the order the records came in, across topics.
+        """
+        o = self._open
+        if o is not None and o.conn == b.conn and o.dir == b.dir and o.transport == b.transport:
+            o.add(b)
+        else:
+            if o is not None:
+                self._write_open()
+            o = self._open = _OpenBatch(b)
+        if len(o.cnts) >= self.batch_frames or o.raw_size >= self.batch_bytes:
+            self._write_open()
+
+    def _write_open(self) -> None:
+        """The held frames as one message (its template filled with columns the C JSON
+        encoder made: the same bytes as ``write_json`` of ``FrameBatch.to_json()``)."""
+        o = self._open
+        assert o is not None
+        self._open = None
+        dumps = self._dumps
         js = self._json_str
         try:
-            jname = js[name]
+            jtransport = js[o.transport]
         except KeyError:
-            jname = js[name] = _json_str(name)  # type: ignore[arg-type]
-        try:
-            jtransport = js[transport]
-        except KeyError:
-            jtransport = js[transport] = _json_str(transport)
-        doc = _FRAME_JSON % (
-            conn,
+            jtransport = js[o.transport] = _json_str(o.transport)
+        doc = _BATCH_JSON % (
+            o.conn,
             jtransport,
-            direction,
-            cnt,
-            cmd_id,
-            jname,
-            _json_str(data),
-            length if length is not None else len(data.encode("utf-8")),
-            self._dumps(list(problems)) if problems else "[]",
-            offset,
-            first_ns,
-            complete_ns,
-            binascii.b2a_base64(raw, newline=False).decode("ascii"),
+            o.dir,
+            dumps(o.cnts),
+            dumps(o.cmd_ids),
+            dumps(o.names),
+            dumps(o.datas),
+            dumps(o.lengths),
+            dumps(o.offsets),
+            dumps(o.first_ns),
+            dumps(o.complete_ns),
+            dumps(o.sizes),
+            "" if o.problems is None else f'"problems":{dumps(o.problems)},',
+            binascii.b2a_base64(b"".join(o.raw), newline=False).decode("ascii"),
         )
-        ch = self._frame_channel[direction]
+        ch = self._frame_channel[o.dir]
         seq = self._seq[ch] = self._seq[ch] + 1
-        self._add(ch, complete_ns, doc.encode("utf-8"), first_ns or complete_ns, seq & 0xFFFFFFFF)
+        self._add(ch, max(o.complete_ns), doc.encode("utf-8"), min(o.first_ns), seq & 0xFFFFFFFF)
 
     def flush(self) -> None:
-        """End the chunk in progress and hand everything to the OS."""
+        """Write the frames held, end the chunk in progress and hand everything to the OS."""
         if not self._closed:
+            if self._open is not None:
+                self._write_open()
             _flush_chunk(self._mcap)
             self._stream.flush()
 
@@ -553,6 +810,8 @@ class RecordingWriter:
         """Write the summary and index and close the file (idempotent)."""
         if self._closed:
             return
+        if self._open is not None:
+            self._write_open()
         self._closed = True
         self._mcap.finish()  # type: ignore[no-untyped-call]
         self._stream.flush()
@@ -613,9 +872,9 @@ class RotatingWriter:
     def write(self, record: Record) -> None:
         self._writer.write(record)
 
-    def write_frame(self, *fields: Any) -> None:
-        """:meth:`RecordingWriter.write_frame` on the current segment."""
-        self._writer.write_frame(*fields)
+    def write_frames(self, batch: FrameBatch) -> None:
+        """:meth:`RecordingWriter.write_frames` on the current segment."""
+        self._writer.write_frames(batch)
 
     @property
     def messages(self) -> int:
@@ -652,6 +911,9 @@ DECODE_SLICE = 2048
 # bound, later arrivals are not noted and a frame starting there gets the last noted
 # time (earlier than its real first byte, never later than its last).
 _TIMELINE_MAX = 4096
+# Bytes below which a read goes to FrameDecoder.feed even when the decoder is idle: a
+# run's columns cost more than the per-frame fast path for a frame or two.
+_RUN_MIN = 512
 
 
 class _Stream:
@@ -720,11 +982,14 @@ class StreamRecorder:
         self.undecoded_reason: str | None = None
         self._conns: dict[int, _Conn] = {}
         self._names: dict[tuple[int, str | None], str | None] = {}
-        # The sink's fast path for frames (RecordingWriter.write_frame), unless each
+        # The sink's fast path for frames (RecordingWriter.write_frames), unless each
         # frame must also be handed to on_frame as a FrameRecord.
-        self._write_frame: Callable[..., None] | None = (
-            getattr(sink, "write_frame", None) if on_frame is None else None
+        self._write_frames: Callable[[FrameBatch], None] | None = (
+            getattr(sink, "write_frames", None) if on_frame is None else None
         )
+        # Command name by ID where the ID alone decides it (one command has it), else
+        # _BY_DATA: then the name in DATA picks among the commands (command_name).
+        self._id_names: dict[int, object] = {}
         self.frames = 0
         self.problems = 0
 
@@ -744,6 +1009,26 @@ class StreamRecorder:
             name = cmd.name if cmd is not None else None
         if len(self._names) < 65536:
             self._names[key] = name
+        return name
+
+    def _names_of(self, cmd_ids: Sequence[int], datas: Sequence[str]) -> list[str | None]:
+        """:meth:`command_name` of each frame; by ID alone in C where the ID decides it."""
+        get = self._id_names.get
+        names: list[Any] = list(map(get, cmd_ids, repeat(_UNSET)))
+        if _UNSET in names or _BY_DATA in names:
+            for k, (cmd_id, name) in enumerate(zip(cmd_ids, names, strict=True)):
+                if name is _UNSET:
+                    name = self._id_name(cmd_id)
+                if name is _BY_DATA:
+                    name = self.command_name(cmd_id, datas[k])
+                names[k] = name
+        return names
+
+    def _id_name(self, cmd_id: int) -> object:
+        cands = self.specs.by_id(cmd_id) if self.specs is not None else ()
+        name: object = _BY_DATA if len(cands) > 1 else self.command_name(cmd_id, "")
+        if len(self._id_names) < 65536:
+            self._id_names[cmd_id] = name
         return name
 
     # -- connection life
@@ -820,7 +1105,14 @@ class StreamRecorder:
             self.undecoded_reason = reason
 
     def data(self, conn: int, direction: Direction, t_ns: int, data: bytes) -> None:
-        """Bytes of a TCP stream, in order, as they arrived at ``t_ns``."""
+        """Bytes of a TCP stream, in order, as they arrived at ``t_ns``.
+
+        Where the decoder holds nothing, standard frames back to back are taken as a
+        :class:`~conformance.frame.FrameRun` and written as one batch (the columns
+        straight from the split, no tuple per frame); anything else goes through
+        :meth:`FrameDecoder.feed` a slice at a time.  Either way ``checkpoint`` runs
+        after each piece, and the records are the same.
+        """
         c = self._conns[conn]
         st = c.streams[direction]
         st.bytes += len(data)
@@ -828,23 +1120,33 @@ class StreamRecorder:
         if self.undecoded_reason is not None:
             self._raw(conn, c.transport, direction, st, t_ns, data)
             return
+        dec = st.decoder
         tl = st.timeline
         if len(tl) < _TIMELINE_MAX:
-            tl.append((st.decoder.stream_offset, t_ns))
+            tl.append((dec.stream_offset, t_ns))
         step = self.slice_size
         check = self.checkpoint
-        if len(data) <= step:
-            self._emit(conn, c.transport, direction, st, st.decoder.feed(data), t_ns)
-            if check is not None:
-                check()
-            return
         view = memoryview(data)
-        for i in range(0, len(data), step):
-            self._emit(conn, c.transport, direction, st, st.decoder.feed(view[i : i + step]), t_ns)
+        i = 0
+        n = len(data)
+        while i < n:
+            if n - i >= _RUN_MIN and dec.idle:
+                run = dec.take_run(view[i:])
+                if run is not None:
+                    i += len(run.raw)
+                    self._emit_run(conn, c.transport, direction, st, run, t_ns)
+                    if check is not None:
+                        check()
+                        if self.undecoded_reason is not None and i < n:
+                            self._raw(conn, c.transport, direction, st, t_ns, bytes(view[i:]))
+                            return
+                    continue
+            self._emit(conn, c.transport, direction, st, dec.feed(view[i : i + step]), t_ns)
+            i += step
             if check is not None:
                 check()
-                if self.undecoded_reason is not None and i + step < len(data):
-                    self._raw(conn, c.transport, direction, st, t_ns, bytes(view[i + step :]))
+                if self.undecoded_reason is not None and i < n:
+                    self._raw(conn, c.transport, direction, st, t_ns, bytes(view[i:]))
                     return
 
     def datagram(self, conn: int, direction: Direction, t_ns: int, data: bytes) -> None:
@@ -945,6 +1247,51 @@ class StreamRecorder:
                 if st.decoder.buffered and now_ns - st.last_ns >= idle_ns:
                     self._emit(conn, c.transport, d, st, st.decoder.resolve_pending(), now_ns)  # type: ignore[arg-type]
 
+    def _emit_run(
+        self,
+        conn: int,
+        transport: str,
+        direction: Direction,
+        st: _Stream,
+        run: FrameRun,
+        t_ns: int,
+    ) -> None:
+        """A run the decoder took whole: one batch, its columns as the split gave them."""
+        k = len(run.cnts)
+        st.frames += k
+        self.frames += k
+        base = st.base
+        offsets = list(accumulate(run.sizes, initial=base + run.offset))
+        offsets.pop()
+        # The decoder held nothing before the run, so each of its frames began in
+        # this read: first byte and last byte came at t_ns.
+        times = [t_ns] * k
+        batch = FrameBatch(
+            conn=conn,
+            transport=transport,
+            dir=direction,
+            cnts=run.cnts,
+            cmd_ids=run.cmd_ids,
+            names=self._names_of(run.cmd_ids, run.datas),
+            datas=run.datas,
+            lengths=run.lengths,
+            offsets=offsets,
+            first_ns=times,
+            complete_ns=times,
+            sizes=run.sizes,
+            raw=run.raw,
+        )
+        self._write_batch(batch)
+
+    def _write_batch(self, batch: FrameBatch) -> None:
+        if self._write_frames is not None:
+            self._write_frames(batch)
+            return
+        for rec in batch.records():
+            self.sink.write(rec)
+            if self.on_frame is not None:
+                self.on_frame(rec)
+
     def _emit(
         self,
         conn: int,
@@ -956,11 +1303,14 @@ class StreamRecorder:
         *,
         base: int | None = None,
     ) -> None:
+        """Write the decoder's events: consecutive frames as one batch, problems between."""
+        if not events:
+            return
         b = st.base if base is None else base
         write = self.sink.write
-        fast = self._write_frame
-        name_of = self.command_name
         tl = st.timeline
+        frames: list[Frame] = []
+        firsts: list[int] = []
         for ev in events:
             # st.first_ns(ev.offset), inlined: the time the event's first byte arrived.
             offset = ev.offset
@@ -968,50 +1318,77 @@ class StreamRecorder:
                 tl.popleft()
             first = tl[0][1] if tl else st.last_ns
             if type(ev) is Frame:
-                st.frames += 1
-                self.frames += 1
-                cnt, cmd_id, data, length, raw, probs, _ = ev
-                problems = tuple([p.value for p in probs]) if probs else ()
-                if fast is not None:
-                    fast(
-                        conn,
-                        transport,
-                        direction,
-                        cnt,
-                        cmd_id,
-                        name_of(cmd_id, data),
-                        data,
-                        length,
-                        problems,
-                        b + offset,
-                        first,
-                        t_ns,
-                        raw,
-                    )
-                    continue
-                rec = FrameRecord(
-                    conn=conn,
-                    transport=transport,
-                    dir=direction,
-                    cnt=cnt,
-                    cmd_id=cmd_id,
-                    name=name_of(cmd_id, data),
-                    data=data,
-                    length=length,
-                    raw=raw,
-                    problems=problems,
-                    offset=b + offset,
-                    first_ns=first,
-                    complete_ns=t_ns,
+                frames.append(ev)
+                firsts.append(first)
+                continue
+            assert isinstance(ev, Malformed)
+            if frames:
+                self._emit_frames(conn, transport, direction, st, frames, firsts, b, t_ns)
+                frames, firsts = [], []
+            for pr in _problems(conn, transport, direction, ev, b, first, t_ns):
+                self.problems += 1
+                write(pr)
+        if frames:
+            self._emit_frames(conn, transport, direction, st, frames, firsts, b, t_ns)
+
+    def _emit_frames(
+        self,
+        conn: int,
+        transport: str,
+        direction: Direction,
+        st: _Stream,
+        frames: list[Frame],
+        firsts: list[int],
+        base: int,
+        t_ns: int,
+    ) -> None:
+        k = len(frames)
+        st.frames += k
+        self.frames += k
+        if k == 1:  # a read of one frame (request/reply traffic): no zip, no comprehensions
+            cnt, cmd_id, data, length, raw, probs, offset = frames[0]
+            self._write_batch(
+                FrameBatch(
+                    conn,
+                    transport,
+                    direction,
+                    [cnt],
+                    [cmd_id],
+                    self._names_of((cmd_id,), (data,)),
+                    [data],
+                    [length if length is not None else len(data.encode("utf-8"))],
+                    [base + offset],
+                    firsts,
+                    [t_ns],
+                    [len(raw)],
+                    raw,
+                    [[p.value for p in probs]] if probs else None,
                 )
-                write(rec)
-                if self.on_frame is not None:
-                    self.on_frame(rec)
-            else:
-                assert isinstance(ev, Malformed)
-                for pr in _problems(conn, transport, direction, ev, b, first, t_ns):
-                    self.problems += 1
-                    write(pr)
+            )
+            return
+        cnts, cmd_ids, datas, lengths, raws, probss, offsets = zip(*frames, strict=True)
+        problems = [[p.value for p in ps] for ps in probss] if any(probss) else None
+        self._write_batch(
+            FrameBatch(
+                conn=conn,
+                transport=transport,
+                dir=direction,
+                cnts=cnts,
+                cmd_ids=cmd_ids,
+                names=self._names_of(cmd_ids, datas),
+                datas=datas,
+                lengths=[
+                    n if n is not None else len(d.encode("utf-8"))
+                    for n, d in zip(lengths, datas, strict=True)
+                ],
+                offsets=[base + o for o in offsets],
+                first_ns=firsts,
+                complete_ns=[t_ns] * k,
+                sizes=list(map(len, raws)),
+                raw=b"".join(raws),
+                problems=problems,
+            )
+        )
 
 
 def _problems(
@@ -1204,7 +1581,10 @@ def read_recording(path: str | os.PathLike[str]) -> Recording:
                 try:
                     doc = json.loads(rec.data)
                     if topic in (TOPIC_C2S, TOPIC_S2C):
-                        frames.append(FrameRecord.from_json(doc))
+                        if isinstance(doc.get("cnt"), list):
+                            frames += FrameBatch.from_json(doc).records()
+                        else:  # layout 1: one frame a message
+                            frames.append(FrameRecord.from_json(doc))
                     elif topic == TOPIC_PROBLEMS:
                         problems.append(ProblemRecord.from_json(doc))
                     elif topic == TOPIC_CONNECTIONS:

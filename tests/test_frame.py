@@ -359,3 +359,101 @@ def test_encode_rejects_lone_surrogate() -> None:
     with pytest.raises(LocalProtocolError) as exc:
         encode_frame(1, 2, "F(\ud800)")
     assert exc.value.rule is Rule.UNENCODABLE
+
+
+# ------------------------------------------------------------------- runs (take_run)
+
+
+def feed_with_runs(
+    data: bytes, cuts: list[int], *, slice_size: int = 2048, **kw: object
+) -> tuple[list[Frame | Malformed], int]:
+    """Decode as the recorder does: ``take_run`` whenever the decoder is idle, ``feed``
+    a slice otherwise.  Returns the events (runs expanded) and the frames that came in runs."""
+    d = FrameDecoder(**kw)  # type: ignore[arg-type]
+    out: list[Frame | Malformed] = []
+    in_runs = 0
+    prev = 0
+    for c in [*sorted(set(cuts)), len(data)]:
+        piece = data[prev:c]
+        prev = c
+        i = 0
+        while i < len(piece):
+            run = d.take_run(piece[i:]) if d.idle else None
+            if run is not None:
+                assert run.raw == piece[i : i + len(run.raw)]
+                frames = run.frames()
+                in_runs += len(frames)
+                out += frames
+                i += len(run.raw)
+                continue
+            out += d.feed(piece[i : i + slice_size])
+            i += slice_size
+    return out + d.close(), in_runs
+
+
+_RUN_PIECES = (
+    [w for _, _, w in FRAME_CASES]
+    + _HOSTILE_PIECES
+    + [
+        b"/f/bIII04III1III1IIIxIII/b/f",  # leading zero: LEN-driven, raw kept
+        encode_frame(65535, 4294967295, "III/b/f inside"),
+        encode_frame(1, 2, "é"),
+        b"/f/bIII1III2III2III\xff\xfeIII/b/f",  # not UTF-8
+        b"/f/bIII70000III1III1IIIxIII/b/f",  # CNT beyond uint16
+    ]
+)
+
+
+@settings(suppress_health_check=[HealthCheck.too_slow])
+@given(
+    data=st.lists(
+        st.sampled_from(_RUN_PIECES)
+        | st.builds(encode_frame, st.integers(0, 65535), st.integers(0, 10**10), _data)
+        | garbage(),
+        max_size=30,
+    ).map(b"".join),
+    cuts=st.lists(st.integers(0, 3000), max_size=6),
+    slice_size=st.sampled_from([1, 7, 64, 2048]),
+    max_size=st.sampled_from([64, 256, DEFAULT_MAX_FRAME_SIZE]),
+)
+def test_runs_give_what_feed_gives(
+    data: bytes, cuts: list[int], slice_size: int, max_size: int
+) -> None:
+    """take_run is only a cheaper way to the same events, wherever the stream is cut."""
+    cuts = [c for c in cuts if c <= len(data)]
+    got, _ = feed_with_runs(data, cuts, slice_size=slice_size, max_frame_size=max_size)
+    assert got == decode_all(data, max_frame_size=max_size)
+
+
+def test_runs_take_standard_frames_and_leave_the_rest() -> None:
+    frames = [encode_frame(i, 201, 'MoveJ("P1")') for i in range(1000)]
+    odd = b"/f/bIII1III2IIII1IIIxIII/b/f"  # a deviation: for the careful path
+    data = b"".join(frames) + odd + b"".join(frames[:10])
+    got, in_runs = feed_with_runs(data, [len(data) - 5])
+    assert got == decode_all(data)
+    assert in_runs == 1000  # the 2048-byte slice fed after the odd frame took the last 10
+    got, in_runs = feed_with_runs(data, [len(data) - 5], slice_size=len(odd))
+    assert got == decode_all(data)
+    assert in_runs == 1009  # all but the last, which the cut 5 bytes before its end split
+    d = FrameDecoder()
+    assert d.take_run(odd) is None and d.idle  # nothing taken, nothing held
+    d.feed(data[:10])
+    assert not d.idle and d.take_run(data[10:]) is None
+
+
+def test_run_window_grows_and_falls_back() -> None:
+    """The window doubles while runs fill it, and a run that stops early resets it."""
+    d = FrameDecoder()
+    frame = encode_frame(1, 2, "x" * 50)
+    stream = frame * 20000
+    sizes = []
+    at = 0
+    for _ in range(8):
+        run = d.take_run(stream[at:])
+        assert run is not None
+        sizes.append(len(run.raw))
+        at += len(run.raw)
+    assert sizes[0] <= 4096 < sizes[3] and sizes[-1] > 128 * 1024
+    run = d.take_run(frame * 2 + b"garbage" + frame)
+    assert run is not None and len(run.raw) == 2 * len(frame)
+    assert d._window == 4096

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -23,6 +24,8 @@ from conformance.recording import (
     TOPIC_CONNECTIONS,
     TOPIC_PROBLEMS,
     TOPIC_S2C,
+    ConnectionRecord,
+    FrameBatch,
     FrameRecord,
     ProblemRecord,
     Recording,
@@ -73,8 +76,13 @@ def test_every_message_matches_its_schema(tmp_path: Path) -> None:
             assert schema is not None and schema.encoding == "jsonschema"
             jsonschema.validate(json.loads(message.data), json.loads(schema.data))
             topics[channel.topic] = topics.get(channel.topic, 0) + 1
-    assert topics == {TOPIC_CONNECTIONS: 4, TOPIC_C2S: 2, TOPIC_PROBLEMS: 3, TOPIC_S2C: 1}
-    assert set(SCHEMAS) == {"fairino.Frame", "fairino.Problem", "fairino.Connection"}
+    # The two frames of the one read are one batch; the problems around them keep their
+    # place (noise before, NUL padding and the partial frame after).
+    assert topics == {TOPIC_CONNECTIONS: 4, TOPIC_C2S: 1, TOPIC_PROBLEMS: 3, TOPIC_S2C: 1}
+    assert set(SCHEMAS) == {"fairino.Frames", "fairino.Problem", "fairino.Connection"}
+    back = read_recording(out)
+    assert [f.cnt for f in back.frames] == [4, 5, 1]
+    assert back.metadata["format"] == "fairino-conformance/2"
 
 
 def test_names_times_and_offsets() -> None:
@@ -282,59 +290,111 @@ def test_long_malformed_runs_are_kept_whole_in_the_file(tmp_path: Path) -> None:
     assert sent_bytes(back, 1, "s2c") == encode_frame(7, 201, "1")
 
 
-def test_write_frame_is_write_of_the_frame_record(tmp_path: Path) -> None:
-    """The fast path and the record path give byte-identical files."""
-    recs = [
-        FrameRecord(
-            conn=1,
-            dir="c2s",
-            cnt=1,
-            cmd_id=201,
-            name="MoveJ",
-            data='MoveJ("P1")',
-            raw=encode_frame(1, 201, 'MoveJ("P1")'),
-            complete_ns=5,
-            first_ns=4,
-        ),
-        FrameRecord(
-            conn=2,
-            dir="s2c",
-            cnt=70000,
-            cmd_id=9,
-            data='é"\\\n\x01\u2028',
-            length=3,
-            raw=b"\xff\x00",
-            problems=("bad_len", "bad_cnt"),
-            offset=17,
-            complete_ns=9,
-            transport="udp",
-        ),
-        FrameRecord(conn=3, dir="s2c", cnt=0, cmd_id=0, data="", raw=b"", complete_ns=7),
-    ]
+_RECS = [
+    FrameRecord(
+        conn=1,
+        dir="c2s",
+        cnt=1,
+        cmd_id=201,
+        name="MoveJ",
+        data='MoveJ("P1")',
+        raw=encode_frame(1, 201, 'MoveJ("P1")'),
+        complete_ns=5,
+        first_ns=4,
+    ),
+    FrameRecord(
+        conn=2,
+        dir="s2c",
+        cnt=70000,
+        cmd_id=9,
+        data='é"\\\n\x01\u2028',
+        length=3,
+        raw=b"\xff\x00",
+        problems=("bad_len", "bad_cnt"),
+        offset=17,
+        complete_ns=9,
+        transport="udp",
+    ),
+    FrameRecord(
+        conn=2, dir="s2c", cnt=0, cmd_id=0, data="", raw=b"", complete_ns=7, transport="udp"
+    ),
+    FrameRecord(
+        conn=2, dir="s2c", cnt=3, cmd_id=4, data="x", raw=b"x", complete_ns=8, transport="udp"
+    ),
+    FrameRecord(conn=3, dir="s2c", cnt=0, cmd_id=0, data="", raw=b"", complete_ns=7),
+]
+
+
+def test_write_frames_is_write_json_of_the_batch(tmp_path: Path) -> None:
+    """The template path and the dict path give byte-identical files, and records
+    written one by one are batched exactly as the batch of them is."""
     metadata = {"format": "x"}
-    a, b = tmp_path / "a.mcap", tmp_path / "b.mcap"
+    a, b, c = tmp_path / "a.mcap", tmp_path / "b.mcap", tmp_path / "c.mcap"
+    groups = [_RECS[:1], _RECS[1:4], _RECS[4:]]
     with RecordingWriter(a, metadata=metadata) as w:
-        for r in recs:
-            w.write(r)
-    with RecordingWriter(b, metadata=metadata) as w:
-        for r in recs:
-            w.write_frame(
-                r.conn,
-                r.transport,
-                r.dir,
-                r.cnt,
-                r.cmd_id,
-                r.name,
-                r.data,
-                r.length,
-                r.problems,
-                r.offset,
-                r.first_ns,
-                r.complete_ns,
-                r.raw,
+        for g in groups:
+            doc = FrameBatch.of(g).to_json()
+            topic = TOPIC_C2S if g[0].dir == "c2s" else TOPIC_S2C
+            w.write_json(
+                topic,
+                doc,
+                log_time=max(r.complete_ns for r in g),
+                publish_time=min(r.first_ns or r.complete_ns for r in g),
             )
-    assert a.read_bytes() == b.read_bytes()
-    assert [f.to_json() for f in read_recording(b).frames] == [r.to_json() for r in recs]
+    with RecordingWriter(b, metadata=metadata) as w:
+        for g in groups:
+            w.write_frames(FrameBatch.of(g))
+    with RecordingWriter(c, metadata=metadata) as w:
+        for r in _RECS:
+            w.write(r)
+    assert a.read_bytes() == b.read_bytes() == c.read_bytes()
+    # A first_ns of 0 (not known) reads back as complete_ns, as layout 1 read it.
+    want = [dataclasses.replace(r, first_ns=r.first_ns or r.complete_ns) for r in _RECS]
+    assert [f.to_json() for f in read_recording(b).frames] == [r.to_json() for r in want]
+    back = FrameBatch.of(_RECS[1:4]).records()
+    assert [f.to_json() for f in back] == [r.to_json() for r in want[1:4]]
+
+
+def test_batches_keep_record_order_and_limits(tmp_path: Path) -> None:
+    """Another record ends the batch held (file order is arrival order), so do the limits."""
+    out = tmp_path / "r.mcap"
+    with RecordingWriter(out, metadata={"format": "x"}, batch_frames=3) as w:
+        for k in range(7):
+            w.write(dataclasses.replace(_RECS[0], cnt=k))
+            if k == 1:
+                w.write(ConnectionRecord(conn=9, event="open", t_ns=6))
+    counts: list[tuple[str, int]] = []
+    with open(out, "rb") as f:
+        for _, channel, message in make_reader(f).iter_messages(log_time_order=False):
+            doc = json.loads(message.data)
+            counts.append((channel.topic, len(doc["cnt"]) if "cnt" in doc else 0))
+    assert counts == [
+        (TOPIC_C2S, 2),
+        (TOPIC_CONNECTIONS, 0),
+        (TOPIC_C2S, 3),
+        (TOPIC_C2S, 2),
+    ]
+    assert [f.cnt for f in read_recording(out).frames] == list(range(7))
+
+
+def test_batch_messages_that_do_not_add_up_are_skipped(tmp_path: Path) -> None:
+    out = tmp_path / "r.mcap"
+    good = FrameBatch.of(_RECS[1:4]).to_json()
+    with RecordingWriter(out, metadata={"format": "x"}) as w:
+        w.write_json(TOPIC_S2C, dict(good, size=[1, 2, 3]), log_time=1, publish_time=1)
+        w.write_json(TOPIC_S2C, dict(good, cnt=[1]), log_time=1, publish_time=1)
+        w.write_json(TOPIC_S2C, good, log_time=1, publish_time=1)
+    want = [dataclasses.replace(r, first_ns=r.first_ns or r.complete_ns) for r in _RECS[1:4]]
+    assert [f.to_json() for f in read_recording(out).frames] == [r.to_json() for r in want]
+
+
+def test_reads_layout_1(tmp_path: Path) -> None:
+    """A recording of layout 1 (one fairino.Frame object a message) still reads."""
+    out = tmp_path / "v1.mcap"
+    doc = dict(_RECS[1].to_json())
+    with RecordingWriter(out, metadata={"format": "fairino-conformance/1"}) as w:
+        w.write_json(TOPIC_S2C, doc, log_time=9, publish_time=9)
+    assert [f.to_json() for f in read_recording(out).frames] == [_RECS[1].to_json()]
 
 
 @pytest.mark.parametrize("compression", ["zstd", "lz4", "none"])

@@ -235,19 +235,19 @@ class _DropSink:
     def write(self, record: object) -> None:
         pass
 
-    def write_frame(self, *fields: object) -> None:
+    def write_frames(self, batch: object) -> None:
         pass
 
 
 class _TemplateSink(_DropSink):
-    """A sink that formats each frame with RecordingWriter's JSON template, then drops it."""
+    """A sink that formats each batch with RecordingWriter's JSON template, then drops it."""
 
     def __init__(self, out: Path) -> None:
         from conformance.recording import RecordingWriter
 
         self._w = RecordingWriter(out, metadata={"format": "bench"})
         self._w._add = lambda *a: None  # type: ignore[method-assign]
-        self.write_frame = self._w.write_frame  # type: ignore[method-assign,assignment]
+        self.write_frames = self._w.write_frames  # type: ignore[method-assign,assignment]
 
 
 def _record(sink: object, stream: bytes, specs: object) -> None:
@@ -263,7 +263,36 @@ def _record(sink: object, stream: bytes, specs: object) -> None:
     rec.finish(t_ns=t + 1)
 
 
-def bench_record(tmp: Path, n: int, rounds: int) -> None:
+_WHOLE_RE = re.compile(r"whole path to a complete file\s+(\d+)")
+_IMPORT_RE = re.compile(r"import-pcap: .* = (\d+) frames/s")
+
+
+def baseline_record(rev: str, n: int, rounds: int) -> tuple[float, float]:
+    """(recorder path, import-pcap) frames/s by the code of git revision ``rev``: its own
+    ``--section record`` run in a subprocess on an export of that revision, in this run."""
+    with tempfile.TemporaryDirectory() as tmp:
+        archive = subprocess.run(
+            ["git", "-C", str(ROOT), "archive", rev, "conformance", "specs", "tools"],
+            check=True,
+            capture_output=True,
+        ).stdout
+        subprocess.run(["tar", "-x", "-C", tmp], input=archive, check=True)
+        cmd = [sys.executable, "tools/bench_proxy.py", "--section", "record"]
+        out = subprocess.run(
+            [*cmd, "--frames", str(n), "--rounds", str(rounds)],
+            cwd=tmp,
+            env={**os.environ, "PYTHONPATH": tmp, "FAIRINO_SPECS_DIR": str(Path(tmp) / "specs")},
+            check=True,
+            capture_output=True,
+            text=True,
+        ).stdout
+    whole, imp = _WHOLE_RE.search(out), _IMPORT_RE.search(out)
+    if whole is None or imp is None:
+        raise SystemExit(f"cannot read the baseline's figures:\n{out}")
+    return float(whole.group(1)), float(imp.group(1))
+
+
+def bench_record(tmp: Path, n: int, rounds: int, baseline_rev: str = "") -> None:
     """In-process recorder path and import-pcap, each against same-run baselines."""
     from mcap.writer import Writer
 
@@ -298,10 +327,12 @@ def bench_record(tmp: Path, n: int, rounds: int) -> None:
             w.finish()  # type: ignore[no-untyped-call]
 
     figures: dict[str, float] = {}
+    # "add_message, a message a frame": mcap.Writer.add_message alone on messages made
+    # beforehand, one per frame as layout 1 wrote them: the ceiling of that layout.
     runs: list[tuple[str, Callable[[], None]]] = [
         ("decode only (frames dropped)", lambda: _record(_DropSink(), stream, specs)),
         ("decode + JSON template", template),
-        ("mcap.Writer.add_message alone", library),
+        ("add_message, a message a frame", library),
         ("whole path to a complete file", full),
     ]
     for label, fn in runs:
@@ -327,11 +358,16 @@ def bench_record(tmp: Path, n: int, rounds: int) -> None:
         st = import_pcap(pcap, tmp / "imp.mcap", tcp_ports=[8080], specs=specs)
         best_imp = min(best_imp, time.perf_counter() - t0)
     whole = figures["whole path to a complete file"]
+    imp = st.frames / best_imp
     print(
         f"import-pcap: {st.packets} packets, {st.frames} frames in {best_imp:.2f} s = "
-        f"{st.frames / best_imp:.0f} frames/s ({st.frames / best_imp / whole:.2f}x the "
-        f"recorder path's {whole:.0f})"
+        f"{imp:.0f} frames/s ({imp / whole:.2f}x the recorder path's {whole:.0f})"
     )
+    if baseline_rev:
+        b_whole, b_imp = baseline_record(baseline_rev, n, rounds)
+        print(f"baseline {baseline_rev} (same run, its own --section record):")
+        print(f"  whole path  {b_whole:10.0f} frames/s   -> now {whole / b_whole:5.2f}x")
+        print(f"  import-pcap {b_imp:10.0f} frames/s   -> now {imp / b_imp:5.2f}x")
 
 
 def main() -> int:
@@ -346,11 +382,16 @@ def main() -> int:
         "--serve-capture", type=Path, help="replay-serve: replay this recording instead"
     )
     ap.add_argument("--section", choices=("all", "replay-serve", "record"), default="all")
+    ap.add_argument(
+        "--baseline-rev",
+        default="",
+        help="record section: also run this git revision's own record section ('' for none)",
+    )
     args = ap.parse_args()
     if args.section == "record":
         tmp = Path(tempfile.mkdtemp(prefix="bench_proxy_"))
         try:
-            bench_record(tmp, args.frames, args.rounds)
+            bench_record(tmp, args.frames, args.rounds, args.baseline_rev)
         finally:
             for p in tmp.iterdir():
                 p.unlink()
