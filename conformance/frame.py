@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import operator
 import re
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from itertools import accumulate
 from typing import NamedTuple
@@ -248,9 +249,9 @@ _SPLIT_FIELDS = operator.methodcaller("split", SEP, 4)
 _TAIL_SEP = SEP + TAIL
 
 
-def _first_false(flags: list[bool] | map[bool]) -> int:
+def _first_false(flags: Iterable[bool]) -> int:
     """Index of the first false flag (the length when all are true), found in C."""
-    b = bytes(map(bool, flags))
+    b = bytes(flags)  # True and False are the ints 1 and 0
     return len(b) - len(b.lstrip(b"\x01"))
 
 
@@ -409,7 +410,7 @@ class FrameDecoder:
             raise RuntimeError("take_run() after close()")
         if not self.idle:
             return None
-        if not bytes(data[:7]) == HEAD + SEP:
+        if bytes(data[:7]) != HEAD + SEP:
             return None
         window = self._window
         seg = bytes(data[:window])

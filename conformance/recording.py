@@ -44,6 +44,7 @@ import os
 import re
 import socket
 import time
+from bisect import bisect_right
 from collections import deque
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -52,7 +53,16 @@ from pathlib import Path
 from typing import IO, Any, Literal, NamedTuple, Protocol
 
 from . import __version__
-from .frame import DEFAULT_MAX_FRAME_SIZE, Event, Frame, FrameDecoder, FrameRun, Malformed
+from .frame import (
+    DEFAULT_MAX_FRAME_SIZE,
+    SEP,
+    TAIL,
+    Event,
+    Frame,
+    FrameDecoder,
+    FrameRun,
+    Malformed,
+)
 from .spec import SpecSet
 
 __all__ = [
@@ -141,7 +151,9 @@ SCHEMAS: Mapping[str, Mapping[str, Any]] = {
             "data": _column({"type": "string"}, "DATA as text (invalid UTF-8 replaced)"),
             "len": _column({"type": "integer"}, "LEN as sent"),
             "offset": _column({"type": "integer"}, "stream offset of the frame's first byte"),
-            "first_ns": _column({"type": "integer"}, "when the frame's first byte came"),
+            "first_ns": _column(
+                {"type": "integer"}, "when the frame's first byte came (absent: complete_ns)"
+            ),
             "complete_ns": _column({"type": "integer"}, "when the frame's last byte came"),
             "size": _column({"type": "integer"}, "bytes of the frame in raw"),
             "problems": _column(
@@ -230,7 +242,7 @@ _json_str: Callable[[str], str] = json.encoder.encode_basestring  # type: ignore
 #: same keys, same order, same separators; the parts are passed already JSON-encoded.
 _BATCH_JSON = (
     '{"conn":%d,"transport":%s,"dir":"%s","cnt":%s,"cmd_id":%s,"name":%s,"data":%s,"len":%s,'
-    '"offset":%s,"first_ns":%s,"complete_ns":%s,"size":%s,%s"raw":"%s"}'
+    '"offset":%s,%s"complete_ns":%s,"size":%s,%s"raw":"%s"}'
 )
 
 
@@ -403,10 +415,11 @@ class FrameBatch(NamedTuple):
             "data": list(self.datas),
             "len": list(self.lengths),
             "offset": list(self.offsets),
-            "first_ns": list(self.first_ns),
-            "complete_ns": list(self.complete_ns),
-            "size": list(self.sizes),
         }
+        if list(self.first_ns) != list(self.complete_ns):
+            doc["first_ns"] = list(self.first_ns)
+        doc["complete_ns"] = list(self.complete_ns)
+        doc["size"] = list(self.sizes)
         if self.problems is not None:
             doc["problems"] = [list(p) for p in self.problems]
         doc["raw"] = _b64(self.raw)
@@ -455,6 +468,7 @@ class _OpenBatch:
         "conn",
         "datas",
         "dir",
+        "first_differs",
         "first_ns",
         "lengths",
         "names",
@@ -476,6 +490,7 @@ class _OpenBatch:
         self.offsets = list(b.offsets)
         self.first_ns = list(b.first_ns)
         self.complete_ns = list(b.complete_ns)
+        self.first_differs = b.first_ns != b.complete_ns
         self.sizes = list(b.sizes)
         self.raw = [b.raw]
         self.raw_size = len(b.raw)
@@ -493,6 +508,8 @@ class _OpenBatch:
         self.offsets += b.offsets
         self.first_ns += b.first_ns
         self.complete_ns += b.complete_ns
+        if not self.first_differs and b.first_ns != b.complete_ns:
+            self.first_differs = True
         self.sizes += b.sizes
         self.raw.append(b.raw)
         self.raw_size += len(b.raw)
@@ -788,7 +805,7 @@ class RecordingWriter:
             dumps(o.datas),
             dumps(o.lengths),
             dumps(o.offsets),
-            dumps(o.first_ns),
+            f'"first_ns":{dumps(o.first_ns)},' if o.first_differs else "",
             dumps(o.complete_ns),
             dumps(o.sizes),
             "" if o.problems is None else f'"problems":{dumps(o.problems)},',
@@ -911,6 +928,7 @@ DECODE_SLICE = 2048
 # bound, later arrivals are not noted and a frame starting there gets the last noted
 # time (earlier than its real first byte, never later than its last).
 _TIMELINE_MAX = 4096
+_TAIL_SEP = SEP + TAIL
 # Bytes below which a read goes to FrameDecoder.feed even when the decoder is idle: a
 # run's columns cost more than the per-frame fast path for a frame or two.
 _RUN_MIN = 512
@@ -1113,41 +1131,112 @@ class StreamRecorder:
         :meth:`FrameDecoder.feed` a slice at a time.  Either way ``checkpoint`` runs
         after each piece, and the records are the same.
         """
+        self.segments(conn, direction, ((t_ns, data),))
+
+    def segments(self, conn: int, direction: Direction, reads: Sequence[tuple[int, bytes]]) -> None:
+        """Several reads of one TCP stream in a row, each ``(t_ns, bytes)``: the records
+        :meth:`data` of each in turn gives, but decoded together, so that frames cut
+        across reads are still taken as runs (``import-pcap``: a frame or less a packet).
+
+        A frame's ``first_ns`` is the time of the read holding its first byte, its
+        ``complete_ns`` that of the read holding its last; :meth:`FrameDecoder.feed`
+        is never given bytes of two reads at once.
+        """
+        if not reads:
+            return
         c = self._conns[conn]
         st = c.streams[direction]
-        st.bytes += len(data)
-        st.last_ns = t_ns
+        transport = c.transport
+        if len(reads) == 1:
+            t_ns, data = reads[0]
+            times = [t_ns]
+            ends = [len(data)]
+        else:
+            data = b"".join([r for _, r in reads])
+            times = [t for t, _ in reads]
+            ends = list(accumulate(map(len, [r for _, r in reads])))
+        n = len(data)
+        st.bytes += n
+        st.last_ns = times[-1]
         if self.undecoded_reason is not None:
-            self._raw(conn, c.transport, direction, st, t_ns, data)
+            self._raw_reads(conn, transport, direction, st, data, 0, times, ends)
             return
         dec = st.decoder
         tl = st.timeline
-        if len(tl) < _TIMELINE_MAX:
-            tl.append((dec.stream_offset, t_ns))
+        at = dec.stream_offset
+        for start, t in zip([0, *ends[:-1]], times, strict=True):
+            if len(tl) < _TIMELINE_MAX and start < n:
+                tl.append((at + start, t))
         step = self.slice_size
         check = self.checkpoint
         view = memoryview(data)
+        single = len(times) == 1
+        k = 0  # the read holding byte i
         i = 0
-        n = len(data)
         while i < n:
+            while ends[k] <= i:
+                k += 1
             if n - i >= _RUN_MIN and dec.idle:
                 run = dec.take_run(view[i:])
                 if run is not None:
+                    m = len(run.cnts)
+                    if single:
+                        first = complete = [times[0]] * m
+                    else:
+                        # The read of each frame's first byte and of its last byte.
+                        bounds = list(accumulate(run.sizes, initial=i))
+                        last = bounds.pop() - 1
+                        first = list(
+                            map(times.__getitem__, map(bisect_right, repeat(ends), bounds))
+                        )
+                        bounds.append(last + 1)
+                        del bounds[0]
+                        complete = list(
+                            map(
+                                times.__getitem__,
+                                map(bisect_right, repeat(ends), [b - 1 for b in bounds]),
+                            )
+                        )
                     i += len(run.raw)
-                    self._emit_run(conn, c.transport, direction, st, run, t_ns)
+                    self._emit_run(conn, transport, direction, st, run, first, complete)
                     if check is not None:
                         check()
                         if self.undecoded_reason is not None and i < n:
-                            self._raw(conn, c.transport, direction, st, t_ns, bytes(view[i:]))
+                            self._raw_reads(conn, transport, direction, st, data, i, times, ends)
                             return
                     continue
-            self._emit(conn, c.transport, direction, st, dec.feed(view[i : i + step]), t_ns)
-            i += step
+            # Up to the first tail in the slice, if any: a frame cut by the previous read
+            # ends there, and with the decoder idle again the rest can be a run.  Never
+            # past the end of this read: events it completes came at its time.
+            stop = min(i + step, ends[k])
+            cut = data.find(_TAIL_SEP, i, stop)
+            end = cut + len(_TAIL_SEP) if cut >= 0 else stop
+            self._emit(conn, transport, direction, st, dec.feed(view[i:end]), times[k])
+            i = end
             if check is not None:
                 check()
                 if self.undecoded_reason is not None and i < n:
-                    self._raw(conn, c.transport, direction, st, t_ns, bytes(view[i:]))
+                    self._raw_reads(conn, transport, direction, st, data, i, times, ends)
                     return
+
+    def _raw_reads(
+        self,
+        conn: int,
+        transport: str,
+        direction: Direction,
+        st: _Stream,
+        data: bytes,
+        i: int,
+        times: list[int],
+        ends: list[int],
+    ) -> None:
+        """``data[i:]`` undecoded, each read's share at its own time."""
+        start = 0
+        for t, end in zip(times, ends, strict=True):
+            lo = max(i, start)
+            if lo < end:
+                self._raw(conn, transport, direction, st, t, data[lo:end])
+            start = end
 
     def datagram(self, conn: int, direction: Direction, t_ns: int, data: bytes) -> None:
         """One UDP datagram: decoded on its own (a frame never spans datagrams)."""
@@ -1254,18 +1343,15 @@ class StreamRecorder:
         direction: Direction,
         st: _Stream,
         run: FrameRun,
-        t_ns: int,
+        first_ns: list[int],
+        complete_ns: list[int],
     ) -> None:
         """A run the decoder took whole: one batch, its columns as the split gave them."""
         k = len(run.cnts)
         st.frames += k
         self.frames += k
-        base = st.base
-        offsets = list(accumulate(run.sizes, initial=base + run.offset))
+        offsets = list(accumulate(run.sizes, initial=st.base + run.offset))
         offsets.pop()
-        # The decoder held nothing before the run, so each of its frames began in
-        # this read: first byte and last byte came at t_ns.
-        times = [t_ns] * k
         batch = FrameBatch(
             conn=conn,
             transport=transport,
@@ -1276,8 +1362,8 @@ class StreamRecorder:
             datas=run.datas,
             lengths=run.lengths,
             offsets=offsets,
-            first_ns=times,
-            complete_ns=times,
+            first_ns=first_ns,
+            complete_ns=complete_ns,
             sizes=run.sizes,
             raw=run.raw,
         )

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import json
 from pathlib import Path
 
@@ -435,3 +436,68 @@ def test_same_bytes_as_the_mcap_library_writer(tmp_path: Path, compression: str)
                 lib.flush()  # type: ignore[no-untyped-call]
         lib.finish()  # type: ignore[no-untyped-call]
     assert ours.read_bytes() == theirs.read_bytes()
+
+
+# ------------------------------------------------------------------- reads together
+
+_PIECES = [
+    encode_frame(4, 201, 'MoveJ("P1")'),
+    encode_frame(5, 400, "GetVersion()"),
+    encode_frame(6, 201, "III/b/f in DATA"),
+    b"/f/bIII7III201IIII1IIIxIII/b/f",  # odd separator: careful path
+    b"/f/bIII8III201III99IIIshort",  # LEN too large
+    b"\x00\x00",
+    b"junk",
+    encode_frame(9, 377, "x" * 300),
+]
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    stream=st.lists(st.sampled_from(_PIECES), max_size=40).map(b"".join),
+    cuts=st.lists(st.integers(0, 6000), max_size=12),
+    slice_size=st.sampled_from([16, 2048]),
+)
+def test_segments_record_what_data_of_each_read_records(
+    stream: bytes, cuts: list[int], slice_size: int
+) -> None:
+    """Reads decoded together (segments) give the records data() of each in turn gives:
+    the same frames and problems, at the same offsets and times."""
+    bounds = [0, *sorted({c for c in cuts if 0 < c < len(stream)}), len(stream)]
+    reads = [(100 + k, stream[a:b]) for k, (a, b) in enumerate(itertools.pairwise(bounds))]
+    one, together = ListSink(), ListSink()
+    for sink, feed in ((one, "each"), (together, "together")):
+        r = StreamRecorder(sink, specs=default_specs(), slice_size=slice_size)
+        r.open(1, t_ns=1)
+        if feed == "each":
+            for t, b in reads:
+                r.data(1, "c2s", t, b)
+        else:
+            r.segments(1, "c2s", reads)
+        r.close(1, t_ns=10_000, reason="end")
+    assert together.records == one.records
+
+
+def test_segments_take_runs_across_reads() -> None:
+    """One frame cut over two packets each time: still one batch of runs."""
+    frames = b"".join(encode_frame(k, 201, 'MoveJ("P1")') for k in range(2000))
+    reads = [(1000 + k, frames[a : a + 50]) for k, a in enumerate(range(0, len(frames), 50))]
+    sink = _BatchSink()
+    r = StreamRecorder(sink, specs=default_specs())
+    r.open(1, t_ns=1)
+    r.segments(1, "c2s", reads)
+    frames_out = [f for b in sink.batches for f in b.records()]
+    assert [f.cnt for f in frames_out] == list(range(2000))
+    assert len(sink.batches) < 20  # runs, not a batch a frame
+    for f in frames_out:  # each frame's times are those of its first and last packet
+        assert f.first_ns == 1000 + f.offset // 50
+        assert f.complete_ns == 1000 + (f.offset + len(f.raw) - 1) // 50
+
+
+class _BatchSink(ListSink):
+    def __init__(self) -> None:
+        super().__init__()
+        self.batches: list[FrameBatch] = []
+
+    def write_frames(self, batch: FrameBatch) -> None:
+        self.batches.append(batch)
