@@ -1348,13 +1348,29 @@ class _Recorder:
             self.status.send(("done", self.writer.paths))
 
     def events(self, buf: bytearray) -> bool:
-        """Record the whole events in ``buf`` (and remove them); True at the stop event."""
+        """Record the whole events in ``buf`` (and remove them); True at the stop event.
+
+        Reads of one stream that follow each other in ``buf`` go to the recorder
+        together (:meth:`StreamRecorder.segments`): frames cut across them are still
+        decoded as runs.  The records are those of one ``data`` call a read.
+        """
         rec = self.rec
         unpack = _EVENT.unpack_from
         size = _EVENT.size
         pos = 0
         end = len(buf)
         stop = False
+        reads: list[tuple[int, bytes]] = []
+        key = (-1, -1)
+
+        def flush_reads() -> None:
+            if reads:
+                try:
+                    rec.segments(key[0], _DIR_NAME[key[1]], reads)  # type: ignore[arg-type]
+                except Exception as e:
+                    self.fail(e)
+                reads.clear()
+
         while end - pos >= size:
             kind, d, conn, t_ns, n = unpack(buf, pos)
             if end - pos - size < n:
@@ -1362,11 +1378,16 @@ class _Recorder:
             payload = bytes(buf[pos + size : pos + size + n])
             pos += size + n
             self.latest_ns = max(self.latest_ns, t_ns)
+            if kind == _DATA:
+                self.taken += n
+                if (conn, d) != key:
+                    flush_reads()
+                    key = (conn, d)
+                reads.append((t_ns, payload))
+                continue
+            flush_reads()
             try:
-                if kind == _DATA:
-                    self.taken += n
-                    rec.data(conn, _DIR_NAME[d], t_ns, payload)  # type: ignore[arg-type]
-                elif kind == _DGRAM:
+                if kind == _DGRAM:
                     self.taken += n
                     rec.datagram(conn, _DIR_NAME[d], t_ns, payload)  # type: ignore[arg-type]
                 elif kind == _OPEN:
@@ -1379,6 +1400,7 @@ class _Recorder:
                     break
             except Exception as e:
                 self.fail(e)
+        flush_reads()
         del buf[:pos]
         return stop
 
