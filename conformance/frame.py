@@ -410,6 +410,7 @@ class FrameDecoder:
         self._head_scan = 0
         self._head_found = -1
         self._window = _RUN_FIRST_WINDOW  # take_run's, see there
+        self._run_resume = 0  # stream offset before which take_run does not look
 
     # ------------------------------------------------------------------ public API
 
@@ -438,6 +439,12 @@ class FrameDecoder:
         """Nothing held: no partial frame, no skipped bytes waiting to be reported."""
         return not self._buf and not self._run and self._pending is None
 
+    @property
+    def wants_run(self) -> bool:
+        """:meth:`take_run` would look at the next bytes: a caller feeding a frame cut
+        by its read may stop at the frame's end, so that a run can follow."""
+        return self._base + len(self._buf) >= self._run_resume
+
     def take_run(self, data: bytes | bytearray | memoryview) -> FrameRun | None:
         """Take the standard frames back to back at the start of ``data``, as one
         :class:`FrameRun`, if the decoder is :attr:`idle` and there is at least one.
@@ -446,12 +453,15 @@ class FrameDecoder:
         decoder goes on after them; the rest of ``data`` (from ``run.offset +
         len(run.raw)``) is the caller's to :meth:`feed`.  ``None`` means nothing was
         taken.  It looks at no more than a window of ``data`` that doubles while whole
-        windows are frames and starts small again when one is not, so on a stream of
-        anything else its cost stays a small multiple of the bytes :meth:`feed` takes.
+        windows are frames and starts small again when one is not, and it does not look
+        again before the end of a window it has seen end otherwise, so it reads each
+        byte of a stream of anything else at most once: its cost stays a fraction of
+        what :meth:`feed` costs on those bytes (``tools/bench_proxy.py --section
+        hostile-record``).
         """
         if self._closed:
             raise RuntimeError("take_run() after close()")
-        if not self.idle:
+        if not self.idle or self._base < self._run_resume:
             return None
         if bytes(data[:7]) != HEAD + SEP:
             return None
@@ -462,7 +472,11 @@ class FrameDecoder:
         # Whole window frames (the run ends only where the window does): look further
         # next time.  Anything else stopped it: start small again.
         whole = size and seg.find(_TAIL_SEP, size) < 0
-        self._window = min(window * 2, _RUN_MAX_WINDOW) if whole else _RUN_FIRST_WINDOW
+        if whole:
+            self._window = min(window * 2, _RUN_MAX_WINDOW)
+        else:
+            self._window = _RUN_FIRST_WINDOW
+            self._run_resume = self._base + len(seg)
         if not size:
             return None
         run = FrameRun(

@@ -1173,9 +1173,11 @@ class StreamRecorder:
         single = len(times) == 1
         k = 0  # the read holding byte i
         i = 0
+        may_cut = True
         while i < n:
             while ends[k] <= i:
                 k += 1
+                may_cut = True
             if n - i >= _RUN_MIN and dec.idle:
                 run = dec.take_run(view[i:])
                 if run is not None:
@@ -1198,6 +1200,7 @@ class StreamRecorder:
                             )
                         )
                     i += len(run.raw)
+                    may_cut = True
                     self._emit_run(conn, transport, direction, st, run, first, complete)
                     if check is not None:
                         check()
@@ -1209,7 +1212,8 @@ class StreamRecorder:
             # ends there, and with the decoder idle again the rest can be a run.  Never
             # past the end of this read: events it completes came at its time.
             stop = min(i + step, ends[k])
-            cut = data.find(_TAIL_SEP, i, stop)
+            cut = data.find(_TAIL_SEP, i, stop) if may_cut and dec.wants_run else -1
+            may_cut = False  # once a read (and after a run): a tail flood is fed in slices
             end = cut + len(_TAIL_SEP) if cut >= 0 else stop
             self._emit(conn, transport, direction, st, dec.feed(view[i:end]), times[k])
             i = end

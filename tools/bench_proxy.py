@@ -370,6 +370,48 @@ def bench_record(tmp: Path, n: int, rounds: int, baseline_rev: str = "") -> None
         print(f"  import-pcap {b_imp:10.0f} frames/s   -> now {imp / b_imp:5.2f}x")
 
 
+def _hostile_streams(size: int) -> list[tuple[str, bytes]]:
+    """Streams a hostile or odd peer sends, each about ``size`` bytes."""
+    f = encode_frame(1, 201, 'MoveJ("P1")')
+    inner = encode_frame(2, 201, "III/b/f in DATA")  # standard, but no canonical split
+    pieces = {
+        "frame + 1 byte of garbage": f + b"x",
+        "tail flood after a frame": f + b"III/b/f" * 64,
+        "repeated headers": b"/f/bIII1III2III3III",
+        "DATA holding III/b/f": inner,
+        "CNT with a leading zero": b"/f/bIII01III201III1IIIxIII/b/f",
+        "garbage, no head": bytes(range(256)),
+        "standard frames (reference)": f,
+    }
+    return [(k, v * (size // len(v))) for k, v in pieces.items()]
+
+
+def bench_hostile_record(n_bytes: int) -> None:
+    """The recorder path (runs and careful decoding together) on hostile streams in
+    64 KiB reads: s/MB at two sizes; the ratio near 2 when the work is linear."""
+    from conformance.recording import StreamRecorder
+
+    print(
+        f"\nrecorder path on hostile streams (64 KiB reads), {n_bytes >> 20} and "
+        f"{n_bytes >> 19} MB:"
+    )
+    print(f"  {'stream':32s} {'s/MB':>8s} {'ratio 2x/1x':>12s}")
+    for (label, small), (_, big) in zip(
+        _hostile_streams(n_bytes), _hostile_streams(2 * n_bytes), strict=True
+    ):
+        times = []
+        for data in (small, big):
+            rec = StreamRecorder(_DropSink())
+            rec.open(1, t_ns=1)
+            t0 = time.process_time()
+            for k in range(0, len(data), 65536):
+                rec.data(1, "c2s", k + 2, data[k : k + 65536])
+            rec.finish(t_ns=len(data) + 3)
+            times.append(time.process_time() - t0)
+        mb = len(small) / 1e6
+        print(f"  {label:32s} {times[0] / mb:8.3f} {times[1] / times[0]:12.2f}")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -381,7 +423,10 @@ def main() -> int:
     ap.add_argument(
         "--serve-capture", type=Path, help="replay-serve: replay this recording instead"
     )
-    ap.add_argument("--section", choices=("all", "replay-serve", "record"), default="all")
+    ap.add_argument(
+        "--section", choices=("all", "replay-serve", "record", "hostile-record"), default="all"
+    )
+    ap.add_argument("--hostile-bytes", type=int, default=2 << 20)
     ap.add_argument(
         "--baseline-rev",
         default="",
@@ -396,6 +441,9 @@ def main() -> int:
             for p in tmp.iterdir():
                 p.unlink()
             tmp.rmdir()
+        return 0
+    if args.section == "hostile-record":
+        bench_hostile_record(args.hostile_bytes)
         return 0
     if args.section == "replay-serve":
         tmp = Path(tempfile.mkdtemp(prefix="bench_proxy_"))
