@@ -48,6 +48,7 @@ from bisect import bisect_right
 from collections import deque
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from itertools import accumulate, repeat
 from pathlib import Path
 from typing import IO, Any, Literal, NamedTuple, Protocol
@@ -1185,20 +1186,13 @@ class StreamRecorder:
                     if single:
                         first = complete = [times[0]] * m
                     else:
-                        # The read of each frame's first byte and of its last byte.
-                        bounds = list(accumulate(run.sizes, initial=i))
-                        last = bounds.pop() - 1
-                        first = list(
-                            map(times.__getitem__, map(bisect_right, repeat(ends), bounds))
-                        )
-                        bounds.append(last + 1)
-                        del bounds[0]
-                        complete = list(
-                            map(
-                                times.__getitem__,
-                                map(bisect_right, repeat(ends), [b - 1 for b in bounds]),
-                            )
-                        )
+                        # The read of each frame's first byte and of its last byte:
+                        # frame j spans edges[j] to edges[j + 1].
+                        edges = list(accumulate(run.sizes, initial=i))
+                        at_read = partial(bisect_right, ends)
+                        first = list(map(times.__getitem__, map(at_read, edges[:-1])))
+                        last = [e - 1 for e in edges[1:]]
+                        complete = list(map(times.__getitem__, map(at_read, last)))
                     i += len(run.raw)
                     may_cut = True
                     self._emit_run(conn, transport, direction, st, run, first, complete)
