@@ -11,7 +11,9 @@ through the public API of
 
 * the **decoder** (:mod:`conformance.frame`): the input framed, then mutated at
   the byte level; only ``Frame``/``Malformed`` events, no byte lost or added, and
-  the same events whole, byte at a time (short inputs) or in random chunks;
+  the same events whole, byte at a time (short inputs) or in random chunks, and
+  taken as runs where the decoder is idle (``take_run``, the recorder's way) on
+  the input twice over;
 * the **DATA parser** (:mod:`conformance.data`): ``parse_data`` and
   ``parse_reply`` give a value or a ``ProtocolError``, never another exception;
 * the **judge** (:mod:`conformance.validate`): ``validate_request``,
@@ -81,6 +83,22 @@ def _feed(data: bytes, cuts: list[int], *, strict: bool, max_frame_size: int) ->
     return out + d.close()
 
 
+def _feed_runs(data: bytes, step: int, *, max_frame_size: int) -> list[object]:
+    """As the recorder decodes: runs where the decoder is idle, else ``step`` bytes."""
+    d = FrameDecoder(max_frame_size=max_frame_size)
+    out: list[object] = []
+    i = 0
+    while i < len(data):
+        run = d.take_run(data[i:]) if d.idle else None
+        if run is not None:
+            out += run.frames()
+            i += len(run.raw)
+        else:
+            out += d.feed(data[i : i + step])
+            i += step
+    return out + d.close()
+
+
 def check_decoder(data: bytes, rng: random.Random) -> None:
     """Events only, every byte in exactly one event, and chunking changes nothing."""
     strict = rng.random() < 0.3
@@ -97,6 +115,10 @@ def check_decoder(data: bytes, rng: random.Random) -> None:
         cuts = sorted(rng.sample(range(1, len(data)), 8))
     if _feed(data, cuts, strict=strict, max_frame_size=size) != whole:
         raise Surprise("chunked feeding gave other events")
+    twice = data + data
+    step = rng.choice((7, 64, 2048))
+    if _feed_runs(twice, step, max_frame_size=size) != decode_all(twice, max_frame_size=size):
+        raise Surprise("taking runs gave other events")
     if rng.random() < 0.75:
         return
     # resolve_pending at arbitrary points may end frames early, but loses nothing.
