@@ -20,6 +20,11 @@ to format), whatever the string.  It is linear in its input and bounded: at most
 most :data:`SHOWN_CHARS` characters of the DATA.  Lenient parsing accepts whitespace after commas and reports it as
 ``Rule.SPACE_IN_ARGS``; strict parsing refuses it.
 
+A call of plain numbers only (MoveJ's 29 values, at most 300 characters) keeps its
+argument text and makes its arguments on first use (:class:`Call`);
+:func:`match_variant` checks it against a variant from that text.  These fast paths
+(and the others, :data:`FAST_CHECKS`) give what the careful path gives.
+
 Validation of parsed arguments against a spec variant lives here too
 (:func:`check_args`), so the emulator, the client-mode validator and the offline
 capture checker share one reading of the tables.
@@ -27,10 +32,13 @@ capture checker share one reading of the tables.
 
 from __future__ import annotations
 
+import functools
 import math
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from operator import itemgetter
+from typing import TYPE_CHECKING, NamedTuple
 
 from .errors import LocalProtocolError, RemoteProtocolError, Rule
 from .spec import TYPE_BOUNDS, Command, Param, Returns, ReturnValue, Variant
@@ -153,9 +161,60 @@ Arg = Number | Text | Array
 
 @dataclass(frozen=True, kw_only=True)
 class Call:
+    """A call ``Name(arg,arg,...)``.
+
+    A call :func:`parse_data` reads as a short list of plain numbers (MoveJ's 29
+    values) holds its argument text and makes ``args`` on first use: the text is
+    known to be such a list, so ``args`` cannot fail, and it is the tuple the
+    parser would have made (same values, same types).  :func:`match_variant`
+    checks such a call against a variant from the text, without ``args``
+    (tools/bench_codec.py, full MoveJ decode).  Equality, hash and repr read
+    ``args`` and are those of any call.
+    """
+
     name: str
     args: tuple[Arg, ...]
     problems: tuple[Rule, ...] = ()
+
+    if not TYPE_CHECKING:  # mypy: no attribute of Call is dynamic
+
+        def __getattr__(self, attr: str) -> object:
+            # Called only when ``attr`` is not in the instance dict: ``args`` of a
+            # call made by _plain_call, not yet made.
+            if attr == "args":
+                d = self.__dict__
+                text = d.get(_PLAIN)
+                if text is not None:
+                    args = d["args"] = _plain_args(text)
+                    return args
+            raise AttributeError(f"{type(self).__name__!r} object has no attribute {attr!r}")
+
+
+#: Key of a lazily read call's argument text in its instance dict (not a field).
+_PLAIN = "_plain_args_text"
+
+
+def _plain_args(text: str) -> tuple[Number, ...]:
+    """The arguments of a plain-number list of at most 300 characters (_PLAIN_LIST_RE).
+
+    Each token is short and has no exponent, so _number_value could not refuse it
+    (always finite): it is read by int() or float() directly.
+    """
+    new = tuple.__new__
+    return tuple([new(Number, (t, float(t) if "." in t else int(t))) for t in text.split(",")])
+
+
+_object_new = object.__new__
+
+
+def _plain_call(name: str, text: str) -> Call:
+    """``Call(name=name, args=_plain_args(text))``, with ``args`` read when first used."""
+    call = _object_new(Call)
+    d = call.__dict__
+    d["name"] = name
+    d["problems"] = ()
+    d[_PLAIN] = text
+    return call
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -169,6 +228,12 @@ class RawData:
 
 
 Parsed = Call | Keyword | RawData
+
+#: The fast paths: plain-number calls read lazily and checked from their text, flat
+#: argument lists read without the parser, conforming arguments recognised by
+#: compiled per-variant checks.  Off: every call goes the careful way (the argument
+#: parser, then parameter by parameter), with the same results (tests/test_data_fast.py).
+FAST_CHECKS = True
 
 _NAME_RE = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 # ASCII digits only (the protocol's), and unambiguous: "\d+\.?\d*" backtracked
@@ -223,7 +288,7 @@ class _ArgParser:
 
     def items(self, close: str | None) -> list[Arg]:
         """Comma-separated items up to ``close`` (or end of text when None)."""
-        if close is None and self.i == 0 and _PLAIN_LIST_RE.fullmatch(self.s):
+        if close is None and self.i == 0 and FAST_CHECKS and _PLAIN_LIST_RE.fullmatch(self.s):
             # Faster path: plain numbers only.  A token of at most 300 characters
             # without exponent is one _number_value cannot refuse (always finite),
             # so it is read by int() or float() directly.
@@ -238,7 +303,7 @@ class _ArgParser:
             ]
             self.i = len(self.s)
             return out_
-        if close is None and _SIMPLE_LIST_RE.fullmatch(self.s, self.i):
+        if close is None and FAST_CHECKS and _SIMPLE_LIST_RE.fullmatch(self.s, self.i):
             # Fast path: a flat list of numbers and bare words, no spaces or nesting.
             tokens = self.s[self.i :].split(",")
             self.counted(len(tokens))
@@ -357,17 +422,11 @@ def parse_data(data: str, *, strict: bool = False) -> Parsed:
         if not data.endswith(")"):
             raise _error(f"call {name} does not end with ')'", data)
         inner = data[m.end() + 1 : -1]
-        if len(inner) <= 300 and _PLAIN_LIST_RE.fullmatch(inner):
+        if FAST_CHECKS and len(inner) <= 300 and _PLAIN_LIST_RE.fullmatch(inner):
             # The common call (MoveJ's 29 plain numbers): what _ArgParser.items reads
-            # on its fast path, without the parser (300 characters: under MAX_ITEMS values).
-            new = tuple.__new__
-            return Call(
-                name=m.group(),
-                args=tuple(
-                    [new(Number, (t, float(t) if "." in t else int(t))) for t in inner.split(",")]
-                ),
-                problems=(),
-            )
+            # on its fast path, without the parser (300 characters: under MAX_ITEMS
+            # values), and read when first used (Call).
+            return _plain_call(m.group(), inner)
         p = _ArgParser(inner, strict=strict)
         try:
             items = p.items(None)
@@ -516,8 +575,6 @@ def _num(x: float) -> str:
 #: parameter the fast check leaves to :func:`_check_scalar` (strings, arrays).
 _Fast = tuple[bool, float, float, tuple[tuple[float, float], ...] | None, frozenset[float]]
 _FAST_TABLES: dict[int, tuple[Variant, tuple[_Fast | None, ...]]] = {}
-#: Off: every call goes the original way (tools/bench_codec.py measures both).
-FAST_CHECKS = True
 
 
 def _fast_table(variant: Variant) -> tuple[_Fast | None, ...]:
@@ -561,6 +618,91 @@ def _fast_ok(table: tuple[_Fast | None, ...], args: Sequence[Arg]) -> bool:
             else:
                 if v not in enums:
                     return False
+    return True
+
+
+def _allows(t: _Fast, v: int | float) -> bool:
+    """Whether a finite number ``v`` is in a parameter's domain: what _fast_ok and
+    _check_scalar decide (the integer type, the type's bounds, the ranges or enums)."""
+    is_int, lo, hi, ivs, enums = t
+    if is_int and type(v) is float and not v.is_integer():
+        return False
+    if not lo <= v <= hi:
+        return False
+    return ivs is None or any(ilo <= v <= ihi for ilo, ihi in ivs) or v in enums
+
+
+#: Integers this far from 0 at most are listed as words of a domain (_plain_table).
+_WORDS_LIMIT = 1000
+
+
+class _PlainChecks(NamedTuple):
+    """A variant's checks of a plain-number call read from its text (_plain_ok)."""
+
+    #: Number of parameters.
+    arity: int
+    #: The tokens of the parameters with a domain (a C integer type, a range or an
+    #: enum), from the list of all tokens; a float or double without a domain
+    #: takes any number of a plain list (all finite).
+    pick: Callable[[list[str]], tuple[str, ...]]
+    #: For each of them, tokens certainly in its domain (_words).
+    words: tuple[frozenset[str], ...]
+    #: For each of them, its index and its _Fast.
+    checks: tuple[tuple[int, _Fast], ...]
+
+
+_PLAIN_TABLES: dict[int, tuple[Variant, _PlainChecks | None]] = {}
+
+
+@functools.cache
+def _words(t: _Fast) -> frozenset[str]:
+    """Tokens certainly in a domain: its integers at most _WORDS_LIMIT from 0, as
+    format_number writes them for an int (12) and for a float (12.000)."""
+    lo = max(t[1], -_WORDS_LIMIT)
+    hi = min(t[2], _WORDS_LIMIT)
+    ks = range(math.ceil(lo), math.floor(hi) + 1) if lo <= hi else range(0)
+    return frozenset(w for k in ks if _allows(t, k) for w in (str(k), f"{k}.000"))
+
+
+def _plain_table(variant: Variant) -> _PlainChecks | None:
+    """The variant's _PlainChecks; None when a parameter is a string or an array (then
+    a call is checked the ordinary way)."""
+    hit = _PLAIN_TABLES.get(id(variant))
+    if hit is not None and hit[0] is variant:
+        return hit[1]
+    fast = _fast_table(variant)
+    out: _PlainChecks | None = None
+    if all(t is not None for t in fast):
+        checks: list[tuple[int, _Fast]] = [
+            (i, t)
+            for i, (p, t) in enumerate(zip(variant.params, fast, strict=True))
+            if t is not None
+            and (p.is_integer or p.type in TYPE_BOUNDS or p.range is not None or p.enum is not None)
+        ]
+        words = [_words(t) for _, t in checks]
+        index = [i for i, _ in checks]
+        if len(index) == 1:  # itemgetter gives a tuple for two indexes or more
+            index *= 2
+            words *= 2
+        pick = itemgetter(*index) if index else (lambda tokens: ())
+        out = _PlainChecks(len(fast), pick, tuple(words), tuple(checks))
+    _PLAIN_TABLES[id(variant)] = (variant, out)
+    return out
+
+
+def _plain_ok(table: _PlainChecks, text: str) -> bool:
+    """True when the plain-number list ``text`` conforms to the variant (then check_args
+    finds nothing in the arguments _plain_args makes of it); False when it does not."""
+    tokens = text.split(",")
+    if len(tokens) != table.arity:
+        return False
+    if all(map(frozenset.__contains__, table.words, table.pick(tokens))):
+        return True
+    for i, t in table.checks:
+        token = tokens[i]
+        # The value _plain_args makes of the token.
+        if not _allows(t, float(token) if "." in token else int(token)):
+            return False
     return True
 
 
@@ -648,12 +790,18 @@ def match_variant(command: Command, parsed: Parsed) -> tuple[Variant | None, lis
                     )
                 ]
         return None, [Violation(rule=Rule.BAD_DATA, detail=f"DATA is not a call of {command.name}")]
+    # A plain-number call is checked from its text first (see Call).
+    plain = parsed.__dict__.get(_PLAIN) if FAST_CHECKS else None
     best: tuple[Variant | None, list[Violation]] = (None, [])
     for v in command.variants:
         if v.form == "raw":
             continue
         if v.form == "keyword":
             continue
+        if plain is not None:
+            table = _plain_table(v)
+            if table is not None and _plain_ok(table, plain):
+                return v, []
         viols = check_args(v, parsed.args)
         if not viols:
             return v, []

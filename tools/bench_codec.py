@@ -6,7 +6,10 @@ Prints frames/s for
   * our strict and lenient decoders fed the whole stream, and fed 4 KiB chunks
     (as from a socket),
 and full decodes/s for a MoveJ frame (framing + DATA grammar + typed arguments checked
-against the spec variant), with ratios against the regex baseline.
+against the spec variant), with ratios against the regex baseline and against the same
+decode by the code of ``--baseline-rev``; then the same decode with the 29 arguments
+read too (a plain-number call makes them on first use), and with the DATA fast paths
+off (``conformance.data.FAST_CHECKS``).
 
 Then hostile input (``--section adversarial``), which must cost time linear in its
 size: 7.6, 15, 30 and 60 KB of repeated headers ``/f/bIII1III2III3III`` fed whole and
@@ -38,7 +41,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from conformance.data import match_variant, parse_data
+import conformance.data as data_mod
+from conformance.data import Call, match_variant, parse_data
 from conformance.errors import ProtocolError
 from conformance.frame import DEFAULT_MAX_FRAME_SIZE, Frame, FrameDecoder, encode_frame
 from conformance.spec import default_specs
@@ -226,8 +230,11 @@ def adversarial(limit: float) -> None:
         print(f"  {label:<46}{_fmt(cut_off(limit, lambda t=text: parse(t)), limit):>12}")  # type: ignore[misc]
 
 
-def full_movej(reps: int) -> int:
-    """``reps`` full decodes of the MoveJ frame: framing, DATA grammar, the table's check."""
+def full_movej(reps: int, *, read_args: bool = False) -> int:
+    """``reps`` full decodes of the MoveJ frame: framing, DATA grammar, the table's check.
+
+    With ``read_args``, the call's arguments are read too (a plain-number call makes
+    them on first use: conformance.data.Call)."""
     (movej,) = default_specs().by_id(201)[:1]
     frame_bytes = encode_frame(4, 201, MOVEJ)
     ok = 0
@@ -235,9 +242,22 @@ def full_movej(reps: int) -> int:
         d = FrameDecoder(strict=True)
         (f,) = d.feed(frame_bytes)
         assert isinstance(f, Frame)
-        variant, viols = match_variant(movej, parse_data(f.data, strict=True))
+        parsed = parse_data(f.data, strict=True)
+        variant, viols = match_variant(movej, parsed)
         ok += variant is not None and not viols
+        if read_args:
+            assert isinstance(parsed, Call) and len(parsed.args) == 29
     return ok
+
+
+def careful_movej(reps: int) -> int:
+    """:func:`full_movej` with the DATA fast paths off (conformance.data.FAST_CHECKS)."""
+    old = data_mod.FAST_CHECKS
+    data_mod.FAST_CHECKS = False
+    try:
+        return full_movej(reps)
+    finally:
+        data_mod.FAST_CHECKS = old
 
 
 _BASELINE = """
@@ -360,6 +380,9 @@ def main() -> int:
             base_rate = r if base_rate is None else max(base_rate, r)
     nt, nn = best_of(3, naive_full)
     assert fcount == reps and nn == reps
+    at, acount = best_of(3, functools.partial(full_movej, reps, read_args=True))
+    ct, ccount = best_of(3, functools.partial(careful_movej, reps))
+    assert acount == reps and ccount == reps
     samples = []
     for _ in range(2000):
         t0 = time.process_time_ns()
@@ -382,6 +405,8 @@ def main() -> int:
             f"{'':<{max(0, 18 - len(args.baseline_rev))}}{base_rate:>10,.0f} decodes/s"
             f"  -> ours {reps / ft / base_rate:.2f}x faster"
         )
+    print(f"  ours, and the 29 arguments read:       {reps / at:>10,.0f} decodes/s")
+    print(f"  ours, DATA fast paths off (careful):   {reps / ct:>10,.0f} decodes/s")
     return 0
 
 
