@@ -1,15 +1,19 @@
 """pcap/pcapng import and export, and a scapy layer for the frame.
 
-Import reads packets with scapy's raw readers (``RawPcapReader``, which hands
-pcapng files to ``RawPcapNgReader``), parses link, IP and TCP/UDP headers here
-with :mod:`struct`, and reassembles each TCP connection itself: retransmitted
-bytes are dropped, segments are put in sequence order, and bytes that were
-never captured become ``gap`` problem events instead of being invented.  The
-reassembled streams go through the proxy's own
-:class:`~conformance.recording.StreamRecorder`, so an imported capture and a
-proxy recording read, check and diff alike.  (scapy's full dissection reads
-about 9k packets/s and its ``TCPSession`` repeats retransmitted bytes and hides
-gaps; the raw reader is about a hundred times faster.)
+Import opens captures with scapy's raw readers (``RawPcapReader``, which reads the
+file header, gzip included, and hands pcapng files to ``RawPcapNgReader``, whose blocks
+it also reads).  The records of a classic pcap are read here, a megabyte at a time,
+not by scapy's per-record reads: those cut records over 4 x 64 KB, and two ``read``
+calls per record take about twice as long as slicing records out of a chunk.  Link,
+IP and TCP/UDP headers are parsed here with precompiled :mod:`struct` formats, and
+each TCP connection is reassembled here: retransmitted bytes are dropped, segments are
+put in sequence order, and bytes that were never captured become ``gap`` problem
+events instead of being invented.  The segment that comes next in order -- most of
+them -- goes straight to the recorder.  The reassembled streams go through the proxy's
+own :class:`~conformance.recording.StreamRecorder`, so an imported capture and a proxy
+recording read, check and diff alike.  (scapy's full dissection reads about 9k
+packets/s and its ``TCPSession`` repeats retransmitted bytes and hides gaps;
+``tools/bench_pcap.py`` times each stage of the import.)
 
 Export writes a classic pcap (nanosecond timestamps, Ethernet link type with
 fixed, explicit MAC addresses) from a recording, for Wireshark.  Nothing here
@@ -22,6 +26,7 @@ for the frame, on TCP port 8080 and UDP port 20007 for interactive analysis.
 from __future__ import annotations
 
 import functools
+import heapq
 import ipaddress
 import os
 import struct
@@ -34,6 +39,7 @@ from .frame import HEAD
 from .recording import (
     C2S,
     S2C,
+    Direction,
     Recording,
     RecordingWriter,
     RecordSink,
@@ -54,6 +60,7 @@ __all__ = [
     "bind_scapy_layer",
     "capture_format",
     "export_pcap",
+    "flow_ends",
     "import_pcap",
     "parse_packet",
     "read_capture",
@@ -75,28 +82,33 @@ DLT_IPV4 = 228
 DLT_IPV6 = 229
 
 _FIN, _SYN, _RST, _ACK = 0x01, 0x02, 0x04, 0x10
+_SYN_FIN_RST = _SYN | _FIN | _RST
 #: Out-of-order bytes held per direction before the missing ones are declared a gap.
 MAX_PENDING = 4 << 20
+#: In-order segments of one direction in a row that import-pcap records together, and the
+#: bytes after which it records them (see PacketRecorder; 64: bench_pcap.py's best).
+IMPORT_TOGETHER = 64
+TOGETHER_BYTES = 1 << 20
 
-
-@dataclass(frozen=True, kw_only=True)
-class Packet:
-    """The transport-level facts of one captured packet."""
-
-    t_ns: int
-    proto: str  # "tcp" or "udp"
-    src: tuple[str, int]
-    dst: tuple[str, int]
-    payload: bytes
-    seq: int = 0
-    flags: int = 0
+#: What :func:`parse_packet` gives for a TCP segment or UDP datagram:
+#: ``(proto, flow, payload, seq, flags)``, with ``proto`` ``"tcp"`` or ``"udp"``, ``flow``
+#: the source address, destination address, source port and destination port as on the
+#: wire (4 + 4 + 2 + 2 bytes for IPv4, 16 + 16 + 2 + 2 for IPv6: one dictionary key per
+#: direction, see :func:`flow_ends`), and ``seq``/``flags`` 0 for UDP.  A plain tuple: it
+#: is made for every packet, and a dataclass or named tuple costs several times as much.
+Packet = tuple[str, bytes, bytes, int, int]
 
 
 # --------------------------------------------------------------------------- reading
 
 
 def read_packets(path: str | os.PathLike[str]) -> Iterator[tuple[int, int, bytes]]:
-    """(link type, time in ns, bytes) for each packet of a pcap or pcapng file."""
+    """(link type, time in ns, bytes) for each packet of a pcap or pcapng file.
+
+    scapy opens the file (gzip too) and reads its header at once (a file that is not a
+    capture is a :class:`~conformance.errors.UsageError` here), and reads pcapng blocks;
+    the records of a classic pcap are read by :func:`_classic_records`.  The file is
+    closed when the iterator is exhausted or closed."""
     from scapy.error import Scapy_Exception
     from scapy.utils import RawPcapNgReader, RawPcapReader
 
@@ -106,62 +118,113 @@ def read_packets(path: str | os.PathLike[str]) -> Iterator[tuple[int, int, bytes
         raise UsageError(f"no such capture: {os.fspath(path)}") from None
     except Scapy_Exception as e:
         raise UsageError(f"{os.fspath(path)}: {e}") from None
+    # The generator itself is returned (not delegated to with ``yield from``: that is
+    # one more frame to resume for every packet).
+    if isinstance(reader, RawPcapNgReader):
+        return _pcapng_blocks(reader, os.fspath(path))
+    return _classic_records(reader)
+
+
+def _pcapng_blocks(reader: Any, name: str) -> Iterator[tuple[int, int, bytes]]:
+    from scapy.error import Scapy_Exception
+
     with reader:
-        if isinstance(reader, RawPcapNgReader):
-            # Iterating scapy's readers asks for ``size=MTU`` (65,535) and silently cuts
-            # longer packets; a loopback capture with TSO/GRO holds 65,536+ byte ones.
-            # ``_read_packet(size=...)`` is the reader's own call with a size: a block
-            # is read whole (its length is in the file), so nothing is cut.
-            ng: Any = reader
-            while True:
-                try:
-                    data, md = ng._read_packet(size=_MAX_PACKET)
-                except EOFError:
-                    return
-                ts = (md.tshigh << 32) | md.tslow
-                res = md.tsresol or 1_000_000
-                yield md.linktype, ts * 1_000_000_000 // res, data
-        else:
-            # Classic pcap: scapy's ``RawPcapReader`` cuts a record at ``size`` and at
-            # 4 x MTU whatever the size (scapy 2.6+ utils.py ``_read_packet``), so the
-            # 16-byte record headers are read here, from the header scapy parsed
-            # (byte order, ns or µs, link type), and every byte of a record is kept.
-            yield from _classic_records(reader.f, reader.endian, reader.nano, reader.linktype)
+        # Iterating scapy's readers asks for ``size=MTU`` (65,535) and silently cuts
+        # longer packets; a loopback capture with TSO/GRO holds 65,536+ byte ones.
+        # ``_read_packet(size=...)`` is the reader's own call with a size: a block
+        # is read whole (its length is in the file), so nothing is cut.
+        while True:
+            try:
+                data, md = reader._read_packet(size=_MAX_PACKET)
+            except EOFError:
+                return
+            except Scapy_Exception as e:  # e.g. a corrupt section header further on
+                raise UsageError(f"{name}: {e}") from None
+            ts = (md.tshigh << 32) | md.tslow
+            res = md.tsresol or 1_000_000
+            t = ts * 1_000_000_000 // res
+            if t >> 64:
+                # A 64-bit timestamp read with a corrupt resolution (a classic pcap's
+                # 32-bit seconds always fit): no recording can hold the time.
+                raise UsageError(
+                    f"{name}: a packet's time ({ts} / {res} s) is past what a recording "
+                    "holds (2^64 ns): a corrupt pcapng block?"
+                )
+            yield md.linktype, t, data
 
 
 #: Largest packet read whole (a pcapng block or pcap record claiming more is cut here,
 #: bounding memory against a corrupt length field; Linux BIG TCP packets reach 512 KB).
 _MAX_PACKET = 16 << 20
+#: Bytes of a classic pcap read at a time; the records in them are sliced out of it.
+_CHUNK = 1 << 20
 
 
-def _classic_records(
-    f: Any, endian: str, nano: bool, linktype: int
-) -> Iterator[tuple[int, int, bytes]]:
-    """(link type, time in ns, bytes) of each record of a classic pcap, read from ``f``
-    positioned after the file header; a record cut short by the end of the file is the
-    last one."""
-    head = struct.Struct(endian + "IIII").unpack
-    mult = 1 if nano else 1000
-    read = f.read
-    while True:
-        hdr = read(16)
-        if len(hdr) < 16:
-            return
-        sec, frac, caplen, _wirelen = head(hdr)
-        data = read(min(caplen, _MAX_PACKET))
-        if len(data) < min(caplen, _MAX_PACKET):
-            # The file ends inside this record: its bytes are the last packet (as
-            # scapy's reader gives them), and nothing follows.
-            yield linktype, sec * 1_000_000_000 + frac * mult, data
-            return
-        if caplen > _MAX_PACKET:
-            rest = caplen - _MAX_PACKET
-            while rest > 0:  # skip what is beyond the bound, in bounded reads
-                got = len(read(min(rest, 1 << 20)))
-                if not got:
+def _classic_records(reader: Any) -> Iterator[tuple[int, int, bytes]]:
+    """(link type, time in ns, bytes) of each record of a classic pcap whose header
+    scapy's ``RawPcapReader`` read (byte order, ns or µs, link type); a record cut short
+    by the end of the file is the last one.
+
+    scapy's own iteration cuts a record at ``size`` and at 4 x MTU whatever the size
+    (scapy 2.6+ utils.py ``_read_packet``) and reads each record with two calls.  Here
+    the file is read ``_CHUNK`` bytes at a time and each record is sliced out of the
+    chunk (one ``unpack_from`` on its 16-byte header, one slice for its bytes), in about
+    half the time.  A record longer than ``_MAX_PACKET`` keeps its first ``_MAX_PACKET``
+    bytes; the rest is skipped."""
+    head = struct.Struct(reader.endian + "IIII").unpack_from
+    mult = 1 if reader.nano else 1000
+    linktype = reader.linktype
+    read = reader.f.read
+    buf = b""
+    pos = 0
+    sec = base = 0  # base: sec in ns (most records share the second of the one before)
+    with reader:
+        while True:
+            n = len(buf)
+            while pos + 16 <= n:  # the records wholly in the buffer
+                s, frac, caplen, _wirelen = head(buf, pos)
+                end = pos + 16 + caplen
+                if end > n or caplen > _MAX_PACKET:
+                    break
+                if s != sec:
+                    sec, base = s, s * 1_000_000_000
+                yield linktype, base + frac * mult, buf[pos + 16 : end]
+                pos = end
+            buf = buf[pos:]
+            pos = 0
+            if len(buf) < 16:
+                more = read(_CHUNK)
+                if not more:
+                    return  # the end (or a record header cut short: nothing follows)
+                buf += more
+                continue
+            # A record the buffer holds only the start of (or longer than the bound).
+            s, frac, caplen, _wirelen = head(buf, 0)
+            t = s * 1_000_000_000 + frac * mult
+            want = 16 + min(caplen, _MAX_PACKET)
+            while len(buf) < want:
+                more = read(max(want - len(buf), _CHUNK))
+                if not more:
+                    # The file ends inside this record: its bytes are the last packet
+                    # (as scapy's reader gives them), and nothing follows.
+                    yield linktype, t, buf[16:]
                     return
-                rest -= got
-        yield linktype, sec * 1_000_000_000 + frac * mult, data
+                buf += more
+            if caplen <= _MAX_PACKET:
+                continue  # whole in the buffer now
+            data = buf[16:want]
+            skip = caplen - (want - 16)
+            if len(buf) - want >= skip:
+                buf = buf[want + skip :]
+            else:
+                skip -= len(buf) - want
+                buf = b""
+                while skip > 0:  # what is beyond the bound, in bounded reads
+                    got = len(read(min(skip, _CHUNK)))
+                    if not got:
+                        break
+                    skip -= got
+            yield linktype, t, data
 
 
 def _link(linktype: int, data: bytes) -> tuple[int, int] | None:
@@ -170,21 +233,21 @@ def _link(linktype: int, data: bytes) -> tuple[int, int] | None:
         off = 12
         if len(data) < 14:
             return None
-        (etype,) = struct.unpack_from("!H", data, off)
+        (etype,) = _U16(data, off)
         off += 2
         while etype in (0x8100, 0x88A8, 0x9100) and len(data) >= off + 4:  # VLAN tags
-            (etype,) = struct.unpack_from("!H", data, off + 2)
+            (etype,) = _U16(data, off + 2)
             off += 4
         return _ethertype(etype, off)
     if linktype == DLT_LINUX_SLL:
         if len(data) < 16:
             return None
-        (etype,) = struct.unpack_from("!H", data, 14)
+        (etype,) = _U16(data, 14)
         return _ethertype(etype, 16)
     if linktype == DLT_LINUX_SLL2:
         if len(data) < 20:
             return None
-        (etype,) = struct.unpack_from("!H", data, 0)
+        (etype,) = _U16(data, 0)
         return _ethertype(etype, 20)
     if linktype in (DLT_NULL, DLT_LOOP):
         if len(data) < 4:
@@ -213,11 +276,15 @@ def _ethertype(etype: int, off: int) -> tuple[int, int] | None:
     return None
 
 
-_V6_EXT = {0, 43, 60}  # hop-by-hop, routing, destination options
+_V6_EXT = frozenset((0, 43, 60))  # hop-by-hop, routing, destination options
 
-
-_IPV4 = struct.Struct("!BBHHHBB").unpack_from
-_TCP = struct.Struct("!HHIIBB").unpack_from
+# Only the fields used, each header in one call (``x`` skips a byte).
+_U16 = struct.Struct("!H").unpack_from
+_IPV4 = struct.Struct("!BxHxxHxB").unpack_from  # version/IHL, total length, flags/fragment, proto
+_IPV6 = struct.Struct("!4xHB").unpack_from  # payload length, next header
+_TCP = struct.Struct("!4xI4xBB").unpack_from  # sequence number, data offset, flags
+_IPV4_TCP = struct.Struct("!BxHxxHxB10x4xI4xBB").unpack_from  # the two, with no IP option
+_PORTS = struct.Struct("!HH").unpack_from
 _IP_TEXT: dict[bytes, str] = {}
 
 
@@ -232,100 +299,114 @@ def _ip_text(packed: bytes) -> str:
     return text
 
 
-def parse_packet(linktype: int, t_ns: int, data: bytes) -> Packet | None:
-    """Parse link, IP and TCP/UDP headers; None for anything else (or IP fragments)."""
-    lk = _link(linktype, data)
-    if lk is None:
-        return None
-    ver, off = lk
-    if ver == 4:
-        if len(data) < off + 20:
+def flow_ends(flow: bytes) -> tuple[tuple[str, int], tuple[str, int]]:
+    """((source address, port), (destination address, port)) of a :data:`Packet` flow."""
+    n = (len(flow) - 4) >> 1
+    sport, dport = _PORTS(flow, 2 * n)
+    return (_ip_text(flow[:n]), sport), (_ip_text(flow[n : 2 * n]), dport)
+
+
+def _reverse(flow: bytes) -> bytes:
+    """The flow of the other direction."""
+    n = (len(flow) - 4) >> 1
+    return flow[n : 2 * n] + flow[:n] + flow[-2:] + flow[-4:-2]
+
+
+def parse_packet(linktype: int, data: bytes) -> Packet | None:
+    """Parse link, IP and TCP/UDP headers; None for anything else (or IP fragments).
+
+    Called for every packet: fixed offsets and precompiled ``unpack_from`` calls (one
+    for IPv4 and TCP together when there is no IP option), and nothing allocated but
+    the flow, the payload and the tuple."""
+    if linktype == DLT_EN10MB and data[12:14] == b"\x08\x00":  # Ethernet, IPv4: most
+        ver, off = 4, 14
+    else:
+        lk = _link(linktype, data)
+        if lk is None:
             return None
-        vihl, _tos, total, _id, frag, _ttl, proto = _IPV4(data, off)
-        ihl = (vihl & 0x0F) * 4
+        ver, off = lk
+    size = len(data)
+    if ver == 4:
+        if size >= off + 40:
+            # Most packets: IPv4 without options, then TCP; both headers in one call.
+            vihl, total, frag, proto, seq, doff, flags = _IPV4_TCP(data, off)
+            if vihl == 0x45 and proto == 6 and not frag & 0x3FFF:
+                end = off + total if total else size
+                if end > size:
+                    end = size
+                if end >= off + 40:
+                    payload = data[off + 20 + (doff >> 4) * 4 : end]
+                    return "tcp", data[off + 12 : off + 24], payload, seq, flags
+        if size < off + 20:
+            return None
+        vihl, total, frag, proto = _IPV4(data, off)
         if frag & 0x3FFF:  # fragment (MF set or offset > 0): not reassembled
             return None
-        end = off + total if total else len(data)
-        src = _ip_text(data[off + 12 : off + 16])
-        dst = _ip_text(data[off + 16 : off + 20])
-        l4 = off + ihl
+        end = off + total if total else size
+        addrs, l4 = off + 12, off + (vihl & 0x0F) * 4
+        a_end = off + 20
     elif ver == 6:
-        if len(data) < off + 40:
+        if size < off + 40:
             return None
-        plen, proto = struct.unpack_from("!HB", data, off + 4)
-        src = _ip_text(data[off + 8 : off + 24])
-        dst = _ip_text(data[off + 24 : off + 40])
-        l4 = off + 40
+        plen, proto = _IPV6(data, off)
+        addrs = off + 8
+        l4 = a_end = off + 40
         # Payload length 0 with a payload: a GSO/BIG TCP packet over 64 KB as Linux
         # hands it to the capture (the jumbo option removed), as IPv4's total 0 above.
-        end = l4 + plen if plen else len(data)
-        while proto in _V6_EXT and len(data) >= l4 + 2:
+        end = l4 + plen if plen else size
+        while proto in _V6_EXT and size >= l4 + 2:
             proto, hlen = data[l4], (data[l4 + 1] + 1) * 8
             l4 += hlen
         if proto == 44:  # fragment header
             return None
     else:
         return None
-    end = min(end, len(data))
+    if end > size:
+        end = size
     if proto == 6:
         if end < l4 + 20:
             return None
-        sport, dport, seq, _ack, doff, flags = _TCP(data, l4)
-        start = l4 + (doff >> 4) * 4
-        return Packet(
-            t_ns=t_ns,
-            proto="tcp",
-            src=(src, sport),
-            dst=(dst, dport),
-            payload=bytes(data[start:end]),
-            seq=seq,
-            flags=flags,
-        )
+        seq, doff, flags = _TCP(data, l4)
+        # Addresses and ports: one slice when no IP option or extension header parts them.
+        flow = data[addrs : l4 + 4] if l4 == a_end else data[addrs:a_end] + data[l4 : l4 + 4]
+        return "tcp", flow, data[l4 + (doff >> 4) * 4 : end], seq, flags
     if proto == 17:
         if end < l4 + 8:
             return None
-        sport, dport = struct.unpack_from("!HH", data, l4)
-        return Packet(
-            t_ns=t_ns,
-            proto="udp",
-            src=(src, sport),
-            dst=(dst, dport),
-            payload=bytes(data[l4 + 8 : end]),
-        )
+        flow = data[addrs : l4 + 4] if l4 == a_end else data[addrs:a_end] + data[l4 : l4 + 4]
+        return "udp", flow, data[l4 + 8 : end], 0, 0
     return None
 
 
 # --------------------------------------------------------------------------- reassembly
 
 
-@dataclass
-class _Half:
-    next: int | None = None  # next expected sequence number, unwrapped (64-bit)
-    pending: dict[int, tuple[bytes, int]] = field(default_factory=dict)  # seq -> (bytes, t)
-    pending_bytes: int = 0
-    fin: bool = False
-    retransmitted: int = 0
-
-
 class TcpReassembler:
     """One direction of a TCP connection: segments in, ordered bytes and gaps out (sans-I/O).
 
     :meth:`segment` returns a list of ``("data", t_ns, bytes)`` and
-    ``("gap", t_ns, missing)`` items, in stream order.
+    ``("gap", t_ns, missing)`` items, in stream order.  Segments that arrive early are
+    held (at most ``max_pending`` bytes) until the missing bytes come or are declared
+    a gap; they leave in sequence order through a heap, so a window of many small
+    segments costs time linear in their number (times its log), not quadratic.
     """
 
-    def __init__(self, *, max_pending: int = MAX_PENDING) -> None:
-        self.h = _Half()
-        self.max_pending = max_pending
+    __slots__ = ("_order", "max_pending", "next", "pending", "pending_bytes", "retransmitted")
 
-    @property
-    def retransmitted(self) -> int:
-        """Bytes dropped because they had already been delivered."""
-        return self.h.retransmitted
+    def __init__(self, *, max_pending: int = MAX_PENDING) -> None:
+        self.max_pending = max_pending
+        #: The next sequence number expected, unwrapped (64-bit); None before the first segment.
+        self.next: int | None = None
+        #: Segments ahead of ``next``: unwrapped sequence number -> (bytes, time).
+        self.pending: dict[int, tuple[bytes, int]] = {}
+        self.pending_bytes = 0
+        #: Bytes dropped because they had already been delivered.
+        self.retransmitted = 0
+        self._order: list[int] = []  # the keys of ``pending``, a heap
 
     def _unwrap(self, seq: int) -> int:
-        assert self.h.next is not None
-        base = self.h.next
+        assert self.next is not None
+        base = self.next
         diff = (seq - base) & 0xFFFFFFFF
         if diff >= 0x80000000:
             diff -= 0x100000000
@@ -334,88 +415,94 @@ class TcpReassembler:
     def segment(
         self, seq: int, flags: int, payload: bytes, t_ns: int
     ) -> list[tuple[str, int, Any]]:
-        h = self.h
-        if h.next is None:
-            h.next = seq + (1 if flags & _SYN else 0)
+        if self.next is None:
+            self.next = seq + (1 if flags & _SYN else 0)
         elif flags & _SYN:
             return []  # a repeated SYN
-        pos = self._unwrap(seq) + (1 if flags & _SYN else 0)
-        if flags & _FIN:
-            h.fin = True
         if not payload:
             return []
+        pos = self._unwrap(seq) + (1 if flags & _SYN else 0)
         out: list[tuple[str, int, Any]] = []
         end = pos + len(payload)
-        if end <= h.next:
-            h.retransmitted += len(payload)
+        if end <= self.next:
+            self.retransmitted += len(payload)
             return out
-        if pos < h.next:
-            h.retransmitted += h.next - pos
-            payload = payload[h.next - pos :]
-            pos = h.next
-        if pos > h.next:
-            old = h.pending.get(pos)
+        if pos < self.next:
+            self.retransmitted += self.next - pos
+            payload = payload[self.next - pos :]
+            pos = self.next
+        if pos > self.next:
+            old = self.pending.get(pos)
+            if old is None:
+                heapq.heappush(self._order, pos)
             if old is None or len(old[0]) < len(payload):
-                h.pending_bytes += len(payload) - (len(old[0]) if old else 0)
-                h.pending[pos] = (payload, t_ns)
-            if h.pending_bytes > self.max_pending:
+                self.pending_bytes += len(payload) - (len(old[0]) if old else 0)
+                self.pending[pos] = (payload, t_ns)
+            if self.pending_bytes > self.max_pending:
                 out += self._skip_gap()
             return out
         out.append(("data", t_ns, payload))
-        h.next = end
-        out += self._drain()
+        self.next = end
+        if self.pending:
+            out += self._drain()
         return out
 
     def _drain(self) -> list[tuple[str, int, Any]]:
-        h = self.h
+        """The held segments that now follow ``next``, in sequence order."""
+        pending, order = self.pending, self._order
         out: list[tuple[str, int, Any]] = []
-        assert h.next is not None
-        while h.pending:
-            first = min(h.pending)
-            if first > h.next:
-                break
-            data, t = h.pending.pop(first)
-            h.pending_bytes -= len(data)
-            if first + len(data) <= h.next:
-                h.retransmitted += len(data)
+        nxt = self.next
+        assert nxt is not None
+        while order and order[0] <= nxt:
+            first = heapq.heappop(order)
+            data, t = pending.pop(first)
+            self.pending_bytes -= len(data)
+            if first + len(data) <= nxt:
+                self.retransmitted += len(data)
                 continue
-            data = data[h.next - first :]
+            data = data[nxt - first :]
             out.append(("data", t, data))
-            h.next += len(data)
+            nxt += len(data)
+        self.next = nxt
         return out
 
     def _skip_gap(self) -> list[tuple[str, int, Any]]:
-        h = self.h
-        assert h.next is not None
-        first = min(h.pending)
-        out: list[tuple[str, int, Any]] = [("gap", h.pending[first][1], first - h.next)]
-        h.next = first
+        assert self.next is not None
+        first = self._order[0]
+        out: list[tuple[str, int, Any]] = [("gap", self.pending[first][1], first - self.next)]
+        self.next = first
         return out + self._drain()
 
     def flush(self) -> list[tuple[str, int, Any]]:
         """End of the connection or capture: held segments are delivered after their gaps."""
         out: list[tuple[str, int, Any]] = []
-        while self.h.pending:
+        while self.pending:
             out += self._skip_gap()
         return out
 
 
-@dataclass
+#: A direction of an open TCP connection: (connection id, direction, its reassembler, the
+#: connection), what PacketRecorder finds by a packet's flow.
+_TcpWay = tuple[int, Direction, TcpReassembler, "_TcpConn"]
+
+
 class _TcpConn:
-    conn: int
-    client: tuple[str, int]
-    server: tuple[str, int]
-    halves: dict[str, TcpReassembler]
-    fins: list[str] = field(default_factory=list)  # directions that sent FIN, in order
-    last_ns: int = 0
+    __slots__ = ("client", "conn", "fins", "flows", "halves", "server")
+
+    def __init__(self, conn: int, flow: bytes, reverse: bytes) -> None:
+        self.conn = conn
+        self.flows = (flow, reverse)  # client to server, server to client
+        self.client, self.server = flow_ends(flow)
+        self.halves = {C2S: TcpReassembler(), S2C: TcpReassembler()}
+        self.fins: list[Direction] = []  # directions that sent FIN, in order
 
 
 @dataclass
 class _Candidate:
     """A TCP flow not on a known port, waiting for its first payload to tell."""
 
-    first: Packet
-    segments: list[Packet] = field(default_factory=list)
+    first_ns: int
+    segments: list[tuple[int, bytes, bytes, int, int]] = field(default_factory=list)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -522,19 +609,20 @@ def _import(
     md["upstream"] = ""
     md["listen"] = ""
     writer = RecordingWriter(out, metadata=md)
-    packets = PacketRecorder(writer, tcp_ports=tports, udp_ports=uports, specs=specs)
+    packets = PacketRecorder(
+        writer, tcp_ports=tports, udp_ports=uports, specs=specs, together=IMPORT_TOGETHER
+    )
+    feed = packets.feed
     for lt, t, data in read_packets(path):
-        packets.feed(t, lt, data)
+        feed(t, lt, data)
     packets.finish()
     writer.close()
     return packets.stats()
 
 
-_Key = tuple[tuple[str, int], tuple[str, int]]
-
-
-def _key(a: tuple[str, int], b: tuple[str, int]) -> _Key:
-    return (a, b) if a <= b else (b, a)
+def _canonical(flow: bytes) -> bytes:
+    """One key for both directions of a flow."""
+    return min(flow, _reverse(flow))
 
 
 class PacketRecorder:
@@ -546,6 +634,19 @@ class PacketRecorder:
     is a frame head) are reassembled (:class:`TcpReassembler`) and UDP datagrams to or from
     ``udp_ports`` taken as they are, all into a :class:`~conformance.recording.StreamRecorder`
     writing to ``sink``.  :meth:`finish` closes what is still open ("capture ended").
+
+    Each direction of a known flow is one dictionary entry keyed by the packet's
+    addresses and ports as they are on the wire (:data:`Packet`), and the next segment
+    in order goes straight to the recorder (no list, no reassembly work): that is most
+    packets of most captures.
+
+    With ``together`` > 1 (``import-pcap``), up to that many such segments of one
+    direction in a row (and at most ``TOGETHER_BYTES``) go to the recorder in one
+    :meth:`~conformance.recording.StreamRecorder.segments` call, which records what a
+    ``data`` call each records, decoding the frames cut across packets as runs.  They
+    are held until a packet that is not the next of that direction, :meth:`idle`,
+    :meth:`stats` or :meth:`finish`; ``capture`` (``together=1``) records each segment
+    as it comes.
     """
 
     def __init__(
@@ -556,21 +657,32 @@ class PacketRecorder:
         udp_ports: Iterable[int] = DEFAULT_UDP_PORTS,
         specs: SpecSet | None = None,
         guess: bool = True,
+        together: int = 1,
     ) -> None:
         self.tports, self.uports = frozenset(tcp_ports), frozenset(udp_ports)
         self.guess = guess
         self.rec = StreamRecorder(sink, specs=specs)
-        self.conns: dict[_Key, _TcpConn] = {}
-        self.udp: dict[_Key, tuple[int, tuple[str, int]]] = {}
-        self.candidates: dict[_Key, _Candidate] = {}
-        self.ignored_flows: set[_Key] = set()
-        self.finished: set[_Key] = set()  # closed: late ACKs ignored
+        self.conns: dict[int, _TcpConn] = {}  # open TCP connections by id, in opening order
+        self.tcp_ways: dict[bytes, _TcpWay] = {}  # both directions of each open connection
+        self.udp_ways: dict[bytes, tuple[int, Direction]] = {}
+        self.udp_conns: list[int] = []
+        # Keyed by _canonical(flow):
+        self.candidates: dict[bytes, _Candidate] = {}
+        self.ignored_flows: set[bytes] = set()
+        self.finished: set[bytes] = set()  # closed: late ACKs ignored
         self.next_conn = 0
         self.packets = self.ignored = self.retrans = 0
         self.last_t = 0
-        self.first_t: int | None = None
+        if together < 1:
+            raise ValueError(f"together must be at least 1, not {together}")
+        self.together = together
+        self._held: _TcpWay | None = None  # the direction whose segments are held
+        self._reads: list[tuple[int, bytes]] = []  # its segments: (time, bytes)
+        self._held_bytes = 0
 
     def stats(self) -> ImportStats:
+        if self._held is not None:
+            self._record_held()
         return ImportStats(
             packets=self.packets,
             ignored=self.ignored,
@@ -580,133 +692,189 @@ class PacketRecorder:
             retransmitted_bytes=self.retrans,
         )
 
-    def _open_tcp(self, client: tuple[str, int], server: tuple[str, int], t: int) -> _TcpConn:
-        self.next_conn += 1
-        c = _TcpConn(
-            conn=self.next_conn,
-            client=client,
-            server=server,
-            halves={C2S: TcpReassembler(), S2C: TcpReassembler()},
-        )
-        self.conns[_key(client, server)] = c
-        self.rec.open(c.conn, t_ns=t, transport="tcp", client=_fmt(client), upstream=_fmt(server))
-        return c
-
-    def _close_tcp(self, c: _TcpConn, t: int, reason: str) -> None:
-        for d, r in c.halves.items():
-            self._deliver(c, d, r.flush())
-            self.retrans += r.retransmitted
-        self.rec.close(c.conn, t_ns=t, reason=reason)
-        self.conns.pop(_key(c.client, c.server), None)
-        self.finished.add(_key(c.client, c.server))
-
-    def _deliver(self, c: _TcpConn, d: str, items: list[tuple[str, int, Any]]) -> None:
-        for kind, t, x in items:
-            if kind == "data":
-                self.rec.data(c.conn, d, t, x)  # type: ignore[arg-type]
-            else:
-                self.rec.gap(c.conn, d, t, x)  # type: ignore[arg-type]
-
-    def _tcp_packet(self, c: _TcpConn, p: Packet) -> None:
-        d = C2S if p.src == c.client else S2C
-        c.last_ns = p.t_ns
-        self._deliver(c, d, c.halves[d].segment(p.seq, p.flags, p.payload, p.t_ns))
-        if p.flags & _RST:
-            self._close_tcp(c, p.t_ns, ("client" if d == C2S else "server") + " reset")
-            return
-        if p.flags & _FIN:
-            if d not in c.fins:
-                c.fins.append(d)
-            if len(c.fins) == 2:
-                self._close_tcp(c, p.t_ns, "client closed" if c.fins[0] == C2S else "server closed")
-
     def feed(self, t: int, linktype: int, data: bytes) -> None:
         """One captured packet: its time (ns since the epoch), link type and bytes."""
         self.packets += 1
-        p = parse_packet(linktype, t, data)
+        p = parse_packet(linktype, data)
         if p is None:
             self.ignored += 1
             return
-        self.first_t = t if self.first_t is None else self.first_t
-        self.last_t = max(self.last_t, t)
-        k = _key(p.src, p.dst)
-        if p.proto == "udp":
-            known = self.udp.get(k)
-            if known is None:
-                uports = self.uports
-                if p.dst[1] in uports:
-                    client, server = p.src, p.dst
-                elif p.src[1] in uports:
-                    client, server = p.dst, p.src
-                elif self.guess and p.payload.startswith(HEAD):
-                    client, server = p.src, p.dst
-                else:
+        if t > self.last_t:
+            self.last_t = t
+        proto, flow, payload, seq, flags = p
+        if proto == "udp":
+            if self._held is not None:
+                self._record_held()
+            uway = self.udp_ways.get(flow)
+            if uway is None:
+                uway = self._open_udp(t, flow, payload)
+                if uway is None:
                     self.ignored += 1
                     return
-                self.next_conn += 1
-                known = self.udp[k] = (self.next_conn, client)
-                self.rec.open(
-                    self.next_conn,
-                    t_ns=t,
-                    transport="udp",
-                    client=_fmt(client),
-                    upstream=_fmt(server),
-                )
-            conn, uclient = known
-            self.rec.datagram(conn, C2S if p.src == uclient else S2C, t, p.payload)
+            self.rec.datagram(uway[0], uway[1], t, payload)
             return
-        c = self.conns.get(k)
+        way = self.tcp_ways.get(flow)
+        if way is not None and payload and not flags & _SYN_FIN_RST:
+            r = way[2]
+            nxt = r.next
+            if nxt is not None and seq == nxt & 0xFFFFFFFF and not r.pending:
+                # The next bytes in order, nothing held: what TcpReassembler.segment
+                # would return, without it.
+                r.next = nxt + len(payload)
+                if self.together == 1:
+                    self.rec.data(way[0], way[1], t, payload)
+                    return
+                if (
+                    way is self._held
+                    and len(self._reads) < self.together
+                    and self._held_bytes < TOGETHER_BYTES
+                ):
+                    self._reads.append((t, payload))
+                    self._held_bytes += len(payload)
+                    return
+                if self._held is not None:
+                    self._record_held()
+                self._held, self._reads, self._held_bytes = way, [(t, payload)], len(payload)
+                return
+        if self._held is not None:
+            self._record_held()
+        self._tcp(t, flow, payload, seq, flags, way)
+
+    def _record_held(self) -> None:
+        """The held segments to the recorder (before anything else reaches it)."""
+        way = self._held
+        assert way is not None
+        self._held = None
+        self.rec.segments(way[0], way[1], self._reads)
+
+    def _tcp(
+        self, t: int, flow: bytes, payload: bytes, seq: int, flags: int, way: _TcpWay | None
+    ) -> None:
+        """A TCP segment off the fast path: a new, reused or unknown flow, or one that is
+        out of order, retransmitted, or has SYN, FIN or RST."""
         if (
-            c is not None
-            and p.flags & _SYN
-            and not p.flags & _ACK
-            and c.halves[C2S].h.next is not None
+            way is not None
+            and flags & _SYN
+            and not flags & _ACK
+            and way[3].halves[C2S].next is not None
         ):
             # The 4-tuple is reused by a new connection.
-            self._close_tcp(c, t, "connection reused")
-            c = None
-        if c is None:
-            if k in self.finished and not p.flags & _SYN:
-                self.ignored += 1
+            self._close_tcp(way[3], t, "connection reused")
+            way = None
+        if way is not None:
+            self._tcp_packet(way, t, payload, seq, flags)
+            return
+        k = _canonical(flow)
+        if (k in self.finished and not flags & _SYN) or k in self.ignored_flows:
+            self.ignored += 1
+            return
+        sport, dport = _PORTS(flow, len(flow) - 4)
+        if dport in self.tports:
+            self._tcp_packet(self._open_tcp(flow, t), t, payload, seq, flags)
+        elif sport in self.tports:
+            self._open_tcp(_reverse(flow), t)
+            self._tcp_packet(self.tcp_ways[flow], t, payload, seq, flags)
+        elif not self.guess:
+            self.ignored += 1
+        else:
+            cand = self.candidates.get(k)
+            if cand is None:
+                cand = self.candidates[k] = _Candidate(first_ns=t)
+            cand.segments.append((t, flow, payload, seq, flags))
+            if not payload:
                 return
-            if k in self.ignored_flows:
-                self.ignored += 1
+            del self.candidates[k]
+            if not payload.startswith(HEAD):
+                self.ignored_flows.add(k)
+                self.ignored += len(cand.segments)
                 return
-            if p.dst[1] in self.tports:
-                c = self._open_tcp(p.src, p.dst, t)
-            elif p.src[1] in self.tports:
-                c = self._open_tcp(p.dst, p.src, t)
-            elif not self.guess:
-                self.ignored += 1
-                return
+            self._open_tcp(flow, cand.first_ns)
+            for qt, qflow, qpayload, qseq, qflags in cand.segments:
+                qway = self.tcp_ways.get(qflow)
+                if qway is None:  # closed by a RST or FINs held before the first payload
+                    self.ignored += 1
+                    continue
+                self._tcp_packet(qway, qt, qpayload, qseq, qflags)
+
+    def _tcp_packet(self, way: _TcpWay, t: int, payload: bytes, seq: int, flags: int) -> None:
+        cid, d, r, c = way
+        self._deliver(cid, d, r.segment(seq, flags, payload, t))
+        if flags & _RST:
+            self._close_tcp(c, t, ("client" if d == C2S else "server") + " reset")
+            return
+        if flags & _FIN:
+            if d not in c.fins:
+                c.fins.append(d)
+            if len(c.fins) == 2:
+                self._close_tcp(c, t, "client closed" if c.fins[0] == C2S else "server closed")
+
+    def _open_tcp(self, flow: bytes, t: int) -> _TcpWay:
+        """A connection whose client sends ``flow``; returns that direction's way."""
+        self.next_conn += 1
+        rev = _reverse(flow)
+        c = _TcpConn(self.next_conn, flow, rev)
+        self.conns[c.conn] = c
+        # Server side first: a flow to itself (same address and port) is client to server.
+        self.tcp_ways[rev] = (c.conn, S2C, c.halves[S2C], c)
+        way = self.tcp_ways[flow] = (c.conn, C2S, c.halves[C2S], c)
+        self.rec.open(
+            c.conn, t_ns=t, transport="tcp", client=_fmt(c.client), upstream=_fmt(c.server)
+        )
+        return way
+
+    def _close_tcp(self, c: _TcpConn, t: int, reason: str) -> None:
+        for d, r in c.halves.items():
+            self._deliver(c.conn, d, r.flush())
+            self.retrans += r.retransmitted
+        self.rec.close(c.conn, t_ns=t, reason=reason)
+        self.conns.pop(c.conn, None)
+        for f in c.flows:
+            self.tcp_ways.pop(f, None)
+        self.finished.add(_canonical(c.flows[0]))
+
+    def _deliver(self, conn: int, d: Direction, items: list[tuple[str, int, Any]]) -> None:
+        for kind, t, x in items:
+            if kind == "data":
+                self.rec.data(conn, d, t, x)
             else:
-                cand = self.candidates.get(k)
-                if cand is None:
-                    cand = self.candidates[k] = _Candidate(first=p)
-                cand.segments.append(p)
-                if not p.payload:
-                    return
-                del self.candidates[k]
-                if not p.payload.startswith(HEAD):
-                    self.ignored_flows.add(k)
-                    self.ignored += len(cand.segments)
-                    return
-                c = self._open_tcp(p.src, p.dst, cand.first.t_ns)
-                for q in cand.segments[:-1]:
-                    self._tcp_packet(c, q)
-        self._tcp_packet(c, p)
+                self.rec.gap(conn, d, t, x)
+
+    def _open_udp(self, t: int, flow: bytes, payload: bytes) -> tuple[int, Direction] | None:
+        """The way of a datagram on a new flow, or None if the flow is not ours."""
+        sport, dport = _PORTS(flow, len(flow) - 4)
+        if dport in self.uports:
+            c2s = flow
+        elif sport in self.uports:
+            c2s = _reverse(flow)
+        elif self.guess and payload.startswith(HEAD):
+            c2s = flow
+        else:
+            return None
+        self.next_conn += 1
+        conn = self.next_conn
+        self.udp_conns.append(conn)
+        rev = _reverse(c2s)
+        self.udp_ways[rev] = (conn, S2C)
+        self.udp_ways[c2s] = (conn, C2S)
+        client, server = flow_ends(c2s)
+        self.rec.open(conn, t_ns=t, transport="udp", client=_fmt(client), upstream=_fmt(server))
+        return self.udp_ways[flow]
 
     def idle(self, now_ns: int, idle_ns: int) -> None:
         """Live capture: decide frames whose sender went quiet mid-frame (see
         :meth:`~conformance.recording.StreamRecorder.idle`)."""
+        if self._held is not None:
+            self._record_held()
         self.rec.idle(now_ns, idle_ns)
 
     def finish(self, t_ns: int | None = None, reason: str = "capture ended") -> None:
         """Close every connection still open (at ``t_ns``, default the last packet's time)."""
+        if self._held is not None:
+            self._record_held()
         t = self.last_t if t_ns is None else t_ns
         for c in list(self.conns.values()):
             self._close_tcp(c, t, reason)
-        for conn, _ in self.udp.values():
+        for conn in self.udp_conns:
             self.rec.close(conn, t_ns=t, reason=reason)
 
 

@@ -2,21 +2,38 @@
 
 from __future__ import annotations
 
+import contextlib
+import itertools
+import random
+import struct
 from pathlib import Path
 from typing import Any
 
 import pytest
-from scapy.layers.inet import IP, TCP, UDP
-from scapy.layers.inet6 import IPv6
-from scapy.layers.l2 import CookedLinux, CookedLinuxV2, Ether, Loopback
+from scapy.layers.inet import IP, TCP, UDP, IPOption_NOP
+from scapy.layers.inet6 import IPv6, IPv6ExtHdrDestOpt
+from scapy.layers.l2 import CookedLinux, CookedLinuxV2, Dot1Q, Ether, Loopback
 from scapy.packet import Raw
 from scapy.utils import wrpcap, wrpcapng
 
+import conformance.pcap as pcap_mod
+from conformance.errors import UsageError
 from conformance.frame import encode_frame
-from conformance.pcap import TcpReassembler, bind_scapy_layer, export_pcap, import_pcap
+from conformance.pcap import (
+    TcpReassembler,
+    bind_scapy_layer,
+    export_pcap,
+    flow_ends,
+    import_pcap,
+    parse_packet,
+    read_packets,
+)
 from conformance.recording import read_recording
 
+CAPTURES = Path(__file__).resolve().parent.parent / "captures"
+
 C, S = ("10.1.0.5", 40001), ("10.1.0.2", 8080)
+S2 = ("10.1.0.3", 8080)
 MAC_C, MAC_S = "02:00:00:00:00:0c", "02:00:00:00:00:05"
 REQ = [encode_frame(i, 201, 'MoveJ("P1")') for i in range(1, 5)]
 REP = [encode_frame(i, 201, "1") for i in range(1, 5)]
@@ -176,7 +193,9 @@ def test_reassembler_unit() -> None:
     assert r.retransmitted == 10
 
 
-@pytest.mark.parametrize("kind", ["sll", "sll2", "raw", "null", "pcapng", "ipv6"])
+@pytest.mark.parametrize(
+    "kind", ["sll", "sll2", "raw", "null", "pcapng", "ipv6", "ipv6-ext", "vlan", "ip-options"]
+)
 def test_link_types_and_formats(tmp_path: Path, kind: str) -> None:
     pk = conversation()
     kw: dict[str, Any] = {}
@@ -203,10 +222,18 @@ def test_link_types_and_formats(tmp_path: Path, kind: str) -> None:
             kw["linktype"] = 101
         elif kind == "null":
             q = Loopback(type=2) / ip
-        elif kind == "ipv6":
+        elif kind in ("ipv6", "ipv6-ext"):
             src = "fd00::5" if ip.src == C[0] else "fd00::2"
             dst = "fd00::2" if src == "fd00::5" else "fd00::5"
-            q = Ether(src=MAC_C, dst=MAC_S) / IPv6(src=src, dst=dst) / ip[TCP]
+            q = Ether(src=MAC_C, dst=MAC_S) / IPv6(src=src, dst=dst)
+            if kind == "ipv6-ext":  # the flow's ports are not next to its addresses
+                q = q / IPv6ExtHdrDestOpt()
+            q = q / ip[TCP]
+        elif kind == "vlan":
+            q = Ether(src=MAC_C, dst=MAC_S) / Dot1Q(vlan=5) / ip
+        elif kind == "ip-options":
+            opts = IP(src=ip.src, dst=ip.dst, options=[IPOption_NOP()] * 4)
+            q = Ether(src=MAC_C, dst=MAC_S) / opts / ip[TCP]
         else:
             q = p
             name = "x.pcapng"
@@ -214,7 +241,7 @@ def test_link_types_and_formats(tmp_path: Path, kind: str) -> None:
         out.append(q)
     _, rec = imported(tmp_path, out, name=name, **kw)
     assert frames(rec) == EXPECTED
-    if kind == "ipv6":
+    if kind.startswith("ipv6"):
         assert rec.connections[0].client == "[fd00::5]:40001"
 
 
@@ -314,3 +341,198 @@ def test_packets_longer_than_64k_are_read_whole(tmp_path: Path, name: str, ip: s
     assert [f.raw for f in rec.frames] == [*reqs, REQ[0]]
     assert not rec.problems  # no gap, nothing malformed
     assert stats.frames == len(reqs) + 1
+
+
+# --------------------------------------------------------------------------- reading
+
+
+def _classic_pcap(packets: list[bytes], *, endian: str = "<", nano: bool = True) -> bytes:
+    """A classic pcap of Ethernet ``packets``, one a second and a bit."""
+    magic = 0xA1B23C4D if nano else 0xA1B2C3D4
+    out = [struct.pack(endian + "IHHiIII", magic, 2, 4, 0, 0, 262144, 1)]
+    for i, p in enumerate(packets):
+        out.append(struct.pack(endian + "IIII", 1_700_000_000 + i, 1000 + i, len(p), len(p)) + p)
+    return b"".join(out)
+
+
+def _scapy_records(path: Path) -> list[tuple[int, int, bytes]]:
+    """The records as scapy's own RawPcapReader iteration gives them (packets up to 64 KB)."""
+    from scapy.utils import RawPcapReader
+
+    with RawPcapReader(str(path)) as r:
+        mult = 1 if r.nano else 1000
+        return [(r.linktype, md.sec * 10**9 + md.usec * mult, data) for data, md in r]
+
+
+def _sample_packets() -> list[bytes]:
+    return [bytes(p) for p in conversation()] + [bytes(range(256)) * 3, b"\x00", b""]
+
+
+@pytest.mark.parametrize("endian", ["<", ">"])
+@pytest.mark.parametrize("nano", [True, False])
+@pytest.mark.parametrize("chunk", [1, 16, 17, 100, 1 << 20])
+def test_classic_reader_agrees_with_scapys(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, endian: str, nano: bool, chunk: int
+) -> None:
+    """Classic pcap records are read by conformance.pcap, not by scapy's reader: both
+    give the same records, whatever the byte order, resolution and read size (records
+    straddling the reads), and for the file cut at every byte of its last records."""
+    monkeypatch.setattr(pcap_mod, "_CHUNK", chunk)
+    path = tmp_path / "x.pcap"
+    data = _classic_pcap(_sample_packets(), endian=endian, nano=nano)
+    for cut in [len(data), *range(len(data) - 300, len(data))]:
+        path.write_bytes(data[:cut])
+        assert list(read_packets(path)) == _scapy_records(path), cut
+
+
+def test_classic_reader_agrees_with_scapys_on_the_corpus() -> None:
+    for path in sorted(CAPTURES.glob("*.pcap")):
+        assert list(read_packets(path)) == _scapy_records(path), path.name
+
+
+@pytest.mark.parametrize("chunk", [16, 64, 1 << 20])
+def test_a_record_over_the_bound_is_cut_and_the_next_one_read(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, chunk: int
+) -> None:
+    monkeypatch.setattr(pcap_mod, "_MAX_PACKET", 100)
+    monkeypatch.setattr(pcap_mod, "_CHUNK", chunk)
+    big, after = bytes(range(250)), b"after"
+    path = tmp_path / "x.pcap"
+    data = _classic_pcap([big, after])
+    path.write_bytes(data)
+    assert [d for _, _, d in read_packets(path)] == [big[:100], after]
+    # The file ends inside the part skipped: the record's first 100 bytes are the last.
+    path.write_bytes(data[: 24 + 16 + 180])
+    assert [d for _, _, d in read_packets(path)] == [big[:100]]
+
+
+def test_a_pcapng_time_past_2_64_ns_is_a_usage_error(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A corrupt resolution or timestamp cannot become an internal error in the writer."""
+    from conformance.cli import main
+
+    pk = conversation()
+    pk[3].time = 10**11  # fits pcapng's 64-bit microseconds, not 64-bit nanoseconds
+    path = tmp_path / "x.pcapng"
+    wrpcapng(str(path), pk)
+    assert main(["import-pcap", str(path), "-o", str(tmp_path / "x.mcap")]) == 2
+    err = capsys.readouterr().err
+    assert "past what a recording holds" in err and "internal error" not in err
+    assert not (tmp_path / "x.mcap").exists()
+
+
+@pytest.mark.parametrize("name", ["x.pcap", "x.pcapng"])
+def test_corrupt_or_cut_captures_import_or_give_a_usage_error(tmp_path: Path, name: str) -> None:
+    """Any damage to a capture gives a recording or the kit's UsageError, nothing else."""
+    rng = random.Random(7)
+    src = tmp_path / name
+    (wrpcapng if name.endswith("ng") else wrpcap)(str(src), conversation() + conversation(s=S2))
+    good = src.read_bytes()
+    for i in range(150):
+        b = bytearray(good)
+        if i % 2:
+            b = b[: rng.randrange(len(b))]
+        else:
+            for _ in range(rng.randrange(1, 8)):
+                b[rng.randrange(len(b))] = rng.randrange(256)
+        bad = tmp_path / f"bad-{name}"
+        bad.write_bytes(b)
+        with contextlib.suppress(UsageError):
+            import_pcap(bad, tmp_path / "out.mcap")
+
+
+# --------------------------------------------------------------------------- parsing
+
+
+def test_parse_packet_flow_is_addresses_then_ports() -> None:
+    (req,) = [p for p in conversation() if p.haslayer(Raw)][:1]
+    proto, flow, payload, seq, flags = parse_packet(1, bytes(req))  # type: ignore[misc]
+    assert (proto, payload, seq, flags) == ("tcp", REQ[0], 1000, 0x18)
+    assert flow_ends(flow) == (C, S)
+    v6 = Ether(src=MAC_C, dst=MAC_S) / IPv6(src="fd00::5", dst="fd00::2")
+    v6 = v6 / UDP(sport=5, dport=20007) / b"x"
+    proto, flow, payload, _, _ = parse_packet(1, bytes(v6))  # type: ignore[misc]
+    assert (proto, payload, flow_ends(flow)) == ("udp", b"x", (("fd00::5", 5), ("fd00::2", 20007)))
+    assert parse_packet(1, bytes(Ether(src=MAC_C, dst=MAC_S) / IP(frag=3) / TCP())) is None
+    assert parse_packet(1, bytes(req)[:40]) is None
+
+
+# --------------------------------------------------------------------------- reassembly
+
+
+def test_reassembler_puts_shuffled_and_repeated_segments_in_order() -> None:
+    rng = random.Random(3)
+    stream = bytes(rng.randrange(256) for _ in range(5000))
+    for isn in (1000, 2**32 - 2000):
+        cuts = sorted({0, len(stream), *rng.sample(range(1, len(stream)), 300)})
+        segs = [(isn + a, stream[a:b]) for a, b in itertools.pairwise(cuts)]
+        segs += rng.sample(segs, 50)  # retransmitted
+        first = segs.pop(0)
+        rng.shuffle(segs)
+        r = TcpReassembler()
+        r.segment(isn - 1, 0x02, b"", 0)
+        out = []
+        for seq, data in [*segs, first]:
+            out += r.segment(seq % 2**32, 0x18, data, 0)
+        assert [k for k, _, _ in out] == ["data"] * len(out)
+        assert b"".join(x for _, _, x in out) == stream
+        assert not r.pending and r.pending_bytes == 0
+
+
+def test_reassembler_many_held_segments_are_linear() -> None:
+    """20,000 segments held out of order, then the one before them: a heap, not a
+    minimum over the held ones per segment (that took seconds here, hours for 4 MiB)."""
+    r = TcpReassembler()
+    r.segment(99, 0x02, b"", 0)
+    n = 20_000
+    for i in range(n - 1, 0, -1):
+        assert r.segment(100 + 10 * i, 0x18, b"%010d" % i, i) == []
+    out = r.segment(100, 0x18, b"%010d" % 0, 0)
+    assert b"".join(x for _, _, x in out) == b"".join(b"%010d" % i for i in range(n))
+
+
+def test_a_guessed_flow_reset_before_its_first_payload(tmp_path: Path) -> None:
+    """A flow on no known port opened by its first frame head replays what came before:
+    a RST among it closes the connection, and what follows is ignored (as on a known
+    port), not written to a closed connection."""
+    other = ("10.1.0.2", 9999)
+    pk = [tcp(C, other, 99, "S"), tcp(other, C, 500, "R", t=0.001)]
+    pk.append(tcp(C, other, 100, load=REQ[0], t=0.002))
+    stats, rec = imported(tmp_path, pk)
+    assert [(c.event, c.reason) for c in rec.connections] == [
+        ("open", ""),
+        ("close", "server reset"),
+    ]
+    assert not rec.frames and stats.ignored == 1
+
+
+def test_segments_recorded_together_give_the_records_of_one_at_a_time(tmp_path: Path) -> None:
+    """import-pcap hands runs of in-order segments of one direction to the recorder
+    together (StreamRecorder.segments); what it records is what recording each segment
+    as it comes (``capture``'s way) records, frames cut across packets included."""
+    from conformance.pcap import PacketRecorder
+    from conformance.recording import RecordingWriter, dump_json
+    from conformance.spec import default_specs
+
+    rng = random.Random(5)
+    stream = b"".join(encode_frame(i, 201, "x" * rng.randrange(0, 90)) for i in range(400))
+    stream += b"garbage" + REQ[0][:20]  # and a frame the capture ends inside
+    pk = conversation()[:3]
+    pos, t = 0, 0.01
+    while pos < len(stream):
+        k = rng.randrange(1, 200)
+        pk.append(tcp(C, S, 1000 + pos, load=stream[pos : pos + k], t=t))
+        if rng.random() < 0.1:  # now and then a reply, a retransmission or a hole filled late
+            pk.append(rng.choice([tcp(S, C, 9000, load=REP[0], t=t), pk[-1]]))
+        pos, t = pos + k, t + 0.0001
+    pk[-5], pk[-4] = pk[-4], pk[-5]
+    _, rec = imported(tmp_path, pk)
+    assert len(rec.frames) > 400
+    one = tmp_path / "one.mcap"
+    with RecordingWriter(one, metadata=rec.metadata) as w:
+        pr = PacketRecorder(w, specs=default_specs(), together=1)
+        for lt, t_ns, data in read_packets(tmp_path / "x.pcap"):
+            pr.feed(t_ns, lt, data)
+        pr.finish()
+    assert dump_json(read_recording(one)) == dump_json(rec)
