@@ -1,4 +1,5 @@
-"""pcap/pcapng import (link types, TCP reassembly edge cases, UDP), export and the scapy layer."""
+"""pcap/pcapng import (reading against scapy's reader, link types, TCP reassembly edge cases,
+UDP, damaged files), export and the scapy layer."""
 
 from __future__ import annotations
 
