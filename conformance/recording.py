@@ -487,6 +487,33 @@ class _JsonStrings(dict[str | None, str]):
         return text
 
 
+#: RecordingWriter.write_frame's fields: conn, transport, dir, cnt, cmd_id, name, data,
+#: len, offset, first_ns, complete_ns, raw, problems.
+_OneFrame = tuple[
+    int, str, Direction, int, int, str | None, str, int, int, int, int, bytes, list[str] | None
+]
+
+
+def _batch_of_one(f: _OneFrame) -> FrameBatch:
+    conn, transport, direction, cnt, cmd_id, name, data, length, offset, first, complete = f[:11]
+    return FrameBatch(
+        conn,
+        transport,
+        direction,
+        [cnt],
+        [cmd_id],
+        [name],
+        [data],
+        [length],
+        [offset],
+        [first],
+        [complete],
+        [len(f[11])],
+        f[11],
+        [f[12]] if f[12] is not None else None,
+    )
+
+
 def _json_ints(xs: Sequence[int]) -> str:
     """``json.dumps(list(xs), separators=(",", ":"))`` for ints, without the encoder's
     set-up per call (about 1.5 us: a batch message has a dozen columns)."""
@@ -702,7 +729,9 @@ class RecordingWriter:
         }
         self._json_str = _JsonStrings()
         self._add = self._mcap.add_message
-        # Frames held (write_frames): batches of one connection and direction.
+        # Frames held (write_frames): batches of one connection and direction; or one
+        # frame alone as write_frame's fields, while frames alternate between streams.
+        self._one: _OneFrame | None = None
         self._held: list[FrameBatch] = []
         self._held_frames = 0
         self._held_bytes = 0
@@ -740,8 +769,8 @@ class RecordingWriter:
     def write_json(
         self, topic: str, doc: Mapping[str, Any], *, log_time: int, publish_time: int
     ) -> None:
-        if self._held:
-            self._write_held()
+        if self._one is not None or self._held:
+            self._write_frames_held()
         ch = self._channels[topic]
         seq = self._seq[ch] = self._seq[ch] + 1
         self._add(ch, log_time, self._dumps(doc).encode("utf-8"), publish_time, seq & 0xFFFFFFFF)
@@ -755,16 +784,113 @@ class RecordingWriter:
         batch holds ``batch_frames`` frames or ``batch_bytes`` bytes.  Messages keep
         the order the records came in, across topics.
         """
+        one = self._one
+        if one is not None:
+            self._one = None
+            if one[:3] == (b.conn, b.transport, b.dir):
+                self._hold(_batch_of_one(one))
+            else:
+                self._write_one(one)
         held = self._held
         if held:
             h = held[0]
             if h.conn != b.conn or h.dir != b.dir or h.transport != b.transport:
                 self._write_held()
+        self._hold(b)
+
+    def write_frame(
+        self,
+        conn: int,
+        transport: str,
+        direction: Direction,
+        cnt: int,
+        cmd_id: int,
+        name: str | None,
+        data: str,
+        length: int,
+        offset: int,
+        first_ns: int,
+        complete_ns: int,
+        raw: bytes,
+        problems: list[str] | None = None,
+    ) -> None:
+        """One frame: :meth:`write_frames` of a batch of it, but with no batch made while
+        each frame is of another stream than the last (request/reply traffic)."""
+        f: _OneFrame = (
+            conn,
+            transport,
+            direction,
+            cnt,
+            cmd_id,
+            name,
+            data,
+            length,
+            offset,
+            first_ns,
+            complete_ns,
+            raw,
+            problems,
+        )
+        one = self._one
+        if one is not None:
+            if one[:3] != f[:3]:
+                self._write_one(one)
+                self._one = f
+                return
+            self._one = None
+            self._hold(_batch_of_one(one))
+            self._hold(_batch_of_one(f))
+            return
+        held = self._held
+        if held:
+            h = held[0]
+            if (h.conn, h.transport, h.dir) == f[:3]:
+                self._hold(_batch_of_one(f))
+                return
+            self._write_held()
+        self._one = f
+
+    def _write_frames_held(self) -> None:
+        if self._one is not None:
+            one, self._one = self._one, None
+            self._write_one(one)
+        if self._held:
+            self._write_held()
+
+    def _hold(self, b: FrameBatch) -> None:
+        held = self._held
         held.append(b)
         self._held_frames += len(b.cnts)
         self._held_bytes += len(b.raw)
         if self._held_frames >= self.batch_frames or self._held_bytes >= self.batch_bytes:
             self._write_held()
+
+    def _write_one(self, f: _OneFrame) -> None:
+        """One frame's message, from write_frame's fields."""
+        conn, transport, direction, cnt, cmd_id, name, data, length, offset, first, complete = f[
+            :11
+        ]
+        raw, problems = f[11], f[12]
+        js = self._json_str
+        doc = _ONE_JSON % (
+            conn,
+            js[transport],
+            direction,
+            cnt,
+            cmd_id,
+            js[name],
+            _json_str(data),
+            length,
+            offset,
+            "" if first == complete else f'"first_ns":[{first}],',
+            complete,
+            len(raw),
+            "" if problems is None else f'"problems":[{self._dumps(problems)}],',
+            binascii.b2a_base64(raw, newline=False).decode("ascii"),
+        )
+        ch = self._frame_channel[direction]
+        seq = self._seq[ch] = self._seq[ch] + 1
+        self._add(ch, complete, doc.encode("utf-8"), first, seq & 0xFFFFFFFF)
 
     def _write_held(self) -> None:
         """The frames held as one message: its template filled with the columns as JSON
@@ -788,26 +914,24 @@ class RecordingWriter:
         self._held_frames = self._held_bytes = 0
         js = self._json_str
         first, complete = b.first_ns, b.complete_ns
-        if len(first) == 1:  # request/reply traffic: one frame, no join
-            doc = _ONE_JSON % (
-                b.conn,
-                js[b.transport],
-                b.dir,
-                b.cnts[0],
-                b.cmd_ids[0],
-                js[b.names[0]],
-                _json_str(b.datas[0]),
-                b.lengths[0],
-                b.offsets[0],
-                "" if first[0] == complete[0] else f'"first_ns":[{first[0]}],',
-                complete[0],
-                b.sizes[0],
-                "" if b.problems is None else f'"problems":{self._dumps(b.problems)},',
-                binascii.b2a_base64(b.raw, newline=False).decode("ascii"),
+        if len(first) == 1:  # one frame: no join
+            self._write_one(
+                (
+                    b.conn,
+                    b.transport,
+                    b.dir,
+                    b.cnts[0],
+                    b.cmd_ids[0],
+                    b.names[0],
+                    b.datas[0],
+                    b.lengths[0],
+                    b.offsets[0],
+                    first[0],
+                    complete[0],
+                    b.raw,
+                    list(b.problems[0]) if b.problems is not None else None,
+                )
             )
-            ch = self._frame_channel[b.dir]
-            seq = self._seq[ch] = self._seq[ch] + 1
-            self._add(ch, complete[0], doc.encode("utf-8"), first[0], seq & 0xFFFFFFFF)
             return
         doc = _BATCH_JSON % (
             b.conn,
@@ -832,8 +956,8 @@ class RecordingWriter:
     def flush(self) -> None:
         """Write the frames held, end the chunk in progress and hand everything to the OS."""
         if not self._closed:
-            if self._held:
-                self._write_held()
+            if self._one is not None or self._held:
+                self._write_frames_held()
             _flush_chunk(self._mcap)
             self._stream.flush()
 
@@ -841,8 +965,8 @@ class RecordingWriter:
         """Write the summary and index and close the file (idempotent)."""
         if self._closed:
             return
-        if self._held:
-            self._write_held()
+        if self._one is not None or self._held:
+            self._write_frames_held()
         self._closed = True
         self._mcap.finish()  # type: ignore[no-untyped-call]
         self._stream.flush()
@@ -1018,6 +1142,9 @@ class StreamRecorder:
         # frame must also be handed to on_frame as a FrameRecord.
         self._write_frames: Callable[[FrameBatch], None] | None = (
             getattr(sink, "write_frames", None) if on_frame is None else None
+        )
+        self._write_frame: Callable[..., None] | None = (
+            getattr(sink, "write_frame", None) if self._write_frames is not None else None
         )
         # Command name by ID where the ID alone decides it (one command has it), else
         # _BY_DATA: then the name in DATA picks among the commands (command_name).
@@ -1428,8 +1555,32 @@ class StreamRecorder:
         if not events:
             return
         b = st.base if base is None else base
-        write = self.sink.write
         tl = st.timeline
+        one = self._write_frame
+        if len(events) == 1 and one is not None and type(events[0]) is Frame:
+            # One frame (request/reply traffic): its fields straight to the writer.
+            cnt, cmd_id, data, length, raw, probs, offset = events[0]
+            while len(tl) > 1 and tl[1][0] <= offset:
+                tl.popleft()
+            st.frames += 1
+            self.frames += 1
+            one(
+                conn,
+                transport,
+                direction,
+                cnt,
+                cmd_id,
+                self._name_of(cmd_id, data),
+                data,
+                length if length is not None else len(data.encode("utf-8")),
+                b + offset,
+                tl[0][1] if tl else st.last_ns,
+                t_ns,
+                raw,
+                [p.value for p in probs] if probs else None,
+            )
+            return
+        write = self.sink.write
         frames: list[Frame] = []
         firsts: list[int] = []
         for ev in events:

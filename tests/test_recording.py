@@ -348,7 +348,25 @@ def test_write_frames_is_write_json_of_the_batch(tmp_path: Path) -> None:
     with RecordingWriter(c, metadata=metadata) as w:
         for r in _RECS:
             w.write(r)
-    assert a.read_bytes() == b.read_bytes() == c.read_bytes()
+    d = tmp_path / "d.mcap"
+    with RecordingWriter(d, metadata=metadata) as w:
+        for r in _RECS:  # the one-frame path (request/reply traffic)
+            w.write_frame(
+                r.conn,
+                r.transport,
+                r.dir,
+                r.cnt,
+                r.cmd_id,
+                r.name,
+                r.data,
+                r.length if r.length is not None else len(r.data.encode("utf-8")),
+                r.offset,
+                r.first_ns or r.complete_ns,
+                r.complete_ns,
+                r.raw,
+                list(r.problems) or None,
+            )
+    assert a.read_bytes() == b.read_bytes() == c.read_bytes() == d.read_bytes()
     # A first_ns of 0 (not known) reads back as complete_ns, as layout 1 read it.
     want = [dataclasses.replace(r, first_ns=r.first_ns or r.complete_ns) for r in _RECS]
     assert [f.to_json() for f in read_recording(b).frames] == [r.to_json() for r in want]
@@ -376,6 +394,38 @@ def test_batches_keep_record_order_and_limits(tmp_path: Path) -> None:
         (TOPIC_C2S, 2),
     ]
     assert [f.cnt for f in read_recording(out).frames] == list(range(7))
+
+
+def test_one_frame_path_and_batches_mix_in_order(tmp_path: Path) -> None:
+    """write_frame and write_frames of the same and of other streams, any order: every
+    frame reads back once, in the order written."""
+    out = tmp_path / "r.mcap"
+    recs = [dataclasses.replace(_RECS[k // 3 % 2], cnt=k, first_ns=1) for k in range(12)]
+    with RecordingWriter(out, metadata={"format": "x"}) as w:
+        for k, r in enumerate(recs):
+            if k % 3 == 0:
+                w.write_frames(FrameBatch.of([r]))
+            else:
+                w.write_frame(
+                    r.conn,
+                    r.transport,
+                    r.dir,
+                    r.cnt,
+                    r.cmd_id,
+                    r.name,
+                    r.data,
+                    r.length if r.length is not None else len(r.data.encode("utf-8")),
+                    r.offset,
+                    r.first_ns,
+                    r.complete_ns,
+                    r.raw,
+                    list(r.problems) or None,
+                )
+            if k == 7:
+                w.write(ConnectionRecord(conn=9, event="open", t_ns=6))
+    back = read_recording(out)
+    assert [f.to_json() for f in back.frames] == [r.to_json() for r in recs]
+    assert len(back.connections) == 1
 
 
 def test_batch_messages_that_do_not_add_up_are_skipped(tmp_path: Path) -> None:

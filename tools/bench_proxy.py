@@ -41,6 +41,7 @@ Everything runs on 127.0.0.1 with ports chosen by the OS.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import re
 import signal
@@ -53,7 +54,8 @@ from collections.abc import Callable
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+# --baseline-rev runs this script again with another revision's package first on the path.
+sys.path.insert(0, os.environ.get("BENCH_PROXY_TREE") or str(ROOT))
 
 from conformance.frame import encode_frame  # noqa: E402
 
@@ -263,33 +265,83 @@ def _record(sink: object, stream: bytes, specs: object) -> None:
     rec.finish(t_ns=t + 1)
 
 
-_WHOLE_RE = re.compile(r"whole path to a complete file\s+(\d+)")
-_IMPORT_RE = re.compile(r"import-pcap: .* = (\d+) frames/s")
+def _record_exchanges(sink: object, n: int, specs: object) -> None:
+    """Request/reply traffic: a request read, then its reply read, ``n`` times."""
+    from conformance.recording import StreamRecorder
+
+    req = [encode_frame(i % 65536, 201, 'MoveJ("P1")') for i in range(n)]
+    rep = [encode_frame(i % 65536, 201, "1") for i in range(n)]
+    rec = StreamRecorder(sink, specs=specs)  # type: ignore[arg-type]
+    rec.open(1, t_ns=1, client="127.0.0.1:40000", upstream="127.0.0.1:8080")
+    t = 1_700_000_000_000_000_000
+    data = rec.data
+    for a, b in zip(req, rep, strict=True):
+        t += 1_000_000
+        data(1, "c2s", t, a)
+        data(1, "s2c", t + 130_000, b)
+    rec.finish(t_ns=t + 1)
 
 
-def baseline_record(rev: str, n: int, rounds: int) -> tuple[float, float]:
-    """(recorder path, import-pcap) frames/s by the code of git revision ``rev``: its own
-    ``--section record`` run in a subprocess on an export of that revision, in this run."""
+def core_figures(tmp: Path, n: int, rounds: int) -> dict[str, float]:
+    """Frames/s of the whole recorder path (to a complete file) and of import-pcap, on
+    pipelined traffic (64 KiB reads) and on request/reply traffic (a frame a read);
+    only the API every revision since layout 1 has, so a baseline runs it too."""
+    from conformance.pcap import export_pcap, import_pcap
+    from conformance.recording import RecordingWriter, read_recording
+    from conformance.spec import default_specs
+
+    specs = default_specs()
+    stream = b"".join(encode_frame(i % 65536, 201, 'MoveJ("P1")') for i in range(n))
+    kinds: dict[str, Callable[[object], None]] = {
+        "pipelined": lambda w: _record(w, stream, specs),
+        "request/reply": lambda w: _record_exchanges(w, n // 4, specs),
+    }
+    out: dict[str, float] = {}
+    for kind, feed in kinds.items():
+        path = tmp / f"{kind.replace('/', '-')}.mcap"
+        best = float("inf")
+        for _ in range(rounds):
+            t0 = time.process_time()
+            with RecordingWriter(path, metadata={"format": "bench"}) as w:
+                feed(w)
+            best = min(best, time.process_time() - t0)
+        rec = read_recording(path)
+        out[f"record, {kind}"] = len(rec.frames) / best
+        pcap = tmp / f"{kind.replace('/', '-')}.pcap"
+        export_pcap(rec, pcap)
+        best = float("inf")
+        for _ in range(rounds):
+            t0 = time.process_time()
+            st = import_pcap(pcap, tmp / "imp.mcap", tcp_ports=[8080], specs=specs)
+            best = min(best, time.process_time() - t0)
+        out[f"import-pcap, {kind}"] = st.frames / best
+    return out
+
+
+def baseline_figures(rev: str, n: int, rounds: int) -> dict[str, float]:
+    """:func:`core_figures` by the code of git revision ``rev`` (exported to a temporary
+    directory and run in a subprocess with it first on the path), in this run."""
     with tempfile.TemporaryDirectory() as tmp:
         archive = subprocess.run(
-            ["git", "-C", str(ROOT), "archive", rev, "conformance", "specs", "tools"],
+            ["git", "-C", str(ROOT), "archive", rev, "conformance", "specs"],
             check=True,
             capture_output=True,
         ).stdout
         subprocess.run(["tar", "-x", "-C", tmp], input=archive, check=True)
-        cmd = [sys.executable, "tools/bench_proxy.py", "--section", "record"]
-        out = subprocess.run(
-            [*cmd, "--frames", str(n), "--rounds", str(rounds)],
-            cwd=tmp,
-            env={**os.environ, "PYTHONPATH": tmp, "FAIRINO_SPECS_DIR": str(Path(tmp) / "specs")},
-            check=True,
+        cmd = [sys.executable, __file__, "--section", "core", "--frames", str(n)]
+        res = subprocess.run(
+            [*cmd, "--rounds", str(rounds)],
+            env={
+                **os.environ,
+                "BENCH_PROXY_TREE": tmp,
+                "FAIRINO_SPECS_DIR": str(Path(tmp) / "specs"),
+            },
             capture_output=True,
             text=True,
-        ).stdout
-    whole, imp = _WHOLE_RE.search(out), _IMPORT_RE.search(out)
-    if whole is None or imp is None:
-        raise SystemExit(f"cannot read the baseline's figures:\n{out}")
-    return float(whole.group(1)), float(imp.group(1))
+        )
+    if res.returncode != 0:
+        raise SystemExit(f"the baseline {rev} failed:\n{res.stderr[-2000:]}")
+    return dict(json.loads(res.stdout.strip().splitlines()[-1]))
 
 
 def bench_record(tmp: Path, n: int, rounds: int, baseline_rev: str = "") -> None:
@@ -363,11 +415,16 @@ def bench_record(tmp: Path, n: int, rounds: int, baseline_rev: str = "") -> None
         f"import-pcap: {st.packets} packets, {st.frames} frames in {best_imp:.2f} s = "
         f"{imp:.0f} frames/s ({imp / whole:.2f}x the recorder path's {whole:.0f})"
     )
-    if baseline_rev:
-        b_whole, b_imp = baseline_record(baseline_rev, n, rounds)
-        print(f"baseline {baseline_rev} (same run, its own --section record):")
-        print(f"  whole path  {b_whole:10.0f} frames/s   -> now {whole / b_whole:5.2f}x")
-        print(f"  import-pcap {b_imp:10.0f} frames/s   -> now {imp / b_imp:5.2f}x")
+    ours = core_figures(tmp, n, rounds)
+    theirs = baseline_figures(baseline_rev, n, rounds) if baseline_rev else {}
+    print(f"\nCPU time, best of {rounds}; request/reply: {n // 4} exchanges (frames/s):")
+    head = f"  {'':32s} {'this tree':>10s}"
+    print(head + (f" {baseline_rev[:12]:>12s} {'ratio':>7s}" if theirs else ""))
+    for label, fps in ours.items():
+        line = f"  {label:32s} {fps:10.0f}"
+        if label in theirs:
+            line += f" {theirs[label]:12.0f} {fps / theirs[label]:6.2f}x"
+        print(line)
 
 
 def _hostile_streams(size: int) -> list[tuple[str, bytes]]:
@@ -424,13 +481,15 @@ def main() -> int:
         "--serve-capture", type=Path, help="replay-serve: replay this recording instead"
     )
     ap.add_argument(
-        "--section", choices=("all", "replay-serve", "record", "hostile-record"), default="all"
+        "--section",
+        choices=("all", "replay-serve", "record", "hostile-record", "core"),
+        default="all",
     )
     ap.add_argument("--hostile-bytes", type=int, default=2 << 20)
     ap.add_argument(
         "--baseline-rev",
         default="",
-        help="record section: also run this git revision's own record section ('' for none)",
+        help="record section: the same figures by this git revision's code ('' for none)",
     )
     args = ap.parse_args()
     if args.section == "record":
@@ -441,6 +500,10 @@ def main() -> int:
             for p in tmp.iterdir():
                 p.unlink()
             tmp.rmdir()
+        return 0
+    if args.section == "core":  # what --baseline-rev runs (in the baseline's tree)
+        with tempfile.TemporaryDirectory() as tmp:
+            print(json.dumps(core_figures(Path(tmp), args.frames, args.rounds)))
         return 0
     if args.section == "hostile-record":
         bench_hostile_record(args.hostile_bytes)
