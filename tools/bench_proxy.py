@@ -29,11 +29,19 @@
 ``--frames`` frames each way: the pieces of the same run side by side, so the ratios
 say where the time goes (the proxy's recorder process runs this same path):
 decoding only (a sink that drops the frames), decoding and the JSON template (a sink
-that formats each message and drops it), ``mcap.Writer.add_message`` alone on
-messages made beforehand, and the whole path (StreamRecorder into RecordingWriter,
-to a complete file); then ``import-pcap`` of a pcap exported from that recording,
-against the same recording path fed from the reassembled stream (the recorder's
-frames/s is the ceiling of the importer's).
+that formats each batch and drops it), ``mcap.Writer.add_message`` alone on messages
+made beforehand, one per frame as layout 1 wrote them, and the whole path
+(StreamRecorder into RecordingWriter, to a complete file); then ``import-pcap`` of a
+pcap exported from that recording.  Then, in CPU time, the whole path and
+``import-pcap`` on pipelined traffic (64 KiB reads) and on request/reply traffic (a
+frame a read, directions alternating), and with ``--baseline-rev REV`` the same four
+figures by the code of that revision (exported with ``git archive`` and run in a
+subprocess with it first on the path), with the ratios.
+
+``--section hostile-record`` feeds the recorder path hostile streams in 64 KiB reads
+(a frame and a byte of garbage, a tail flood, repeated headers, DATA holding
+``III/b/f``, a CNT with a leading zero, garbage, standard frames) at two sizes: s/MB and
+the ratio of the two times, near 2 when the work is linear.
 
 Everything runs on 127.0.0.1 with ports chosen by the OS.
 """
