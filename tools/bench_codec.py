@@ -283,14 +283,10 @@ print(reps / best)
 def baseline_full(rev: str, reps: int) -> float:
     """Full MoveJ decodes/s by the code of git revision ``rev`` (exported to a temporary
     directory and run in a subprocess: the figure before a change, in the same run)."""
-    root = Path(__file__).resolve().parent.parent
+    from tools._baseline import export_revision
+
     with tempfile.TemporaryDirectory() as tmp:
-        archive = subprocess.run(
-            ["git", "-C", str(root), "archive", rev, "conformance", "specs"],
-            check=True,
-            capture_output=True,
-        ).stdout
-        subprocess.run(["tar", "-x", "-C", tmp], input=archive, check=True)
+        export_revision(rev, tmp)
         out = subprocess.run(
             [sys.executable, "-c", _BASELINE, MOVEJ, str(reps)],
             cwd=tmp,

@@ -329,13 +329,10 @@ def core_figures(tmp: Path, n: int, rounds: int) -> dict[str, float]:
 def baseline_figures(rev: str, n: int, rounds: int) -> dict[str, float]:
     """:func:`core_figures` by the code of git revision ``rev`` (exported to a temporary
     directory and run in a subprocess with it first on the path), in this run."""
+    from tools._baseline import export_revision
+
     with tempfile.TemporaryDirectory() as tmp:
-        archive = subprocess.run(
-            ["git", "-C", str(ROOT), "archive", rev, "conformance", "specs"],
-            check=True,
-            capture_output=True,
-        ).stdout
-        subprocess.run(["tar", "-x", "-C", tmp], input=archive, check=True)
+        export_revision(rev, tmp)
         cmd = [sys.executable, __file__, "--section", "core", "--frames", str(n)]
         res = subprocess.run(
             [*cmd, "--rounds", str(rounds)],
@@ -510,8 +507,8 @@ def main() -> int:
             tmp.rmdir()
         return 0
     if args.section == "core":  # what --baseline-rev runs (in the baseline's tree)
-        with tempfile.TemporaryDirectory() as tmp:
-            print(json.dumps(core_figures(Path(tmp), args.frames, args.rounds)))
+        with tempfile.TemporaryDirectory() as where:
+            print(json.dumps(core_figures(Path(where), args.frames, args.rounds)))
         return 0
     if args.section == "hostile-record":
         bench_hostile_record(args.hostile_bytes)
