@@ -326,6 +326,25 @@ _RECS = [
 ]
 
 
+def _write_frame(w: RecordingWriter, r: FrameRecord) -> None:
+    """``r`` through the writer's one-frame path (write_frame's fields)."""
+    w.write_frame(
+        r.conn,
+        r.transport,
+        r.dir,
+        r.cnt,
+        r.cmd_id,
+        r.name,
+        r.data,
+        r.length if r.length is not None else len(r.data.encode("utf-8")),
+        r.offset,
+        r.first_ns or r.complete_ns,
+        r.complete_ns,
+        r.raw,
+        list(r.problems) or None,
+    )
+
+
 def test_write_frames_is_write_json_of_the_batch(tmp_path: Path) -> None:
     """The template path and the dict path give byte-identical files, and records
     written one by one are batched exactly as the batch of them is."""
@@ -351,21 +370,7 @@ def test_write_frames_is_write_json_of_the_batch(tmp_path: Path) -> None:
     d = tmp_path / "d.mcap"
     with RecordingWriter(d, metadata=metadata) as w:
         for r in _RECS:  # the one-frame path (request/reply traffic)
-            w.write_frame(
-                r.conn,
-                r.transport,
-                r.dir,
-                r.cnt,
-                r.cmd_id,
-                r.name,
-                r.data,
-                r.length if r.length is not None else len(r.data.encode("utf-8")),
-                r.offset,
-                r.first_ns or r.complete_ns,
-                r.complete_ns,
-                r.raw,
-                list(r.problems) or None,
-            )
+            _write_frame(w, r)
     assert a.read_bytes() == b.read_bytes() == c.read_bytes() == d.read_bytes()
     # A first_ns of 0 (not known) reads back as complete_ns, as layout 1 read it.
     want = [dataclasses.replace(r, first_ns=r.first_ns or r.complete_ns) for r in _RECS]
@@ -406,21 +411,7 @@ def test_one_frame_path_and_batches_mix_in_order(tmp_path: Path) -> None:
             if k % 3 == 0:
                 w.write_frames(FrameBatch.of([r]))
             else:
-                w.write_frame(
-                    r.conn,
-                    r.transport,
-                    r.dir,
-                    r.cnt,
-                    r.cmd_id,
-                    r.name,
-                    r.data,
-                    r.length if r.length is not None else len(r.data.encode("utf-8")),
-                    r.offset,
-                    r.first_ns,
-                    r.complete_ns,
-                    r.raw,
-                    list(r.problems) or None,
-                )
+                _write_frame(w, r)
             if k == 7:
                 w.write(ConnectionRecord(conn=9, event="open", t_ns=6))
     back = read_recording(out)
