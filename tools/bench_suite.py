@@ -2,12 +2,15 @@
 
     python tools/bench_suite.py [--profile quick|default|thorough] [--faults]
     python tools/bench_suite.py --run [--baseline-rev HEAD] [--rounds N]
+    python tools/bench_suite.py --requests [--baseline-rev HEAD]
 
 ``--run`` times ``fairino-conformance run -q`` (the default suite against the built-in
 emulator, as a user runs it) for the working tree and for the code of
 ``--baseline-rev`` (exported by ``git archive`` to a temporary directory), rounds
 interleaved so that load from other processes hits both alike, and prints wall time,
-cases/s and the ratio.
+cases/s and the ratio.  ``--requests`` prints, per case group, the frames the
+default suite sends and how many distinct DATA strings among them, for the working
+tree and for ``--baseline-rev``: what a faster suite still exercises.
 
 Runs the whole suite (every command, every group) through pytest in-process, as
 ``fairino-conformance run`` does, and prints cases/s and wall time.  With
@@ -19,12 +22,14 @@ command IDs the suite blamed.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from typing import Any
 
 
@@ -103,7 +108,10 @@ def _timed_run(cwd: str, env: dict[str, str]) -> tuple[float, int, dict[str, int
     return wall, sum(totals.values()), totals
 
 
-def compare_runs(rev: str, rounds: int) -> None:
+@contextlib.contextmanager
+def _trees(rev: str) -> Iterator[dict[str, tuple[str, dict[str, str]]]]:
+    """(directory, environment) of the working tree and of ``rev``'s code (``git
+    archive`` to a temporary directory), by label."""
     root = os.path.abspath(os.path.join(os.path.dirname(__file__), ".."))
     with tempfile.TemporaryDirectory() as base:
         archive = subprocess.run(
@@ -112,7 +120,7 @@ def compare_runs(rev: str, rounds: int) -> None:
             capture_output=True,
         ).stdout
         subprocess.run(["tar", "-x", "-C", base], input=archive, check=True)
-        envs = {
+        yield {
             "working tree": (root, {**os.environ, "PYTHONPATH": root}),
             f"{rev} (baseline)": (
                 base,
@@ -123,6 +131,10 @@ def compare_runs(rev: str, rounds: int) -> None:
                 },
             ),
         }
+
+
+def compare_runs(rev: str, rounds: int) -> None:
+    with _trees(rev) as envs:
         best: dict[str, tuple[float, int, dict[str, int]]] = {}
         for _ in range(rounds):
             for label, (cwd, env) in envs.items():
@@ -134,6 +146,63 @@ def compare_runs(rev: str, rounds: int) -> None:
         print(f"  {label:<22} {n} cases in {wall:5.1f} s = {n / wall:4.0f} cases/s  {totals}")
     new, old = best["working tree"][0], best[f"{rev} (baseline)"][0]
     print(f"  speed-up: {old / new:.2f}x (wall {new / old:.0%} of the baseline's)")
+
+
+# Run in the tree under test (its own conformance package): the frames each case
+# group sends to the built-in emulator, and the distinct DATA among them.
+_COUNT_REQUESTS = """
+import collections, json, sys
+from conformance.frame import Frame, decode_all
+from conformance.net import client
+from conformance.suite.config import SuiteConfig
+from conformance.suite.engine import Engine
+group = [None]
+sent = collections.defaultdict(list)
+send_raw = client.Client.send_raw
+def spy(self, raw, **kw):
+    # One write may carry several frames (a batch); bytes that are not frames count once.
+    frames = [f.data.encode() for f in decode_all(raw) if isinstance(f, Frame)]
+    sent[group[0]].extend(frames or [raw])
+    return send_raw(self, raw, **kw)
+client.Client.send_raw = spy
+engine = Engine(SuiteConfig(seed=1))
+cases = engine.select()
+outcomes = collections.Counter()
+for case in cases:
+    group[0] = case.group
+    outcomes[engine.run_case(case).outcome.value] += 1
+engine.close()
+json.dump({"cases": len(cases), "outcomes": outcomes, "groups": {
+    g: [len(datas), len(set(datas))] for g, datas in sent.items()
+}}, sys.stdout)
+"""
+
+
+def count_requests(rev: str) -> None:
+    with _trees(rev) as trees:
+        docs = {
+            label: json.loads(
+                subprocess.run(
+                    [sys.executable, "-c", _COUNT_REQUESTS],
+                    cwd=cwd,
+                    env=env,
+                    check=True,
+                    capture_output=True,
+                ).stdout
+            )
+            for label, (cwd, env) in trees.items()
+        }
+    print("frames sent / distinct DATA per case group, default profile, seed 1:")
+    groups = list(dict.fromkeys(g for d in docs.values() for g in d["groups"]))
+    print(f"  {'':<22} {'cases':>6} " + " ".join(f"{g:>17}" for g in groups) + f" {'all':>17}")
+    for label, d in docs.items():
+        cells = [d["groups"].get(g, [0, 0]) for g in groups]
+        total = [sum(c[0] for c in cells), sum(c[1] for c in cells)]
+        print(
+            f"  {label:<22} {d['cases']:>6} "
+            + " ".join(f"{f'{n} / {k}':>17}" for n, k in [*cells, total])
+            + f"  {dict(d['outcomes'])}"
+        )
 
 
 def faults() -> None:
@@ -188,11 +257,19 @@ def main() -> int:
     p.add_argument("--profile", default="quick", choices=("quick", "default", "thorough"))
     p.add_argument("--faults", action="store_true", help="also print the fault-detection table")
     p.add_argument("--run", action="store_true", help="time `run -q` against --baseline-rev")
+    p.add_argument(
+        "--requests",
+        action="store_true",
+        help="frames sent and distinct DATA per case group, against --baseline-rev",
+    )
     p.add_argument("--baseline-rev", default="HEAD", help="git revision for --run's baseline")
     p.add_argument("--rounds", type=int, default=2, help="rounds for --run (best of)")
     args = p.parse_args()
     if args.run:
         compare_runs(args.baseline_rev, args.rounds)
+        return 0
+    if args.requests:
+        count_requests(args.baseline_rev)
         return 0
     bench(args.profile)
     if args.faults:

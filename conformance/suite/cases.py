@@ -8,16 +8,16 @@ example, the malformed-input kind...).  Cases that concern no single command
 
 from __future__ import annotations
 
+import functools
 import math
 import threading
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, Protocol, TypeVar
 
 import hypothesis
 from hypothesis import HealthCheck, Phase
 from hypothesis import strategies as st
 from hypothesis.errors import Unsatisfiable
-from hypothesis.stateful import RuleBasedStateMachine, get_state_machine_test, precondition, rule
 
 from ..data import Value, format_call, format_number, parse_reply, to_python
 from ..frame import Frame, decode_all, encode_frame
@@ -33,8 +33,18 @@ from ..knowledge import (
 )
 from ..net.client import Exchange
 from ..report import Outcome
-from ..spec import TYPE_BOUNDS, Command, SpecSet, Variant
-from ..strategies import garbage, invalid_calls, invalid_kinds, valid_args, valid_calls
+from ..spec import Command, SpecSet, Variant
+from ..strategies import (
+    BOUNDS,
+    Batch,
+    Step,
+    bounds_applies,
+    garbage,
+    invalid_call_batches,
+    invalid_kinds,
+    step_programs,
+    valid_call_batches,
+)
 from ..validate import ERR_ARG_COUNT, ERR_ARG_VALUE, RefusalForm
 from .config import GROUPS, SuiteConfig, select_commands
 from .runner import Case, CaseFailure, SuiteRunner, Verdict, describe_exchange
@@ -55,14 +65,27 @@ def _settings(runner: SuiteRunner, n: int) -> hypothesis.settings:
     verbosity apply; deadline, database and health checks stay the kit's, since
     every example is a network exchange.
     """
+    if runner.config.hypothesis_profile:
+        return _settings_for(runner.config.hypothesis_profile, False, n)
+    return _kit_settings(runner.config.profile.shrink, n)
+
+
+@functools.lru_cache(maxsize=64)
+def _kit_settings(shrink: bool, n: int, examples: int | None = None) -> hypothesis.settings:
+    """The kit profile's settings, made once (and with ``examples`` as max_examples)."""
+    s = _settings_for(None, shrink, n)
+    return s if examples is None else hypothesis.settings(s, max_examples=examples)
+
+
+def _settings_for(profile: str | None, shrink: bool, n: int) -> hypothesis.settings:
     verbosity = hypothesis.Verbosity.quiet
     phases = [Phase.explicit, Phase.reuse, Phase.generate]
-    if runner.config.hypothesis_profile:
-        base = hypothesis.settings.get_profile(runner.config.hypothesis_profile)
+    if profile:
+        base = hypothesis.settings.get_profile(profile)
         n = base.max_examples
         phases = [p for p in base.phases if p is not Phase.target and p is not Phase.explain]
         verbosity = base.verbosity
-    elif runner.config.profile.shrink:
+    elif shrink:
         phases.append(Phase.shrink)
     return hypothesis.settings(
         max_examples=max(1, n),
@@ -130,6 +153,95 @@ def _hypothesis(
     return None
 
 
+T = TypeVar("T")
+
+#: Requests one Hypothesis example sends in the valid and invalid groups.  An
+#: example costs Hypothesis about half a millisecond (a fresh ConjectureData, its
+#: tree, the PRNG state saved and restored), more than an exchange with the
+#: emulator, so a case's requests are drawn in batches (one byte string each: see
+#: conformance/strategies.py).  The first example is the simplest, as Hypothesis
+#: always tries first: one request, each argument zero or the end of its range
+#: nearer to zero.  So the default profile's 10 requests take 2 examples, not 10.
+BATCH = 10
+
+
+def _batched(
+    runner: SuiteRunner,
+    case: Case,
+    n: int,
+    batches: Callable[[int], st.SearchStrategy[Batch[T]]],
+    data: Callable[[T], str],
+    check: Callable[[T, Exchange], None],
+    usable: Callable[[T], bool],
+) -> Verdict | None:
+    """Send ``n`` distinct requests of the case's command, at most :data:`BATCH` a
+    Hypothesis example, and ``check`` each exchange.
+
+    ``batches(k)`` draws candidates for ``k`` requests in one go (with spares,
+    see strategies.batch_size); ``data`` gives a candidate's DATA.  A candidate is
+    skipped when ``usable`` says no (as a filter would) or when its DATA was already
+    sent in the case (Hypothesis does not run an example twice either).  An
+    example's requests go together (SuiteRunner.exchanges).  The first failure
+    ends the case, shrunk if the profile says: from then on every example is sent
+    whole, so the shrinker sees each candidate fail or pass as it would alone.
+    """
+    settings = _settings(runner, n)
+    n = settings.max_examples  # a --hypothesis-profile's count replaces the kit's
+    per = min(n, BATCH)
+    examples = 1 + math.ceil((n - 1) / per)
+    if runner.config.hypothesis_profile:
+        settings = hypothesis.settings(settings, max_examples=examples)
+    else:
+        settings = _kit_settings(runner.config.profile.shrink, n, examples)
+    assert case.command is not None
+    cmd_id = case.command.cmd_id
+    sticky: list[CaseFailure] = []
+    failing: list[CaseFailure] = []
+    passed: set[str] = set()
+
+    def body(batch: Batch[T]) -> None:
+        if sticky:
+            raise sticky[0]
+        todo: dict[str, T] = {}
+        for x in batch.unique():
+            if len(todo) >= per or (not failing and len(passed) + len(todo) >= n):
+                break
+            d = data(x)
+            if d in todo or (not failing and d in passed) or not usable(x):
+                continue
+            todo[d] = x
+        for (d, x), ex in zip(todo.items(), runner.exchanges(cmd_id, list(todo)), strict=False):
+            try:
+                check(x, ex)
+            except CaseFailure as f:
+                failing.append(f)
+                if f.sticky:
+                    sticky.append(f)
+                raise
+            passed.add(d)
+
+    test = hypothesis.given(batches(per))(body)
+    # The database is off (see _settings), so the key Hypothesis would derive from
+    # the test's source (inspect + ast + tokenize on every case) is never used.
+    test._hypothesis_internal_database_key = None  # type: ignore[attr-defined]
+    test = settings(test)
+    test = hypothesis.seed(runner.config.seed ^ case.seed_offset)(test)
+    try:
+        test()
+    except BaseException as e:
+        f = _failure_in(e)
+        if f is None:
+            raise
+        if sticky and f is not sticky[0]:
+            return sticky[0].verdict
+        return f.verdict
+    if not passed:
+        return Verdict(
+            outcome=Outcome.SKIPPED, detail="no example satisfying the table could be built"
+        )
+    return None
+
+
 def _notes(notes: list[Verdict], passed: str) -> Verdict:
     if notes:
         return notes[0]
@@ -158,6 +270,8 @@ def _judge_success(runner: SuiteRunner, ex: Any, variant: Variant, what: str) ->
     """A reply to a valid request: must succeed with the declared shape."""
     verdict = runner.judge(ex, variant)
     assert verdict is not None and ex.reply is not None
+    if verdict.ok:
+        return None
     frames = describe_exchange(ex)
     if verdict.refused:
         if runner.is_unimplemented(ex.reply):
@@ -286,14 +400,20 @@ def _run_valid(runner: SuiteRunner, case: Case) -> Verdict:
     assert cmd is not None and variant is not None
     notes: list[Verdict] = []
 
-    def check(data: str) -> None:
-        ex = runner.exchange(cmd.cmd_id, data)
+    def check(data: str, ex: Exchange) -> None:
         note = _judge_success(runner, ex, variant, "valid arguments")
         if note is not None and not notes:
             notes.append(note)
 
-    strategy = valid_calls(cmd, variant).filter(lambda d: runner.check_request_valid(cmd.cmd_id, d))
-    v = _hypothesis(runner, case, runner.config.profile.valid, strategy, check)
+    v = _batched(
+        runner,
+        case,
+        runner.config.profile.valid,
+        lambda k: valid_call_batches(cmd, variant, k),
+        data=lambda d: d,
+        check=check,
+        usable=lambda d: runner.check_request_valid(cmd.cmd_id, d),
+    )
     return v or _notes(notes, "")
 
 
@@ -307,45 +427,20 @@ _EXPECTED_CODE = {
 }
 
 
-def _bounded(variant: Variant) -> list[int]:
-    """Integer parameters with no stated range whose C type still bounds them (uint8_t...)."""
-    return [
-        i
-        for i, p in enumerate(variant.params)
-        if p.is_integer and not p.is_array and not p.range and not p.enum and p.type in TYPE_BOUNDS
-    ]
-
-
-def _beyond_type(cmd: Command, variant: Variant) -> st.SearchStrategy[tuple[str, str]]:
-    """("bounds", DATA) with one argument just past its C type's maximum (uint8_t: 256)."""
-
-    def build(args: list[Value], i: int) -> tuple[str, str]:
-        args = list(args)
-        args[i] = TYPE_BOUNDS[variant.params[i].type][1] + 1
-        return ("bounds", format_call(cmd.name, args, variant.params))
-
-    return st.tuples(valid_args(variant), st.sampled_from(_bounded(variant))).map(
-        lambda t: build(*t)
-    )
-
-
 def _run_invalid(runner: SuiteRunner, case: Case) -> Verdict:
     cmd, variant = case.command, case.variant
     assert cmd is not None and variant is not None
     notes: list[Verdict] = []
 
-    def check(pair: tuple[str, str]) -> None:
-        kind, data = pair
-        hypothesis.assume(not runner.check_request_valid(cmd.cmd_id, data))
-        ex = runner.exchange(cmd.cmd_id, data)
+    def check(pair: tuple[str, str], ex: Exchange) -> None:
+        kind = pair[0]
         verdict = runner.judge(ex, variant)
         assert verdict is not None and ex.reply is not None
-        frames = describe_exchange(ex)
         if not verdict.refused:
             raise CaseFailure(
                 Outcome.FAIL,
                 f"accepted invalid arguments ({kind}): replied {ex.reply.data!r}",
-                frames=frames,
+                frames=describe_exchange(ex),
                 raw=ex.request,
             )
         want = _EXPECTED_CODE[kind]
@@ -356,27 +451,30 @@ def _run_invalid(runner: SuiteRunner, case: Case) -> Verdict:
                     outcome=Outcome.NON_STRICT,
                     detail=f"refused invalid arguments ({kind}) with {form} {verdict.code}; "
                     f"chapter 9 has code {want} for this",
-                    frames=frames,
+                    frames=describe_exchange(ex),
                     raw=ex.request,
                 )
             )
 
     kind: str = case.extra
-    # One case per kind (count, type, range), so that each is sure to be tried.
-    strategy = (
-        _beyond_type(cmd, variant)
-        if kind == "bounds"
-        else invalid_calls(cmd, variant, kinds=(kind,))
+    # One case per kind (count, type, range, bounds), so that each is sure to be tried.
+    v = _batched(
+        runner,
+        case,
+        runner.config.profile.invalid,
+        lambda k: invalid_call_batches(cmd, variant, (kind,), k),
+        data=lambda pair: pair[1],
+        check=check,
+        usable=lambda pair: not runner.check_request_valid(cmd.cmd_id, pair[1]),
     )
-    v = _hypothesis(runner, case, runner.config.profile.invalid, strategy, check)
     return v or _notes(notes, "")
 
 
 def _invalid_kinds(cmd: Command, variant: Variant) -> list[str]:
     """The invalid-call kinds to try for this variant: strategies.invalid_kinds, plus bounds."""
     kinds = list(invalid_kinds(cmd, variant))
-    if variant.form == "call" and _bounded(variant):
-        kinds.append("bounds")
+    if bounds_applies(variant):
+        kinds.append(BOUNDS)
     return kinds
 
 
@@ -611,20 +709,65 @@ def _values(runner: SuiteRunner, ex: Any, variant: Variant, what: str) -> list[s
     return [str(to_python(v)) if not isinstance(to_python(v), list) else "" for v in vals]
 
 
+class _Machine(Protocol):
+    """A state machine the stateful cases drive: writes, and reads that check them."""
+
+    def write(self, args: list[Value]) -> bool:
+        """Send a write with ``args``; False when the judge would not let it pass."""
+
+    def readable(self) -> bool:
+        """Whether a read can be checked yet (something was written)."""
+
+    def read(self, pick: int) -> None:
+        """Read back what a write set (``pick``, a byte, chooses what); raise CaseFailure."""
+
+
+def _run_machine(
+    runner: SuiteRunner, case: Case, variant: Variant, machine: Callable[[], _Machine]
+) -> Verdict:
+    """Run ``stateful_examples`` programs of ``stateful_steps`` steps on fresh machines.
+
+    A program is one Hypothesis draw (strategies.step_programs): each step writes,
+    or reads when its rule byte says so and something was written.  A write the
+    judge would refuse is skipped (a rule's precondition).  Hypothesis'
+    RuleBasedStateMachine did the same a step at a time, at some 0.4 ms of its own
+    per step: twice what the exchange itself costs against the emulator.
+    """
+    prof = runner.config.profile
+    written = [0]
+
+    def run(program: Batch[Step]) -> None:
+        m = machine()
+        for i, (rule_byte, pick, args) in enumerate(program):
+            # A third of the steps read (as many as RuleBasedStateMachine's choice
+            # among the rules came to); the simplest program reads every third step.
+            if (rule_byte + 86 * i) & 0xFF >= 170 and m.readable():
+                m.read(pick)
+            elif m.write(args):
+                written[0] += 1
+
+    strategy = step_programs(variant, prof.stateful_steps)
+    v = _hypothesis(runner, case, prof.stateful_examples, strategy, run)
+    if v is not None:
+        return v
+    if not written[0]:
+        return Verdict(outcome=Outcome.SKIPPED, detail="no valid step could be built")
+    return Verdict(outcome=Outcome.PASS)
+
+
 def _run_pair(runner: SuiteRunner, case: Case) -> Verdict:
     pair: StatePair = case.extra
     sv, gv = pair.setter_variant, pair.getter_variant
 
-    class PairMachine(RuleBasedStateMachine):
+    class PairMachine:
         def __init__(self) -> None:
-            super().__init__()
             self.expected: dict[tuple[str, ...], dict[int, Value]] = {}
             self.keyargs: dict[tuple[str, ...], list[Value]] = {}
 
-        @rule(args=valid_args(sv))
-        def set_value(self, args: list[Value]) -> None:
+        def write(self, args: list[Value]) -> bool:
             data = format_call(pair.setter.name, args, sv.params)
-            hypothesis.assume(runner.check_request_valid(pair.setter.cmd_id, data))
+            if not runner.check_request_valid(pair.setter.cmd_id, data):
+                return False
             ex = runner.exchange(pair.setter.cmd_id, data)
             _values(runner, ex, sv, f"{pair.setter.name}")
             key = tuple(_key_text(args[si]) for si, _ in pair.keys)
@@ -633,11 +776,14 @@ def _run_pair(runner: SuiteRunner, case: Case) -> Verdict:
             for si, gi in pair.keys:
                 gargs[gi] = args[si]
             self.keyargs[key] = gargs
+            return True
 
-        @precondition(lambda self: bool(self.expected))
-        @rule(data=st.data())
-        def read_back(self, data: st.DataObject) -> None:
-            key = data.draw(st.sampled_from(sorted(self.expected)))
+        def readable(self) -> bool:
+            return bool(self.expected)
+
+        def read(self, pick: int) -> None:
+            keys = sorted(self.expected)
+            key = keys[pick * len(keys) >> 8]
             gdata = format_call(pair.getter.name, self.keyargs[key], gv.params)
             ex = runner.exchange(pair.getter.cmd_id, gdata)
             got = _values(runner, ex, gv, pair.getter.name)
@@ -652,7 +798,7 @@ def _run_pair(runner: SuiteRunner, case: Case) -> Verdict:
                         raw=ex.request,
                     )
 
-    return _run_machine(runner, case, PairMachine)
+    return _run_machine(runner, case, sv, PairMachine)
 
 
 def _key_text(v: Value) -> str:
@@ -673,15 +819,14 @@ def _run_motion(runner: SuiteRunner, case: Case) -> Verdict:
     mtargets: MotionTargets = targets
     queries: list[tuple[Command, Variant, str]] = case.extra
 
-    class MotionMachine(RuleBasedStateMachine):
+    class MotionMachine:
         def __init__(self) -> None:
-            super().__init__()
             self.where: dict[str, list[Value]] = {}
 
-        @rule(args=valid_args(mvariant))
-        def move(self, args: list[Value]) -> None:
+        def write(self, args: list[Value]) -> bool:
             data = format_call(mcmd.name, args, mvariant.params)
-            hypothesis.assume(runner.check_request_valid(mcmd.cmd_id, data))
+            if not runner.check_request_valid(mcmd.cmd_id, data):
+                return False
             ex = runner.exchange(mcmd.cmd_id, data)
             _values(runner, ex, mvariant, mcmd.name)
             if mtargets.joints is not None:
@@ -692,13 +837,14 @@ def _run_motion(runner: SuiteRunner, case: Case) -> Verdict:
                 arr = args[mtargets.tcp_array]
                 assert isinstance(arr, list)
                 self.where["tcp"] = list(arr)
+            return True
 
-        @precondition(lambda self: bool(self.where))
-        @rule(data=st.data())
-        def query(self, data: st.DataObject) -> None:
+        def readable(self) -> bool:
+            return any(q[2] in self.where for q in queries)
+
+        def read(self, pick: int) -> None:
             usable = [q for q in queries if q[2] in self.where]
-            hypothesis.assume(usable)
-            q, qv, kind = data.draw(st.sampled_from(usable))
+            q, qv, kind = usable[pick * len(usable) >> 8]
             ex = runner.exchange(q.cmd_id, default_data(q, qv))
             got = _values(runner, ex, qv, q.name)
             want = self.where[kind]
@@ -711,33 +857,7 @@ def _run_motion(runner: SuiteRunner, case: Case) -> Verdict:
                     raw=ex.request,
                 )
 
-    return _run_machine(runner, case, MotionMachine)
-
-
-_NO_SOURCE = f"{__name__}.<machine>"
-
-
-def _run_machine(runner: SuiteRunner, case: Case, machine: type[RuleBasedStateMachine]) -> Verdict:
-    prof = runner.config.profile
-    s = hypothesis.settings(
-        _settings(runner, prof.stateful_examples), stateful_step_count=prof.stateful_steps
-    )
-    # Hypothesis digests the machine class's source for its example database (off
-    # here): inspect.getsource on a class re-parses all of cases.py each time.  A
-    # module name outside sys.modules makes it fall back to the class name.
-    machine.__module__ = _NO_SOURCE
-    test = get_state_machine_test(machine, settings=s)  # type: ignore[no-untyped-call]
-    test = hypothesis.seed(runner.config.seed ^ case.seed_offset)(test)
-    try:
-        test()
-    except Unsatisfiable:
-        return Verdict(outcome=Outcome.SKIPPED, detail="no valid step could be built")
-    except BaseException as e:
-        f = _failure_in(e)
-        if f is None:
-            raise
-        return f.verdict
-    return Verdict(outcome=Outcome.PASS)
+    return _run_machine(runner, case, mvariant, MotionMachine)
 
 
 # --------------------------------------------------------------------------- building

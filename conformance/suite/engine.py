@@ -16,6 +16,7 @@ that match no selected case are a :class:`RunWarning`.
 
 from __future__ import annotations
 
+import gc
 import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
@@ -79,6 +80,7 @@ class Engine:
         self.specs = specs if specs is not None else default_specs()
         self.runner = SuiteRunner(config, self.specs)
         self._started = False
+        self._frozen = False
         self._t0 = time.monotonic()
 
     @property
@@ -112,9 +114,18 @@ class Engine:
     # ------------------------------------------------------------------ running
 
     def start(self) -> None:
-        """Start the target (the emulator) or check it; a dry run starts nothing."""
+        """Start the target (the emulator) or check it; a dry run starts nothing.
+
+        What exists by then (the specs, the cases, the emulator) lives for the
+        whole run, so it is frozen out of the garbage collector's full
+        collections (``gc.freeze``), which would otherwise walk all of it again and
+        again, until :meth:`close`.
+        """
         if not self._started and not self.config.dry_run:
             self.runner.start()
+            gc.collect()
+            gc.freeze()
+            self._frozen = True
         self._started = True
 
     def run_case(self, case: Case) -> CaseResult:
@@ -221,3 +232,6 @@ class Engine:
 
     def close(self) -> None:
         self.runner.close()
+        if self._frozen:
+            self._frozen = False
+            gc.unfreeze()
