@@ -131,18 +131,33 @@ def _hypothesis(
                 sticky.append(f)
             raise
 
+    return _run_given(runner, case, strategy, body, _settings(runner, n), sticky)
+
+
+_UNSATISFIED = "no example satisfying the table could be built"
+
+
+def _run_given(
+    runner: SuiteRunner,
+    case: Case,
+    strategy: st.SearchStrategy[Any],
+    body: Callable[[Any], None],
+    settings: hypothesis.settings,
+    sticky: list[CaseFailure],
+) -> Verdict | None:
+    """Run ``body`` on ``strategy``'s examples under ``settings``, seeded by the case:
+    None when every example passed, SKIPPED when none could be built, else the verdict
+    of the failure (of the sticky one, which later examples re-raise, if any)."""
     test = hypothesis.given(strategy)(body)
     # The database is off (see _settings), so the key Hypothesis would derive from
     # the test's source (inspect + ast + tokenize on every case) is never used.
     test._hypothesis_internal_database_key = None  # type: ignore[attr-defined]
-    test = _settings(runner, n)(test)
+    test = settings(test)
     test = hypothesis.seed(runner.config.seed ^ case.seed_offset)(test)
     try:
         test()
     except Unsatisfiable:
-        return Verdict(
-            outcome=Outcome.SKIPPED, detail="no example satisfying the table could be built"
-        )
+        return Verdict(outcome=Outcome.SKIPPED, detail=_UNSATISFIED)
     except BaseException as e:
         f = _failure_in(e)
         if f is None:
@@ -220,26 +235,10 @@ def _batched(
                 raise
             passed.add(d)
 
-    test = hypothesis.given(batches(per))(body)
-    # The database is off (see _settings), so the key Hypothesis would derive from
-    # the test's source (inspect + ast + tokenize on every case) is never used.
-    test._hypothesis_internal_database_key = None  # type: ignore[attr-defined]
-    test = settings(test)
-    test = hypothesis.seed(runner.config.seed ^ case.seed_offset)(test)
-    try:
-        test()
-    except BaseException as e:
-        f = _failure_in(e)
-        if f is None:
-            raise
-        if sticky and f is not sticky[0]:
-            return sticky[0].verdict
-        return f.verdict
-    if not passed:
-        return Verdict(
-            outcome=Outcome.SKIPPED, detail="no example satisfying the table could be built"
-        )
-    return None
+    verdict = _run_given(runner, case, batches(per), body, settings, sticky)
+    if verdict is None and not passed:
+        return Verdict(outcome=Outcome.SKIPPED, detail=_UNSATISFIED)
+    return verdict
 
 
 def _notes(notes: list[Verdict], passed: str) -> Verdict:
