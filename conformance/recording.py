@@ -1031,6 +1031,10 @@ class RotatingWriter:
         """:meth:`RecordingWriter.write_frames` on the current segment."""
         self._writer.write_frames(batch)
 
+    def write_frame(self, *fields: Any) -> None:
+        """:meth:`RecordingWriter.write_frame` on the current segment."""
+        self._writer.write_frame(*fields)
+
     @property
     def messages(self) -> int:
         return self._writer.messages
