@@ -1560,30 +1560,6 @@ class StreamRecorder:
             return
         b = st.base if base is None else base
         tl = st.timeline
-        one = self._write_frame
-        if len(events) == 1 and one is not None and type(events[0]) is Frame:
-            # One frame (request/reply traffic): its fields straight to the writer.
-            cnt, cmd_id, data, length, raw, probs, offset = events[0]
-            while len(tl) > 1 and tl[1][0] <= offset:
-                tl.popleft()
-            st.frames += 1
-            self.frames += 1
-            one(
-                conn,
-                transport,
-                direction,
-                cnt,
-                cmd_id,
-                self._name_of(cmd_id, data),
-                data,
-                length if length is not None else len(data.encode("utf-8")),
-                b + offset,
-                tl[0][1] if tl else st.last_ns,
-                t_ns,
-                raw,
-                [p.value for p in probs] if probs else None,
-            )
-            return
         write = self.sink.write
         frames: list[Frame] = []
         firsts: list[int] = []
@@ -1621,25 +1597,25 @@ class StreamRecorder:
         k = len(frames)
         st.frames += k
         self.frames += k
-        if k == 1:  # a read of one frame (request/reply traffic): no zip, no comprehensions
+        one = self._write_frame
+        if k == 1 and one is not None:
+            # A lone frame (request/reply traffic): its fields straight to the writer,
+            # which makes a batch only if the next frame is of the same stream.
             cnt, cmd_id, data, length, raw, probs, offset = frames[0]
-            self._write_batch(
-                FrameBatch(
-                    conn,
-                    transport,
-                    direction,
-                    [cnt],
-                    [cmd_id],
-                    [self._name_of(cmd_id, data)],
-                    [data],
-                    [length if length is not None else len(data.encode("utf-8"))],
-                    [base + offset],
-                    firsts,
-                    [t_ns],
-                    [len(raw)],
-                    raw,
-                    [[p.value for p in probs]] if probs else None,
-                )
+            one(
+                conn,
+                transport,
+                direction,
+                cnt,
+                cmd_id,
+                self._name_of(cmd_id, data),
+                data,
+                length if length is not None else len(data.encode("utf-8")),
+                base + offset,
+                firsts[0],
+                t_ns,
+                raw,
+                [p.value for p in probs] if probs else None,
             )
             return
         cnts, cmd_ids, datas, lengths, raws, probss, offsets = zip(*frames, strict=True)
