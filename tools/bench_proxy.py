@@ -49,6 +49,7 @@ Everything runs on 127.0.0.1 with ports chosen by the OS.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import re
@@ -60,12 +61,15 @@ import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import TypeVar
 
 ROOT = Path(__file__).resolve().parent.parent
 # --baseline-rev runs this script again with another revision's package first on the path.
 sys.path.insert(0, os.environ.get("BENCH_PROXY_TREE") or str(ROOT))
 
 from conformance.frame import encode_frame  # noqa: E402
+
+T = TypeVar("T")
 
 ECHO = r"""
 import socket, sys, threading
@@ -127,6 +131,18 @@ def start_proxy(upstream_port: int, out: Path) -> tuple[subprocess.Popen[str], i
 def stop_proxy(p: subprocess.Popen[str]) -> None:
     p.send_signal(signal.SIGTERM)
     p.communicate(timeout=120)
+
+
+def _best_of(
+    rounds: int, fn: Callable[[], T], clock: Callable[[], float] = time.perf_counter
+) -> tuple[float, T]:
+    """The shortest of ``rounds`` timings of ``fn`` by ``clock``, and what it returned last."""
+    best = float("inf")
+    for _ in range(rounds):
+        t0 = clock()
+        out = fn()
+        best = min(best, clock() - t0)
+    return best, out
 
 
 def pct(xs: list[float], q: float) -> float:
@@ -307,21 +323,21 @@ def core_figures(tmp: Path, n: int, rounds: int) -> dict[str, float]:
     out: dict[str, float] = {}
     for kind, feed in kinds.items():
         path = tmp / f"{kind.replace('/', '-')}.mcap"
-        best = float("inf")
-        for _ in range(rounds):
-            t0 = time.process_time()
+
+        def record(feed: Callable[[object], None] = feed, path: Path = path) -> None:
             with RecordingWriter(path, metadata={"format": "bench"}) as w:
                 feed(w)
-            best = min(best, time.process_time() - t0)
+
+        best, _ = _best_of(rounds, record, time.process_time)
         rec = read_recording(path)
         out[f"record, {kind}"] = len(rec.frames) / best
         pcap = tmp / f"{kind.replace('/', '-')}.pcap"
         export_pcap(rec, pcap)
-        best = float("inf")
-        for _ in range(rounds):
-            t0 = time.process_time()
-            st = import_pcap(pcap, tmp / "imp.mcap", tcp_ports=[8080], specs=specs)
-            best = min(best, time.process_time() - t0)
+        best, st = _best_of(
+            rounds,
+            functools.partial(import_pcap, pcap, tmp / "imp.mcap", tcp_ports=[8080], specs=specs),
+            time.process_time,
+        )
         out[f"import-pcap, {kind}"] = st.frames / best
     return out
 
@@ -393,11 +409,7 @@ def bench_record(tmp: Path, n: int, rounds: int, baseline_rev: str = "") -> None
         ("whole path to a complete file", full),
     ]
     for label, fn in runs:
-        best = float("inf")
-        for _ in range(rounds):
-            t0 = time.perf_counter()
-            fn()
-            best = min(best, time.perf_counter() - t0)
+        best, _ = _best_of(rounds, fn)
         figures[label] = 2 * n / best
     rec = read_recording(out)
     ok = len(rec.frames) == 2 * n and not rec.problems
@@ -409,11 +421,9 @@ def bench_record(tmp: Path, n: int, rounds: int, baseline_rev: str = "") -> None
 
     pcap = tmp / "rec.pcap"
     export_pcap(rec, pcap)
-    best_imp = float("inf")
-    for _ in range(rounds):
-        t0 = time.perf_counter()
-        st = import_pcap(pcap, tmp / "imp.mcap", tcp_ports=[8080], specs=specs)
-        best_imp = min(best_imp, time.perf_counter() - t0)
+    best_imp, st = _best_of(
+        rounds, lambda: import_pcap(pcap, tmp / "imp.mcap", tcp_ports=[8080], specs=specs)
+    )
     whole = figures["whole path to a complete file"]
     imp = st.frames / best_imp
     print(
@@ -587,11 +597,9 @@ def main() -> int:
         pcap = tmp / "tp.pcap"
         export_pcap(rec, pcap)
         specs = default_specs()
-        best_imp = float("inf")
-        for _ in range(2):
-            t0 = time.perf_counter()
-            st = import_pcap(pcap, tmp / "imp.mcap", tcp_ports=[eport], specs=specs)
-            best_imp = min(best_imp, time.perf_counter() - t0)
+        best_imp, st = _best_of(
+            2, lambda: import_pcap(pcap, tmp / "imp.mcap", tcp_ports=[eport], specs=specs)
+        )
         print(
             f"\nimport-pcap: {st.packets} packets, {st.frames} frames in {best_imp:.2f} s = "
             f"{st.frames / best_imp:.0f} frames/s, {st.packets / best_imp:.0f} packets/s"
