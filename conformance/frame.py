@@ -218,9 +218,10 @@ class FrameRun(NamedTuple):
     lengths: list[int]  # LEN of each frame (the UTF-8 length of its DATA)
     sizes: list[int]  # bytes of each frame
 
-    def offsets(self) -> list[int]:
-        """Stream offset of each frame's first byte."""
-        out = list(accumulate(self.sizes, initial=self.offset))
+    def offsets(self, base: int = 0) -> list[int]:
+        """Stream offset of each frame's first byte (plus ``base``: a recorder's stream
+        may start before the decoder's)."""
+        out = list(accumulate(self.sizes, initial=base + self.offset))
         out.pop()
         return out
 

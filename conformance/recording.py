@@ -1516,8 +1516,7 @@ class StreamRecorder:
         k = len(run.cnts)
         st.frames += k
         self.frames += k
-        offsets = list(accumulate(run.sizes, initial=st.base + run.offset))
-        offsets.pop()
+        offsets = run.offsets(st.base)
         batch = FrameBatch(
             conn=conn,
             transport=transport,
