@@ -1,0 +1,12 @@
+"""The wire protocol, sans-I/O: frames (the codec) and their DATA (the grammar).
+
+* :mod:`.frame`: the frame value types and :func:`~.frame.encode_frame`;
+* :mod:`.frame_run`: :class:`~.frame_run.FrameRun` and how a run of standard frames
+  is found (the fast path of :meth:`~.decoder.FrameDecoder.take_run`);
+* :mod:`.decoder`: the streaming :class:`~.decoder.FrameDecoder`;
+* :mod:`.data_values`, :mod:`.data_parse`, :mod:`.data_format`, :mod:`.data_checks`
+  and :mod:`.data_fast`: the DATA grammar (re-exported by :mod:`conformance.data`).
+
+:mod:`conformance.frame` and :mod:`conformance.data` re-export what the rest of the
+kit imports; nothing here imports a higher floor.
+"""
