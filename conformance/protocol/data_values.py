@@ -1,0 +1,224 @@
+"""The values of the DATA grammar: arguments, calls, keywords, raw text, and the bounds.
+
+A call of plain numbers only (MoveJ's 29 values, at most 300 characters) keeps its
+argument text and makes its arguments on first use (:class:`Call`); the parser
+(:mod:`.data_parse`) makes such calls, the checks (:mod:`.data_checks`) read their
+text.  Errors about the peer's DATA are :class:`RemoteProtocolError` built by
+:func:`_error`, whose messages show at most :data:`SHOWN_CHARS` characters.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from ..errors import RemoteProtocolError, Rule
+
+__all__ = [
+    "MAX_DEPTH",
+    "MAX_ITEMS",
+    "MAX_NUMBER_DIGITS",
+    "SHOWN_CHARS",
+    "Arg",
+    "Array",
+    "Call",
+    "Keyword",
+    "Number",
+    "Parsed",
+    "RawData",
+    "Text",
+]
+
+
+#: Most digits one number token may hold (integer, fraction and exponent digits
+#: together).  The protocol carries C integers (uint64: 20 digits) and doubles; the
+#: manual writes numbers out in full with a few decimals (``-116.061``), and a
+#: finite double written so has at most 309 integer digits, which is what
+#: :func:`format_number` may produce for the largest one.  Past this a token is no
+#: number a controller sends, and reading it costs: CPython's ``int()`` is
+#: quadratic in the digits and refuses more than 4300.
+MAX_NUMBER_DIGITS = 320
+#: Deepest nesting of brace arrays.  The manual's deepest is 1 (``{5,5,5,5,5,5}``
+#: in SetCollisionStrategy, 5.x); the parser recurses once per level.
+MAX_DEPTH = 16
+#: Most values one DATA may hold, array items and arrays counted alike.  The
+#: manual's longest list is 75 values (specs/); this bounds the memory one DATA
+#: can cost (a 256 KB frame of ``1,1,1,...`` would otherwise be 128 K objects).
+MAX_ITEMS = 10_000
+#: Characters of an offending DATA a message shows (it says how long the DATA was).
+SHOWN_CHARS = 80
+
+
+def _shown(text: str, *, quote: bool = True) -> str:
+    """``text`` for a message (its repr), cut to :data:`SHOWN_CHARS` characters with its length."""
+    cut = text[:SHOWN_CHARS]
+    shown = repr(cut) if quote else cut
+    return shown if len(text) <= SHOWN_CHARS else f"{shown}... ({len(text)} chars)"
+
+
+class Number(tuple[str, "int | float"]):
+    """A numeric argument, with the text it was written as (``.000`` stays ``.000``).
+
+    Immutable like the other arguments, and built as ``Number(text=..., value=...)``;
+    a tuple underneath, because a call carries dozens of them and a tuple is the
+    cheapest immutable object to make (tools/bench_codec.py, full MoveJ decode).
+    """
+
+    __slots__ = ()
+
+    def __new__(cls, *, text: str, value: int | float) -> Number:
+        return tuple.__new__(cls, (text, value))
+
+    @property
+    def text(self) -> str:
+        return self[0]
+
+    @property
+    def value(self) -> int | float:
+        return self[1]
+
+    def __repr__(self) -> str:
+        return f"Number(text={self[0]!r}, value={self[1]!r})"
+
+    def __eq__(self, other: object) -> bool:
+        return type(other) is Number and tuple.__eq__(self, other)
+
+    def __ne__(self, other: object) -> bool:
+        return not self == other
+
+    __hash__ = tuple.__hash__
+
+    @classmethod
+    def of(cls, text: str) -> Number:
+        """From a token already known to match the number grammar (no re-validation).
+
+        Raises :class:`RemoteProtocolError` (``Rule.BAD_NUMBER``) for a number the
+        kit will not read: non-finite, beyond a double's range, or too many digits.
+        """
+        return tuple.__new__(cls, (text, _number_value(text)))
+
+    @property
+    def is_int(self) -> bool:
+        return isinstance(self[1], int)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Text:
+    """A string argument: ``"P1"`` (quoted) or ``192.168.58.2`` (bare)."""
+
+    value: str
+    quoted: bool
+
+
+@dataclass(frozen=True, kw_only=True)
+class Array:
+    """A brace array ``{a,b,c}``."""
+
+    items: tuple[Arg, ...]
+
+
+Arg = Number | Text | Array
+
+
+@dataclass(frozen=True, kw_only=True)
+class Call:
+    """A call ``Name(arg,arg,...)``.
+
+    A call :func:`parse_data` reads as a short list of plain numbers (MoveJ's 29
+    values) holds its argument text and makes ``args`` on first use: the text is
+    known to be such a list, so ``args`` cannot fail, and it is the tuple the
+    parser would have made (same values, same types).  :func:`match_variant`
+    checks such a call against a variant from the text, without ``args``
+    (tools/bench_codec.py, full MoveJ decode).  Equality, hash and repr read
+    ``args`` and are those of any call.
+    """
+
+    name: str
+    args: tuple[Arg, ...]
+    problems: tuple[Rule, ...] = ()
+
+    if not TYPE_CHECKING:  # mypy: no attribute of Call is dynamic
+
+        def __getattr__(self, attr: str) -> object:
+            # Called only when ``attr`` is not in the instance dict: ``args`` of a
+            # call made by _plain_call, not yet made.
+            if attr == "args":
+                d = self.__dict__
+                text = d.get(_PLAIN)
+                if text is not None:
+                    args = d["args"] = _plain_args(text)
+                    return args
+            raise AttributeError(f"{type(self).__name__!r} object has no attribute {attr!r}")
+
+
+#: Key of a lazily read call's argument text in its instance dict (not a field).
+_PLAIN = "_plain_args_text"
+
+
+def _plain_args(text: str) -> tuple[Number, ...]:
+    """The arguments of a plain-number list of at most 300 characters (_PLAIN_LIST_RE).
+
+    Each token is short and has no exponent, so _number_value could not refuse it
+    (always finite): it is read by int() or float() directly.
+    """
+    new = tuple.__new__
+    return tuple([new(Number, (t, float(t) if "." in t else int(t))) for t in text.split(",")])
+
+
+_object_new = object.__new__
+
+
+def _plain_call(name: str, text: str) -> Call:
+    """``Call(name=name, args=_plain_args(text))``, with ``args`` read when first used."""
+    call = _object_new(Call)
+    d = call.__dict__
+    d["name"] = name
+    d["problems"] = ()
+    d[_PLAIN] = text
+    return call
+
+
+@dataclass(frozen=True, kw_only=True)
+class Keyword:
+    word: str
+
+
+@dataclass(frozen=True, kw_only=True)
+class RawData:
+    text: str
+
+
+Parsed = Call | Keyword | RawData
+
+
+def _error(msg: str, data: str, rule: Rule = Rule.BAD_DATA) -> RemoteProtocolError:
+    return RemoteProtocolError(msg, rule=rule, raw=data.encode("utf-8", "replace"))
+
+
+def _number_value(token: str) -> int | float:
+    # Only a long token can break a bound; count its digits then (the grammar
+    # leaves at most a sign, a point, an e and the exponent's sign besides).
+    if len(token) > MAX_NUMBER_DIGITS and (
+        len(token) - sum(token.count(c) for c in "+-.eE") > MAX_NUMBER_DIGITS
+    ):
+        raise _error(
+            f"number {_shown(token)} has more than {MAX_NUMBER_DIGITS} digits",
+            token,
+            Rule.BAD_NUMBER,
+        )
+    if "." in token or "e" in token or "E" in token:
+        value = float(token)
+        if not math.isfinite(value):
+            raise _error(f"number {_shown(token)} is not finite", token, Rule.BAD_NUMBER)
+        return value
+    n = int(token)
+    if len(token) > 300:
+        # Every value must convert to a finite double (ranges compare as floats).
+        try:
+            float(n)
+        except OverflowError:
+            raise _error(
+                f"number {_shown(token)} is beyond a double's range", token, Rule.BAD_NUMBER
+            ) from None
+    return n
