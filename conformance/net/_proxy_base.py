@@ -1,0 +1,59 @@
+"""What the recording proxy's TCP and UDP halves share: its counters and its state.
+
+:class:`~conformance.net.proxy.RecordingProxy` is made of :class:`ProxyBase`'s two
+halves, :class:`~conformance.net.proxy_tcp.TcpForwarding` (connection pairs) and
+:class:`~conformance.net.proxy_udp.UdpForwarding` (datagram sessions); the attributes
+declared here are set by its ``__init__``.
+"""
+
+from __future__ import annotations
+
+import json
+import selectors
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from .addresses import format_sockaddr
+
+__all__ = ["ProxyBase", "ProxyStats"]
+
+
+@dataclass
+class ProxyStats:
+    connections: int = 0
+    bytes_c2s: int = 0
+    bytes_s2c: int = 0
+    refused: int = 0
+    closed: int = 0
+    paused: int = 0  # times the I/O thread waited for the recorder
+    rejected: int = 0  # clients closed at once: --max-connections reached
+    accept_errors: int = 0  # accept()/socket() failures for want of a resource
+    errors: int = 0  # connections closed by an unexpected error while handling them
+
+
+class ProxyBase:
+    """The state both halves read (set by ``RecordingProxy.__init__``)."""
+
+    stats: ProxyStats
+    max_connections: int
+    log: Callable[[str], None]
+    _sel: selectors.BaseSelector
+    #: Queue an event for the recorder: (kind, conn, direction, t_ns, payload).
+    _put: Callable[[int, int, str, int, bytes], None]
+    _next_conn: int
+
+    def _new_conn(self) -> int:
+        self._next_conn += 1
+        return self._next_conn
+
+
+def open_payload(transport: str, client: Any, upstream: Any, local: Any) -> bytes:
+    """An open event's payload: the connection's addresses, as JSON."""
+    doc = {
+        "transport": transport,
+        "client": format_sockaddr(client),
+        "upstream": format_sockaddr(upstream),
+        "local": format_sockaddr(local),
+    }
+    return json.dumps(doc).encode("utf-8")

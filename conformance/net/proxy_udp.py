@@ -1,0 +1,151 @@
+"""The recording proxy's UDP half: one session (and upstream socket) per client address.
+
+A datagram from a new client address opens a session with a socket of its own
+connected to the upstream; replies on that socket go back to that client.  A session
+idle for ``udp_idle`` seconds is closed.  UDP may lose datagrams, and so may we: a
+datagram that cannot be sent, or that arrives while no socket can be had, is lost
+on the way (but recorded when it was read).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import selectors
+import socket
+import time
+from dataclasses import dataclass
+from typing import Any
+
+from ..recording import C2S, S2C
+from ._proxy_base import ProxyBase, open_payload
+from ._server import RESOURCE_ERRNOS, family
+from .recorder_process import CLOSE, DGRAM, OPEN
+
+__all__ = ["UdpForwarding"]
+
+_READ = selectors.EVENT_READ
+_UDP_RECV = 65535
+
+
+@dataclass(eq=False)
+class _UdpSession:
+    conn: int
+    client_addr: Any
+    sock: socket.socket
+    last: float
+
+
+class UdpForwarding(ProxyBase):
+    """The proxy's UDP sessions (a half of :class:`~conformance.net.proxy.RecordingProxy`)."""
+
+    udp_upstream: tuple[str, int] | None
+    udp_address: tuple[str, int] | None
+    udp_idle: float
+    _udp: socket.socket | None
+    _sessions: dict[Any, _UdpSession]
+    _session_socks: dict[socket.socket, _UdpSession]
+
+    def _session_failed(self, s: _UdpSession, e: BaseException) -> None:
+        self.stats.errors += 1
+        self.log(f"proxy: UDP session {s.conn} closed: {type(e).__name__}: {e}")
+        with contextlib.suppress(Exception):
+            self._close_session(s, f"proxy error: {type(e).__name__}: {e}")
+
+    def _udp_from_client(self) -> None:
+        assert self._udp is not None and self.udp_upstream is not None
+        for _ in range(64):
+            try:
+                data, addr = self._udp.recvfrom(_UDP_RECV)
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError:
+                return
+            t = time.time_ns()
+            s = self._sessions.get(addr)
+            if s is None and len(self._sessions) >= self.max_connections:
+                # Not forwarded, but recorded: a session of its own, closed at once.
+                self.stats.rejected += 1
+                conn = self._new_conn()
+                self.stats.connections += 1
+                self._put(
+                    OPEN,
+                    conn,
+                    "",
+                    t,
+                    open_payload("udp", addr, self.udp_upstream, self.udp_address),
+                )
+                self.stats.bytes_c2s += len(data)
+                self._put(DGRAM, conn, C2S, t, data)
+                reason = f"refused: too many UDP sessions (max {self.max_connections})"
+                self._put(CLOSE, conn, "", t, reason.encode("utf-8"))
+                continue
+            if s is None:
+                try:
+                    sock = socket.socket(family(self.udp_upstream[0]), socket.SOCK_DGRAM)
+                except OSError as e:
+                    # Out of descriptors: this datagram is lost, as UDP may lose it.
+                    self.stats.accept_errors += 1
+                    if self.stats.accept_errors == 1 or e.errno not in RESOURCE_ERRNOS:
+                        self.log(f"proxy: UDP: cannot open a session: {e.strerror or e}")
+                    continue
+                sock.setblocking(False)
+                try:
+                    sock.connect(self.udp_upstream)
+                except OSError:
+                    sock.close()
+                    continue
+                s = _UdpSession(
+                    conn=self._new_conn(), client_addr=addr, sock=sock, last=time.monotonic()
+                )
+                self._sessions[addr] = s
+                self._session_socks[sock] = s
+                self._sel.register(sock, _READ, s)
+                self.stats.connections += 1
+                self._put(
+                    OPEN,
+                    s.conn,
+                    "",
+                    t,
+                    open_payload("udp", addr, self.udp_upstream, self.udp_address),
+                )
+            s.last = time.monotonic()
+            # UDP: a failed send loses the datagram on the way, as it would without us.
+            with contextlib.suppress(OSError):
+                s.sock.send(data)
+            self.stats.bytes_c2s += len(data)
+            self._put(DGRAM, s.conn, C2S, t, data)
+
+    def _udp_from_upstream(self, s: _UdpSession) -> None:
+        assert self._udp is not None
+        for _ in range(64):
+            try:
+                data = s.sock.recv(_UDP_RECV)
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError:
+                return  # ICMP port unreachable and the like: nothing arrived
+            t = time.time_ns()
+            s.last = time.monotonic()
+            with contextlib.suppress(OSError):
+                self._udp.sendto(data, s.client_addr)
+            self.stats.bytes_s2c += len(data)
+            self._put(DGRAM, s.conn, S2C, t, data)
+
+    def _close_session(self, s: _UdpSession, reason: str) -> None:
+        self._sessions.pop(s.client_addr, None)
+        self._session_socks.pop(s.sock, None)
+        with contextlib.suppress(KeyError, ValueError):
+            self._sel.unregister(s.sock)
+        s.sock.close()
+        self._put(CLOSE, s.conn, "", time.time_ns(), reason.encode("utf-8"))
+
+    def _session_deadlines(self) -> None:
+        """Close the sessions idle for ``udp_idle`` seconds."""
+        if self._sessions:
+            for s in list(self._sessions.values()):
+                if time.monotonic() - s.last >= self.udp_idle:
+                    self._close_session(s, "idle")
+
+    def _close_sessions(self, reason: str) -> None:
+        for s in list(self._sessions.values()):
+            self._close_session(s, reason)

@@ -1,0 +1,509 @@
+"""The recorder process: the proxy's events in through a pipe, MCAP out.
+
+The proxy's I/O thread only moves bytes; it appends ``(kind, direction,
+connection, time, length)`` headers and payloads to a buffer that
+:class:`RecorderProcess` writes, without blocking, into a pipe.  At the other end a
+separate Python process (:func:`_recorder_main`, started with ``python -c``) decodes
+frames (:class:`~conformance.recording.StreamRecorder`) and writes MCAP, so that
+decoding, JSON and file work never hold the forwarding thread's GIL.
+
+It flushes the file at least every ``flush_interval`` seconds, between two decoder
+slices too, so no input holds the flush back longer than one slice takes.  It keeps
+three counters (frames, problems, bytes taken) in memory it shares with the proxy
+(:class:`RecorderCounters`), and reads one value the proxy writes there when
+stopping: the ``time.monotonic()`` after which it stops decoding and copies what is
+left to the file undecoded (Problem records with rule ``undecoded``).  It ignores
+SIGINT and SIGTERM (a Ctrl-C reaches the whole process group): the proxy stops it by
+closing the pipe after a stop event.  If the proxy dies, it sees the pipe end, or its
+parent change, records the connections still open as closed ("proxy died") and
+finishes the file.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import mmap
+import os
+import pickle
+import signal
+import struct
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Callable, Mapping
+from multiprocessing.connection import Connection
+from pathlib import Path
+from typing import Any
+
+from ..recording import C2S, S2C, FrameRecord, RotatingWriter, StreamRecorder
+
+__all__ = ["CLOSE", "DATA", "DGRAM", "OPEN", "STOP", "RecorderCounters", "RecorderProcess"]
+
+# Events to the recorder process: a header (kind, direction, conn, t_ns, payload
+# length), then the payload: the bytes (data, datagram), the connection's
+# addresses as JSON (open) or the reason (close).
+OPEN, DATA, DGRAM, CLOSE, STOP = range(5)
+_EVENT = struct.Struct("<BBIqI")
+_DIR_CODE = {C2S: 0, S2C: 1, "": 2}
+_DIR_NAME = (C2S, S2C, "")
+_F_SETPIPE_SZ = 1031  # Linux fcntl: grow the pipe (1 MiB, the unprivileged maximum)
+_PIPE_SIZE = 1 << 20
+# Counters the recorder process keeps in shared memory: frames, problems, bytes taken.
+_COUNTERS = struct.Struct("<qqq")
+# And one value the proxy writes there: when stopping, the time.monotonic() (one clock
+# for every process on the machine) after which the recorder stops decoding and
+# copies what is left to the file undecoded, so that a stop never waits on a backlog.
+_STOP_AT = struct.Struct("<d")
+_STOP_AT_OFFSET = 64
+
+
+class RecorderCounters:
+    """What the recorder process has done so far (read from memory it shares with us)."""
+
+    def __init__(self, shared: mmap.mmap) -> None:
+        self._shared = shared
+        self._final: tuple[int, int, int] | None = None
+
+    def freeze(self) -> None:
+        """Keep the last values: the shared memory is about to be closed."""
+        self._final = self._get()
+
+    def _get(self) -> tuple[int, int, int]:
+        if self._final is not None:
+            return self._final
+        try:
+            return _COUNTERS.unpack_from(self._shared)  # type: ignore[return-value]
+        except ValueError:  # closed
+            return (0, 0, 0)
+
+    @property
+    def frames(self) -> int:
+        """Frames recorded."""
+        return self._get()[0]
+
+    @property
+    def problems(self) -> int:
+        """Problem records written."""
+        return self._get()[1]
+
+    @property
+    def taken(self) -> int:
+        """Payload bytes the recorder has taken from the pipe."""
+        return self._get()[2]
+
+
+class RecorderProcess:
+    """The proxy's end of the recorder process: starts it, hands it events, hears from it.
+
+    ``on_frame`` (if given) gets the frames the process recorded, and ``on_error``
+    the first failures (a recording error, an ``on_frame`` that raised, a process that
+    died).  :meth:`put` and :meth:`write` belong to one thread (the proxy's I/O thread,
+    then :meth:`RecordingProxy.close`).
+    """
+
+    def __init__(
+        self,
+        *,
+        paths: list[str],
+        on_frame: Callable[[FrameRecord], None] | None,
+        on_error: Callable[[BaseException], None],
+    ) -> None:
+        self.on_frame = on_frame
+        self.on_error = on_error
+        #: Files written (several when rotating), as the process reports them.
+        self.paths = list(paths)
+        #: Events not yet in the pipe.
+        self.buf = bytearray()
+        #: Payload bytes handed to :meth:`put` so far.
+        self.queued = 0
+        #: The process is gone: events are dropped (the proxy forwards on).
+        self.dead = False
+        #: The pipe's write end (-1 before :meth:`start` and after :meth:`stop`).
+        self.fd = -1
+        self.proc: subprocess.Popen[bytes] | None = None
+        self._status: Connection | None = None
+        self._status_thread: threading.Thread | None = None
+        self._done = False
+        # Shared counters: an unlinked temporary file, mapped by both processes.
+        self._shared_file = tempfile.TemporaryFile()  # noqa: SIM115 (closed in stop())
+        self._shared_file.truncate(mmap.PAGESIZE)
+        self._shared = mmap.mmap(self._shared_file.fileno(), mmap.PAGESIZE)
+        self.counters = RecorderCounters(self._shared)
+
+    def start(self, config: Mapping[str, Any]) -> None:
+        """Start the recorder process with ``config`` and wait until its file is open."""
+        r, w = os.pipe()
+        with contextlib.suppress(OSError):
+            import fcntl
+
+            fcntl.fcntl(w, _F_SETPIPE_SZ, _PIPE_SIZE)
+        status_r, status_w = os.pipe()
+        config = dict(config, frames=self.on_frame is not None, parent=os.getpid())
+        shared = self._shared_file.fileno()
+        root = str(Path(__file__).resolve().parent.parent.parent)
+        env = dict(os.environ)
+        env["PYTHONPATH"] = os.pathsep.join(filter(None, [root, env.get("PYTHONPATH")]))
+        code = (
+            "import sys; from conformance.net.recorder_process import _recorder_main; "
+            "_recorder_main(sys.argv[1:])"
+        )
+        try:
+            self.proc = subprocess.Popen(
+                [sys.executable, "-c", code, str(r), str(status_w), str(shared)],
+                pass_fds=(r, status_w, shared),
+                stdin=subprocess.DEVNULL,
+                env=env,
+            )
+        finally:
+            os.close(r)
+            os.close(status_w)
+        self.fd = w
+        self._status = Connection(status_r, writable=False)
+        blob = pickle.dumps(config, protocol=pickle.HIGHEST_PROTOCOL)
+        try:
+            _write_all(w, struct.pack("<I", len(blob)) + blob)
+            msg = self._status.recv()
+        except (OSError, EOFError):
+            msg = ("error", RuntimeError("the recorder process did not start"))
+        if msg[0] != "ready":
+            self.stop()
+            raise msg[1]
+        self.paths = list(msg[1])
+        os.set_blocking(w, False)
+        self._status_thread = threading.Thread(
+            target=self._status_loop, name="proxy-recorder-status", daemon=True
+        )
+        self._status_thread.start()
+
+    def _status_loop(self) -> None:
+        """Messages from the recorder process: frames for ``on_frame``, paths, errors."""
+        assert self._status is not None
+        while True:
+            try:
+                kind, value = self._status.recv()
+            except (EOFError, OSError):
+                return
+            if kind == "frames":
+                assert self.on_frame is not None
+                for rec in value:
+                    try:
+                        self.on_frame(rec)
+                    except Exception as e:
+                        self.on_error(e)
+            elif kind == "paths":
+                self.paths = list(value)
+            elif kind == "error":
+                self.on_error(value)
+            elif kind == "done":
+                self.paths = list(value)
+                self._done = True
+
+    def stop_decoding_at(self, deadline: float) -> None:
+        """Tell the process to copy what it has not decoded by ``deadline`` (monotonic)."""
+        with contextlib.suppress(ValueError):
+            _STOP_AT.pack_into(self._shared, _STOP_AT_OFFSET, deadline)
+
+    def stop(self) -> None:
+        """Close the pipe, wait for the process to finish the file (idempotent)."""
+        if self.fd >= 0:
+            with contextlib.suppress(OSError):
+                os.close(self.fd)
+            self.fd = -1
+        if self.proc is not None:
+            code = self.proc.wait()
+            if self._status_thread is not None:
+                self._status_thread.join()
+            if not self._done:
+                self.on_error(RuntimeError(f"the recorder process ended early (exit code {code})"))
+        if self._status is not None:
+            self._status.close()
+        self.counters.freeze()
+        self._shared.close()
+        self._shared_file.close()
+
+    def put(self, kind: int, conn: int, d: str, t_ns: int, payload: bytes) -> None:
+        """Queue one event (the proxy's hot path: kept short)."""
+        if kind in (DATA, DGRAM):
+            self.queued += len(payload)
+        if self.dead:
+            return
+        buf = self.buf
+        buf += _EVENT.pack(kind, _DIR_CODE[d], conn, t_ns, len(payload))
+        buf += payload
+
+    def write(self, *, block: bool = False) -> None:
+        """Hand buffered events to the process; never waits unless ``block``."""
+        buf = self.buf
+        if self.dead or self.fd < 0:
+            buf.clear()
+            return
+        if block:
+            os.set_blocking(self.fd, True)
+        try:
+            while buf:
+                n = os.write(self.fd, buf)
+                del buf[:n]
+        except BlockingIOError:
+            pass
+        except OSError as e:  # the recorder died: keep forwarding, record nothing more
+            self.dead = True
+            buf.clear()
+            self.on_error(RuntimeError(f"the recorder process is gone: {e.strerror or e}"))
+
+
+def _write_all(fd: int, data: bytes) -> None:
+    view = memoryview(data)
+    while view:
+        view = view[os.write(fd, view) :]
+
+
+# --------------------------------------------------------------------------- recorder process
+
+
+def _recorder_main(argv: list[str]) -> None:
+    """The recorder process: events from the pipe in, MCAP out (``python -c`` runs this).
+
+    ``argv``: the pipe's read end, the status pipe's write end, the shared counters' file.
+    """
+    # A Ctrl-C or a SIGTERM to the process group is for the proxy: it stops us in order.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    fd, status_fd, shared_fd = (int(a) for a in argv)
+    status = Connection(status_fd, readable=False)
+    shared = mmap.mmap(shared_fd, mmap.PAGESIZE)
+    head = _read_exactly(fd, 4)
+    config = pickle.loads(_read_exactly(fd, struct.unpack("<I", head)[0]))
+    try:
+        writer = RotatingWriter(
+            config["out"],
+            metadata=config["metadata"],
+            split_size=config["split_size"],
+            split_duration_ns=config["split_duration_ns"],
+        )
+    except BaseException as e:
+        status.send(("error", _picklable(e)))
+        return
+    status.send(("ready", writer.paths))
+    out_frames: list[FrameRecord] = []
+    rec = StreamRecorder(
+        writer,
+        specs=config["specs"],
+        on_frame=out_frames.append if config["frames"] else None,
+        max_frame_size=config["max_frame_size"],
+    )
+    _Recorder(config, fd, status, shared, writer, rec, out_frames).run()
+
+
+def _read_exactly(fd: int, n: int) -> bytes:
+    parts = []
+    while n:
+        b = os.read(fd, n)
+        if not b:
+            raise EOFError("the proxy closed the pipe")
+        parts.append(b)
+        n -= len(b)
+    return b"".join(parts)
+
+
+def _picklable(e: BaseException) -> BaseException:
+    try:
+        pickle.loads(pickle.dumps(e))
+    except Exception:
+        return RuntimeError(f"{type(e).__name__}: {e}")
+    return e
+
+
+class _Recorder:
+    """The recorder process's loop (see :func:`_recorder_main`)."""
+
+    def __init__(
+        self,
+        config: Mapping[str, Any],
+        fd: int,
+        status: Connection,
+        shared: mmap.mmap,
+        writer: RotatingWriter,
+        rec: StreamRecorder,
+        out_frames: list[FrameRecord],
+    ) -> None:
+        self.fd = fd
+        self.status = status
+        self.shared = shared
+        self.writer = writer
+        self.rec = rec
+        self.out_frames = out_frames
+        self.parent = config["parent"]
+        self.flush_interval = config["flush_interval"]
+        self.idle_ns = config["idle_resolve_ns"]
+        self.tick = config["record_tick"]
+        self.stop_timeout = config["stop_timeout"]
+        self.taken = 0
+        self.error_sent = False
+        self.paths = list(writer.paths)
+        self.last_flush = time.monotonic()
+        self.latest_ns = 0  # arrival time of the newest event taken from the pipe
+        self.next_poll = 0.0
+        rec.checkpoint = self.checkpoint
+
+    def fail(self, e: BaseException) -> None:
+        """The recording failed (disk full...): tell the proxy once, and carry on."""
+        if not self.error_sent:
+            self.error_sent = True
+            with contextlib.suppress(OSError):
+                self.status.send(("error", _picklable(e)))
+
+    def checkpoint(self) -> None:
+        """Between two decoder slices (see StreamRecorder): keep the flush promise,
+        and once the proxy's stop deadline has passed, record the rest undecoded."""
+        now = time.monotonic()
+        if now - self.last_flush >= self.flush_interval:
+            # Idle decisions use the newest arrival time taken from the pipe: the
+            # recorder is behind, and the bytes still queued may complete a frame.
+            self.flush(now, self.latest_ns)
+        if now >= self.next_poll and self.rec.undecoded_reason is None:
+            self.next_poll = now + 0.01
+            deadline = _STOP_AT.unpack_from(self.shared, _STOP_AT_OFFSET)[0]
+            if deadline and now >= deadline:
+                self.rec.stop_decoding(
+                    f"the proxy was stopping and these bytes were not decoded within "
+                    f"{self.stop_timeout:g} s"
+                )
+            elif os.getppid() != self.parent:
+                self.rec.stop_decoding("the proxy died")
+
+    def flush(self, now: float, idle_now_ns: int) -> None:
+        self.last_flush = now
+        try:
+            self.rec.idle(idle_now_ns, self.idle_ns)
+            self.writer.flush()
+        except Exception as e:
+            self.fail(e)
+        self.publish()
+
+    def run(self) -> None:
+        import select
+
+        fd = self.fd
+        buf = bytearray()
+        stopped = eof = False
+        got = True
+        drained = True
+        os.set_blocking(fd, False)
+        while not (stopped or eof):
+            # Work in ticks while traffic flows; wait for it when it does not.  A
+            # recorder that has stopped decoding (the proxy is stopping) only copies
+            # bytes to the file: it takes them as fast as it can.
+            if got and self.tick and self.rec.undecoded_reason is None:
+                time.sleep(self.tick)
+            elif not got:
+                select.select([fd], [], [], min(0.2, self.flush_interval))
+            got = False
+            # Bounded reads: a recorder far behind leaves the rest in the pipe, and the
+            # proxy, finding the pipe full, stops reading from its sockets.
+            drained = False
+            for _ in range(4):
+                try:
+                    chunk = os.read(fd, 1 << 20)
+                except BlockingIOError:
+                    drained = True
+                    break
+                if not chunk:
+                    eof = True
+                    break
+                got = True
+                buf += chunk
+                stopped = self.events(buf)
+                if stopped or len(chunk) < (1 << 20):
+                    drained = True
+                    break
+            if os.getppid() != self.parent:
+                eof = True  # the proxy is gone (SIGKILL) and someone else holds the pipe
+            self.publish()
+            now = time.monotonic()
+            if now - self.last_flush >= self.flush_interval:
+                self.flush(now, time.time_ns() if drained else self.latest_ns)
+        if not stopped:
+            try:
+                self.rec.finish(t_ns=time.time_ns(), reason="proxy died")
+            except Exception as e:
+                self.fail(e)
+        try:
+            self.writer.close()
+        except Exception as e:
+            self.fail(e)
+        self.publish()
+        with contextlib.suppress(OSError):
+            self.status.send(("done", self.writer.paths))
+
+    def events(self, buf: bytearray) -> bool:
+        """Record the whole events in ``buf`` (and remove them); True at the stop event.
+
+        Reads of one stream that follow each other in ``buf`` go to the recorder
+        together (:meth:`StreamRecorder.segments`): frames cut across them are still
+        decoded as runs.  The records are those of one ``data`` call a read.
+        """
+        rec = self.rec
+        unpack = _EVENT.unpack_from
+        size = _EVENT.size
+        pos = 0
+        end = len(buf)
+        stop = False
+        reads: list[tuple[int, bytes]] = []
+        key = (-1, -1)
+
+        def flush_reads() -> None:
+            if reads:
+                try:
+                    rec.segments(key[0], _DIR_NAME[key[1]], reads)  # type: ignore[arg-type]
+                except Exception as e:
+                    self.fail(e)
+                reads.clear()
+
+        while end - pos >= size:
+            kind, d, conn, t_ns, n = unpack(buf, pos)
+            if end - pos - size < n:
+                break
+            payload = bytes(buf[pos + size : pos + size + n])
+            pos += size + n
+            self.latest_ns = max(self.latest_ns, t_ns)
+            if kind == DATA:
+                self.taken += n
+                if (conn, d) != key:
+                    flush_reads()
+                    key = (conn, d)
+                reads.append((t_ns, payload))
+                continue
+            flush_reads()
+            try:
+                if kind == DGRAM:
+                    self.taken += n
+                    rec.datagram(conn, _DIR_NAME[d], t_ns, payload)  # type: ignore[arg-type]
+                elif kind == OPEN:
+                    rec.open(conn, t_ns=t_ns, **json.loads(payload))
+                elif kind == CLOSE:
+                    rec.close(conn, t_ns=t_ns, reason=payload.decode("utf-8"))
+                else:
+                    rec.finish(t_ns=t_ns, reason="proxy stopped")
+                    stop = True
+                    break
+            except Exception as e:
+                self.fail(e)
+        flush_reads()
+        del buf[:pos]
+        return stop
+
+    def publish(self) -> None:
+        """Counters to shared memory, frames (for ``on_frame``) and new paths to the proxy."""
+        _COUNTERS.pack_into(self.shared, 0, self.rec.frames, self.rec.problems, self.taken)
+        try:
+            if self.out_frames:
+                self.status.send(("frames", list(self.out_frames)))
+                self.out_frames.clear()
+            if self.writer.paths != self.paths:
+                self.paths = list(self.writer.paths)
+                self.status.send(("paths", self.paths))
+        except OSError:
+            self.out_frames.clear()  # the proxy is gone: record on regardless
