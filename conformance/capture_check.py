@@ -19,8 +19,9 @@ from typing import Any
 from .dialects import default_dialects
 from .judge import Direction, Judge, Verdict
 from .recording import C2S, FrameRecord, Recording
-from .report import CaseResult, Outcome, Report
+from .report import CaseResult, Report
 from .spec import SpecSet
+from .verdict import Outcome
 
 __all__ = [
     "SIDES",
@@ -41,7 +42,7 @@ def failing_ids_by_side(report: Report) -> dict[str, int]:
     """Per side (case group ``client`` / ``controller``), the command IDs with a failure."""
     out: dict[str, set[int]] = {"client": set(), "controller": set()}
     for c in report.cases:
-        if c.group in out and report.effective(c.outcome) is Outcome.FAIL and not c.expected:
+        if c.group in out and report.fails(c.outcome) and not c.expected:
             out[c.group].add(c.cmd_id)
     return {k: len(v) for k, v in out.items()}
 
@@ -255,6 +256,7 @@ class _Cases:
                     detail=detail,
                     frames=tuple(b.frames[:4]),
                     source=b.source,
+                    count=b.count,
                 )
             )
         return out

@@ -27,20 +27,18 @@ The reference does not change the outcome, only whether it fails
 
 from __future__ import annotations
 
-import enum
-import os
 from collections.abc import Iterable
 from dataclasses import dataclass, replace
 
 from .data import Call, Keyword, Parsed, Violation, check_args, parse_data
 from .data import _shown as shown
 from .dialects import ERRCODE_RETURNS, Dialect, DialectSet, manual_command
-from .errors import ProtocolError, Rule, UsageError
+from .errors import ProtocolError, Rule
 from .frame import Frame, Malformed
 from .knowledge import unsolicited_ids
-from .report import Outcome
 from .spec import Command, Returns, SpecSet, Variant
 from .validate import RefusalForm, ReplyVerdict, RequestCheck, classify_reply, validate_request
+from .verdict import REFERENCE_ENV, Direction, Outcome, Reference, fails, reference_from, worst
 
 __all__ = [
     "LENIENT",
@@ -53,41 +51,6 @@ __all__ = [
     "Verdict",
     "reference_from",
 ]
-
-REFERENCE_ENV = "FAIRINO_REFERENCE"
-
-
-class Reference(str, enum.Enum):
-    """What a frame is held to.
-
-    ``field`` (the default): the manual, or failing that a recorded field dialect
-    (DIALECT, not a failure).  ``manual``: the manual alone (DIALECT fails).
-    """
-
-    MANUAL = "manual"
-    FIELD = "field"
-
-
-def reference_from(value: str | None, *, env: bool = True) -> Reference:
-    """A reference from an option value, else ``$FAIRINO_REFERENCE``, else ``field``."""
-    where = ""
-    if value is None and env:
-        value = os.environ.get(REFERENCE_ENV) or None
-        where = f" (from ${REFERENCE_ENV})"
-    if value is None:
-        return Reference.FIELD
-    try:
-        return Reference(value.strip().lower())
-    except ValueError:
-        raise UsageError(f"reference must be 'manual' or 'field', not {value!r}{where}") from None
-
-
-class Direction(str, enum.Enum):
-    """Which way a frame went: a client's request or a controller's reply."""
-
-    REQUEST = "c2s"
-    REPLY = "s2c"
-
 
 #: Deviations real peers commonly show that the manual leaves open: NON-STRICT.
 LENIENT = frozenset(
@@ -129,9 +92,6 @@ class Finding:
     outcome: Outcome
     source: str
     message: str
-
-
-_RANK = {Outcome.FAIL: 0, Outcome.DIALECT: 1, Outcome.NON_STRICT: 2, Outcome.PASS: 3}
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -179,17 +139,16 @@ class Verdict:
     def _worst(self) -> Finding | None:
         if not self.findings:
             return None
-        return min(self.findings, key=lambda f: _RANK.get(f.outcome, 0))
+        w = worst(f.outcome for f in self.findings)
+        return next(f for f in self.findings if f.outcome is w)
 
     def fails(self, reference: Reference = Reference.FIELD, *, strict: bool = False) -> bool:
-        """Whether this verdict fails under ``reference`` (and ``--strict``)."""
-        if self.outcome is Outcome.FAIL:
-            return True
-        if self.outcome is Outcome.DIALECT:
-            return reference is Reference.MANUAL
-        if self.outcome is Outcome.NON_STRICT:
-            return strict
-        return False
+        """Whether this verdict fails under ``reference`` (and ``--strict``): any of its
+        findings does (conformance/verdict.py), so NUL padding on a dialect frame fails
+        under ``--strict`` although the frame's outcome reads DIALECT."""
+        return fails(self.outcome, reference, strict) or any(
+            fails(f.outcome, reference, strict) for f in self.findings
+        )
 
     def to_json(self) -> dict[str, object]:
         out: dict[str, object] = {
@@ -212,10 +171,7 @@ class Verdict:
 
 
 def _outcome(findings: Iterable[Finding]) -> Outcome:
-    fs = list(findings)
-    if not fs:
-        return Outcome.PASS
-    return min((f.outcome for f in fs), key=lambda o: _RANK.get(o, 0))
+    return worst(f.outcome for f in findings)
 
 
 def _requested(
@@ -303,26 +259,30 @@ class Judge:
         spelled = any(v.rule is Rule.NAME_CASE for v in content)
         matches = self._match_request(frame, check.parsed, transport) if hard or spelled else []
         if not hard:
-            # Only lenient departures: NON-STRICT under either reference.  A spelling a
-            # source is recorded to send (``Stop``) names that source.
+            # Only lenient departures: NON-STRICT under either reference, but a spelling a
+            # source is recorded to send (``Stop`` on 102) is that source's DIALECT.
             spelling = matches[0][0] if matches else None
             findings = framing + [
                 Finding(
-                    rule=v.rule.value,
-                    outcome=Outcome.NON_STRICT,
-                    source=spelling.cite()
-                    if spelling is not None and v.rule is Rule.NAME_CASE
-                    else source,
-                    message=v.detail
-                    + (
-                        f"; sent so by field dialect {spelling.id}"
-                        if spelling is not None and v.rule is Rule.NAME_CASE
-                        else ""
-                    ),
+                    rule="dialect",
+                    outcome=Outcome.DIALECT,
+                    source=spelling.cite(),
+                    message=f"follows field dialect {spelling.id}: {spelling.describe()} "
+                    f"({spelling.kind}); the manual: {v.detail}",
+                )
+                if spelling is not None and v.rule is Rule.NAME_CASE
+                else Finding(
+                    rule=v.rule.value, outcome=Outcome.NON_STRICT, source=source, message=v.detail
                 )
                 for v in content
             ]
-            return _requested(frame, check, findings, dialect=spelling, basis=source)
+            return _requested(
+                frame,
+                check,
+                findings,
+                dialect=spelling,
+                basis=spelling.cite() if spelling is not None else source,
+            )
         if matches:
             d, variant = matches[0]
             also = [m.id for m, _ in matches[1:]]

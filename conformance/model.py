@@ -24,7 +24,7 @@ from .dialects import Dialect, default_dialects
 from .errors import ProtocolError, Rule
 from .faults import Fault, FaultKind, active_fault, mangle_reply
 from .frame import DEFAULT_MAX_FRAME_SIZE, Frame, FrameDecoder, Malformed, decode_all
-from .judge import LENIENT, Judge, Reference, Verdict
+from .judge import LENIENT, Judge, Verdict
 from .knowledge import (
     MotionTargets,
     StatePair,
@@ -34,9 +34,9 @@ from .knowledge import (
     position_query,
     refusal_data,
 )
-from .report import Outcome
 from .spec import Command, Returns, ReturnValue, SpecSet, Variant, default_specs
 from .validate import ERR_ARG_COUNT, ERR_ARG_VALUE, ERR_EXEC_FAILED
+from .verdict import Outcome, Reference, fails
 
 __all__ = [
     "Action",
@@ -282,8 +282,8 @@ class Controller:
         d = v.dialect
         if v.outcome is not Outcome.DIALECT or d is None:
             return False
-        if self.judge.reference is not Reference.FIELD:
-            return False
+        if fails(Outcome.DIALECT, self.judge.reference):
+            return False  # the manual reference: a dialect is refused as the manual would
         return d.kind != "dispatch" or self.dispatch != "off"
 
     def answer(self, event: Frame | Malformed, transport: str | None = None) -> list[Action]:
@@ -298,13 +298,18 @@ class Controller:
             framing = [r for r in framing if r is not Rule.LEN_MISMATCH]
         if not framing and self._accepts(v):
             return self._execute(frame, v)
-        if v.outcome is Outcome.DIALECT:
+        dialect = v.outcome is Outcome.DIALECT
+        if dialect:
             v = self._manual.request(frame)  # refused: the manual's reasons and codes
         if self.dispatch == "any" and v.command is not None:
             named = self._by_name(frame, v)
             if named is not None:
                 v = named
         rules = self._hard(v)
+        if dialect and not rules:
+            # A recorded spelling (``Stop`` for STOP) the manual alone would read leniently:
+            # it is the source's dialect, refused like every other one.
+            rules = _rules(v) or [Rule.NAME_CASE]
         if self._fault(FaultKind.IGNORE_LEN, frame.cmd_id) is not None:
             rules = [r for r in rules if r is not Rule.LEN_MISMATCH]
         returns = v.variant.returns if v.variant is not None else None
@@ -335,7 +340,7 @@ class Controller:
             alt = self._manual.request(
                 Frame(cnt=frame.cnt, cmd_id=c.cmd_id, data=frame.data, length=frame.length)
             )
-            if alt.outcome in (Outcome.PASS, Outcome.NON_STRICT):
+            if not alt.fails(Reference.MANUAL):
                 return alt
         return None
 

@@ -51,11 +51,12 @@ import pytest
 from .errors import ConformanceError
 from .net.client import Client
 from .net.emulator import EmulatorServer
-from .report import CaseResult, Outcome, Report
+from .report import CaseResult, Report
 from .suite.config import SuiteConfig
 from .suite.engine import Engine
 from .suite.options import OPTIONS, option, resolve, suite_config
 from .suite.runner import Case
+from .verdict import Outcome, fails
 
 __all__ = ["CaseItem", "CommandNode", "Target"]
 
@@ -222,16 +223,12 @@ class CaseItem(pytest.Item):
             self.session.shouldstop = engine.runner.stopped
             self.user_properties.append((_STOPPED_PROP, engine.runner.stopped))
         outcome = result.outcome
-        if outcome is Outcome.NON_STRICT and config.strict:
-            outcome = Outcome.FAIL
         if outcome is Outcome.DIALECT:
             # JUnit shows the dialect and its source as properties of the testcase.
             self.user_properties.append(("dialect", result.source))
-            if config.reference == "manual":
-                outcome = Outcome.FAIL
         if result.expected:
             pytest.xfail(f"expected failure: {result.detail}")
-        if outcome in (Outcome.FAIL, Outcome.ERROR):
+        if fails(outcome, config.reference, config.strict):
             raise CaseFailed(result)
         if outcome is Outcome.SKIPPED:
             pytest.skip(result.detail or "skipped")

@@ -31,9 +31,10 @@ from .errors import ConformanceError
 from .frame import Frame, encode_frame
 from .judge import Judge
 from .recording import C2S, S2C, FrameRecord, ProblemRecord, Recording
-from .report import CaseResult, Outcome, Report
+from .report import CaseResult, Report
 from .safety import SafetyPolicy
 from .spec import SpecSet
+from .verdict import Outcome
 
 __all__ = ["ReplayResult", "ReplyBook", "replay_to_target"]
 

@@ -9,7 +9,6 @@ the README documents: ``target``, ``kit_version``, ``spec_version``, ``seed`` an
 
 from __future__ import annotations
 
-import enum
 import json
 import re
 from collections.abc import Iterable, Mapping
@@ -17,6 +16,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from . import __version__
+from .verdict import SEVERITY, Outcome, Reference, aggregate, fails
 
 __all__ = [
     "MAX_DETAIL",
@@ -35,34 +35,8 @@ __all__ = [
 ]
 
 
-class Outcome(str, enum.Enum):
-    """The outcome of a case or, aggregated, of a command."""
-
-    PASS = "PASS"
-    #: A definite violation of the protocol.
-    FAIL = "FAIL"
-    #: Departs from a reading the manual itself leaves ambiguous (fails only under --strict).
-    NON_STRICT = "NON-STRICT"
-    #: Follows a recorded field dialect, not the manual (fails only under ``--reference manual``).
-    DIALECT = "DIALECT"
-    #: The target refuses the command as unknown.
-    UNIMPLEMENTED = "UNIMPLEMENTED"
-    #: Not run: safety profile or selection.
-    SKIPPED = "SKIPPED"
-    #: Target unreachable or kit error.
-    ERROR = "ERROR"
-
-
-# Worst first: the command's outcome is its worst case's.
-_SEVERITY = {
-    Outcome.ERROR: 0,
-    Outcome.FAIL: 1,
-    Outcome.NON_STRICT: 2,
-    Outcome.DIALECT: 3,
-    Outcome.UNIMPLEMENTED: 4,
-    Outcome.PASS: 5,
-    Outcome.SKIPPED: 6,
-}
+# The severity order and the failing rule live in conformance/verdict.py (one place).
+_SEVERITY = SEVERITY
 
 
 #: Bounds on one case's failure text, so that a report stays small whatever the
@@ -97,6 +71,8 @@ class CaseResult:
     source: str = ""
     #: A failure the baseline (``--expected-failures``) lists: shown, but not failing the run.
     expected: bool = False
+    #: How many frames the case stands for (``check`` and ``serve`` fold alike frames into one).
+    count: int = 1
 
     def __post_init__(self) -> None:
         # Frozen: the bounds are applied once, here, so no front-end can forget them.
@@ -122,6 +98,7 @@ class CaseResult:
             not_run=bool(doc.get("not_run", False)),
             source=doc.get("source", ""),
             expected=bool(doc.get("expected", False)),
+            count=int(doc.get("count", 1)),
         )
 
     def to_json(self) -> dict[str, Any]:
@@ -139,6 +116,8 @@ class CaseResult:
             out["source"] = self.source
         if self.expected:
             out["expected"] = True
+        if self.count != 1:
+            out["count"] = self.count
         return out
 
 
@@ -160,20 +139,6 @@ class CommandSummary:
             key = "XFAIL" if c.expected else c.outcome.value
             out[key] = out.get(key, 0) + 1
         return out
-
-
-def aggregate(outcomes: Iterable[Outcome]) -> Outcome:
-    """Worst outcome; UNIMPLEMENTED only if nothing else ran; SKIPPED if nothing ran."""
-    outs = list(outcomes)
-    if not outs:
-        return Outcome.SKIPPED
-    ran = [o for o in outs if o is not Outcome.SKIPPED]
-    if not ran:
-        return Outcome.SKIPPED
-    worst = min(ran, key=_SEVERITY.__getitem__)
-    if worst is Outcome.UNIMPLEMENTED and any(o is Outcome.PASS for o in ran):
-        return Outcome.UNIMPLEMENTED
-    return worst
 
 
 @dataclass(kw_only=True)
@@ -205,28 +170,59 @@ class Report:
             for k, v in sorted(by.items())
         }
 
+    def fails(self, outcome: Outcome) -> bool:
+        """Whether ``outcome`` fails this run (its reference and ``--strict``): conformance/verdict.py."""
+        return fails(outcome, self.reference, self.strict)
+
     def effective(self, outcome: Outcome) -> Outcome:
-        """NON-STRICT counts as FAIL under --strict, DIALECT under the manual reference."""
-        if outcome is Outcome.NON_STRICT:
-            return Outcome.FAIL if self.strict else Outcome.PASS
-        if outcome is Outcome.DIALECT:
-            return Outcome.FAIL if self.reference == "manual" else Outcome.PASS
+        """FAIL for an outcome that fails this run (ERROR stays ERROR), PASS for a lenient one."""
+        if outcome in (Outcome.NON_STRICT, Outcome.DIALECT):
+            return Outcome.FAIL if self.fails(outcome) else Outcome.PASS
         return outcome
+
+    def failing_cases(self) -> list[CaseResult]:
+        """The cases that fail this run: the only source of the exit code and the failing totals."""
+        return [c for c in self.cases if not c.expected and self.fails(c.outcome)]
+
+    def failing_ids(self) -> list[int]:
+        """Command IDs with a failing case, in order."""
+        return sorted({c.cmd_id for c in self.failing_cases()})
 
     def exit_code(self) -> int:
         """0 conformant, 1 conformance failures, 2 kit or connection error."""
-        outs = [self.effective(c.outcome) for c in self.cases if not c.expected]
-        if Outcome.ERROR in outs:
+        failing = self.failing_cases()
+        if any(c.outcome is Outcome.ERROR for c in failing):
             return 2
-        if Outcome.FAIL in outs:
-            return 1
-        return 0
+        return 1 if failing else 0
 
     def totals(self) -> dict[str, int]:
         out: dict[str, int] = {o.value: 0 for o in Outcome}
         for s in self.commands().values():
             out[s.outcome.value] += 1
         return out
+
+    def _why_failing(self) -> str:
+        """Which lenient outcomes fail this run, said once (``--strict``, ``--reference manual``)."""
+        why = []
+        if self.strict:
+            why.append("NON-STRICT fails under --strict")
+        if Reference(self.reference) is Reference.MANUAL:
+            why.append("DIALECT fails under --reference manual")
+        return f" ({', '.join(why)})" if why else ""
+
+    def failing_note(self) -> str:
+        """``; N failing (NON-STRICT fails under --strict)`` where lenient outcomes fail this run.
+
+        The outcome counts alone then do not say why the run fails; with this the
+        printed totals and the exit code come from the same cases
+        (:meth:`failing_cases`).  Empty when FAIL and ERROR alone fail.
+        """
+        t = self.totals()
+        hard = t[Outcome.FAIL.value] + t[Outcome.ERROR.value]
+        ids = self.failing_ids()
+        if len(ids) == hard:
+            return ""
+        return f"; {len(ids)} failing{self._why_failing()}"
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -240,6 +236,8 @@ class Report:
             "stopped": self.stopped,
             "meta": self.meta,
             "totals": self.totals(),
+            "failing": self.failing_ids(),
+            "exit_code": self.exit_code(),
             "commands": {
                 str(k): {
                     "name": s.name,
@@ -279,13 +277,13 @@ class Report:
             if c.outcome is Outcome.DIALECT:
                 key = (c.cmd_id, c.source)
                 name, n = seen.get(key, (c.name, 0))
-                seen[key] = (name, n + 1)
+                seen[key] = (name, n + c.count)
         if not seen:
             return []
         verdict = (
-            "FAIL under the manual reference" if self.reference == "manual" else "not failures"
+            "FAIL under the manual reference" if self.fails(Outcome.DIALECT) else "not failures"
         )
-        out = [f"field dialects ({verdict}):"]
+        out = [f"field dialects ({verdict}; frames per entry):"]
         shown = sorted(seen.items())[:limit]
         w = _name_width(name for _, (name, _) in shown)
         for (cid, src), (name, n) in shown:
@@ -322,7 +320,7 @@ class Report:
         if not_run:
             lines.append(f"{not_run} cases not run: {self.stopped or 'the run stopped'}")
         lines += self._dialect_lines()
-        lines.append(f"commands: {counts} (target {self.target})")
+        lines.append(f"commands: {counts} (target {self.target}){self.failing_note()}")
         return "\n".join(lines)
 
 
@@ -416,7 +414,7 @@ def _clashing(labels: Mapping[str, str]) -> list[str]:
 
 def _failing(report: Report, outcome: Outcome) -> bool:
     """Fails the run as ``report`` was judged (NON-STRICT, DIALECT only when its options say)."""
-    return report.effective(outcome) in (Outcome.FAIL, Outcome.ERROR)
+    return report.fails(outcome)
 
 
 def _worst_first(cases: Iterable[CaseResult]) -> list[CaseResult]:
@@ -490,7 +488,10 @@ def _head(r: Report) -> str:
 
 def _totals(r: Report) -> str:
     counts = ", ".join(f"{v} {k}" for k, v in r.totals().items() if v)
-    return f"<p><b>{_esc(r.target)}</b>: {_esc(counts)} (exit code {r.exit_code()})</p>"
+    return (
+        f"<p><b>{_esc(r.target)}</b>: {_esc(counts + r.failing_note())} "
+        f"(exit code {r.exit_code()})</p>"
+    )
 
 
 def _legends(groups: list[str], labels: Mapping[str, str]) -> str:

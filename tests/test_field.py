@@ -231,7 +231,7 @@ def test_serve_as_an_sdk_authors_ci_gate(tmp_path: Path) -> None:
     assert len(dialect) >= 8
     assert all(re.search(r"[a-z]+-sdk-\d{3} \(FAIR-INNOVATION/", c["source"]) for c in dialect)
     assert any(c["frames"][0].startswith(">> UDP ") for c in dialect)
-    assert "field dialects (not failures)" in out
+    assert "field dialects (not failures; frames per entry)" in out
     # Under the manual reference the same traffic fails on the dialects as well.
     sound = [f for f in frames if f["expect"] != "defect"]
     m = sum(len(requests_of(f)) for f in sound)

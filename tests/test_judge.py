@@ -38,8 +38,9 @@ REQUESTS = [
         "LEN 25, DATA is 26 bytes",
     ),
     (b"/f/bIII1III103III5IIIPAUSEIII/b/f", "tcp", "DIALECT", "dialect", "keyword PAUSE"),
-    # A spelling is NON-STRICT whoever sends it; a recorded one names its source.
-    (b"/f/bIII1III102III4IIIStopIII/b/f", "tcp", "NON-STRICT", "name_case", "python-sdk-004"),
+    # A spelling nobody recorded is NON-STRICT; a recorded one is its source's DIALECT
+    # (so --strict does not fail the official SDK's StopMove).
+    (b"/f/bIII1III102III4IIIStopIII/b/f", "tcp", "DIALECT", "dialect", "python-sdk-004"),
     (b"/f/bIII1III102III4IIIsTOPIII/b/f", "tcp", "NON-STRICT", "name_case", "spells it STOP"),
     (b'/f/bIII1III201III11IIImovej("P1")III/b/f', None, "NON-STRICT", "name_case", "MoveJ"),
     (b"/f/bIII1III102III5IIISTARTIII/b/f", None, "FAIL", "name_mismatch", "START"),
@@ -208,7 +209,7 @@ def test_report_counts_dialect_by_reference() -> None:
     assert doc["commands"]["103"]["cases"][0]["source"] == case.source
     assert Report.from_json(doc).cases[0].source == case.source
     text = manual.render_terminal()
-    assert "field dialects (FAIL under the manual reference)" in text
+    assert "field dialects (FAIL under the manual reference; frames per entry)" in text
     assert "python-sdk-001" in text
 
 

@@ -27,8 +27,9 @@ from ..dialects import default_dialects
 from ..errors import Rule
 from ..frame import Frame, Malformed
 from ..judge import Direction, Judge, Reference, Verdict
-from ..report import CaseResult, Outcome, Report
+from ..report import CaseResult, Report
 from ..spec import SpecSet
+from ..verdict import Outcome
 from .runner import shell_printf, show
 
 __all__ = ["ClientValidator"]
@@ -248,6 +249,7 @@ class ClientValidator:
                             group="client",
                             outcome=Outcome.PASS,
                             detail=f"{n} conforming frame(s)",
+                            count=n,
                         )
                     )
                 for (did, eid), (count, raw, source, message, tr, dname) in sorted(
@@ -263,6 +265,7 @@ class ClientValidator:
                             group="client-dialect",
                             outcome=Outcome.DIALECT,
                             detail=f"{count} frame(s): {message}",
+                            count=count,
                             frames=(f">> {tr.upper()} {show(raw)}",),
                             reproduce=self._reproduce(raw),
                             source=source,

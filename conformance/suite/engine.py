@@ -22,8 +22,9 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
 
 from ..errors import UsageError
-from ..report import CaseResult, Outcome, Report
+from ..report import CaseResult, Report
 from ..spec import SpecSet, default_specs
+from ..verdict import Outcome, fails
 from .cases import build_cases
 from .config import SuiteConfig
 from .runner import Case, SuiteRunner
@@ -43,6 +44,9 @@ class RunStarted:
     total: int
     target: str
     seed: int
+    #: What the run is held to: which outcomes fail it (conformance/verdict.py).
+    reference: str = "field"
+    strict: bool = False
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -68,8 +72,6 @@ class RunFinished:
 
 
 Event = RunStarted | RunWarning | CaseFinished | RunFinished
-
-_FAILING = (Outcome.FAIL, Outcome.ERROR)
 
 
 class Engine:
@@ -159,12 +161,7 @@ class Engine:
     def _baseline(self, result: CaseResult) -> CaseResult:
         if result.id not in self.config.expected_failures:
             return result
-        failing = (
-            result.outcome in _FAILING
-            or (result.outcome is Outcome.NON_STRICT and self.config.strict)
-            or (result.outcome is Outcome.DIALECT and self.config.reference == "manual")
-        )
-        if failing:
+        if fails(result.outcome, self.config.reference, self.config.strict):
             return replace(result, expected=True)
         if result.outcome in (Outcome.PASS, Outcome.DIALECT, Outcome.NON_STRICT):
             return replace(
@@ -186,7 +183,13 @@ class Engine:
         and RunFinished says ``interrupted``.
         """
         t0 = time.monotonic()
-        yield RunStarted(total=len(cases), target=self.runner.target_label(), seed=self.config.seed)
+        yield RunStarted(
+            total=len(cases),
+            target=self.runner.target_label(),
+            seed=self.config.seed,
+            reference=self.config.reference,
+            strict=self.config.strict,
+        )
         for w in self.warnings(cases):
             self.report.meta.setdefault("warnings", []).append(w)
             yield RunWarning(message=w)

@@ -332,13 +332,13 @@ def load_expected_failures(path: str) -> frozenset[str]:
     if text.lstrip().startswith("{"):
         import json
 
-        from ..report import Outcome, Report
+        from ..report import Report
 
         try:
             rep = Report.from_json(json.loads(text))
         except (ValueError, KeyError, TypeError) as e:
             raise UsageError(f"--expected-failures: {path} is not a report: {e}") from None
-        return frozenset(c.id for c in rep.cases if c.outcome in (Outcome.FAIL, Outcome.ERROR))
+        return frozenset(c.id for c in rep.cases if rep.fails(c.outcome))
     ids = (line.split("#", 1)[0].strip() for line in text.splitlines())
     return frozenset(i for i in ids if i)
 

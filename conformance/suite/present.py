@@ -14,13 +14,11 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TextIO
 
-from ..report import CaseResult, Outcome, Report
+from ..report import CaseResult, Report
+from ..verdict import Outcome, Reference, fails
 from .engine import CaseFinished, Event, RunFinished, RunStarted, RunWarning
 
 __all__ = ["Progress", "failure_lines", "junit_xml", "write_junit"]
-
-_FAILING = (Outcome.FAIL, Outcome.ERROR)
-
 
 def _clock(seconds: float) -> str:
     s = int(seconds + 0.5)
@@ -47,6 +45,8 @@ class Progress:
         self.total = 0
         self.done = 0
         self.failed = 0
+        self.reference = Reference.FIELD
+        self.strict = False
         self._last_draw = 0.0
         self._last_step = -1
         self._drawn = False
@@ -66,6 +66,7 @@ class Progress:
     def handle(self, ev: Event) -> None:
         if isinstance(ev, RunStarted):
             self.total = ev.total
+            self.reference, self.strict = Reference(ev.reference), ev.strict
             if not self.quiet:
                 self.stream.write(
                     f"running {ev.total} cases against {ev.target} (seed {ev.seed})\n"
@@ -77,7 +78,9 @@ class Progress:
             self.stream.flush()
         elif isinstance(ev, CaseFinished):
             self.done = ev.index
-            self.failed += ev.result.outcome in _FAILING and not ev.result.expected
+            self.failed += (
+                fails(ev.result.outcome, self.reference, self.strict) and not ev.result.expected
+            )
             self._draw(ev.elapsed)
         elif isinstance(ev, RunFinished) and not self.quiet:
             self._clear()
@@ -113,7 +116,7 @@ class Progress:
 
 def failure_lines(report: Report, *, limit: int = 50) -> list[str]:
     """Each failing case (not baselined): its ID, outcome, reason, frames and reproduction."""
-    bad = [c for c in report.cases if c.outcome in _FAILING and not c.expected and not c.not_run]
+    bad = [c for c in report.failing_cases() if not c.not_run]
     out: list[str] = []
     for c in bad[:limit]:
         out.append(f"{c.outcome.value} {c.id}: {c.detail}")
@@ -125,7 +128,7 @@ def failure_lines(report: Report, *, limit: int = 50) -> list[str]:
     return out
 
 
-def _testcase(c: CaseResult) -> ET.Element:
+def _testcase(c: CaseResult, report: Report) -> ET.Element:
     tc = ET.Element("testcase", classname=str(c.cmd_id), name=c.id.split("/", 1)[-1], time="0")
     props = ET.SubElement(tc, "properties")
     ET.SubElement(props, "property", name="case_id", value=c.id)
@@ -136,10 +139,10 @@ def _testcase(c: CaseResult) -> ET.Element:
     text = "\n".join([c.detail, *c.frames, *([f"reproduce: {c.reproduce}"] if c.reproduce else [])])
     if c.expected:
         ET.SubElement(tc, "skipped", message=f"expected failure: {c.detail}"[:500])
-    elif c.outcome is Outcome.FAIL:
-        ET.SubElement(tc, "failure", message=c.detail[:500]).text = text
     elif c.outcome is Outcome.ERROR:
         ET.SubElement(tc, "error", message=c.detail[:500]).text = text
+    elif report.fails(c.outcome):  # FAIL, and NON-STRICT / DIALECT where the run says so
+        ET.SubElement(tc, "failure", message=f"{c.outcome.value}: {c.detail}"[:500]).text = text
     elif c.outcome in (Outcome.SKIPPED, Outcome.UNIMPLEMENTED):
         ET.SubElement(tc, "skipped", message=f"{c.outcome.value}: {c.detail}"[:500])
     return tc
@@ -152,7 +155,12 @@ def junit_xml(report: Report, cases: Sequence[CaseResult] | None = None) -> str:
         "testsuite",
         name="fairino-conformance",
         tests=str(len(rows)),
-        failures=str(sum(c.outcome is Outcome.FAIL and not c.expected for c in rows)),
+        failures=str(
+            sum(
+                report.fails(c.outcome) and c.outcome is not Outcome.ERROR and not c.expected
+                for c in rows
+            )
+        ),
         errors=str(sum(c.outcome is Outcome.ERROR and not c.expected for c in rows)),
         skipped=str(
             sum(c.expected or c.outcome in (Outcome.SKIPPED, Outcome.UNIMPLEMENTED) for c in rows)
@@ -162,7 +170,7 @@ def junit_xml(report: Report, cases: Sequence[CaseResult] | None = None) -> str:
     for k, v in (("target", report.target), ("seed", report.seed), ("reference", report.reference)):
         ET.SubElement(props, "property", name=k, value=str(v))
     for c in rows:
-        suite.append(_testcase(c))
+        suite.append(_testcase(c, report))
     root = ET.Element("testsuites")
     root.append(suite)
     return ET.tostring(root, encoding="unicode", xml_declaration=True) + "\n"

@@ -33,9 +33,10 @@ from ..judge import Judge, Reference
 from ..judge import Verdict as FrameVerdict
 from ..knowledge import default_data, health_query, unsolicited_ids
 from ..net.client import Client, Exchange, TargetUnreachable
-from ..report import CaseResult, Outcome, Report
+from ..report import CaseResult, Report
 from ..spec import Command, SpecSet, Variant
 from ..validate import ReplyVerdict
+from ..verdict import Outcome, fails
 from .config import SuiteConfig
 
 __all__ = [
@@ -569,8 +570,8 @@ class SuiteRunner:
                 f.message
                 for f in v.findings
                 if f.rule != Rule.REPLY_SHAPE.value
-                and f.outcome is not Outcome.DIALECT
-                and (f.outcome is Outcome.FAIL or self.config.strict)
+                and f.outcome is not Outcome.DIALECT  # a failing dialect is a shape fault
+                and fails(f.outcome, self.config.reference, self.config.strict)
             ]
         return out
 
@@ -602,7 +603,7 @@ class SuiteRunner:
             Violation(rule=Rule.REPLY_SHAPE, detail=f.message)
             for f in v.findings
             if (f.rule == Rule.REPLY_SHAPE.value and f.outcome is Outcome.FAIL)
-            or (f.outcome is Outcome.DIALECT and v.fails(self.frame_judge.reference))
+            or (f.outcome is Outcome.DIALECT and fails(f.outcome, self.frame_judge.reference))
         )
         return ReplyVerdict(refused=v.refused, form=v.form, code=v.code, violations=shape)
 
@@ -701,9 +702,9 @@ class SuiteRunner:
                 self._stop_dead(case, why)
         reproduce = ""
         if (
-            verdict.outcome in (Outcome.FAIL, Outcome.ERROR, Outcome.NON_STRICT)
-            and not verdict.not_run
-        ):
+            verdict.outcome is Outcome.NON_STRICT
+            or fails(verdict.outcome, self.config.reference, self.config.strict)
+        ) and not verdict.not_run:
             reproduce = self.reproduce(case, verdict.raw)
         result = CaseResult(
             id=case.id,
