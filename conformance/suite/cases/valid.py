@@ -1,0 +1,30 @@
+"""Group 3, valid: arguments the table allows must succeed with the declared reply."""
+
+from __future__ import annotations
+
+from ...net.client import Exchange
+from ...strategies import valid_call_batches
+from ..runner import Case, SuiteRunner, Verdict
+from .shared import _batched, _judge_success, _notes
+
+
+def _run_valid(runner: SuiteRunner, case: Case) -> Verdict:
+    cmd, variant = case.command, case.variant
+    assert cmd is not None and variant is not None
+    notes: list[Verdict] = []
+
+    def check(data: str, ex: Exchange) -> None:
+        note = _judge_success(runner, ex, variant, "valid arguments")
+        if note is not None and not notes:
+            notes.append(note)
+
+    v = _batched(
+        runner,
+        case,
+        runner.config.profile.valid,
+        lambda k: valid_call_batches(cmd, variant, k),
+        data=lambda d: d,
+        check=check,
+        usable=lambda d: runner.check_request_valid(cmd.cmd_id, d),
+    )
+    return v or _notes(notes, "")
