@@ -280,9 +280,9 @@ def _left(d: Path) -> set[str]:
 def test_failed_import_pcap_leaves_no_file(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    import conformance.pcap as pcap_mod
+    import conformance.pcap.recorder as pcap_recorder
     from conformance.cli import main
-    from conformance.pcap import export_pcap, import_pcap
+    from conformance.pcap import export_pcap, import_pcap, parse_packet
 
     src = tmp_path / "in"
     src.mkdir()
@@ -295,7 +295,7 @@ def test_failed_import_pcap_leaves_no_file(
     # Failing half-way (a bug, a full disk...): the error goes on, no file stays.
     good = src / "good.pcap"
     export_pcap(read_recording(FAULTS), good)
-    real = pcap_mod.parse_packet
+    real = parse_packet
     seen = []
 
     def parse(*a):  # type: ignore[no-untyped-def]
@@ -304,11 +304,11 @@ def test_failed_import_pcap_leaves_no_file(
             raise OSError(28, "No space left on device")
         return real(*a)
 
-    monkeypatch.setattr(pcap_mod, "parse_packet", parse)
+    monkeypatch.setattr(pcap_recorder, "parse_packet", parse)
     with pytest.raises(OSError):
         import_pcap(good, out / "x.mcap")
     assert _left(out) == set()
-    monkeypatch.setattr(pcap_mod, "parse_packet", real)
+    monkeypatch.setattr(pcap_recorder, "parse_packet", real)
     assert main(["import-pcap", str(good), "-o", str(out / "x.mcap")]) == 0
     assert _left(out) == {"x.mcap"}
     capsys.readouterr()

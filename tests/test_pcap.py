@@ -17,7 +17,7 @@ from scapy.layers.l2 import CookedLinux, CookedLinuxV2, Dot1Q, Ether, Loopback
 from scapy.packet import Raw
 from scapy.utils import wrpcap, wrpcapng
 
-import conformance.pcap as pcap_mod
+import conformance.pcap.read as pcap_read
 from conformance.errors import UsageError
 from conformance.frame import encode_frame
 from conformance.pcap import (
@@ -378,7 +378,7 @@ def test_classic_reader_agrees_with_scapys(
     """Classic pcap records are read by conformance.pcap, not by scapy's reader: both
     give the same records, whatever the byte order, resolution and read size (records
     straddling the reads), and for the file cut at every byte of its last records."""
-    monkeypatch.setattr(pcap_mod, "_CHUNK", chunk)
+    monkeypatch.setattr(pcap_read, "_CHUNK", chunk)
     path = tmp_path / "x.pcap"
     data = _classic_pcap(_sample_packets(), endian=endian, nano=nano)
     for cut in [len(data), *range(len(data) - 300, len(data))]:
@@ -395,8 +395,8 @@ def test_classic_reader_agrees_with_scapys_on_the_corpus() -> None:
 def test_a_record_over_the_bound_is_cut_and_the_next_one_read(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, chunk: int
 ) -> None:
-    monkeypatch.setattr(pcap_mod, "_MAX_PACKET", 100)
-    monkeypatch.setattr(pcap_mod, "_CHUNK", chunk)
+    monkeypatch.setattr(pcap_read, "_MAX_PACKET", 100)
+    monkeypatch.setattr(pcap_read, "_CHUNK", chunk)
     big, after = bytes(range(250)), b"after"
     path = tmp_path / "x.pcap"
     data = _classic_pcap([big, after])

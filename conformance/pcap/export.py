@@ -1,0 +1,201 @@
+"""``export-pcap``: a recording written as a classic pcap, for Wireshark.
+
+Nanosecond timestamps, Ethernet link type with fixed, explicit MAC addresses; the IP,
+TCP and UDP headers (checksums included) are written here.  Nothing here sends a packet
+or resolves an address.
+"""
+
+from __future__ import annotations
+
+import functools
+import ipaddress
+import os
+import struct
+from typing import Any
+
+from ..recording import C2S, S2C, Recording, atomic_output
+from .packets import _ACK, _FIN, _SYN, DLT_EN10MB
+
+_MAC_CLIENT = bytes.fromhex("020000000001")
+_MAC_SERVER = bytes.fromhex("020000000002")
+_MSS = 16384
+
+
+def _checksum(data: bytes) -> int:
+    if len(data) % 2:
+        data += b"\x00"
+    s: int = sum(struct.unpack(f"!{len(data) // 2}H", data))
+    while s >> 16:
+        s = (s & 0xFFFF) + (s >> 16)
+    return ~s & 0xFFFF
+
+
+def _addr(text: str, fallback: str) -> tuple[bytes, int]:
+    host, _, port = text.rpartition(":")
+    host = host.strip("[]")
+    try:
+        ip = ipaddress.ip_address(host)
+        p = int(port)
+        if isinstance(ip, ipaddress.IPv4Address):
+            return ip.packed, p
+        return ipaddress.IPv4Address(fallback).packed, p
+    except ValueError:
+        return ipaddress.IPv4Address(fallback).packed, 0
+
+
+def _ipv4(src: bytes, dst: bytes, proto: int, l4: bytes, ident: int) -> bytes:
+    hdr = struct.pack(
+        "!BBHHHBBH4s4s", 0x45, 0, 20 + len(l4), ident & 0xFFFF, 0x4000, 64, proto, 0, src, dst
+    )
+    return hdr[:10] + struct.pack("!H", _checksum(hdr)) + hdr[12:] + l4
+
+
+def _tcp(
+    src: bytes, dst: bytes, sport: int, dport: int, seq: int, ack: int, flags: int, payload: bytes
+) -> bytes:
+    hdr = struct.pack(
+        "!HHIIBBHHH", sport, dport, seq & 0xFFFFFFFF, ack & 0xFFFFFFFF, 5 << 4, flags, 65535, 0, 0
+    )
+    pseudo = struct.pack("!4s4sBBH", src, dst, 0, 6, len(hdr) + len(payload))
+    cs = _checksum(pseudo + hdr + payload)
+    return hdr[:16] + struct.pack("!H", cs) + hdr[18:] + payload
+
+
+def _udp(src: bytes, dst: bytes, sport: int, dport: int, payload: bytes) -> bytes:
+    hdr = struct.pack("!HHHH", sport, dport, 8 + len(payload), 0)
+    pseudo = struct.pack("!4s4sBBH", src, dst, 0, 17, len(hdr) + len(payload))
+    cs = _checksum(pseudo + hdr + payload) or 0xFFFF
+    return hdr[:6] + struct.pack("!H", cs) + payload
+
+
+class _PcapWriter:
+    """Classic pcap, nanosecond timestamps, Ethernet."""
+
+    def __init__(self, path: str | os.PathLike[str]) -> None:
+        self.f = open(path, "wb")  # noqa: SIM115 (closed in close())
+        self.f.write(struct.pack("<IHHiIII", 0xA1B23C4D, 2, 4, 0, 0, 262144, DLT_EN10MB))
+        self.count = 0
+        self.ident = 0
+
+    def ip_packet(self, t_ns: int, from_client: bool, ip: bytes) -> None:
+        eth = (_MAC_SERVER + _MAC_CLIENT) if from_client else (_MAC_CLIENT + _MAC_SERVER)
+        frame = eth + b"\x08\x00" + ip
+        self.f.write(
+            struct.pack(
+                "<IIII", t_ns // 1_000_000_000, t_ns % 1_000_000_000, len(frame), len(frame)
+            )
+        )
+        self.f.write(frame)
+        self.count += 1
+
+    def tcp_segment(
+        self,
+        t_ns: int,
+        client: tuple[bytes, int],
+        server: tuple[bytes, int],
+        from_client: bool,
+        seq: int,
+        ack: int,
+        flags: int,
+        data: bytes = b"",
+    ) -> None:
+        self.ident += 1
+        (a, ap), (b, bp) = (client, server) if from_client else (server, client)
+        self.ip_packet(
+            t_ns, from_client, _ipv4(a, b, 6, _tcp(a, b, ap, bp, seq, ack, flags, data), self.ident)
+        )
+
+    def close(self) -> None:
+        self.f.close()
+
+
+def export_pcap(rec: Recording, out: str | os.PathLike[str]) -> int:
+    """Write the recording's traffic as a pcap; returns the number of packets written.
+
+    Each connection becomes a TCP (or UDP) flow between its recorded client and
+    controller addresses (IPv4; others are mapped to 10.0.0.1 / 10.0.0.2), with
+    a handshake at its open event, one segment per frame or malformed run at its
+    stream offset (so bytes missing from an imported capture stay missing), and
+    FINs at its close event.
+    """
+    events: list[tuple[int, int, int, str, Any]] = []  # (t, order, conn, kind, payload)
+    opened = {c.conn: c for c in rec.connections if c.event == "open"}
+    closed = {c.conn: c for c in rec.connections if c.event == "close"}
+    order = 0
+    for f in rec.frames:
+        order += 1
+        events.append((f.complete_ns, order, f.conn, f.dir, (f.offset, f.raw)))
+    for p in rec.problems:
+        if p.kind == "malformed" and p.raw:
+            order += 1
+            events.append((p.complete_ns, order, p.conn, p.dir, (p.offset, p.raw)))
+    conn_ids = sorted({e[2] for e in events} | set(opened))
+    first_t = {cid: min((e[0] for e in events if e[2] == cid), default=0) for cid in conn_ids}
+    last_t = {cid: max((e[0] for e in events if e[2] == cid), default=0) for cid in conn_ids}
+    for cid in conn_ids:
+        o = opened.get(cid)
+        t0 = o.t_ns if o else first_t[cid]
+        events.append((t0, -1, cid, "open", None))
+        c = closed.get(cid)
+        t1 = c.t_ns if c else last_t[cid]
+        events.append((max(t1, last_t[cid]), 1 << 62, cid, "close", None))
+    events.sort(key=lambda e: (e[0], e[1]))
+
+    # Written next to ``out`` and renamed when complete: a failure leaves no file.
+    with atomic_output(out) as tmp:
+        w = _PcapWriter(tmp)
+        state: dict[int, dict[str, Any]] = {}
+        try:
+            for t, _, cid, kind, payload in events:
+                st = state.get(cid)
+                if st is None:
+                    o = opened.get(cid)
+                    csrc, cport = _addr(o.client if o else "", "10.0.0.1")
+                    sdst, sport = _addr(o.upstream if o else "", "10.0.0.2")
+                    transport = o.transport if o else "tcp"
+                    st = state[cid] = {
+                        "c": (csrc, cport or 40000 + cid % 20000),
+                        "s": (sdst, sport or 8080),
+                        "udp": transport == "udp",
+                        "isn": {C2S: 1000, S2C: 5000},
+                        "sent": {C2S: 0, S2C: 0},
+                        "open": False,
+                    }
+                (ca, cp), (sa, sp) = st["c"], st["s"]
+                if st["udp"]:
+                    if kind in (C2S, S2C):
+                        _, raw = payload
+                        if kind == C2S:
+                            w.ip_packet(t, True, _ipv4(ca, sa, 17, _udp(ca, sa, cp, sp, raw), cid))
+                        else:
+                            w.ip_packet(t, False, _ipv4(sa, ca, 17, _udp(sa, ca, sp, cp, raw), cid))
+                    continue
+                isn, sent = st["isn"], st["sent"]
+
+                seg = functools.partial(w.tcp_segment, t, (ca, cp), (sa, sp))
+
+                if kind == "open" or (not st["open"] and kind != "close"):
+                    if not st["open"]:
+                        st["open"] = True
+                        seg(True, isn[C2S] - 1, 0, _SYN)
+                        seg(False, isn[S2C] - 1, isn[C2S], _SYN | _ACK)
+                        seg(True, isn[C2S], isn[S2C], _ACK)
+                    if kind == "open":
+                        continue
+                if kind == "close":
+                    if st["open"]:
+                        seg(True, isn[C2S] + sent[C2S], isn[S2C] + sent[S2C], _FIN | _ACK)
+                        seg(False, isn[S2C] + sent[S2C], isn[C2S] + sent[C2S] + 1, _FIN | _ACK)
+                        seg(True, isn[C2S] + sent[C2S] + 1, isn[S2C] + sent[S2C] + 1, _ACK)
+                    continue
+                offset, raw = payload
+                d = kind
+                other = S2C if d == C2S else C2S
+                for i in range(0, len(raw), _MSS):
+                    chunk = raw[i : i + _MSS]
+                    seq = isn[d] + offset + i
+                    seg(d == C2S, seq, isn[other] + sent[other], _ACK | 0x08, chunk)
+                sent[d] = max(sent[d], offset + len(raw))
+        finally:
+            w.close()
+    return w.count

@@ -1,0 +1,131 @@
+"""``import-pcap``: a pcap/pcapng capture turned into a recording, and :func:`read_capture`,
+which reads either one (told apart by the magic bytes).
+
+The packets are read by :mod:`.read` and recorded by :class:`~.recorder.PacketRecorder`.
+(scapy's full dissection reads about 9k packets/s and its ``TCPSession`` repeats
+retransmitted bytes and hides gaps; ``tools/bench_pcap.py`` times each stage of the
+import.)
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterable
+
+from ..errors import UsageError
+from ..recording import (
+    Recording,
+    RecordingWriter,
+    atomic_output,
+    default_metadata,
+    read_recording,
+)
+from ..spec import SpecSet
+from .read import read_packets
+from .recorder import (
+    DEFAULT_TCP_PORTS,
+    DEFAULT_UDP_PORTS,
+    IMPORT_TOGETHER,
+    ImportStats,
+    PacketRecorder,
+)
+
+# The first bytes of each kind of file (pcap: both byte orders, micro- and nanosecond).
+_MCAP_MAGIC = b"\x89MCAP0\r\n"
+_PCAP_MAGICS = (
+    bytes.fromhex("d4c3b2a1"),
+    bytes.fromhex("a1b2c3d4"),
+    bytes.fromhex("4d3cb2a1"),
+    bytes.fromhex("a1b23c4d"),
+)
+_PCAPNG_MAGIC = bytes.fromhex("0a0d0d0a")  # section header block
+
+
+def capture_format(path: str | os.PathLike[str]) -> str | None:
+    """``mcap``, ``pcap`` or ``pcapng`` by the file's magic bytes (None: none of them)."""
+    p = os.fspath(path)
+    try:
+        with open(p, "rb") as f:
+            head = f.read(8)
+    except FileNotFoundError:
+        raise UsageError(f"no such recording: {p}") from None
+    except OSError as e:
+        raise UsageError(f"cannot read {p}: {e.strerror or e}") from None
+    if head == _MCAP_MAGIC:
+        return "mcap"
+    if head[:4] in _PCAP_MAGICS:
+        return "pcap"
+    if head[:4] == _PCAPNG_MAGIC:
+        return "pcapng"
+    return None
+
+
+def read_capture(
+    path: str | os.PathLike[str],
+    *,
+    tcp_ports: Iterable[int] = DEFAULT_TCP_PORTS,
+    udp_ports: Iterable[int] = DEFAULT_UDP_PORTS,
+    specs: SpecSet | None = None,
+) -> Recording:
+    """A recording, or a pcap/pcapng capture imported as one (:func:`import_pcap`, into a
+    temporary file that is gone on return); which one is told by the magic bytes."""
+    import dataclasses
+    import tempfile
+
+    p = os.fspath(path)
+    fmt = capture_format(p)
+    if fmt == "mcap":
+        return read_recording(p)
+    if fmt is None:
+        raise UsageError(f"{p}: neither an MCAP recording nor a pcap/pcapng capture")
+    with tempfile.TemporaryDirectory(prefix="fairino-capture-") as d:
+        out = os.path.join(d, "imported.mcap")
+        import_pcap(p, out, tcp_ports=tcp_ports, udp_ports=udp_ports, specs=specs)
+        rec = read_recording(out)
+    return dataclasses.replace(rec, path=p)
+
+
+def import_pcap(
+    path: str | os.PathLike[str],
+    out: str | os.PathLike[str],
+    *,
+    tcp_ports: Iterable[int] = DEFAULT_TCP_PORTS,
+    udp_ports: Iterable[int] = DEFAULT_UDP_PORTS,
+    specs: SpecSet | None = None,
+) -> ImportStats:
+    """Turn a pcap/pcapng capture into a recording (see the module docstring).
+
+    ``out`` appears only once the import succeeded: it is written to a temporary file
+    next to it and renamed (a failure removes the temporary file)."""
+    tports, uports = frozenset(tcp_ports), frozenset(udp_ports)
+    bad = sorted(p for p in tports | uports if not 0 < p < 65536)
+    if bad:
+        raise ValueError(f"ports must be 1..65535, not {bad[0]}")
+    if specs is None:
+        from ..spec import default_specs
+
+        specs = default_specs()
+    with atomic_output(out) as tmp:
+        return _import(path, tmp, tports, uports, specs)
+
+
+def _import(
+    path: str | os.PathLike[str],
+    out: str,
+    tports: frozenset[int],
+    uports: frozenset[int],
+    specs: SpecSet,
+) -> ImportStats:
+    md = default_metadata(source="import-pcap", pcap=os.path.basename(os.fspath(path)))
+    md["upstream"] = ""
+    md["listen"] = ""
+    writer = RecordingWriter(out, metadata=md)
+    packets = PacketRecorder(
+        writer, tcp_ports=tports, udp_ports=uports, specs=specs, together=IMPORT_TOGETHER
+    )
+    feed = packets.feed
+    for lt, t, data in read_packets(path):
+        feed(t, lt, data)
+    packets.finish()
+    writer.close()
+    return packets.stats()

@@ -1,0 +1,324 @@
+"""Captured packets in, records out: :class:`PacketRecorder`, the one path from packets
+to a recording that ``import-pcap`` and ``capture`` share (sans-I/O).
+
+Each TCP connection is reassembled (:mod:`.reassembly`); the segment that comes next in
+order -- most of them -- goes straight to the recorder.  The reassembled streams go
+through the proxy's own :class:`~conformance.recording.StreamRecorder`, so an imported
+capture and a proxy recording read, check and diff alike.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+from ..frame import HEAD
+from ..recording import C2S, S2C, Direction, RecordSink, StreamRecorder
+from ..spec import SpecSet
+from .packets import _ACK, _FIN, _PORTS, _RST, _SYN, _SYN_FIN_RST, _reverse, flow_ends, parse_packet
+from .reassembly import TcpReassembler
+
+DEFAULT_TCP_PORTS = (8080,)
+DEFAULT_UDP_PORTS = (20007,)
+
+#: In-order segments of one direction in a row that import-pcap records together, and the
+#: bytes after which it records them (see PacketRecorder; 64: bench_pcap.py's best).
+IMPORT_TOGETHER = 64
+TOGETHER_BYTES = 1 << 20
+
+
+#: A direction of an open TCP connection: (connection id, direction, its reassembler, the
+#: connection), what PacketRecorder finds by a packet's flow.
+_TcpWay = tuple[int, Direction, TcpReassembler, "_TcpConn"]
+
+
+class _TcpConn:
+    __slots__ = ("client", "conn", "fins", "flows", "halves", "server")
+
+    def __init__(self, conn: int, flow: bytes, reverse: bytes) -> None:
+        self.conn = conn
+        self.flows = (flow, reverse)  # client to server, server to client
+        self.client, self.server = flow_ends(flow)
+        self.halves = {C2S: TcpReassembler(), S2C: TcpReassembler()}
+        self.fins: list[Direction] = []  # directions that sent FIN, in order
+
+
+@dataclass
+class _Candidate:
+    """A TCP flow not on a known port, waiting for its first payload to tell."""
+
+    first_ns: int
+    segments: list[tuple[int, bytes, bytes, int, int]] = field(default_factory=list)
+
+
+@dataclass(frozen=True, kw_only=True)
+class ImportStats:
+    packets: int
+    ignored: int
+    connections: int
+    frames: int
+    problems: int
+    retransmitted_bytes: int
+
+
+def _fmt(addr: tuple[str, int]) -> str:
+    return f"[{addr[0]}]:{addr[1]}" if ":" in addr[0] else f"{addr[0]}:{addr[1]}"
+
+
+def _canonical(flow: bytes) -> bytes:
+    """One key for both directions of a flow."""
+    return min(flow, _reverse(flow))
+
+
+class PacketRecorder:
+    """Captured packets in, one at a time, records out: ``import-pcap``'s and ``capture``'s
+    one path from packets to a recording (sans-I/O: no file, socket or clock here).
+
+    :meth:`feed` takes ``(time in ns, link type, bytes)`` of one packet; TCP connections
+    to or from ``tcp_ports`` (and, with ``guess``, flows on other ports whose first payload
+    is a frame head) are reassembled (:class:`TcpReassembler`) and UDP datagrams to or from
+    ``udp_ports`` taken as they are, all into a :class:`~conformance.recording.StreamRecorder`
+    writing to ``sink``.  :meth:`finish` closes what is still open ("capture ended").
+
+    Each direction of a known flow is one dictionary entry keyed by the packet's
+    addresses and ports as they are on the wire (:data:`Packet`), and the next segment
+    in order goes straight to the recorder (no list, no reassembly work): that is most
+    packets of most captures.
+
+    With ``together`` > 1 (``import-pcap``), up to that many such segments of one
+    direction in a row (and at most ``TOGETHER_BYTES``) go to the recorder in one
+    :meth:`~conformance.recording.StreamRecorder.segments` call, which records what a
+    ``data`` call each records, decoding the frames cut across packets as runs.  They
+    are held until a packet that is not the next of that direction, :meth:`idle`,
+    :meth:`stats` or :meth:`finish`; ``capture`` (``together=1``) records each segment
+    as it comes.
+    """
+
+    def __init__(
+        self,
+        sink: RecordSink,
+        *,
+        tcp_ports: Iterable[int] = DEFAULT_TCP_PORTS,
+        udp_ports: Iterable[int] = DEFAULT_UDP_PORTS,
+        specs: SpecSet | None = None,
+        guess: bool = True,
+        together: int = 1,
+    ) -> None:
+        self.tports, self.uports = frozenset(tcp_ports), frozenset(udp_ports)
+        self.guess = guess
+        self.rec = StreamRecorder(sink, specs=specs)
+        self.conns: dict[int, _TcpConn] = {}  # open TCP connections by id, in opening order
+        self.tcp_ways: dict[bytes, _TcpWay] = {}  # both directions of each open connection
+        self.udp_ways: dict[bytes, tuple[int, Direction]] = {}
+        self.udp_conns: list[int] = []
+        # Keyed by _canonical(flow):
+        self.candidates: dict[bytes, _Candidate] = {}
+        self.ignored_flows: set[bytes] = set()
+        self.finished: set[bytes] = set()  # closed: late ACKs ignored
+        self.next_conn = 0
+        self.packets = self.ignored = self.retrans = 0
+        self.last_t = 0
+        if together < 1:
+            raise ValueError(f"together must be at least 1, not {together}")
+        self.together = together
+        self._held: _TcpWay | None = None  # the direction whose segments are held
+        self._reads: list[tuple[int, bytes]] = []  # its segments: (time, bytes)
+        self._held_bytes = 0
+
+    def stats(self) -> ImportStats:
+        if self._held is not None:
+            self._record_held()
+        return ImportStats(
+            packets=self.packets,
+            ignored=self.ignored,
+            connections=self.next_conn,
+            frames=self.rec.frames,
+            problems=self.rec.problems,
+            retransmitted_bytes=self.retrans,
+        )
+
+    def feed(self, t: int, linktype: int, data: bytes) -> None:
+        """One captured packet: its time (ns since the epoch), link type and bytes."""
+        self.packets += 1
+        p = parse_packet(linktype, data)
+        if p is None:
+            self.ignored += 1
+            return
+        if t > self.last_t:
+            self.last_t = t
+        proto, flow, payload, seq, flags = p
+        if proto == "udp":
+            if self._held is not None:
+                self._record_held()
+            uway = self.udp_ways.get(flow)
+            if uway is None:
+                uway = self._open_udp(t, flow, payload)
+                if uway is None:
+                    self.ignored += 1
+                    return
+            self.rec.datagram(uway[0], uway[1], t, payload)
+            return
+        way = self.tcp_ways.get(flow)
+        if way is not None and payload and not flags & _SYN_FIN_RST:
+            r = way[2]
+            nxt = r.next
+            if nxt is not None and seq == nxt & 0xFFFFFFFF and not r.pending:
+                # The next bytes in order, nothing held: what TcpReassembler.segment
+                # would return, without it.
+                r.next = nxt + len(payload)
+                if self.together == 1:
+                    self.rec.data(way[0], way[1], t, payload)
+                    return
+                if (
+                    way is self._held
+                    and len(self._reads) < self.together
+                    and self._held_bytes < TOGETHER_BYTES
+                ):
+                    self._reads.append((t, payload))
+                    self._held_bytes += len(payload)
+                    return
+                if self._held is not None:
+                    self._record_held()
+                self._held, self._reads, self._held_bytes = way, [(t, payload)], len(payload)
+                return
+        if self._held is not None:
+            self._record_held()
+        self._tcp(t, flow, payload, seq, flags, way)
+
+    def _record_held(self) -> None:
+        """The held segments to the recorder (before anything else reaches it)."""
+        way = self._held
+        assert way is not None
+        self._held = None
+        self.rec.segments(way[0], way[1], self._reads)
+
+    def _tcp(
+        self, t: int, flow: bytes, payload: bytes, seq: int, flags: int, way: _TcpWay | None
+    ) -> None:
+        """A TCP segment off the fast path: a new, reused or unknown flow, or one that is
+        out of order, retransmitted, or has SYN, FIN or RST."""
+        if (
+            way is not None
+            and flags & _SYN
+            and not flags & _ACK
+            and way[3].halves[C2S].next is not None
+        ):
+            # The 4-tuple is reused by a new connection.
+            self._close_tcp(way[3], t, "connection reused")
+            way = None
+        if way is not None:
+            self._tcp_packet(way, t, payload, seq, flags)
+            return
+        k = _canonical(flow)
+        if (k in self.finished and not flags & _SYN) or k in self.ignored_flows:
+            self.ignored += 1
+            return
+        sport, dport = _PORTS(flow, len(flow) - 4)
+        if dport in self.tports:
+            self._tcp_packet(self._open_tcp(flow, t), t, payload, seq, flags)
+        elif sport in self.tports:
+            self._open_tcp(_reverse(flow), t)
+            self._tcp_packet(self.tcp_ways[flow], t, payload, seq, flags)
+        elif not self.guess:
+            self.ignored += 1
+        else:
+            cand = self.candidates.get(k)
+            if cand is None:
+                cand = self.candidates[k] = _Candidate(first_ns=t)
+            cand.segments.append((t, flow, payload, seq, flags))
+            if not payload:
+                return
+            del self.candidates[k]
+            if not payload.startswith(HEAD):
+                self.ignored_flows.add(k)
+                self.ignored += len(cand.segments)
+                return
+            self._open_tcp(flow, cand.first_ns)
+            for qt, qflow, qpayload, qseq, qflags in cand.segments:
+                qway = self.tcp_ways.get(qflow)
+                if qway is None:  # closed by a RST or FINs held before the first payload
+                    self.ignored += 1
+                    continue
+                self._tcp_packet(qway, qt, qpayload, qseq, qflags)
+
+    def _tcp_packet(self, way: _TcpWay, t: int, payload: bytes, seq: int, flags: int) -> None:
+        cid, d, r, c = way
+        self._deliver(cid, d, r.segment(seq, flags, payload, t))
+        if flags & _RST:
+            self._close_tcp(c, t, ("client" if d == C2S else "server") + " reset")
+            return
+        if flags & _FIN:
+            if d not in c.fins:
+                c.fins.append(d)
+            if len(c.fins) == 2:
+                self._close_tcp(c, t, "client closed" if c.fins[0] == C2S else "server closed")
+
+    def _open_tcp(self, flow: bytes, t: int) -> _TcpWay:
+        """A connection whose client sends ``flow``; returns that direction's way."""
+        self.next_conn += 1
+        rev = _reverse(flow)
+        c = _TcpConn(self.next_conn, flow, rev)
+        self.conns[c.conn] = c
+        # Server side first: a flow to itself (same address and port) is client to server.
+        self.tcp_ways[rev] = (c.conn, S2C, c.halves[S2C], c)
+        way = self.tcp_ways[flow] = (c.conn, C2S, c.halves[C2S], c)
+        self.rec.open(
+            c.conn, t_ns=t, transport="tcp", client=_fmt(c.client), upstream=_fmt(c.server)
+        )
+        return way
+
+    def _close_tcp(self, c: _TcpConn, t: int, reason: str) -> None:
+        for d, r in c.halves.items():
+            self._deliver(c.conn, d, r.flush())
+            self.retrans += r.retransmitted
+        self.rec.close(c.conn, t_ns=t, reason=reason)
+        self.conns.pop(c.conn, None)
+        for f in c.flows:
+            self.tcp_ways.pop(f, None)
+        self.finished.add(_canonical(c.flows[0]))
+
+    def _deliver(self, conn: int, d: Direction, items: list[tuple[str, int, Any]]) -> None:
+        for kind, t, x in items:
+            if kind == "data":
+                self.rec.data(conn, d, t, x)
+            else:
+                self.rec.gap(conn, d, t, x)
+
+    def _open_udp(self, t: int, flow: bytes, payload: bytes) -> tuple[int, Direction] | None:
+        """The way of a datagram on a new flow, or None if the flow is not ours."""
+        sport, dport = _PORTS(flow, len(flow) - 4)
+        if dport in self.uports:
+            c2s = flow
+        elif sport in self.uports:
+            c2s = _reverse(flow)
+        elif self.guess and payload.startswith(HEAD):
+            c2s = flow
+        else:
+            return None
+        self.next_conn += 1
+        conn = self.next_conn
+        self.udp_conns.append(conn)
+        rev = _reverse(c2s)
+        self.udp_ways[rev] = (conn, S2C)
+        self.udp_ways[c2s] = (conn, C2S)
+        client, server = flow_ends(c2s)
+        self.rec.open(conn, t_ns=t, transport="udp", client=_fmt(client), upstream=_fmt(server))
+        return self.udp_ways[flow]
+
+    def idle(self, now_ns: int, idle_ns: int) -> None:
+        """Live capture: decide frames whose sender went quiet mid-frame (see
+        :meth:`~conformance.recording.StreamRecorder.idle`)."""
+        if self._held is not None:
+            self._record_held()
+        self.rec.idle(now_ns, idle_ns)
+
+    def finish(self, t_ns: int | None = None, reason: str = "capture ended") -> None:
+        """Close every connection still open (at ``t_ns``, default the last packet's time)."""
+        if self._held is not None:
+            self._record_held()
+        t = self.last_t if t_ns is None else t_ns
+        for c in list(self.conns.values()):
+            self._close_tcp(c, t, reason)
+        for conn in self.udp_conns:
+            self.rec.close(conn, t_ns=t, reason=reason)
