@@ -20,6 +20,7 @@ from .engine import CaseFinished, Event, RunFinished, RunStarted, RunWarning
 
 __all__ = ["Progress", "failure_lines", "junit_xml", "write_junit"]
 
+
 def _clock(seconds: float) -> str:
     s = int(seconds + 0.5)
     return (
