@@ -38,6 +38,7 @@ import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from types import TracebackType
+from typing import Any
 
 from ..actions import Action, Dropped
 from ..errors import RemoteProtocolError, UsageError
@@ -46,7 +47,8 @@ from ..frame import DEFAULT_MAX_FRAME_SIZE, Frame, Malformed
 from ..judge import Judge
 from ..model import Controller, ControllerConnection
 from ..spec import SpecSet
-from . import format_address
+from ._server import BACKOFF_MAX, Backoff, ConnectionSet, family, serve_forever
+from .addresses import format_address, format_sockaddr
 
 __all__ = [
     "DEFAULT_MAX_CONNECTIONS",
@@ -80,23 +82,7 @@ _DROPS_LOGGED = 20  # drops logged one line each; the rest are counted
 _KIT_ERRORS_KEPT = 10
 _RAW_KEPT = 200  # bytes of the blamed frame kept in a Dropped record
 _REASON_MAX = 300
-_BACKOFF_MIN = 0.01
-_BACKOFF_MAX = 1.0
 _QUIET = 10.0  # seconds: an episode starting this soon after the last message is not announced
-#: Out of a resource: retrying at once would spin; wait, doubling up to _BACKOFF_MAX.
-_RESOURCE_ERRNOS = frozenset({errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM})
-#: A connection that died in the backlog, or a datagram's ICMP echo: just go on.
-_TRANSIENT_ERRNOS = frozenset(
-    {errno.ECONNABORTED, errno.ECONNRESET, errno.ECONNREFUSED, errno.EPROTO, errno.EPERM}
-)
-
-
-def _family(host: str) -> socket.AddressFamily:
-    return socket.AF_INET6 if ":" in host else socket.AF_INET
-
-
-def _peer_name(addr: tuple[str, int] | tuple[str, int, int, int]) -> str:
-    return f"[{addr[0]}]:{addr[1]}" if ":" in addr[0] else f"{addr[0]}:{addr[1]}"
 
 
 def _errno_name(e: OSError) -> str:
@@ -115,46 +101,25 @@ class _Session:
     drop: Dropped | None = None
 
 
-class _Backoff:
-    """Retry waits for one kind of failure, and one message per episode.
+def _backoff(what: str, detail: Callable[[], str]) -> Backoff:
+    """Retry waits for ``what`` (accept, UDP receive), one warning per episode; an
+    episode that starts within ``_QUIET`` seconds of the last message is not announced
+    again: a server flapping at its descriptor limit says so once."""
 
-    An episode that starts within ``_QUIET`` seconds of the last message is not
-    announced again: a server flapping at its descriptor limit says so once.
-    """
+    def started(e: OSError) -> str:
+        return (
+            f"emulator: {what} failed: {e.strerror or e} ({_errno_name(e)}) with {detail()}; "
+            f"retrying with a backoff up to {BACKOFF_MAX:g} s"
+        )
 
-    def __init__(self, what: str) -> None:
-        self.what = what
-        self.delay = 0.0
-        self.failures = 0
-        self._logged = False
-        self._last_message = -_QUIET
+    def ended(_seconds: float, failures: int) -> str:
+        return f"emulator: {what} works again after {failures} failure(s)"
 
-    def failed(self, e: OSError, detail: str) -> float:
-        now = time.monotonic()
-        if not self.delay and now - self._last_message >= _QUIET:
-            _log.warning(
-                "emulator: %s failed: %s (%s) with %s; retrying with a backoff up to %g s",
-                self.what,
-                e.strerror or e,
-                _errno_name(e),
-                detail,
-                _BACKOFF_MAX,
-            )
-            self._logged = True
-            self._last_message = now
-        self.failures += 1
-        self.delay = min(_BACKOFF_MAX, self.delay * 2 or _BACKOFF_MIN)
-        return self.delay
+    return Backoff(_warn, started=started, ended=ended, quiet=_QUIET)
 
-    def succeeded(self) -> None:
-        if not self.delay:
-            return
-        self.delay = 0.0
-        if self._logged:
-            _log.warning("emulator: %s works again after %d failure(s)", self.what, self.failures)
-            self._logged = False
-            self._last_message = time.monotonic()
-            self.failures = 0
+
+def _warn(message: str) -> None:
+    _log.warning("%s", message)
 
 
 def _bind_error(transport: str, host: str, port: int, e: OSError) -> UsageError:
@@ -200,8 +165,6 @@ class EmulatorServer:
         judge: Judge | None = None,
         dispatch: str = "recorded",
     ) -> None:
-        if max_connections < 1:
-            raise ValueError("max_connections must be at least 1")
         self.controller = Controller(
             specs, faults=parse_faults(faults), judge=judge, dispatch=dispatch
         )
@@ -221,7 +184,7 @@ class EmulatorServer:
         self._tcp: socket.socket | None = None
         self._udp: socket.socket | None = None
         self._threads: list[threading.Thread] = []
-        self._conns: set[socket.socket] = set()
+        self._conns = ConnectionSet(max_connections, self._conns_lock)
         self._stop = threading.Event()
         self._down_until = 0.0
         self._refusing = False
@@ -260,8 +223,7 @@ class EmulatorServer:
 
     @property
     def target(self) -> str:
-        host, port = self.address
-        return f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
+        return format_address(*self.address)
 
     @property
     def open_connections(self) -> int:
@@ -279,7 +241,7 @@ class EmulatorServer:
 
     def start(self) -> EmulatorServer:
         """Bind and listen; returns once the sockets accept traffic."""
-        fam = _family(self.host)
+        fam = family(self.host)
         tcp = socket.socket(fam, socket.SOCK_STREAM)
         try:
             tcp.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -316,9 +278,7 @@ class EmulatorServer:
         for s in (self._tcp, self._udp):
             if s is not None:
                 s.close()
-        with self._conns_lock:
-            conns = list(self._conns)
-        for c in conns:
+        for c in self._conns.snapshot():
             _shutdown(c)
         for t in list(self._threads):
             if t is not threading.current_thread():
@@ -412,36 +372,18 @@ class EmulatorServer:
 
     def _serve_tcp(self) -> None:
         assert self._tcp is not None
-        tcp = self._tcp
-        backoff = _Backoff("accept")
-        while not self._stop.is_set():
-            try:
-                conn, addr = tcp.accept()
-            except TimeoutError:
-                continue
-            except OSError as e:
-                if self._stop.is_set():
-                    return
-                if e.errno in _TRANSIENT_ERRNOS:
-                    continue
-                if e.errno not in _RESOURCE_ERRNOS:
-                    raise
-                # The pending connection stays in the backlog: it is accepted once
-                # a descriptor is free again (when a connection ends).
-                self._stop.wait(backoff.failed(e, f"{self.open_connections} connections open"))
-                continue
-            backoff.succeeded()
-            self._admit(conn, _peer_name(addr))
+        backoff = _backoff("accept", lambda: f"{self.open_connections} connections open")
+        serve_forever(self._tcp.accept, self._accepted, stop=self._stop, backoff=backoff)
+
+    def _accepted(self, got: tuple[socket.socket, Any]) -> None:
+        conn, addr = got
+        self._admit(conn, format_sockaddr(addr))
 
     def _admit(self, conn: socket.socket, peer: str) -> None:
         if self._down():
             _shutdown(conn)  # restarting after a crash: refuse
             return
-        with self._conns_lock:
-            full = len(self._conns) >= self.max_connections
-            if not full:
-                self._conns.add(conn)
-        if full:
+        if not self._conns.add(conn):
             self.connections_refused += 1
             reason = f"refused: {self.max_connections} connections already open"
             self._record(Dropped(peer=peer, kind="limit", reason=reason), quiet=True)
@@ -476,19 +418,16 @@ class EmulatorServer:
         try:
             self._spawn(self._serve_conn, "emulator-conn", conn, peer)
         except RuntimeError as e:  # no thread can be started (memory, a limit)
-            with self._conns_lock:
-                self._conns.discard(conn)
+            self._conns.discard(conn)
             _shutdown(conn)
             self._record(Dropped(peer=peer, kind="limit", reason=f"no thread to serve it: {e}"))
-            self._stop.wait(_BACKOFF_MAX)
+            self._stop.wait(BACKOFF_MAX)
 
     def _crash(self, delay: float) -> None:
         with self._lock:
             self._down_until = time.monotonic() + delay
             self.controller.restart()
-        with self._conns_lock:
-            conns = list(self._conns)
-        for c in conns:
+        for c in self._conns.snapshot():
             _shutdown(c)
 
     def _perform(self, conn: socket.socket, s: _Session, actions: list[Action]) -> bool:
@@ -561,45 +500,36 @@ class EmulatorServer:
         except Exception as e:  # the peer's bytes made the kit fail: close this one only
             s.drop = self._failed(s, e)
         finally:
-            with self._conns_lock:
-                self._conns.discard(conn)
+            self._conns.discard(conn)
             _shutdown(conn)
         self._closed(peer, s.drop)
 
     def _serve_udp(self) -> None:
         assert self._udp is not None
         udp = self._udp
-        backoff = _Backoff("UDP receive")
-        while not self._stop.is_set():
-            try:
-                data, addr = udp.recvfrom(_UDP_MAX)
-            except TimeoutError:
-                continue
-            except OSError as e:
-                if self._stop.is_set():
-                    return
-                if e.errno in _TRANSIENT_ERRNOS:
-                    continue
-                if e.errno not in _RESOURCE_ERRNOS:
-                    raise
-                self._stop.wait(backoff.failed(e, "the UDP socket"))
-                continue
-            backoff.succeeded()
-            if self._down():
-                continue
-            name = f"udp:{_peer_name(addr)}"
-            s = _Session(
-                peer=name,
-                cc=self.controller.connection(max_frame_size=self.max_frame_size, transport="udp"),
-            )
-            try:
-                # Each datagram is a stream of its own (frames do not span datagrams).
-                events = s.cc.decoder.feed(data) + s.cc.decoder.close()
-                for ev in events:
-                    if not self._udp_perform(udp, addr, self._answer(s, ev)):
-                        break
-            except Exception as e:  # this datagram only
-                self._closed(name, self._failed(s, e))
+        backoff = _backoff("UDP receive", lambda: "the UDP socket")
+        serve_forever(
+            lambda: udp.recvfrom(_UDP_MAX), self._datagram, stop=self._stop, backoff=backoff
+        )
+
+    def _datagram(self, got: tuple[bytes, Any]) -> None:
+        assert self._udp is not None
+        data, addr = got
+        if self._down():
+            return
+        name = f"udp:{format_sockaddr(addr)}"
+        s = _Session(
+            peer=name,
+            cc=self.controller.connection(max_frame_size=self.max_frame_size, transport="udp"),
+        )
+        try:
+            # Each datagram is a stream of its own (frames do not span datagrams).
+            events = s.cc.decoder.feed(data) + s.cc.decoder.close()
+            for ev in events:
+                if not self._udp_perform(self._udp, addr, self._answer(s, ev)):
+                    break
+        except Exception as e:  # this datagram only
+            self._closed(name, self._failed(s, e))
 
     def _udp_perform(
         self, udp: socket.socket, addr: tuple[str, int], actions: list[Action]

@@ -67,7 +67,7 @@ from ..frame import DEFAULT_MAX_FRAME_SIZE
 from ..recording import FrameRecord, default_metadata, segment_path
 from ..spec import SpecSet
 from ._proxy_base import ProxyStats, open_payload
-from ._server import BACKOFF_FIRST, BACKOFF_MAX, RESOURCE_ERRNOS, family, log_stderr
+from ._server import BACKOFF_MAX, RESOURCE_ERRNOS, Backoff, family, log_stderr
 from .addresses import format_sockaddr
 from .proxy_tcp import TcpForwarding, _Pair
 from .proxy_udp import UdpForwarding, _UdpSession
@@ -153,10 +153,11 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
         self.stats = ProxyStats()
         self.error: BaseException | None = None
         self._open_pairs = 0
-        self._backoff = 0.0  # current accept delay (0: accepting)
+        self._backoff = Backoff(
+            lambda m: self.log(m), started=self._shortage, ended=self._shortage_ended
+        )
         self._accept_at = 0.0  # monotonic time the listener listens again
         self._listening = True
-        self._episode_start = 0.0  # when the current shortage began
         self._upstream_down = False  # the last connection to the upstream failed (said once)
         self._io_done = threading.Event()
 
@@ -475,7 +476,7 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
         self._pairs[client] = pair
         self._pairs[up] = pair
         self._open_pairs += 1
-        self._accepted()  # a whole pair: the end of a shortage episode, if one was on
+        self._backoff.succeeded()  # a whole pair: the end of a shortage episode, if one was on
         err = up.connect_ex(self.upstream)
         if err not in (0, errno.EINPROGRESS, errno.EWOULDBLOCK, errno.EAGAIN):
             self._refused(pair, err)
@@ -485,31 +486,25 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
     def _accept_failed(self, e: OSError) -> None:
         """Out of descriptors or memory: rest the listener, 10 ms doubling to 1 s."""
         self.stats.accept_errors += 1
-        if not self._backoff:
-            self._episode_start = time.monotonic()
-            self._backoff = BACKOFF_FIRST
-            self.log(
-                f"proxy: cannot accept connections: {e.strerror or e} "
-                f"({self._open_pairs} connections open); retrying with a backoff of up to "
-                f"{BACKOFF_MAX:g} s"
-            )
-        else:
-            self._backoff = min(BACKOFF_MAX, self._backoff * 2)
-        self._accept_at = time.monotonic() + self._backoff
+        self._accept_at = time.monotonic() + self._backoff.failed(e)
         if self._listening:
             with contextlib.suppress(KeyError, ValueError):
                 self._sel.unregister(self._listener)
             self._listening = False
         self._next_deadlines = min(self._next_deadlines, self._accept_at)
 
-    def _accepted(self) -> None:
-        if self._backoff:
-            waited = time.monotonic() - self._episode_start
-            self.log(
-                f"proxy: accepting connections again after {waited:.1f} s "
-                f"({self._open_pairs} connections open)"
-            )
-            self._backoff = 0.0
+    def _shortage(self, e: OSError) -> str:
+        return (
+            f"proxy: cannot accept connections: {e.strerror or e} "
+            f"({self._open_pairs} connections open); retrying with a backoff of up to "
+            f"{BACKOFF_MAX:g} s"
+        )
+
+    def _shortage_ended(self, waited: float, _failures: int) -> str:
+        return (
+            f"proxy: accepting connections again after {waited:.1f} s "
+            f"({self._open_pairs} connections open)"
+        )
 
     def _resume_accepting(self) -> None:
         if not self._listening and not self._stopping.is_set():

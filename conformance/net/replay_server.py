@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import collections
 import contextlib
-import errno
 import socket
 import threading
 from collections.abc import Callable, Iterable
 from typing import Any
 
 from ..frame import DEFAULT_MAX_FRAME_SIZE, Frame, Malformed
-from ._server import BACKOFF_FIRST, BACKOFF_MAX, RESOURCE_ERRNOS, family, log_stderr
+from ._server import BACKOFF_MAX, Backoff, ConnectionSet, family, log_stderr, serve_forever
 
 __all__ = ["ReplayServer"]
 
@@ -43,81 +42,74 @@ class ReplayServer:
     ) -> None:
         if max_frame_size < 64:
             raise ValueError("max_frame_size must be at least 64 bytes")
-        if max_connections < 1:
-            raise ValueError("max_connections must be at least 1")
+        self._lock = threading.Lock()
+        self._conns = ConnectionSet(max_connections, self._lock)
         self.book = book
         self.max_connections = max_connections
         self.max_frame_size = max_frame_size
         self.log = log if log is not None else log_stderr
+        self._backoff = Backoff(
+            lambda m: self.log(m),
+            started=self._shortage,
+            ended=lambda *_: "replay: accepting connections again",
+        )
         self._srv = socket.create_server(listen, family=family(listen[0]), backlog=64)
         self._srv.settimeout(0.2)
         self.address: tuple[str, int] = self._srv.getsockname()[:2]
-        self._lock = threading.Lock()
         self._stop = threading.Event()
         self._accepter: threading.Thread | None = None
         self._threads: set[threading.Thread] = set()
-        self._conns: set[socket.socket] = set()
         self.connections = 0
         self.finished = 0
         self.refused = 0
-        self.accept_errors = 0
         #: Why connections ended, when the server ended them (peer error, bug...).
         self.close_reasons: collections.Counter[str] = collections.Counter()
         #: Unexpected exceptions (bugs) met while serving, the first 100.
         self.errors: list[BaseException] = []
+
+    @property
+    def accept_errors(self) -> int:
+        """accept() failures for want of descriptors or memory."""
+        return self._backoff.total
 
     def start(self) -> ReplayServer:
         self._accepter = threading.Thread(target=self._accept, name="replay-accept", daemon=True)
         self._accepter.start()
         return self
 
+    def _shortage(self, e: OSError) -> str:
+        return (
+            f"replay: cannot accept connections: {e.strerror or e} "
+            f"({len(self._conns)} connections open); retrying with a backoff "
+            f"of up to {BACKOFF_MAX:g} s"
+        )
+
     def _accept(self) -> None:
-        backoff = 0.0
-        while not self._stop.is_set():
-            try:
-                c, _ = self._srv.accept()
-            except TimeoutError:
-                continue
-            except OSError as e:
-                if self._stop.is_set():
-                    return
-                if e.errno in RESOURCE_ERRNOS:
-                    self.accept_errors += 1
-                    if not backoff:
-                        self.log(
-                            f"replay: cannot accept connections: {e.strerror or e} "
-                            f"({len(self._conns)} connections open); retrying with a backoff "
-                            f"of up to {BACKOFF_MAX:g} s"
-                        )
-                    backoff = min(BACKOFF_MAX, backoff * 2) if backoff else BACKOFF_FIRST
-                    self._stop.wait(backoff)
-                    continue
-                if e.errno in (errno.EBADF, errno.EINVAL):
-                    return  # the listener is closed
-                continue  # that client is gone already (ECONNABORTED...)
-            if backoff:
-                self.log("replay: accepting connections again")
-                backoff = 0.0
-            self.connections += 1
+        try:
+            serve_forever(self._srv.accept, self._admit, stop=self._stop, backoff=self._backoff)
+        except OSError as e:  # not a shortage, not a client gone: no more clients
+            self.log(f"replay: stopped accepting connections: {e.strerror or e}")
+            if len(self.errors) < 100:
+                self.errors.append(e)
+
+    def _admit(self, got: tuple[socket.socket, Any]) -> None:
+        c = got[0]
+        self.connections += 1
+        if not self._conns.add(c):
+            self.refused += 1
+            c.close()
+            return
+        t = threading.Thread(target=self._serve, args=(c,), name="replay-conn", daemon=True)
+        with self._lock:
+            self._threads.add(t)
+        try:
+            t.start()
+        except RuntimeError as e:  # no thread to be had: this client only
+            self._conns.discard(c)
             with self._lock:
-                full = len(self._conns) >= self.max_connections
-                if not full:
-                    self._conns.add(c)
-            if full:
-                self.refused += 1
-                c.close()
-                continue
-            t = threading.Thread(target=self._serve, args=(c,), name="replay-conn", daemon=True)
-            with self._lock:
-                self._threads.add(t)
-            try:
-                t.start()
-            except RuntimeError as e:  # no thread to be had: this client only
-                with self._lock:
-                    self._threads.discard(t)
-                    self._conns.discard(c)
-                    self.close_reasons[f"no thread: {e}"] += 1
-                c.close()
+                self._threads.discard(t)
+                self.close_reasons[f"no thread: {e}"] += 1
+            c.close()
 
     def _serve(self, c: socket.socket) -> None:
         from ..frame import FrameDecoder
@@ -150,8 +142,8 @@ class ReplayServer:
             if len(self.errors) < 100:
                 self.errors.append(e)
         finally:
+            self._conns.discard(c)
             with self._lock:
-                self._conns.discard(c)
                 self._threads.discard(threading.current_thread())
                 self.finished += 1
                 if reason:
@@ -186,10 +178,10 @@ class ReplayServer:
     def close(self) -> None:
         self._stop.set()
         self._srv.close()
+        for c in self._conns.snapshot():
+            with contextlib.suppress(OSError):
+                c.shutdown(socket.SHUT_RDWR)
         with self._lock:
-            for c in list(self._conns):
-                with contextlib.suppress(OSError):
-                    c.shutdown(socket.SHUT_RDWR)
             threads = list(self._threads)
         if self._accepter is not None:
             self._accepter.join(2)
