@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from .dialects import default_dialects
-from .judge import Direction, Judge, Verdict
+from .judge import CntSteps, Direction, Judge, Verdict
 from .recording import C2S, FrameRecord, Recording
 from .report import CaseResult, Report
 from .spec import SpecSet
@@ -115,6 +115,7 @@ def summarize(
             g = figures[f.cmd_id] = CommandFigures(cmd_id=f.cmd_id, name=_name(specs, f))
         return g
 
+    steps = CntSteps()
     for ex in rec.exchanges():
         rv: Verdict | None = None
         if ex.request is not None:
@@ -123,7 +124,11 @@ def summarize(
             if ex.reply is None:
                 g.unanswered += 1
             if judge is not None:
-                rv = judge.request(ex.request.frame(), transport=ex.request.transport)
+                rv = judge.request(
+                    ex.request.frame(),
+                    transport=ex.request.transport,
+                    previous_cnt=steps.previous(ex.request.conn, ex.request.cnt),
+                )
                 count(g, rv)
         if ex.reply is not None:
             g = fig(ex.reply)
@@ -287,6 +292,7 @@ def check_recording(
     if judge is None:
         judge = Judge(specs, default_dialects(), strict=strict)
     cases = _Cases()
+    steps = CntSteps()
 
     def add(f: FrameRecord, group: str, v: Verdict, frames: Sequence[bytes]) -> None:
         if side != "both" and group != side:
@@ -308,7 +314,11 @@ def check_recording(
         req, rep = ex.request, ex.reply
         rv: Verdict | None = None
         if req is not None:
-            rv = judge.request(req.frame(), transport=req.transport)
+            rv = judge.request(
+                req.frame(),
+                transport=req.transport,
+                previous_cnt=steps.previous(req.conn, req.cnt),
+            )
             add(req, "client", rv, (req.raw,))
             if rep is None:
                 if side == "client":

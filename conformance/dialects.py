@@ -95,6 +95,8 @@ class Dialect:
     example: str
     evidence: tuple[Evidence, ...]
     note: str
+    #: The CNT the source sends this frame with every time (not a counter), if it does.
+    fixed_cnt: int | None = None
 
     @property
     def variant(self) -> Variant:
@@ -238,6 +240,7 @@ def _entry(raw: Mapping[str, Any], source: str, path: str) -> Dialect:
         manual_cmd=raw.get("manual_cmd"),
         example=raw["example"],
         evidence=tuple(_evidence(e) for e in raw["evidence"]),
+        fixed_cnt=raw.get("fixed_cnt"),
         note=raw["note"],
     )
 

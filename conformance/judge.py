@@ -27,6 +27,7 @@ The reference does not change the outcome, only whether it fails
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from collections.abc import Iterable
 from dataclasses import dataclass, replace
 
@@ -43,6 +44,7 @@ from .verdict import REFERENCE_ENV, Direction, Outcome, Reference, fails, refere
 __all__ = [
     "LENIENT",
     "REFERENCE_ENV",
+    "CntSteps",
     "Direction",
     "Finding",
     "Judge",
@@ -92,6 +94,8 @@ class Finding:
     outcome: Outcome
     source: str
     message: str
+    #: The field dialect entry a DIALECT finding follows (its ID), if any.
+    dialect: str | None = None
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -240,8 +244,25 @@ class Judge:
 
     # ------------------------------------------------------------------ requests
 
-    def request(self, frame: Frame, *, transport: str | None = None) -> Verdict:
-        """A client's request: framing, known ID, DATA grammar, name, arguments; then dialects."""
+    def request(
+        self, frame: Frame, *, transport: str | None = None, previous_cnt: int | None = None
+    ) -> Verdict:
+        """A client's request: framing, known ID, DATA grammar, name, arguments; then dialects.
+
+        ``previous_cnt``: the CNT of the request before it on the same connection,
+        where the caller reads a stream (``serve``, ``check``, ``info``, ``decode``):
+        the CNT step (:meth:`cnt_step`) is then one of the frame's findings.
+        """
+        v = self._request(frame, transport)
+        if previous_cnt is None:
+            return v
+        step = self.cnt_step(previous_cnt, frame, v, transport=transport)
+        if step is None:
+            return v
+        findings = (*v.findings, step)
+        return replace(v, findings=findings, outcome=_outcome(findings))
+
+    def _request(self, frame: Frame, transport: str | None) -> Verdict:
         framing = [
             Finding(
                 rule=r.value,
@@ -349,17 +370,52 @@ class Judge:
             out.append((d, v))
         return out
 
-    def cnt_step(self, previous: int | None, frame: Frame) -> Finding | None:
+    def cnt_step(
+        self,
+        previous: int | None,
+        frame: Frame,
+        verdict: Verdict | None = None,
+        *,
+        transport: str | None = None,
+    ) -> Finding | None:
         """CNT not counting up by one on a connection: NON-STRICT (1.1 calls CNT a frame
-        counter, but does not say a client must increment it)."""
+        counter, but does not say a client must increment it); DIALECT where a recorded
+        source sends this frame with this very CNT every time (``fixed_cnt``: frcobot_ros's
+        123 on 375 and 376)."""
         if previous is None or frame.cnt == (previous + 1) % 0x10000:
             return None
+        what = f"CNT {frame.cnt} after {previous} on this connection"
+        d = self._fixed_cnt(frame, verdict, transport)
+        if d is not None:
+            return Finding(
+                rule="cnt_step",
+                outcome=Outcome.DIALECT,
+                source=d.cite(),
+                message=f"{what}: follows field dialect {d.id} (sends CNT {d.fixed_cnt} "
+                "every time); the manual: CNT counts frames (1.1)",
+                dialect=d.id,
+            )
         return Finding(
             rule="cnt_step",
             outcome=Outcome.NON_STRICT,
             source=_FRAMING_SOURCE,
-            message=f"CNT {frame.cnt} after {previous} on this connection (not counting up by one)",
+            message=f"{what} (not counting up by one)",
         )
+
+    def _fixed_cnt(
+        self, frame: Frame, verdict: Verdict | None, transport: str | None
+    ) -> Dialect | None:
+        """The recorded source that sends this frame with its CNT fixed, if any."""
+        if verdict is not None and verdict.dialect is not None:
+            d = verdict.dialect
+            return d if d.fixed_cnt == frame.cnt else None
+        name = (verdict.name or "").lower() if verdict is not None else None
+        for d in self.dialects.by_id(frame.cmd_id):
+            if d.fixed_cnt != frame.cnt or (transport is not None and transport not in d.transport):
+                continue
+            if name is None or d.name.lower() == name:
+                return d
+        return None
 
     # ------------------------------------------------------------------ replies
 
@@ -583,6 +639,30 @@ class Judge:
         return self.request(frame).outcome is Outcome.FAIL
 
 
+class CntSteps:
+    """Each connection's last request CNT, for :meth:`Judge.request`'s ``previous_cnt``.
+
+    Every front-end that reads a stream (``serve``, ``check``, ``info``, ``decode``)
+    keeps one, so that the CNT rule is judged alike everywhere.  At most ``limit``
+    connections are remembered (the oldest is forgotten first).
+    """
+
+    def __init__(self, *, limit: int = 4096) -> None:
+        self.limit = limit
+        self._last: OrderedDict[object, int] = OrderedDict()
+
+    def previous(self, conn: object, cnt: int) -> int | None:
+        """Remember ``cnt`` as ``conn``'s latest request CNT; return the one before."""
+        last = self._last.pop(conn, None)
+        self._last[conn] = cnt
+        if len(self._last) > self.limit:
+            self._last.popitem(last=False)
+        return last
+
+    def forget(self, conn: object) -> None:
+        self._last.pop(conn, None)
+
+
 class Pairing:
     """Tells requests from replies in one stream (``decode --dir auto``).
 
@@ -596,6 +676,7 @@ class Pairing:
         self.judge = judge
         self.limit = limit
         self._waiting: dict[tuple[int, int], tuple[Frame, Verdict]] = {}
+        self._cnt = CntSteps(limit=1)
 
     def judge_frame(
         self, frame: Frame, direction: Direction | None = None, *, transport: str | None = None
@@ -612,7 +693,8 @@ class Pairing:
             if req is None:
                 return self.judge.reply(frame, None, transport=transport, paired=False)
             return self.judge.reply(frame, req[0], req[1], transport=transport)
-        v = self.judge.request(frame, transport=transport)
+        previous = self._cnt.previous(None, frame.cnt)
+        v = self.judge.request(frame, transport=transport, previous_cnt=previous)
         self._waiting.pop(key, None)
         self._waiting[key] = (frame, v)
         if len(self._waiting) > self.limit:

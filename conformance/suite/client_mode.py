@@ -18,18 +18,18 @@ is an ERROR of the command ID whose frame caused it (ID 0 if not a frame).
 from __future__ import annotations
 
 import threading
-from collections import OrderedDict
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from typing import Any
 
 from ..actions import Action, Dropped
 from ..dialects import default_dialects
 from ..errors import Rule
 from ..frame import Frame, Malformed
-from ..judge import Direction, Judge, Reference, Verdict
+from ..judge import CntSteps, Direction, Judge, Reference, Verdict
 from ..report import CaseResult, Report
 from ..spec import SpecSet
-from ..verdict import Outcome
+from ..verdict import Outcome, worst
 from .runner import shell_printf, show
 
 __all__ = ["ClientValidator"]
@@ -75,7 +75,7 @@ class ClientValidator:
         self._dialects: dict[tuple[int, str], list[Any]] = {}
         self._names: dict[int, str] = {}
         self._transports: dict[str, int] = {}
-        self._last_cnt: OrderedDict[str, int] = OrderedDict()
+        self._cnt = CntSteps(limit=_MAX_PEERS)
         self._known = frozenset(specs.cmd_ids) | frozenset(self.judge.dialects.cmd_ids)
         self._unknown_ids: set[int] = set()
         self._lumped = 0  # frames with an unknown command ID not tracked one by one
@@ -106,11 +106,18 @@ class ClientValidator:
                 self._lumped += 1
                 if self._lumped_example is None:
                     self._lumped_example = cid
-                self._count_cnt(peer, event.cnt)
+                self._cnt.previous(peer, event.cnt)
                 return
-            v = self.judge.request(event, transport=transport)
+            last = self._cnt.previous(peer, event.cnt)
+            full = self.judge.request(event, transport=transport, previous_cnt=last)
             if self.on_verdict is not None:
-                self.on_verdict(peer, event, v)
+                self.on_verdict(peer, event, full)
+            # The CNT step is its own case (group ``cnt``); the rest is read as the frame's.
+            step = next((f for f in full.findings if f.rule == "cnt_step"), None)
+            v = full
+            if step is not None:
+                rest = tuple(f for f in full.findings if f is not step)
+                v = replace(full, findings=rest, outcome=worst(f.outcome for f in rest))
             name = v.dialect.name if v.dialect is not None else v.name
             if v.command is not None and v.dialect is None:
                 name = v.command.name
@@ -134,9 +141,13 @@ class ClientValidator:
                     else "arguments"
                 )
                 self._add(cid, name, group, v.outcome, v.message, raw, transport, v.source)
-            last = self._count_cnt(peer, event.cnt)
-            step = self.judge.cnt_step(last, event)
-            if step is not None:
+            if step is not None and step.dialect is not None:
+                entry = self._dialects.setdefault(
+                    (cid, f"{step.dialect}-cnt"),
+                    [0, raw, step.source, step.message, transport, name],
+                )
+                entry[0] += 1
+            elif step is not None:
                 self._add(cid, name, "cnt", step.outcome, step.message, raw, transport, step.source)
 
     def connection_closed(self, peer: str, drop: Dropped | None = None) -> None:
@@ -148,7 +159,7 @@ class ClientValidator:
         report's ``meta``.
         """
         with self._lock:
-            self._last_cnt.pop(peer, None)
+            self._cnt.forget(peer)
             if drop is None:
                 return
             self._drops[drop.kind] = self._drops.get(drop.kind, 0) + 1
@@ -168,14 +179,6 @@ class ClientValidator:
             self._unknown_ids.add(cid)
             return True
         return False
-
-    def _count_cnt(self, peer: str, cnt: int) -> int | None:
-        """Remember ``peer``'s CNT; return the one before."""
-        last = self._last_cnt.pop(peer, None)
-        self._last_cnt[peer] = cnt
-        if len(self._last_cnt) > _MAX_PEERS:
-            self._last_cnt.popitem(last=False)
-        return last
 
     def _add(
         self,
