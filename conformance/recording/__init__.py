@@ -1,0 +1,86 @@
+"""Recordings: the MCAP layout, the records, the writer, the sans-I/O stream recorder,
+the reader and repair.
+
+=================  ===================================================================
+module             holds
+=================  ===================================================================
+``layout``         the topics, JSON schemas and format constants (the layout described)
+``records``        FrameRecord, FrameBatch, ProblemRecord, ConnectionRecord, their JSON
+``writer``         RecordingWriter (one MCAP file), default_metadata
+``rotating``       RotatingWriter (segment files by size or duration), segment_path
+``names``          command names of frames from the specs (StreamRecorder's lookups)
+``recorder``       StreamRecorder: bytes and times in, records out (sans-I/O)
+``reader``         read_recording, Recording, Exchange
+``repair``         recover, atomic_output
+``dump``           dump_json (the golden corpus's decoded form)
+=================  ===================================================================
+
+Each module imports only those above it in this table; everything public is
+importable from here.
+"""
+
+from .dump import dump_json
+from .layout import _TOPICS as _TOPICS  # the topic table, for tests
+from .layout import (
+    BATCH_BYTES,
+    BATCH_FRAMES,
+    C2S,
+    FORMAT,
+    METADATA_NAME,
+    PROBLEM_RAW_LIMIT,
+    S2C,
+    SCHEMAS,
+    TOPIC_C2S,
+    TOPIC_CONNECTIONS,
+    TOPIC_PROBLEMS,
+    TOPIC_S2C,
+    Direction,
+)
+from .reader import Exchange, Recording, read_recording
+from .recorder import DECODE_SLICE, StreamRecorder
+from .records import (
+    ConnectionRecord,
+    FrameBatch,
+    FrameRecord,
+    ProblemRecord,
+    Record,
+    RecordSink,
+)
+from .repair import RecoverResult, atomic_output, recover
+from .rotating import RotatingWriter, segment_path
+from .writer import RecordingWriter, default_metadata
+
+__all__ = [
+    "BATCH_BYTES",
+    "BATCH_FRAMES",
+    "C2S",
+    "DECODE_SLICE",
+    "FORMAT",
+    "METADATA_NAME",
+    "PROBLEM_RAW_LIMIT",
+    "S2C",
+    "SCHEMAS",
+    "TOPIC_C2S",
+    "TOPIC_CONNECTIONS",
+    "TOPIC_PROBLEMS",
+    "TOPIC_S2C",
+    "ConnectionRecord",
+    "Direction",
+    "Exchange",
+    "FrameBatch",
+    "FrameRecord",
+    "ProblemRecord",
+    "Record",
+    "RecordSink",
+    "Recording",
+    "RecordingWriter",
+    "RecoverResult",
+    "RotatingWriter",
+    "StreamRecorder",
+    "atomic_output",
+    "default_metadata",
+    "dump_json",
+    "read_recording",
+    "recover",
+    "segment_path",
+]

@@ -1,0 +1,591 @@
+"""The sans-I/O stream recorder: bytes and the times they were seen in, records out.
+
+:class:`StreamRecorder` is the one path from bytes to records: the proxy feeds it
+socket reads, the pcap importer reassembled segments, so both produce recordings
+that read and diff alike.  It is sans-I/O: the caller passes the bytes and the
+times they were seen (STYLE.md, convention 1).
+"""
+
+from __future__ import annotations
+
+from bisect import bisect_right
+from collections import deque
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from functools import partial
+from itertools import accumulate
+
+from ..frame import (
+    DEFAULT_MAX_FRAME_SIZE,
+    SEP,
+    TAIL,
+    Event,
+    Frame,
+    FrameDecoder,
+    FrameRun,
+    Malformed,
+)
+from ..spec import SpecSet
+from .layout import C2S, PROBLEM_RAW_LIMIT, S2C, Direction
+from .names import _CommandNames
+from .records import ConnectionRecord, FrameBatch, FrameRecord, ProblemRecord, RecordSink
+
+__all__ = ["DECODE_SLICE", "StreamRecorder"]
+
+
+#: Bytes handed to a frame decoder at once by :class:`StreamRecorder`: between two
+#: slices its ``checkpoint`` runs (the proxy's recorder flushes its file and notices a
+#: stop there), so a hostile stream cannot hold the recorder in one long decode.
+DECODE_SLICE = 2048
+# Arrival times remembered per stream while no event consumes them: a peer trickling
+# an endless frame a byte at a time would otherwise grow the list for ever.  Past the
+# bound, later arrivals are not noted and a frame starting there gets the last noted
+# time (earlier than its real first byte, never later than its last).
+_TIMELINE_MAX = 4096
+_TAIL_SEP = SEP + TAIL
+# Bytes below which a read goes to FrameDecoder.feed even when the decoder is idle: a
+# run's columns cost more than the per-frame fast path for a frame or two.
+_RUN_MIN = 512
+
+
+class _Stream:
+    """One direction of one connection: decoder plus the times its bytes arrived."""
+
+    __slots__ = ("base", "bytes", "decoder", "frames", "last_ns", "raw", "timeline")
+
+    def __init__(self, max_frame_size: int) -> None:
+        self.decoder = FrameDecoder(max_frame_size=max_frame_size)
+        self.timeline: deque[tuple[int, int]] = deque()  # (decoder offset, t_ns)
+        self.base = 0  # stream offset of the decoder's first byte (grows at gaps)
+        self.bytes = 0
+        self.frames = 0
+        self.last_ns = 0
+        self.raw = False  # bytes are being recorded undecoded (see stop_decoding)
+
+    def first_ns(self, offset: int) -> int:
+        tl = self.timeline
+        while len(tl) > 1 and tl[1][0] <= offset:
+            tl.popleft()
+        return tl[0][1] if tl else self.last_ns
+
+
+@dataclass
+class _Conn:
+    transport: str
+    client: str
+    upstream: str
+    local: str
+    streams: dict[str, _Stream]
+
+
+class StreamRecorder(_CommandNames):
+    """Bytes and times in, records out (sans-I/O): the proxy's and importer's one path.
+
+    ``on_frame`` (for ``--print``) sees each frame record as it is written.
+
+    Bytes reach the decoder ``slice_size`` at a time, and ``checkpoint`` (if given)
+    is called after each slice: the caller may flush its sink there, or call
+    :meth:`stop_decoding`, after which every byte still to come (the rest of the
+    current call included) is recorded undecoded, as Problem records with rule
+    ``undecoded`` -- a recorder that must finish now keeps every byte, it only stops
+    reading frames out of them.  Memory per connection is bounded: the decoder holds
+    at most ``max_frame_size`` bytes of a frame and of a garbage run per direction.
+    """
+
+    def __init__(
+        self,
+        sink: RecordSink,
+        *,
+        specs: SpecSet | None = None,
+        max_frame_size: int = DEFAULT_MAX_FRAME_SIZE,
+        on_frame: Callable[[FrameRecord], None] | None = None,
+        slice_size: int = DECODE_SLICE,
+        checkpoint: Callable[[], None] | None = None,
+    ) -> None:
+        if slice_size < 1:
+            raise ValueError("slice_size must be positive")
+        self.sink = sink
+        self.specs = specs
+        self.max_frame_size = max_frame_size
+        self.on_frame = on_frame
+        self.slice_size = slice_size
+        self.checkpoint = checkpoint
+        #: Why bytes are now recorded undecoded (None: decoding as usual).
+        self.undecoded_reason: str | None = None
+        self._conns: dict[int, _Conn] = {}
+        self._names: dict[tuple[int, str | None], str | None] = {}
+        # The sink's fast path for frames (RecordingWriter.write_frames), unless each
+        # frame must also be handed to on_frame as a FrameRecord.
+        self._write_frames: Callable[[FrameBatch], None] | None = (
+            getattr(sink, "write_frames", None) if on_frame is None else None
+        )
+        self._write_frame: Callable[..., None] | None = (
+            getattr(sink, "write_frame", None) if self._write_frames is not None else None
+        )
+        # Command name by ID where the ID alone decides it (one command has it), else
+        # _BY_DATA: then the name in DATA picks among the commands (command_name).
+        self._id_names: dict[int, object] = {}
+        self.frames = 0
+        self.problems = 0
+
+    # -- connection life
+
+    def open(
+        self,
+        conn: int,
+        *,
+        t_ns: int,
+        transport: str = "tcp",
+        client: str = "",
+        upstream: str = "",
+        local: str = "",
+    ) -> None:
+        self._conns[conn] = _Conn(
+            transport=transport,
+            client=client,
+            upstream=upstream,
+            local=local,
+            streams={C2S: _Stream(self.max_frame_size), S2C: _Stream(self.max_frame_size)},
+        )
+        self.sink.write(
+            ConnectionRecord(
+                conn=conn,
+                event="open",
+                t_ns=t_ns,
+                transport=transport,
+                client=client,
+                upstream=upstream,
+                local=local,
+            )
+        )
+
+    def is_open(self, conn: int) -> bool:
+        return conn in self._conns
+
+    def close(self, conn: int, *, t_ns: int, reason: str) -> None:
+        c = self._conns.pop(conn, None)
+        if c is None:
+            return
+        for d, st in c.streams.items():
+            self._emit(conn, c.transport, d, st, st.decoder.close(), t_ns)  # type: ignore[arg-type]
+        self.sink.write(
+            ConnectionRecord(
+                conn=conn,
+                event="close",
+                t_ns=t_ns,
+                transport=c.transport,
+                client=c.client,
+                upstream=c.upstream,
+                local=c.local,
+                reason=reason,
+                bytes_c2s=c.streams[C2S].bytes,
+                bytes_s2c=c.streams[S2C].bytes,
+                frames_c2s=c.streams[C2S].frames,
+                frames_s2c=c.streams[S2C].frames,
+            )
+        )
+
+    def finish(self, *, t_ns: int, reason: str = "recording ended") -> None:
+        for conn in list(self._conns):
+            self.close(conn, t_ns=t_ns, reason=reason)
+
+    # -- traffic
+
+    def stop_decoding(self, reason: str) -> None:
+        """From now on record bytes as they are, undecoded (``reason`` goes in each record).
+
+        What each decoder already holds is decided at once (as at a close), so the
+        frames before this point are kept; the bytes after it are Problem records of
+        rule ``undecoded``, at their stream offsets.  Idempotent.
+        """
+        if self.undecoded_reason is None:
+            self.undecoded_reason = reason
+
+    def data(self, conn: int, direction: Direction, t_ns: int, data: bytes) -> None:
+        """Bytes of a TCP stream, in order, as they arrived at ``t_ns``.
+
+        Where the decoder holds nothing, standard frames back to back are taken as a
+        :class:`~conformance.frame.FrameRun` and written as one batch (the columns
+        straight from the split, no tuple per frame); anything else goes through
+        :meth:`FrameDecoder.feed` a slice at a time.  Either way ``checkpoint`` runs
+        after each piece, and the records are the same.
+        """
+        n = len(data)
+        if n >= _RUN_MIN or n > self.slice_size or self.undecoded_reason is not None:
+            self.segments(conn, direction, ((t_ns, data),))
+            return
+        # A short read (request/reply traffic: one frame): straight to the decoder.
+        c = self._conns[conn]
+        st = c.streams[direction]
+        st.bytes += n
+        st.last_ns = t_ns
+        dec = st.decoder
+        tl = st.timeline
+        if n and len(tl) < _TIMELINE_MAX:
+            tl.append((dec.stream_offset, t_ns))
+        self._emit(conn, c.transport, direction, st, dec.feed(data), t_ns)
+        if self.checkpoint is not None:
+            self.checkpoint()
+
+    def segments(self, conn: int, direction: Direction, reads: Sequence[tuple[int, bytes]]) -> None:
+        """Several reads of one TCP stream in a row, each ``(t_ns, bytes)``: the records
+        :meth:`data` of each in turn gives, but decoded together, so that frames cut
+        across reads are still taken as runs (``import-pcap``: a frame or less a packet).
+
+        A frame's ``first_ns`` is the time of the read holding its first byte, its
+        ``complete_ns`` that of the read holding its last; :meth:`FrameDecoder.feed`
+        is never given bytes of two reads at once.
+        """
+        if not reads:
+            return
+        c = self._conns[conn]
+        st = c.streams[direction]
+        transport = c.transport
+        if len(reads) == 1:
+            t_ns, data = reads[0]
+            times = [t_ns]
+            ends = [len(data)]
+        else:
+            data = b"".join([r for _, r in reads])
+            times = [t for t, _ in reads]
+            ends = list(accumulate(map(len, [r for _, r in reads])))
+        n = len(data)
+        st.bytes += n
+        st.last_ns = times[-1]
+        if self.undecoded_reason is not None:
+            self._raw_reads(conn, transport, direction, st, data, 0, times, ends)
+            return
+        dec = st.decoder
+        tl = st.timeline
+        at = dec.stream_offset
+        for start, t in zip([0, *ends[:-1]], times, strict=True):
+            if len(tl) < _TIMELINE_MAX and start < n:
+                tl.append((at + start, t))
+        step = self.slice_size
+        check = self.checkpoint
+        view = memoryview(data)
+        single = len(times) == 1
+        k = 0  # the read holding byte i
+        i = 0
+        may_cut = True
+        while i < n:
+            while ends[k] <= i:
+                k += 1
+                may_cut = True
+            if n - i >= _RUN_MIN and dec.idle:
+                run = dec.take_run(view[i:])
+                if run is not None:
+                    m = len(run.cnts)
+                    if single:
+                        first = complete = [times[0]] * m
+                    else:
+                        # The read of each frame's first byte and of its last byte:
+                        # frame j spans edges[j] to edges[j + 1].
+                        edges = list(accumulate(run.sizes, initial=i))
+                        at_read = partial(bisect_right, ends)
+                        first = list(map(times.__getitem__, map(at_read, edges[:-1])))
+                        last = [e - 1 for e in edges[1:]]
+                        complete = list(map(times.__getitem__, map(at_read, last)))
+                    i += len(run.raw)
+                    may_cut = True
+                    self._emit_run(conn, transport, direction, st, run, first, complete)
+                    if check is not None:
+                        check()
+                        if self.undecoded_reason is not None and i < n:
+                            self._raw_reads(conn, transport, direction, st, data, i, times, ends)
+                            return
+                    continue
+            # Up to the first tail in the slice, if any: a frame cut by the previous read
+            # ends there, and with the decoder idle again the rest can be a run.  Never
+            # past the end of this read: events it completes came at its time.
+            stop = min(i + step, ends[k])
+            cut = data.find(_TAIL_SEP, i, stop) if may_cut and dec.wants_run else -1
+            may_cut = False  # once a read (and after a run): a tail flood is fed in slices
+            end = cut + len(_TAIL_SEP) if cut >= 0 else stop
+            self._emit(conn, transport, direction, st, dec.feed(view[i:end]), times[k])
+            i = end
+            if check is not None:
+                check()
+                if self.undecoded_reason is not None and i < n:
+                    self._raw_reads(conn, transport, direction, st, data, i, times, ends)
+                    return
+
+    def _raw_reads(
+        self,
+        conn: int,
+        transport: str,
+        direction: Direction,
+        st: _Stream,
+        data: bytes,
+        i: int,
+        times: list[int],
+        ends: list[int],
+    ) -> None:
+        """``data[i:]`` undecoded, each read's share at its own time."""
+        start = 0
+        for t, end in zip(times, ends, strict=True):
+            lo = max(i, start)
+            if lo < end:
+                self._raw(conn, transport, direction, st, t, data[lo:end])
+            start = end
+
+    def datagram(self, conn: int, direction: Direction, t_ns: int, data: bytes) -> None:
+        """One UDP datagram: decoded on its own (a frame never spans datagrams)."""
+        c = self._conns[conn]
+        st = c.streams[direction]
+        st.bytes += len(data)
+        st.last_ns = t_ns
+        if self.undecoded_reason is not None:
+            self._raw(conn, c.transport, direction, st, t_ns, data)
+            return
+        dec = FrameDecoder(max_frame_size=max(self.max_frame_size, len(data) + 64))
+        st.timeline.clear()
+        st.timeline.append((0, t_ns))
+        base = st.base
+        step = self.slice_size
+        check = self.checkpoint
+        events: list[Event] = []
+        done = 0
+        # In slices, as for a stream: the decoder gives the same events either way.
+        while done < len(data):
+            events += dec.feed(data[done : done + step])
+            done = min(len(data), done + step)
+            if check is not None:
+                check()
+                if self.undecoded_reason is not None:
+                    break
+        events += dec.close()
+        st.base += done
+        self._emit(conn, c.transport, direction, st, events, t_ns, base=base)
+        if done < len(data):
+            self._raw(conn, c.transport, direction, st, t_ns, data[done:])
+
+    def _raw(
+        self, conn: int, transport: str, direction: Direction, st: _Stream, t_ns: int, data: bytes
+    ) -> None:
+        """Record ``data`` undecoded, after what the stream's decoder holds."""
+        if not st.raw:
+            st.raw = True
+            self._emit(conn, transport, direction, st, st.decoder.close(), t_ns)
+            st.base += st.decoder.stream_offset
+            st.decoder = FrameDecoder(max_frame_size=self.max_frame_size)
+            st.timeline.clear()
+        reason = self.undecoded_reason or "not decoded"
+        for k in range(0, len(data), PROBLEM_RAW_LIMIT):
+            piece = data[k : k + PROBLEM_RAW_LIMIT]
+            self.sink.write(
+                ProblemRecord(
+                    conn=conn,
+                    transport=transport,
+                    dir=direction,
+                    # "malformed" for every reader: the bytes are on the wire at this
+                    # offset (export-pcap puts them back); the rule says why.
+                    kind="malformed",
+                    rule="undecoded",
+                    detail=f"{len(piece)} bytes recorded undecoded: {reason}",
+                    offset=st.base,
+                    size=len(piece),
+                    raw=piece,
+                    first_ns=t_ns,
+                    complete_ns=t_ns,
+                )
+            )
+            self.problems += 1
+            st.base += len(piece)
+
+    def gap(
+        self, conn: int, direction: Direction, t_ns: int, missing: int, detail: str = ""
+    ) -> None:
+        """``missing`` bytes of the stream were never captured: record it, restart decoding."""
+        c = self._conns[conn]
+        st = c.streams[direction]
+        self._emit(conn, c.transport, direction, st, st.decoder.close(), t_ns)
+        offset = st.base + st.decoder.stream_offset
+        self.sink.write(
+            ProblemRecord(
+                conn=conn,
+                transport=c.transport,
+                dir=direction,
+                kind="gap",
+                rule="gap",
+                detail=detail or f"{missing} bytes missing from the capture",
+                offset=offset,
+                size=missing,
+                first_ns=t_ns,
+                complete_ns=t_ns,
+            )
+        )
+        self.problems += 1
+        st.base = offset + missing
+        st.decoder = FrameDecoder(max_frame_size=self.max_frame_size)
+        st.timeline.clear()
+
+    def idle(self, now_ns: int, idle_ns: int) -> None:
+        """Decide on frames whose peer went quiet mid-frame for ``idle_ns`` (LEN too large)."""
+        for conn, c in self._conns.items():
+            for d, st in c.streams.items():
+                if st.decoder.buffered and now_ns - st.last_ns >= idle_ns:
+                    self._emit(conn, c.transport, d, st, st.decoder.resolve_pending(), now_ns)  # type: ignore[arg-type]
+
+    def _emit_run(
+        self,
+        conn: int,
+        transport: str,
+        direction: Direction,
+        st: _Stream,
+        run: FrameRun,
+        first_ns: list[int],
+        complete_ns: list[int],
+    ) -> None:
+        """A run the decoder took whole: one batch, its columns as the split gave them."""
+        k = len(run.cnts)
+        st.frames += k
+        self.frames += k
+        offsets = run.offsets(st.base)
+        batch = FrameBatch(
+            conn=conn,
+            transport=transport,
+            dir=direction,
+            cnts=run.cnts,
+            cmd_ids=run.cmd_ids,
+            names=self._names_of(run.cmd_ids, run.datas),
+            datas=run.datas,
+            lengths=run.lengths,
+            offsets=offsets,
+            first_ns=first_ns,
+            complete_ns=complete_ns,
+            sizes=run.sizes,
+            raw=run.raw,
+        )
+        self._write_batch(batch)
+
+    def _write_batch(self, batch: FrameBatch) -> None:
+        if self._write_frames is not None:
+            self._write_frames(batch)
+            return
+        for rec in batch.records():
+            self.sink.write(rec)
+            if self.on_frame is not None:
+                self.on_frame(rec)
+
+    def _emit(
+        self,
+        conn: int,
+        transport: str,
+        direction: Direction,
+        st: _Stream,
+        events: list[Event],
+        t_ns: int,
+        *,
+        base: int | None = None,
+    ) -> None:
+        """Write the decoder's events: consecutive frames as one batch, problems between."""
+        if not events:
+            return
+        b = st.base if base is None else base
+        tl = st.timeline
+        write = self.sink.write
+        frames: list[Frame] = []
+        firsts: list[int] = []
+        for ev in events:
+            # st.first_ns(ev.offset), inlined: the time the event's first byte arrived.
+            offset = ev.offset
+            while len(tl) > 1 and tl[1][0] <= offset:
+                tl.popleft()
+            first = tl[0][1] if tl else st.last_ns
+            if type(ev) is Frame:
+                frames.append(ev)
+                firsts.append(first)
+                continue
+            assert isinstance(ev, Malformed)
+            if frames:
+                self._emit_frames(conn, transport, direction, st, frames, firsts, b, t_ns)
+                frames, firsts = [], []
+            for pr in _problems(conn, transport, direction, ev, b, first, t_ns):
+                self.problems += 1
+                write(pr)
+        if frames:
+            self._emit_frames(conn, transport, direction, st, frames, firsts, b, t_ns)
+
+    def _emit_frames(
+        self,
+        conn: int,
+        transport: str,
+        direction: Direction,
+        st: _Stream,
+        frames: list[Frame],
+        firsts: list[int],
+        base: int,
+        t_ns: int,
+    ) -> None:
+        k = len(frames)
+        st.frames += k
+        self.frames += k
+        one = self._write_frame
+        if k == 1 and one is not None:
+            # A lone frame (request/reply traffic): its fields straight to the writer,
+            # which makes a batch only if the next frame is of the same stream.
+            cnt, cmd_id, data, length, raw, probs, offset = frames[0]
+            one(
+                conn,
+                transport,
+                direction,
+                cnt,
+                cmd_id,
+                self._name_of(cmd_id, data),
+                data,
+                length if length is not None else len(data.encode("utf-8")),
+                base + offset,
+                firsts[0],
+                t_ns,
+                raw,
+                [p.value for p in probs] if probs else None,
+            )
+            return
+        cnts, cmd_ids, datas, lengths, raws, probss, offsets = zip(*frames, strict=True)
+        problems = [[p.value for p in ps] for ps in probss] if any(probss) else None
+        self._write_batch(
+            FrameBatch(
+                conn=conn,
+                transport=transport,
+                dir=direction,
+                cnts=cnts,
+                cmd_ids=cmd_ids,
+                names=self._names_of(cmd_ids, datas),
+                datas=datas,
+                lengths=[
+                    n if n is not None else len(d.encode("utf-8"))
+                    for n, d in zip(lengths, datas, strict=True)
+                ],
+                offsets=[base + o for o in offsets],
+                first_ns=firsts,
+                complete_ns=[t_ns] * k,
+                sizes=list(map(len, raws)),
+                raw=b"".join(raws),
+                problems=problems,
+            )
+        )
+
+
+def _problems(
+    conn: int, transport: str, direction: Direction, ev: Malformed, base: int, first: int, t_ns: int
+) -> Iterator[ProblemRecord]:
+    """The Problem records of one malformed run: one per ``PROBLEM_RAW_LIMIT`` bytes, at
+    consecutive offsets, so every byte is kept (export-pcap puts them all back)."""
+    raw = ev.raw
+    parts = max(1, -(-len(raw) // PROBLEM_RAW_LIMIT))
+    for k in range(parts):
+        piece = raw[k * PROBLEM_RAW_LIMIT : (k + 1) * PROBLEM_RAW_LIMIT]
+        yield ProblemRecord(
+            conn=conn,
+            transport=transport,
+            dir=direction,
+            kind="malformed",
+            rule=ev.rule.value,
+            detail=ev.detail if parts == 1 else f"{ev.detail} (part {k + 1} of {parts})",
+            offset=base + ev.offset + k * PROBLEM_RAW_LIMIT,
+            size=len(piece),
+            raw=piece,
+            first_ns=first,
+            complete_ns=t_ns,
+        )
