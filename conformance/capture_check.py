@@ -18,7 +18,7 @@ from typing import Any
 
 from .dialects import default_dialects
 from .judge import CntSteps, Direction, Judge, Verdict
-from .recording import C2S, FrameRecord, Recording
+from .recording import C2S, FrameRecord, ProblemRecord, Recording
 from .report import CaseResult, Report
 from .spec import SpecSet
 from .verdict import Outcome
@@ -273,14 +273,14 @@ def check_recording(
     *,
     strict: bool = False,
     judge: Judge | None = None,
-    on_verdict: Callable[[FrameRecord, Verdict], None] | None = None,
+    on_verdict: Callable[[FrameRecord | ProblemRecord, Verdict], None] | None = None,
     side: str = "both",
 ) -> Report:
     """Judge every frame of a recording, both directions (:class:`~conformance.judge.Judge`).
 
     ``judge``: the judge to use (default: the shipped dialects, the ``field``
     reference); ``on_verdict`` is called with each frame and its verdict (``check
-    --verdicts`` writes them one JSON line each).  ``side``: ``client`` judges the
+    --verdicts`` writes them one JSON line each), and with each malformed run.  ``side``: ``client`` judges the
     requests (and the client's malformed bytes) only, ``controller`` the replies
     (and missing replies, the controller's malformed bytes) only, ``both`` both; the
     requests are still read on the controller side, to know what each reply answers.
@@ -344,6 +344,8 @@ def check_recording(
         if side != "both" and group != side:
             continue
         pv = judge.problem(p.rule, p.detail, Direction.REQUEST if p.dir == C2S else Direction.REPLY)
+        if on_verdict is not None:
+            on_verdict(p, pv)
         cases.add(
             FRAMING_ID,
             "(framing)",

@@ -62,6 +62,15 @@ def edge_frames() -> list[dict[str, Any]]:
         {"transport": "tcp", "frame": encode_frame(8, 102, "sTOP").decode()},
         {"transport": "tcp", "frame": encode_frame(9, 60000, "NoSuchCommand()").decode()},
         {"transport": "tcp", "frame": "/f/bIII10III204III3IIISetDO(0,1,0,0)III/b/f"},
+        # CNT habits: frcobot_ros sends 375 with CNT 123 every time (drivers-007's
+        # fixed_cnt: DIALECT); a CNT that stands still elsewhere is NON-STRICT.
+        {"transport": "tcp", "frame": encode_frame(123, 375, "GetActualJointPosRadian()").decode()},
+        {"transport": "tcp", "frame": encode_frame(123, 375, "GetActualJointPosRadian()").decode()},
+        {"transport": "tcp", "frame": encode_frame(40, 229, "GetGripperConfig()").decode()},
+        {"transport": "tcp", "frame": encode_frame(40, 229, "GetGripperConfig()").decode()},
+        # Keyword dialects: the Python SDK's Stop on 102 (python-sdk-004), the SDKs' PAUSE.
+        {"transport": "tcp", "frame": encode_frame(41, 102, "Stop").decode()},
+        {"transport": "tcp", "frame": encode_frame(42, 103, "PAUSE").decode()},
     ]
 
 
@@ -228,7 +237,9 @@ def agreement(work: Path, *, reference: str = "field") -> Agreement:
     p = cli("check", str(rec_path), "--verdicts", str(work / "check.jsonl"), *ref)
     if p.returncode not in (0, 1):
         res.errors.append(f"check exited {p.returncode}: {p.stderr.strip()[-300:]}")
-    checked = lines((work / "check.jsonl").read_text(encoding="utf-8"))
+    checked = [
+        d for d in lines((work / "check.jsonl").read_text(encoding="utf-8")) if d["kind"] == "frame"
+    ]
     res.verdicts["check"] = Counter(map(key, checked))
     for d in checked:
         row = res.check_per_command.setdefault(str(d["cmd_id"]), {})
@@ -262,7 +273,9 @@ def agreement(work: Path, *, reference: str = "field") -> Agreement:
         serve.communicate(timeout=300)
     finally:
         serve.kill()
-    res.verdicts["serve"] = Counter(map(key, lines((work / "serve.jsonl").read_text())))
+    res.verdicts["serve"] = Counter(
+        key(d) for d in lines((work / "serve.jsonl").read_text()) if d["kind"] == "frame"
+    )
     replayed = json.loads((work / "replay.json").read_text(encoding="utf-8"))
     for c in replayed["commands"].values():
         res.replay_differences.update(d["kind"] for d in c["differences"])

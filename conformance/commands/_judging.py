@@ -16,9 +16,9 @@ from collections.abc import Callable, Iterator
 
 from ..dialects import DIALECTS_ENV, dialects_from
 from ..errors import UsageError
-from ..frame import Frame
+from ..frame import Frame, Malformed
 from ..judge import REFERENCE_ENV, Judge, Reference, Verdict, reference_from
-from ..recording import FrameRecord
+from ..recording import FrameRecord, ProblemRecord
 from ..spec import SpecSet
 
 __all__ = [
@@ -26,6 +26,7 @@ __all__ = [
     "add_judge_options",
     "dialects_from",
     "judge_from",
+    "malformed_line",
     "reference_of",
     "verdict_line",
     "verdict_sink",
@@ -63,12 +64,31 @@ def judge_from(args: argparse.Namespace, specs: SpecSet, *, strict: bool = False
     )
 
 
-def verdict_line(frame: FrameRecord | Frame, verdict: Verdict, **extra: object) -> str:
+def malformed_line(raw: bytes, verdict: Verdict, **extra: object) -> str:
+    """A run of bytes that is not a frame and its verdict as a JSON line (``kind``
+    ``malformed``): ``--verdicts`` lists these too, so a run's only FAIL is never missing."""
+    doc: dict[str, object] = {
+        "kind": "malformed",
+        "dir": verdict.direction.value,
+        "size": len(raw),
+        "raw": raw[:200].decode("utf-8", "replace"),
+        **extra,
+        **verdict.to_json(),
+    }
+    return json.dumps(doc, ensure_ascii=False)
+
+
+def verdict_line(
+    frame: FrameRecord | Frame | Malformed | ProblemRecord, verdict: Verdict, **extra: object
+) -> str:
     """One frame and its verdict as a JSON line (``check --verdicts``, ``serve --verdicts``).
 
     The same keys from every front-end, so that their outputs compare line for line.
     """
+    if isinstance(frame, (Malformed, ProblemRecord)):
+        return malformed_line(frame.raw, verdict, **extra)
     doc: dict[str, object] = {
+        "kind": "frame",
         "dir": verdict.direction.value,
         "cnt": frame.cnt,
         "cmd_id": frame.cmd_id,

@@ -60,7 +60,7 @@ class ClientValidator:
         target: str = "client",
         strict: bool = False,
         judge: Judge | None = None,
-        on_verdict: Callable[[str, Frame, Verdict], None] | None = None,
+        on_verdict: Callable[[str, Frame | Malformed, Verdict], None] | None = None,
     ) -> None:
         self.specs = specs
         self.judge = judge if judge is not None else Judge(specs, default_dialects(), strict=strict)
@@ -90,6 +90,8 @@ class ClientValidator:
             self._transports[transport] = self._transports.get(transport, 0) + 1
             if isinstance(event, Malformed):
                 mv = self.judge.malformed(event, Direction.REQUEST)
+                if self.on_verdict is not None:
+                    self.on_verdict(peer, event, mv)
                 self._add(
                     0,
                     "protocol",

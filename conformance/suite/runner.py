@@ -165,9 +165,10 @@ class RequestMemo(Judge):
         super().__init__(*args, **kwargs)
         self._verdicts: dict[tuple[int, str, str | None], FrameVerdict] = {}
 
-    def request(self, frame: Frame, *, transport: str | None = None) -> FrameVerdict:
+    def _request(self, frame: Frame, transport: str | None) -> FrameVerdict:
+        # The frame's own verdict; a CNT step (Judge.request's previous_cnt) is added on top.
         if frame.problems:
-            return super().request(frame, transport=transport)
+            return super()._request(frame, transport)
         verdicts = self._verdicts
         v = verdicts.get((frame.cmd_id, frame.data, transport))
         if v is not None:
@@ -179,7 +180,7 @@ class RequestMemo(Judge):
                     break
                 v = None
         if v is None:
-            v = super().request(frame, transport=transport)
+            v = super()._request(frame, transport)
         if len(verdicts) >= 256:
             verdicts.clear()
         verdicts[(frame.cmd_id, frame.data, transport)] = v
