@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 import pytest
 
+from conformance.net.client import Client, Exchange
 from conformance.net.emulator import EmulatorServer
 
 pytest_plugins = ("pytester",)
@@ -16,3 +17,36 @@ def emulator() -> Iterator[EmulatorServer]:
     """A clean emulator on an ephemeral loopback port (TCP and UDP); re-raises its failures."""
     with EmulatorServer(udp_port=0) as emu:
         yield emu
+
+
+@pytest.fixture
+def unanswered(monkeypatch: pytest.MonkeyPatch) -> Callable[..., None]:
+    """``unanswered(*cmd_ids, wait=0.2)``: the kit waits ``wait`` seconds at most for a
+    reply to these commands (none: to every command).
+
+    For commands a test has faulted so that no reply ever pairs with the request (no
+    reply, a wrong CNT or CMD_ID, no tail, a reply later than ``wait``): nothing is
+    coming, so the wait ends early, while every other reply keeps the test's generous
+    timeout, which no load on the machine outlasts.  Only the length of a wait that
+    must expire changes; what the kit makes of it does not.
+    """
+
+    def install(*cmd_ids: int, wait: float = 0.2) -> None:
+        original = Client.await_reply
+        ids = frozenset(cmd_ids)
+
+        def await_reply(
+            self: Client,
+            cnt: int,
+            cmd_id: int,
+            *,
+            request: bytes = b"",
+            timeout: float | None = None,
+        ) -> Exchange:
+            if not ids or cmd_id in ids:
+                timeout = min(self.timeout if timeout is None else timeout, wait)
+            return original(self, cnt, cmd_id, request=request, timeout=timeout)
+
+        monkeypatch.setattr(Client, "await_reply", await_reply)
+
+    return install

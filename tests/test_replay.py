@@ -18,6 +18,10 @@ from conformance.spec import default_specs
 
 CAPTURES = Path(__file__).resolve().parent.parent / "captures"
 LOOPBACK = SafetyPolicy.for_target("127.0.0.1")
+#: The wait for a reply the test expects: no load on the machine outlasts it, and a
+#: reply that comes costs none of it.  Waits that must expire (a faulted command's
+#: reply, which never pairs) are cut short by the ``unanswered`` fixture.
+REPLY_TIMEOUT = 10.0
 
 
 @pytest.fixture(scope="module")
@@ -28,7 +32,7 @@ def session():  # type: ignore[no-untyped-def]
 def test_replay_against_a_healthy_emulator_matches(session) -> None:  # type: ignore[no-untyped-def]
     with EmulatorServer() as em:
         res = replay_to_target(
-            session, *em.address, specs=default_specs(), safety=LOOPBACK, timeout=1.0
+            session, *em.address, specs=default_specs(), safety=LOOPBACK, timeout=REPLY_TIMEOUT
         )
     assert res.differing_ids == set()
     assert sum(c.matched for c in res.commands.values()) == 11
@@ -43,10 +47,11 @@ def test_replay_against_a_healthy_emulator_matches(session) -> None:  # type: ig
         (("no_reply:682",), {682}),
     ],
 )
-def test_replay_reports_exactly_the_faulted_ids(session, faults, expected) -> None:  # type: ignore[no-untyped-def]
+def test_replay_reports_exactly_the_faulted_ids(session, faults, expected, unanswered) -> None:  # type: ignore[no-untyped-def]
+    unanswered(*expected)
     with EmulatorServer(faults=faults) as em:
         res = replay_to_target(
-            session, *em.address, specs=default_specs(), safety=LOOPBACK, timeout=0.3
+            session, *em.address, specs=default_specs(), safety=LOOPBACK, timeout=REPLY_TIMEOUT
         )
     assert res.differing_ids == expected
     report = res.to_report("3.8.2")
@@ -61,7 +66,7 @@ def test_ignore_rules_apply_to_replay(session) -> None:  # type: ignore[no-untyp
             *em.address,
             specs=default_specs(),
             safety=LOOPBACK,
-            timeout=0.3,
+            timeout=REPLY_TIMEOUT,
             ignore=Ignore.parse(["214"]),
         )
     assert res.differing_ids == set()
@@ -71,7 +76,7 @@ def test_non_loopback_safety_holds_motion_back(session, monkeypatch) -> None:  #
     remote = SafetyPolicy.for_target("192.0.2.1")  # TEST-NET: never contacted
     with EmulatorServer() as em:
         res = replay_to_target(
-            session, *em.address, specs=default_specs(), safety=remote, timeout=0.3
+            session, *em.address, specs=default_specs(), safety=remote, timeout=REPLY_TIMEOUT
         )
     assert res.commands[201].sent == 0 and res.commands[201].skipped
     assert res.commands[203].sent == 0
@@ -82,7 +87,7 @@ def test_non_loopback_safety_holds_motion_back(session, monkeypatch) -> None:  #
     )
     with EmulatorServer() as em:
         res = replay_to_target(
-            session, *em.address, specs=default_specs(), safety=allowed, timeout=0.3
+            session, *em.address, specs=default_specs(), safety=allowed, timeout=REPLY_TIMEOUT
         )
     assert res.commands[201].sent == 3
 

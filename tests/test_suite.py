@@ -13,6 +13,7 @@ import math
 import socket
 import threading
 import time
+from collections.abc import Callable
 
 import pytest
 
@@ -27,13 +28,17 @@ from conformance.suite.runner import Case, SuiteRunner, Verdict, describe_exchan
 from tests.hostile_targets import HostileTarget, refusing_port
 
 SPECS = default_specs()
+#: The wait for a reply the test expects: no load on the machine outlasts it, and a
+#: reply that comes costs none of it.  Waits that must expire are cut short instead
+#: (the ``unanswered`` fixture, ``case_timeout``, a hostile target's own timeout).
+REPLY_TIMEOUT = 10.0
 
 
 def _run(commands: list[str] | None, faults: tuple[str, ...] = (), **kw: object) -> Report:
     config = SuiteConfig(
         commands=tuple(commands or ()),
         profile=PROFILES["quick"],
-        reply_timeout=0.3,
+        reply_timeout=REPLY_TIMEOUT,
         recovery_timeout=3.0,
         seed=12345,
         emulator_faults=faults,
@@ -125,11 +130,17 @@ def test_clean_emulator_stateful_pairs_and_motion() -> None:
     ]
 
 
-_DELAYS = {FaultKind.SLOW: "@0.6", FaultKind.CRASH_ON_MALFORMED: "@0.2"}
+#: No reply to the faulted command pairs with its request, so the kit's wait for one
+#: is cut to this; a ``slow`` reply never comes sooner than its delay, whatever the load.
+FAULTED_WAIT = 0.1
+_DELAYS = {FaultKind.SLOW: "@0.3", FaultKind.CRASH_ON_MALFORMED: "@0.2"}
 
 
 @pytest.mark.parametrize("kind", list(FaultKind), ids=lambda k: k.value)
-def test_fault_is_detected_and_blamed_on_its_command(kind: FaultKind) -> None:
+def test_fault_is_detected_and_blamed_on_its_command(
+    kind: FaultKind, unanswered: Callable[..., None]
+) -> None:
+    unanswered(FAULTED.cmd_id, wait=FAULTED_WAIT)
     fault = f"{kind.value}:{FAULTED.cmd_id}{_DELAYS.get(kind, '')}"
     report = _run(SELECTION, (fault,))
     assert _blamed(report) == {FAULTED.cmd_id}, [
@@ -147,7 +158,8 @@ def test_fault_is_detected_and_blamed_on_its_command(kind: FaultKind) -> None:
     assert report.stopped is None  # a fault on one command never stops the run
 
 
-def test_fault_on_every_command_fails_everything() -> None:
+def test_fault_on_every_command_fails_everything(unanswered: Callable[..., None]) -> None:
+    unanswered(wait=FAULTED_WAIT)  # every reply has a wrong CNT: none pairs
     report = _run(SELECTION, ("wrong_cnt",), groups=("framing",))
     assert _blamed(report) == {int(i) for i in SELECTION}
 
@@ -239,17 +251,20 @@ ASKED = f"{HEALTH.name} (ID {HEALTH.cmd_id})"
 
 
 @pytest.mark.parametrize(
-    ("behaviour", "why"),
+    ("behaviour", "wait", "why"),
     [
-        ("refusing", "unreachable: connection refused"),
-        ("silent", f"accepted a connection but did not answer {ASKED} within 0.5 s"),
-        ("closing", f"accepted a connection but closed it instead of answering {ASKED}"),
-        ("endless", f"accepted a connection but did not answer {ASKED} within 0.5 s (it sent "),
-        ("blob", f"accepted a connection but did not answer {ASKED} within 0.5 s (it sent "),
+        ("refusing", 0.2, "unreachable: connection refused"),
+        # Nothing comes: the wait expires whatever its length.
+        ("silent", 0.2, f"accepted a connection but did not answer {ASKED} within 0.2 s"),
+        ("closing", 0.2, f"accepted a connection but closed it instead of answering {ASKED}"),
+        # Bytes that are not a reply come, and the message counts them: long enough
+        # for them to arrive on a busy machine.
+        ("endless", 2.0, f"accepted a connection but did not answer {ASKED} within 2 s (it sent "),
+        ("blob", 2.0, f"accepted a connection but did not answer {ASKED} within 2 s (it sent "),
     ],
 )
 def test_a_target_that_does_not_answer_at_the_start_stops_the_run_in_one_line(
-    behaviour: str, why: str
+    behaviour: str, wait: float, why: str
 ) -> None:
     if behaviour == "refusing":
         address, target = ("127.0.0.1", refusing_port()), None
@@ -257,7 +272,7 @@ def test_a_target_that_does_not_answer_at_the_start_stops_the_run_in_one_line(
         target = HostileTarget(behaviour)
         address = target.address
     try:
-        runner = _run_against(address)
+        runner = _run_against(address, reply_timeout=wait)
     finally:
         if target is not None:
             target.close()
@@ -339,9 +354,10 @@ def test_failure_text_is_bounded_whatever_the_target_sends() -> None:
     """A reply of 200 unpaired frames and endless garbage: the case's text stays small."""
 
     def flood(conn: socket.socket) -> None:
-        conn.recv(65536)
-        conn.sendall(b"".join(encode_frame(7, 9, "x" * 3000) for _ in range(200)))
-        conn.sendall(b"\xff" * 3_000_000)
+        with conn:  # then closed: the kit's wait ends on that, not on its clock
+            conn.recv(65536)
+            conn.sendall(b"".join(encode_frame(7, 9, "x" * 3000) for _ in range(200)))
+            conn.sendall(b"\xff" * 3_000_000)
 
     server = socket.create_server(("127.0.0.1", 0))
 
@@ -352,7 +368,7 @@ def test_failure_text_is_bounded_whatever_the_target_sends() -> None:
                 threading.Thread(target=flood, args=(conn,), daemon=True).start()
 
     threading.Thread(target=serve, daemon=True).start()
-    config = SuiteConfig(target=("127.0.0.1", server.getsockname()[1]), reply_timeout=1.0)
+    config = SuiteConfig(target=("127.0.0.1", server.getsockname()[1]), reply_timeout=REPLY_TIMEOUT)
     runner = SuiteRunner(config, SPECS)
     try:
         ex = runner._fresh_client(math.inf).connect().request(HEALTH.cmd_id, "x()")
@@ -380,8 +396,11 @@ def test_udp_targets_that_do_not_answer_stop_the_run_in_one_line() -> None:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as silent:
         silent.bind(("127.0.0.1", 0))
         port = silent.getsockname()[1]
-        runner = _run_against(("127.0.0.1", port), transport="udp", commands=(str(HEALTH.cmd_id),))
-        assert runner.stopped == (f"target 127.0.0.1:{port} did not answer {ASKED} within 0.5 s"), (
+        # Nothing comes: the wait expires whatever its length.
+        runner = _run_against(
+            ("127.0.0.1", port), transport="udp", commands=(str(HEALTH.cmd_id),), reply_timeout=0.2
+        )
+        assert runner.stopped == (f"target 127.0.0.1:{port} did not answer {ASKED} within 0.2 s"), (
             runner.stopped
         )
         assert silent.recv(65536).startswith(b"/f/bIII")  # the one frame the kit sent
