@@ -51,6 +51,8 @@ class HostileTarget:
         self.connections = 0
         self.bytes_sent = 0
         self.died = threading.Event()
+        #: Set once ``endless`` has sent its first chunk (``blob``: its first piece).
+        self.streaming = threading.Event()
         self.errors: list[BaseException] = []
         self._lock = threading.Lock()
         self._stop = threading.Event()
@@ -140,6 +142,7 @@ class HostileTarget:
         while not self._stop.is_set():
             conn.sendall(_CHUNK)
             self.bytes_sent += len(_CHUNK)
+            self.streaming.set()
 
     def _blob(self, conn: socket.socket) -> None:
         for data in self._reads(conn):
@@ -152,6 +155,7 @@ class HostileTarget:
                     conn.sendall(piece)
                     left -= len(piece)
                     self.bytes_sent += len(piece)
+                    self.streaming.set()
                 conn.sendall(b"III/b/f")
 
     def _dies(self, conn: socket.socket) -> None:

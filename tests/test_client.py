@@ -91,17 +91,24 @@ def test_replies_pair_by_cnt_and_cmd_id_not_arrival_order(peer) -> None:  # type
 
 
 def test_timeout_near_miss_and_closed(peer) -> None:  # type: ignore[no-untyped-def]
+    answered = threading.Event()
+
     def script(conn: socket.socket) -> None:
         _recv_frames(conn, 1)
         conn.sendall(encode_frame(1, 999, "1"))  # CMD_ID not echoed
+        answered.set()
         _recv_frames(conn, 1)
         conn.sendall(b"/f/bIII2III201III5III1")  # no tail, then close
 
     p = peer(script)
-    with Client("127.0.0.1", p.port, timeout=0.3) as c:
-        ex = c.request(201, 'MoveJ("P1")')
+    with Client("127.0.0.1", p.port, timeout=60) as c:
+        raw = encode_frame(c.next_cnt(), 201, 'MoveJ("P1")')
+        c.send_raw(raw)
+        assert answered.wait(60)  # the near miss is on its way before the wait starts
+        # No reply is coming, so the wait that must expire is short.
+        ex = c.await_reply(1, 201, request=raw, timeout=0.1)
         assert ex.timed_out and [f.cmd_id for f in ex.near_misses()] == [999]
-        ex = c.request(201, 'MoveJ("P1")')
+        ex = c.request(201, 'MoveJ("P1")')  # ends when the peer closes
         assert ex.reply is None and ex.closed
         assert ex.malformed and ex.malformed[0].rule.value == "truncated"
 
@@ -159,9 +166,14 @@ def _in_thread(fn: Callable[[], object]) -> object:
 def test_endless_stream_ends_at_the_deadline_in_bounded_memory() -> None:
     with (
         HostileTarget("endless") as target,
-        Client(*target.address, timeout=1.0, max_events=5, max_frame_size=4096) as c,
+        Client(*target.address, timeout=0.3, max_events=5, max_frame_size=4096) as c,
     ):
-        ex = _in_thread(lambda: c.request(201, 'MoveJ("P1")'))
+        raw = encode_frame(c.next_cnt(), 201, 'MoveJ("P1")')
+        c.send_raw(raw)
+        # The stream has begun (at least one chunk of about 80 KB is on its way) before
+        # the wait starts, so what it must keep and count is there whatever the load.
+        assert target.streaming.wait(60)
+        ex = _in_thread(lambda: c.await_reply(1, 201, request=raw))
         assert isinstance(ex, Exchange)
         assert ex.reply is None and not ex.closed
         # Kept: the first 5 runs of bytes; counted: everything that came.
