@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from ._version import __version__
 from .errors import (
     ConformanceError,
     LocalProtocolError,
@@ -12,8 +13,6 @@ from .errors import (
     UsageError,
 )
 from .frame import Event, Frame, FrameDecoder, Malformed, decode_all, encode_frame
-
-__version__ = "0.1.0"
 
 __all__ = [
     "ConformanceError",

@@ -17,7 +17,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from .dialects import default_dialects
-from .judge import CntSteps, Direction, Judge, Verdict
+from .judge import Direction, Judge, Verdict
+from .judge_stream import CntSteps
 from .recording import C2S, FrameRecord, ProblemRecord, Recording
 from .report import CaseResult, Report
 from .spec import SpecSet

@@ -27,7 +27,6 @@ The reference does not change the outcome, only whether it fails
 
 from __future__ import annotations
 
-from collections import OrderedDict
 from collections.abc import Iterable
 from dataclasses import dataclass, replace
 
@@ -44,11 +43,9 @@ from .verdict import REFERENCE_ENV, Direction, Outcome, Reference, fails, refere
 __all__ = [
     "LENIENT",
     "REFERENCE_ENV",
-    "CntSteps",
     "Direction",
     "Finding",
     "Judge",
-    "Pairing",
     "Reference",
     "Verdict",
     "reference_from",
@@ -637,66 +634,3 @@ class Judge:
         if isinstance(parsed, (Call, Keyword)):
             return False
         return self.request(frame).outcome is Outcome.FAIL
-
-
-class CntSteps:
-    """Each connection's last request CNT, for :meth:`Judge.request`'s ``previous_cnt``.
-
-    Every front-end that reads a stream (``serve``, ``check``, ``info``, ``decode``)
-    keeps one, so that the CNT rule is judged alike everywhere.  At most ``limit``
-    connections are remembered (the oldest is forgotten first).
-    """
-
-    def __init__(self, *, limit: int = 4096) -> None:
-        self.limit = limit
-        self._last: OrderedDict[object, int] = OrderedDict()
-
-    def previous(self, conn: object, cnt: int) -> int | None:
-        """Remember ``cnt`` as ``conn``'s latest request CNT; return the one before."""
-        last = self._last.pop(conn, None)
-        self._last[conn] = cnt
-        if len(self._last) > self.limit:
-            self._last.popitem(last=False)
-        return last
-
-    def forget(self, conn: object) -> None:
-        self._last.pop(conn, None)
-
-
-class Pairing:
-    """Tells requests from replies in one stream (``decode --dir auto``).
-
-    A frame echoing the CNT and CMD_ID of an earlier request still unanswered is
-    its reply; otherwise the frame's shape decides (:meth:`Judge.looks_like_reply`).
-    At most ``limit`` requests wait for a reply (a stream of requests never answered
-    stays bounded).
-    """
-
-    def __init__(self, judge: Judge, *, limit: int = 4096) -> None:
-        self.judge = judge
-        self.limit = limit
-        self._waiting: dict[tuple[int, int], tuple[Frame, Verdict]] = {}
-        self._cnt = CntSteps(limit=1)
-
-    def judge_frame(
-        self, frame: Frame, direction: Direction | None = None, *, transport: str | None = None
-    ) -> Verdict:
-        key = (frame.cnt, frame.cmd_id)
-        if direction is None:
-            direction = (
-                Direction.REPLY
-                if key in self._waiting or self.judge.looks_like_reply(frame)
-                else Direction.REQUEST
-            )
-        if direction is Direction.REPLY:
-            req = self._waiting.pop(key, None)
-            if req is None:
-                return self.judge.reply(frame, None, transport=transport, paired=False)
-            return self.judge.reply(frame, req[0], req[1], transport=transport)
-        previous = self._cnt.previous(None, frame.cnt)
-        v = self.judge.request(frame, transport=transport, previous_cnt=previous)
-        self._waiting.pop(key, None)
-        self._waiting[key] = (frame, v)
-        if len(self._waiting) > self.limit:
-            self._waiting.pop(next(iter(self._waiting)))
-        return v

@@ -15,7 +15,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from . import __version__
+from ._version import __version__
 from .verdict import SEVERITY, Outcome, Reference, aggregate, fails
 
 __all__ = [

@@ -11,7 +11,8 @@ import pytest
 from conformance.dialects import DialectSet, default_dialects, load_dialects
 from conformance.errors import SpecError, UsageError
 from conformance.frame import Frame, Malformed, decode_all, encode_frame
-from conformance.judge import Direction, Judge, Pairing, Reference, reference_from
+from conformance.judge import Direction, Judge, Reference, reference_from
+from conformance.judge_stream import Pairing
 from conformance.report import CaseResult, Outcome, Report
 from conformance.spec import default_specs
 

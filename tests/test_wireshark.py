@@ -26,7 +26,8 @@ from scapy.utils import wrpcap
 from conformance.cli import main
 from conformance.dialects import default_dialects
 from conformance.frame import Frame, encode_frame
-from conformance.judge import Direction, Judge, Pairing
+from conformance.judge import Direction, Judge
+from conformance.judge_stream import Pairing
 from conformance.pcap import export_pcap, import_pcap
 from conformance.recording import read_recording
 from conformance.spec import default_specs

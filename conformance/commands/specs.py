@@ -12,7 +12,8 @@ from ..data import Call
 from ..dialects import default_dialects
 from ..errors import UsageError
 from ..frame import DEFAULT_MAX_FRAME_SIZE, Event, FrameDecoder, Malformed
-from ..judge import Direction, Judge, Pairing, Verdict
+from ..judge import Direction, Judge, Verdict
+from ..judge_stream import Pairing
 from ..spec import Command, Example, Param, ReturnValue, SpecSet, default_specs, load_specs
 from ._judging import add_judge_options, judge_from
 

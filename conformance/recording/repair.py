@@ -8,7 +8,7 @@ import os
 from collections.abc import Iterator
 from dataclasses import dataclass
 
-from .. import __version__
+from .._version import __version__
 from .reader import _iter_tolerant
 
 __all__ = ["RecoverResult", "atomic_output", "recover"]

@@ -12,7 +12,7 @@ from collections.abc import Mapping, Sequence
 from itertools import chain
 from typing import IO, Any
 
-from .. import __version__
+from .._version import __version__
 from .layout import (
     _TOPICS,
     BATCH_BYTES,

@@ -26,11 +26,12 @@ from ..actions import Action, Dropped
 from ..dialects import default_dialects
 from ..errors import Rule
 from ..frame import Frame, Malformed
-from ..judge import CntSteps, Direction, Judge, Reference, Verdict
+from ..judge import Direction, Judge, Reference, Verdict
+from ..judge_stream import CntSteps
 from ..report import CaseResult, Report
 from ..spec import SpecSet
 from ..verdict import Outcome, worst
-from .runner import shell_printf, show
+from .evidence import shell_printf, show
 
 __all__ = ["ClientValidator"]
 

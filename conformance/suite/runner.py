@@ -18,18 +18,17 @@ A stopped run leaves every remaining case ERROR with that one reason
 from __future__ import annotations
 
 import math
-import shlex
 import time
 import zlib
 from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-from ..data import Call, Violation
+from ..data import Violation
 from ..dialects import dialects_from
 from ..errors import ConformanceError, Rule
-from ..frame import Frame, Malformed, decode_all, encode_frame
-from ..judge import Judge, Reference
+from ..frame import Frame, Malformed, encode_frame
+from ..judge import Reference
 from ..judge import Verdict as FrameVerdict
 from ..knowledge import default_data, health_query, unsolicited_ids
 from ..net.client import Client, Exchange, TargetUnreachable
@@ -38,6 +37,8 @@ from ..spec import Command, SpecSet, Variant
 from ..validate import ReplyVerdict
 from ..verdict import Outcome, fails
 from .config import SuiteConfig
+from .evidence import describe_exchange, reproduction, shell_printf
+from .judging import RequestMemo, request_frame, transport_free
 
 __all__ = [
     "Case",
@@ -45,6 +46,7 @@ __all__ = [
     "RequestMemo",
     "SuiteRunner",
     "Verdict",
+    "describe_exchange",
     "shell_printf",
     "transport_free",
 ]
@@ -99,92 +101,6 @@ class Case:
     @property
     def seed_offset(self) -> int:
         return zlib.crc32(self.id.encode())
-
-
-def shell_printf(raw: bytes) -> str:
-    """A POSIX ``printf`` format that prints exactly ``raw`` (octal escapes, no bashisms)."""
-    out: list[str] = []
-    for b in raw:
-        ch = chr(b)
-        if ch == "%":
-            out.append("%%")
-        elif ch == "\\":
-            out.append("\\\\")
-        elif ch == "'":
-            out.append("'\\''")
-        elif 0x20 <= b < 0x7F:
-            out.append(ch)
-        else:
-            out.append(f"\\{b:03o}")
-    return "'" + "".join(out) + "'"
-
-
-def show(raw: bytes, limit: int = 400) -> str:
-    text = raw[:limit].decode("utf-8", "backslashreplace")
-    return text + (f"...(+{len(raw) - limit} bytes)" if len(raw) > limit else "")
-
-
-def describe_exchange(ex: Exchange) -> tuple[str, ...]:
-    lines = [f">> {show(ex.request)}"] if ex.request else []
-    for m in ex.malformed:
-        lines.append(f"<< (not a frame: {m.rule.value}) {show(m.raw)}")
-    if ex.malformed_count > len(ex.malformed):
-        lines.append(
-            f"<< (+{ex.malformed_count - len(ex.malformed)} more runs of bytes that are not "
-            f"frames; {ex.malformed_bytes} bytes in all)"
-        )
-    for f in ex.unsolicited:
-        lines.append(f"<< (unpaired) {show(f.raw or f.encode())}")
-    if ex.unsolicited_count > len(ex.unsolicited):
-        lines.append(f"<< (+{ex.unsolicited_count - len(ex.unsolicited)} more unpaired frames)")
-    if ex.reply is not None:
-        lines.append(f"<< {show(ex.reply.raw or ex.reply.encode())}")
-    elif ex.closed:
-        lines.append("<< (connection closed)")
-    else:
-        tail = f" {ex.pending.decode()}" if ex.pending else ""
-        lines.append(f"<< (no reply after {ex.elapsed:.2f} s){tail}")
-    return tuple(lines)
-
-
-class RequestMemo(Judge):
-    """The judge, remembering its verdicts on the requests lately judged.
-
-    A request the suite generates is judged by its filter (on the run's
-    transport), by the built-in emulator answering it (in the emulator's thread)
-    and again by each reading of its reply (Judge.reply, on no transport): three
-    times the same work, now once.  A verdict is a pure function of the request's ID and
-    DATA and the transport, for a frame without framing problems (those alone
-    make it depend on more); one that no dialect could have decided
-    (:func:`transport_free`) holds for every transport.  Entries are immutable,
-    and the dict is only read, written and cleared (atomic under the GIL), so the
-    emulator's thread may share it.
-    """
-
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
-        self._verdicts: dict[tuple[int, str, str | None], FrameVerdict] = {}
-
-    def _request(self, frame: Frame, transport: str | None) -> FrameVerdict:
-        # The frame's own verdict; a CNT step (Judge.request's previous_cnt) is added on top.
-        if frame.problems:
-            return super()._request(frame, transport)
-        verdicts = self._verdicts
-        v = verdicts.get((frame.cmd_id, frame.data, transport))
-        if v is not None:
-            return v
-        for other in (None, "tcp", "udp"):
-            if other != transport:
-                v = verdicts.get((frame.cmd_id, frame.data, other))
-                if v is not None and transport_free(v, self.dialects.by_id(frame.cmd_id)):
-                    break
-                v = None
-        if v is None:
-            v = super()._request(frame, transport)
-        if len(verdicts) >= 256:
-            verdicts.clear()
-        verdicts[(frame.cmd_id, frame.data, transport)] = v
-        return v
 
 
 class SuiteRunner:
@@ -594,7 +510,7 @@ class SuiteRunner:
         key = (ex.request, ex.cnt, ex.cmd_id)
         if self._request_frames is not None and self._request_frames[0] == key:
             return self._request_frames[1]
-        frame = _request_frame(ex)
+        frame = request_frame(ex)
         self._request_frames = (key, frame)
         return frame
 
@@ -648,36 +564,8 @@ class SuiteRunner:
     # ------------------------------------------------------------------ running cases
 
     def reproduce(self, case: Case, raw: bytes) -> str:
-        """A shell line re-running exactly this case, and one sending its frame with ``send``.
-
-        Against the built-in emulator the frame goes to an emulator the user starts
-        (with the same faults) on 127.0.0.1:8080, never to this run's temporary port.
-        """
-        faults = self.config.emulator_faults
-        if self.config.embedded:
-            where = "".join(f" --emulator-fault {shlex.quote(f)}" for f in faults)
-        else:
-            where = f" --target {shlex.quote(self.config.target_label())}"
-            if self.config.transport != "tcp":
-                where += f" --transport {self.config.transport}"
-        line = (
-            f"fairino-conformance run{where} --case {shlex.quote(case.id)} "
-            f"--seed {self.config.seed}"
-        )
-        # A request too long for a command line (the 300 KB oversize frame) stays
-        # in the case's frames only.
-        if raw and len(raw) <= 2048:
-            udp = " --udp" if self.config.transport == "udp" else ""
-            if self.config.embedded:
-                listen = "--udp 127.0.0.1:20007 " if udp else ""
-                emulate = "fairino-conformance emulate --listen 127.0.0.1:8080 " + listen
-                emulate += "".join(f"--fault {shlex.quote(f)} " for f in faults)
-                addr = "127.0.0.1:20007" if udp else "127.0.0.1:8080"
-                line += f"  # or: {emulate}& fairino-conformance send {addr}{udp} --hex {raw.hex()}"
-            else:
-                addr = shlex.quote(self.config.target_label())
-                line += f"  # or: fairino-conformance send {addr}{udp} --hex {raw.hex()}"
-        return line
+        """A shell line re-running exactly this case (:func:`.evidence.reproduction`)."""
+        return reproduction(self.config, case.id, raw)
 
     def run(self, case: Case) -> CaseResult:
         """Run one case (never raises): safety, a dead target and kit errors become outcomes."""
@@ -784,37 +672,6 @@ class SuiteRunner:
             self._suspect = True
             detail += f"; target did not recover within {self.config.recovery_timeout:g} s"
         return Verdict(outcome=Outcome.FAIL, detail=detail, frames=frames, raw=raw)
-
-
-def _request_frame(ex: Exchange) -> Frame:
-    """The request of an exchange as a frame (the bytes the suite sent, decoded)."""
-    frames = [e for e in decode_all(ex.request) if isinstance(e, Frame)]
-    # Pipelined requests travel together: the one this exchange waited for.
-    mine = [f for f in frames if f.cnt == ex.cnt and f.cmd_id == ex.cmd_id]
-    if mine or frames:
-        return (mine or frames)[0]
-    return Frame(cnt=ex.cnt, cmd_id=ex.cmd_id, data="")
-
-
-def transport_free(v: FrameVerdict, dialects: Sequence[object] = ()) -> bool:
-    """Whether a request's verdict is the same whatever transport it was judged for.
-
-    Judge.request consults the transport only to match field dialects, those
-    recorded for the request's ID (``dialects``), and only for a request that
-    breaks the manual (a failure, unless a dialect matched) or spells a name
-    otherwise (NAME_CASE).  So a verdict that follows no dialect holds for every
-    transport when its ID has no dialects, or when it neither fails nor has a
-    NAME_CASE finding (tests/test_suite_batches.py holds the judge to it).
-    """
-    if v.dialect is not None:
-        return False
-    return not dialects or (
-        v.outcome is not Outcome.FAIL and all(f.rule != Rule.NAME_CASE.value for f in v.findings)
-    )
-
-
-def parsed_is_call(x: object) -> bool:
-    return isinstance(x, Call)
 
 
 _ = Malformed, encode_frame
