@@ -12,6 +12,7 @@ from __future__ import annotations
 import enum
 
 __all__ = [
+    "AddressError",
     "ConformanceError",
     "LocalProtocolError",
     "ProtocolError",
@@ -90,6 +91,18 @@ class ConformanceError(Exception):
 
 class UsageError(ConformanceError):
     """A user mistake (bad option, missing file): the CLI prints it in one line."""
+
+
+class AddressError(UsageError):
+    """An address (``HOST:PORT``) that cannot be read: ``text`` as given, ``reason`` why,
+    ``option`` where it came from (``--target``; may be empty)."""
+
+    def __init__(self, text: str, reason: str, *, option: str = "") -> None:
+        shown = text if len(text) <= 80 else text[:77] + "..."
+        super().__init__(f"{option + ': ' if option else ''}bad address {shown!r}: {reason}")
+        self.text = text
+        self.reason = reason
+        self.option = option
 
 
 class SpecError(ConformanceError):

@@ -49,6 +49,7 @@ from typing import Any
 import pytest
 
 from .errors import ConformanceError
+from .net.addresses import format_address, parse_address
 from .net.client import Client
 from .net.emulator import EmulatorServer
 from .report import CaseResult, Report
@@ -396,8 +397,7 @@ class Target:
 
     @property
     def address(self) -> str:
-        host = f"[{self.host}]" if ":" in self.host else self.host
-        return f"{host}:{self.port}"
+        return format_address(self.host, self.port)
 
 
 EmulatorFactory = Callable[..., EmulatorServer]
@@ -456,15 +456,13 @@ def fairino_target(
 ) -> Target:
     """The endpoint under test: ``--target`` / ini ``fairino_target`` / ``$FAIRINO_TARGET``,
     else an emulator started for the session."""
-    from .net import parse_address
-
     config = request.config
     values = resolve(
         {o.name: config.getoption(o.ini) for o in OPTIONS if o.pytest is not None},
         ini=lambda key: config.getini(key) or None,
     )
     if values["target"]:
-        host, port = parse_address(values["target"], default_port=8080)
+        host, port = parse_address(values["target"], default_port=8080, option="--target")
         return Target(host, port, values["transport"])
     emu = fairino_emulator_factory(udp=values["transport"] == "udp")
     if values["transport"] == "udp":

@@ -270,9 +270,10 @@ def replay_to_target(
     judge: Judge | None = None,
 ) -> ReplayResult:
     """Resend the recording's client side to ``host:port`` and compare the replies."""
+    from .net.addresses import format_address
     from .net.client import Client
 
-    result = ReplayResult(target=f"{host}:{port}")
+    result = ReplayResult(target=format_address(host, port))
     start = time.monotonic()
     # What each recorded request got, by connection and request index.
     replies: dict[int, FrameRecord | None] = {}

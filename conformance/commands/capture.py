@@ -17,6 +17,7 @@ from ..capture_check import SIDES
 from ..diff import ignore_help
 from ..errors import UsageError
 from ..frame import DEFAULT_MAX_FRAME_SIZE
+from ..net.addresses import Address, format_address, parse_address
 from ..pcap import read_capture
 from ..recording import C2S, FrameRecord, recover
 from ..spec import SpecSet, default_specs, load_specs
@@ -329,14 +330,24 @@ def format_frame_line(f: FrameRecord) -> str:
 
 
 def _run_proxy(args: argparse.Namespace) -> int:
-    from ..net.proxy import RecordingProxy, parse_hostport
+    from ..net.proxy import RecordingProxy
 
-    listen = parse_hostport(args.listen, default_port=18080)
-    upstream = parse_hostport(args.upstream, default_port=8080)
+    listen = parse_address(args.listen, default_port=18080, listen=True, option="--listen")
+    upstream = parse_address(args.upstream, default_port=8080, option="--upstream")
     udp_upstream = udp_listen = None
-    if args.udp or args.udp_upstream or args.udp_listen:
-        udp_upstream = parse_hostport(args.udp_upstream or upstream[0], default_port=20007)
-        udp_listen = parse_hostport(args.udp_listen or listen[0], default_port=20007)
+    if args.udp or args.udp_upstream is not None or args.udp_listen is not None:
+        udp_upstream = (
+            Address(upstream.host, 20007)
+            if args.udp_upstream is None
+            else parse_address(args.udp_upstream, default_port=20007, option="--udp-upstream")
+        )
+        udp_listen = (
+            Address(listen.host, 20007)
+            if args.udp_listen is None
+            else parse_address(
+                args.udp_listen, default_port=20007, listen=True, option="--udp-listen"
+            )
+        )
     specs = _specs(args)
     on_frame = None
     if args.print_frames:
@@ -372,7 +383,7 @@ def _run_proxy(args: argparse.Namespace) -> int:
             raise UsageError(
                 f"cannot write the recording {e.filename}: {e.strerror or e}"
             ) from None
-        raise UsageError(f"cannot listen on {args.listen}: {e.strerror or e}") from None
+        raise UsageError(f"cannot listen on {listen}: {e.strerror or e}") from None
     except ValueError as e:
         raise UsageError(str(e)) from None
     old = {s: signal.signal(s, _stop) for s in (signal.SIGINT, signal.SIGTERM)}
@@ -380,11 +391,9 @@ def _run_proxy(args: argparse.Namespace) -> int:
     # long for the recorder thread when a frame arrives.
     sys.setswitchinterval(min(sys.getswitchinterval(), 0.0002))
     proxy.start()
-    h, port = proxy.address
-    msg = f"proxy: listening on {h}:{port} -> {args.upstream}"
+    msg = f"proxy: listening on {format_address(*proxy.address)} -> {upstream}"
     if proxy.udp_address and udp_upstream:
-        ua, uu = proxy.udp_address, udp_upstream
-        msg += f" (udp {ua[0]}:{ua[1]} -> {uu[0]}:{uu[1]})"
+        msg += f" (udp {format_address(*proxy.udp_address)} -> {udp_upstream})"
     print(msg + f", recording to {args.out}", file=sys.stderr, flush=True)
     failure: BaseException | None = None
     try:
@@ -483,32 +492,35 @@ def _run_check(args: argparse.Namespace) -> int:
 
 def _run_replay(args: argparse.Namespace) -> int:
     from ..diff import Ignore
-    from ..net.proxy import ReplayServer, parse_hostport
+    from ..net.replay_server import ReplayServer
     from ..replay import ReplyBook, replay_to_target
     from ._safety import safety_policy
 
+    if args.serve is not None:
+        address = parse_address(args.serve, default_port=8080, listen=True, option="--serve")
+    else:
+        address = parse_address(args.target, default_port=8080, option="--target")
     rec = read_capture(args.capture)
     specs = _specs(args)
     ignore = Ignore.parse(args.ignore, specs=specs)
-    if args.serve:
-        listen = parse_hostport(args.serve, default_port=8080)
+    if args.serve is not None:
         book = ReplyBook(rec, unmatched=args.unmatched)
         stop = threading.Event()
         old = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
         try:
             server = ReplayServer(
                 book,
-                listen=listen,
+                listen=address,
                 max_connections=args.max_connections,
                 max_frame_size=args.max_frame_size,
             ).start()
         except OSError as e:
-            raise UsageError(f"cannot listen on {args.serve}: {e.strerror or e}") from None
+            raise UsageError(f"cannot listen on {address}: {e.strerror or e}") from None
         except ValueError as e:
             raise UsageError(str(e)) from None
-        h, p = server.address
         print(
-            f"replay: serving {args.capture} on {h}:{p} (unmatched: {args.unmatched})",
+            f"replay: serving {args.capture} on {format_address(*server.address)} "
+            f"(unmatched: {args.unmatched})",
             file=sys.stderr,
             flush=True,
         )
@@ -532,7 +544,7 @@ def _run_replay(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 0
-    host, port = parse_hostport(args.target, default_port=8080)
+    host, port = address
     if args.udp_port is not None and not 0 < args.udp_port < 65536:
         raise UsageError(f"--udp-port must be 1..65535, not {args.udp_port}")
     safety = safety_policy(args, host)

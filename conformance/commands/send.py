@@ -372,8 +372,6 @@ def _run_send(args: argparse.Namespace) -> int:
         raise UsageError(f"--timeout must be a positive number of seconds, not {args.timeout:g}")
     transport = "udp" if args.udp else "tcp"
     host, port = parse_address(args.target, default_port=_UDP_PORT if args.udp else _TCP_PORT)
-    if port == 0:
-        raise UsageError(f"bad address {args.target!r}: port 0 cannot be sent to")
     where = format_address(host, port)
     raw = _payload(args)
     specs = load_specs(args.specs_dir) if args.specs_dir else default_specs()

@@ -137,10 +137,10 @@ def _load_specs(path: str | None) -> Any:
 
 def _listen_addresses(args: argparse.Namespace) -> tuple[str, int, int | None]:
     """``--listen`` and ``--udp`` (which must share the host): (host, tcp port, udp port)."""
-    host, port = parse_address(args.listen, default_port=8080)
+    host, port = parse_address(args.listen, default_port=8080, listen=True, option="--listen")
     udp_port: int | None = None
     if args.udp is not None:
-        uhost, udp_port = parse_address(args.udp, default_port=20007)
+        uhost, udp_port = parse_address(args.udp, default_port=20007, listen=True, option="--udp")
         if uhost != host:
             raise UsageError("--udp must use the same host as --listen")
     return host, port, udp_port

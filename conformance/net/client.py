@@ -33,6 +33,7 @@ from ..frame import (
     decode_all,
     encode_frame,
 )
+from .addresses import format_address
 
 __all__ = ["DEFAULT_MAX_EVENTS", "DEFAULT_MAX_INBOX", "Client", "Exchange", "TargetUnreachable"]
 
@@ -158,7 +159,8 @@ class Client:
         except OSError as e:
             reason = _reason(e)
             raise TargetUnreachable(
-                f"cannot connect to {self.host}:{self.port} ({self.transport}): {reason}",
+                f"cannot connect to {format_address(self.host, self.port)} ({self.transport}): "
+                f"{reason}",
                 reason=reason,
             ) from None
         self._sock = s

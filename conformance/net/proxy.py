@@ -86,8 +86,6 @@ __all__ = [
     "RecordingProxy",
     "ReplayServer",
     "default_max_connections",
-    "format_addr",
-    "parse_hostport",
 ]
 
 _READ = selectors.EVENT_READ
@@ -555,29 +553,3 @@ def default_max_connections() -> int:
     if soft == resource.RLIM_INFINITY:
         return 512
     return max(1, min(512, (soft - 32) // 2))
-
-
-format_addr = format_sockaddr  # the old name
-
-
-def parse_hostport(text: str, *, default_port: int | None = None) -> tuple[str, int]:
-    """``host:port``, ``[v6]:port`` or (with a default) ``host`` → (host, port)."""
-    from ..errors import UsageError
-
-    t = text.strip()
-    host, port_s = t, ""
-    if t.startswith("["):
-        end = t.find("]")
-        if end < 0:
-            raise UsageError(f"bad address {text!r}")
-        host, rest = t[1:end], t[end + 1 :]
-        port_s = rest[1:] if rest.startswith(":") else ""
-    elif t.count(":") == 1:
-        host, port_s = t.split(":")
-    if not port_s:
-        if default_port is None:
-            raise UsageError(f"address {text!r} needs a port (host:port)")
-        return host or "127.0.0.1", default_port
-    if not port_s.isdigit() or not 0 <= int(port_s) <= 65535:
-        raise UsageError(f"bad port in {text!r}")
-    return host or "127.0.0.1", int(port_s)

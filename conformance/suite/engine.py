@@ -22,6 +22,7 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
 
 from ..errors import UsageError
+from ..net.addresses import format_address
 from ..report import CaseResult, Report
 from ..spec import SpecSet, default_specs
 from ..verdict import Outcome, fails
@@ -231,7 +232,7 @@ class Engine:
         """Record where the built-in emulator listened (its port is the kernel's choice)."""
         r = self.runner
         if r.address is not None and r.config.embedded:
-            self.report.meta["emulator_address"] = f"{r.address[0]}:{r.address[1]}"
+            self.report.meta["emulator_address"] = format_address(*r.address)
 
     def close(self) -> None:
         self.runner.close()

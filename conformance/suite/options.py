@@ -352,7 +352,11 @@ def suite_config(values: Mapping[str, Any], *, seed: int | None = None) -> Suite
     from ..safety import SafetyPolicy
 
     target_text = values["target"]
-    target = parse_address(target_text, default_port=8080) if target_text else None
+    target = (
+        None
+        if target_text is None
+        else parse_address(target_text, default_port=8080, option="--target")
+    )
     faults: Sequence[str] = values["emulator_fault"]
     for f in faults:
         parse_fault(f)
