@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from .dialects import default_dialects
-from .judge import Direction, Judge, Verdict
+from .judge import Direction, Judge, Verdict, display_name
 from .judge_stream import CntSteps
 from .recording import C2S, FrameRecord, ProblemRecord, Recording
 from .report import CaseResult, Report
@@ -131,6 +131,9 @@ def summarize(
                     previous_cnt=steps.previous(ex.request.conn, ex.request.cnt),
                 )
                 count(g, rv)
+                if g.requests == 1:
+                    # The judge's name, as ``check`` shows it (a dispatched call's own).
+                    g.name = display_name(rv) or g.name
         if ex.reply is not None:
             g = fig(ex.reply)
             g.replies += 1

@@ -48,6 +48,7 @@ __all__ = [
     "Judge",
     "Reference",
     "Verdict",
+    "display_name",
     "reference_from",
 ]
 
@@ -634,3 +635,13 @@ class Judge:
         if isinstance(parsed, (Call, Keyword)):
             return False
         return self.request(frame).outcome is Outcome.FAIL
+
+
+def display_name(v: Verdict) -> str | None:
+    """The command a verdict reads its frame as, the one name every front-end shows: a field
+    dialect's (``GetActualTCPPose`` dispatched on 377), else the manual's, else what DATA names."""
+    if v.dialect is not None:
+        return v.dialect.name
+    if v.command is not None:
+        return v.command.name
+    return v.name

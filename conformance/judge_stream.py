@@ -11,10 +11,10 @@ from __future__ import annotations
 from collections import OrderedDict
 
 from .frame import Frame
-from .judge import Judge, Verdict
+from .judge import Judge, Verdict, display_name
 from .verdict import Direction
 
-__all__ = ["CntSteps", "Pairing"]
+__all__ = ["CntSteps", "FrameNames", "Pairing"]
 
 
 class CntSteps:
@@ -78,3 +78,32 @@ class Pairing:
         if len(self._waiting) > self.limit:
             self._waiting.pop(next(iter(self._waiting)))
         return v
+
+
+class FrameNames:
+    """The judge's name of each frame of a recording as it streams by (``proxy --print``,
+    ``info``, ``replay``): a request's from its verdict (:func:`~conformance.judge.display_name`),
+    a reply's from the request it echoes (CNT and ID on its connection).  At most ``limit``
+    requests are remembered."""
+
+    def __init__(self, judge: Judge, *, limit: int = 4096) -> None:
+        self.judge = judge
+        self.limit = limit
+        self._asked: OrderedDict[tuple[object, int, int], str | None] = OrderedDict()
+
+    def request(self, conn: object, frame: Frame, transport: str | None = None) -> str | None:
+        name = display_name(self.judge.request(frame, transport=transport))
+        key = (conn, frame.cnt, frame.cmd_id)
+        self._asked.pop(key, None)
+        self._asked[key] = name
+        if len(self._asked) > self.limit:
+            self._asked.popitem(last=False)
+        return name
+
+    def reply(self, conn: object, frame: Frame) -> str | None:
+        """The name of the request this reply echoes, else the manual's for its ID."""
+        key = (conn, frame.cnt, frame.cmd_id)
+        if key in self._asked:
+            return self._asked[key]
+        cmd = self.judge.specs.resolve(frame.cmd_id)
+        return cmd.name if cmd is not None else None

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import os
 import re
+import selectors
 import signal
 import socket
 import subprocess
@@ -266,9 +267,19 @@ def test_slow_reader_bounds_buffering(tmp_path: Path) -> None:
     up = Upstream(on_frame=lambda f: big * 300)  # 18 MB per request: more than socket buffers hold
     out = tmp_path / "r.mcap"
     with RecordingProxy(up.address, out=out, max_pending=256 * 1024) as p:
+
+        def stopped_reading_upstream() -> bool:
+            """A full buffer for the client, and the upstream socket no longer read."""
+            return any(
+                len(x.to_client) >= p.max_pending
+                and not x.interest.get(x.upstream.fileno(), 0) & selectors.EVENT_READ
+                for x in list(p._pairs.values())
+            )
+
         c = socket.create_connection(p.address)
         c.sendall(encode_frame(1, 400, "GetVersion()"))
-        time.sleep(0.5)  # we do not read: the proxy must stop reading upstream
+        # We do not read: the proxy must stop reading upstream (an unbounded one never does).
+        wait_for(stopped_reading_upstream, timeout=30)
         pending = max((len(x.to_client) for x in p._pairs.values()), default=0)
         assert pending <= 256 * 1024 + 256 * 1024
         got = recv_frames(c, 300, timeout=10)
@@ -316,20 +327,25 @@ def test_udp_datagrams_are_forwarded_and_recorded(tmp_path: Path) -> None:
 
 def test_rotation_by_size(tmp_path: Path, upstream: Upstream) -> None:
     out = tmp_path / "r.mcap"
+    exchanges = 0
     with (
         RecordingProxy(upstream.address, out=out, split_size=20_000, flush_interval=0.05) as p,
         socket.create_connection(p.address) as c,
     ):
-        for i in range(300):
-            c.sendall(encode_frame(i % 65536, 400, "GetVersion()" + " " * 100))
+        # Traffic until the proxy has rotated twice (it rotates at a flush, once the
+        # segment holds split_size bytes): the rotations end it, not a clock.
+        deadline = time.monotonic() + 60
+        while len(p.paths) < 3:
+            assert time.monotonic() < deadline, f"{len(p.paths)} segment(s) after {exchanges}"
+            c.sendall(encode_frame(exchanges % 65536, 400, "GetVersion()" + " " * 100))
             recv_frames(c, 1)
-            if i % 50 == 0:
-                time.sleep(0.1)
+            exchanges += 1
     paths = p.paths
-    assert len(paths) >= 2 and all(re.search(r"r-\d{4}\.mcap$", x) for x in paths)
+    assert len(paths) >= 3 and all(re.search(r"r-\d{4}\.mcap$", x) for x in paths)
+    assert all(os.path.getsize(x) >= 20_000 for x in paths[:-1])  # rotated by size
     recs = [read_recording(x) for x in paths]
     assert all(r.complete for r in recs)
-    assert sum(len(r.frames) for r in recs) == 600
+    assert sum(len(r.frames) for r in recs) == 2 * exchanges
     assert [r.metadata["segment"] for r in recs] == [str(i + 1) for i in range(len(recs))]
 
 
@@ -361,15 +377,25 @@ def _gone(pid: int) -> bool:
     return fields[0] in ("Z", "X")
 
 
+def _recorded_frames(path: Path) -> int:
+    """Frames in a (possibly unfinished) recording."""
+    try:
+        return len(read_recording(path).frames)
+    except Exception:
+        return 0  # not even a header yet
+
+
 def _talk_then_kill(
-    proc: subprocess.Popen[str], addr: tuple[str, int], kill: Callable[[], None]
+    proc: subprocess.Popen[str], addr: tuple[str, int], out: Path, kill: Callable[[], None]
 ) -> None:
     try:
         with socket.create_connection(addr) as c:
             for i in range(50):
                 c.sendall(encode_frame(i, 201, 'MoveJ("P1")'))
                 recv_frames(c, 1)
-            time.sleep(1.3)  # more than a flush interval
+            # The flush promise: what was forwarded is on disk within a flush interval
+            # (0.5 s) without a stop; 5 s, so that a busy machine does not break it.
+            wait_for(lambda: _recorded_frames(out) == 100, timeout=5)
             kill()
     finally:
         proc.wait(10)
@@ -384,7 +410,7 @@ def test_sigkill_of_the_proxy_the_recorder_finishes_the_file_and_exits(
 ) -> None:
     proc, addr, out = _start_proxy_process(tmp_path, upstream)
     (recorder,) = _children(proc.pid)
-    _talk_then_kill(proc, addr, lambda: os.kill(proc.pid, signal.SIGKILL))
+    _talk_then_kill(proc, addr, out, lambda: os.kill(proc.pid, signal.SIGKILL))
     # The recorder sees the proxy die, records the open connection as closed and
     # finishes the file: nothing lost, and no orphan left writing.
     wait_for(lambda: _gone(recorder), timeout=30)
@@ -401,7 +427,7 @@ def test_sigkill_of_proxy_and_recorder_loses_at_most_a_second_and_recover_repair
 ) -> None:
     proc, addr, out = _start_proxy_process(tmp_path, upstream, new_session=True)
     # The whole process group at once: proxy and recorder process.
-    _talk_then_kill(proc, addr, lambda: os.killpg(proc.pid, signal.SIGKILL))
+    _talk_then_kill(proc, addr, out, lambda: os.killpg(proc.pid, signal.SIGKILL))
     broken = read_recording(out)
     assert not broken.complete
     assert len([f for f in broken.frames if f.dir == "c2s"]) == 50

@@ -65,9 +65,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     d.add_argument(
         "--transport",
         choices=["tcp", "udp"],
-        default=None,
+        default="tcp",
         help="what carried the bytes: field dialects recorded on the other transport only "
-        "do not match (default: either)",
+        "do not match (default: tcp, the command port 8080's; udp for port 20007's datagrams)",
     )
     add_judge_options(d)
     d.set_defaults(func=_run_decode)
