@@ -166,10 +166,11 @@ def test_json_lines(emulator: EmulatorServer, capsys: pytest.CaptureFixture[str]
 
 def test_reply_with_wrong_cnt_is_shown_and_fails() -> None:
     with EmulatorServer(faults=["wrong_cnt:201"]) as emu:
-        proc = run_cli(emu.target, "--timeout", "1", MOVEJ)
+        # The wait expires (no reply echoes CNT), and the wrong one must come within it.
+        proc = run_cli(emu.target, "--timeout", "2", MOVEJ)
     assert proc.returncode == 1, proc.stderr
     lines = proc.stdout.splitlines()
-    assert "<< (no reply within 1 s)" in lines
+    assert "<< (no reply within 2 s)" in lines
     assert any(
         ln.startswith("<< /f/bIII5III201III1III1III/b/f  FAIL unsolicited:") for ln in lines
     ), lines
@@ -180,11 +181,12 @@ def test_reply_with_wrong_cnt_is_shown_and_fails() -> None:
 
 def test_silent_target_gives_no_reply_and_exit_1() -> None:
     with HostileTarget("silent") as target:
-        proc = run_cli(target.label, "--timeout", "1", MOVEJ)
+        # Nothing is coming, so the wait that must expire is short.
+        proc = run_cli(target.label, "--timeout", "0.2", MOVEJ)
     assert proc.returncode == 1, proc.stderr
     assert proc.stdout.splitlines() == [
         f">> {MOVEJ}  PASS ok: conforms [manual 2.1, table 2-3]",
-        "<< (no reply within 1 s)",
+        "<< (no reply within 0.2 s)",
     ]
 
 
