@@ -16,16 +16,12 @@ import pkgutil
 import sys
 from collections.abc import Sequence
 
-from . import __version__, commands
-from .errors import ConformanceError
+from . import commands
+from ._version import __version__
+from .errors import EXIT_ERROR, EXIT_FAIL, EXIT_INTERRUPTED, EXIT_OK, ConformanceError
 
 __all__ = ["EXIT_ERROR", "EXIT_FAIL", "EXIT_OK", "build_parser", "main"]
 
-EXIT_OK = 0
-#: Conformance failures (or, for ``decode --strict``, malformed input).
-EXIT_FAIL = 1
-#: Kit error, bad usage, unreachable target.
-EXIT_ERROR = 2
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -66,7 +62,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_ERROR
     except KeyboardInterrupt:
         print(f"fairino-conformance {args.command}: interrupted", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
     except Exception as e:
         # Not a user mistake we foresaw: still one line, with a way to see more.
         if os.environ.get("FAIRINO_DEBUG"):

@@ -132,3 +132,13 @@ class LocalProtocolError(ProtocolError):
 
 class RemoteProtocolError(ProtocolError):
     """The peer sent bytes that break the protocol."""
+
+
+# Exit codes, the same for every command (``run``, ``serve``, ``check`` ...) and the plugin.
+EXIT_OK = 0
+#: Conformance failures (or, for ``decode --strict``, malformed input).
+EXIT_FAIL = 1
+#: Kit error, bad usage, unreachable target.
+EXIT_ERROR = 2
+#: Interrupted (Ctrl-C, SIGTERM): 128 + SIGINT, as shells report it.
+EXIT_INTERRUPTED = 130

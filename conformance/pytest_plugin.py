@@ -52,7 +52,7 @@ from .errors import ConformanceError
 from .net.addresses import format_address, parse_address
 from .net.client import Client
 from .net.emulator import EmulatorServer
-from .report import CaseResult, Report
+from .report import CaseResult, Report, write_reports
 from .suite.config import SuiteConfig
 from .suite.engine import Engine
 from .suite.options import OPTIONS, option, resolve, suite_config
@@ -247,7 +247,7 @@ class CaseItem(pytest.Item):
         return str(super().repr_failure(excinfo, style=style))  # type: ignore[arg-type]
 
     def reportinfo(self) -> tuple[Path, int | None, str]:
-        return Path(__file__).parent / "suite" / "cases.py", None, self.case.id
+        return Path(__file__).parent / "suite" / "cases" / "__init__.py", None, self.case.id
 
 
 def _result_json(r: CaseResult) -> dict[str, Any]:
@@ -372,16 +372,12 @@ def _finish_report(config: pytest.Config, report: Report, engine: Engine | None)
 
 def _write_reports(config: pytest.Config, report: Report) -> None:
     values = _values(config)
-    if values["report_json"]:
-        Path(values["report_json"]).write_text(report.dumps(), encoding="utf-8")
-    if values["report_html"]:
-        from .report import render_html
-
-        Path(values["report_html"]).write_text(render_html([report]), encoding="utf-8")
-    if values["junitxml"]:
-        from .suite.present import write_junit
-
-        write_junit(report, values["junitxml"])
+    write_reports(
+        report,
+        json_path=values["report_json"],
+        html_path=values["report_html"],
+        junit_path=values["junitxml"],
+    )
 
 
 # --------------------------------------------------------------------------- fixtures

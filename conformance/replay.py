@@ -29,7 +29,7 @@ from typing import Any
 from .diff import Difference, Ignore, compare_replies
 from .errors import ConformanceError
 from .frame import Frame, encode_frame
-from .judge import Judge
+from .judge import Judge, display_name
 from .recording import C2S, S2C, FrameRecord, ProblemRecord, Recording
 from .report import CaseResult, Report
 from .safety import SafetyPolicy
@@ -321,7 +321,12 @@ def replay_to_target(
                         client.send_raw(item.raw)
                     continue
                 cmd = specs.resolve(item.cmd_id, item.name)
-                c = result.cmd(item.cmd_id, item.name or (cmd.name if cmd else None))
+                named = (
+                    display_name(judge.request(item.frame(), transport=item.transport))
+                    if judge is not None
+                    else None
+                )
+                c = result.cmd(item.cmd_id, named or item.name or (cmd.name if cmd else None))
                 ok, why = (safety.loopback, _UNKNOWN) if cmd is None else safety.permits(cmd, specs)
                 if not ok:
                     c.skipped[why] = c.skipped.get(why, 0) + 1

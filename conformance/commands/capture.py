@@ -319,14 +319,17 @@ def _register_more(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
 # --------------------------------------------------------------------------- proxy
 
 
-def format_frame_line(f: FrameRecord) -> str:
-    """One tcpdump-like line: time, connection, direction, CNT, ID, name, short DATA."""
+def format_frame_line(f: FrameRecord, name: str | None = None) -> str:
+    """One tcpdump-like line: time, connection, direction, CNT, ID, name, short DATA.
+
+    ``name``: the judge's name of the frame (a dispatched call's), else the recorded one."""
     t = f.complete_ns
     stamp = time.strftime("%H:%M:%S", time.localtime(t / 1e9)) + f".{t % 1_000_000_000 // 1000:06d}"
     arrow = ">" if f.dir == C2S else "<"
     data = f.data if len(f.data) <= 60 else f.data[:57] + "..."
     extra = f"  !{','.join(f.problems)}" if f.problems else ""
-    return f"{stamp} #{f.conn} {arrow} CNT={f.cnt} ID={f.cmd_id} {f.name or '?'} {data}{extra}"
+    shown = name or f.name or "?"
+    return f"{stamp} #{f.conn} {arrow} CNT={f.cnt} ID={f.cmd_id} {shown} {data}{extra}"
 
 
 def _run_proxy(args: argparse.Namespace) -> int:
@@ -352,8 +355,20 @@ def _run_proxy(args: argparse.Namespace) -> int:
     on_frame = None
     if args.print_frames:
 
+        from ..dialects import default_dialects
+        from ..judge import Judge
+        from ..judge_stream import FrameNames
+
+        names = FrameNames(Judge(specs, default_dialects()))
+
         def on_frame(f: FrameRecord) -> None:
-            print(format_frame_line(f), flush=True)
+            frame = f.frame()
+            name = (
+                names.request(f.conn, frame, f.transport)
+                if f.dir == C2S
+                else names.reply(f.conn, frame)
+            )
+            print(format_frame_line(f, name), flush=True)
 
     stop = threading.Event()
 

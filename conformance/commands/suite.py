@@ -12,7 +12,7 @@ import time
 from collections.abc import Iterator
 from typing import Any
 
-from ..errors import UsageError
+from ..errors import EXIT_ERROR, EXIT_OK, UsageError
 from ..faults import parse_fault
 from ..net import format_address, parse_address
 
@@ -216,11 +216,10 @@ def _run(args: argparse.Namespace) -> int:
     """``run``: the engine's events drawn on stderr; reports written, each to its own path."""
     from pathlib import Path
 
-    from ..cli import EXIT_ERROR, EXIT_OK
-    from ..report import render_html
+    from ..report import write_reports
     from ..suite.engine import Engine, RunFinished
     from ..suite.options import OPTIONS, resolve, suite_config
-    from ..suite.present import Progress, failure_lines, write_junit
+    from ..suite.present import Progress, failure_lines
 
     values = resolve({o.name: getattr(args, o.name, None) for o in OPTIONS if o.run})
     if values["emulator_fault"] and values["target"]:
@@ -252,12 +251,12 @@ def _run(args: argparse.Namespace) -> int:
         except RuntimeError as e:  # the emulator's own machinery failed: a kit error
             failure = str(e)
     report = engine.report
-    if values["report_json"]:
-        Path(values["report_json"]).write_text(report.dumps(), encoding="utf-8")
-    if values["report_html"]:
-        Path(values["report_html"]).write_text(render_html([report]), encoding="utf-8")
-    if values["junitxml"]:
-        write_junit(report, values["junitxml"])
+    write_reports(
+        report,
+        json_path=values["report_json"],
+        html_path=values["report_html"],
+        junit_path=values["junitxml"],
+    )
     lines = failure_lines(report)
     if lines:
         print("\n".join(lines))
@@ -305,10 +304,8 @@ def _add_serve(sub: Any) -> None:
 
 
 def _serve(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
     from ..net.emulator import EmulatorServer
-    from ..report import render_html
+    from ..report import write_reports
     from ..spec import default_specs
     from ..suite.client_mode import ClientValidator
 
@@ -379,10 +376,7 @@ def _serve(args: argparse.Namespace) -> int:
     if summary:
         print(f"serve: {summary}", file=sys.stderr)
     print(report.render_terminal())
-    if args.report_json:
-        Path(args.report_json).write_text(report.dumps(), encoding="utf-8")
-    if args.report_html:
-        Path(args.report_html).write_text(render_html([report]), encoding="utf-8")
+    write_reports(report, json_path=args.report_json, html_path=args.report_html)
     if failure is not None:
         print(f"fairino-conformance serve: error: {failure}", file=sys.stderr)
         return 2

@@ -1,4 +1,5 @@
-"""How ``fairino-conformance run`` presents the engine's events: progress, failures, JUnit.
+"""How ``fairino-conformance run`` presents the engine's events: progress and failures
+(JUnit XML is the report package's: ``junit_xml`` and ``write_junit`` are re-exported here).
 
 The progress line goes to stderr: redrawn in place (``\\r``) on a terminal, and
 on anything else (a CI log) one plain line at the start, about every 10 % or 30
@@ -9,13 +10,10 @@ estimate of the time left.
 from __future__ import annotations
 
 import time
-import xml.etree.ElementTree as ET
-from collections.abc import Sequence
-from pathlib import Path
 from typing import TextIO
 
-from ..report import CaseResult, Report
-from ..verdict import Outcome, Reference, fails
+from ..report import Report, junit_xml, write_junit
+from ..verdict import Reference, fails
 from .engine import CaseFinished, Event, RunFinished, RunStarted, RunWarning
 
 __all__ = ["Progress", "failure_lines", "junit_xml", "write_junit"]
@@ -127,55 +125,3 @@ def failure_lines(report: Report, *, limit: int = 50) -> list[str]:
     if len(bad) > limit:
         out.append(f"(+{len(bad) - limit} more failing cases; the JSON report lists them all)")
     return out
-
-
-def _testcase(c: CaseResult, report: Report) -> ET.Element:
-    tc = ET.Element("testcase", classname=str(c.cmd_id), name=c.id.split("/", 1)[-1], time="0")
-    props = ET.SubElement(tc, "properties")
-    ET.SubElement(props, "property", name="case_id", value=c.id)
-    ET.SubElement(props, "property", name="group", value=c.group)
-    if c.source:
-        prop = "dialect" if c.outcome is Outcome.DIALECT else "source"
-        ET.SubElement(props, "property", name=prop, value=c.source)
-    text = "\n".join([c.detail, *c.frames, *([f"reproduce: {c.reproduce}"] if c.reproduce else [])])
-    if c.expected:
-        ET.SubElement(tc, "skipped", message=f"expected failure: {c.detail}"[:500])
-    elif c.outcome is Outcome.ERROR:
-        ET.SubElement(tc, "error", message=c.detail[:500]).text = text
-    elif report.fails(c.outcome):  # FAIL, and NON-STRICT / DIALECT where the run says so
-        ET.SubElement(tc, "failure", message=f"{c.outcome.value}: {c.detail}"[:500]).text = text
-    elif c.outcome in (Outcome.SKIPPED, Outcome.UNIMPLEMENTED):
-        ET.SubElement(tc, "skipped", message=f"{c.outcome.value}: {c.detail}"[:500])
-    return tc
-
-
-def junit_xml(report: Report, cases: Sequence[CaseResult] | None = None) -> str:
-    """The report as JUnit XML: one testcase per case, classname = command ID."""
-    rows = list(report.cases if cases is None else cases)
-    suite = ET.Element(
-        "testsuite",
-        name="fairino-conformance",
-        tests=str(len(rows)),
-        failures=str(
-            sum(
-                report.fails(c.outcome) and c.outcome is not Outcome.ERROR and not c.expected
-                for c in rows
-            )
-        ),
-        errors=str(sum(c.outcome is Outcome.ERROR and not c.expected for c in rows)),
-        skipped=str(
-            sum(c.expected or c.outcome in (Outcome.SKIPPED, Outcome.UNIMPLEMENTED) for c in rows)
-        ),
-    )
-    props = ET.SubElement(suite, "properties")
-    for k, v in (("target", report.target), ("seed", report.seed), ("reference", report.reference)):
-        ET.SubElement(props, "property", name=k, value=str(v))
-    for c in rows:
-        suite.append(_testcase(c, report))
-    root = ET.Element("testsuites")
-    root.append(suite)
-    return ET.tostring(root, encoding="unicode", xml_declaration=True) + "\n"
-
-
-def write_junit(report: Report, path: str) -> None:
-    Path(path).write_text(junit_xml(report), encoding="utf-8")

@@ -1,0 +1,317 @@
+"""The HTML report: one page for one or more targets, one row per command ID and one box per
+case group, failing cases unfolded (``run --report-html``, ``report merge``)."""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterable, Mapping
+
+from ..verdict import Outcome, aggregate
+from .model import _SEVERITY, CaseResult, CommandSummary, Report
+
+__all__ = ["MAX_LISTED_FAILURES", "render_html", "render_html_sections"]
+
+
+_GROUP_ORDER = ("framing", "examples", "valid", "invalid", "robustness", "transport", "stateful")
+_COLORS = {
+    Outcome.PASS: "#2e7d32",
+    Outcome.FAIL: "#c62828",
+    Outcome.NON_STRICT: "#ef6c00",
+    Outcome.DIALECT: "#1565c0",
+    Outcome.UNIMPLEMENTED: "#6a1b9a",
+    Outcome.SKIPPED: "#9e9e9e",
+    Outcome.ERROR: "#000000",
+}
+#: Failing cases one report's section lists (the JSON report has them all).
+MAX_LISTED_FAILURES = 500
+
+
+def _esc(text: object) -> str:
+    import html
+
+    return html.escape(str(text), quote=True)
+
+
+def _groups(reports: list[Report]) -> list[str]:
+    seen = {c.group for r in reports for c in r.cases}
+    return [g for g in _GROUP_ORDER if g in seen] + sorted(seen - set(_GROUP_ORDER))
+
+
+def _group_labels(groups: list[str]) -> dict[str, str]:
+    """A distinct short label for each case group (the boxes' text; the legend maps them back).
+
+    A group's initials (``framing`` F, ``client-framing`` CF, ``client`` C); where
+    groups would share one, more letters of the last word (``valid`` Va, ``verdict``
+    Ve); where even that does not tell them apart, a number (F1, F2).
+    """
+    words = {g: [w for w in re.split(r"[-_\s]+", g) if w] or [g or "?"] for g in groups}
+    labels = {g: "".join(w[0] for w in ws).upper() for g, ws in words.items()}
+    for extra in (1, 2):
+        clashing = _clashing(labels)
+        if not clashing:
+            return labels
+        for g in clashing:
+            *head, last = words[g]
+            initials = "".join(w[0] for w in head).upper()
+            labels[g] = initials + last[0].upper() + last[1 : 1 + extra]
+    for gs in _by_label(labels).values():
+        if len(gs) > 1:
+            for n, g in enumerate(gs, 1):
+                labels[g] = f"{labels[g]}{n}"
+    if _clashing(labels):  # groups named like another's numbered label: number them all
+        labels = {g: f"G{n}" for n, g in enumerate(groups, 1)}
+    return labels
+
+
+def _by_label(labels: Mapping[str, str]) -> dict[str, list[str]]:
+    out: dict[str, list[str]] = {}
+    for g, lab in labels.items():
+        out.setdefault(lab, []).append(g)
+    return out
+
+
+def _clashing(labels: Mapping[str, str]) -> list[str]:
+    return [g for gs in _by_label(labels).values() if len(gs) > 1 for g in gs]
+
+
+def _failing(report: Report, outcome: Outcome) -> bool:
+    """Fails the run as ``report`` was judged (NON-STRICT, DIALECT only when its options say)."""
+    return report.fails(outcome)
+
+
+def _worst_first(cases: Iterable[CaseResult]) -> list[CaseResult]:
+    return sorted(cases, key=lambda c: (_SEVERITY[c.outcome], c.cmd_id))
+
+
+def _case_item(c: CaseResult, *, with_name: bool = False) -> str:
+    """One case as a list item: ID, outcome, detail, frames, source and reproduction."""
+    frames = "".join(f"<div class=frame>{_esc(f)}</div>" for f in c.frames)
+    repro = f"<div class=repro>{_esc(c.reproduce)}</div>" if c.reproduce else ""
+    if c.source:
+        repro = f"<div class=repro>source: {_esc(c.source)}</div>" + repro
+    name = f" ({_esc(c.name)})" if with_name else ""
+    color = _COLORS[c.outcome]
+    return (
+        f"<li><b>{_esc(c.id)}</b>{name} <span class=o style='color:{color}'>"
+        f"{c.outcome.value}</span> {_esc(c.detail)}{frames}{repro}</li>"
+    )
+
+
+def _cell(
+    cases: list[CaseResult], groups: list[str], labels: Mapping[str, str], *, open_: bool
+) -> str:
+    """One target's results for one command: overall outcome and one box per case group.
+
+    ``open_``: the cases that are not PASS unfold at once (a failing command).
+    """
+    if not cases:
+        return '<td class="none">-</td>'
+    overall = aggregate(c.outcome for c in cases)
+    boxes = []
+    for g in groups:
+        gc = [c for c in cases if c.group == g]
+        if not gc:
+            boxes.append(f'<span class="box empty" title="{_esc(g)}: no case"></span>')
+            continue
+        o = aggregate(c.outcome for c in gc)
+        tip = f"{_esc(g)}: {o.value} ({len(gc)})"
+        boxes.append(
+            f'<span class="box" style="background:{_COLORS[o]}" title="{tip}">'
+            f"{_esc(labels[g])}</span>"
+        )
+    bad = _worst_first(c for c in cases if c.outcome not in (Outcome.PASS, Outcome.SKIPPED))
+    details = ""
+    if bad:
+        items = [_case_item(c) for c in bad[:50]]
+        more = f"<li>... {len(bad) - 50} more</li>" if len(bad) > 50 else ""
+        details = (
+            f"<details{' open' if open_ else ''}><summary>{len(bad)} case(s)</summary>"
+            f"<ul>{''.join(items)}{more}</ul></details>"
+        )
+    color = _COLORS[overall]
+    return (
+        f'<td class="cell" data-outcome="{overall.value}">'
+        f'<span class="ov" style="color:{color}">{overall.value}</span> '
+        f"{''.join(boxes)}{details}</td>"
+    )
+
+
+def _head(r: Report) -> str:
+    """What a report ran against and how: transport, specs, seed, strictness, reference, faults."""
+    text = f"{_esc(r.transport)} · {_esc(r.spec_version)} · seed {_esc(r.seed)}"
+    if r.strict:
+        text += " · strict"
+    text += f" · reference {_esc(r.reference)}"
+    faults = r.meta.get("emulator_faults")
+    if faults:
+        text += f" · faults {_esc(', '.join(map(str, faults)))}"
+    return text
+
+
+def _totals(r: Report) -> str:
+    counts = ", ".join(f"{v} {k}" for k, v in r.totals().items() if v)
+    return (
+        f"<p><b>{_esc(r.target)}</b>: {_esc(counts + r.failing_note())} "
+        f"(exit code {r.exit_code()})</p>"
+    )
+
+
+def _legends(groups: list[str], labels: Mapping[str, str]) -> str:
+    outcomes = " ".join(
+        f'<span class="box" style="background:{c}">&nbsp;</span> {o.value}'
+        for o, c in _COLORS.items()
+    )
+    glegend = ", ".join(f"{labels[g]} = {g}" for g in groups)
+    return f'<p>{outcomes}<br><small class="glegend">case groups: {_esc(glegend)}</small></p>'
+
+
+def _rows(
+    reports: list[Report], per: list[dict[int, CommandSummary]], groups: list[str]
+) -> list[str]:
+    """One row per command, one cell per report; failing commands first (worst, then ID)."""
+    labels = _group_labels(groups)
+    names = {i: s.name for p in per for i, s in p.items()}
+    worst: dict[int, Outcome] = {}
+    for i in names:
+        outs = [p[i].outcome for p in per if i in p]
+        worst[i] = min(outs, key=_SEVERITY.__getitem__) if outs else Outcome.SKIPPED
+    rows = []
+    for i in sorted(names, key=lambda i: (_SEVERITY[worst[i]], i)):
+        cells = "".join(
+            _cell(
+                list(p[i].cases) if i in p else [],
+                groups,
+                labels,
+                open_=i in p and _failing(r, p[i].outcome),
+            )
+            for r, p in zip(reports, per, strict=True)
+        )
+        key = _esc(f"{i} {names[i]}".lower())
+        rows.append(
+            f'<tr data-worst="{worst[i].value}" data-key="{key}"><td class=id>{i}</td>'
+            f"<td class=name>{_esc(names[i])}</td>{cells}</tr>"
+        )
+    return rows
+
+
+def _table(heads: Iterable[str], rows: list[str]) -> str:
+    return (
+        f'<table class="m"><thead><tr><th>ID</th><th>command</th>{"".join(heads)}</tr></thead>'
+        f"<tbody>\n{chr(10).join(rows)}\n</tbody></table>"
+    )
+
+
+def render_html(reports: list[Report], *, title: str = "FAIRINO conformance") -> str:
+    """The side-by-side matrix (``report merge``): one row per command, one column per target.
+
+    A self-contained page (no network).  Rows can be filtered by text (ID or name)
+    and to commands that are not PASS everywhere; failing commands come first
+    (worst outcome, then ID), their failing cases unfolded with frames and
+    reproduction line.
+    """
+    if not reports:
+        raise ValueError("no report to render")
+    groups = _groups(reports)
+    per = [r.commands() for r in reports]
+    rows = _rows(reports, per, groups)
+    heads = [f"<th>{_esc(r.target)}<br><small>{_head(r)}</small></th>" for r in reports]
+    body = (
+        "".join(_totals(r) for r in reports)
+        + _legends(groups, _group_labels(groups))
+        + _CONTROLS
+        + _table(heads, rows)
+    )
+    return _PAGE.format(title=_esc(title), body=body, count=len(rows))
+
+
+def render_html_sections(reports: list[Report], *, title: str = "FAIRINO conformance") -> str:
+    """Each report as its own section of one page (``report html``).
+
+    A section holds one target: what it ran against, its totals, its failing cases
+    listed with frames and reproduction (worst first, then ID), then its own
+    per-command table.  Use :func:`render_html` to compare targets side by side.
+    """
+    if not reports:
+        raise ValueError("no report to render")
+    groups = _groups(reports)
+    labels = _group_labels(groups)
+    nav = " · ".join(
+        f'<a href="#report-{n}">{_esc(r.target)}</a>' for n, r in enumerate(reports, 1)
+    )
+    sections = []
+    count = 0
+    for n, r in enumerate(reports, 1):
+        per = [r.commands()]
+        rows = _rows([r], per, groups)
+        count += len(rows)
+        failing = _worst_first(
+            c for c in r.cases if _failing(r, c.outcome) and not (c.not_run or c.expected)
+        )
+        not_run = sum(c.not_run for c in r.cases)
+        items = [_case_item(c, with_name=True) for c in failing[:MAX_LISTED_FAILURES]]
+        if len(failing) > MAX_LISTED_FAILURES:
+            items.append(
+                f"<li>... {len(failing) - MAX_LISTED_FAILURES} more (the JSON report lists all)"
+                "</li>"
+            )
+        stopped = (
+            f"<p class=stopped>{not_run} cases not run: {_esc(r.stopped or 'the run stopped')}</p>"
+            if not_run
+            else ""
+        )
+        listing = f'<ol class="failures">{"".join(items)}</ol>' if items else "<p>none</p>"
+        sections.append(
+            f'<section class="report" id="report-{n}" data-target="{_esc(r.target)}">'
+            f"<h2>{_esc(r.target)}</h2><p><small>{_head(r)}</small></p>{_totals(r)}{stopped}"
+            f"<h3>failing cases ({len(failing)})</h3>{listing}"
+            f"<h3>commands</h3>{_table([f'<th>{_esc(r.target)}</th>'], rows)}</section>"
+        )
+    body = f"<nav>reports: {nav}</nav>" + _legends(groups, labels) + _CONTROLS + "".join(sections)
+    return _PAGE.format(title=_esc(title), body=body, count=count)
+
+
+_CONTROLS = """<div class="controls"><input id="q" placeholder="filter by ID or name" size="30">
+<label><input type="checkbox" id="bad"> only commands not PASS everywhere</label>
+<span id="shown"></span></div>
+"""
+
+_PAGE = """<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>{title}</title>
+<style>
+body {{ font: 14px system-ui, sans-serif; margin: 1em; }}
+table {{ border-collapse: collapse; }}
+th, td {{ border: 1px solid #ddd; padding: 3px 6px; vertical-align: top; text-align: left; }}
+th {{ background: #f3f3f3; position: sticky; top: 0; }}
+.box {{ display: inline-block; min-width: 14px; height: 14px; margin-right: 1px; color: #fff;
+       font-size: 10px; text-align: center; line-height: 14px; border-radius: 2px;
+       padding: 0 1px; box-sizing: border-box; }}
+.box.empty {{ background: #eee; }}
+.ov {{ font-weight: bold; display: inline-block; min-width: 9em; }}
+.frame {{ font-family: monospace; white-space: pre-wrap; color: #333; margin-left: 1em; }}
+.repro {{ font-family: monospace; white-space: pre-wrap; color: #555; margin-left: 1em; }}
+details ul, ol.failures {{ margin: 0.3em 0; padding-left: 1.2em; max-width: 70em; }}
+section.report {{ border-top: 2px solid #ccc; margin-top: 1.5em; }}
+.controls {{ margin: 0.5em 0; }}
+</style></head><body>
+<h1>{title}</h1>
+{body}
+<script>
+(function () {{
+  var q = document.getElementById("q"), bad = document.getElementById("bad");
+  var rows = document.querySelectorAll("table.m tbody tr");
+  var shown = document.getElementById("shown");
+  function apply() {{
+    var t = q.value.trim().toLowerCase(), n = 0;
+    rows.forEach(function (r) {{
+      var ok = (!t || r.dataset.key.indexOf(t) >= 0) &&
+               (!bad.checked || r.dataset.worst !== "PASS");
+      r.style.display = ok ? "" : "none";
+      if (ok) n++;
+    }});
+    shown.textContent = n + " of {count} rows shown";
+  }}
+  q.addEventListener("input", apply); bad.addEventListener("change", apply); apply();
+}})();
+</script>
+</body></html>
+"""
