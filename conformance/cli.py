@@ -23,7 +23,6 @@ from .errors import EXIT_ERROR, EXIT_FAIL, EXIT_INTERRUPTED, EXIT_OK, Conformanc
 __all__ = ["EXIT_ERROR", "EXIT_FAIL", "EXIT_OK", "build_parser", "main"]
 
 
-
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="fairino-conformance",

@@ -354,7 +354,6 @@ def _run_proxy(args: argparse.Namespace) -> int:
     specs = _specs(args)
     on_frame = None
     if args.print_frames:
-
         from ..dialects import default_dialects
         from ..judge import Judge
         from ..judge_stream import FrameNames
