@@ -390,6 +390,8 @@ class Target:
     host: str
     port: int
     transport: str = "tcp"
+    #: ``--reply-timeout`` (ini, env): how long ``fairino_client`` waits for a reply.
+    reply_timeout: float = 2.0
 
     @property
     def address(self) -> str:
@@ -457,20 +459,21 @@ def fairino_target(
         {o.name: config.getoption(o.ini) for o in OPTIONS if o.pytest is not None},
         ini=lambda key: config.getini(key) or None,
     )
+    timeout = float(values["reply_timeout"])
     if values["target"]:
         host, port = parse_address(values["target"], default_port=8080, option="--target")
-        return Target(host, port, values["transport"])
+        return Target(host, port, values["transport"], timeout)
     emu = fairino_emulator_factory(udp=values["transport"] == "udp")
     if values["transport"] == "udp":
         assert emu.udp_address is not None
-        return Target(emu.udp_address[0], emu.udp_address[1], "udp")
-    return Target(emu.address[0], emu.address[1], "tcp")
+        return Target(emu.udp_address[0], emu.udp_address[1], "udp", timeout)
+    return Target(emu.address[0], emu.address[1], "tcp", timeout)
 
 
 @pytest.fixture
 def fairino_client(fairino_target: Target) -> Iterator[Client]:
-    """A client connected to ``fairino_target`` for one test (closed after it)."""
-    with Client(
-        fairino_target.host, fairino_target.port, transport=fairino_target.transport, timeout=5
-    ) as c:
+    """A client connected to ``fairino_target`` for one test (closed after it); it waits
+    ``--reply-timeout`` for a reply."""
+    t = fairino_target
+    with Client(t.host, t.port, transport=t.transport, timeout=t.reply_timeout) as c:
         yield c
