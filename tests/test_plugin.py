@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import json
 import socket
-import subprocess
-import sys
 import xml.etree.ElementTree as ET
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 
+from conformance.cli import main
 from conformance.spec import default_specs
 from tests.hostile_targets import HostileTarget, refusing_port
 
@@ -24,7 +24,9 @@ QUERY = next(
     and c.variants[0].params
 )
 MOTION = next(c for c in sorted(SPECS, key=lambda c: c.cmd_id) if c.safety.value == "motion")
-BASE = ("-p", "no:cacheprovider", "--profile", "quick", "--reply-timeout", "0.3")
+#: Replies the tests expect get a timeout no load on the machine outlasts; waits that
+#: must expire are cut short (``unanswered``, or a shorter --reply-timeout after BASE).
+BASE = ("-p", "no:cacheprovider", "--profile", "quick", "--reply-timeout", "10")
 
 
 def test_plugin_is_off_without_target(pytester: pytest.Pytester) -> None:
@@ -65,7 +67,11 @@ def test_suite_runs_against_embedded_emulator(pytester: pytest.Pytester, tmp_pat
 
 def test_failure_prints_reproduction_that_selects_exactly_that_case(
     pytester: pytest.Pytester,
+    unanswered: Callable[..., None],
+    capsys: pytest.CaptureFixture[str],
 ) -> None:
+    # No reply echoes CNT: the wait expires, and the wrong reply must come within it.
+    unanswered(QUERY.cmd_id, wait=2.0)
     fault = f"wrong_cnt:{QUERY.cmd_id}"
     result = pytester.runpytest(
         *BASE,
@@ -88,18 +94,20 @@ def test_failure_prints_reproduction_that_selects_exactly_that_case(
     assert "fairino-conformance send 127.0.0.1:8080 --hex 2f662f62" in send_part
     args = run_part.split()[1:]  # after "fairino-conformance"
     case_id = args[args.index("--case") + 1]
-    again = subprocess.run(
-        [sys.executable, "-m", "conformance", *args, "--reply-timeout", "0.3", "-q"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    assert again.returncode == 1, again.stderr
-    assert f"FAIL {case_id}:" in again.stdout
-    assert "1 FAIL" in again.stdout.splitlines()[-1]
+    # The reproduction, as the CLI runs it (in-process: the case fails either way, so
+    # the faulted command's wait, which must expire, is short).
+    unanswered(QUERY.cmd_id, wait=0.1)
+    capsys.readouterr()
+    code = main([*args, "--reply-timeout", "10", "-q"])
+    again = capsys.readouterr()
+    assert code == 1, again.err
+    assert f"FAIL {case_id}:" in again.out
+    assert "1 FAIL" in again.out.splitlines()[-1]
 
 
-def test_expected_failures_baseline(pytester: pytest.Pytester, tmp_path: Path) -> None:
+def test_expected_failures_baseline(
+    pytester: pytest.Pytester, tmp_path: Path, unanswered: Callable[..., None]
+) -> None:
     fault = f"wrong_cnt:{QUERY.cmd_id}"
     framing = f"{QUERY.cmd_id}/{QUERY.name}/framing/{QUERY.variants[0].table}"
     baseline = tmp_path / "baseline.txt"
@@ -114,12 +122,13 @@ def test_expected_failures_baseline(pytester: pytest.Pytester, tmp_path: Path) -
         "--expected-failures",
         str(baseline),
     )
+    fixed = pytester.runpytest(*args)  # the listed case passes: the run fails
+    fixed.assert_outcomes(failed=1)
+    assert "listed in --expected-failures but passed" in fixed.stdout.str()
+    unanswered(QUERY.cmd_id, wait=0.1)  # no reply echoes CNT: a wait that must expire
     result = pytester.runpytest(*args, "--emulator-fault", fault)
     result.assert_outcomes(xfailed=1)
     assert result.ret == 0
-    fixed = pytester.runpytest(*args)  # the listed case now passes: the run fails
-    fixed.assert_outcomes(failed=1)
-    assert "listed in --expected-failures but passed" in fixed.stdout.str()
 
 
 def test_non_loopback_target_skips_motion_without_connecting(
@@ -224,7 +233,8 @@ def test_silent_target_gets_one_frame_before_the_session_stops(
     pytester: pytest.Pytester,
 ) -> None:
     with HostileTarget("silent") as target:
-        result = pytester.runpytest(*BASE, "--target", target.label)
+        # Nothing is coming, so the wait that must expire is short.
+        result = pytester.runpytest(*BASE, "--reply-timeout", "0.2", "--target", target.label)
     assert result.ret == 2
     assert (
         f"Interrupted: target {target.label} accepted a connection but did not answer "
