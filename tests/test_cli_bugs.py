@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import socket
-import subprocess
-import sys
 
 import pytest
 
@@ -42,9 +40,9 @@ def test_run_rejects_an_emulator_fault_on_an_unknown_command_id(
 
 
 def _listen_on_taken_port(
-    command: str, transport: str
-) -> tuple[subprocess.CompletedProcess[str], str]:
-    """Run ``command`` on an address another socket holds; (the process, that address)."""
+    capsys: pytest.CaptureFixture[str], command: str, transport: str
+) -> tuple[int, str, str]:
+    """Run ``command`` on an address another socket holds; (exit code, stderr, that address)."""
     kind = socket.SOCK_STREAM if transport == "TCP" else socket.SOCK_DGRAM
     with socket.socket(socket.AF_INET, kind) as holder:
         holder.bind(("127.0.0.1", 0))
@@ -54,22 +52,19 @@ def _listen_on_taken_port(
         where = ["--listen", taken] if transport == "TCP" else ["--udp", taken]
         if transport == "UDP":
             where += ["--listen", "127.0.0.1:0"]
-        proc = subprocess.run(
-            [sys.executable, "-m", "conformance", command, "--duration", "1", *where],
-            capture_output=True,
-            text=True,
-            timeout=60,
-        )
-    return proc, taken
+        code, _, err = run(capsys, command, "--duration", "1", *where)
+    return code, err, taken
 
 
 @pytest.mark.parametrize(
     ("command", "transport"), [("emulate", "TCP"), ("emulate", "UDP"), ("serve", "TCP")]
 )
-def test_listening_on_a_taken_port_names_the_address(command: str, transport: str) -> None:
-    proc, taken = _listen_on_taken_port(command, transport)
-    assert proc.returncode == 2, proc
-    assert "Traceback" not in proc.stderr
-    (line,) = proc.stderr.splitlines()
+def test_listening_on_a_taken_port_names_the_address(
+    capsys: pytest.CaptureFixture[str], command: str, transport: str
+) -> None:
+    code, err, taken = _listen_on_taken_port(capsys, command, transport)
+    assert code == 2, err
+    assert "Traceback" not in err
+    (line,) = err.splitlines()
     assert line.startswith(f"fairino-conformance {command}: error: ")
     assert f"{transport} {taken}" in line and "in use" in line
