@@ -212,10 +212,13 @@ def test_fixtures_for_a_projects_own_tests(pytester: pytest.Pytester) -> None:
         def test_factory_with_a_fault(fairino_emulator_factory):
             from conformance.net.client import Client
             emu = fairino_emulator_factory(faults=("wrong_cnt:201",))
-            with Client(*emu.address, timeout=5) as c:
-                c.send_raw(encode_frame(7, 201, 'MoveJ("P1")'))
-                ex = c.await_reply(7, 201, timeout=5)
-                assert [f.cnt for f in ex.near_misses()] == [8]
+            with Client(*emu.address, timeout=60) as c:
+                c.send_raw(encode_frame(7, 201, 'MoveJ("P1")') + encode_frame(9, 212, "GetDI(0,0)"))
+                # Answered in turn: once GetDI's reply is in, MoveJ's came before it
+                # (an event, not a wait for a reply that never pairs).
+                probe = c.await_reply(9, 212)
+                assert probe.reply is not None
+                assert [(f.cnt, f.cmd_id) for f in probe.unsolicited] == [(8, 201)]
         """
     )
     result = pytester.runpytest("-p", "no:cacheprovider")
