@@ -172,7 +172,7 @@ def test_format_call_quotes_per_spec() -> None:
 
 
 @settings(
-    max_examples=400, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large]
+    max_examples=200, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large]
 )
 @given(data=st.data())
 def test_roundtrip_generated_calls_for_every_command(data: st.DataObject) -> None:
@@ -199,7 +199,7 @@ def test_every_call_variant_round_trips_once() -> None:
         assert v is not None
 
 
-@settings(max_examples=300, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=200, suppress_health_check=[HealthCheck.too_slow])
 @given(data=st.data())
 def test_invalid_calls_are_caught(data: st.DataObject) -> None:
     command, variant = data.draw(st.sampled_from(CALL_VARIANTS))
