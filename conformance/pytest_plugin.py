@@ -48,13 +48,13 @@ from typing import Any
 
 import pytest
 
-from .errors import ConformanceError
+from .errors import EXIT_ERROR, EXIT_FAIL, EXIT_OK, ConformanceError
 from .net.addresses import format_address, parse_address
 from .net.client import Client
 from .net.emulator import EmulatorServer
 from .report import CaseResult, Report, write_reports
 from .suite.config import SuiteConfig
-from .suite.engine import Engine
+from .suite.engine import Engine, stop_report
 from .suite.options import OPTIONS, option, resolve, suite_config
 from .suite.runner import Case
 from .verdict import Outcome, fails
@@ -326,22 +326,26 @@ def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
     engine = config.stash.get(_ENGINE_KEY, None)
     if engine is not None:
         engine.note_address()
-        try:
-            engine.close()
-        except Exception as e:  # the emulator's thread failed: a kit error
-            print(f"fairino-conformance: emulator failure: {e}", file=sys.stderr)
-            session.exitstatus = 2
+        for err in engine.finish():  # the emulator's machinery failed: a kit error
+            print(f"fairino-conformance: emulator failure: {err.message}", file=sys.stderr)
+            session.exitstatus = EXIT_ERROR
     if _is_worker(config):
         return
     report = config.stash[_MERGED_KEY]
-    _finish_report(config, report, engine)
+    # Ctrl-C (pytest's INTERRUPTED, before this hook changes the status): the report says
+    # after how many cases, and lists the rest as not run, as ``run`` does.
+    interrupted = int(exitstatus) == int(pytest.ExitCode.INTERRUPTED)
+    _finish_report(config, report, engine, interrupted=interrupted)
     _write_reports(config, report)
-    if report.exit_code() == 2 and int(exitstatus) in (0, 1):
-        session.exitstatus = 2
+    if report.exit_code() == EXIT_ERROR and int(exitstatus) in (EXIT_OK, EXIT_FAIL):
+        session.exitstatus = EXIT_ERROR
 
 
-def _finish_report(config: pytest.Config, report: Report, engine: Engine | None) -> None:
-    """Spec version, the emulator's address, and the cases a stopped session never ran."""
+def _finish_report(
+    config: pytest.Config, report: Report, engine: Engine | None, *, interrupted: bool = False
+) -> None:
+    """Spec version, the emulator's address, and the cases a stopped or interrupted session
+    never ran (the engine's :func:`~conformance.suite.engine.stop_report`, as for ``run``)."""
     from .spec import default_specs
 
     report.spec_version = default_specs().spec_version
@@ -353,21 +357,7 @@ def _finish_report(config: pytest.Config, report: Report, engine: Engine | None)
             cases = _engine(config).select(_values(config)["case"])
         except ConformanceError:
             cases = []
-    done = {c.id for c in report.cases}
-    missing = [c for c in cases if c.id not in done]
-    if report.stopped is not None and missing:
-        for c in missing:
-            report.add(
-                CaseResult(
-                    id=c.id,
-                    cmd_id=c.cmd_id,
-                    name=c.name,
-                    group=c.group,
-                    outcome=Outcome.ERROR,
-                    detail=f"not run: {report.stopped}",
-                    not_run=True,
-                )
-            )
+    stop_report(report, cases, interrupted=interrupted)
 
 
 def _write_reports(config: pytest.Config, report: Report) -> None:

@@ -27,3 +27,41 @@ def test_the_ini_key_sets_it_too(pytester: pytest.Pytester) -> None:
         """
     )
     pytester.runpytest("-p", "no:cacheprovider").assert_outcomes(passed=1)
+
+
+def test_an_interrupted_session_says_so_and_lists_the_cases_not_run(
+    pytester: pytest.Pytester,
+) -> None:
+    """Ctrl-C in the third case: the report says after how many cases the session stopped and
+    lists the rest as not run, as ``run``'s does (it wrote ``stopped: null`` and read like a
+    pass)."""
+    pytester.makeconftest(
+        """
+        import pytest
+
+        seen = []
+
+        @pytest.hookimpl(hookwrapper=True)
+        def pytest_runtest_call(item):
+            seen.append(item)
+            if len(seen) == 3:
+                raise KeyboardInterrupt
+            yield
+        """
+    )
+    rj = pytester.path / "r.json"
+    # In a subprocess: the KeyboardInterrupt must not reach this session.
+    result = pytester.runpytest_subprocess(
+        "-p", "no:cacheprovider", "--conformance",
+        "--commands", "229", "--groups", "framing,examples,valid",
+        "--report-json", str(rj),
+    )  # fmt: skip
+    assert result.ret == pytest.ExitCode.INTERRUPTED
+    import json
+
+    doc = json.loads(rj.read_text(encoding="utf-8"))
+    cases = [c for cmd in doc["commands"].values() for c in cmd["cases"]]
+    not_run = [c for c in cases if c.get("not_run")]
+    assert doc["stopped"] is not None and doc["stopped"].startswith("interrupted after 2 of ")
+    assert len(cases) >= 3 and len(not_run) == len(cases) - 2 >= 1
+    assert doc["exit_code"] == 2 and all(c["outcome"] == "ERROR" for c in not_run)

@@ -12,7 +12,7 @@ import time
 from collections.abc import Iterator
 from typing import Any
 
-from ..errors import EXIT_ERROR, EXIT_OK, UsageError
+from ..errors import EXIT_ERROR, EXIT_INTERRUPTED, EXIT_OK, UsageError
 from ..faults import parse_fault
 from ..net import format_address, parse_address
 
@@ -217,7 +217,7 @@ def _run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from ..report import write_reports
-    from ..suite.engine import Engine, RunFinished
+    from ..suite.engine import Engine, EngineError, Interrupted, RunFinished
     from ..suite.options import OPTIONS, resolve, suite_config
     from ..suite.present import Progress, failure_lines
 
@@ -235,7 +235,7 @@ def _run(args: argparse.Namespace) -> int:
     cases = engine.select(values["case"])
     progress = Progress(sys.stderr, quiet=values["quiet"])
     finished: RunFinished | None = None
-    failure: str | None = None
+    errors: list[EngineError] = []
     try:
         try:
             for ev in engine.events(cases):
@@ -246,10 +246,7 @@ def _run(args: argparse.Namespace) -> int:
             finished = engine.interrupt(cases)
             progress.handle(finished)
     finally:
-        try:
-            engine.close()
-        except RuntimeError as e:  # the emulator's own machinery failed: a kit error
-            failure = str(e)
+        errors = engine.finish()
     report = engine.report
     write_reports(
         report,
@@ -265,11 +262,12 @@ def _run(args: argparse.Namespace) -> int:
     if report.stopped:
         # The one line that says why the run stopped early (unreachable, dead, budget, Ctrl-C).
         print(f"fairino-conformance run: {report.stopped}", file=sys.stderr)
-    if failure is not None:
-        print(f"fairino-conformance run: error: {failure}", file=sys.stderr)
+    for err in errors:
+        print(f"fairino-conformance run: error: {err.message}", file=sys.stderr)
+    if errors:
         return EXIT_ERROR
-    if finished is not None and finished.interrupted:
-        return 130  # as for any interrupted command (conformance/cli.py)
+    if isinstance(finished, Interrupted):
+        return EXIT_INTERRUPTED  # as for any interrupted command (conformance/cli.py)
     return EXIT_OK if not report.cases else report.exit_code()
 
 

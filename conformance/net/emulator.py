@@ -498,7 +498,10 @@ class EmulatorServer:
             conn.settimeout(_IDLE)
             self._converse(conn, s)
         except Exception as e:  # the peer's bytes made the kit fail: close this one only
-            s.drop = self._failed(s, e)
+            # ... unless close() shut this connection while its thread was starting: no
+            # peer's fault and no kit's (a closed socket gives EBADF on its first use).
+            if not (isinstance(e, OSError) and self._stop.is_set()):
+                s.drop = self._failed(s, e)
         finally:
             self._conns.discard(conn)
             _shutdown(conn)

@@ -33,10 +33,13 @@ from .runner import Case, SuiteRunner
 __all__ = [
     "CaseFinished",
     "Engine",
+    "EngineError",
     "Event",
+    "Interrupted",
     "RunFinished",
     "RunStarted",
     "RunWarning",
+    "stop_report",
 ]
 
 
@@ -72,7 +75,23 @@ class RunFinished:
     interrupted: bool = False
 
 
-Event = RunStarted | RunWarning | CaseFinished | RunFinished
+@dataclass(frozen=True, kw_only=True)
+class Interrupted(RunFinished):
+    """The run was interrupted (Ctrl-C, SIGTERM): the cases not run are listed as such and
+    ``report.stopped`` says after how many; exit code 130 (``errors.EXIT_INTERRUPTED``)."""
+
+    interrupted: bool = True
+
+
+@dataclass(frozen=True, kw_only=True)
+class EngineError:
+    """The kit's own trouble, not the target's (the built-in emulator's machinery failed):
+    the report stands, the exit code is 2 (``errors.EXIT_ERROR``)."""
+
+    message: str
+
+
+Event = RunStarted | RunWarning | CaseFinished | RunFinished | EngineError
 
 
 class Engine:
@@ -214,19 +233,19 @@ class Engine:
         self.note_address()
         yield RunFinished(report=self.report, elapsed=time.monotonic() - t0)
 
-    def interrupt(self, cases: Sequence[Case]) -> RunFinished:
+    def interrupt(self, cases: Sequence[Case]) -> Interrupted:
         """Ctrl-C: the run stops; the cases not run are listed as such, the report says why."""
-        done = {c.id for c in self.report.cases}
-        self.runner.stopped = self.report.stopped = (
-            f"interrupted after {len(done)} of {len(cases)} cases"
-        )
-        for case in cases:
-            if case.id not in done:
-                self.not_run(case)
+        self.runner.stopped = stop_report(self.report, cases, interrupted=True)
         self.note_address()
-        return RunFinished(
-            report=self.report, elapsed=time.monotonic() - self._t0, interrupted=True
-        )
+        return Interrupted(report=self.report, elapsed=time.monotonic() - self._t0)
+
+    def finish(self) -> list[EngineError]:
+        """Close the run (the emulator, the connection); the kit's own failures as events."""
+        try:
+            self.close()
+        except RuntimeError as e:  # the emulator's own machinery failed: a kit error
+            return [EngineError(message=str(e))]
+        return []
 
     def note_address(self) -> None:
         """Record where the built-in emulator listened (its port is the kernel's choice)."""
@@ -239,3 +258,32 @@ class Engine:
         if self._frozen:
             self._frozen = False
             gc.unfreeze()
+
+
+def stop_report(report: Report, cases: Sequence[Case], *, interrupted: bool = False) -> str | None:
+    """List every case of ``cases`` without a result as not run (ERROR, ``not_run``) when the
+    run stopped early; with ``interrupted``, the report says after how many cases it did.
+
+    One rule for every front-end: ``run`` (:meth:`Engine.interrupt`) and the pytest plugin
+    (a session stopped by Ctrl-C, a dead target or the budget, under xdist too).  Returns
+    ``report.stopped``.
+    """
+    done = {c.id for c in report.cases}
+    if interrupted and report.stopped is None:
+        report.stopped = f"interrupted after {len(done)} of {len(cases)} cases"
+    if report.stopped is None:
+        return None
+    for case in cases:
+        if case.id not in done:
+            report.add(
+                CaseResult(
+                    id=case.id,
+                    cmd_id=case.cmd_id,
+                    name=case.name,
+                    group=case.group,
+                    outcome=Outcome.ERROR,
+                    detail=f"not run: {report.stopped}",
+                    not_run=True,
+                )
+            )
+    return report.stopped
