@@ -20,10 +20,10 @@ from ..frame import DEFAULT_MAX_FRAME_SIZE
 from ..net.addresses import Address, format_address, parse_address
 from ..pcap import read_capture
 from ..recording import C2S, FrameRecord, recover
-from ..spec import SpecSet, default_specs, load_specs
 from ._judging import add_judge_options, judge_from, verdict_line
 from ._judging import verdict_sink as _verdict_sink
 from ._safety import add_safety_options
+from ._specs_option import add_specs_dir, specs_of
 
 __all__ = ["format_frame_line", "parse_duration", "parse_size", "register"]
 
@@ -44,11 +44,6 @@ def parse_duration(text: str) -> float:
         raise argparse.ArgumentTypeError(f"bad duration {text!r} (e.g. 15m)")
     mult = {None: 1.0, "ms": 1e-3, "s": 1.0, "m": 60.0, "h": 3600.0}[m.group(2)]
     return float(m.group(1)) * mult
-
-
-def _specs(args: argparse.Namespace) -> SpecSet:
-    d = getattr(args, "specs_dir", None)
-    return load_specs(d) if d else default_specs()
 
 
 def _write_json(path: str, doc: Any) -> None:
@@ -132,7 +127,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         help="on SIGINT/SIGTERM, decode what the recorder is behind on for this long, then "
         "write the rest to the file undecoded (default 1)",
     )
-    p.add_argument("--specs-dir", help="spec set directory")
+    add_specs_dir(p)
     p.set_defaults(func=_run_proxy)
 
     r = sub.add_parser("recover", help="rewrite an unfinished recording as a valid, indexed one")
@@ -145,7 +140,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     )
     i.add_argument("capture")
     i.add_argument("--json", action="store_true")
-    i.add_argument("--specs-dir", help="spec set directory")
+    add_specs_dir(i)
     add_judge_options(i)
     i.set_defaults(func=_run_info)
 
@@ -156,7 +151,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     c.add_argument("--report-json", metavar="PATH", help="write the report as JSON (- for stdout)")
     c.add_argument("--strict", action="store_true", help="NON-STRICT deviations count as failures")
     c.add_argument("--only-failures", action="store_true")
-    c.add_argument("--specs-dir", help="spec set directory")
+    add_specs_dir(c)
     c.add_argument(
         "--verdicts",
         metavar="PATH",
@@ -231,7 +226,7 @@ def _register_more(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
         "a connection holds about this much (default 256K)",
     )
     add_safety_options(rp)
-    rp.add_argument("--specs-dir", help="spec set directory")
+    add_specs_dir(rp)
     add_judge_options(rp)
     rp.set_defaults(func=_run_replay)
 
@@ -252,7 +247,7 @@ def _register_more(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
         default=0.5,
         help="report p50 latency changes above this fraction (default 0.5 = 50%%)",
     )
-    d.add_argument("--specs-dir", help="spec set directory")
+    add_specs_dir(d)
     add_judge_options(d)
     d.set_defaults(func=_run_diff)
 
@@ -273,7 +268,7 @@ def _register_more(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
         default=[],
         help="controller UDP port (default 20007; repeatable)",
     )
-    ip.add_argument("--specs-dir", help="spec set directory")
+    add_specs_dir(ip)
     ip.set_defaults(func=_run_import_pcap)
 
     ep = sub.add_parser("export-pcap", help="write a recording as a pcap for Wireshark")
@@ -312,7 +307,7 @@ def _register_more(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
     )
     cp.add_argument("--duration", type=parse_duration, help="stop after this long (e.g. 30s)")
     cp.add_argument("--max-frames", type=int, metavar="N", help="stop once N frames are recorded")
-    cp.add_argument("--specs-dir", help="spec set directory")
+    add_specs_dir(cp)
     cp.set_defaults(func=_run_capture)
 
 
@@ -351,7 +346,7 @@ def _run_proxy(args: argparse.Namespace) -> int:
                 args.udp_listen, default_port=20007, listen=True, option="--udp-listen"
             )
         )
-    specs = _specs(args)
+    specs = specs_of(args)
     on_frame = None
     if args.print_frames:
         from ..dialects import default_dialects
@@ -457,7 +452,7 @@ def _run_recover(args: argparse.Namespace) -> int:
 def _run_info(args: argparse.Namespace) -> int:
     from ..capture_check import render_info, summarize
 
-    specs = _specs(args)
+    specs = specs_of(args)
     info = summarize(read_capture(args.capture), specs, judge=judge_from(args, specs))
     if args.json:
         _write_json("-", info)
@@ -469,7 +464,7 @@ def _run_info(args: argparse.Namespace) -> int:
 def _run_check(args: argparse.Namespace) -> int:
     from ..capture_check import check_recording, failing_ids_by_side
 
-    specs = _specs(args)
+    specs = specs_of(args)
     judge = judge_from(args, specs, strict=args.strict)
     rec = read_capture(args.capture)
     side = args.side
@@ -515,7 +510,7 @@ def _run_replay(args: argparse.Namespace) -> int:
     else:
         address = parse_address(args.target, default_port=8080, option="--target")
     rec = read_capture(args.capture)
-    specs = _specs(args)
+    specs = specs_of(args)
     ignore = Ignore.parse(args.ignore, specs=specs)
     if args.serve is not None:
         book = ReplyBook(rec, unmatched=args.unmatched)
@@ -588,7 +583,7 @@ def _run_replay(args: argparse.Namespace) -> int:
 def _run_diff(args: argparse.Namespace) -> int:
     from ..diff import Ignore, diff_recordings
 
-    specs = _specs(args)
+    specs = specs_of(args)
     res = diff_recordings(
         read_capture(args.a),
         read_capture(args.b),
@@ -617,7 +612,7 @@ def _run_import_pcap(args: argparse.Namespace) -> int:
         args.out,
         tcp_ports=args.port or DEFAULT_TCP_PORTS,
         udp_ports=args.udp_port or DEFAULT_UDP_PORTS,
-        specs=_specs(args),
+        specs=specs_of(args),
     )
     dt = time.perf_counter() - t0
     print(
@@ -653,7 +648,7 @@ def _run_capture(args: argparse.Namespace) -> int:
         args.out,
         tcp_ports=tports,
         udp_ports=uports,
-        specs=_specs(args),
+        specs=specs_of(args),
         split_size=args.split_size,
         split_duration=args.split_duration,
     )

@@ -26,9 +26,10 @@ from ..judge import Direction, Judge, Verdict
 from ..net import format_address, parse_address
 from ..net.client import Client, Exchange, TargetUnreachable
 from ..safety import SafetyPolicy
-from ..spec import Command, SpecSet, default_specs, load_specs
+from ..spec import Command, SpecSet
 from ._judging import add_judge_options, judge_from, verdict_line
 from ._safety import add_safety_options, safety_policy
+from ._specs_option import add_specs_dir, specs_of
 
 __all__ = ["register"]
 
@@ -111,7 +112,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         action="store_true",
         help="send command IDs in neither the specs nor the field dialects to a non-loopback target",
     )
-    p.add_argument("--specs-dir", help="spec set directory")
+    add_specs_dir(p)
     add_judge_options(p)
     p.set_defaults(func=_run_send)
     p.__class__ = _IntermixedParser
@@ -374,7 +375,7 @@ def _run_send(args: argparse.Namespace) -> int:
     host, port = parse_address(args.target, default_port=_UDP_PORT if args.udp else _TCP_PORT)
     where = format_address(host, port)
     raw = _payload(args)
-    specs = load_specs(args.specs_dir) if args.specs_dir else default_specs()
+    specs = specs_of(args)
     judge = judge_from(args, specs)
     events = decode_all(raw)
     verdicts = {

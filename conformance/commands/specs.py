@@ -14,15 +14,16 @@ from ..errors import UsageError
 from ..frame import DEFAULT_MAX_FRAME_SIZE, Event, FrameDecoder, Malformed
 from ..judge import Direction, Judge, Verdict
 from ..judge_stream import Pairing
-from ..spec import Command, Example, Param, ReturnValue, SpecSet, default_specs, load_specs
+from ..spec import Command, Example, Param, ReturnValue, SpecSet
 from ._judging import add_judge_options, judge_from
+from ._specs_option import add_specs_dir, specs_of
 
 __all__ = ["command_json", "decode_stream", "event_json", "register"]
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("specs", help="browse the machine-readable specs")
-    p.add_argument("--specs-dir", help="spec set directory (default: specs/fairino-3.8.2)")
+    add_specs_dir(p)
     ssub = p.add_subparsers(dest="specs_command", metavar="ACTION")
     ssub.required = True
     lp = ssub.add_parser("list", help="one line per command")
@@ -54,7 +55,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "--strict", action="store_true", help="strict reading: every deviation is malformed"
     )
     d.add_argument("--max-frame-size", type=int, default=DEFAULT_MAX_FRAME_SIZE)
-    d.add_argument("--specs-dir", help="spec set directory")
+    add_specs_dir(d)
     d.add_argument(
         "--dir",
         choices=["auto", "c2s", "s2c"],
@@ -71,10 +72,6 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     )
     add_judge_options(d)
     d.set_defaults(func=_run_decode)
-
-
-def _specs(args: argparse.Namespace) -> SpecSet:
-    return load_specs(args.specs_dir) if args.specs_dir else default_specs()
 
 
 # --------------------------------------------------------------------------- specs
@@ -179,7 +176,7 @@ def _erratum_json(e: Any) -> dict[str, Any]:
 
 
 def _run_specs(args: argparse.Namespace) -> int:
-    specs = _specs(args)
+    specs = specs_of(args)
     out = sys.stdout
     action = args.specs_command
     if action == "list":
@@ -414,7 +411,7 @@ def _read_chunks(args: argparse.Namespace) -> Iterable[bytes]:
 def _run_decode(args: argparse.Namespace) -> int:
     if args.max_frame_size < 64:
         raise UsageError("--max-frame-size must be at least 64")
-    specs = _specs(args)
+    specs = specs_of(args)
     judge = judge_from(args, specs, strict=args.strict)
     pairing = Pairing(judge)
     forced = None if args.dir == "auto" else Direction(args.dir)

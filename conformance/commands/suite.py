@@ -15,6 +15,7 @@ from typing import Any
 from ..errors import EXIT_ERROR, EXIT_INTERRUPTED, EXIT_OK, UsageError
 from ..faults import parse_fault
 from ..net import format_address, parse_address
+from ._specs_option import add_specs_dir, specs_of
 
 __all__ = ["register"]
 
@@ -38,13 +39,7 @@ def _add_emulate(sub: Any) -> None:
         metavar="KIND[:CMD_IDS][@SECONDS]",
         help="inject a fault (repeatable), e.g. wrong_cnt:201,203",
     )
-    p.add_argument(
-        "--specs-dir",
-        "--specs",  # the old spelling, kept working
-        dest="specs",
-        default=None,
-        help="spec set directory (default: specs/fairino-3.8.2), as --specs-dir elsewhere",
-    )
+    add_specs_dir(p, "--specs")  # --specs: the old spelling, kept working
     p.add_argument("--duration", type=float, default=None, help="stop after SECONDS")
     _add_limits(p)
     _add_emulation(p)
@@ -129,12 +124,6 @@ def _drop_summary(server: Any) -> str | None:
     )
 
 
-def _load_specs(path: str | None) -> Any:
-    from ..spec import default_specs, load_specs
-
-    return default_specs() if path is None else load_specs(path)
-
-
 def _listen_addresses(args: argparse.Namespace) -> tuple[str, int, int | None]:
     """``--listen`` and ``--udp`` (which must share the host): (host, tcp port, udp port)."""
     host, port = parse_address(args.listen, default_port=8080, listen=True, option="--listen")
@@ -152,7 +141,7 @@ def _emulate(args: argparse.Namespace) -> int:
     host, port, udp_port = _listen_addresses(args)
     if args.duration is not None and args.duration < 0:
         raise UsageError("--duration must not be negative")
-    specs = _load_specs(args.specs)
+    specs = specs_of(args)
     emulation = _emulation(args, specs)
     # A fault's IDs are checked against what this emulator knows: its specs and dialects.
     known = {*specs.cmd_ids, *emulation["judge"].dialects.cmd_ids}
