@@ -96,7 +96,7 @@ def _ask(addr: tuple[str, int], frames: list[bytes]) -> list[Frame]:
     d = FrameDecoder()
     out: list[Frame] = []
     with socket.create_connection(addr) as c:
-        c.settimeout(2)
+        c.settimeout(30)  # replies come at once: a failure rather than a hang
         for f in frames:
             c.sendall(f)
             while True:
