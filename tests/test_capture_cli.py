@@ -89,7 +89,7 @@ def test_replay_target_reports_faulted_ids(
                 "--target",
                 em.target,
                 "--timeout",
-                "0.3",
+                "10",  # every reply comes (wrong_count only changes it): a failure, not a wait
                 "--json",
                 str(tmp_path / "r.json"),
             ]
