@@ -12,11 +12,20 @@ from __future__ import annotations
 import enum
 
 __all__ = [
+    "EXIT_ERROR",
+    "EXIT_FAIL",
+    "EXIT_INTERRUPTED",
+    "EXIT_OK",
     "AddressError",
+    "CaptureError",
     "ConformanceError",
+    "EmulatorError",
+    "FileError",
     "LocalProtocolError",
     "ProtocolError",
+    "RecordingError",
     "RemoteProtocolError",
+    "ReportFileError",
     "Rule",
     "SpecError",
     "UsageError",
@@ -103,6 +112,34 @@ class AddressError(UsageError):
         self.text = text
         self.reason = reason
         self.option = option
+
+
+class FileError(ConformanceError):
+    """A file the kit was given is missing or is not what it should be (whose fault: the
+    file's, not the kit's); ``path`` names it.  The CLI prints it in one line, exit 2."""
+
+    def __init__(self, message: str, *, path: str = "") -> None:
+        super().__init__(message)
+        self.path = path
+
+
+class RecordingError(FileError):
+    """A recording that cannot be read or written (missing, not MCAP, not the kit's)."""
+
+
+class CaptureError(FileError):
+    """A pcap/pcapng capture that cannot be read, or an interface a live capture cannot
+    open (``path`` is then the interface's name)."""
+
+
+class ReportFileError(FileError):
+    """A file given as a conformance report (``report show``, ``--expected-failures``) that is
+    not one."""
+
+
+class EmulatorError(ConformanceError):
+    """The built-in emulator's own machinery failed (a thread died, the kit failed on a
+    client's bytes): the kit's fault, not the target's; exit code 2."""
 
 
 class SpecError(ConformanceError):

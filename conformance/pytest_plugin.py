@@ -48,7 +48,7 @@ from typing import Any
 
 import pytest
 
-from .errors import EXIT_ERROR, EXIT_FAIL, EXIT_OK, ConformanceError
+from .errors import EXIT_ERROR, EXIT_FAIL, EXIT_OK, ConformanceError, EmulatorError
 from .net.addresses import format_address, parse_address
 from .net.client import Client
 from .net.emulator import EmulatorServer
@@ -422,7 +422,7 @@ def fairino_emulator_factory() -> Iterator[EmulatorFactory]:
     for emu in servers:
         try:
             emu.close()
-        except RuntimeError as e:
+        except (EmulatorError, RuntimeError) as e:
             errors.append(e)
     if errors:
         raise errors[0]

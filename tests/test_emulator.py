@@ -9,7 +9,7 @@ import time
 import pytest
 
 from conformance.data import format_call, format_number
-from conformance.errors import UsageError
+from conformance.errors import EmulatorError, UsageError
 from conformance.faults import Fault, FaultKind, parse_fault
 from conformance.frame import Frame, Malformed, decode_all, encode_frame
 from conformance.knowledge import (
@@ -397,7 +397,7 @@ def test_server_reraises_background_failure() -> None:
     with socket.create_connection(emu.address, timeout=5) as s:
         s.sendall(encode_frame(1, 201, 'MoveJ("P1")'))
         s.recv(100)
-    with pytest.raises(RuntimeError, match="boom"):
+    with pytest.raises(EmulatorError, match="boom"):
         emu.close()
 
 
@@ -468,7 +468,7 @@ def test_kit_failure_closes_only_that_connection(monkeypatch: pytest.MonkeyPatch
         assert emu.dropped[-1].peer.startswith("udp:") and emu.dropped[-1].cmd_id == 204
     finally:
         # The kit's own failure still reaches the test (reraise_kit_errors=True).
-        with pytest.raises(RuntimeError, match="seeded kit failure"):
+        with pytest.raises(EmulatorError, match="seeded kit failure"):
             emu.close()
 
 

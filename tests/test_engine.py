@@ -239,7 +239,7 @@ def test_emulate_takes_specs_dir_like_every_other_command(tmp_path: Path) -> Non
     specs_dir = str(ROOT / "specs" / "fairino-3.8.2")
     for flag in ("--specs-dir", "--specs"):
         args = build_parser().parse_args(["emulate", flag, specs_dir])
-        assert args.specs == specs_dir
+        assert args.specs_dir == specs_dir
     for cmd in (["check", "x.mcap"], ["decode"], ["info", "x.mcap"]):
         assert build_parser().parse_args([*cmd, "--specs-dir", specs_dir]).specs_dir == specs_dir
 

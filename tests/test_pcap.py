@@ -18,7 +18,7 @@ from scapy.packet import Raw
 from scapy.utils import wrpcap, wrpcapng
 
 import conformance.pcap.read as pcap_read
-from conformance.errors import UsageError
+from conformance.errors import CaptureError
 from conformance.frame import encode_frame
 from conformance.pcap import (
     TcpReassembler,
@@ -425,7 +425,7 @@ def test_a_pcapng_time_past_2_64_ns_is_a_usage_error(
 
 @pytest.mark.parametrize("name", ["x.pcap", "x.pcapng"])
 def test_corrupt_or_cut_captures_import_or_give_a_usage_error(tmp_path: Path, name: str) -> None:
-    """Any damage to a capture gives a recording or the kit's UsageError, nothing else."""
+    """Any damage to a capture gives a recording or the kit's CaptureError, nothing else."""
     rng = random.Random(7)
     src = tmp_path / name
     (wrpcapng if name.endswith("ng") else wrpcap)(str(src), conversation() + conversation(s=S2))
@@ -439,7 +439,7 @@ def test_corrupt_or_cut_captures_import_or_give_a_usage_error(tmp_path: Path, na
                 b[rng.randrange(len(b))] = rng.randrange(256)
         bad = tmp_path / f"bad-{name}"
         bad.write_bytes(b)
-        with contextlib.suppress(UsageError):
+        with contextlib.suppress(CaptureError):
             import_pcap(bad, tmp_path / "out.mcap")
 
 

@@ -12,7 +12,7 @@ import time
 from collections.abc import Iterator
 from typing import Any
 
-from ..errors import EXIT_ERROR, EXIT_INTERRUPTED, EXIT_OK, UsageError
+from ..errors import EXIT_ERROR, EXIT_INTERRUPTED, EXIT_OK, EmulatorError, UsageError
 from ..faults import parse_fault
 from ..net import format_address, parse_address
 from ._specs_option import add_specs_dir, specs_of
@@ -348,12 +348,15 @@ def _serve(args: argparse.Namespace) -> int:
                 server.check()
         except KeyboardInterrupt:
             pass
-        except RuntimeError as e:  # the server's own machinery failed: still report
+        except (
+            EmulatorError,
+            RuntimeError,
+        ) as e:  # the server's own machinery failed: still report
             failure = str(e)
         finally:
             try:
                 server.close()
-            except RuntimeError as e:
+            except (EmulatorError, RuntimeError) as e:
                 failure = failure or str(e)
             sink.close()
     report = validator.report()

@@ -37,7 +37,7 @@ import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
-from ..errors import ConformanceError, UsageError
+from ..errors import CaptureError, ConformanceError, UsageError
 from ..pcap import DLT_EN10MB, DLT_RAW, PacketRecorder
 from ..recording import RotatingWriter, default_metadata
 from ..spec import SpecSet
@@ -93,14 +93,14 @@ def _new_socket() -> socket.socket:
 def open_packet_socket(iface: str) -> tuple[socket.socket, int, bool]:
     """A raw packet socket bound to ``iface``: (socket, link type, is loopback).
 
-    An unknown interface is a :class:`UsageError` naming it; a refusal for want of
+    An unknown interface is a :class:`~conformance.errors.CaptureError` naming it; a refusal for want of
     privilege is a :class:`CapturePermissionError`."""
     if not hasattr(socket, "AF_PACKET"):
-        raise UsageError("capture needs Linux raw packet sockets (AF_PACKET)")
+        raise CaptureError("capture needs Linux raw packet sockets (AF_PACKET)", path=iface)
     try:
         socket.if_nametoindex(iface)
     except OSError:
-        raise UsageError(f"no such network interface: {iface}") from None
+        raise CaptureError(f"no such network interface: {iface}", path=iface) from None
     try:
         sock = _new_socket()
     except PermissionError as e:
@@ -110,7 +110,9 @@ def open_packet_socket(iface: str) -> tuple[socket.socket, int, bool]:
         hatype = sock.getsockname()[3]
         linktype = _LINKTYPES.get(hatype)
         if linktype is None:
-            raise UsageError(f"interface {iface}: hardware type {hatype} is not supported")
+            raise CaptureError(
+                f"interface {iface}: hardware type {hatype} is not supported", path=iface
+            )
         try:
             sock.setsockopt(socket.SOL_SOCKET, SO_RCVBUFFORCE, RCVBUF)
         except OSError:
@@ -119,7 +121,7 @@ def open_packet_socket(iface: str) -> tuple[socket.socket, int, bool]:
         sock.setblocking(False)
     except OSError as e:
         sock.close()
-        raise UsageError(f"cannot capture on {iface}: {e.strerror or e}") from None
+        raise CaptureError(f"cannot capture on {iface}: {e.strerror or e}", path=iface) from None
     except BaseException:
         sock.close()
         raise

@@ -41,7 +41,7 @@ from types import TracebackType
 from typing import Any
 
 from ..actions import Action, Dropped
-from ..errors import RemoteProtocolError, UsageError
+from ..errors import EmulatorError, RemoteProtocolError, UsageError
 from ..faults import Fault, FaultKind, parse_fault, parse_faults
 from ..frame import DEFAULT_MAX_FRAME_SIZE, Frame, Malformed
 from ..judge import Judge
@@ -289,10 +289,10 @@ class EmulatorServer:
         """Re-raise the first failure of a background thread (and of the kit on a peer's bytes)."""
         if self.errors:
             err = self.errors[0]
-            raise RuntimeError(f"emulator thread failed: {err!r}") from err
+            raise EmulatorError(f"emulator thread failed: {err!r}") from err
         if self.reraise_kit_errors and self.kit_errors:
             err = self.kit_errors[0]
-            raise RuntimeError(f"emulator failed on a client's bytes: {err!r}") from err
+            raise EmulatorError(f"emulator failed on a client's bytes: {err!r}") from err
 
     def __enter__(self) -> EmulatorServer:
         return self.start()

@@ -12,7 +12,7 @@ from __future__ import annotations
 import os
 from collections.abc import Iterable
 
-from ..errors import UsageError
+from ..errors import CaptureError
 from ..recording import (
     Recording,
     RecordingWriter,
@@ -48,9 +48,9 @@ def capture_format(path: str | os.PathLike[str]) -> str | None:
         with open(p, "rb") as f:
             head = f.read(8)
     except FileNotFoundError:
-        raise UsageError(f"no such recording: {p}") from None
+        raise CaptureError(f"no such recording: {p}", path=str(p)) from None
     except OSError as e:
-        raise UsageError(f"cannot read {p}: {e.strerror or e}") from None
+        raise CaptureError(f"cannot read {p}: {e.strerror or e}", path=str(p)) from None
     if head == _MCAP_MAGIC:
         return "mcap"
     if head[:4] in _PCAP_MAGICS:
@@ -77,7 +77,7 @@ def read_capture(
     if fmt == "mcap":
         return read_recording(p)
     if fmt is None:
-        raise UsageError(f"{p}: neither an MCAP recording nor a pcap/pcapng capture")
+        raise CaptureError(f"{p}: neither an MCAP recording nor a pcap/pcapng capture", path=str(p))
     with tempfile.TemporaryDirectory(prefix="fairino-capture-") as d:
         out = os.path.join(d, "imported.mcap")
         import_pcap(p, out, tcp_ports=tcp_ports, udp_ports=udp_ports, specs=specs)

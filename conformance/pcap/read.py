@@ -14,14 +14,14 @@ import struct
 from collections.abc import Iterator
 from typing import Any
 
-from ..errors import UsageError
+from ..errors import CaptureError
 
 
 def read_packets(path: str | os.PathLike[str]) -> Iterator[tuple[int, int, bytes]]:
     """(link type, time in ns, bytes) for each packet of a pcap or pcapng file.
 
     scapy opens the file (gzip too) and reads its header at once (a file that is not a
-    capture is a :class:`~conformance.errors.UsageError` here), and reads pcapng blocks;
+    capture is a :class:`~conformance.errors.CaptureError` here), and reads pcapng blocks;
     the records of a classic pcap are read by :func:`_classic_records`.  The file is
     closed when the iterator is exhausted or closed."""
     from scapy.error import Scapy_Exception
@@ -30,9 +30,9 @@ def read_packets(path: str | os.PathLike[str]) -> Iterator[tuple[int, int, bytes
     try:
         reader = RawPcapReader(os.fspath(path))
     except FileNotFoundError:
-        raise UsageError(f"no such capture: {os.fspath(path)}") from None
+        raise CaptureError(f"no such capture: {os.fspath(path)}", path=os.fspath(path)) from None
     except Scapy_Exception as e:
-        raise UsageError(f"{os.fspath(path)}: {e}") from None
+        raise CaptureError(f"{os.fspath(path)}: {e}", path=os.fspath(path)) from None
     # The generator itself is returned (not delegated to with ``yield from``: that is
     # one more frame to resume for every packet).
     if isinstance(reader, RawPcapNgReader):
@@ -54,16 +54,17 @@ def _pcapng_blocks(reader: Any, name: str) -> Iterator[tuple[int, int, bytes]]:
             except EOFError:
                 return
             except Scapy_Exception as e:  # e.g. a corrupt section header further on
-                raise UsageError(f"{name}: {e}") from None
+                raise CaptureError(f"{name}: {e}", path=name) from None
             ts = (md.tshigh << 32) | md.tslow
             res = md.tsresol or 1_000_000
             t = ts * 1_000_000_000 // res
             if t >> 64:
                 # A 64-bit timestamp read with a corrupt resolution (a classic pcap's
                 # 32-bit seconds always fit): no recording can hold the time.
-                raise UsageError(
+                raise CaptureError(
                     f"{name}: a packet's time ({ts} / {res} s) is past what a recording "
-                    "holds (2^64 ns): a corrupt pcapng block?"
+                    "holds (2^64 ns): a corrupt pcapng block?",
+                    path=name,
                 )
             yield md.linktype, t, data
 

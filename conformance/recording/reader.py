@@ -144,7 +144,7 @@ def read_recording(path: str | os.PathLike[str]) -> Recording:
     """Read a recording, finished or not (an unfinished one reads up to its last whole chunk)."""
     from mcap.records import Channel, Footer, Message, Metadata, Schema
 
-    from ..errors import UsageError
+    from ..errors import RecordingError
 
     p = os.fspath(path)
     frames: list[FrameRecord] = []
@@ -157,11 +157,11 @@ def read_recording(path: str | os.PathLike[str]) -> Recording:
     try:
         f = open(p, "rb")  # noqa: SIM115
     except FileNotFoundError:
-        raise UsageError(f"no such recording: {p}") from None
+        raise RecordingError(f"no such recording: {p}", path=str(p)) from None
     with f:
         head = f.read(8)
         if head != b"\x89MCAP0\r\n":
-            raise UsageError(f"{p} is not an MCAP file")
+            raise RecordingError(f"{p} is not an MCAP file", path=str(p))
         f.seek(0)
         for rec, why in _iter_tolerant(f):
             if rec is None:
@@ -193,7 +193,9 @@ def read_recording(path: str | os.PathLike[str]) -> Recording:
             elif isinstance(rec, Footer):
                 complete = True
     if not metadata:
-        raise UsageError(f"{p} is an MCAP file but not a fairino-conformance recording")
+        raise RecordingError(
+            f"{p} is an MCAP file but not a fairino-conformance recording", path=str(p)
+        )
     return Recording(
         path=p,
         metadata=metadata,

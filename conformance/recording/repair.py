@@ -19,10 +19,10 @@ def atomic_output(dst: str | os.PathLike[str]) -> Iterator[str]:
     """A temporary path next to ``dst`` to write the output to: renamed to ``dst`` when
     the block succeeds, removed when it fails, so a failed command never leaves a
     half-written file (``recover``, ``import-pcap``).  A directory that cannot be
-    written is a usage error naming ``dst``."""
+    written is a :class:`~conformance.errors.RecordingError` naming ``dst``."""
     import secrets
 
-    from ..errors import UsageError
+    from ..errors import RecordingError
 
     final = os.fspath(dst)
     head, name = os.path.split(final)
@@ -31,7 +31,7 @@ def atomic_output(dst: str | os.PathLike[str]) -> Iterator[str]:
         # O_EXCL: a name nobody else has; mode 0o666 less the umask, as open() gives.
         os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
     except OSError as e:
-        raise UsageError(f"cannot write {final}: {e.strerror or e}") from None
+        raise RecordingError(f"cannot write {final}: {e.strerror or e}", path=str(final)) from None
     try:
         yield tmp
         os.replace(tmp, final)
@@ -57,17 +57,17 @@ def recover(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> Recover
     from mcap.records import Channel, Footer, Message, Metadata, Schema
     from mcap.writer import Writer
 
-    from ..errors import UsageError
+    from ..errors import RecordingError, UsageError
 
     if os.path.abspath(os.fspath(src)) == os.path.abspath(os.fspath(dst)):
         raise UsageError("recover writes a new file: give another output path")
     try:
         fin = open(src, "rb")  # noqa: SIM115
     except FileNotFoundError:
-        raise UsageError(f"no such recording: {os.fspath(src)}") from None
+        raise RecordingError(f"no such recording: {os.fspath(src)}", path=os.fspath(src)) from None
     with fin, atomic_output(dst) as tmp, open(tmp, "wb") as fout:
         if fin.read(8) != b"\x89MCAP0\r\n":
-            raise UsageError(f"{os.fspath(src)} is not an MCAP file")
+            raise RecordingError(f"{os.fspath(src)} is not an MCAP file", path=os.fspath(src))
         fin.seek(0)
         out = Writer(fout)
         out.start(profile="", library=f"fairino-conformance/{__version__} (recovered)")

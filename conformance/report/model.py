@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from .._version import __version__
+from ..errors import ReportFileError
 from ..verdict import SEVERITY, Outcome, Reference, aggregate, fails
 
 __all__ = [
@@ -336,9 +337,22 @@ def _fit(text: str, width: int) -> str:
 
 
 def load_report(path: str) -> Report:
-    """Read a JSON report written by ``--report-json`` (UsageError-free: callers map errors)."""
-    with open(path, encoding="utf-8") as f:
-        doc = json.load(f)
+    """Read a JSON report written by ``--report-json``; a file that is missing, not JSON or not
+    a report is a :class:`~conformance.errors.ReportFileError` naming it."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            doc = json.load(f)
+    except FileNotFoundError:
+        raise ReportFileError(f"no such report: {path}", path=path) from None
+    except (ValueError, UnicodeDecodeError) as e:  # JSONDecodeError is a ValueError
+        raise ReportFileError(
+            f"{path} is not a JSON conformance report ({type(e).__name__}: {e})", path=path
+        ) from None
     if not isinstance(doc, dict) or "commands" not in doc or "target" not in doc:
-        raise ValueError(f"{path} is not a conformance report (no target/commands)")
-    return Report.from_json(doc)
+        raise ReportFileError(f"{path} is not a conformance report (no target/commands)", path=path)
+    try:
+        return Report.from_json(doc)
+    except (ValueError, KeyError, TypeError, AttributeError) as e:
+        raise ReportFileError(
+            f"{path} is not a JSON conformance report ({type(e).__name__}: {e})", path=path
+        ) from None

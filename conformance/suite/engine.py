@@ -21,7 +21,7 @@ import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
 
-from ..errors import UsageError
+from ..errors import EmulatorError, UsageError
 from ..net.addresses import format_address
 from ..report import CaseResult, Report
 from ..spec import SpecSet, default_specs
@@ -243,7 +243,10 @@ class Engine:
         """Close the run (the emulator, the connection); the kit's own failures as events."""
         try:
             self.close()
-        except RuntimeError as e:  # the emulator's own machinery failed: a kit error
+        except (
+            EmulatorError,
+            RuntimeError,
+        ) as e:  # the emulator's own machinery failed: a kit error
             return [EngineError(message=str(e))]
         return []
 
