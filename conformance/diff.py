@@ -21,7 +21,7 @@ from .capture_check import percentile
 from .data import Arg, Array, Number, Text, parse_reply
 from .errors import RemoteProtocolError
 from .judge import Judge
-from .recording import Exchange, FrameRecord, Recording
+from .recording import FrameRecord, RecordedExchange, Recording
 from .spec import ReturnValue, SpecSet
 
 __all__ = [
@@ -394,7 +394,7 @@ class DiffResult:
         return "\n".join(lines)
 
 
-def _key(e: Exchange) -> tuple[int, str]:
+def _key(e: RecordedExchange) -> tuple[int, str]:
     f = e.request or e.reply
     assert f is not None
     return (f.cmd_id, f.data if e.request is not None else "<unsolicited>")
@@ -417,13 +417,13 @@ def diff_recordings(
     """
     ex_a, ex_b = a.exchanges(), b.exchanges()
     noise_a, noise_b = a.noise_before(), b.noise_before()
-    groups_b: dict[tuple[int, str], list[Exchange]] = {}
+    groups_b: dict[tuple[int, str], list[RecordedExchange]] = {}
     for e in ex_b:
         groups_b.setdefault(_key(e), []).append(e)
     used: dict[tuple[int, str], int] = {}
     cmds: dict[int, CommandDiff] = {}
 
-    def cd(e: Exchange) -> CommandDiff:
+    def cd(e: RecordedExchange) -> CommandDiff:
         cid = e.cmd_id
         c = cmds.get(cid)
         if c is None:
@@ -485,7 +485,7 @@ def diff_recordings(
     return DiffResult(a=a.path, b=b.path, commands=cmds)
 
 
-def _show(e: Exchange) -> str:
+def _show(e: RecordedExchange) -> str:
     f = e.request or e.reply
     assert f is not None
     return f.raw.decode("utf-8", "replace")

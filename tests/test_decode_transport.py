@@ -21,6 +21,7 @@ def decode(*args: str) -> dict[str, object]:
     )
     assert proc.returncode == 0, proc.stderr
     (doc,) = [json.loads(x) for x in proc.stdout.splitlines() if x.strip()]
+    assert isinstance(doc, dict)
     return doc
 
 

@@ -50,7 +50,9 @@ def failing_printed(out: str) -> int:
     m = re.search(r"; (\d+) failing", line)
     if m is not None:
         return int(m.group(1))
-    counts = dict((k, int(n)) for n, k in re.findall(r"(\d+) ([A-Z-]+)", line.split("(target")[0]))
+    counts: dict[str, int] = {
+        k: int(n) for n, k in re.findall(r"(\d+) ([A-Z-]+)", line.split("(target")[0])
+    }
     return counts.get("FAIL", 0) + counts.get("ERROR", 0)
 
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ..frame import HEAD
-from ..recording import C2S, S2C, Direction, RecordSink, StreamRecorder
+from ..recording import C2S, S2C, DirectionText, RecordSink, StreamRecorder
 from ..spec import SpecSet
 from .packets import _ACK, _FIN, _PORTS, _RST, _SYN, _SYN_FIN_RST, _reverse, flow_ends, parse_packet
 from .reassembly import TcpReassembler
@@ -30,7 +30,7 @@ TOGETHER_BYTES = 1 << 20
 
 #: A direction of an open TCP connection: (connection id, direction, its reassembler, the
 #: connection), what PacketRecorder finds by a packet's flow.
-_TcpWay = tuple[int, Direction, TcpReassembler, "_TcpConn"]
+_TcpWay = tuple[int, DirectionText, TcpReassembler, "_TcpConn"]
 
 
 class _TcpConn:
@@ -41,7 +41,7 @@ class _TcpConn:
         self.flows = (flow, reverse)  # client to server, server to client
         self.client, self.server = flow_ends(flow)
         self.halves = {C2S: TcpReassembler(), S2C: TcpReassembler()}
-        self.fins: list[Direction] = []  # directions that sent FIN, in order
+        self.fins: list[DirectionText] = []  # directions that sent FIN, in order
 
 
 @dataclass
@@ -110,7 +110,7 @@ class PacketRecorder:
         self.rec = StreamRecorder(sink, specs=specs)
         self.conns: dict[int, _TcpConn] = {}  # open TCP connections by id, in opening order
         self.tcp_ways: dict[bytes, _TcpWay] = {}  # both directions of each open connection
-        self.udp_ways: dict[bytes, tuple[int, Direction]] = {}
+        self.udp_ways: dict[bytes, tuple[int, DirectionText]] = {}
         self.udp_conns: list[int] = []
         # Keyed by _canonical(flow):
         self.candidates: dict[bytes, _Candidate] = {}
@@ -278,14 +278,14 @@ class PacketRecorder:
             self.tcp_ways.pop(f, None)
         self.finished.add(_canonical(c.flows[0]))
 
-    def _deliver(self, conn: int, d: Direction, items: list[tuple[str, int, Any]]) -> None:
+    def _deliver(self, conn: int, d: DirectionText, items: list[tuple[str, int, Any]]) -> None:
         for kind, t, x in items:
             if kind == "data":
                 self.rec.data(conn, d, t, x)
             else:
                 self.rec.gap(conn, d, t, x)
 
-    def _open_udp(self, t: int, flow: bytes, payload: bytes) -> tuple[int, Direction] | None:
+    def _open_udp(self, t: int, flow: bytes, payload: bytes) -> tuple[int, DirectionText] | None:
         """The way of a datagram on a new flow, or None if the flow is not ours."""
         sport, dport = _PORTS(flow, len(flow) - 4)
         if dport in self.uports:

@@ -10,7 +10,7 @@ module             holds
 ``rotating``       RotatingWriter (segment files by size or duration), segment_path
 ``names``          command names of frames from the specs (StreamRecorder's lookups)
 ``recorder``       StreamRecorder: bytes and times in, records out (sans-I/O)
-``reader``         read_recording, Recording, Exchange
+``reader``         read_recording, Recording, RecordedExchange
 ``repair``         recover, atomic_output
 ``dump``           dump_json (the golden corpus's decoded form)
 =================  ===================================================================
@@ -34,9 +34,9 @@ from .layout import (
     TOPIC_CONNECTIONS,
     TOPIC_PROBLEMS,
     TOPIC_S2C,
-    Direction,
+    DirectionText,
 )
-from .reader import Exchange, Recording, read_recording
+from .reader import RecordedExchange, Recording, read_recording
 from .recorder import DECODE_SLICE, StreamRecorder
 from .records import (
     ConnectionRecord,
@@ -65,13 +65,13 @@ __all__ = [
     "TOPIC_PROBLEMS",
     "TOPIC_S2C",
     "ConnectionRecord",
-    "Direction",
-    "Exchange",
+    "DirectionText",
     "FrameBatch",
     "FrameRecord",
     "ProblemRecord",
     "Record",
     "RecordSink",
+    "RecordedExchange",
     "Recording",
     "RecordingWriter",
     "RecoverResult",

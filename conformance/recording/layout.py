@@ -47,14 +47,17 @@ __all__ = [
     "TOPIC_CONNECTIONS",
     "TOPIC_PROBLEMS",
     "TOPIC_S2C",
-    "Direction",
+    "DirectionText",
 ]
 
-Direction = Literal["c2s", "s2c"]
+#: A recorded frame's direction as its text on disk: the values of
+#: :class:`conformance.verdict.Direction` (``c2s`` = REQUEST, ``s2c`` = REPLY), kept as plain
+#: strings in the recorder's hot path and the MCAP columns.
+DirectionText = Literal["c2s", "s2c"]
 #: Client to controller (requests).
-C2S: Direction = "c2s"
+C2S: DirectionText = "c2s"
 #: Controller to client (replies).
-S2C: Direction = "s2c"
+S2C: DirectionText = "s2c"
 
 TOPIC_C2S = "/fairino/c2s"
 TOPIC_S2C = "/fairino/s2c"

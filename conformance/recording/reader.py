@@ -1,5 +1,5 @@
 """The reader: a recording, finished or not, as records (:func:`read_recording`), and its
-requests paired with their replies (:class:`Exchange`)."""
+requests paired with their replies (:class:`RecordedExchange`)."""
 
 from __future__ import annotations
 
@@ -12,11 +12,11 @@ from typing import IO, Any
 from .layout import C2S, METADATA_NAME, TOPIC_C2S, TOPIC_CONNECTIONS, TOPIC_PROBLEMS, TOPIC_S2C
 from .records import ConnectionRecord, FrameBatch, FrameRecord, ProblemRecord
 
-__all__ = ["Exchange", "Recording", "read_recording"]
+__all__ = ["RecordedExchange", "Recording", "read_recording"]
 
 
 @dataclass(frozen=True, kw_only=True)
-class Exchange:
+class RecordedExchange:
     """A request and the reply paired with it (either may be missing)."""
 
     conn: int
@@ -93,7 +93,7 @@ class Recording:
     def requests(self) -> list[FrameRecord]:
         return [f for f in self.frames if f.dir == C2S]
 
-    def exchanges(self) -> list[Exchange]:
+    def exchanges(self) -> list[RecordedExchange]:
         """Pair each reply with the oldest unanswered request of its connection with the same
         CNT and CMD_ID (else the same CMD_ID); unpaired frames stand alone.
 
@@ -101,12 +101,12 @@ class Recording:
         the recorder could decide only once its sender went quiet (a LEN that does not
         fit, odd separators) is written after the reply that already answered it.
         """
-        out: list[Exchange | None] = []
+        out: list[RecordedExchange | None] = []
         pending: dict[int, list[tuple[int, FrameRecord]]] = {}
         for f in sorted(self.frames, key=lambda f: f.first_ns or f.complete_ns):
             if f.dir == C2S:
                 pending.setdefault(f.conn, []).append((len(out), f))
-                out.append(Exchange(conn=f.conn, request=f, reply=None))
+                out.append(RecordedExchange(conn=f.conn, request=f, reply=None))
                 continue
             waiting = pending.get(f.conn, [])
             pick = next(
@@ -116,10 +116,10 @@ class Recording:
             if pick is None:
                 pick = next((k for k, (_, r) in enumerate(waiting) if r.cmd_id == f.cmd_id), None)
             if pick is None:
-                out.append(Exchange(conn=f.conn, request=None, reply=f))
+                out.append(RecordedExchange(conn=f.conn, request=None, reply=f))
                 continue
             idx, req = waiting.pop(pick)
-            out[idx] = Exchange(conn=f.conn, request=req, reply=f)
+            out[idx] = RecordedExchange(conn=f.conn, request=req, reply=f)
         return [e for e in out if e is not None]
 
 

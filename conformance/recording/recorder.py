@@ -26,7 +26,7 @@ from ..frame import (
     Malformed,
 )
 from ..spec import SpecSet
-from .layout import C2S, PROBLEM_RAW_LIMIT, S2C, Direction
+from .layout import C2S, PROBLEM_RAW_LIMIT, S2C, DirectionText
 from .names import _CommandNames
 from .records import ConnectionRecord, FrameBatch, FrameRecord, ProblemRecord, RecordSink
 
@@ -201,7 +201,7 @@ class StreamRecorder(_CommandNames):
         if self.undecoded_reason is None:
             self.undecoded_reason = reason
 
-    def data(self, conn: int, direction: Direction, t_ns: int, data: bytes) -> None:
+    def data(self, conn: int, direction: DirectionText, t_ns: int, data: bytes) -> None:
         """Bytes of a TCP stream, in order, as they arrived at ``t_ns``.
 
         Where the decoder holds nothing, standard frames back to back are taken as a
@@ -227,7 +227,9 @@ class StreamRecorder(_CommandNames):
         if self.checkpoint is not None:
             self.checkpoint()
 
-    def segments(self, conn: int, direction: Direction, reads: Sequence[tuple[int, bytes]]) -> None:
+    def segments(
+        self, conn: int, direction: DirectionText, reads: Sequence[tuple[int, bytes]]
+    ) -> None:
         """Several reads of one TCP stream in a row, each ``(t_ns, bytes)``: the records
         :meth:`data` of each in turn gives, but decoded together, so that frames cut
         across reads are still taken as runs (``import-pcap``: a frame or less a packet).
@@ -314,7 +316,7 @@ class StreamRecorder(_CommandNames):
         self,
         conn: int,
         transport: str,
-        direction: Direction,
+        direction: DirectionText,
         st: _Stream,
         data: bytes,
         i: int,
@@ -329,7 +331,7 @@ class StreamRecorder(_CommandNames):
                 self._raw(conn, transport, direction, st, t, data[lo:end])
             start = end
 
-    def datagram(self, conn: int, direction: Direction, t_ns: int, data: bytes) -> None:
+    def datagram(self, conn: int, direction: DirectionText, t_ns: int, data: bytes) -> None:
         """One UDP datagram: decoded on its own (a frame never spans datagrams)."""
         c = self._conns[conn]
         st = c.streams[direction]
@@ -361,7 +363,13 @@ class StreamRecorder(_CommandNames):
             self._raw(conn, c.transport, direction, st, t_ns, data[done:])
 
     def _raw(
-        self, conn: int, transport: str, direction: Direction, st: _Stream, t_ns: int, data: bytes
+        self,
+        conn: int,
+        transport: str,
+        direction: DirectionText,
+        st: _Stream,
+        t_ns: int,
+        data: bytes,
     ) -> None:
         """Record ``data`` undecoded, after what the stream's decoder holds."""
         if not st.raw:
@@ -394,7 +402,7 @@ class StreamRecorder(_CommandNames):
             st.base += len(piece)
 
     def gap(
-        self, conn: int, direction: Direction, t_ns: int, missing: int, detail: str = ""
+        self, conn: int, direction: DirectionText, t_ns: int, missing: int, detail: str = ""
     ) -> None:
         """``missing`` bytes of the stream were never captured: record it, restart decoding."""
         c = self._conns[conn]
@@ -431,7 +439,7 @@ class StreamRecorder(_CommandNames):
         self,
         conn: int,
         transport: str,
-        direction: Direction,
+        direction: DirectionText,
         st: _Stream,
         run: FrameRun,
         first_ns: list[int],
@@ -472,7 +480,7 @@ class StreamRecorder(_CommandNames):
         self,
         conn: int,
         transport: str,
-        direction: Direction,
+        direction: DirectionText,
         st: _Stream,
         events: list[Event],
         t_ns: int,
@@ -511,7 +519,7 @@ class StreamRecorder(_CommandNames):
         self,
         conn: int,
         transport: str,
-        direction: Direction,
+        direction: DirectionText,
         st: _Stream,
         frames: list[Frame],
         firsts: list[int],
@@ -568,7 +576,13 @@ class StreamRecorder(_CommandNames):
 
 
 def _problems(
-    conn: int, transport: str, direction: Direction, ev: Malformed, base: int, first: int, t_ns: int
+    conn: int,
+    transport: str,
+    direction: DirectionText,
+    ev: Malformed,
+    base: int,
+    first: int,
+    t_ns: int,
 ) -> Iterator[ProblemRecord]:
     """The Problem records of one malformed run: one per ``PROBLEM_RAW_LIMIT`` bytes, at
     consecutive offsets, so every byte is kept (export-pcap puts them all back)."""

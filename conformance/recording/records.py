@@ -13,7 +13,7 @@ from itertools import accumulate, repeat
 from typing import Any, Literal, NamedTuple, Protocol
 
 from ..frame import Frame
-from .layout import Direction
+from .layout import DirectionText
 
 __all__ = [
     "ConnectionRecord",
@@ -51,7 +51,7 @@ class FrameRecord:
     """One recorded frame (topic ``/fairino/c2s`` or ``/fairino/s2c``)."""
 
     conn: int
-    dir: Direction
+    dir: DirectionText
     cnt: int
     cmd_id: int
     data: str
@@ -139,7 +139,7 @@ class FrameBatch(NamedTuple):
 
     conn: int
     transport: str
-    dir: Direction
+    dir: DirectionText
     cnts: Sequence[int]
     cmd_ids: Sequence[int]
     names: Sequence[str | None]
@@ -280,7 +280,7 @@ class _JsonStrings(dict[str | None, str]):
 #: RecordingWriter.write_frame's fields: conn, transport, dir, cnt, cmd_id, name, data,
 #: len, offset, first_ns, complete_ns, raw, problems.
 _OneFrame = tuple[
-    int, str, Direction, int, int, str | None, str, int, int, int, int, bytes, list[str] | None
+    int, str, DirectionText, int, int, str | None, str, int, int, int, int, bytes, list[str] | None
 ]
 
 
@@ -320,7 +320,7 @@ class ProblemRecord:
     """Bytes that were not a frame, or a gap in a capture (topic ``/fairino/problems``)."""
 
     conn: int
-    dir: Direction
+    dir: DirectionText
     kind: str
     rule: str
     detail: str

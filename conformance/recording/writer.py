@@ -26,7 +26,7 @@ from .layout import (
     TOPIC_CONNECTIONS,
     TOPIC_PROBLEMS,
     TOPIC_S2C,
-    Direction,
+    DirectionText,
 )
 from .records import (
     _BATCH_JSON,
@@ -213,7 +213,7 @@ class RecordingWriter:
         self,
         conn: int,
         transport: str,
-        direction: Direction,
+        direction: DirectionText,
         cnt: int,
         cmd_id: int,
         name: str | None,
