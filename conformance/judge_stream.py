@@ -27,15 +27,21 @@ class CntSteps:
 
     def __init__(self, *, limit: int = 4096) -> None:
         self.limit = limit
-        self._last: OrderedDict[object, int] = OrderedDict()
+        self._last: OrderedDict[object, tuple[int, bytes]] = OrderedDict()
 
-    def previous(self, conn: object, cnt: int) -> int | None:
-        """Remember ``cnt`` as ``conn``'s latest request CNT; return the one before."""
+    def previous(self, conn: object, cnt: int, raw: bytes = b"") -> int | None:
+        """Remember ``cnt`` (and the frame's ``raw`` bytes, for a reproduction) as ``conn``'s
+        latest request; return the CNT before."""
         last = self._last.pop(conn, None)
-        self._last[conn] = cnt
+        self._last[conn] = (cnt, raw)
         if len(self._last) > self.limit:
             self._last.popitem(last=False)
-        return last
+        return None if last is None else last[0]
+
+    def last_raw(self, conn: object) -> bytes:
+        """The bytes of ``conn``'s latest request, as given to :meth:`previous` (else empty)."""
+        last = self._last.get(conn)
+        return b"" if last is None else last[1]
 
     def forget(self, conn: object) -> None:
         self._last.pop(conn, None)

@@ -111,7 +111,9 @@ class ClientValidator:
                     self._lumped_example = cid
                 self._cnt.previous(peer, event.cnt)
                 return
-            last = self._cnt.previous(peer, event.cnt)
+            before = self._cnt.last_raw(peer)
+            raw = event.raw or event.encode()
+            last = self._cnt.previous(peer, event.cnt, raw)
             full = self.judge.request(event, transport=transport, previous_cnt=last)
             if self.on_verdict is not None:
                 self.on_verdict(peer, event, full)
@@ -126,7 +128,6 @@ class ClientValidator:
                 name = v.command.name
             name = name or "?"
             self._names.setdefault(cid, name)
-            raw = event.raw or event.encode()
             if v.outcome is Outcome.PASS:
                 self._passes[cid] = self._passes.get(cid, 0) + 1
             elif v.outcome is Outcome.DIALECT and v.dialect is not None:
@@ -147,11 +148,15 @@ class ClientValidator:
             if step is not None and step.dialect is not None:
                 entry = self._dialects.setdefault(
                     (cid, f"{step.dialect}-cnt"),
-                    [0, raw, step.source, step.message, transport, name],
+                    [0, before + raw, step.source, step.message, transport, name],
                 )
                 entry[0] += 1
             elif step is not None:
-                self._add(cid, name, "cnt", step.outcome, step.message, raw, transport, step.source)
+                # The finding needs the frame before it: both go into the reproduction.
+                self._add(
+                    cid, name, "cnt", step.outcome, step.message, raw, transport, step.source,
+                    before=before,
+                )  # fmt: skip
 
     def connection_closed(self, peer: str, drop: Dropped | None = None) -> None:
         """A connection ended (``EmulatorServer``'s ``on_close``): forget the peer's state.
@@ -193,7 +198,11 @@ class ClientValidator:
         raw: bytes,
         transport: str = "tcp",
         source: str = "",
+        *,
+        before: bytes = b"",
     ) -> None:
+        """A case for one frame; ``before``: the frame before it on its connection, where the
+        finding depends on it (a CNT step), shown and reproduced with it."""
         cases = self._cases.setdefault(cid, [])
         self._names.setdefault(cid, name)
         if len(cases) >= _PER_COMMAND:
@@ -209,19 +218,20 @@ class ClientValidator:
                 group=f"client-{group}",
                 outcome=outcome,
                 detail=detail,
-                frames=(f">> {transport.upper()} {show(raw)}",),
-                reproduce=self._reproduce(raw) if raw else "",
+                frames=tuple(f">> {transport.upper()} {show(r)}" for r in (before, raw) if r),
+                reproduce=self._reproduce(before + raw, transport) if raw else "",
                 source=source,
             )
         )
 
-    def _reproduce(self, raw: bytes) -> str:
-        """A shell line giving the same verdict offline: the frame through ``decode``."""
+    def _reproduce(self, raw: bytes, transport: str = "tcp") -> str:
+        """A shell line giving the same verdict offline: the frame(s) through ``decode``."""
         ref = " --reference manual" if self.judge.reference is Reference.MANUAL else ""
         strict = " --strict" if self.strict else ""
+        udp = " --transport udp" if transport == "udp" else ""
         return (
             f"printf {shell_printf(raw[:_REPRO_MAX])} | "
-            f"fairino-conformance decode --dir c2s{ref}{strict}"
+            f"fairino-conformance decode --dir c2s{udp}{ref}{strict}"
         )
 
     def report(self) -> Report:
@@ -273,7 +283,7 @@ class ClientValidator:
                             detail=f"{count} frame(s): {message}",
                             count=count,
                             frames=(f">> {tr.upper()} {show(raw)}",),
-                            reproduce=self._reproduce(raw),
+                            reproduce=self._reproduce(raw, tr),
                             source=source,
                         )
                     )

@@ -2,7 +2,8 @@
 
 The suite judges each request it generates several times (its filter, the
 built-in emulator answering it, each reading of its reply); :class:`RequestMemo`
-does that work once.  The verdicts themselves are the judge's (conformance/judge.py).
+does that work once.  :func:`reply_classification` reads a reply's verdict as the cases do.  The verdicts
+themselves are the judge's (conformance/judge.py).
 """
 
 from __future__ import annotations
@@ -10,15 +11,22 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-from ..data import Call
+from ..data import Call, Violation
 from ..errors import Rule
 from ..frame import Frame, decode_all
 from ..judge import Judge
 from ..judge import Verdict as FrameVerdict
 from ..net.client import Exchange
-from ..verdict import Outcome
+from ..validate import ReplyVerdict
+from ..verdict import Outcome, Reference, fails
 
-__all__ = ["RequestMemo", "parsed_is_call", "request_frame", "transport_free"]
+__all__ = [
+    "RequestMemo",
+    "parsed_is_call",
+    "reply_classification",
+    "request_frame",
+    "transport_free",
+]
 
 
 class RequestMemo(Judge):
@@ -90,3 +98,16 @@ def transport_free(v: FrameVerdict, dialects: Sequence[object] = ()) -> bool:
 
 def parsed_is_call(x: object) -> bool:
     return isinstance(x, Call)
+
+
+def reply_classification(v: FrameVerdict, reference: Reference) -> ReplyVerdict:
+    """The judge's verdict on a reply as the cases read it: refused or not (form, code), and the
+    faults of its shape: the FAIL reply-shape findings, and a dialect reply form where the run's
+    reference fails it (``--reference manual``)."""
+    shape = tuple(
+        Violation(rule=Rule.REPLY_SHAPE, detail=f.message)
+        for f in v.findings
+        if (f.rule == Rule.REPLY_SHAPE.value and f.outcome is Outcome.FAIL)
+        or (f.outcome is Outcome.DIALECT and fails(f.outcome, reference))
+    )
+    return ReplyVerdict(refused=v.refused, form=v.form, code=v.code, violations=shape)

@@ -24,7 +24,6 @@ from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-from ..data import Violation
 from ..dialects import dialects_from
 from ..errors import ConformanceError, Rule
 from ..frame import Frame, Malformed, encode_frame
@@ -38,7 +37,7 @@ from ..validate import ReplyVerdict
 from ..verdict import Outcome, fails
 from .config import SuiteConfig
 from .evidence import describe_exchange, reproduction, shell_printf
-from .judging import RequestMemo, request_frame, transport_free
+from .judging import RequestMemo, reply_classification, request_frame, transport_free
 
 __all__ = [
     "Case",
@@ -515,14 +514,7 @@ class SuiteRunner:
         return frame
 
     def _classified(self, v: FrameVerdict) -> ReplyVerdict:
-        """A reply verdict as the cases read it: refused or not, and its shape's faults."""
-        shape = tuple(
-            Violation(rule=Rule.REPLY_SHAPE, detail=f.message)
-            for f in v.findings
-            if (f.rule == Rule.REPLY_SHAPE.value and f.outcome is Outcome.FAIL)
-            or (f.outcome is Outcome.DIALECT and fails(f.outcome, self.frame_judge.reference))
-        )
-        return ReplyVerdict(refused=v.refused, form=v.form, code=v.code, violations=shape)
+        return reply_classification(v, self.frame_judge.reference)
 
     def judge(self, ex: Exchange, variant: Variant | None) -> ReplyVerdict | None:
         """Raise CaseFailure for framing problems; else the reply's classification."""
