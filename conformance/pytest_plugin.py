@@ -216,7 +216,7 @@ class CaseItem(pytest.Item):
     def runtest(self) -> None:
         config = self.config.stash[_CONFIG_KEY]
         engine = _engine(self.config)
-        result = engine.run_case(self.case)
+        result = engine.step(self.case).result  # the engine's CaseFinished, as ``run`` gets it
         # The controller (xdist) or this process rebuilds the report from these.
         self.user_properties.append((_RESULT_PROP, json.dumps(_result_json(result))))
         if engine.runner.stopped is not None:

@@ -193,6 +193,14 @@ class Engine:
             )
         return result
 
+    def step(self, case: Case, *, index: int = 1, total: int = 1) -> CaseFinished:
+        """Run one case (or, once the run has stopped, list it as not run): the event both
+        front-ends consume, ``run`` in :meth:`events` and the pytest plugin per test item."""
+        result = self.not_run(case) if self.runner.stopped is not None else self.run_case(case)
+        return CaseFinished(
+            index=index, total=total, case=case, result=result, elapsed=time.monotonic() - self._t0
+        )
+
     def not_run(self, case: Case) -> CaseResult:
         return self.runner.not_run(case)
 
@@ -216,17 +224,7 @@ class Engine:
         self._t0 = t0
         try:
             for i, case in enumerate(cases, 1):
-                if self.runner.stopped is not None:
-                    result = self.not_run(case)
-                else:
-                    result = self.run_case(case)
-                yield CaseFinished(
-                    index=i,
-                    total=len(cases),
-                    case=case,
-                    result=result,
-                    elapsed=time.monotonic() - t0,
-                )
+                yield self.step(case, index=i, total=len(cases))
         except KeyboardInterrupt:
             yield self.interrupt(cases)
             return
