@@ -69,7 +69,9 @@ def test_the_cnt_finding_and_its_reproduction_agree(
         if "cnt" in str(c["id"]) and (c["outcome"] == outcome) and c.get("reproduce")
     ]
     assert str(case["source"]).startswith(source)
-    assert len(case["frames"]) >= 1 and "CNT" in str(case["detail"])
+    shown = case["frames"]
+    assert isinstance(shown, list) and "".join(shown).count("/f/b") == 2, shown  # both frames
+    assert "CNT" in str(case["detail"])
     got = reproduce(str(case["reproduce"]))
     # decode gives the second frame the same outcome and source, and the same CNT finding.
     assert (got["outcome"], got["source"]) == (outcome, case["source"]), got

@@ -32,9 +32,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import os
 import re
-import resource
 import signal
 import socket
 import subprocess
@@ -42,367 +40,31 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from conformance.frame import FrameDecoder, encode_frame  # noqa: E402
-from conformance.model import Controller  # noqa: E402
-from conformance.spec import Command, Variant, default_specs  # noqa: E402
+from conformance.frame import encode_frame  # noqa: E402
 
 LOOPBACK = "127.0.0.1"
 SERVER_NOFILE = 1024  # the issue's `ulimit -n 1024`
 RSS_LIMIT_MB = 300
 
 
-# --------------------------------------------------------------------------- helpers
-
-
-def kit(*args: str) -> list[str]:
-    return [sys.executable, "-m", "conformance", *args]
-
-
-def health_query() -> tuple[Command, Variant]:
-    """The lowest-ID argument-less query (the suite's own health check picks the same way)."""
-    specs = default_specs()
-    for c in sorted(specs, key=lambda c: c.cmd_id):
-        if c.safety.value != "query" or len(specs.by_id(c.cmd_id)) != 1:
-            continue
-        for v in c.variants:
-            if v.form == "call" and not v.params and v.returns.arity >= 1:
-                return c, v
-    raise SystemExit("the specs have no argument-less query")
-
-
-HEALTH_CMD, _ = health_query()
-HEALTH = encode_frame(1, HEALTH_CMD.cmd_id, f"{HEALTH_CMD.name}()")
-
-
-def ask_health(host: str, port: int, timeout: float = 10.0) -> str:
-    """'ok <ms>' when a fresh connection gets the health query answered, else what went wrong."""
-    t0 = time.monotonic()
-    try:
-        with socket.create_connection((host, port), timeout=timeout) as s:
-            s.sendall(HEALTH)
-            dec = FrameDecoder()
-            while True:
-                data = s.recv(65536)
-                if not data:
-                    return "closed without answering"
-                for e in dec.feed(data):
-                    if getattr(e, "cmd_id", None) == HEALTH_CMD.cmd_id:
-                        return f"ok {1000 * (time.monotonic() - t0):.0f} ms"
-    except OSError as e:
-        return f"FAILED ({e.strerror or e})"
-
-
-def vm_kb(pid: int, key: str) -> int:
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith(key + ":"):
-                return int(line.split()[1])
-    except OSError:
-        pass
-    return 0
-
-
-def children(pid: int) -> list[int]:
-    try:
-        text = Path(f"/proc/{pid}/task/{pid}/children").read_text()
-    except OSError:
-        return []
-    return [int(x) for x in text.split()]
-
-
-def limit_nofile() -> None:
-    resource.setrlimit(resource.RLIMIT_NOFILE, (SERVER_NOFILE, SERVER_NOFILE))
-
-
-def raise_own_nofile() -> int:
-    _soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
-    with contextlib.suppress(ValueError, OSError):
-        resource.setrlimit(resource.RLIMIT_NOFILE, (hard, hard))
-    return resource.getrlimit(resource.RLIMIT_NOFILE)[0]
-
-
-def free_port() -> int:
-    s = socket.socket()
-    s.bind((LOOPBACK, 0))
-    port = int(s.getsockname()[1])
-    s.close()
-    return port
-
-
-def table(title: str, header: tuple[str, ...], rows: Sequence[tuple[str, ...]]) -> None:
-    widths = [
-        max(len(h), *(len(r[i]) for r in rows)) if rows else len(h) for i, h in enumerate(header)
-    ]
-    print(f"\n## {title}\n")
-    print("| " + " | ".join(h.ljust(w) for h, w in zip(header, widths, strict=True)) + " |")
-    print("|" + "|".join("-" * (w + 2) for w in widths) + "|")
-    for r in rows:
-        print("| " + " | ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)) + " |")
-    sys.stdout.flush()
-
-
-# --------------------------------------------------------------------------- hostile targets
-
-
-class HostileTarget:
-    """A TCP server on 127.0.0.1 with one hostile behaviour per connection (threads)."""
-
-    def __init__(self, behaviour: Callable[[HostileTarget, socket.socket], None]) -> None:
-        self.behaviour = behaviour
-        self.sock = socket.socket()
-        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        self.sock.bind((LOOPBACK, 0))
-        self.sock.listen(128)
-        self.stop = threading.Event()
-        self.frames_in = 0
-        self.bytes_out = 0
-        self.lock = threading.Lock()
-        self.conns: set[socket.socket] = set()
-        self.controller = Controller()
-        threading.Thread(target=self._accept, daemon=True).start()
-
-    @property
-    def port(self) -> int:
-        return int(self.sock.getsockname()[1])
-
-    def _accept(self) -> None:
-        while not self.stop.is_set():
-            try:
-                c, _ = self.sock.accept()
-            except OSError:
-                return
-            with self.lock:
-                self.conns.add(c)
-            threading.Thread(target=self._run, args=(c,), daemon=True).start()
-
-    def _run(self, c: socket.socket) -> None:
-        try:
-            self.behaviour(self, c)
-        except OSError:
-            pass
-        finally:
-            with self.lock:
-                self.conns.discard(c)
-            with contextlib.suppress(OSError):
-                c.close()
-
-    def requests(self, c: socket.socket) -> Iterator[tuple[bytes, int, int, str]]:
-        """Decoded request frames (raw, cnt, cmd_id, data) until the peer closes or we stop."""
-        dec = FrameDecoder()
-        c.settimeout(0.5)
-        while not self.stop.is_set():
-            try:
-                data = c.recv(65536)
-            except TimeoutError:
-                continue
-            if not data:
-                return
-            for e in dec.feed(data):
-                if hasattr(e, "cmd_id"):
-                    with self.lock:
-                        self.frames_in += 1
-                    yield e.raw, e.cnt, e.cmd_id, e.data  # type: ignore[union-attr]
-
-    def answer(self, raw: bytes) -> bytes:
-        with self.lock:
-            cc = self.controller.connection()
-            return b"".join(a.data for a in cc.receive(raw))
-
-    def send(self, c: socket.socket, data: bytes) -> None:
-        c.sendall(data)
-        with self.lock:
-            self.bytes_out += len(data)
-
-    def close(self) -> None:
-        self.stop.set()
-        with contextlib.suppress(OSError):
-            self.sock.close()
-        with self.lock:
-            conns = list(self.conns)
-        for c in conns:
-            with contextlib.suppress(OSError):
-                c.shutdown(socket.SHUT_RDWR)
-
-
-def t_silent(t: HostileTarget, c: socket.socket) -> None:
-    for _ in t.requests(c):
-        pass
-
-
-def t_closing(t: HostileTarget, c: socket.socket) -> None:
-    return
-
-
-def _stream(t: HostileTarget, c: socket.socket, chunk: bytes) -> None:
-    c.settimeout(5)
-    while not t.stop.is_set():
-        t.send(c, chunk)
-
-
-def t_endless_bytes(t: HostileTarget, c: socket.socket) -> None:
-    _stream(t, c, bytes(range(256)) * 256)
-
-
-def t_header_flood(t: HostileTarget, c: socket.socket) -> None:
-    _stream(t, c, b"/f/bIII1III2III3III" * 3000)
-
-
-def t_blobs(t: HostileTarget, c: socket.socket) -> None:
-    blob = b"x" * (50 * 1024 * 1024)
-    for _raw, cnt, cmd_id, _data in t.requests(c):
-        t.send(c, encode_frame(cnt, cmd_id, blob))
-
-
-def t_byte_at_a_time(t: HostileTarget, c: socket.socket) -> None:
-    for raw, *_ in t.requests(c):
-        for b in t.answer(raw):
-            if t.stop.wait(0.05):
-                return
-            t.send(c, bytes((b,)))
-
-
-def t_health_only(t: HostileTarget, c: socket.socket) -> None:
-    for raw, _cnt, cmd_id, _data in t.requests(c):
-        if cmd_id == HEALTH_CMD.cmd_id:
-            t.send(c, t.answer(raw))
-
-
-def make_dies_after(n: int) -> Callable[[HostileTarget, socket.socket], None]:
-    def behaviour(t: HostileTarget, c: socket.socket) -> None:
-        for raw, *_ in t.requests(c):
-            with t.lock:
-                dead = t.frames_in > n
-            if dead:
-                # The controller goes away: no more listening, every connection dropped.
-                threading.Thread(target=t.close, daemon=True).start()
-                return
-            t.send(c, t.answer(raw))
-
-    return behaviour
-
-
-@dataclass
-class RunResult:
-    name: str
-    wall: float
-    rss_mb: float
-    code: int
-    last: str
-    frames_in: int = 0
-
-
-def run_against(name: str, port: int, budget: float, *, target: HostileTarget | None) -> RunResult:
-    with tempfile.TemporaryDirectory() as tmp:
-        out = Path(tmp) / "out.txt"
-        with out.open("wb") as fh:
-            t0 = time.monotonic()
-            p = subprocess.Popen(
-                kit("run", "--target", f"{LOOPBACK}:{port}", "--budget", f"{budget:g}", "-q"),
-                stdout=fh,
-                stderr=subprocess.STDOUT,
-                stdin=subprocess.DEVNULL,
-                cwd=tmp,
-            )
-            # The harness' own limit: the budget, plus generous slack; past it the row says so.
-            hard = budget * 1.5 + 60
-            _, status, usage = os.wait4(p.pid, 0) if _wait_with_limit(p, hard) else (0, 0, None)
-            wall = time.monotonic() - t0
-        lines = [x for x in out.read_text(errors="replace").splitlines() if x.strip()]
-    if usage is None:
-        return RunResult(name, wall, 0.0, -9, f"KILLED after {hard:.0f} s (over budget)")
-    code = os.waitstatus_to_exitcode(status)
-    last = _reason(lines)
-    return RunResult(
-        name,
-        wall,
-        usage.ru_maxrss / 1024,
-        code,
-        last,
-        frames_in=target.frames_in if target else 0,
-    )
-
-
-def _wait_with_limit(p: subprocess.Popen[bytes], limit: float) -> bool:
-    """True when the process ended by itself within ``limit`` s (it is still to be reaped)."""
-    deadline = time.monotonic() + limit
-    while time.monotonic() < deadline:
-        try:
-            res = os.waitid(os.P_PID, p.pid, os.WEXITED | os.WNOHANG | os.WNOWAIT)
-        except ChildProcessError:
-            return True
-        if res is not None and res.si_pid:
-            return True
-        time.sleep(0.1)
-    p.kill()
-    p.wait()
-    return False
-
-
-def _reason(lines: list[str]) -> str:
-    """The line that says why the run ended (the early-stop line if any, else the last)."""
-    for pat in (
-        r"cases not run:",
-        r"unreachable|did not answer|died|budget|stopp",
-        r"FAIL|ERROR|error",
-    ):
-        for x in reversed(lines):
-            if re.search(pat, x):
-                return x.strip()[:140]
-    return lines[-1].strip()[:140] if lines else "(no output)"
-
-
-def part_targets(args: argparse.Namespace) -> bool:
-    behaviours: list[tuple[str, Callable[[HostileTarget, socket.socket], None] | None]] = [
-        ("refusing (nothing listening)", None),
-        ("silent", t_silent),
-        ("closes at once", t_closing),
-        ("endless bytes", t_endless_bytes),
-        ("header flood", t_header_flood),
-        ("50 MB blob per request", t_blobs),
-        ("correct, a byte every 50 ms", t_byte_at_a_time),
-        ("answers only the health query", t_health_only),
-        ("correct, dies after 300 frames", make_dies_after(300)),
-    ]
-    rows = []
-    ok_all = True
-    for name, beh in behaviours:
-        if args.only and not any(o in name for o in args.only):
-            continue
-        target = HostileTarget(beh) if beh is not None else None
-        port = target.port if target else free_port()
-        try:
-            r = run_against(name, port, args.budget, target=target)
-        finally:
-            if target:
-                target.close()
-        ok = r.code in (1, 2) and r.rss_mb < RSS_LIMIT_MB and r.wall <= args.budget + 60
-        ok_all &= ok
-        rows.append(
-            (
-                name,
-                f"{r.wall:.1f}",
-                f"{r.rss_mb:.0f}",
-                str(r.code),
-                str(r.frames_in) if target else "-",
-                "ok" if ok else "NOT OK",
-                r.last,
-            )
-        )
-        print(f"  {name}: {r.wall:.1f} s, {r.rss_mb:.0f} MB, exit {r.code}", file=sys.stderr)
-    table(
-        f"Hostile targets against `run` (full default suite, --budget {args.budget:g} s)",
-        ("target", "wall s", "peak RSS MB", "exit", "frames in", "verdict", "last line"),
-        rows,
-    )
-    return ok_all
-
+from tools._hostile_common import (  # noqa: E402
+    HEALTH,
+    ask_health,
+    children,
+    kit,
+    limit_nofile,
+    raise_own_nofile,
+    table,
+    vm_kb,
+)
+from tools._hostile_targets import part_targets  # noqa: E402
 
 # --------------------------------------------------------------------------- hostile clients
 
