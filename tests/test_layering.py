@@ -3,8 +3,8 @@
 The floors are the ones ``docs/ARCHITECTURE.md`` draws (a lower floor never
 imports a higher one); every import counts, at module level or inside a
 function.  A module or package this table does not place fails the test, so a
-new concept gets a floor when it lands.  Also: no module of the package over
-700 lines.
+new concept gets a floor when it lands.  Also: no module of the package or of tools/
+over 700 lines, the spec extractor aside.
 """
 
 from __future__ import annotations
@@ -147,8 +147,9 @@ def test_no_import_circles() -> None:
 def test_no_module_over_700_lines() -> None:
     long = {
         str(p.relative_to(ROOT)): n
-        for p in PKG.rglob("*.py")
+        for p in [*PKG.rglob("*.py"), *(ROOT / "tools").glob("*.py")]
         if (n := len(p.read_text(encoding="utf-8").splitlines())) > 700
+        and p.name != "extract_specs.py"  # one pipeline over the manual, a stage a function
     }
     assert not long, long
 
