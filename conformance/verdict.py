@@ -103,7 +103,7 @@ def fails(
     if outcome is Outcome.FAIL or outcome is Outcome.ERROR:
         return True
     if outcome is Outcome.DIALECT:
-        return Reference(reference) is Reference.MANUAL
+        return reference == Reference.MANUAL  # a str enum: "manual" compares equal too
     if outcome is Outcome.NON_STRICT:
         return strict
     return False
