@@ -13,8 +13,10 @@ replies, matched by command ID and DATA, each echoing the request's CNT and
 CMD_ID (the recorded request's CNT is irrelevant); a request the recording never saw is
 answered by the ``unmatched`` policy: ``error`` (DATA ``0``, the manual's
 refusal), ``nearest`` (the recorded reply of the same command ID whose request
-DATA is most alike) or ``drop`` (no reply).  The socket side is
-:class:`~conformance.net.proxy.ReplayServer`.
+DATA is most alike) or ``drop`` (no reply).  A book may hold one transport's
+sessions only (``transport``): ``replay --serve --udp-port`` answers UDP from the
+UDP sessions and TCP from the TCP ones.  The socket side is
+:class:`~conformance.net.replay_server.ReplayServer`.
 """
 
 from __future__ import annotations
@@ -78,19 +80,27 @@ class ReplyBook:
     lookups; ``nearest`` compares against at most ``_NEAREST_CANDIDATES`` distinct
     recorded requests of the command ID (chosen once, when the book is built) and
     remembers its last ``_NEAREST_CACHE`` choices, so a long recording answers as fast
-    as a short one.
+    as a short one.  ``transport`` (``tcp``, ``udp``): only the exchanges recorded on
+    it; None (the default): every exchange.
     """
 
-    def __init__(self, rec: Recording, *, unmatched: str = "error") -> None:
+    def __init__(
+        self, rec: Recording, *, unmatched: str = "error", transport: str | None = None
+    ) -> None:
         if unmatched not in ("error", "nearest", "drop"):
             raise ValueError(f"unmatched policy must be error, nearest or drop, not {unmatched!r}")
+        if transport not in (None, "tcp", "udp"):
+            raise ValueError(f"transport must be tcp, udp or None, not {transport!r}")
         self.unmatched = unmatched
+        self.transport = transport
         self._book: dict[tuple[int, str], deque[FrameRecord]] = {}
         self._last: dict[tuple[int, str], FrameRecord] = {}
         self._by_id: dict[int, dict[str, FrameRecord]] = {}
         self._nearest: dict[tuple[int, str], FrameRecord] = {}
         for ex in rec.exchanges():
             if ex.request is None or ex.reply is None:
+                continue
+            if transport is not None and ex.request.transport != transport:
                 continue
             key = (ex.request.cmd_id, ex.request.data)
             self._book.setdefault(key, deque()).append(ex.reply)
