@@ -199,7 +199,8 @@ def _register_more(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
         default=None,
         metavar="PORT",
         help="--target: resend the recording's UDP sessions to this port of the target's host "
-        "(without it they are left out)",
+        "(without it they are left out); --serve: answer them on this UDP port of the --serve "
+        "host (0: the kernel chooses; TCP then answers from the TCP sessions only)",
     )
     rp.add_argument("--json", metavar="PATH", help="write the comparison as JSON (- for stdout)")
     rp.add_argument(
@@ -509,26 +510,37 @@ def _run_replay(args: argparse.Namespace) -> int:
         address = parse_address(args.serve, default_port=8080, listen=True, option="--serve")
     else:
         address = parse_address(args.target, default_port=8080, option="--target")
+    low = 0 if args.serve is not None else 1  # serve: port 0, the kernel chooses
+    if args.udp_port is not None and not low <= args.udp_port < 65536:
+        raise UsageError(f"--udp-port must be {low}..65535, not {args.udp_port}")
     rec = read_capture(args.capture)
     specs = specs_of(args)
     ignore = Ignore.parse(args.ignore, specs=specs)
     if args.serve is not None:
-        book = ReplyBook(rec, unmatched=args.unmatched)
-        stop = threading.Event()
-        old = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
+        udp = args.udp_port is not None
+        udp_listen = Address(address.host, args.udp_port) if udp else None
+        # With UDP, each transport answers from its own sessions, in their recorded order.
+        transports = ("tcp", "udp") if udp else (None,)
+        books = [ReplyBook(rec, unmatched=args.unmatched, transport=t) for t in transports]
         try:
             server = ReplayServer(
-                book,
+                books[0],
                 listen=address,
+                udp_listen=udp_listen,
+                udp_book=books[-1],
                 max_connections=args.max_connections,
                 max_frame_size=args.max_frame_size,
-            ).start()
+            )
         except OSError as e:
             raise UsageError(f"cannot listen on {address}: {e.strerror or e}") from None
         except ValueError as e:
             raise UsageError(str(e)) from None
+        stop = threading.Event()
+        old = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
+        server.start()
+        on_udp = f", UDP {format_address(*server.udp_address)}" if server.udp_address else ""
         print(
-            f"replay: serving {args.capture} on {format_address(*server.address)} "
+            f"replay: serving {args.capture} on {format_address(*server.address)}{on_udp} "
             f"(unmatched: {args.unmatched})",
             file=sys.stderr,
             flush=True,
@@ -547,15 +559,17 @@ def _run_replay(args: argparse.Namespace) -> int:
             dropped = f"; {server.refused} clients refused (--max-connections)" + (
                 f", connections closed: {reasons}" if reasons else ""
             )
+        if udp:
+            errs = sum(server.udp_dropped.values())
+            dropped += f"; UDP: {server.datagrams} datagrams from {server.udp_peers} peers"
+            dropped += f", {errs} dropped by an error" if errs else ""
         print(
-            f"replay: {book.answered} requests answered from the recording, "
-            f"{book.unmatched_count} unmatched{dropped}",
+            f"replay: {sum(b.answered for b in books)} requests answered from the recording, "
+            f"{sum(b.unmatched_count for b in books)} unmatched{dropped}",
             file=sys.stderr,
         )
         return 0
     host, port = address
-    if args.udp_port is not None and not 0 < args.udp_port < 65536:
-        raise UsageError(f"--udp-port must be 1..65535, not {args.udp_port}")
     safety = safety_policy(args, host)
     result = replay_to_target(
         rec,
