@@ -17,8 +17,11 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from .dialects import default_dialects
+from .errors import AddressError
 from .judge import Direction, Judge, Verdict, display_name
+from .judge_sequence import Sequences
 from .judge_stream import CntSteps
+from .net.addresses import parse_address
 from .recording import C2S, FrameRecord, ProblemRecord, Recording
 from .report import CaseResult, Report
 from .spec import SpecSet
@@ -28,6 +31,7 @@ __all__ = [
     "SIDES",
     "CommandFigures",
     "check_recording",
+    "client_host",
     "failing_ids_by_side",
     "percentile",
     "summarize",
@@ -37,6 +41,19 @@ __all__ = [
 FRAMING_ID = 0
 #: ``check --side``: whose frames are judged (the case group says whose each case is).
 SIDES = ("both", "client", "controller")
+
+
+def client_host(peer: str) -> str | None:
+    """The host of a client address (``HOST:PORT``, ``udp:HOST:PORT``), else ``None``.
+
+    The sequence rules (:mod:`conformance.judge_sequence`) keep one state per client host
+    in ``check`` and ``serve`` alike: one client program reaches a controller over several
+    connections and transports from one address (``specs/fairino-field/sequences/``).
+    """
+    try:
+        return parse_address(peer.removeprefix("udp:")).host
+    except AddressError:
+        return None
 
 
 def failing_ids_by_side(report: Report) -> dict[str, int]:
@@ -290,6 +307,11 @@ def check_recording(
     requests are still read on the controller side, to know what each reply answers.
     A recording of this kit's own suite is judged with ``controller``: the suite
     sends invalid requests on purpose.
+
+    The requests also go, in the order they arrived, through the sequence rules
+    (:class:`~conformance.judge_sequence.Sequences`, one state per client host, a
+    connection whose client is not recorded on its own): each finding is a client case
+    ``sequence-<rule>`` of its command ID, as ``serve`` reports it.
     """
     if side not in SIDES:
         raise ValueError(f"side must be one of {', '.join(SIDES)}, not {side!r}")
@@ -297,6 +319,12 @@ def check_recording(
         judge = Judge(specs, default_dialects(), strict=strict)
     cases = _Cases()
     steps = CntSteps()
+    sequences = Sequences()
+    clients: dict[int, object] = {
+        c.conn: client_host(c.client) or ("conn", c.conn)
+        for c in rec.connections
+        if c.event == "open"
+    }
 
     def add(f: FrameRecord, group: str, v: Verdict, frames: Sequence[bytes]) -> None:
         if side != "both" and group != side:
@@ -324,6 +352,20 @@ def check_recording(
                 previous_cnt=steps.previous(req.conn, req.cnt),
             )
             add(req, "client", rv, (req.raw,))
+            client = clients.get(req.conn) or ("conn", req.conn)
+            for sf in sequences.observe(client, rv, req.raw, transport=req.transport):
+                if side != "controller":
+                    before = (sf.before,) if sf.before else ()
+                    cases.add(
+                        sf.cmd_id,
+                        sf.name,
+                        "client",
+                        sf.outcome,
+                        sf.key,
+                        sf.message,
+                        (*before, req.raw),
+                        sf.source,
+                    )
             if rep is None:
                 if side == "client":
                     continue

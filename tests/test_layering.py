@@ -40,6 +40,7 @@ FLOORS: dict[str, int] = {
     # 3: the one judge (frames; judge_stream: CNT steps and pairing over a stream).
     "judge": 3,
     "judge_stream": 3,
+    "judge_sequence": 3,
     # 4: what the judge's verdicts and the codec's events feed: the emulator's model,
     # recordings, captures, the results model.
     "model": 4,

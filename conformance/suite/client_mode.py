@@ -4,7 +4,10 @@
 event a connection produced.  Framing problems, unknown command IDs, argument
 count / type / range violations and LEN mismatches are FAIL; a CNT that does not
 count up by one per frame is NON-STRICT (the manual calls CNT a frame counter but
-does not say a client must increment it).
+does not say a client must increment it).  A request in the wrong place of its
+client's sequence (``ServoJ`` before ``ServoMoveStart``) is a case of its own, group
+``client-sequence``, as the sequence rules say (:mod:`conformance.judge_sequence`,
+fed with every request's verdict, one state per client host as ``check`` keeps it).
 
 Bounded whatever a client sends: per-peer state is dropped when its connection
 closes (and at most ``_MAX_PEERS`` peers are remembered, for UDP), at most
@@ -23,10 +26,12 @@ from dataclasses import replace
 from typing import Any
 
 from ..actions import Action, Dropped
+from ..capture_check import client_host
 from ..dialects import default_dialects
 from ..errors import Rule
 from ..frame import Frame, Malformed
 from ..judge import Direction, Judge, Reference, Verdict
+from ..judge_sequence import SequenceFinding, Sequences
 from ..judge_stream import CntSteps
 from ..report import CaseResult, Report
 from ..spec import SpecSet
@@ -77,6 +82,9 @@ class ClientValidator:
         self._names: dict[int, str] = {}
         self._transports: dict[str, int] = {}
         self._cnt = CntSteps(limit=_MAX_PEERS)
+        self._seq = Sequences(limit=_MAX_PEERS)
+        #: Sequence findings per (command ID, rule): count, (transport, frame) shown, the first.
+        self._sequences: dict[tuple[int, str], list[Any]] = {}
         self._known = frozenset(specs.cmd_ids) | frozenset(self.judge.dialects.cmd_ids)
         self._unknown_ids: set[int] = set()
         self._lumped = 0  # frames with an unknown command ID not tracked one by one
@@ -117,6 +125,9 @@ class ClientValidator:
             full = self.judge.request(event, transport=transport, previous_cnt=last)
             if self.on_verdict is not None:
                 self.on_verdict(peer, event, full)
+            client = client_host(peer) or peer
+            for sf in self._seq.observe(client, full, raw, transport=transport):
+                self._sequence(sf, raw, transport)
             # The CNT step is its own case (group ``cnt``); the rest is read as the frame's.
             step = next((f for f in full.findings if f.rule == "cnt_step"), None)
             v = full
@@ -158,8 +169,18 @@ class ClientValidator:
                     before=before,
                 )  # fmt: skip
 
+    def _sequence(self, sf: SequenceFinding, raw: bytes, transport: str) -> None:
+        """Count a sequence finding under its command ID and rule; the first one is shown."""
+        entry = self._sequences.get((sf.cmd_id, sf.rule.id))
+        if entry is None:
+            before = [(sf.before_transport or transport, sf.before)] if sf.before else []
+            entry = self._sequences[(sf.cmd_id, sf.rule.id)] = [0, [*before, (transport, raw)], sf]
+            self._names.setdefault(sf.cmd_id, sf.name)
+        entry[0] += 1
+
     def connection_closed(self, peer: str, drop: Dropped | None = None) -> None:
-        """A connection ended (``EmulatorServer``'s ``on_close``): forget the peer's state.
+        """A connection ended (``EmulatorServer``'s ``on_close``): forget the peer's CNT (its
+        host's sequence state stays: a controller's mode outlives a connection).
 
         ``drop``: why the emulator closed it, when it did.  A kit failure on the
         peer's bytes is an ERROR of the command ID whose frame caused it (a
@@ -234,6 +255,42 @@ class ClientValidator:
             f"fairino-conformance decode --dir c2s{udp}{ref}{strict}"
         )
 
+    def _sequence_case(
+        self, count: int, shown: list[tuple[str, bytes]], sf: SequenceFinding
+    ) -> CaseResult:
+        """A sequence rule's case: its frames (the one that set the state, the first that broke
+        it) and a reproduction: the same frames sent to a ``serve`` from one host."""
+        transport = shown[-1][0]
+        sends: list[tuple[str, bytes]] = []  # one send per run of frames on one transport
+        for tr, raw in shown:
+            if sends and sends[-1][0] == tr:
+                sends[-1] = (tr, sends[-1][1] + raw)
+            else:
+                sends.append((tr, raw))
+        return CaseResult(
+            id=f"{sf.cmd_id}/{sf.name}/client/{transport}/{sf.key}",
+            cmd_id=sf.cmd_id,
+            name=sf.name,
+            group="client-sequence",
+            outcome=sf.outcome,
+            detail=f"{count} frame(s): {sf.message}",
+            count=count,
+            frames=tuple(f">> {tr.upper()} {show(raw)}" for tr, raw in shown),
+            reproduce=" && ".join(self._send_line(raw, tr) for tr, raw in sends),
+            source=sf.source,
+        )
+
+    def _send_line(self, raw: bytes, transport: str) -> str:
+        """A shell line sending ``raw`` to this ``serve`` (its TCP address when known)."""
+        where = "HOST:PORT" if transport == "tcp" else "HOST:UDP_PORT"
+        if transport == "tcp" and self.target.startswith("client of "):
+            where = self.target.removeprefix("client of ")
+        udp = " --udp" if transport == "udp" else ""
+        return (
+            f"printf {shell_printf(raw[:_REPRO_MAX])} | "
+            f"fairino-conformance send --file -{udp} {where}"
+        )
+
     def report(self) -> Report:
         with self._lock:
             r = Report(
@@ -253,7 +310,8 @@ class ClientValidator:
             if self._drops:
                 r.meta["connections_dropped"] = dict(sorted(self._drops.items()))
             dialect_ids = {cid for cid, _ in self._dialects}
-            for cid in sorted(set(self._cases) | set(self._passes) | dialect_ids):
+            sequence_ids = {cid for cid, _ in self._sequences}
+            for cid in sorted(set(self._cases) | set(self._passes) | dialect_ids | sequence_ids):
                 name = self._names.get(cid, "?")
                 n = self._passes.get(cid, 0)
                 if n:
@@ -287,6 +345,9 @@ class ClientValidator:
                             source=source,
                         )
                     )
+                for (sid, _), (count, shown, sf) in sorted(self._sequences.items()):
+                    if sid == cid:
+                        r.add(self._sequence_case(count, shown, sf))
                 for c in self._cases.get(cid, ()):
                     r.add(c)
             if self._lumped:
