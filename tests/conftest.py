@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import tempfile
 from collections.abc import Callable, Iterator
 
 import pytest
@@ -10,6 +12,12 @@ from conformance.net.client import Client, Exchange
 from conformance.net.emulator import EmulatorServer
 
 pytest_plugins = ("pytester",)
+
+# Validated spec documents are remembered by content hash (conformance/spec.py): the
+# tests and the CLI processes they start share one cache outside the user's home.
+os.environ.setdefault(
+    "FAIRINO_CACHE_DIR", os.path.join(tempfile.gettempdir(), f"fairino-conformance-{os.getuid()}")
+)
 
 
 @pytest.fixture

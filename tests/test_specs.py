@@ -351,3 +351,36 @@ def test_enums_have_no_gaps_the_manual_does_not_print() -> None:
     assert [g for g in gaps if g[:2] not in printed_gaps] == []
     (jog,) = specs.lookup("ExtAxisStartJog")
     assert [x for x, _ in jog.variants[0].params[0].enum or ()] == list(range(11))
+
+
+def test_a_validated_document_is_remembered_and_a_changed_one_is_checked_again(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The schema check is skipped only for the very document (and schema) that passed."""
+    import copy
+    import json
+
+    from conformance import spec as spec_mod
+    from conformance.errors import SpecError
+
+    monkeypatch.setenv("FAIRINO_CACHE_DIR", str(tmp_path / "cache"))
+    calls: list[str] = []
+    real = spec_mod._validate
+
+    def counting(doc, schema, *, path):  # type: ignore[no-untyped-def]
+        calls.append(path)
+        real(doc, schema, path=path)
+
+    monkeypatch.setattr(spec_mod, "_validate", counting)
+    path = spec_mod.schema_path().parent / "fairino-3.8.2" / "error_codes.json"
+    doc = json.loads(path.read_text(encoding="utf-8"))
+    spec_mod.validate_document(doc, path="a")
+    spec_mod.validate_document(doc, path="b")
+    assert calls == ["a"]  # the second time: remembered
+    broken = copy.deepcopy(doc)
+    broken["kind"] = "error_codes"
+    broken["codes"] = "not a list"
+    for _ in range(2):  # a bad document is never remembered
+        with pytest.raises(SpecError):
+            spec_mod.validate_document(broken, path="bad")
+    assert calls == ["a", "bad", "bad"]
