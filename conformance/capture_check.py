@@ -12,6 +12,7 @@ a report of readable size.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -43,12 +44,14 @@ FRAMING_ID = 0
 SIDES = ("both", "client", "controller")
 
 
+@functools.lru_cache(maxsize=4096)
 def client_host(peer: str) -> str | None:
     """The host of a client address (``HOST:PORT``, ``udp:HOST:PORT``), else ``None``.
 
     The sequence rules (:mod:`conformance.judge_sequence`) keep one state per client host
     in ``check`` and ``serve`` alike: one client program reaches a controller over several
     connections and transports from one address (``specs/fairino-field/sequences/``).
+    Cached: ``serve`` asks for every frame, and a peer's host does not change.
     """
     try:
         return parse_address(peer.removeprefix("udp:")).host

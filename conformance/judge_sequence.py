@@ -323,6 +323,8 @@ class Sequences:
         self.limit = limit
         #: client -> {mode index: (state, frame that ended it, its transport)}
         self._clients: OrderedDict[Hashable, dict[int, tuple[int, bytes, str]]] = OrderedDict()
+        #: Each (mode, when, name)'s message, built once (a servo stream repeats it).
+        self._messages: dict[tuple[int, str, str], str] = {}
 
     def __len__(self) -> int:
         return len(self._clients)
@@ -362,12 +364,15 @@ class Sequences:
                 when = "after_end" if where == _ENDED else "before_start"
                 rule = mode.rules.get(when)
                 if rule is not None:
+                    message = self._messages.get((i, when, name))
+                    if message is None:
+                        message = self._messages[(i, when, name)] = _message(name, mode, when, rule)
                     found.append(
                         SequenceFinding(
                             rule=rule,
                             cmd_id=cid,
                             name=name,
-                            message=_message(name, mode, when, rule),
+                            message=message,
                             before=before,
                             before_transport=before_transport or None,
                         )

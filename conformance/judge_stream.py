@@ -3,7 +3,8 @@
 :class:`CntSteps` gives :meth:`~conformance.judge.Judge.request` the CNT before a
 request on its connection, for every front-end that reads a stream (``serve``,
 ``check``, ``info``, ``decode``); :class:`Pairing` pairs replies with their
-requests in one stream (``decode --dir auto``).
+requests in one stream (``decode --dir auto``).  The rules over a client's sequence
+of requests (``ServoJ`` before ``ServoMoveStart``) are :mod:`conformance.judge_sequence`'s.
 """
 
 from __future__ import annotations
