@@ -4,7 +4,9 @@ The manual (``specs/fairino-3.8.2/``) is one reference; the field is the other.
 ``specs/fairino-field/*.json`` records, one file per source family, every form
 public client software was seen to send or parse that the v3.8.2 manual does not
 print: commands the manual lacks, other argument lists, keyword spellings, calls
-dispatched by the name in DATA rather than by the ID, reply forms.  Each entry
+dispatched by the name in DATA rather than by the ID, reply forms, framing habits
+(bytes the decoder reports under a rule, such as the rest of a fixed-size send
+buffer).  Each entry
 cites its evidence (repository, file, commit, line) and is schema-validated
 (``specs/spec.schema.json``, ``dialectsFile``).  This module loads them; the
 judge (:mod:`conformance.judge`) decides what a frame that follows one means.
@@ -21,7 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .errors import SpecError, UsageError
+from .errors import Rule, SpecError, UsageError
 from .spec import (
     Command,
     Param,
@@ -51,7 +53,7 @@ __all__ = [
 
 #: Directory of the dialect files, beside the manual's spec set.
 FIELD_DIR = "fairino-field"
-DIALECT_KINDS = ("command", "arguments", "keyword", "dispatch", "reply")
+DIALECT_KINDS = ("command", "arguments", "keyword", "dispatch", "reply", "framing")
 
 #: A reply of a single error code: what a command the manual lacks answers
 #: unless its entry says otherwise (chapter 9's codes; ``1`` is success).
@@ -97,6 +99,8 @@ class Dialect:
     note: str
     #: The CNT the source sends this frame with every time (not a counter), if it does.
     fixed_cnt: int | None = None
+    #: kind ``framing``: the decoder's rule for the bytes (an :class:`~.errors.Rule` value).
+    rule: str | None = None
 
     @property
     def variant(self) -> Variant:
@@ -104,7 +108,7 @@ class Dialect:
         return Variant(
             table=self.id,
             caption=f"field dialect {self.id}",
-            form="raw" if self.form == "text" else self.form,
+            form="raw" if self.form in ("text", "bytes") else self.form,
             params=self.params or (),
             returns=self.returns or ERRCODE_RETURNS,
             examples=(),
@@ -122,6 +126,8 @@ class Dialect:
                 return f"{self.name} reply text"
             n = self.returns.arity
             return f"{self.name} reply of {n} value{'s' if n != 1 else ''}"
+        if self.kind == "framing":
+            return f"{self.name} frames with {self.rule}"
         if self.form == "keyword":
             return f"keyword {self.name}"
         if self.form == "text":
@@ -131,7 +137,7 @@ class Dialect:
 
     def matches_request(self, data: str, call_name: str | None, keyword: bool) -> bool:
         """Whether DATA has this entry's shape (arguments are checked by the judge)."""
-        if self.kind == "reply":
+        if self.kind in ("reply", "framing"):
             return False
         if self.form == "keyword":
             return data == self.name
@@ -147,19 +153,26 @@ class DialectSet:
     entries: tuple[Dialect, ...] = ()
     sources: Mapping[str, str] = field(default_factory=dict)
     _by_id: Mapping[int, tuple[Dialect, ...]] = field(default_factory=dict, repr=False)
+    _by_rule: Mapping[str, tuple[Dialect, ...]] = field(default_factory=dict, repr=False)
 
     @classmethod
     def build(cls, entries: Iterable[Dialect], sources: Mapping[str, str]) -> DialectSet:
         es = tuple(entries)
         by_id: dict[int, list[Dialect]] = {}
+        by_rule: dict[str, list[Dialect]] = {}
         seen: set[str] = set()
         for e in es:
             if e.id in seen:
                 raise SpecError(f"duplicate dialect id {e.id!r}")
             seen.add(e.id)
             by_id.setdefault(e.cmd_id, []).append(e)
+            if e.rule is not None:
+                by_rule.setdefault(e.rule, []).append(e)
         return cls(
-            entries=es, sources=dict(sources), _by_id={k: tuple(v) for k, v in by_id.items()}
+            entries=es,
+            sources=dict(sources),
+            _by_id={k: tuple(v) for k, v in by_id.items()},
+            _by_rule={k: tuple(v) for k, v in by_rule.items()},
         )
 
     def __iter__(self) -> Iterator[Dialect]:
@@ -170,6 +183,10 @@ class DialectSet:
 
     def by_id(self, cmd_id: int) -> tuple[Dialect, ...]:
         return self._by_id.get(cmd_id, ())
+
+    def by_rule(self, rule: str) -> tuple[Dialect, ...]:
+        """The ``framing`` entries recorded for a decoder rule (``buffer_tail``), file order."""
+        return self._by_rule.get(rule, ())
 
     def get(self, entry_id: str) -> Dialect | None:
         return next((e for e in self.entries if e.id == entry_id), None)
@@ -211,6 +228,16 @@ def _entry(raw: Mapping[str, Any], source: str, path: str) -> Dialect:
             raise SpecError(f"dialect {eid}: bad pattern: {e}", path=path) from None
     if form != "call" and raw.get("params"):
         raise SpecError(f"dialect {eid}: only form 'call' takes 'params'", path=path)
+    rule = raw.get("rule")
+    if (raw["kind"] == "framing") != (form == "bytes") or (raw["kind"] == "framing") != (
+        rule is not None
+    ):
+        raise SpecError(
+            f"dialect {eid}: kind 'framing' goes with form 'bytes' and a 'rule', and only it",
+            path=path,
+        )
+    if rule is not None and rule not in {r.value for r in Rule}:
+        raise SpecError(f"dialect {eid}: {rule!r} is no rule of the decoder", path=path)
     if raw["kind"] != "reply" and form == "call" and "params" not in raw:
         raise SpecError(f"dialect {eid}: form 'call' needs 'params'", path=path)
     returns = None
@@ -241,12 +268,15 @@ def _entry(raw: Mapping[str, Any], source: str, path: str) -> Dialect:
         example=raw["example"],
         evidence=tuple(_evidence(e) for e in raw["evidence"]),
         fixed_cnt=raw.get("fixed_cnt"),
+        rule=rule,
         note=raw["note"],
     )
 
 
 def _check_against_manual(d: Dialect, specs: SpecSet, path: str) -> None:
     """An entry's kind must agree with the manual: no dialect restates the manual."""
+    if d.kind == "framing":
+        return  # bytes, not a command: the decoder's rule says what they are
     on_id = specs.by_id(d.cmd_id)
     named = [c for c in on_id if c.name.lower() == d.name.lower()]
     if d.kind == "command" and named and any(v.form != "raw" for c in named for v in c.variants):

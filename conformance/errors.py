@@ -58,6 +58,12 @@ class Rule(str, enum.Enum):
     PREAMBLE = "preamble"
     #: NUL padding after a frame (clients sending fixed 4096-byte buffers).
     NUL_PADDING = "nul_padding"
+    #: The rest of a fixed-size send buffer after a frame, sent with it: a NUL (the
+    #: frame text's terminator), then NULs and the stale ends of earlier, longer
+    #: frames written into the same buffer (frcobot_ros sends
+    #: ``sizeof(sendCmdLine)`` bytes after each ``sprintf``).  Pure NULs stay
+    #: NUL_PADDING.
+    BUFFER_TAIL = "buffer_tail"
     #: Stream ended inside a frame.
     TRUNCATED = "truncated"
     #: DATA is not UTF-8.

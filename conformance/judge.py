@@ -78,6 +78,7 @@ _FRAMING_RULES = frozenset(
         Rule.GARBAGE,
         Rule.PREAMBLE,
         Rule.NUL_PADDING,
+        Rule.BUFFER_TAIL,
         Rule.TRUNCATED,
         Rule.BAD_ENCODING,
     }
@@ -604,20 +605,40 @@ class Judge:
     # ------------------------------------------------------------------ other events
 
     def malformed(self, event: Malformed, direction: Direction) -> Verdict:
-        """Bytes that are not a frame: NON-STRICT for padding and preambles, else FAIL."""
+        """Bytes that are not a frame, read as :meth:`problem` reads them."""
         return self.problem(event.rule.value, event.detail, direction)
 
     def problem(self, rule: str, detail: str, direction: Direction) -> Verdict:
-        """A recorded stretch of non-frame bytes (``rule`` as the decoder named it)."""
-        lenient = rule in {r.value for r in LENIENT}
-        f = Finding(
-            rule=rule,
-            outcome=Outcome.NON_STRICT if lenient else Outcome.FAIL,
-            source=_FRAMING_SOURCE,
-            message=f"{rule}: {detail}",
-        )
+        """A recorded stretch of non-frame bytes (``rule`` as the decoder named it): DIALECT
+        where a ``framing`` entry records a source sending such bytes (``buffer_tail``)."""
+        habits = self.dialects.by_rule(rule)
+        d = habits[0] if habits else None
+        if d is not None:
+            also = f" (also {', '.join(x.id for x in habits[1:])})" if habits[1:] else ""
+            what = f"follows field dialect {d.id}{also}: {d.describe()} ({d.kind})"
+            f = Finding(
+                rule=rule,
+                outcome=Outcome.DIALECT,
+                source=d.cite(),
+                message=f"{rule}: {detail}: {what}; the manual: only a frame follows a frame (1.1)",
+                dialect=d.id,
+            )
+        else:
+            lenient = rule in {r.value for r in LENIENT}
+            f = Finding(
+                rule=rule,
+                outcome=Outcome.NON_STRICT if lenient else Outcome.FAIL,
+                source=_FRAMING_SOURCE,
+                message=f"{rule}: {detail}",
+            )
         return Verdict(
-            direction=direction, cmd_id=None, name=None, outcome=f.outcome, findings=(f,)
+            direction=direction,
+            cmd_id=None,
+            name=None,
+            outcome=f.outcome,
+            findings=(f,),
+            dialect=d,
+            basis=d.cite() if d is not None else "",
         )
 
     def looks_like_reply(self, frame: Frame) -> bool:

@@ -23,8 +23,9 @@ Two readings:
 * **strict**: every deviation turns the frame into a :class:`Malformed` event.
 
 Skipped bytes (garbage, a bare text preamble at the start of the stream, NUL
-padding after a frame, a broken header) always come out as :class:`Malformed`
-events with the rule that explains them, in both readings.
+padding after a frame, the rest of a fixed-size send buffer after a frame, a
+broken header) always come out as :class:`Malformed` events with the rule that
+explains them, in both readings.
 """
 
 from __future__ import annotations
@@ -75,6 +76,29 @@ _MAX_HEADER = len(HEAD) + 3 * (_MAX_SEP + 1) + 3 * (_MAX_DIGITS + 1)
 # everything else (garbage, a deviation, an incomplete frame) to that path.
 _FAST_HEAD_RE = re.compile(rb"/f/bIII(\d{1,5})III(\d{1,10})III(\d{1,10})III")
 _FAST_END = b"III/b/f"
+# The text pieces of a run after a frame (everything between NULs).
+_TEXT_RE = re.compile(rb"[^\x00]+")
+
+
+def _stale_text(chunk: bytes) -> int | None:
+    """How many bytes of ``chunk`` are stale frame text, if it is the rest of a fixed-size
+    send buffer written with ``sprintf`` and sent whole; else None.
+
+    Such a rest starts with the NUL that ends the new frame's text; after it, each
+    position holds what the latest frame that reached it left there, so the bytes
+    are NULs and pieces of earlier, longer frames, each piece running to the end of
+    its frame: it ends with ``/b/f``, or is the end of one (``f``, ``/f``, ``b/f``).
+    One pass over the bytes.
+    """
+    if chunk[:1] != b"\x00":
+        return None
+    stale = 0
+    for m in _TEXT_RE.finditer(chunk):
+        piece = m.group()
+        if not (piece.endswith(TAIL) or TAIL.endswith(piece)):
+            return None
+        stale += len(piece)
+    return stale
 
 
 _HEADER_FIELDS = (
@@ -129,6 +153,7 @@ class FrameDecoder:
         self._run_rule: Rule | None = None  # reason fixed by a broken header, else by content
         self._run_detail = ""
         self._frames_seen = 0
+        self._frame_end = -1  # stream offset just past the latest frame
         self._events: list[Event] = []
         self._closed = False
         # A frame waiting for more bytes, so that each feed costs what it adds and
@@ -217,6 +242,7 @@ class FrameDecoder:
         )
         self._base += size
         self._frames_seen += 1
+        self._frame_end = self._base
         return run
 
     def resolve_pending(self) -> list[Event]:
@@ -283,11 +309,20 @@ class FrameDecoder:
 
     def _emit_run(self, chunk: bytes, offset: int) -> None:
         rule, detail = self._run_rule, self._run_detail
+        stale = None
+        if rule is None and offset == self._frame_end:
+            stale = _stale_text(chunk)
         if rule is None:
             if chunk.count(0) == len(chunk):
                 rule, detail = Rule.NUL_PADDING, f"{len(chunk)} NUL bytes"
                 if self._frames_seen:
                     detail += " after a frame"
+            elif stale is not None:
+                rule = Rule.BUFFER_TAIL
+                detail = (
+                    f"{len(chunk)} bytes after a frame: the rest of a fixed-size send buffer "
+                    f"({stale} bytes of earlier frames' text, {len(chunk) - stale} NUL bytes)"
+                )
             elif offset == 0 and _PRINTABLE_RE.fullmatch(chunk):
                 rule = Rule.PREAMBLE
                 detail = f"{len(chunk)} bytes of text before the first frame"
@@ -346,6 +381,7 @@ class FrameDecoder:
                     pos = end
                 if pos != fast_from:
                     self._frames_seen += 1  # only "any frame yet?" matters
+                    self._frame_end = base + pos
                 if pos >= n:
                     break
                 head = buf.find(HEAD, pos)
@@ -593,6 +629,7 @@ class FrameDecoder:
         raw = bytes(buf[i:end])
         self._flush_run()
         self._frames_seen += 1
+        self._frame_end = self._base + end
         uniq = tuple(dict.fromkeys(problems)) if problems else ()
         if self.strict and uniq:
             self._events.append(
