@@ -6,7 +6,8 @@ public client software was seen to send or parse that the v3.8.2 manual does not
 print: commands the manual lacks, other argument lists, keyword spellings, calls
 dispatched by the name in DATA rather than by the ID, reply forms, framing habits
 (bytes the decoder reports under a rule, such as the rest of a fixed-size send
-buffer).  Each entry
+buffer).  An entry marked ``defect`` records a known bug of its source instead: the
+judge names it as the cause of a FAIL, and nothing accepts the form.  Each entry
 cites its evidence (repository, file, commit, line) and is schema-validated
 (``specs/spec.schema.json``, ``dialectsFile``).  This module loads them; the
 judge (:mod:`conformance.judge`) decides what a frame that follows one means.
@@ -18,7 +19,7 @@ import functools
 import json
 import os
 import re
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -47,6 +48,7 @@ __all__ = [
     "Evidence",
     "default_dialects",
     "dialects_from",
+    "known_bug",
     "load_dialects",
     "manual_command",
 ]
@@ -101,6 +103,9 @@ class Dialect:
     fixed_cnt: int | None = None
     #: kind ``framing``: the decoder's rule for the bytes (an :class:`~.errors.Rule` value).
     rule: str | None = None
+    #: A known bug of the source, not a form a controller is known to accept: the
+    #: judge names the entry as the cause, and the frame stays FAIL.
+    defect: bool = False
 
     @property
     def variant(self) -> Variant:
@@ -184,9 +189,16 @@ class DialectSet:
     def by_id(self, cmd_id: int) -> tuple[Dialect, ...]:
         return self._by_id.get(cmd_id, ())
 
-    def by_rule(self, rule: str) -> tuple[Dialect, ...]:
-        """The ``framing`` entries recorded for a decoder rule (``buffer_tail``), file order."""
-        return self._by_rule.get(rule, ())
+    def by_rule(
+        self, rule: str, *, defect: bool = False, transport: str | None = None
+    ) -> tuple[Dialect, ...]:
+        """The ``framing`` entries recorded for a decoder rule (``buffer_tail``), file order:
+        the habits, or with ``defect`` the known bugs; with ``transport``, those seen on it."""
+        return tuple(
+            d
+            for d in self._by_rule.get(rule, ())
+            if d.defect is defect and (transport is None or transport in d.transport)
+        )
 
     def get(self, entry_id: str) -> Dialect | None:
         return next((e for e in self.entries if e.id == entry_id), None)
@@ -269,6 +281,7 @@ def _entry(raw: Mapping[str, Any], source: str, path: str) -> Dialect:
         evidence=tuple(_evidence(e) for e in raw["evidence"]),
         fixed_cnt=raw.get("fixed_cnt"),
         rule=rule,
+        defect=raw.get("defect", False),
         note=raw["note"],
     )
 
@@ -372,6 +385,14 @@ def default_dialects() -> DialectSet:
     from .spec import default_specs
 
     return load_dialects(specs=default_specs())
+
+
+def known_bug(message: str, bugs: Sequence[Dialect]) -> str:
+    """A FAIL's ``message`` naming the known bugs (entries marked ``defect``) that explain it."""
+    if not bugs:
+        return message
+    also = f", also {', '.join(b.id for b in bugs[1:])}" if len(bugs) > 1 else ""
+    return f"{message} (known client bug {bugs[0].cite()}{also})"
 
 
 def manual_command(d: Dialect, specs: SpecSet) -> Command | None:

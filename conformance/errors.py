@@ -45,6 +45,11 @@ class Rule(str, enum.Enum):
     BAD_CNT = "bad_cnt"
     #: 1.1: CMD_ID is a decimal command number.
     BAD_CMD_ID = "bad_cmd_id"
+    #: 1.1: CMD_ID is a decimal command number; this frame's CMD_ID field is empty
+    #: (``/f/bIII7IIIIII0IIIIII/b/f``: frcobot_ros2 builds it for a name missing
+    #: from its map).  The frame is read with CMD_ID 0, what a C reading of the
+    #: empty field gives, and this rule in its problems.
+    EMPTY_CMD_ID = "empty_cmd_id"
     #: 1.1: LEN is a decimal length.
     BAD_LEN = "bad_len"
     #: 1.1: LEN is the length of DATA (we read it as UTF-8 bytes).

@@ -32,7 +32,7 @@ from dataclasses import dataclass, replace
 
 from .data import Call, Keyword, Parsed, Violation, check_args, parse_data
 from .data import _shown as shown
-from .dialects import ERRCODE_RETURNS, Dialect, DialectSet, manual_command
+from .dialects import ERRCODE_RETURNS, Dialect, DialectSet, known_bug, manual_command
 from .errors import ProtocolError, Rule
 from .frame import Frame, Malformed
 from .knowledge import unsolicited_ids
@@ -79,6 +79,7 @@ _FRAMING_RULES = frozenset(
         Rule.PREAMBLE,
         Rule.NUL_PADDING,
         Rule.BUFFER_TAIL,
+        Rule.EMPTY_CMD_ID,
         Rule.TRUNCATED,
         Rule.BAD_ENCODING,
     }
@@ -93,7 +94,8 @@ class Finding:
     outcome: Outcome
     source: str
     message: str
-    #: The field dialect entry a DIALECT finding follows (its ID), if any.
+    #: The field dialect entry a DIALECT finding follows (its ID), or the known bug (an
+    #: entry marked ``defect``) a FAIL finding names, if any.
     dialect: str | None = None
 
 
@@ -214,6 +216,8 @@ def _manual_source(command: Command | None, variant: Variant | None) -> str:
 def _framing_message(frame: Frame, rule: Rule) -> str:
     if rule is Rule.LEN_MISMATCH:
         return f"LEN {frame.length}, DATA is {frame.data_len} bytes"
+    if rule is Rule.EMPTY_CMD_ID:
+        return "empty CMD_ID and DATA" if not frame.data else "empty CMD_ID"
     return f"framing: {rule.value}"
 
 
@@ -262,15 +266,17 @@ class Judge:
         return replace(v, findings=findings, outcome=_outcome(findings))
 
     def _request(self, frame: Frame, transport: str | None) -> Verdict:
-        framing = [
-            Finding(
-                rule=r.value,
-                outcome=Outcome.NON_STRICT if r in LENIENT else Outcome.FAIL,
-                source=_FRAMING_SOURCE,
-                message=_framing_message(frame, r),
+        framing = [self._framing_finding(frame, r, transport) for r in frame.problems]
+        if Rule.EMPTY_CMD_ID in frame.problems:
+            # CMD_ID 0 is the decoder's reading of an empty field: DATA names no command.
+            return Verdict(
+                direction=Direction.REQUEST,
+                cmd_id=frame.cmd_id,
+                name=None,
+                outcome=_outcome(framing),
+                findings=tuple(framing),
+                basis=_FRAMING_SOURCE,
             )
-            for r in frame.problems
-        ]
         check = validate_request(frame, self.specs, strict=self.strict)
         content = [v for v in check.violations if v.rule not in _FRAMING_RULES]
         hard = [v for v in content if v.rule not in LENIENT]
@@ -335,6 +341,17 @@ class Judge:
             for v in content
         ]
         return _requested(frame, check, findings, basis=source)
+
+    def _framing_finding(self, frame: Frame, rule: Rule, transport: str | None) -> Finding:
+        """A framing problem the decoder tolerated in ``frame``, naming a known bug."""
+        bugs = self.dialects.by_rule(rule.value, defect=True, transport=transport)
+        return Finding(
+            rule=rule.value,
+            outcome=Outcome.NON_STRICT if rule in LENIENT else Outcome.FAIL,
+            source=_FRAMING_SOURCE,
+            message=known_bug(_framing_message(frame, rule), bugs),
+            dialect=bugs[0].id if bugs else None,
+        )
 
     @staticmethod
     def _manual_summary(command: Command | None, viols: list[Violation]) -> str:
@@ -625,11 +642,13 @@ class Judge:
             )
         else:
             lenient = rule in {r.value for r in LENIENT}
+            bugs = () if lenient else self.dialects.by_rule(rule, defect=True)
             f = Finding(
                 rule=rule,
                 outcome=Outcome.NON_STRICT if lenient else Outcome.FAIL,
                 source=_FRAMING_SOURCE,
-                message=f"{rule}: {detail}",
+                message=known_bug(f"{rule}: {detail}", bugs),
+                dialect=bugs[0].id if bugs else None,
             )
         return Verdict(
             direction=direction,
@@ -649,6 +668,8 @@ class Judge:
         as requests.
         """
         data = frame.data
+        if Rule.EMPTY_CMD_ID in frame.problems and not data:
+            return False  # frcobot_ros2's request for a name missing from its map
         try:
             parsed = parse_data(data)
         except ProtocolError:

@@ -320,6 +320,9 @@ class Controller:
         if framing:
             return self._reply(frame, refusal_data(returns, ERR_EXEC_FAILED))
         if v.command is None:
+            # An unknown command, or a frame with its CMD_ID field empty (frcobot_ros2's
+            # StopLine, drivers-035), which the decoder reads as CMD_ID 0: refused with
+            # CNT and that 0 echoed, so that a client waiting in recv() gets its answer.
             return self._reply(frame, refusal_data(None, ERR_EXEC_FAILED))
         if self._fault(FaultKind.ACCEPT_OUT_OF_RANGE, frame.cmd_id) is not None:
             rules = [r for r in rules if r is not Rule.ARG_RANGE]

@@ -4,6 +4,10 @@
   shorter than one before it leaves that frame's tail behind the NUL
   (``…III/b/f\\x00000)III/b/f\\x00…``).  Read as ``buffer_tail``, DIALECT naming
   drivers-034 (was ``garbage``, FAIL, every servo cycle).
+* frcobot_ros2's StopLine/StopTool send ``/f/bIII7IIIIII0IIIIII/b/f`` (CMD_ID and
+  DATA empty).  Read as one frame, CMD_ID 0 with the problem ``empty_cmd_id``,
+  FAIL naming the known bug drivers-035, and answered by the emulator (was a
+  ``bad_separator`` and ``garbage``, and no reply: the driver blocked in recv).
 """
 
 from __future__ import annotations
@@ -15,9 +19,12 @@ import pytest
 
 from conformance.dialects import DialectSet, default_dialects, load_dialects
 from conformance.errors import Rule, SpecError
-from conformance.frame import Frame, FrameDecoder, Malformed, decode_all
+from conformance.frame import Frame, FrameDecoder, Malformed, decode_all, encode_frame
 from conformance.judge import Direction, Judge, Reference
+from conformance.judge_stream import Pairing
 from conformance.model import Controller
+from conformance.net.client import Client
+from conformance.net.emulator import EmulatorServer
 from conformance.report import Outcome
 from conformance.spec import default_specs
 
@@ -25,6 +32,8 @@ SPECS = default_specs()
 DIALECTS = default_dialects()
 FIELD = Judge(SPECS, DIALECTS)
 BARE = Judge(SPECS)  # no dialects: nothing recorded, nothing named
+#: Reply timeout: the test waits on the reply itself, not on the clock.
+WAIT = 20.0
 
 # --------------------------------------------------------------------------- helpers
 
@@ -52,6 +61,7 @@ def sent_buffers(texts: list[bytes]) -> list[bytes]:
 LONG = servoj_text([-112.5, -95.25, -102.75, -97.5, -90.0, -170.0])
 SHORT = servoj_text([2.5, -5.25, 2.75, -7.5, -9.0, 0.0])
 MIDDLE = servoj_text([-12.5, -95.25, 102.75, -97.5, -90.0, 0.0])
+EMPTY_ID = b"/f/bIII7IIIIII0IIIIII/b/f"
 
 
 def byte_at_a_time(raw: bytes) -> list[Frame | Malformed]:
@@ -152,17 +162,99 @@ def test_the_emulator_answers_each_servoj_and_not_the_tail() -> None:
     assert [(f.cnt, f.cmd_id, f.data) for f in got] == [(123, 376, "1")] * 3
 
 
+# --------------------------------------------------------------------------- the empty ID
+
+
+def test_an_empty_cmd_id_is_one_frame() -> None:
+    (f,) = decode_all(EMPTY_ID)
+    assert isinstance(f, Frame)
+    assert (f.cnt, f.cmd_id, f.data, f.length) == (7, 0, "", 0)
+    assert f.problems == (Rule.EMPTY_CMD_ID,)
+    assert f.raw == EMPTY_ID
+    # Not the old reading: no bad_separator, no garbage.
+    assert byte_at_a_time(EMPTY_ID) == [f]
+    # Between other frames, the frames around it are read as before.
+    around = decode_all(SHORT + EMPTY_ID + SHORT)
+    assert [type(e).__name__ for e in around] == ["Frame"] * 3
+    # The strict reading makes it one Malformed event, saying what it is.
+    (m,) = decode_all(EMPTY_ID, strict=True)
+    assert isinstance(m, Malformed) and m.rule is Rule.EMPTY_CMD_ID
+    assert "ID=empty" in m.detail
+
+
+def test_an_empty_cmd_id_with_data_is_read_by_len() -> None:
+    (f,) = decode_all(b"/f/bIII9IIIIII5IIIHelloIII/b/f")
+    assert isinstance(f, Frame) and (f.cmd_id, f.data, f.problems) == (
+        0,
+        "Hello",
+        (Rule.EMPTY_CMD_ID,),
+    )
+    assert FIELD.request(f).message.startswith("empty CMD_ID (known client bug drivers-035")
+
+
+def test_the_empty_id_frame_is_judged_for_what_it_is() -> None:
+    (f,) = decode_all(EMPTY_ID)
+    assert isinstance(f, Frame)
+    v = FIELD.request(f, transport="tcp")
+    assert v.outcome is Outcome.FAIL and v.rule == "empty_cmd_id"
+    assert [x.rule for x in v.findings] == ["empty_cmd_id"]  # no unknown command 0
+    assert v.message.startswith("empty CMD_ID and DATA (known client bug drivers-035 (")
+    assert "also drivers-036" in v.message
+    assert v.source == "manual 1.1" and v.dialect is None
+    assert BARE.request(f).message == "empty CMD_ID and DATA"
+    # The strict reading's event gets the same words.
+    (m,) = decode_all(EMPTY_ID, strict=True)
+    assert isinstance(m, Malformed)
+    mv = FIELD.malformed(m, Direction.REQUEST)
+    assert mv.outcome is Outcome.FAIL and "known client bug drivers-035" in mv.message
+
+
+def test_the_emulator_refuses_the_empty_id_frame() -> None:
+    (reply,) = replies(Controller(SPECS), EMPTY_ID)
+    assert (reply.cnt, reply.cmd_id, reply.problems) == (7, 0, ())
+    (req,) = decode_all(EMPTY_ID)
+    assert isinstance(req, Frame)
+    rv = FIELD.reply(reply, req, transport="tcp")
+    assert rv.refused and rv.outcome is Outcome.PASS, rv.message
+    # decode --dir auto pairs them: the request is a request, the reply its reply.
+    pairing = Pairing(FIELD)
+    assert pairing.judge_frame(req).direction is Direction.REQUEST
+    assert pairing.judge_frame(reply).direction is Direction.REPLY
+
+
+def test_a_driver_sending_it_gets_a_reply() -> None:
+    """The driver waits in recv() after sending: the emulator's reply releases it."""
+    with EmulatorServer() as emu:
+        c = Client(*emu.address, transport="tcp", timeout=WAIT)
+        try:
+            c.send_raw(EMPTY_ID)
+            ex = c.await_reply(7, 0, request=EMPTY_ID, timeout=WAIT)
+            assert ex.reply is not None and ex.reply.data == "robot errcode:14"
+            # The connection goes on: the next call is answered as usual.
+            c.send_raw(encode_frame(8, 204, "SetDO(1,1,0,0)"))
+            nxt = c.await_reply(8, 204, timeout=WAIT)
+            assert nxt.reply is not None and nxt.reply.data == "1"
+        finally:
+            c.close()
+
+
 # --------------------------------------------------------------------------- the data
 
 
 def test_the_entries_cite_their_evidence() -> None:
     tail = DIALECTS.get("drivers-034")
     assert tail is not None and tail.kind == "framing" and tail.rule == "buffer_tail"
+    assert not tail.defect
     e = tail.evidence[0]
     assert (e.repo, e.line, e.commit[:10]) == ("FAIR-INNOVATION/frcobot_ros", 91, "04b24d4a17")
     # Its example is a frame and the tail, as the driver sends it (padding cut).
     events = decode_all(tail.example.encode())
     assert [e.rule for e in events if isinstance(e, Malformed)] == [Rule.BUFFER_TAIL]
+    for eid, name in (("drivers-035", "StopLine"), ("drivers-036", "StopTool")):
+        d = DIALECTS.get(eid)
+        assert d is not None and d.defect and d.rule == "empty_cmd_id" and d.name == name
+        (f,) = decode_all(d.example.encode())
+        assert isinstance(f, Frame) and f.problems == (Rule.EMPTY_CMD_ID,)
     assert DIALECTS.by_rule("buffer_tail") == (tail,)
 
 

@@ -223,8 +223,8 @@ def test_every_shipped_entry_example_follows_its_entry() -> None:
     ds = default_dialects()
     assert len(ds) >= 40
     for d in ds:
-        if d.kind in ("reply", "framing"):
-            continue  # framing habits: tests/test_field_forms.py
+        if d.kind in ("reply", "framing") or d.defect:
+            continue  # framing habits and known bugs: tests/test_field_forms.py
         f = frame(d.example.encode())
         assert f.cmd_id == d.cmd_id, d.id
         v = FIELD.request(f, transport=sorted(d.transport)[0])

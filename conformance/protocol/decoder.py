@@ -25,7 +25,9 @@ Two readings:
 Skipped bytes (garbage, a bare text preamble at the start of the stream, NUL
 padding after a frame, the rest of a fixed-size send buffer after a frame, a
 broken header) always come out as :class:`Malformed` events with the rule that
-explains them, in both readings.
+explains them, in both readings.  A frame whose CMD_ID field is empty
+(``/f/bIII7IIIIII0IIIIII/b/f``) is read as CMD_ID 0 with the problem
+``empty_cmd_id``.
 """
 
 from __future__ import annotations
@@ -76,6 +78,13 @@ _MAX_HEADER = len(HEAD) + 3 * (_MAX_SEP + 1) + 3 * (_MAX_DIGITS + 1)
 # everything else (garbage, a deviation, an incomplete frame) to that path.
 _FAST_HEAD_RE = re.compile(rb"/f/bIII(\d{1,5})III(\d{1,10})III(\d{1,10})III")
 _FAST_END = b"III/b/f"
+# 1.1 with the CMD_ID field empty (``/f/bIII7IIIIII0IIIIII/b/f``: frcobot_ros2's frame
+# for a name missing from its map).  Tried only where the header reading broke, at
+# the head only: it reads at most a header's bytes.
+_EMPTY_ID_RE = re.compile(rb"/f/bIII(\d{1,%d})IIIIII(\d{1,%d})(?!\d)" % (_MAX_DIGITS, _MAX_DIGITS))
+#: The CMD_ID a frame with an empty CMD_ID field is read as: what C's ``atoi`` makes
+#: of the empty field (the frame's problems say it was empty).
+EMPTY_CMD_ID_VALUE = 0
 # The text pieces of a run after a frame (everything between NULs).
 _TEXT_RE = re.compile(rb"[^\x00]+")
 
@@ -427,6 +436,11 @@ class FrameDecoder:
             or len(groups[3]) > _MAX_DIGITS
             or len(groups[5]) > _MAX_DIGITS
         ):
+            empty = None if at_end else _EMPTY_ID_RE.match(buf, i)
+            if empty is not None:
+                # The header above reads up to LEN's digits here too, so that it waited
+                # for them alike; a non-digit follows them.
+                return self._empty_id_header(i, empty)
             return self._bad_header(i, groups, hdr_end, at_end and final)
         seps = (groups[0], groups[2], groups[4])
         problems: list[Rule] = []
@@ -445,6 +459,12 @@ class FrameDecoder:
             problems.append(Rule.BAD_CNT)
         # Everything above is final: a non-digit follows LEN.
         return _Pending(self._base + i, hdr_end - i, cnt, cmd_id, length, tuple(problems))
+
+    def _empty_id_header(self, i: int, m: re.Match[bytes]) -> _Pending:
+        """A header whose CMD_ID field is empty: CMD_ID 0 and the problem ``empty_cmd_id``."""
+        cnt, length = int(m.group(1)), int(m.group(2))
+        problems = (Rule.EMPTY_CMD_ID,) if cnt <= CNT_MAX else (Rule.EMPTY_CMD_ID, Rule.BAD_CNT)
+        return _Pending(self._base + i, m.end() - i, cnt, EMPTY_CMD_ID_VALUE, length, problems)
 
     def _frame_at(self, i: int, *, final: bool, quiet: bool) -> int | None:
         """Decode the frame whose head is at ``i``; return where parsing goes on, or None to wait."""
@@ -632,11 +652,12 @@ class FrameDecoder:
         self._frame_end = self._base + end
         uniq = tuple(dict.fromkeys(problems)) if problems else ()
         if self.strict and uniq:
+            what = "empty" if Rule.EMPTY_CMD_ID in uniq else cmd_id
             self._events.append(
                 Malformed(
                     raw=raw,
                     rule=uniq[0],
-                    detail=f"frame CNT={cnt} ID={cmd_id}: " + ", ".join(r.value for r in uniq),
+                    detail=f"frame CNT={cnt} ID={what}: " + ", ".join(r.value for r in uniq),
                     offset=self._base + i,
                 )
             )
