@@ -284,6 +284,9 @@ class Judge:
         # A spelling (``Stop``) is NON-STRICT by itself, DIALECT where a source records it.
         spelled = any(v.rule is Rule.NAME_CASE for v in content)
         matches = self._match_request(frame, check.parsed, transport) if hard or spelled else []
+        # Entries marked ``defect`` are known bugs: named in the FAIL, never followed.
+        bugs = tuple(d for d, _ in matches if d.defect)
+        matches = [(d, v) for d, v in matches if not d.defect]
         if not hard:
             # Only lenient departures: NON-STRICT under either reference, but a spelling a
             # source is recorded to send (``Stop`` on 102) is that source's DIALECT.
@@ -336,7 +339,8 @@ class Judge:
                 rule=v.rule.value,
                 outcome=Outcome.NON_STRICT if v.rule in LENIENT else Outcome.FAIL,
                 source=source if v.rule is not Rule.UNKNOWN_COMMAND else "manual",
-                message=v.detail,
+                message=v.detail if v.rule in LENIENT else known_bug(v.detail, bugs),
+                dialect=bugs[0].id if bugs and v.rule not in LENIENT else None,
             )
             for v in content
         ]

@@ -8,6 +8,9 @@
   DATA empty).  Read as one frame, CMD_ID 0 with the problem ``empty_cmd_id``,
   FAIL naming the known bug drivers-035, and answered by the emulator (was a
   ``bad_separator`` and ``garbage``, and no reply: the driver blocked in recv).
+* whi_arm_interface's ``SetDO(1,1,1)``: three arguments where every manual and SDK
+  has four.  A known client bug (drivers-037): still FAIL and refused with 3, the
+  message naming it.
 """
 
 from __future__ import annotations
@@ -62,6 +65,7 @@ LONG = servoj_text([-112.5, -95.25, -102.75, -97.5, -90.0, -170.0])
 SHORT = servoj_text([2.5, -5.25, 2.75, -7.5, -9.0, 0.0])
 MIDDLE = servoj_text([-12.5, -95.25, 102.75, -97.5, -90.0, 0.0])
 EMPTY_ID = b"/f/bIII7IIIIII0IIIIII/b/f"
+SETDO3 = b"/f/bIII6III204III12IIISetDO(1,1,1)III/b/f"
 
 
 def byte_at_a_time(raw: bytes) -> list[Frame | Malformed]:
@@ -238,6 +242,29 @@ def test_a_driver_sending_it_gets_a_reply() -> None:
             c.close()
 
 
+# --------------------------------------------------------------------------- SetDO(1,1,1)
+
+
+def test_a_three_argument_setdo_is_a_known_client_bug() -> None:
+    f = decode_all(SETDO3)[0]
+    assert isinstance(f, Frame)
+    v = FIELD.request(f, transport="tcp")
+    assert v.outcome is Outcome.FAIL and v.rule == "arg_count"
+    assert v.message.startswith("3 arguments, table 3-1-1 lists 4 (known client bug drivers-037")
+    assert "whi_arm_interface@1554b2d614 src/sdk/arm_hardware_fair.cpp:508" in v.message
+    assert v.dialect is None and v.findings[0].dialect == "drivers-037"
+    assert BARE.request(f).message == "3 arguments, table 3-1-1 lists 4"
+    # The manual's four arguments pass; the entry matches nothing else.
+    four = decode_all(encode_frame(6, 204, "SetDO(1,1,1,0)"))[0]
+    assert isinstance(four, Frame)
+    assert FIELD.request(four).outcome is Outcome.PASS
+
+
+def test_the_emulator_refuses_it_with_3() -> None:
+    (reply,) = replies(Controller(SPECS), SETDO3)
+    assert (reply.cnt, reply.cmd_id, reply.data) == (6, 204, "3")
+
+
 # --------------------------------------------------------------------------- the data
 
 
@@ -255,6 +282,9 @@ def test_the_entries_cite_their_evidence() -> None:
         assert d is not None and d.defect and d.rule == "empty_cmd_id" and d.name == name
         (f,) = decode_all(d.example.encode())
         assert isinstance(f, Frame) and f.problems == (Rule.EMPTY_CMD_ID,)
+    setdo = DIALECTS.get("drivers-037")
+    assert setdo is not None and setdo.defect and setdo.kind == "arguments"
+    assert [p.name for p in setdo.params or ()] == ["nIO", "bopen", "smooth"]
     assert DIALECTS.by_rule("buffer_tail") == (tail,)
 
 
