@@ -30,6 +30,8 @@ from .errors import ConformanceError
 from .spec import TYPE_BOUNDS, Command, Param, Returns, ReturnValue, SpecSet, Variant
 
 __all__ = [
+    "JOINT_ARRAYS",
+    "JOINT_NAMES",
     "MotionTargets",
     "StatePair",
     "default_args",
@@ -46,8 +48,10 @@ __all__ = [
 
 # Parameter names of a motion's targets: 2.1, table 2-1 (MoveJ: J1..J6, then x..rz);
 # 2.15, table 2-21 (MoveCart: the pose as one array ``pos[6]``).
-_JOINTS = ("j1", "j2", "j3", "j4", "j5", "j6")
+JOINT_NAMES = _JOINTS = ("j1", "j2", "j3", "j4", "j5", "j6")
 _CART = ("x", "y", "z", "rx", "ry", "rz")
+#: Names an array of six joint angles goes by (the C++ and C# SDKs' ServoJ: ``joint_pos``).
+JOINT_ARRAYS = frozenset({"joint_pos", "jointpos", "joints", "jpos"})
 
 
 # --------------------------------------------------------------------------- semantics
@@ -183,6 +187,8 @@ class MotionTargets:
     joints: tuple[int, ...] | None = None
     tcp: tuple[int, ...] | None = None
     tcp_array: int | None = None
+    #: An array of the six joint angles (the SDKs' ``joint_pos``), when no ``J1..J6`` run.
+    joints_array: int | None = None
 
 
 def _last_complete(params: Sequence[str], names: Sequence[str]) -> tuple[int, ...] | None:
@@ -216,11 +222,24 @@ def motion_targets(command: Command, variant: Variant) -> MotionTargets | None:
         ),
         None,
     )
-    if joints is None and tcp is None and arr is None:
+    jarr = next(
+        (
+            i
+            for i, p in enumerate(variant.params)
+            if p.is_array and p.length == 6 and p.name.lower() in JOINT_ARRAYS
+        ),
+        None,
+    )
+    if joints is None and tcp is None and arr is None and jarr is None:
         return None
     if any(variant.params[i].is_string for i in (*(joints or ()), *(tcp or ()))):
         return None
-    return MotionTargets(joints=joints, tcp=tcp, tcp_array=arr if tcp is None else None)
+    return MotionTargets(
+        joints=joints,
+        tcp=tcp,
+        tcp_array=arr if tcp is None else None,
+        joints_array=jarr if joints is None else None,
+    )
 
 
 # --------------------------------------------------------------------------- requests

@@ -15,6 +15,7 @@ convention 2, like h11's ``_state.py``).  Two parts:
 
 from __future__ import annotations
 
+import math
 import re
 from collections.abc import Iterable, Sequence
 
@@ -102,16 +103,47 @@ def _typed(returns: Returns, example: str | None) -> list[str]:
     return [_default(rv) for rv in flat]
 
 
-class RobotModel:
-    """The emulated controller's state: stored Set values, joint and TCP position."""
+class Refused(Exception):
+    """A motion the arm cannot make (a joint past its limit): the manual's error ``code``."""
 
-    def __init__(self, specs: SpecSet) -> None:
+    def __init__(self, code: int, why: str) -> None:
+        super().__init__(why)
+        self.code = code
+
+
+def _num(text: str | None) -> float | None:
+    try:
+        x = float(text) if text is not None else None
+    except ValueError:
+        return None
+    return x if x is not None and math.isfinite(x) else None
+
+
+def _fmt(x: float) -> str:
+    return f"{x:.3f}" if abs(x) >= 0.0005 else "0.000"
+
+
+class RobotModel:
+    """The emulated controller's state: stored Set values, joint and TCP position.
+
+    The joints and the TCP follow one arm's kinematics (``robot``, default FR5;
+    :mod:`conformance.kinematics`): a motion to joints puts the TCP at their forward
+    kinematics, a motion to a pose alone puts the joints at its inverse nearest the
+    current ones; a motion carrying both (MoveJ, MoveL) keeps both as commanded.  A
+    joint target past the arm's limits is refused with the manual's code (chapter 9:
+    32 "joint over limit", 29 for ServoJ).
+    """
+
+    def __init__(self, specs: SpecSet, robot: str | None = None) -> None:
+        from .kinematics import robot as robot_named
+
         self.specs = specs
+        self.robot = robot_named(robot)
         self.pairs = derive_pairs(specs)
         self._by_setter: dict[tuple[str, str], list[StatePair]] = {}
         for p in self.pairs:
             self._by_setter.setdefault((p.setter.key, p.setter_variant.table), []).append(p)
-        self._motion: dict[tuple[str, str], MotionTargets] = {}
+        self._motion: dict[tuple[str, str], MotionTargets | None] = {}
         for c in specs:
             for v in c.variants:
                 t = motion_targets(c, v)
@@ -120,6 +152,7 @@ class RobotModel:
         self.records: dict[tuple[str, str, tuple[str, ...]], dict[int, str]] = {}
         self.joints: list[str] = ["0.000"] * 6
         self.tcp: list[str] = ["0.000"] * 6
+        self._set_joints(self.robot.home)
         #: Reply values of each query variant's example in the manual, where one
         #: reads as that variant's reply: what a value nobody set looks like.
         self._examples: dict[tuple[str, str], list[str]] = {}
@@ -141,17 +174,58 @@ class RobotModel:
                 t = texts[si]
                 if t is not None:
                     rec[fi] = t
-        m = self._motion.get((command.key, variant.table))
+        m = self._targets(command, variant)
         if m is not None and len(args) == len(variant.params):
-            if m.joints is not None:
-                self.joints = [texts[i] or "0.000" for i in m.joints]
-            if m.tcp is not None:
-                self.tcp = [texts[i] or "0.000" for i in m.tcp]
-            elif m.tcp_array is not None:
-                arr = args[m.tcp_array]
-                if isinstance(arr, Array):
-                    self.tcp = [_arg_text(a) or "0.000" for a in arr.items]
+            self._move(command, m, args, texts)
         return self.reply_values(command, variant, args)
+
+    def _targets(self, command: Command, variant: Variant) -> MotionTargets | None:
+        """Where a variant's arguments put the arm: the manual's variants are known up front,
+        a field dialect's argument form (an 11-value ServoJ) is read the same way, by its
+        parameter names, the first time it comes."""
+        key = (command.key, variant.table)
+        if key not in self._motion:
+            self._motion[key] = motion_targets(command, variant)
+        return self._motion[key]
+
+    def _set_joints(self, joints: Sequence[float]) -> None:
+        self.joints = [_fmt(j) for j in joints]
+        self.tcp = [_fmt(v) for v in self.robot.forward(joints)]
+
+    def _move(
+        self, command: Command, m: MotionTargets, args: Sequence[Arg], texts: list[str | None]
+    ) -> None:
+        joints: list[str | None] | None = None
+        if m.joints is not None:
+            joints = [texts[i] for i in m.joints]
+        elif m.joints_array is not None and isinstance(args[m.joints_array], Array):
+            joints = [_arg_text(a) for a in args[m.joints_array].items]  # type: ignore[union-attr]
+        tcp: list[str | None] | None = None
+        if m.tcp is not None:
+            tcp = [texts[i] for i in m.tcp]
+        elif m.tcp_array is not None and isinstance(args[m.tcp_array], Array):
+            tcp = [_arg_text(a) for a in args[m.tcp_array].items]  # type: ignore[union-attr]
+        q = [_num(t) for t in joints] if joints is not None else None
+        if joints is not None and q is not None and all(x is not None for x in q):
+            qs = [x for x in q if x is not None]
+            bad = self.robot.violations(qs)
+            if bad:
+                servo = command.name.lower().startswith("servo")
+                raise Refused(29 if servo else 32, "; ".join(str(b) for b in bad))
+            if tcp is None:
+                self._set_joints(qs)
+                return
+            self.joints = [t or "0.000" for t in joints]
+        if tcp is not None:
+            self.tcp = [t or "0.000" for t in tcp]
+            pose = [_num(t) for t in tcp]
+            if joints is None and all(x is not None for x in pose):
+                r = self.robot.inverse(
+                    [x for x in pose if x is not None],
+                    ref=[_num(t) or 0.0 for t in self.joints],
+                )
+                if r.ok and r.joints is not None:
+                    self.joints = [_fmt(j) for j in r.joints]
 
     def dialect_values(self, d: Dialect) -> list[str]:
         """Reply values for a command the manual lacks (a field dialect): ``1`` if an error code."""
@@ -351,7 +425,10 @@ class Controller:
         args = v.parsed.args if isinstance(v.parsed, Call) else ()
         d = v.dialect
         if v.command is not None and v.variant is not None:
-            values = self.model.execute(v.command, v.variant, args)
+            try:
+                values = self.model.execute(v.command, v.variant, args)
+            except Refused as e:  # a joint past its limit: the manual's code, state unchanged
+                return self._reply(frame, refusal_data(v.variant.returns, e.code))
             return self._reply(frame, v.variant.returns.separator.join(values))
         assert d is not None  # a verdict without a command that was accepted: a dialect's
         returns = d.variant.returns

@@ -27,6 +27,7 @@ from hypothesis import strategies as st
 
 from .data import Value, format_call, format_value
 from .frame import CNT_MAX, encode_frame
+from .knowledge import JOINT_ARRAYS, JOINT_NAMES
 from .spec import TYPE_BOUNDS, Command, Param, SpecSet, Variant
 
 __all__ = [
@@ -303,8 +304,29 @@ def _cached(kind: str, key: object, build: Callable[[], Layout[T]]) -> Layout[T]
     return lay
 
 
+def _joint_limits() -> tuple[tuple[float, float], ...]:
+    """The default arm's joint limits (``specs/fairino-robots.json``; every FR model has
+    the same): a joint target the manual prints no range for is drawn within them, so a
+    valid motion is one an arm can make (the emulator refuses the others with code 32)."""
+    from .kinematics import robot
+
+    return tuple((lim.min, lim.max) for lim in robot().joint_limits)
+
+
+def _arg(p: Param) -> Layout[Value]:
+    name = p.name.lower()
+    if p.range or p.enum or p.is_string:
+        return _param(p)
+    if name in JOINT_NAMES and not p.is_array:
+        lo, hi = _joint_limits()[JOINT_NAMES.index(name)]
+        return _thousandths(lo, hi)
+    if p.is_array and p.length == 6 and name in JOINT_ARRAYS:
+        return _sequence([_thousandths(lo, hi) for lo, hi in _joint_limits()])  # type: ignore[return-value]
+    return _param(p)
+
+
 def _args(variant: Variant) -> Layout[list[Value]]:
-    return _cached("args", variant, lambda: _sequence([_param(p) for p in variant.params]))
+    return _cached("args", variant, lambda: _sequence([_arg(p) for p in variant.params]))
 
 
 def param_values(p: Param) -> st.SearchStrategy[Value]:

@@ -1,0 +1,98 @@
+"""The emulator as a twin: its joints and TCP follow one arm's kinematics and every form it
+acknowledges (conformance/model.py over conformance/kinematics)."""
+
+from __future__ import annotations
+
+import pytest
+
+from conformance.frame import Frame, decode_all, encode_frame
+from conformance.kinematics import robot
+from conformance.model import Controller, ControllerConnection
+
+FR5 = robot("FR5")
+
+
+def ask(conn: ControllerConnection, cnt: int, cmd_id: int, data: str) -> str:
+    out = conn.receive(encode_frame(cnt, cmd_id, data))
+    (reply,) = [e for a in out for e in decode_all(a.data) if isinstance(e, Frame)]
+    assert (reply.cnt, reply.cmd_id) == (cnt, cmd_id)
+    return reply.data
+
+
+def floats(data: str) -> list[float]:
+    return [float(x) for x in data.split(",")]
+
+
+@pytest.fixture
+def tcp() -> ControllerConnection:
+    return ControllerConnection(Controller(), transport="tcp")
+
+
+@pytest.fixture
+def udp() -> ControllerConnection:
+    return ControllerConnection(Controller(), transport="udp")
+
+
+def joints(conn: ControllerConnection) -> list[float]:
+    return floats(ask(conn, 90, 375, "GetActualJointPosDegree()"))
+
+
+def pose(conn: ControllerConnection) -> list[float]:
+    return floats(ask(conn, 91, 1152, "GetActualTCPPose()"))
+
+
+def close(a: list[float], b: list[float] | tuple[float, ...], tol: float = 2e-3) -> bool:
+    return len(a) == len(b) and all(abs(x - y) <= tol for x, y in zip(a, b, strict=True))
+
+
+def test_the_arm_starts_at_home_with_its_tcp_where_the_kinematics_put_it(
+    tcp: ControllerConnection,
+) -> None:
+    assert close(joints(tcp), FR5.home)
+    assert close(pose(tcp), FR5.forward(FR5.home))
+    assert any(abs(v) > 1 for v in pose(tcp))  # not the old 0,0,0,0,0,0
+
+
+def test_a_dialect_servoj_moves_the_arm(tcp: ControllerConnection) -> None:
+    """frcobot_ros's 11-value ServoJ on TCP (drivers-008) moves the joints, and the TCP."""
+    target = [12.5, -95.25, 102.75, -80.0, -90.0, 10.0]
+    args = ",".join(f"{x:.6f}" for x in target) + ",0,0,0.008,0,0"
+    assert ask(tcp, 123, 376, f"ServoJ({args})") == "1"
+    assert close(joints(tcp), target)
+    assert close(pose(tcp), FR5.forward(target))
+
+
+def test_the_sdks_servoj_with_a_joint_array_moves_the_arm(udp: ControllerConnection) -> None:
+    """The C++/C# SDKs' UDP ServoJ carries the joints as one array (cpp-sdk-006)."""
+    target = [10.0, -90.0, 90.0, -90.0, -90.0, 0.0]
+    arr = "{" + ",".join(f"{x:.3f}" for x in target) + "}"
+    reply = ask(udp, 1, 376, f"ServoJ({arr},{{0.000,0.000,0.000,0.000}},0,0,0.008,0,0,0)")
+    assert reply == "1"
+    assert close(joints(udp), target)
+
+
+def test_a_cartesian_target_alone_moves_the_joints_by_inverse_kinematics(
+    tcp: ControllerConnection,
+) -> None:
+    """MoveCart (2.15) carries a pose only: the joints go to its inverse nearest the current."""
+    goal = [5.0, -80.0, 85.0, -95.0, -88.0, 3.0]
+    want = list(FR5.forward(goal))
+    data = "MoveCart({" + ",".join(f"{x:.4f}" for x in want) + "},0,0,100,100,100,-1,0)"
+    assert ask(tcp, 2, 351, data) == "1"
+    got = joints(tcp)
+    assert close(got, goal, tol=5e-3)  # the branch nearest home is the goal's own
+    assert close(list(FR5.forward(got)), want, tol=5e-3)
+    assert close(pose(tcp), want, tol=5e-3)
+
+
+def test_a_joint_target_past_the_limits_is_refused_and_the_arm_stays(
+    tcp: ControllerConnection,
+) -> None:
+    before = joints(tcp)
+    past = [0.0, -90.0, 90.0, -90.0, 200.0, 0.0]  # j5 past +-175
+    rest = ",0,0,0,0,0,0,0,0,100,100,100,0,0,0,0,-1,0,0,0,0,0,0,0"  # 23 more: 29 in all
+    move = "MoveJ(" + ",".join(f"{x:.3f}" for x in past) + rest + ")"
+    assert ask(tcp, 3, 201, move) == "32"  # chapter 9: joint over limit
+    servo = "ServoJ(" + ",".join(f"{x:.3f}" for x in past) + ",0,0,0,0,0,0,0.008,0,0)"
+    assert ask(tcp, 4, 376, servo) == "29"  # chapter 9: ServoJ joint over limit
+    assert close(joints(tcp), before)
