@@ -324,8 +324,11 @@ class Controller:
         faults: Iterable[Fault] = (),
         judge: Judge | None = None,
         dispatch: str = "recorded",
+        robot: str | None = None,
     ) -> None:
         self.specs = specs if specs is not None else default_specs()
+        #: The arm model the twin's kinematics follow (``emulate --robot``; default FR5).
+        self.robot = robot
         if dispatch not in DISPATCH_MODES:
             raise ValueError(f"dispatch must be one of {', '.join(DISPATCH_MODES)}")
         self.faults = tuple(faults)
@@ -333,7 +336,7 @@ class Controller:
         self.dispatch = dispatch
         #: The manual alone: the codes a refused dialect frame gets.
         self._manual = Judge(self.specs, strict=self.judge.strict)
-        self.model = RobotModel(self.specs)
+        self.model = RobotModel(self.specs, robot)
         self.frames_answered = 0
 
     def connection(
@@ -343,7 +346,7 @@ class Controller:
 
     def restart(self) -> None:
         """A crash loses the state, as a controller restart would."""
-        self.model = RobotModel(self.specs)
+        self.model = RobotModel(self.specs, self.robot)
 
     def _fault(self, kind: FaultKind, cmd_id: int | None) -> Fault | None:
         return active_fault(self.faults, kind, cmd_id)

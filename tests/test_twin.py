@@ -96,3 +96,22 @@ def test_a_joint_target_past_the_limits_is_refused_and_the_arm_stays(
     servo = "ServoJ(" + ",".join(f"{x:.3f}" for x in past) + ",0,0,0,0,0,0,0.008,0,0)"
     assert ask(tcp, 4, 376, servo) == "29"  # chapter 9: ServoJ joint over limit
     assert close(joints(tcp), before)
+
+
+def test_the_robot_option_picks_the_arm_and_an_unknown_one_is_one_line() -> None:
+    import subprocess
+    import sys
+
+    fr10 = ControllerConnection(Controller(robot="FR10"), transport="tcp")
+    assert close(pose(fr10), robot("FR10").forward(robot("FR10").home))
+    assert not close(pose(fr10), FR5.forward(FR5.home))
+    proc = subprocess.run(
+        [sys.executable, "-m", "conformance", "emulate", "--robot", "FR99", "--listen",
+         "127.0.0.1:0", "--duration", "0.1"],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert proc.returncode == 2
+    assert proc.stderr.strip() == (
+        "fairino-conformance emulate: error: unknown robot 'FR99'; "
+        "known: FR3, FR5, FR10, FR16, FR20, FR30"
+    )

@@ -83,13 +83,26 @@ def _add_emulation(p: Any) -> None:
         "ID/name pairs the field dialects record (default; e.g. GetActualTCPPose() on 377, "
         "as real controllers do), for any known name, or never",
     )
+    p.add_argument(
+        "--robot",
+        default=None,
+        metavar="MODEL",
+        help="the arm whose kinematics and joint limits the emulator follows: FR3, FR5 "
+        "(default), FR10, FR16, FR20, FR30 (specs/fairino-robots.json)",
+    )
 
 
 def _emulation(args: argparse.Namespace, specs: Any, *, strict: bool = False) -> dict[str, Any]:
-    """EmulatorServer keywords from ``--reference``, ``--dialects-dir`` and ``--dispatch``."""
+    """EmulatorServer keywords from ``--reference``, ``--dialects-dir``, ``--dispatch``, ``--robot``."""
+    from ..kinematics import robot
     from ._judging import judge_from
 
-    return {"judge": judge_from(args, specs, strict=strict), "dispatch": args.dispatch}
+    name = robot(args.robot).name if args.robot else None  # an unknown model: one line, exit 2
+    return {
+        "judge": judge_from(args, specs, strict=strict),
+        "dispatch": args.dispatch,
+        "robot": name,
+    }
 
 
 def _limits(args: argparse.Namespace) -> dict[str, Any]:
@@ -167,7 +180,11 @@ def _emulate(args: argparse.Namespace) -> int:
             if judge.reference.value == "field"
             else "manual only"
         )
-        print(f"emulating {n} commands on TCP {where}{udp}; {dialects}; faults: {flts}", flush=True)
+        arm = server.controller.model.robot.name
+        print(
+            f"emulating {n} commands on TCP {where}{udp}; {dialects}; faults: {flts}; robot {arm}",
+            flush=True,
+        )
         deadline = None if args.duration is None else time.monotonic() + args.duration
         while deadline is None or time.monotonic() < deadline:
             time.sleep(0.2)

@@ -164,9 +164,10 @@ class EmulatorServer:
         reraise_kit_errors: bool = True,
         judge: Judge | None = None,
         dispatch: str = "recorded",
+        robot: str | None = None,
     ) -> None:
         self.controller = Controller(
-            specs, faults=parse_faults(faults), judge=judge, dispatch=dispatch
+            specs, faults=parse_faults(faults), judge=judge, dispatch=dispatch, robot=robot
         )
         self.host = host.strip("[]")
         self._port = port
