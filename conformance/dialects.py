@@ -101,6 +101,8 @@ class Dialect:
     note: str
     #: The CNT the source sends this frame with every time (not a counter), if it does.
     fixed_cnt: int | None = None
+    #: What the reply reports as the source reads it (``joints_rad``, ``forward_kin``, ...).
+    reports: str | None = None
     #: kind ``framing``: the decoder's rule for the bytes (an :class:`~.errors.Rule` value).
     rule: str | None = None
     #: A known bug of the source, not a form a controller is known to accept: the
@@ -280,6 +282,7 @@ def _entry(raw: Mapping[str, Any], source: str, path: str) -> Dialect:
         example=raw["example"],
         evidence=tuple(_evidence(e) for e in raw["evidence"]),
         fixed_cnt=raw.get("fixed_cnt"),
+        reports=raw.get("reports"),
         rule=rule,
         defect=raw.get("defect", False),
         note=raw["note"],

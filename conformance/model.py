@@ -227,11 +227,33 @@ class RobotModel:
                 if r.ok and r.joints is not None:
                     self.joints = [_fmt(j) for j in r.joints]
 
-    def dialect_values(self, d: Dialect) -> list[str]:
-        """Reply values for a command the manual lacks (a field dialect): ``1`` if an error code."""
+    def dialect_values(self, d: Dialect, args: Sequence[Arg] = ()) -> list[str]:
+        """Reply values for a command the manual lacks (a field dialect): ``1`` if an error code;
+        what the entry ``reports`` (the joints in radians, a forward or inverse kinematics of
+        its arguments) from the arm model; else its recorded example, else typed zeros."""
         returns = d.variant.returns
         if returns.errcode_only:
             return ["1"]
+        texts = [_num(_arg_text(a)) for a in args]
+        if d.reports == "joints":
+            return list(self.joints)
+        if d.reports == "tcp":
+            return list(self.tcp)
+        if d.reports == "joints_rad":
+            return [f"{math.radians(_num(j) or 0.0):.6f}" for j in self.joints]
+        if d.reports == "forward_kin" and len(texts) >= 6 and None not in texts[:6]:
+            q = [t for t in texts[:6] if t is not None]
+            return [_fmt(v) for v in self.robot.forward(q)]
+        if d.reports == "inverse_kin" and len(texts) >= 7 and None not in texts[1:7]:
+            # GetInverseKin(type, x, y, z, rx, ry, rz, config): type 0, a pose in the base
+            # frame (the relative types 1 and 2 are read as absolute too); config -1: any.
+            pose = [t for t in texts[1:7] if t is not None]
+            config = int(texts[7]) if len(texts) > 7 and texts[7] is not None else None
+            cur = [_num(j) or 0.0 for j in self.joints]
+            r = self.robot.inverse(pose, ref=cur, config=config if config in range(8) else None)
+            if not r.ok or r.joints is None:
+                raise Refused(28, f"no inverse kinematics for {pose}")  # 28: IK result abnormal
+            return [_fmt(j) for j in r.joints]
         return _typed(returns, d.reply_example)
 
     def reply_values(self, command: Command, variant: Variant, args: Sequence[Arg]) -> list[str]:
@@ -262,6 +284,10 @@ class RobotModel:
                 out.append((self.joints if pos == "joints" else self.tcp)[i])
             elif rv.name.lower() in pnames and pnames[rv.name.lower()] < len(texts):
                 out.append(texts[pnames[rv.name.lower()]] or _default(rv))
+            elif rv.name.lower() == "robotmodel":
+                # 6.1.4 GetSoftwareVersion: the model the twin is (its example says FR16-...).
+                shown = example[i] if example is not None else self.robot.name
+                out.append(re.sub(r"^FR\d+", self.robot.name, shown))
             elif example is not None:
                 out.append(example[i])
             else:
@@ -435,7 +461,11 @@ class Controller:
             return self._reply(frame, v.variant.returns.separator.join(values))
         assert d is not None  # a verdict without a command that was accepted: a dialect's
         returns = d.variant.returns
-        return self._reply(frame, returns.separator.join(self.model.dialect_values(d)))
+        try:
+            values = self.model.dialect_values(d, args)
+        except Refused as e:
+            return self._reply(frame, refusal_data(returns, e.code))
+        return self._reply(frame, returns.separator.join(values))
 
     def _reply(self, frame: Frame, data: str) -> list[Action]:
         cid = frame.cmd_id

@@ -115,3 +115,21 @@ def test_the_robot_option_picks_the_arm_and_an_unknown_one_is_one_line() -> None
         "fairino-conformance emulate: error: unknown robot 'FR99'; "
         "known: FR3, FR5, FR10, FR16, FR20, FR30"
     )
+
+
+def test_the_field_queries_answer_from_the_same_arm(tcp: ControllerConnection) -> None:
+    """frcobot_ros's radian query (375, drivers-007) and the asyncio client's kinematics on 377
+    (drivers-002/003) answer from the model, as the degree and pose queries do."""
+    import math
+
+    deg = joints(tcp)
+    rad = floats(ask(tcp, 123, 375, "GetActualJointPosRadian()"))
+    assert close(rad, [math.radians(d) for d in deg], tol=1e-5)
+    q = [-1.521, -77.073, -126.277, -70.104, 89.925, 0.0]
+    fk = floats(ask(tcp, 52, 377, "GetForwardKin(" + ",".join(map(str, q)) + ")"))
+    assert close(fk, FR5.forward(q))
+    ik = floats(ask(tcp, 53, 377, "GetInverseKin(0," + ",".join(f"{v:.4f}" for v in fk) + ",-1)"))
+    assert close(list(FR5.forward(ik)), fk, tol=5e-3)
+    assert ask(tcp, 54, 377, "GetInverseKin(0,5000,0,0,0,0,0,-1)") == "28"  # out of reach
+    model = ask(tcp, 55, 905, "GetSoftwareVersion()").split(",")[0]
+    assert model.startswith("FR5") and "FR16" not in model
