@@ -133,3 +133,13 @@ def test_the_field_queries_answer_from_the_same_arm(tcp: ControllerConnection) -
     assert ask(tcp, 54, 377, "GetInverseKin(0,5000,0,0,0,0,0,-1)") == "28"  # out of reach
     model = ask(tcp, 55, 905, "GetSoftwareVersion()").split(",")[0]
     assert model.startswith("FR5") and "FR16" not in model
+
+
+def test_every_recorded_client_is_answered_and_followed(capsys: pytest.CaptureFixture[str]) -> None:
+    """tools/twin_clients.py: each SDK session and driver, every frame answered (or refused
+    where the data expects it) and every position query after a motion at its target."""
+    from tools.twin_clients import main
+
+    assert main([]) == 0, capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "frcobot_ros | 3 | 3/3 (100 %) | 0 | 2 | yes" in out  # its ServoJ moves the arm
