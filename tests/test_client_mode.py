@@ -9,11 +9,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+from conformance.client_mode import ClientValidator
 from conformance.frame import Frame, decode_all, encode_frame
 from conformance.model import Dropped
 from conformance.report import Outcome
 from conformance.spec import default_specs
-from conformance.suite.client_mode import ClientValidator
 
 SPECS = default_specs()
 

@@ -14,6 +14,7 @@ from typing import Any
 import pytest
 
 from conformance.capture_check import check_recording, client_host
+from conformance.client_mode import ClientValidator
 from conformance.dialects import default_dialects
 from conformance.errors import SpecError
 from conformance.frame import Frame, decode_all, encode_frame
@@ -27,7 +28,6 @@ from conformance.judge_sequence import (
 from conformance.recording import read_recording
 from conformance.report import Outcome, Report
 from conformance.spec import default_specs, specs_root
-from conformance.suite.client_mode import ClientValidator
 from tools.field_agreement import record, send, start_serve, traffic
 
 SPECS = default_specs()

@@ -308,10 +308,10 @@ def _add_serve(sub: Any) -> None:
 
 
 def _serve(args: argparse.Namespace) -> int:
+    from ..client_mode import ClientValidator
     from ..net.emulator import EmulatorServer
     from ..report import write_reports
     from ..spec import default_specs
-    from ..suite.client_mode import ClientValidator
 
     host, port, udp_port = _listen_addresses(args)
     if args.duration is not None and args.duration <= 0:

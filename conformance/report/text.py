@@ -1,0 +1,29 @@
+"""A frame's bytes as a report shows them: readable text, and a POSIX ``printf`` that
+reproduces them byte for byte (the reproduction lines of ``run`` and ``serve``)."""
+
+from __future__ import annotations
+
+__all__ = ["shell_printf", "show"]
+
+
+def shell_printf(raw: bytes) -> str:
+    """A POSIX ``printf`` format that prints exactly ``raw`` (octal escapes, no bashisms)."""
+    out: list[str] = []
+    for b in raw:
+        ch = chr(b)
+        if ch == "%":
+            out.append("%%")
+        elif ch == "\\":
+            out.append("\\\\")
+        elif ch == "'":
+            out.append("'\\''")
+        elif 0x20 <= b < 0x7F:
+            out.append(ch)
+        else:
+            out.append(f"\\{b:03o}")
+    return "'" + "".join(out) + "'"
+
+
+def show(raw: bytes, limit: int = 400) -> str:
+    text = raw[:limit].decode("utf-8", "backslashreplace")
+    return text + (f"...(+{len(raw) - limit} bytes)" if len(raw) > limit else "")
