@@ -48,6 +48,7 @@ __all__ = [
     "Evidence",
     "default_dialects",
     "dialects_from",
+    "evidence_of",
     "known_bug",
     "load_dialects",
     "manual_command",
@@ -218,7 +219,9 @@ class DialectSet:
         return out
 
 
-def _evidence(raw: Mapping[str, Any]) -> Evidence:
+def evidence_of(raw: Mapping[str, Any]) -> Evidence:
+    """An :class:`Evidence` from its JSON object (the ``evidence`` schema definition):
+    dialect entries, robot data and sequence rules cite alike."""
     return Evidence(
         repo=raw["repo"],
         path=raw["path"],
@@ -280,7 +283,7 @@ def _entry(raw: Mapping[str, Any], source: str, path: str) -> Dialect:
         safety=Safety(raw["safety"]) if "safety" in raw else None,
         manual_cmd=raw.get("manual_cmd"),
         example=raw["example"],
-        evidence=tuple(_evidence(e) for e in raw["evidence"]),
+        evidence=tuple(evidence_of(e) for e in raw["evidence"]),
         fixed_cnt=raw.get("fixed_cnt"),
         reports=raw.get("reports"),
         rule=rule,

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .dialects import FIELD_DIR, DialectSet, Evidence
+from .dialects import FIELD_DIR, DialectSet, Evidence, evidence_of
 from .errors import SpecError
 from .judge import Verdict
 from .spec import SpecSet, specs_root, validate_document
@@ -175,14 +175,7 @@ def _evidence(raw: Mapping[str, Any]) -> Evidence | Thread:
             says=raw["says"],
             date=raw.get("date"),
         )
-    return Evidence(
-        repo=raw["repo"],
-        path=raw["path"],
-        commit=raw["commit"],
-        line=raw["line"],
-        function=raw.get("function"),
-        version=raw.get("version"),
-    )
+    return evidence_of(raw)
 
 
 def _refs(raw: Iterable[Mapping[str, Any]]) -> tuple[CommandRef, ...]:

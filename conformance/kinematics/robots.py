@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from ..dialects import Evidence
+from ..dialects import evidence_of as _evidence
 from ..errors import SpecError, UsageError
 from ..spec import specs_root, validate_document
 from .chain import DHChain, DHRow
@@ -129,17 +130,6 @@ class RobotSet:
             if key.lower() == name.strip().lower():
                 return r
         raise UsageError(f"unknown robot {name!r}; known: {', '.join(self.robots)}")
-
-
-def _evidence(raw: Mapping[str, Any]) -> Evidence:
-    return Evidence(
-        repo=raw["repo"],
-        path=raw["path"],
-        commit=raw["commit"],
-        line=raw["line"],
-        function=raw.get("function"),
-        version=raw.get("version"),
-    )
 
 
 def _robot(raw: Mapping[str, Any], path: str) -> Robot:
