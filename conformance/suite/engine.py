@@ -28,7 +28,7 @@ from ..spec import SpecSet, default_specs
 from ..verdict import Outcome, fails
 from .cases import build_cases
 from .config import SuiteConfig
-from .runner import Case, SuiteRunner
+from .runner import Case, SuiteRunner, not_run_result
 
 __all__ = [
     "CaseFinished",
@@ -276,15 +276,5 @@ def stop_report(report: Report, cases: Sequence[Case], *, interrupted: bool = Fa
         return None
     for case in cases:
         if case.id not in done:
-            report.add(
-                CaseResult(
-                    id=case.id,
-                    cmd_id=case.cmd_id,
-                    name=case.name,
-                    group=case.group,
-                    outcome=Outcome.ERROR,
-                    detail=f"not run: {report.stopped}",
-                    not_run=True,
-                )
-            )
+            report.add(not_run_result(case, report.stopped))
     return report.stopped

@@ -606,15 +606,7 @@ class SuiteRunner:
 
     def not_run(self, case: Case) -> CaseResult:
         """Record a case the run never reached (it stopped: ``stopped`` says why)."""
-        result = CaseResult(
-            id=case.id,
-            cmd_id=case.cmd_id,
-            name=case.name,
-            group=case.group,
-            outcome=Outcome.ERROR,
-            detail=f"not run: {self.stopped or 'the run stopped'}",
-            not_run=True,
-        )
+        result = not_run_result(case, self.stopped or "the run stopped")
         self.report.add(result)
         return result
 
@@ -667,3 +659,16 @@ class SuiteRunner:
 
 
 _ = Malformed, encode_frame
+
+
+def not_run_result(case: Case, why: str) -> CaseResult:
+    """A case the run never reached: ERROR, ``not_run``, with the reason the run stopped."""
+    return CaseResult(
+        id=case.id,
+        cmd_id=case.cmd_id,
+        name=case.name,
+        group=case.group,
+        outcome=Outcome.ERROR,
+        detail=f"not run: {why}",
+        not_run=True,
+    )
