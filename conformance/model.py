@@ -26,6 +26,10 @@ from .errors import ProtocolError, Rule
 from .faults import Fault, FaultKind, active_fault, mangle_reply
 from .frame import DEFAULT_MAX_FRAME_SIZE, Frame, FrameDecoder, Malformed, decode_all
 from .judge import LENIENT, Judge, Verdict
+
+# At import, not in a call: numpy (under the kinematics) cannot be imported twice in one
+# process, which pytester's in-process runs would otherwise do.
+from .kinematics import robot as robot_named
 from .knowledge import (
     MotionTargets,
     StatePair,
@@ -135,8 +139,6 @@ class RobotModel:
     """
 
     def __init__(self, specs: SpecSet, robot: str | None = None) -> None:
-        from .kinematics import robot as robot_named
-
         self.specs = specs
         self.robot = robot_named(robot)
         self.pairs = derive_pairs(specs)
