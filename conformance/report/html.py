@@ -6,8 +6,8 @@ from __future__ import annotations
 import re
 from collections.abc import Iterable, Mapping
 
-from ..verdict import Outcome, aggregate
-from .model import _SEVERITY, CaseResult, CommandSummary, Report
+from ..verdict import SEVERITY, Outcome, aggregate, worst
+from .model import CaseResult, CommandSummary, Report
 
 __all__ = ["MAX_LISTED_FAILURES", "render_html", "render_html_sections"]
 
@@ -80,7 +80,7 @@ def _failing(report: Report, outcome: Outcome) -> bool:
 
 
 def _worst_first(cases: Iterable[CaseResult]) -> list[CaseResult]:
-    return sorted(cases, key=lambda c: (_SEVERITY[c.outcome], c.cmd_id))
+    return sorted(cases, key=lambda c: (SEVERITY[c.outcome], c.cmd_id))
 
 
 def _case_item(c: CaseResult, *, with_name: bool = False) -> str:
@@ -171,12 +171,12 @@ def _rows(
     """One row per command, one cell per report; failing commands first (worst, then ID)."""
     labels = _group_labels(groups)
     names = {i: s.name for p in per for i, s in p.items()}
-    worst: dict[int, Outcome] = {}
+    worst_of: dict[int, Outcome] = {}
     for i in names:
         outs = [p[i].outcome for p in per if i in p]
-        worst[i] = min(outs, key=_SEVERITY.__getitem__) if outs else Outcome.SKIPPED
+        worst_of[i] = worst(outs) if outs else Outcome.SKIPPED
     rows = []
-    for i in sorted(names, key=lambda i: (_SEVERITY[worst[i]], i)):
+    for i in sorted(names, key=lambda i: (SEVERITY[worst_of[i]], i)):
         cells = "".join(
             _cell(
                 list(p[i].cases) if i in p else [],
@@ -188,7 +188,7 @@ def _rows(
         )
         key = _esc(f"{i} {names[i]}".lower())
         rows.append(
-            f'<tr data-worst="{worst[i].value}" data-key="{key}"><td class=id>{i}</td>'
+            f'<tr data-worst="{worst_of[i].value}" data-key="{key}"><td class=id>{i}</td>'
             f"<td class=name>{_esc(names[i])}</td>{cells}</tr>"
         )
     return rows

@@ -33,7 +33,6 @@ __all__ = [
 
 
 # The severity order and the failing rule live in conformance/verdict.py (one place).
-_SEVERITY = SEVERITY
 
 
 #: Bounds on one case's failure text, so that a report stays small whatever the
@@ -302,7 +301,7 @@ class Report:
             )
             for s in self.commands().values()
         ]
-        rows = sorted((s for s in ran if s.cases), key=lambda s: (_SEVERITY[s.outcome], s.cmd_id))
+        rows = sorted((s for s in ran if s.cases), key=lambda s: (SEVERITY[s.outcome], s.cmd_id))
         if only_failures:
             rows = [s for s in rows if s.outcome not in (Outcome.PASS, Outcome.SKIPPED)]
         w = _name_width(s.name for s in rows)
