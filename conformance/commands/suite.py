@@ -211,8 +211,8 @@ def _add_run(sub: Any) -> None:
         description="Run the packaged conformance suite with a progress line, then print each "
         "failure with its reproduction and the per-command table. Every option is also an "
         "ini key (fairino_*, in pytest.ini) for pytest and a FAIRINO_* environment variable. "
-        "Exit code: 0 conformant, 1 conformance failures, 2 kit or connection error or "
-        "interrupted.",
+        "Exit code: 0 conformant, 1 conformance failures, 2 kit or connection error, "
+        "130 interrupted (Ctrl-C).",
     )
     add_to_argparse(p)
     p.set_defaults(func=_run)
