@@ -239,6 +239,10 @@ def _run(args: argparse.Namespace) -> int:
             raise UsageError(f"cannot write {path}: no directory {parent}")
     engine = Engine(suite_config(values))
     cases = engine.select(values["case"])
+    if not cases:  # empty is never success (a selection that leaves nothing to run)
+        raise UsageError(
+            "no case selected: --commands, --exclude, --groups and --case leave nothing to run"
+        )
     progress = Progress(sys.stderr, quiet=values["quiet"])
     finished: RunFinished | None = None
     errors: list[EngineError] = []

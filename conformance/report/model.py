@@ -17,6 +17,7 @@ from typing import Any
 from .._version import __version__
 from ..errors import ReportFileError
 from ..verdict import SEVERITY, Outcome, Reference, aggregate, fails
+from .text import printable
 
 __all__ = [
     "MAX_DETAIL",
@@ -71,10 +72,13 @@ class CaseResult:
     count: int = 1
 
     def __post_init__(self) -> None:
-        # Frozen: the bounds are applied once, here, so no front-end can forget them.
-        object.__setattr__(self, "detail", _clip(self.detail, MAX_DETAIL))
-        object.__setattr__(self, "reproduce", _clip(self.reproduce, MAX_DETAIL))
-        frames = tuple(_clip(f, MAX_FRAME_LINE) for f in self.frames[:MAX_FRAME_LINES])
+        # Frozen: the bounds and the escaping are applied once, here, so no front-end
+        # (terminal, JSON, HTML, JUnit) can forget them.
+        for name in ("id", "name", "source"):
+            object.__setattr__(self, name, printable(getattr(self, name)))
+        object.__setattr__(self, "detail", printable(_clip(self.detail, MAX_DETAIL)))
+        object.__setattr__(self, "reproduce", printable(_clip(self.reproduce, MAX_DETAIL)))
+        frames = tuple(printable(_clip(f, MAX_FRAME_LINE)) for f in self.frames[:MAX_FRAME_LINES])
         if len(self.frames) > MAX_FRAME_LINES:
             frames += (f"(+{len(self.frames) - MAX_FRAME_LINES} more lines)",)
         object.__setattr__(self, "frames", frames)

@@ -3,7 +3,7 @@ reproduces them byte for byte (the reproduction lines of ``run`` and ``serve``).
 
 from __future__ import annotations
 
-__all__ = ["shell_printf", "show"]
+__all__ = ["printable", "shell_printf", "show"]
 
 
 def shell_printf(raw: bytes) -> str:
@@ -27,3 +27,14 @@ def shell_printf(raw: bytes) -> str:
 def show(raw: bytes, limit: int = 400) -> str:
     text = raw[:limit].decode("utf-8", "backslashreplace")
     return text + (f"...(+{len(raw) - limit} bytes)" if len(raw) > limit else "")
+
+
+def printable(text: str) -> str:
+    """``text`` with every character a terminal, a CI log or XML cannot carry escaped as
+    Python does (``\\x00``, ``\\x1b``, ``\\udcff``): control characters but newline and tab,
+    and lone surrogates.  Every text a report holds passes through it (the cases' details,
+    frames, names and reproductions), so JUnit XML is well formed by construction and
+    ``grep`` never calls a log binary."""
+    if text.isprintable():
+        return text
+    return "".join(ch if ch.isprintable() or ch in "\n\t" else repr(ch)[1:-1] for ch in text)
