@@ -9,6 +9,7 @@ import pytest
 
 from conformance.cli import main
 from conformance.report import CaseResult, Report, junit_xml, render_html
+from conformance.suite.runner import Case, SuiteRunner, Verdict
 from conformance.verdict import Outcome
 
 EVERY_BYTE = bytes(range(256)).decode("utf-8", "surrogateescape")
@@ -50,3 +51,35 @@ def test_item_7_a_selection_that_leaves_no_case_is_an_error(
         "fairino-conformance run: error: no case selected: --commands, --exclude, --groups "
         "and --case leave nothing to run"
     ]
+
+
+def _never(runner: SuiteRunner, case: Case) -> Verdict:
+    raise AssertionError("not run")
+
+
+def test_item_6_an_interrupted_run_says_130_everywhere(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """The process exited 130 while `run --help` said 2 and the HTML said "(exit code 2)"."""
+    from conformance.suite.engine import stop_report
+
+    cases = [
+        Case(id=f"201/MoveJ/valid/{i}", cmd_id=201, name="MoveJ", group="valid", run=_never)
+        for i in "ab"
+    ]
+    report = Report(target="t", spec_version="3.8.2")
+    report.add(
+        CaseResult(id=cases[0].id, cmd_id=201, name="MoveJ", group="valid", outcome=Outcome.PASS)
+    )
+    stop_report(report, cases, interrupted=True)
+    assert report.exit_code() == 130 and report.stopped == "interrupted after 1 of 2 cases"
+    doc = json.loads(report.dumps())
+    assert doc["interrupted"] is True and doc["exit_code"] == 130
+    assert Report.from_json(doc).exit_code() == 130
+    html = render_html([report])
+    assert (
+        "<b>Interrupted:</b> interrupted after 1 of 2 cases" in html and "(exit code 130)" in html
+    )
+    with pytest.raises(SystemExit):
+        main(["run", "--help"])
+    assert "130 interrupted" in " ".join(capsys.readouterr().out.split())

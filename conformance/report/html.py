@@ -150,8 +150,12 @@ def _head(r: Report) -> str:
 
 def _totals(r: Report) -> str:
     counts = ", ".join(f"{v} {k}" for k, v in r.totals().items() if v)
+    banner = ""
+    if r.stopped:  # an interrupted or stopped run says so before anything else
+        what = "Interrupted" if r.interrupted else "Stopped early"
+        banner = f"<p class=stopped><b>{what}:</b> {_esc(r.stopped)}</p>"
     return (
-        f"<p><b>{_esc(r.target)}</b>: {_esc(counts + r.failing_note())} "
+        f"{banner}<p><b>{_esc(r.target)}</b>: {_esc(counts + r.failing_note())} "
         f"(exit code {r.exit_code()})</p>"
     )
 

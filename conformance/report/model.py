@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from .._version import __version__
-from ..errors import ReportFileError
+from ..errors import EXIT_INTERRUPTED, ReportFileError
 from ..verdict import SEVERITY, Outcome, Reference, aggregate, fails
 from .text import printable
 
@@ -155,6 +155,9 @@ class Report:
     cases: list[CaseResult] = field(default_factory=list)
     #: Why the run stopped early (target unreachable or dead, budget used up), in one line.
     stopped: str | None = None
+    #: Stopped by Ctrl-C: the exit code is 130 (``errors.EXIT_INTERRUPTED``), whichever
+    #: front-end ran it (pytest itself exits 2 for an interrupted session).
+    interrupted: bool = False
 
     def add(self, case: CaseResult) -> None:
         self.cases.append(case)
@@ -189,7 +192,9 @@ class Report:
         return sorted({c.cmd_id for c in self.failing_cases()})
 
     def exit_code(self) -> int:
-        """0 conformant, 1 conformance failures, 2 kit or connection error."""
+        """0 conformant, 1 conformance failures, 2 kit or connection error, 130 interrupted."""
+        if self.interrupted:
+            return EXIT_INTERRUPTED
         failing = self.failing_cases()
         if any(c.outcome is Outcome.ERROR for c in failing):
             return 2
@@ -234,6 +239,7 @@ class Report:
             "strict": self.strict,
             "reference": self.reference,
             "stopped": self.stopped,
+            "interrupted": self.interrupted,
             "meta": self.meta,
             "totals": self.totals(),
             "failing": self.failing_ids(),
@@ -264,6 +270,7 @@ class Report:
             reference=doc.get("reference", "field"),
             meta=dict(doc.get("meta", {})),
             stopped=doc.get("stopped"),
+            interrupted=bool(doc.get("interrupted", False)),
         )
         for cid, cmd in doc["commands"].items():
             for c in cmd["cases"]:

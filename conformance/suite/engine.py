@@ -270,8 +270,10 @@ def stop_report(report: Report, cases: Sequence[Case], *, interrupted: bool = Fa
     ``report.stopped``.
     """
     done = {c.id for c in report.cases}
-    if interrupted and report.stopped is None:
-        report.stopped = f"interrupted after {len(done)} of {len(cases)} cases"
+    if interrupted:
+        report.interrupted = True
+        if report.stopped is None:
+            report.stopped = f"interrupted after {len(done)} of {len(cases)} cases"
     if report.stopped is None:
         return None
     for case in cases:
