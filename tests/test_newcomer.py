@@ -83,3 +83,48 @@ def test_item_6_an_interrupted_run_says_130_everywhere(
     with pytest.raises(SystemExit):
         main(["run", "--help"])
     assert "130 interrupted" in " ".join(capsys.readouterr().out.split())
+
+
+def test_item_5_the_reproduction_waits_for_the_emulator_it_starts() -> None:
+    """`emulate … & send …` failed about half the time: send did not wait for the emulator to
+    listen.  The printed line says `send --wait 10`, and send then waits for the target."""
+    import threading
+
+    from conformance.frame import encode_frame
+    from conformance.net.client import Client, TargetUnreachable
+    from conformance.net.emulator import EmulatorServer
+    from conformance.suite.config import SuiteConfig
+    from conformance.suite.evidence import reproduction
+    from tests.hostile_targets import refusing_port
+
+    line = reproduction(
+        SuiteConfig(), "201/MoveJ/valid/x", encode_frame(1, 229, "GetGripperConfig()")
+    )
+    assert "& fairino-conformance send --wait 10 127.0.0.1:8080 --hex " in line
+    port = refusing_port()
+    raw = encode_frame(1, 229, "GetGripperConfig()").hex()
+    refused = threading.Event()
+    tries: list[int] = []
+    real = Client.connect
+
+    def connect(self: Client) -> Client:
+        tries.append(1)
+        try:
+            return real(self)
+        except TargetUnreachable:
+            refused.set()  # the emulator is not up yet: send must try again
+            raise
+
+    codes: list[int] = []
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(Client, "connect", connect)
+        t = threading.Thread(
+            target=lambda: codes.append(
+                main(["send", "--wait", "30", f"127.0.0.1:{port}", "--hex", raw])
+            )
+        )
+        t.start()
+        assert refused.wait(30)  # send has been refused at least once
+        with EmulatorServer(port=port):
+            t.join(60)
+    assert codes == [0] and len(tries) >= 2

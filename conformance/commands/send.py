@@ -15,6 +15,7 @@ import json
 import math
 import re
 import sys
+import time
 from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
@@ -104,6 +105,14 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         default=5.0,
         metavar="SECONDS",
         help="wait this long for each reply, and for the connection (default 5)",
+    )
+    p.add_argument(
+        "--wait",
+        type=float,
+        default=0.0,
+        metavar="SECONDS",
+        help="keep trying to connect while the target refuses, up to this long (for a target "
+        "started just before, as in `emulate … & send --wait 10 …`; TCP only; default 0)",
     )
     p.add_argument("--json", action="store_true", help="one JSON object per request and reply")
     add_safety_options(p)
@@ -396,10 +405,20 @@ def _run_send(args: argparse.Namespace) -> int:
 
     out = _Printer(json=args.json, specs=specs)
     client = Client(host, port, transport=transport, timeout=args.timeout)
-    try:
-        client.connect()
-    except TargetUnreachable as e:
-        raise TargetUnreachable(f"cannot connect to {where}: {e.reason}", reason=e.reason) from None
+    deadline = time.monotonic() + max(args.wait, 0.0)
+    pause = 0.02
+    while True:
+        try:
+            client.connect()
+            break
+        except TargetUnreachable as e:
+            # --wait: a target that is still starting refuses; it gets until the deadline.
+            if transport != "tcp" or time.monotonic() + pause > deadline:
+                raise TargetUnreachable(
+                    f"cannot connect to {where}: {e.reason}", reason=e.reason
+                ) from None
+            time.sleep(pause)
+            pause = min(pause * 2, 0.5)
     with client:
         if args.udp:
             for datagram in _datagrams(raw, events):

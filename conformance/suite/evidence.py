@@ -57,7 +57,10 @@ def reproduction(config: SuiteConfig, case_id: str, raw: bytes) -> str:
             emulate = "fairino-conformance emulate --listen 127.0.0.1:8080 " + listen
             emulate += "".join(f"--fault {shlex.quote(f)} " for f in faults)
             addr = "127.0.0.1:20007" if udp else "127.0.0.1:8080"
-            line += f"  # or: {emulate}& fairino-conformance send {addr}{udp} --hex {raw.hex()}"
+            line += (
+                f"  # or: {emulate}& fairino-conformance send --wait 10 {addr}{udp} "
+                f"--hex {raw.hex()}"
+            )
         else:
             addr = shlex.quote(config.target_label())
             line += f"  # or: fairino-conformance send {addr}{udp} --hex {raw.hex()}"
