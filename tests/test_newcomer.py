@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import xml.etree.ElementTree as ET
+from pathlib import Path
 
 import pytest
 
@@ -128,3 +129,33 @@ def test_item_5_the_reproduction_waits_for_the_emulator_it_starts() -> None:
         with EmulatorServer(port=port):
             t.join(60)
     assert codes == [0] and len(tries) >= 2
+
+
+def test_item_4_serve_prints_each_failure_with_its_frame_numbers_and_reproduction(
+    tmp_path: Path,
+) -> None:
+    """The details were only in --report-json; the README says serve prints them."""
+    from conformance.frame import encode_frame
+    from conformance.net.client import Client
+    from tools.field_agreement import start_serve
+
+    bad = b"/f/bIII1III1149III25IIIConveyorComDetectTrigger()III/b/f"  # LEN 25 for 26 bytes
+    proc, tcp, _ = start_serve(frames=2)
+    try:
+        with Client("127.0.0.1", tcp, timeout=30) as c:
+            for raw in (bad, encode_frame(2, 229, "GetGripperConfig()")):
+                c.send_raw(raw)
+                _, cnt, cid, *_ = raw.split(b"III")
+                c.await_reply(int(cnt), int(cid), request=raw, timeout=30)
+        out, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert proc.returncode == 1, err
+    assert (
+        "FAIL 1149/ConveyorComDetectTrigger/client/tcp/framing-1: LEN 25, DATA is 26 bytes" in out
+    )
+    assert ">> TCP /f/bIII1III1149III25IIIConveyorComDetectTrigger()III/b/f" in out
+    assert (
+        "reproduce: printf '/f/bIII1III1149III25IIIConveyorComDetectTrigger()III/b/f' | fairino-conformance decode --dir c2s"
+        in out
+    )

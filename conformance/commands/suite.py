@@ -316,6 +316,7 @@ def _serve(args: argparse.Namespace) -> int:
     from ..net.emulator import EmulatorServer
     from ..report import write_reports
     from ..spec import default_specs
+    from ..suite.present import failure_lines
 
     host, port, udp_port = _listen_addresses(args)
     if args.duration is not None and args.duration <= 0:
@@ -386,6 +387,10 @@ def _serve(args: argparse.Namespace) -> int:
     summary = _drop_summary(server)
     if summary:
         print(f"serve: {summary}", file=sys.stderr)
+    lines = failure_lines(report)  # as run prints them: the frames, the numbers, a reproduction
+    if lines:
+        print("\n".join(lines))
+        print()
     print(report.render_terminal())
     write_reports(report, json_path=args.report_json, html_path=args.report_html)
     if failure is not None:
