@@ -147,6 +147,7 @@ def pytest_configure(config: pytest.Config) -> None:
         sc = _suite_config(config)
     except ConformanceError as e:
         raise pytest.UsageError(str(e)) from None
+    _refuse_shared_state_in_parallel(config, sc)
     config.stash[_CONFIG_KEY] = sc
     config.stash[_ENGINE_KEY] = None
     merged = Report(
@@ -161,6 +162,27 @@ def pytest_configure(config: pytest.Config) -> None:
     config.stash[_MERGED_KEY] = merged
     if not _is_worker(config):
         config.pluginmanager.register(_Collector(merged), "fairino-conformance-collector")
+
+
+#: The case group whose cases move the arm and read it back (Set/Get pairs, motion versus
+#: position queries): against one target they must not run on two workers at once.
+_SHARED_STATE_GROUP = "stateful"
+
+
+def _refuse_shared_state_in_parallel(config: pytest.Config, sc: SuiteConfig) -> None:
+    """``pytest -n N --target …`` with the stateful group: two workers would move the same
+    arm and read each other's positions (against a real controller: two workers sending
+    motion at once), so it is refused in one line.  The built-in emulator is one per
+    worker, so it is always safe."""
+    workers = config.getoption("numprocesses", default=None)
+    if _is_worker(config) or not workers or sc.embedded:
+        return
+    if _SHARED_STATE_GROUP in sc.groups:
+        raise pytest.UsageError(
+            f"the {_SHARED_STATE_GROUP} group moves the target's arm and reads it back, so two "
+            "workers (-n) must not share one --target: run it with -n 0, or leave it out "
+            "with --groups"
+        )
 
 
 @pytest.hookimpl(optionalhook=True)

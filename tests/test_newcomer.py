@@ -159,3 +159,25 @@ def test_item_4_serve_prints_each_failure_with_its_frame_numbers_and_reproductio
         "reproduce: printf '/f/bIII1III1149III25IIIConveyorComDetectTrigger()III/b/f' | fairino-conformance decode --dir c2s"
         in out
     )
+
+
+def test_item_2_parallel_workers_never_share_the_arm_of_one_target(
+    pytester: pytest.Pytester,
+) -> None:
+    """`pytest -n 2 --target … --groups stateful`: two workers moved the same arm and read each
+    other's positions (3, then 11 NON-STRICT commands).  Now refused with one line; the other
+    groups still run in parallel."""
+    from conformance.net.emulator import EmulatorServer
+
+    with EmulatorServer() as emu:
+        target = f"127.0.0.1:{emu.address[1]}"
+        refused = pytester.runpytest_subprocess(
+            "-p", "no:cacheprovider", "-n", "2", "--target", target, "--groups", "stateful"
+        )  # fmt: skip
+        assert refused.ret == pytest.ExitCode.USAGE_ERROR
+        assert "must not share one --target: run it with -n 0" in refused.stderr.str()
+        parallel = pytester.runpytest_subprocess(
+            "-p", "no:cacheprovider", "-n", "2", "--target", target, "--groups", "framing",
+            "--commands", "229",
+        )  # fmt: skip
+        assert parallel.ret == 0, parallel.stdout.str()
