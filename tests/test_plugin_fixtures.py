@@ -29,7 +29,7 @@ def test_the_ini_key_sets_it_too(pytester: pytest.Pytester) -> None:
     pytester.runpytest("-p", "no:cacheprovider").assert_outcomes(passed=1)
 
 
-def test_an_interrupted_session_says_so_and_lists_the_cases_not_run(
+def test_item_3_an_interrupted_session_says_so_and_lists_the_cases_not_run(
     pytester: pytest.Pytester,
 ) -> None:
     """Ctrl-C in the third case: the report says after how many cases the session stopped and
