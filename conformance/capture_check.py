@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from .dialects import default_dialects
-from .errors import AddressError
+from .errors import AddressError, RecordingError
 from .judge import Direction, Judge, Verdict, display_name
 from .judge_sequence import Sequences
 from .judge_stream import CntSteps
@@ -34,6 +34,7 @@ __all__ = [
     "check_recording",
     "client_host",
     "failing_ids_by_side",
+    "judgeable",
     "percentile",
     "summarize",
 ]
@@ -42,6 +43,18 @@ __all__ = [
 FRAMING_ID = 0
 #: ``check --side``: whose frames are judged (the case group says whose each case is).
 SIDES = ("both", "client", "controller")
+
+
+def judgeable(rec: Recording) -> str | None:
+    """Before a recording is judged: one with nothing to judge (no frame, no malformed run)
+    is a :class:`~conformance.errors.RecordingError`, never an empty table that passes; for
+    an unfinished one (no summary: the recorder was killed, a truncated copy) a warning."""
+    unfinished = "" if rec.complete else " (UNFINISHED: run `recover`)"
+    if not rec.frames and not rec.problems:
+        raise RecordingError(
+            f"nothing to judge: {rec.path} holds no frame{unfinished}", path=rec.path
+        )
+    return f"warning: {rec.path} is unfinished: run `recover`" if unfinished else None
 
 
 @functools.lru_cache(maxsize=4096)

@@ -181,3 +181,26 @@ def test_item_2_parallel_workers_never_share_the_arm_of_one_target(
             "--commands", "229",
         )  # fmt: skip
         assert parallel.ret == 0, parallel.stdout.str()
+
+
+def test_item_7_check_never_passes_an_empty_recording_and_says_unfinished(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`check` printed an empty table and exited 0 on a recording with nothing in it, and
+    said nothing of an unfinished one (as `info` does)."""
+    from conformance.recording import RecordingWriter
+
+    empty = tmp_path / "empty.mcap"
+    with RecordingWriter(empty):
+        pass
+    assert main(["check", str(empty)]) == 2
+    assert capsys.readouterr().err.strip() == (
+        f"fairino-conformance check: error: nothing to judge: {empty} holds no frame"
+    )
+    whole = (Path(__file__).parent.parent / "captures" / "session.mcap").read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(whole[: len(whole) * 3 // 4])  # no summary: the recorder was killed
+    code = main(["check", str(cut)])
+    out = capsys.readouterr()
+    assert f"warning: {cut} is unfinished: run `recover`" in out.err
+    assert code in (0, 1) and "commands:" in out.out  # what was there is judged

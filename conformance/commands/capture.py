@@ -463,11 +463,13 @@ def _run_info(args: argparse.Namespace) -> int:
 
 
 def _run_check(args: argparse.Namespace) -> int:
-    from ..capture_check import check_recording, failing_ids_by_side
+    from ..capture_check import check_recording, failing_ids_by_side, judgeable
 
     specs = specs_of(args)
     judge = judge_from(args, specs, strict=args.strict)
     rec = read_capture(args.capture)
+    if (warning := judgeable(rec)) is not None:  # an empty one raises: empty is never success
+        print(warning, file=sys.stderr)
     side = args.side
     if args.verdicts:
         with _verdict_sink(args.verdicts) as sink:
