@@ -15,8 +15,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from .._version import __version__
-from ..errors import EXIT_INTERRUPTED, ReportFileError
-from ..verdict import SEVERITY, Outcome, Reference, aggregate, fails
+from ..errors import EXIT_ERROR, EXIT_FAIL, EXIT_INTERRUPTED, EXIT_OK, ReportFileError
+from ..verdict import SEVERITY, Outcome, aggregate, fails
 from .text import printable
 
 __all__ = [
@@ -177,12 +177,6 @@ class Report:
         """Whether ``outcome`` fails this run (its reference and ``--strict``): conformance/verdict.py."""
         return fails(outcome, self.reference, self.strict)
 
-    def effective(self, outcome: Outcome) -> Outcome:
-        """FAIL for an outcome that fails this run (ERROR stays ERROR), PASS for a lenient one."""
-        if outcome in (Outcome.NON_STRICT, Outcome.DIALECT):
-            return Outcome.FAIL if self.fails(outcome) else Outcome.PASS
-        return outcome
-
     def failing_cases(self) -> list[CaseResult]:
         """The cases that fail this run: the only source of the exit code and the failing totals."""
         return [c for c in self.cases if not c.expected and self.fails(c.outcome)]
@@ -197,8 +191,8 @@ class Report:
             return EXIT_INTERRUPTED
         failing = self.failing_cases()
         if any(c.outcome is Outcome.ERROR for c in failing):
-            return 2
-        return 1 if failing else 0
+            return EXIT_ERROR
+        return EXIT_FAIL if failing else EXIT_OK
 
     def totals(self) -> dict[str, int]:
         out: dict[str, int] = {o.value: 0 for o in Outcome}
@@ -209,9 +203,9 @@ class Report:
     def _why_failing(self) -> str:
         """Which lenient outcomes fail this run, said once (``--strict``, ``--reference manual``)."""
         why = []
-        if self.strict:
+        if self.fails(Outcome.NON_STRICT):
             why.append("NON-STRICT fails under --strict")
-        if Reference(self.reference) is Reference.MANUAL:
+        if self.fails(Outcome.DIALECT):
             why.append("DIALECT fails under --reference manual")
         return f" ({', '.join(why)})" if why else ""
 
