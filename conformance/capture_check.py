@@ -12,17 +12,16 @@ a report of readable size.
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 from .dialects import default_dialects
-from .errors import AddressError, RecordingError
+from .errors import RecordingError
 from .judge import Direction, Judge, Verdict, display_name
 from .judge_sequence import Sequences
 from .judge_stream import CntSteps
-from .net.addresses import parse_address
+from .net.addresses import client_host
 from .recording import C2S, FrameRecord, ProblemRecord, Recording
 from .report import CaseResult, Report
 from .spec import SpecSet
@@ -32,7 +31,6 @@ __all__ = [
     "SIDES",
     "CommandFigures",
     "check_recording",
-    "client_host",
     "failing_ids_by_side",
     "judgeable",
     "percentile",
@@ -55,21 +53,6 @@ def judgeable(rec: Recording) -> str | None:
             f"nothing to judge: {rec.path} holds no frame{unfinished}", path=rec.path
         )
     return f"warning: {rec.path} is unfinished: run `recover`" if unfinished else None
-
-
-@functools.lru_cache(maxsize=4096)
-def client_host(peer: str) -> str | None:
-    """The host of a client address (``HOST:PORT``, ``udp:HOST:PORT``), else ``None``.
-
-    The sequence rules (:mod:`conformance.judge_sequence`) keep one state per client host
-    in ``check`` and ``serve`` alike: one client program reaches a controller over several
-    connections and transports from one address (``specs/fairino-field/sequences/``).
-    Cached: ``serve`` asks for every frame, and a peer's host does not change.
-    """
-    try:
-        return parse_address(peer.removeprefix("udp:")).host
-    except AddressError:
-        return None
 
 
 def failing_ids_by_side(report: Report) -> dict[str, int]:
@@ -317,8 +300,8 @@ def check_recording(
 
     ``judge``: the judge to use (default: the shipped dialects, the ``field``
     reference); ``on_verdict`` is called with each frame and its verdict (``check
-    --verdicts`` writes them one JSON line each), and with each malformed run.  ``side``: ``client`` judges the
-    requests (and the client's malformed bytes) only, ``controller`` the replies
+    --verdicts`` writes them one JSON line each), and with each malformed run.
+    ``side``: ``client`` judges the requests (and the client's malformed bytes) only, ``controller`` the replies
     (and missing replies, the controller's malformed bytes) only, ``both`` both; the
     requests are still read on the controller side, to know what each reply answers.
     A recording of this kit's own suite is judged with ``controller``: the suite

@@ -26,13 +26,13 @@ from dataclasses import replace
 from typing import Any
 
 from .actions import Action, Dropped
-from .capture_check import client_host
 from .dialects import default_dialects
 from .errors import Rule
 from .frame import Frame, Malformed
 from .judge import Direction, Judge, Reference, Verdict
 from .judge_sequence import SequenceFinding, Sequences
 from .judge_stream import CntSteps
+from .net.addresses import client_host
 from .report import CaseResult, Report
 from .report.text import shell_printf, show
 from .spec import SpecSet

@@ -13,7 +13,7 @@ from typing import Any
 
 import pytest
 
-from conformance.capture_check import check_recording, client_host
+from conformance.capture_check import check_recording
 from conformance.client_mode import ClientValidator
 from conformance.dialects import default_dialects
 from conformance.errors import SpecError
@@ -25,6 +25,7 @@ from conformance.judge_sequence import (
     default_sequences,
     load_sequences,
 )
+from conformance.net.addresses import client_host
 from conformance.recording import read_recording
 from conformance.report import Outcome, Report
 from conformance.spec import default_specs, specs_root

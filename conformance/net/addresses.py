@@ -17,13 +17,21 @@ prints as one line (exit code 2).
 
 from __future__ import annotations
 
+import functools
 import ipaddress
 import re
 from typing import Any, NamedTuple
 
 from ..errors import AddressError
 
-__all__ = ["LOOPBACK", "Address", "format_address", "format_sockaddr", "parse_address"]
+__all__ = [
+    "LOOPBACK",
+    "Address",
+    "client_host",
+    "format_address",
+    "format_sockaddr",
+    "parse_address",
+]
 
 #: The host of an address that names none (``:8080``).
 LOOPBACK = "127.0.0.1"
@@ -142,3 +150,18 @@ def _is_host(text: str) -> bool:
         except ValueError:
             return False
     return True
+
+
+@functools.lru_cache(maxsize=4096)
+def client_host(peer: str) -> str | None:
+    """The host of a client address (``HOST:PORT``, ``udp:HOST:PORT``), else ``None``.
+
+    The sequence rules (:mod:`conformance.judge_sequence`) keep one state per client host
+    in ``check`` and ``serve`` alike: one client program reaches a controller over several
+    connections and transports from one address (``specs/fairino-field/sequences/``).
+    Cached: ``serve`` asks for every frame, and a peer's host does not change.
+    """
+    try:
+        return parse_address(peer.removeprefix("udp:")).host
+    except AddressError:
+        return None
