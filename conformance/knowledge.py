@@ -25,7 +25,7 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
-from .data import Value, format_call
+from .data import Arg, Array, Value, format_call
 from .errors import ConformanceError
 from .spec import TYPE_BOUNDS, Command, Param, Returns, ReturnValue, SpecSet, Variant
 
@@ -43,12 +43,13 @@ __all__ = [
     "motion_targets",
     "position_query",
     "refusal_data",
+    "target_args",
     "unsolicited_ids",
 ]
 
 # Parameter names of a motion's targets: 2.1, table 2-1 (MoveJ: J1..J6, then x..rz);
 # 2.15, table 2-21 (MoveCart: the pose as one array ``pos[6]``).
-JOINT_NAMES = _JOINTS = ("j1", "j2", "j3", "j4", "j5", "j6")
+JOINT_NAMES = ("j1", "j2", "j3", "j4", "j5", "j6")
 _CART = ("x", "y", "z", "rx", "ry", "rz")
 #: Names an array of six joint angles goes by (the C++ and C# SDKs' ServoJ: ``joint_pos``).
 JOINT_ARRAYS = frozenset({"joint_pos", "jointpos", "joints", "jpos"})
@@ -191,6 +192,21 @@ class MotionTargets:
     joints_array: int | None = None
 
 
+def target_args(
+    m: MotionTargets, args: Sequence[Arg]
+) -> tuple[tuple[Arg, ...] | None, tuple[Arg, ...] | None]:
+    """The arguments of a motion's (joint, pose) targets, from scalars or a six-value array;
+    None for a target the call does not carry (or an array argument that is not one)."""
+
+    def picked(scalars: tuple[int, ...] | None, array: int | None) -> tuple[Arg, ...] | None:
+        if scalars is not None:
+            return tuple(args[i] for i in scalars)
+        a = args[array] if array is not None else None
+        return tuple(a.items) if isinstance(a, Array) else None
+
+    return picked(m.joints, m.joints_array), picked(m.tcp, m.tcp_array)
+
+
 def _last_complete(params: Sequence[str], names: Sequence[str]) -> tuple[int, ...] | None:
     idx: dict[str, int] = {}
     for i, n in enumerate(params):
@@ -212,7 +228,7 @@ def motion_targets(command: Command, variant: Variant) -> MotionTargets | None:
         return None
     names = [p.name.lower() for p in variant.params]
     scalar = [n if not variant.params[i].is_array else "" for i, n in enumerate(names)]
-    joints = _last_complete(scalar, _JOINTS)
+    joints = _last_complete(scalar, JOINT_NAMES)
     tcp = _last_complete(scalar, _CART)
     arr = next(
         (

@@ -20,7 +20,7 @@ import re
 from collections.abc import Iterable, Sequence
 
 from .actions import Action, DropKind, Dropped
-from .data import Arg, Array, Call, Number, Text, format_number, parse_reply
+from .data import Arg, Call, Number, Text, format_number, parse_reply
 from .dialects import Dialect, default_dialects
 from .errors import ProtocolError, Rule
 from .faults import Fault, FaultKind, active_fault, mangle_reply
@@ -38,6 +38,7 @@ from .knowledge import (
     motion_targets,
     position_query,
     refusal_data,
+    target_args,
 )
 from .spec import Command, Returns, ReturnValue, SpecSet, Variant, default_specs
 from .validate import ERR_ARG_COUNT, ERR_ARG_VALUE, ERR_EXEC_FAILED
@@ -178,7 +179,7 @@ class RobotModel:
                     rec[fi] = t
         m = self._targets(command, variant)
         if m is not None and len(args) == len(variant.params):
-            self._move(command, m, args, texts)
+            self._move(command, m, args)
         return self.reply_values(command, variant, args)
 
     def _targets(self, command: Command, variant: Variant) -> MotionTargets | None:
@@ -194,21 +195,12 @@ class RobotModel:
         self.joints = [_fmt(j) for j in joints]
         self.tcp = [_fmt(v) for v in self.robot.forward(joints)]
 
-    def _move(
-        self, command: Command, m: MotionTargets, args: Sequence[Arg], texts: list[str | None]
-    ) -> None:
-        joints: list[str | None] | None = None
-        if m.joints is not None:
-            joints = [texts[i] for i in m.joints]
-        elif m.joints_array is not None and isinstance(args[m.joints_array], Array):
-            joints = [_arg_text(a) for a in args[m.joints_array].items]  # type: ignore[union-attr]
-        tcp: list[str | None] | None = None
-        if m.tcp is not None:
-            tcp = [texts[i] for i in m.tcp]
-        elif m.tcp_array is not None and isinstance(args[m.tcp_array], Array):
-            tcp = [_arg_text(a) for a in args[m.tcp_array].items]  # type: ignore[union-attr]
+    def _move(self, command: Command, m: MotionTargets, args: Sequence[Arg]) -> None:
+        joint_args, pose_args = target_args(m, args)
+        joints = [_arg_text(a) for a in joint_args] if joint_args is not None else None
+        tcp = [_arg_text(a) for a in pose_args] if pose_args is not None else None
         q = [_num(t) for t in joints] if joints is not None else None
-        if joints is not None and q is not None and all(x is not None for x in q):
+        if joints is not None and q is not None and None not in q:
             qs = [x for x in q if x is not None]
             bad = self.robot.violations(qs)
             if bad:

@@ -29,12 +29,12 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from conformance.data import Array, Call, Number  # noqa: E402
+from conformance.data import Call, Number  # noqa: E402
 from conformance.dialects import ERRCODE_RETURNS, default_dialects  # noqa: E402
 from conformance.frame import Frame, decode_all  # noqa: E402
 from conformance.judge import Judge  # noqa: E402
 from conformance.kinematics import robot as robot_named  # noqa: E402
-from conformance.knowledge import motion_targets  # noqa: E402
+from conformance.knowledge import motion_targets, target_args  # noqa: E402
 from conformance.net.client import Client  # noqa: E402
 from conformance.net.emulator import EmulatorServer  # noqa: E402
 from conformance.spec import default_specs  # noqa: E402
@@ -93,16 +93,9 @@ def targets(v: Any) -> tuple[list[float] | None, list[float] | None]:
     args = v.parsed.args
     if m is None or len(args) != len(v.variant.params):
         return None, None
-
-    def array(i: int | None) -> list[float] | None:
-        a = args[i] if i is not None else None
-        return _numbers(a.items) if isinstance(a, Array) else None
-
-    joints = (
-        _numbers([args[i] for i in m.joints]) if m.joints is not None else array(m.joints_array)
-    )
-    pose = _numbers([args[i] for i in m.tcp]) if m.tcp is not None else array(m.tcp_array)
-    return joints, pose
+    joint_args, pose_args = target_args(m, args)
+    joints = _numbers(joint_args) if joint_args is not None else None
+    return joints, (_numbers(pose_args) if pose_args is not None else None)
 
 
 def _close(a: list[float], b: list[float] | tuple[float, ...]) -> bool:

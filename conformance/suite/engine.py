@@ -77,7 +77,7 @@ class RunFinished:
 
 @dataclass(frozen=True, kw_only=True)
 class Interrupted(RunFinished):
-    """The run was interrupted (Ctrl-C, SIGTERM): the cases not run are listed as such and
+    """The run was interrupted (Ctrl-C): the cases not run are listed as such and
     ``report.stopped`` says after how many; exit code 130 (``errors.EXIT_INTERRUPTED``)."""
 
     interrupted: bool = True
