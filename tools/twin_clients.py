@@ -31,7 +31,7 @@ sys.path.insert(0, str(ROOT))
 
 from conformance.data import Call, Number  # noqa: E402
 from conformance.dialects import ERRCODE_RETURNS, default_dialects  # noqa: E402
-from conformance.frame import Frame, decode_all  # noqa: E402
+from conformance.frame import Frame, decode_all, encode_frame  # noqa: E402
 from conformance.judge import Judge  # noqa: E402
 from conformance.kinematics import robot as robot_named  # noqa: E402
 from conformance.knowledge import motion_targets, target_args  # noqa: E402
@@ -103,8 +103,6 @@ def _close(a: list[float], b: list[float] | tuple[float, ...]) -> bool:
 
 
 def query(c: Client, cnt: int, cmd_id: int, name: str) -> list[float]:
-    from conformance.frame import encode_frame
-
     raw = encode_frame(cnt, cmd_id, f"{name}()")
     c.send_raw(raw)
     ex = c.await_reply(cnt, cmd_id, request=raw, timeout=WAIT)
