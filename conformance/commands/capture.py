@@ -464,6 +464,7 @@ def _run_info(args: argparse.Namespace) -> int:
 
 def _run_check(args: argparse.Namespace) -> int:
     from ..capture_check import check_recording, failing_ids_by_side, judgeable
+    from ..report import write_reports
 
     specs = specs_of(args)
     judge = judge_from(args, specs, strict=args.strict)
@@ -482,8 +483,7 @@ def _run_check(args: argparse.Namespace) -> int:
             )
     else:
         report = check_recording(rec, specs, judge=judge, side=side)
-    if args.report_json:
-        _write_json(args.report_json, report.to_json())
+    write_reports(report, json_path=args.report_json)  # as run and serve write theirs
     if args.report_json != "-":
         print(report.render_terminal(only_failures=args.only_failures))
         # Whose the failures are (each case's group says so too: client / controller).
