@@ -1,28 +1,21 @@
-"""Traffic recorder sub-commands: ``proxy``, ``recover``, ``info``, ``check``, ``replay``,
-``diff``, ``import-pcap``, ``export-pcap`` and ``capture``."""
+"""Recording live traffic: ``proxy`` (in the path) and ``capture`` (a passive tap).
+
+What reads a recording afterwards (``info``, ``check``, ``diff``, ``replay``, ``recover``,
+``import-pcap``, ``export-pcap``) is in :mod:`conformance.commands.recordings`."""
 
 from __future__ import annotations
 
 import argparse
-import json
 import re
 import signal
 import sys
 import threading
 import time
-from pathlib import Path
-from typing import Any
 
-from ..capture_check import SIDES
-from ..diff import ignore_help
 from ..errors import UsageError
 from ..frame import DEFAULT_MAX_FRAME_SIZE
 from ..net.addresses import Address, format_address, parse_address
-from ..pcap import read_capture
-from ..recording import C2S, FrameRecord, recover
-from ._judging import add_judge_options, judge_from, verdict_line
-from ._judging import verdict_sink as _verdict_sink
-from ._safety import add_safety_options
+from ..recording import C2S, FrameRecord
 from ._specs_option import add_specs_dir, specs_of
 
 __all__ = ["format_frame_line", "parse_duration", "parse_size", "register"]
@@ -44,14 +37,6 @@ def parse_duration(text: str) -> float:
         raise argparse.ArgumentTypeError(f"bad duration {text!r} (e.g. 15m)")
     mult = {None: 1.0, "ms": 1e-3, "s": 1.0, "m": 60.0, "h": 3600.0}[m.group(2)]
     return float(m.group(1)) * mult
-
-
-def _write_json(path: str, doc: Any) -> None:
-    text = json.dumps(doc, indent=2, ensure_ascii=False) + "\n"
-    if path == "-":
-        sys.stdout.write(text)
-    else:
-        Path(path).write_text(text, encoding="utf-8")
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -129,153 +114,6 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     )
     add_specs_dir(p)
     p.set_defaults(func=_run_proxy)
-
-    r = sub.add_parser("recover", help="rewrite an unfinished recording as a valid, indexed one")
-    r.add_argument("capture")
-    r.add_argument("-o", "--out", required=True)
-    r.set_defaults(func=_run_recover)
-
-    i = sub.add_parser(
-        "info", help="duration, connections, frames and latency per command of a recording"
-    )
-    i.add_argument("capture")
-    i.add_argument("--json", action="store_true")
-    add_specs_dir(i)
-    add_judge_options(i)
-    i.set_defaults(func=_run_info)
-
-    c = sub.add_parser(
-        "check", help="validate a recording's traffic, both directions, against the specs"
-    )
-    c.add_argument("capture")
-    c.add_argument("--report-json", metavar="PATH", help="write the report as JSON (- for stdout)")
-    c.add_argument("--strict", action="store_true", help="NON-STRICT deviations count as failures")
-    c.add_argument("--only-failures", action="store_true")
-    add_specs_dir(c)
-    c.add_argument(
-        "--verdicts",
-        metavar="PATH",
-        help="write every frame's verdict, one JSON line each (- for stdout)",
-    )
-    c.add_argument(
-        "--side",
-        choices=SIDES,
-        default="both",
-        help="whose frames to judge: the client's requests, the controller's replies, or both "
-        "(default); a recording of this kit's own suite, which sends invalid requests on "
-        "purpose, is judged with --side controller",
-    )
-    add_judge_options(c)
-    c.set_defaults(func=_run_check)
-
-    _register_more(sub)
-
-
-def _register_more(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    rp = sub.add_parser(
-        "replay",
-        help="resend a recording's requests to a target and compare, or serve its replies",
-        description="With --target: resend the client's frames and compare the replies with the "
-        "recorded ones. With --serve: answer a client with the recorded replies.",
-    )
-    rp.add_argument("capture")
-    mode = rp.add_mutually_exclusive_group(required=True)
-    mode.add_argument("--target", help="HOST:PORT to resend the requests to")
-    mode.add_argument(
-        "--serve", metavar="HOST:PORT", help="play the controller's side on this address"
-    )
-    rp.add_argument("--timing", choices=("recorded", "fast"), default="fast")
-    rp.add_argument(
-        "--ignore",
-        action="append",
-        default=[],
-        metavar="RULE",
-        help=ignore_help(),
-    )
-    rp.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for each reply")
-    rp.add_argument(
-        "--udp-port",
-        type=int,
-        default=None,
-        metavar="PORT",
-        help="--target: resend the recording's UDP sessions to this port of the target's host "
-        "(without it they are left out); --serve: answer them on this UDP port of the --serve "
-        "host (0: the kernel chooses; TCP then answers from the TCP sessions only)",
-    )
-    rp.add_argument("--json", metavar="PATH", help="write the comparison as JSON (- for stdout)")
-    rp.add_argument(
-        "--unmatched",
-        choices=("error", "nearest", "drop"),
-        default="error",
-        help="serve: a request the recording has no reply for gets an error reply, "
-        "the nearest recorded reply of its command ID, or none",
-    )
-    rp.add_argument("--count", type=int, default=0, help="serve: stop after this many connections")
-    rp.add_argument(
-        "--max-connections",
-        type=int,
-        default=64,
-        metavar="N",
-        help="serve: clients served at once; more are accepted and closed (default 64)",
-    )
-    rp.add_argument(
-        "--max-frame-size",
-        type=parse_size,
-        default=DEFAULT_MAX_FRAME_SIZE,
-        metavar="SIZE",
-        help="serve: largest request frame read; longer runs are skipped as malformed, so "
-        "a connection holds about this much (default 256K)",
-    )
-    add_safety_options(rp)
-    add_specs_dir(rp)
-    add_judge_options(rp)
-    rp.set_defaults(func=_run_replay)
-
-    d = sub.add_parser("diff", help="compare two recordings per command ID")
-    d.add_argument("a")
-    d.add_argument("b")
-    d.add_argument("--json", action="store_true")
-    d.add_argument(
-        "--ignore",
-        action="append",
-        default=[],
-        metavar="RULE",
-        help=ignore_help(),
-    )
-    d.add_argument(
-        "--latency-threshold",
-        type=float,
-        default=0.5,
-        help="report p50 latency changes above this fraction (default 0.5 = 50%%)",
-    )
-    add_specs_dir(d)
-    add_judge_options(d)
-    d.set_defaults(func=_run_diff)
-
-    ip = sub.add_parser("import-pcap", help="turn a pcap/pcapng capture into a recording")
-    ip.add_argument("pcap")
-    ip.add_argument("-o", "--out", required=True)
-    ip.add_argument(
-        "--port",
-        type=int,
-        action="append",
-        default=[],
-        help="controller TCP port (default 8080; repeatable)",
-    )
-    ip.add_argument(
-        "--udp-port",
-        type=int,
-        action="append",
-        default=[],
-        help="controller UDP port (default 20007; repeatable)",
-    )
-    add_specs_dir(ip)
-    ip.set_defaults(func=_run_import_pcap)
-
-    ep = sub.add_parser("export-pcap", help="write a recording as a pcap for Wireshark")
-    ep.add_argument("capture")
-    ep.add_argument("-o", "--out", required=True)
-    ep.set_defaults(func=_run_export_pcap)
 
     cp = sub.add_parser(
         "capture",
@@ -436,215 +274,7 @@ def _run_proxy(args: argparse.Namespace) -> int:
     return 0
 
 
-# --------------------------------------------------------------------------- recover / info / check
-
-
-def _run_recover(args: argparse.Namespace) -> int:
-    res = recover(args.capture, args.out)
-    state = (
-        "was already complete"
-        if res.was_complete
-        else f"was unfinished ({res.stopped or 'no footer'})"
-    )
-    print(f"recovered {res.messages} messages to {args.out}; {args.capture} {state}")
-    return 0
-
-
-def _run_info(args: argparse.Namespace) -> int:
-    from ..capture_check import render_info, summarize
-
-    specs = specs_of(args)
-    info = summarize(read_capture(args.capture), specs, judge=judge_from(args, specs))
-    if args.json:
-        _write_json("-", info)
-    else:
-        print(render_info(info))
-    return 0
-
-
-def _run_check(args: argparse.Namespace) -> int:
-    from ..capture_check import check_recording, failing_ids_by_side, judgeable
-    from ..report import write_reports
-
-    specs = specs_of(args)
-    judge = judge_from(args, specs, strict=args.strict)
-    rec = read_capture(args.capture)
-    if (warning := judgeable(rec)) is not None:  # an empty one raises: empty is never success
-        print(warning, file=sys.stderr)
-    side = args.side
-    if args.verdicts:
-        with _verdict_sink(args.verdicts) as sink:
-            report = check_recording(
-                rec,
-                specs,
-                judge=judge,
-                on_verdict=lambda f, v: sink(verdict_line(f, v)),
-                side=side,
-            )
-    else:
-        report = check_recording(rec, specs, judge=judge, side=side)
-    write_reports(report, json_path=args.report_json)  # as run and serve write theirs
-    if args.report_json != "-":
-        print(report.render_terminal(only_failures=args.only_failures))
-        # Whose the failures are (each case's group says so too: client / controller).
-        counts = failing_ids_by_side(report)
-        sides = ("client", "controller") if side == "both" else (side,)
-        line = ", ".join(f"{s}: {counts[s]} failing IDs" for s in sides)
-        if side == "both" and counts["client"]:
-            line += (
-                " (the client's requests are judged too: for a recording of this kit's own "
-                "suite, which sends invalid requests on purpose, use --side controller)"
-            )
-        print(line)
-    return report.exit_code()
-
-
-# --------------------------------------------------------------------------- replay / diff / pcap
-
-
-def _run_replay(args: argparse.Namespace) -> int:
-    from ..diff import Ignore
-    from ..net.replay_server import ReplayServer
-    from ..replay import ReplyBook, replay_to_target
-    from ._safety import safety_policy
-
-    if args.serve is not None:
-        address = parse_address(args.serve, default_port=8080, listen=True, option="--serve")
-    else:
-        address = parse_address(args.target, default_port=8080, option="--target")
-    low = 0 if args.serve is not None else 1  # serve: port 0, the kernel chooses
-    if args.udp_port is not None and not low <= args.udp_port < 65536:
-        raise UsageError(f"--udp-port must be {low}..65535, not {args.udp_port}")
-    rec = read_capture(args.capture)
-    specs = specs_of(args)
-    ignore = Ignore.parse(args.ignore, specs=specs)
-    if args.serve is not None:
-        udp = args.udp_port is not None
-        udp_listen = Address(address.host, args.udp_port) if udp else None
-        # With UDP, each transport answers from its own sessions, in their recorded order.
-        transports = ("tcp", "udp") if udp else (None,)
-        books = [ReplyBook(rec, unmatched=args.unmatched, transport=t) for t in transports]
-        try:
-            server = ReplayServer(
-                books[0],
-                listen=address,
-                udp_listen=udp_listen,
-                udp_book=books[-1],
-                max_connections=args.max_connections,
-                max_frame_size=args.max_frame_size,
-            )
-        except OSError as e:
-            raise UsageError(f"cannot listen on {address}: {e.strerror or e}") from None
-        except ValueError as e:
-            raise UsageError(str(e)) from None
-        stop = threading.Event()
-        old = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
-        server.start()
-        on_udp = f", UDP {format_address(*server.udp_address)}" if server.udp_address else ""
-        print(
-            f"replay: serving {args.capture} on {format_address(*server.address)}{on_udp} "
-            f"(unmatched: {args.unmatched})",
-            file=sys.stderr,
-            flush=True,
-        )
-        try:
-            while not stop.wait(0.1):
-                if args.count and server.finished >= args.count:
-                    break
-        finally:
-            for s, h_ in old.items():
-                signal.signal(s, h_)
-            server.close()
-        dropped = ""
-        if server.refused or server.close_reasons:
-            reasons = ", ".join(f"{n} {r}" for r, n in server.close_reasons.most_common(3))
-            dropped = f"; {server.refused} clients refused (--max-connections)" + (
-                f", connections closed: {reasons}" if reasons else ""
-            )
-        if udp:
-            errs = sum(server.udp_dropped.values())
-            dropped += f"; UDP: {server.datagrams} datagrams from {server.udp_peers} peers"
-            dropped += f", {errs} dropped by an error" if errs else ""
-        print(
-            f"replay: {sum(b.answered for b in books)} requests answered from the recording, "
-            f"{sum(b.unmatched_count for b in books)} unmatched{dropped}",
-            file=sys.stderr,
-        )
-        return 0
-    host, port = address
-    safety = safety_policy(args, host)
-    result = replay_to_target(
-        rec,
-        host,
-        port,
-        specs=specs,
-        safety=safety,
-        timing=args.timing,
-        timeout=args.timeout,
-        ignore=ignore,
-        judge=judge_from(args, specs),
-        udp_port=args.udp_port,
-    )
-    report = result.to_report(specs.spec_version)
-    if args.json:
-        _write_json(args.json, result.to_json())
-    if args.json != "-":
-        print(report.render_terminal())
-        for k in sorted(result.differing_ids):
-            for d in result.commands[k].differences[:3]:
-                print(f"  {k} {d.kind}: {d.detail}")
-    return 1 if result.differing_ids else 0
-
-
-def _run_diff(args: argparse.Namespace) -> int:
-    from ..diff import Ignore, diff_recordings
-
-    specs = specs_of(args)
-    res = diff_recordings(
-        read_capture(args.a),
-        read_capture(args.b),
-        specs=specs,
-        ignore=Ignore.parse(args.ignore, specs=specs),
-        latency_threshold=args.latency_threshold,
-        judge=judge_from(args, specs),
-    )
-    if args.json:
-        _write_json("-", res.to_json())
-    else:
-        print(res.render())
-    return 1 if res.changed else 0
-
-
-def _run_import_pcap(args: argparse.Namespace) -> int:
-    from ..pcap import DEFAULT_TCP_PORTS, DEFAULT_UDP_PORTS, import_pcap
-
-    for flag, ports in (("--port", args.port), ("--udp-port", args.udp_port)):
-        for port in ports:
-            if not 0 < port < 65536:
-                raise UsageError(f"{flag} {port}: a port is 1..65535")
-    t0 = time.perf_counter()
-    st = import_pcap(
-        args.pcap,
-        args.out,
-        tcp_ports=args.port or DEFAULT_TCP_PORTS,
-        udp_ports=args.udp_port or DEFAULT_UDP_PORTS,
-        specs=specs_of(args),
-    )
-    dt = time.perf_counter() - t0
-    print(
-        f"imported {st.packets} packets ({st.ignored} not ours) in {dt:.2f} s: "
-        f"{st.connections} connections, {st.frames} frames, {st.problems} problems, "
-        f"{st.retransmitted_bytes} retransmitted bytes dropped -> {args.out}"
-    )
-    return 0
-
-
-def _run_export_pcap(args: argparse.Namespace) -> int:
-    from ..pcap import export_pcap
-
-    n = export_pcap(read_capture(args.capture), args.out)
-    print(f"wrote {n} packets to {args.out}")
-    return 0
+# --------------------------------------------------------------------------- capture
 
 
 def _run_capture(args: argparse.Namespace) -> int:
