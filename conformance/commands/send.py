@@ -73,7 +73,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "then, for each frame in them, wait for the reply echoing its CNT and CMD_ID and print "
         "request and reply with the judge's verdicts. Exit 0 when every request got a reply "
         "whose verdict does not fail, 1 when one is missing or fails, 2 on a connection or "
-        "usage error. To a target that is not loopback, motion, I/O, configuration, "
+        "usage error, or when the bytes hold no frame and nothing came back (nothing to "
+        "judge). To a target that is not loopback, motion, I/O, configuration, "
         "destructive and unknown commands need the --allow-* flags.",
     )
     p.add_argument(
@@ -473,7 +474,7 @@ def _converse(
         for ev in events:
             assert isinstance(ev, Malformed)
             out.malformed(">>", ev, judge.malformed(ev, Direction.REQUEST))
-        frames, malformed, _closed = client.collect(timeout)
+        frames, malformed, closed = client.collect(timeout)
         for m in malformed:
             v = judge.malformed(m, Direction.REPLY)
             out.malformed("<<", m, v)
@@ -483,7 +484,15 @@ def _converse(
             out.frame("<<", f, v)
             failed |= v.fails(judge.reference)
         if not frames and not malformed:
-            out.note(f"nothing within {_seconds(timeout)} s", timeout=timeout)
+            # Empty is never success: no request to pair and no reply to judge.
+            came = (
+                "the target closed the connection without a byte"
+                if closed
+                else f"nothing came back within {_seconds(timeout)} s"
+            )
+            raise UsageError(
+                f"nothing to judge: the bytes sent to {where} hold no frame, and {came}"
+            )
         return 1 if failed else 0
 
     for i, ev in enumerate(events):
