@@ -193,13 +193,26 @@ def summarize(
     }
 
 
+def _source_line(md: dict[str, str]) -> str:
+    if "imported_time" in md:
+        # An import's traffic started with its capture's first packet, long before the import.
+        return (
+            f"source     {md.get('source', '?')} of {md.get('pcap', '?')}  "
+            f"started {md.get('start_time', '?')} (its first packet)  "
+            f"imported {md['imported_time']} on {md.get('host', '?')}"
+        )
+    return (
+        f"source     {md.get('source', '?')}  upstream {md.get('upstream', '?')}  "
+        f"started {md.get('start_time', '?')}  on {md.get('host', '?')}"
+    )
+
+
 def render_info(info: dict[str, Any]) -> str:
     md = info["metadata"]
     lines = [
         f"recording  {info['path']}"
         + ("" if info["complete"] else "  (UNFINISHED: run `recover`)"),
-        f"source     {md.get('source', '?')}  upstream {md.get('upstream', '?')}  "
-        f"started {md.get('start_time', '?')}  on {md.get('host', '?')}",
+        _source_line(md),
         f"duration   {info['duration_s']:.3f} s   connections {len(info['connections'])}   "
         f"frames c2s {info['frames']['c2s']} s2c {info['frames']['s2c']}",
     ]

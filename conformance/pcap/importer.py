@@ -9,7 +9,9 @@ import.)
 
 from __future__ import annotations
 
+import itertools
 import os
+import time
 from collections.abc import Iterable
 
 from ..errors import CaptureError
@@ -19,6 +21,7 @@ from ..recording import (
     atomic_output,
     default_metadata,
     read_recording,
+    utc_time,
 )
 from ..spec import SpecSet
 from .read import read_packets
@@ -116,7 +119,16 @@ def _import(
     uports: frozenset[int],
     specs: SpecSet,
 ) -> ImportStats:
-    md = default_metadata(source="import-pcap", pcap=os.path.basename(os.fspath(path)))
+    stream = read_packets(path)
+    first = next(stream, None)
+    # The traffic started with the capture's first packet, not when it was imported
+    # (``imported_time``); an empty capture has no first packet: the import time then.
+    md = default_metadata(
+        start_ns=None if first is None else first[1],
+        source="import-pcap",
+        pcap=os.path.basename(os.fspath(path)),
+        imported_time=utc_time(time.time_ns()),
+    )
     md["upstream"] = ""
     md["listen"] = ""
     writer = RecordingWriter(out, metadata=md)
@@ -124,7 +136,7 @@ def _import(
         writer, tcp_ports=tports, udp_ports=uports, specs=specs, together=IMPORT_TOGETHER
     )
     feed = packets.feed
-    for lt, t, data in read_packets(path):
+    for lt, t, data in itertools.chain(() if first is None else (first,), stream):
         feed(t, lt, data)
     packets.finish()
     writer.close()

@@ -6,7 +6,7 @@ module             holds
 =================  ===================================================================
 ``layout``         the topics, JSON schemas and format constants (the layout described)
 ``records``        FrameRecord, FrameBatch, ProblemRecord, ConnectionRecord, their JSON
-``writer``         RecordingWriter (one MCAP file), default_metadata
+``writer``         RecordingWriter (one MCAP file), default_metadata, utc_time
 ``rotating``       RotatingWriter (segment files by size or duration), segment_path
 ``names``          command names of frames from the specs (StreamRecorder's lookups)
 ``recorder``       StreamRecorder: bytes and times in, records out (sans-I/O)
@@ -48,7 +48,7 @@ from .records import (
 )
 from .repair import RecoverResult, atomic_output, recover
 from .rotating import RotatingWriter, segment_path
-from .writer import RecordingWriter, default_metadata
+from .writer import RecordingWriter, default_metadata, utc_time
 
 __all__ = [
     "BATCH_BYTES",
@@ -83,4 +83,5 @@ __all__ = [
     "read_recording",
     "recover",
     "segment_path",
+    "utc_time",
 ]

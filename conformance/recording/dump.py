@@ -9,7 +9,7 @@ from .reader import Recording
 __all__ = ["dump_json"]
 
 
-_VOLATILE_METADATA = frozenset({"start_ns", "start_time", "host", "kit_version"})
+_VOLATILE_METADATA = frozenset({"start_ns", "start_time", "imported_time", "host", "kit_version"})
 
 
 def dump_json(rec: Recording, *, metadata: bool = True) -> dict[str, Any]:

@@ -44,25 +44,35 @@ from .records import (
     _OneFrame,
 )
 
-__all__ = ["RecordingWriter", "default_metadata"]
+__all__ = ["RecordingWriter", "default_metadata", "utc_time"]
 
 
-def default_metadata(**extra: str) -> dict[str, str]:
-    """The ``fairino.recording`` metadata every recording carries."""
+def utc_time(ns: int) -> str:
+    """A time in ns since the epoch as the metadata writes it: ISO 8601, UTC, microseconds."""
+    return (
+        time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(ns // 1_000_000_000))
+        + f".{ns % 1_000_000_000 // 1000:06d}Z"
+    )
+
+
+def default_metadata(start_ns: int | None = None, **extra: str) -> dict[str, str]:
+    """The ``fairino.recording`` metadata every recording carries.
+
+    ``start_ns``: when the traffic started (``start_ns``, ``start_time``), now unless
+    given; an import gives its capture's first packet time."""
     from ..spec import default_specs
 
     try:
         spec_version = default_specs().spec_version
     except Exception:  # a recording without specs is still a recording
         spec_version = ""
-    now = time.time_ns()
+    start = time.time_ns() if start_ns is None else start_ns
     md = {
         "format": FORMAT,
         "kit_version": __version__,
         "spec_version": spec_version,
-        "start_ns": str(now),
-        "start_time": time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(now / 1e9))
-        + f".{now % 1_000_000_000 // 1000:06d}Z",
+        "start_ns": str(start),
+        "start_time": utc_time(start),
         "host": socket.gethostname(),
     }
     md.update({k: str(v) for k, v in extra.items()})
