@@ -25,13 +25,15 @@ from scapy.utils import wrpcap
 
 from conformance.cli import main
 from conformance.dialects import default_dialects
+from conformance.errors import SpecError
 from conformance.frame import Frame, encode_frame
 from conformance.judge import Direction, Judge
 from conformance.judge_stream import Pairing
 from conformance.pcap import export_pcap, import_pcap
 from conformance.recording import read_recording
 from conformance.spec import default_specs
-from conformance.wireshark import FIELDS, lua_dissector
+from conformance.validate import RefusalForm
+from conformance.wireshark import FIELDS, english_meanings, lua_dissector, reply_kind
 
 ROOT = Path(__file__).resolve().parent.parent
 CAPTURES = ROOT / "captures"
@@ -66,6 +68,9 @@ class Seen:
     len_mismatch: bool
     unknown: bool
     reply: bool = False
+    refused: bool = False
+    code: int | None = None
+    form: RefusalForm | None = None
 
     @property
     def key(self) -> tuple[int, int, int, str, str]:
@@ -142,7 +147,7 @@ def run_tshark(pcap: Path, lua: Path, ports: str) -> list[Seen]:
         for k in range(len(per[0])):
             port, cnt, cmd_id, length = int(tport or uport), *(int(c[k]) for c in per[:3])
             values.append((port, cnt, cmd_id, length, per[3][k], per[4][k]))
-    flags: list[tuple[int, int, bool, bool]] = []
+    flags: list[tuple[int, int, bool, bool, bool, int | None]] = []
     root = ET.fromstring(_tshark(pcap, lua, ports, "-T", "pdml"))
     for packet in root.iter("packet"):
         for proto in packet.iter("proto"):
@@ -156,6 +161,10 @@ def run_tshark(pcap: Path, lua: Path, ports: str) -> list[Seen]:
                         int(fields["fairino.cmd_id"] or 0),
                         "fairino.len_mismatch" in fields,
                         "fairino.unknown_id" in fields,
+                        "fairino.refused" in fields,
+                        int(fields["fairino.errcode"] or 0)
+                        if "fairino.errcode" in fields
+                        else None,
                     )
                 )
     assert [f[:2] for f in flags] == [v[1:3] for v in values]
@@ -169,15 +178,19 @@ def run_tshark(pcap: Path, lua: Path, ports: str) -> list[Seen]:
             name=v[5],
             len_mismatch=f[2],
             unknown=f[3],
+            refused=f[4],
+            code=f[5],
         )
         for v, f in zip(values, flags, strict=True)
     ]
 
 
-def kit_frames(pcap: Path, tmp: Path, ports: tuple[int, ...]) -> tuple[list[Seen], set[int]]:
+def kit_frames(
+    pcap: Path, tmp: Path, ports: tuple[int, ...], udp_ports: tuple[int, ...] = (20007,)
+) -> tuple[list[Seen], set[int]]:
     """The kit's decode of ``pcap``: frames with names and flags, and the gapped streams."""
     out = tmp / (pcap.stem + ".kit.mcap")
-    import_pcap(pcap, out, tcp_ports=ports, specs=SPECS)
+    import_pcap(pcap, out, tcp_ports=ports, udp_ports=udp_ports, specs=SPECS)
     rec = read_recording(out)
     judge = Judge(SPECS, DIALECTS)
     pairings: dict[int, Pairing] = {}
@@ -209,6 +222,9 @@ def kit_frames(pcap: Path, tmp: Path, ports: tuple[int, ...]) -> tuple[list[Seen
                 len_mismatch="len_mismatch" in f.problems,
                 unknown="unknown_command" in rules,
                 reply=direction is Direction.REPLY,
+                refused=v.refused,
+                code=v.code,
+                form=v.form,
             )
         )
     gapped = set()
@@ -221,9 +237,18 @@ def kit_frames(pcap: Path, tmp: Path, ports: tuple[int, ...]) -> tuple[list[Seen
     return seen, gapped
 
 
-def compare(pcap: Path, lua: Path, tmp: Path, ports: tuple[int, ...]) -> dict[str, Any]:
+def compare(
+    pcap: Path,
+    lua: Path,
+    tmp: Path,
+    ports: tuple[int, ...],
+    *,
+    heuristic: tuple[tuple[int, ...], tuple[int, ...]] = ((), ()),
+) -> dict[str, Any]:
+    """tshark (configured TCP ``ports``) against the kit's decode of the same ports plus
+    the TCP and UDP ports in ``heuristic``, which only the heuristic dissector reads."""
     ws = run_tshark(pcap, lua, ",".join(map(str, ports)))
-    kit, gapped = kit_frames(pcap, tmp, ports)
+    kit, gapped = kit_frames(pcap, tmp, ports + heuristic[0], (20007, *heuristic[1]))
     result: dict[str, Any] = {"compared": 0, "agreeing": 0, "after_gap": 0}
     for port in sorted({s.port for s in kit} | {s.port for s in ws}):
         mine = [s for s in kit if s.port == port]
@@ -245,6 +270,14 @@ def compare(pcap: Path, lua: Path, tmp: Path, ports: tuple[int, ...]) -> dict[st
             assert b.unknown == outside, b
             if not a.reply:
                 assert a.unknown == b.unknown or (a.unknown and DIALECTS.by_id(a.cmd_id)), a
+            # Refusals as the judge reads them; without the request the dissector reads
+            # a lone number only where the ID's commands all reply in one shape.
+            if a.reply and (a.form is RefusalForm.TEXT or reply_kind(a.cmd_id, SPECS, DIALECTS)):
+                assert (b.refused, b.code) == (a.refused, a.code), (a, b)
+            else:
+                assert not b.refused, (a, b)
+        result.setdefault("refusals", 0)
+        result["refusals"] += sum(b.refused for b in theirs)
         result.setdefault("mismatch_frames", 0)
         result["mismatch_frames"] += sum(b.len_mismatch for b in theirs)
         result.setdefault("unknown_frames", 0)
@@ -270,6 +303,8 @@ def test_tshark_agrees_on_recordings(name: str, lua: Path, tmp_path: Path) -> No
     print(f"{name}: {r}")
     assert r["compared"] == len(rec.frames) == r["agreeing"]
     assert r["unknown_frames"] == 2  # NoSuchCommand() (ID 9999) and its reply
+    # robot errcode:3 (GetVersion), 3 (MoveL: an error code only) and robot errcode:14.
+    assert r["refusals"] == 3
 
 
 @needs_tshark
@@ -281,6 +316,7 @@ def test_tshark_agrees_on_field_segments(lua: Path, tmp_path: Path) -> None:
         "compared": 9,
         "agreeing": 9,
         "after_gap": 2,
+        "refusals": 0,
         "mismatch_frames": 0,
         "unknown_frames": 0,
     }
@@ -345,3 +381,119 @@ def test_tshark_agrees_on_a_hostile_pcap(lua: Path, tmp_path: Path) -> None:
     print(f"hostile: {r}")
     assert r["compared"] == r["agreeing"] == 14
     assert r["mismatch_frames"] == 2 and r["unknown_frames"] == 2
+    assert r["refusals"] == 1  # 14 from the unknown ID 9999
+
+
+# --------------------------------------------------------------------------- refusals
+
+ENGLISH = english_meanings()
+LUAC = shutil.which("luac5.2") or shutil.which("luac")
+
+#: (request ID, request DATA, reply DATA, (refused, code) the dissector must show).
+REFUSALS: list[tuple[int, str, str, tuple[bool, int | None]]] = [
+    (9999, "NoSuchCommand()", "robot errcode:14", (True, 14)),  # text form, any command
+    (203, 'MoveL("seamPos",0,0,100,100,100,-1,0)', "3", (True, 3)),  # an error code only
+    (203, 'MoveL("seamPos",0,0,100,100,100,-1,0)', "999", (True, 999)),  # not in chapter 9
+    (201, 'MoveJ("P1")', "0", (True, 0)),  # 0 where 1 is success
+    (201, 'MoveJ("P1")', "1", (False, None)),
+    (375, "GetActualJointPosDegree(0)", "4", (True, 4)),  # a code where six values were due
+    (375, "GetActualJointPosDegree(0)", "1,2,3,4,5,6", (False, None)),
+    (212, "GetDI(0,0)", "0", (False, None)),  # one value: 0 is the input's state
+    (400, "GetVersion()", " ROBOT ERROR CODE = -7", (True, -7)),
+    (201, 'MoveJ("robot errcode:5")', "1", (False, None)),  # a request is no refusal
+]
+
+
+def refusal_packets(server: tuple[str, int] = S, client: tuple[str, int] = C) -> list[Any]:
+    """One TCP connection: each REFUSALS request and its reply, one segment each."""
+    pk = [_tcp(client, server, 999, b"", 0.0)]
+    seq, sseq, t = 1000, 5000, 0.01
+    for cnt, (cid, req, rep, _) in enumerate(REFUSALS, start=1):
+        a, b = encode_frame(cnt, cid, req), encode_frame(cnt, cid, rep)
+        pk += [_tcp(client, server, seq, a, t), _tcp(server, client, sseq, b, t + 0.001)]
+        seq, sseq, t = seq + len(a), sseq + len(b), t + 0.01
+    return pk
+
+
+def frames_pdml(pcap: Path, lua: Path, *opts: str) -> list[dict[str, str]]:
+    """Each FAIRINO frame tshark shows, as field name -> shown value."""
+    assert TSHARK is not None
+    cmd = [TSHARK, "-n", "-r", str(pcap), "-X", f"lua_script:{lua}", *opts, "-T", "pdml"]
+    res = subprocess.run(cmd, capture_output=True, timeout=120, check=False)
+    err = res.stderr.decode("utf-8", "replace")
+    assert res.returncode == 0 and "Lua" not in err, err
+    out = []
+    for proto in ET.fromstring(res.stdout).iter("proto"):
+        if proto.get("name") == "fairino":
+            fields = {str(f.get("name")): str(f.get("show")) for f in proto.iter("field")}
+            if "fairino.cnt" in fields:
+                out.append(fields)
+    return out
+
+
+def test_item_8_reply_kinds_follow_the_returns() -> None:
+    """What a lone integer reply means without its request, per ID (the dissector's table)."""
+    assert reply_kind(203, SPECS, DIALECTS) == "e"  # MoveL: an error code only
+    assert reply_kind(375, SPECS, DIALECTS) == "m"  # six joint positions
+    assert reply_kind(212, SPECS, DIALECTS) is None  # GetDI: one value, 0 is no refusal
+    assert reply_kind(1042, SPECS, DIALECTS) is None  # two commands, two reply shapes
+    assert reply_kind(9999, SPECS, DIALECTS) == "e"  # unknown: answered with a code
+    assert reply_kind(500, SPECS, DIALECTS) is None  # a Lua program error, sent unasked
+    text = lua_dissector(SPECS, DIALECTS)
+    assert '  [203] = "e",' in text and '  [375] = "m",' in text and '  [212] = "' not in text
+
+
+def test_item_8_error_codes_in_both_languages() -> None:
+    """Chapter 9's Chinese meaning and the v3.9.8 English manual's, side by side."""
+    assert ENGLISH, "specs/fairino-3.9.8/error_codes.json"
+    assert ENGLISH[3] == "The number of parameters is abnormal"
+    text = lua_dissector(SPECS, DIALECTS)
+    zh = "".join(f"\\{b:03d}" for b in "参数个数异常".encode())  # as a Lua literal
+    assert f'  [3] = {{"{zh}", "The number of parameters is abnormal"}},' in text
+    # Without the English table, the Chinese alone.
+    bare = lua_dissector(SPECS, DIALECTS, english={})
+    assert "The number of parameters is abnormal" not in bare and "[3] = {" in bare
+    assert f"{len(SPECS.error_codes)} codes; 0 with the v3.9.8 English text" in bare
+
+
+def test_item_8_english_meanings_reads_the_table(tmp_path: Path) -> None:
+    assert english_meanings(tmp_path) == {}  # absent: no English texts
+    (tmp_path / "fairino-3.9.8").mkdir()
+    (tmp_path / "fairino-3.9.8" / "error_codes.json").write_text("[1, 2", encoding="utf-8")
+    with pytest.raises(SpecError, match=r"error_codes\.json"):
+        english_meanings(tmp_path)
+
+
+@pytest.mark.skipif(LUAC is None, reason="luac is not installed (apt-get install lua5.2)")
+def test_the_dissector_is_valid_lua(lua: Path) -> None:
+    """Wireshark 4.0 embeds Lua 5.2: the generated file must compile."""
+    assert LUAC is not None
+    res = subprocess.run([LUAC, "-p", str(lua)], capture_output=True, timeout=60, check=False)
+    assert res.returncode == 0, res.stderr.decode("utf-8", "replace")
+
+
+@needs_tshark
+def test_item_8_dissector_shows_refusals_with_code_and_meaning(lua: Path, tmp_path: Path) -> None:
+    """robot errcode:14 was read as ``Call: robot``: a refusal shows its code and meaning."""
+    pcap = tmp_path / "refusals.pcap"
+    wrpcap(str(pcap), refusal_packets())
+    frames = frames_pdml(pcap, lua)
+    assert len(frames) == 2 * len(REFUSALS)
+    for k, (_, req, rep, (refused, code)) in enumerate(REFUSALS):
+        request, reply = frames[2 * k], frames[2 * k + 1]
+        assert "fairino.refused" not in request and "fairino.call" in request, req
+        assert reply.get("fairino.data") == rep
+        assert "fairino.call" not in reply, rep  # not "robot"
+        assert ("fairino.refused" in reply) == refused, rep
+        shown = reply.get("fairino.errcode")
+        assert (int(shown) if shown is not None else None) == code, rep
+        known = SPECS.error_code(code) if code else None  # 0: a plain 0, not chapter 9's
+        assert reply.get("fairino.errcode_meaning") == (known.meaning if known else None), rep
+        english = ENGLISH.get(known.code) if known else None
+        assert reply.get("fairino.errcode_meaning_en") == english, rep
+    text = frames[1]["fairino.errcode_meaning_en"]  # robot errcode:14
+    assert text == ENGLISH[14] and frames[1]["fairino.errcode_meaning"] == "指令执行失败"
+    # And as the kit's judge reads the same replies, paired with their requests.
+    r = compare(pcap, lua, tmp_path, (8080,))
+    assert r["compared"] == r["agreeing"] == 2 * len(REFUSALS)
+    assert r["refusals"] == sum(x[3][0] for x in REFUSALS) == 6
