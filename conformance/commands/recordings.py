@@ -40,15 +40,15 @@ def _write_json(path: str, doc: Any) -> None:
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     r = sub.add_parser("recover", help="rewrite an unfinished recording as a valid, indexed one")
-    r.add_argument("capture")
-    r.add_argument("-o", "--out", required=True)
+    r.add_argument("capture", help="the unfinished MCAP recording")
+    r.add_argument("-o", "--out", required=True, help="the recovered MCAP recording to write")
     r.set_defaults(func=_run_recover)
 
     i = sub.add_parser(
         "info", help="duration, connections, frames and latency per command of a recording"
     )
-    i.add_argument("capture")
-    i.add_argument("--json", action="store_true")
+    i.add_argument("capture", help="the MCAP recording")
+    i.add_argument("--json", action="store_true", help="print the summary as JSON")
     add_specs_dir(i)
     add_judge_options(i)
     i.set_defaults(func=_run_info)
@@ -56,10 +56,14 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     c = sub.add_parser(
         "check", help="validate a recording's traffic, both directions, against the specs"
     )
-    c.add_argument("capture")
+    c.add_argument("capture", help="the MCAP recording")
     c.add_argument("--report-json", metavar="PATH", help="write the report as JSON (- for stdout)")
     c.add_argument("--strict", action="store_true", help="NON-STRICT deviations count as failures")
-    c.add_argument("--only-failures", action="store_true")
+    c.add_argument(
+        "--only-failures",
+        action="store_true",
+        help="list only the commands that are not PASS or SKIPPED in the table",
+    )
     add_specs_dir(c)
     c.add_argument(
         "--verdicts",
@@ -87,13 +91,19 @@ def _register_more(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
         description="With --target: resend the client's frames and compare the replies with the "
         "recorded ones. With --serve: answer a client with the recorded replies.",
     )
-    rp.add_argument("capture")
+    rp.add_argument("capture", help="the MCAP recording")
     mode = rp.add_mutually_exclusive_group(required=True)
     mode.add_argument("--target", help="HOST:PORT to resend the requests to")
     mode.add_argument(
         "--serve", metavar="HOST:PORT", help="play the controller's side on this address"
     )
-    rp.add_argument("--timing", choices=("recorded", "fast"), default="fast")
+    rp.add_argument(
+        "--timing",
+        choices=("recorded", "fast"),
+        default="fast",
+        help="--target: send each request when the recording did (recorded), or each as "
+        "soon as the reply before it is in (fast, the default)",
+    )
     rp.add_argument(
         "--ignore",
         action="append",
@@ -141,9 +151,9 @@ def _register_more(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
     rp.set_defaults(func=_run_replay)
 
     d = sub.add_parser("diff", help="compare two recordings per command ID")
-    d.add_argument("a")
-    d.add_argument("b")
-    d.add_argument("--json", action="store_true")
+    d.add_argument("a", help="the first MCAP recording (the baseline)")
+    d.add_argument("b", help="the second MCAP recording, compared with the first")
+    d.add_argument("--json", action="store_true", help="print the comparison as JSON")
     d.add_argument(
         "--ignore",
         action="append",
@@ -162,8 +172,8 @@ def _register_more(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
     d.set_defaults(func=_run_diff)
 
     ip = sub.add_parser("import-pcap", help="turn a pcap/pcapng capture into a recording")
-    ip.add_argument("pcap")
-    ip.add_argument("-o", "--out", required=True)
+    ip.add_argument("pcap", help="the pcap or pcapng capture")
+    ip.add_argument("-o", "--out", required=True, help="the MCAP recording to write")
     ip.add_argument(
         "--port",
         type=int,
@@ -182,8 +192,8 @@ def _register_more(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
     ip.set_defaults(func=_run_import_pcap)
 
     ep = sub.add_parser("export-pcap", help="write a recording as a pcap for Wireshark")
-    ep.add_argument("capture")
-    ep.add_argument("-o", "--out", required=True)
+    ep.add_argument("capture", help="the MCAP recording")
+    ep.add_argument("-o", "--out", required=True, help="the pcap file to write")
     ep.set_defaults(func=_run_export_pcap)
 
 

@@ -13,7 +13,7 @@ def _add_report(sub: Any) -> None:
     rs = p.add_subparsers(dest="report_command", metavar="ACTION")
     rs.required = True
     show = rs.add_parser("show", help="per-command table of a JSON report")
-    show.add_argument("report")
+    show.add_argument("report", help="a JSON report (run, serve or check --report-json)")
     show.set_defaults(func=_report_show)
     html = rs.add_parser(
         "html",
@@ -24,8 +24,10 @@ def _add_report(sub: Any) -> None:
         "frames and a reproduction line, and a per-command table of that one target. "
         "To compare targets side by side, use 'report merge'.",
     )
-    html.add_argument("reports", nargs="+", metavar="REPORT.json")
-    html.add_argument("-o", "--output", required=True, metavar="PAGE.html")
+    html.add_argument("reports", nargs="+", metavar="REPORT.json", help="JSON reports")
+    html.add_argument(
+        "-o", "--output", required=True, metavar="PAGE.html", help="the HTML page to write"
+    )
     html.set_defaults(func=_report_html, render="sections")
     merge = rs.add_parser(
         "merge",
@@ -35,8 +37,10 @@ def _add_report(sub: Any) -> None:
         "command ID (failing commands first), one column per report's target, each cell "
         "the outcome and one box per case group, failing cases unfolded.",
     )
-    merge.add_argument("reports", nargs="+", metavar="REPORT.json")
-    merge.add_argument("-o", "--output", required=True, metavar="PAGE.html")
+    merge.add_argument("reports", nargs="+", metavar="REPORT.json", help="JSON reports")
+    merge.add_argument(
+        "-o", "--output", required=True, metavar="PAGE.html", help="the HTML page to write"
+    )
     merge.set_defaults(func=_report_html, render="matrix")
 
 
