@@ -37,13 +37,22 @@ __all__ = [
     "Semantics",
     "SpecSet",
     "Variant",
+    "available_spec_versions",
     "default_specs",
+    "english_error_code",
+    "english_title",
+    "load_spec_version",
     "load_specs",
     "schema_path",
+    "spec_set_dir",
     "specs_root",
 ]
 
 DEFAULT_SPEC_SET = "fairino-3.8.2"
+#: Spec sets extracted from a manual are ``specs/fairino-<version>/``.
+SPEC_SET_PREFIX = "fairino-"
+#: The spec set whose error-code table is in English (``english_error_code``).
+ENGLISH_SPEC_VERSION = "3.9.8"
 
 
 class Safety(str, enum.Enum):
@@ -547,12 +556,18 @@ def _check_semantics(specs: SpecSet, *, path: str) -> None:
 
 
 _SPEC_FILES = ("commands", "errata", "error_codes", "semantics")
+#: Files a spec set may lack: a set without semantics has no position queries or pairs.
+_OPTIONAL_FILES = frozenset({"semantics"})
 
 
 def load_specs(directory: Path | str | None = None, *, validate: bool = True) -> SpecSet:
     """Load one spec set (default: ``specs/fairino-3.8.2``), validating it against the schema."""
     d = Path(directory) if directory is not None else specs_root() / DEFAULT_SPEC_SET
-    docs = {name: _read_json(d / f"{name}.json") for name in _SPEC_FILES}
+    docs = {
+        name: _read_json(d / f"{name}.json")
+        for name in _SPEC_FILES
+        if name not in _OPTIONAL_FILES or (d / f"{name}.json").is_file()
+    }
     if validate:
         for name, doc in docs.items():
             validate_document(doc, path=str(d / f"{name}.json"))
@@ -578,11 +593,81 @@ def load_specs(directory: Path | str | None = None, *, validate: bool = True) ->
             ErrorCode(code=e["code"], meaning=e["meaning"], remedy=e["remedy"])
             for e in docs["error_codes"]["error_codes"]
         ),
-        semantics=_semantics(docs["semantics"]),
+        semantics=_semantics(docs["semantics"]) if "semantics" in docs else None,
     )
-    if validate:
+    if validate and "semantics" in docs:
         _check_semantics(specs, path=str(d / "semantics.json"))
     return specs
+
+
+def available_spec_versions() -> tuple[str, ...]:
+    """The versions of the spec sets shipped under :func:`specs_root`, oldest first."""
+    root = specs_root()
+    found = [
+        p.name.removeprefix(SPEC_SET_PREFIX)
+        for p in root.iterdir()
+        if p.name.startswith(SPEC_SET_PREFIX) and (p / "commands.json").is_file()
+    ]
+    return tuple(sorted(found, key=_version_key))
+
+
+def _version_key(v: str) -> tuple[int, ...]:
+    return tuple(int(x) if x.isdigit() else -1 for x in v.split("."))
+
+
+def spec_set_dir(version_or_path: str | Path) -> Path:
+    """The directory a spec version (``3.8.2``, ``v3.9.8``, ``fairino-3.9.8``) or a path names.
+
+    A string that names an existing directory is that directory; otherwise it is read as
+    a version of a shipped set.  An unknown version is a :class:`SpecError` naming the
+    versions there are.
+    """
+    p = Path(version_or_path)
+    if p.is_dir():
+        return p
+    v = str(version_or_path).strip().removeprefix(SPEC_SET_PREFIX).lstrip("vV")
+    d = specs_root() / f"{SPEC_SET_PREFIX}{v}"
+    if (d / "commands.json").is_file():
+        return d
+    known = ", ".join(available_spec_versions()) or "none"
+    raise SpecError(
+        f"no spec set {version_or_path!r}: not a directory, and not a shipped version "
+        f"(shipped: {known})"
+    )
+
+
+@functools.lru_cache(maxsize=8)
+def _load_dir(d: Path) -> SpecSet:
+    return load_specs(d)
+
+
+def load_spec_version(version_or_path: str | Path) -> SpecSet:
+    """Load a spec set by version (``"3.8.2"``, ``"3.9.8"``) or by directory; each once
+    per process (schema-validated)."""
+    return _load_dir(spec_set_dir(version_or_path).resolve())
+
+
+def english_error_code(code: int) -> ErrorCode | None:
+    """Chapter 10's English text for an error code (the v3.9.8 manual's table 10-1), where
+    that table has the code; None otherwise, or when that spec set is not shipped.
+
+    The one place the kit asks for the English text beside a chapter-9 (v3.8.2) one.
+    """
+    try:
+        specs = load_spec_version(ENGLISH_SPEC_VERSION)
+    except SpecError:
+        return None
+    return specs.error_code(code)
+
+
+def english_title(name: str) -> str | None:
+    """The English manual's one-line description of a command of that name, if it has it."""
+    try:
+        specs = load_spec_version(ENGLISH_SPEC_VERSION)
+    except SpecError:
+        return None
+    found = specs.by_name(name)
+    return found[0].title if found and found[0].title else None
 
 
 @functools.lru_cache(maxsize=1)

@@ -17,10 +17,9 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-if TYPE_CHECKING:  # the extractor's model, imported lazily to avoid an import cycle
-    pass
+from tools.manual_model import RawSection, RawVariant
 
 #: Curly quotes the PDF printed for the ASCII quote of a DATA string ("P1").
 CURLY = str.maketrans({"\u201c": '"', "\u201d": '"', "\u2018": "'", "\u2019": "'"})
@@ -196,3 +195,341 @@ def parse_error_codes_en(
 def _tidy(s: str) -> str:
     s = re.sub(r"\s+", " ", s.translate(CURLY)).strip()
     return re.sub(r"(?<=[a-z])- (?=[a-z])", "-", s)
+
+
+# --------------------------------------------------------------------------- command tables
+
+HEADING_EN = re.compile(r"^(\d+(?:\.\d+)+)\s+([A-Za-z_][A-Za-z0-9_]*)\s*(\(\s*\))?\s*$")
+GROUP_EN = re.compile(r"^(\d+(?:\.\d+)*)\s+[A-Za-z]")
+CAPTION_EN = re.compile(r"^Table\s*(\d+(?:\s*-\s*\d+)+)\s*(.*)$")
+TYPE_EN = re.compile(
+    r"^(?:u?int(?:8|16|32|64)?(?:_t)?|float|double|char|string|bool)(?:\s*\[\s*\d*\s*\])?$"
+)
+NAME_EN = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*(?:\s*\[\s*\d+\s*\])?$")
+#: The row and column labels of a command table, whole or wrapped ("returne" / "d value").
+LABELS = {
+    "parameter",
+    "parame",
+    "ter",
+    "order",
+    "type",
+    "name",
+    "description",
+    "returned",
+    "returne",
+    "d value",
+    "value",
+    "returned value",
+    "return value",
+    "Command",
+    "Comm",
+    "and",
+    "number",
+    "Command number",
+    "instance",
+    "instanc",
+    "e",
+    "Send",
+    "the",
+    "frame",
+    "Send the",
+    "Send frame",
+    "Send the frame",
+    "Receive",
+    "Recei",
+    "ve",
+    "Receive frame",
+    "illustrate",
+}
+
+
+def find_body_en(lines: list[str]) -> tuple[int, int]:
+    """The command chapters: from the body's '2 Robot motion commands' to chapter 10."""
+    starts = [i for i, ln in enumerate(lines) if ln.strip() == "2 Robot motion commands"]
+    if not starts:
+        raise SystemExit("manual: no '2 Robot motion commands' heading")
+    return starts[-1], find_error_table(lines)
+
+
+def segment_en(lines: list[str], start: int, end: int) -> list[RawSection]:
+    """Sections ``N.N[.N] Name()``; a group heading (``3.1 figure IO``) ends a section.
+
+    A heading's chapter must be the current one and its number must not run backwards
+    (a wrapped frame's ``2.142III/b/f`` or a version string is not a heading).
+    """
+    out: list[RawSection] = []
+    cur: RawSection | None = None
+    chapter = 2
+    for i in range(start, end):
+        s = lines[i].replace("\f", "").strip()
+        m = HEADING_EN.match(s)
+        key = m.group(1) if m else ""
+        top = int(key.split(".")[0]) if key else 0
+        if m and top in (chapter, chapter + 1) and "III" not in s:
+            chapter = top
+            cur = RawSection(key=key, heading=s, printed_name=m.group(2), line=i + 1)
+            out.append(cur)
+            continue
+        g = GROUP_EN.match(s)
+        if g and not CAPTION_EN.match(s) and not re.search(r"[,;:]", s) and len(s) < 60:
+            head = int(g.group(1).split(".")[0])
+            nxt = next((t.strip() for t in lines[i + 1 : i + 4] if t.strip()), "")
+            if ("." in g.group(1) and head == chapter) or (
+                "." not in g.group(1) and head == chapter + 1 and nxt.startswith(f"{head}.1 ")
+            ):
+                # a group heading (3.1 figure IO) or a chapter's (3 Robot IO instructions)
+                chapter = head
+                cur = None
+                continue
+        if cur is not None:
+            cur.lines.append((i + 1, lines[i].replace("\f", "")))
+    return out
+
+
+def split_variants_en(sec: RawSection) -> list[tuple[str, str, int, list[tuple[int, str]]]]:
+    """A section's tables: ``(table, caption, line, lines)``; a table without a caption
+    (tables 2-45 .. of the manual print none for many sections) is named ``§<key>``."""
+    chunks: list[list[Any]] = []
+    title: list[str] = []
+    for n, ln in sec.lines:
+        s = ln.strip()
+        m = CAPTION_EN.match(s)
+        if m:
+            table = re.sub(r"\s+", "", m.group(1))
+            chunks.append([table, _tidy(f"Table {table} {m.group(2)}"), n, []])
+            continue
+        if chunks:
+            chunks[-1][3].append((n, ln))
+        elif not _starts_table(s) and not chunks and s and not title_done(title, s):
+            title.append(s)
+        else:
+            chunks.append(["§" + sec.key, "", n, [(n, ln)]])
+    sec.title = _tidy(" ".join(title))
+    return [(c[0], c[1], c[2], c[3]) for c in chunks]
+
+
+def _starts_table(s: str) -> bool:
+    return s in LABELS or bool(TYPE_EN.match(s)) or s.isdigit() or "/f/b" in s
+
+
+def title_done(title: list[str], s: str) -> bool:
+    """The one-line description under a heading ends at its full stop (or after 3 lines)."""
+    return bool(title) and (title[-1].endswith((".", "\u3002")) or len(title) >= 3)
+
+
+@dataclass
+class _Row:
+    index: int | None
+    printed_type: str | None
+    name: str | None
+    paras: list[list[str]] = field(default_factory=list)
+    returns: bool = False
+
+
+def parse_variant_en(
+    table: str, caption: str, line: int, body: list[tuple[int, str]]
+) -> RawVariant:
+    """One table as the PDF dump prints it, cell by cell (see the module docstring).
+
+    Rows are ``[index] type name [description]``.  A name that comes after later rows'
+    types (a column printed as a block, table 2-10) goes to the first row without one;
+    a description printed away from its row (after the examples, or two in one cell)
+    goes, in order, to the rows left without one.  Rows numbered from 1 again, or all
+    rows of a table without a ``parameter`` label, are return values.
+    """
+    from tools.manual_model import FrameText, Row
+
+    v = RawVariant(table=table, caption=caption, line=line)
+    rows: list[_Row] = []
+    orphans: list[list[str]] = []
+    born: list[int] = []  # for each orphan paragraph, the number of rows read before it
+    frames: list[list[str]] = []
+    in_frame = False
+    pending_index: int | None = None
+    target: _Row | None = None  # the row the description text goes to
+    last_name: _Row | None = None  # the row whose name cell was read last
+    para_open = False
+    has_param_label = False
+    after_rows = False  # the command number or the examples were seen
+    toks = [(n, ln.strip().translate(CURLY)) for n, ln in body]
+    for _n, s in toks:
+        if not s:
+            para_open = False
+            continue
+        if FOOTER_RE.match(s):
+            para_open = False
+            continue
+        if in_frame or s.startswith("/f/b"):
+            if s.startswith("/f/b") or not frames:
+                frames.append([])
+            frames[-1].append(s)
+            in_frame = "/b/f" not in s
+            after_rows = True
+            para_open = False
+            continue
+        if "/f/b" in s:  # a label and a frame on one line
+            _head, _, tail = s.partition("/f/b")
+            frames.append(["/f/b" + tail])
+            in_frame = "/b/f" not in tail
+            continue
+        if s in LABELS or re.fullmatch(r"(?:Send|Receive)(?: the)? frame", s):
+            if s.startswith("parame"):
+                has_param_label = True
+            para_open = False
+            continue
+        if re.fullmatch(r"\d{1,2}", s) and not after_rows:
+            # an index cell (tables have fewer than 100 rows; command numbers are >= 100)
+            pending_index = int(s)
+            para_open = False
+            continue
+        m = re.fullmatch(r"(?:Command number\s*)?(\d{3,5})", s)
+        if m:
+            v.cmd_ids.append(int(m.group(1)))
+            v.printed_cmd_id = s
+            para_open = False
+            continue
+        if TYPE_EN.match(s) and not after_rows:
+            absorbed = next(
+                (r for r in rows if r.printed_type is None and pending_index is None), None
+            )
+            if absorbed is not None:
+                absorbed.printed_type = s
+            else:
+                rows.append(_Row(index=pending_index, printed_type=s, name=None))
+            pending_index = None
+            para_open = False
+            continue
+        if (
+            para_open
+            and last_name is not None
+            and last_name.name is not None
+            and len(last_name.name) >= 11
+            and re.fullmatch(r"[a-z][A-Za-z0-9_]*", s)
+        ):
+            # a name wrapped in its narrow column ("preHeatingV" / "olt", table 5-4-18)
+            last_name.name += s
+            continue
+        if (
+            last_name is not None
+            and last_name.name
+            and last_name.name.count("{") > (last_name.name.count("}"))
+        ):
+            last_name.name += s  # "pos={x,y,z,rx,r" ... "y,rz}" (table 2-18)
+            continue
+        if (
+            (NAME_EN.match(s) or re.fullmatch(r"[A-Za-z_]\w*=\{[\w,]*", s))
+            and not after_rows
+            and _wants_name(rows, s)
+        ):
+            row = _name_target(rows, s)
+            row.name = s
+            target = last_name = row
+            para_open = True
+            continue
+        # description text
+        if after_rows or target is None:
+            if para_open and orphans:
+                orphans[-1].append(s)
+            else:
+                orphans.append([s])
+                born.append(len(rows))
+        elif para_open and target.paras:
+            target.paras[-1].append(s)
+        elif target.returns and target.paras:
+            orphans.append([s])
+            born.append(len(rows))
+            target = None
+        else:
+            at = rows.index(target)
+            if not target.paras and s[:1].islower():
+                # the cell's first lines were printed before its row (table 7-2-4:
+                # 'Reference coordinate system, 0-tool' ... '1 int rcs coordinate system, 1-base')
+                early = [j for j, b in enumerate(born) if b == at]
+                target.paras = [[x for j in early for x in orphans[j]]]
+                for j in reversed(early):
+                    del orphans[j], born[j]
+                target.paras[-1].append(s)
+            else:
+                target.paras.append([s])
+        para_open = True
+    _place_orphans(rows, orphans)
+    _split_params_returns(rows, has_param_label, frames)
+    for r in rows:
+        read = Row(
+            index=r.index,
+            printed_type=r.printed_type or "",
+            name=r.name or "",
+            description=_tidy(" ".join(" ".join(p) for p in r.paras)),
+            label="returned value" if r.returns else "",
+            index_source="printed" if r.index is not None else "lost",
+        )
+        (v.returns if r.returns else v.params).append(read)
+    texts = [f for f in frames if f]
+    reqs = texts[0::2]
+    reps = texts[1::2]
+    v.requests = [FrameText(printed=" ".join(f), parts=list(f)) for f in reqs]
+    v.replies = [FrameText(printed=" ".join(f), parts=list(f)) for f in reps]
+    return v
+
+
+def _wants_name(rows: list[_Row], s: str) -> bool:
+    if s.lower() == "errcode":
+        return True
+    return any(r.name is None for r in rows)
+
+
+def _name_target(rows: list[_Row], s: str) -> _Row:
+    if s.lower() == "errcode" and (not rows or rows[-1].name is not None):
+        # errcode printed before its type (table 2-10): an unnumbered return row
+        row = _Row(index=None, printed_type=None, name=None, returns=True)
+        rows.append(row)
+        return row
+    if rows and rows[-1].name is None:
+        return rows[-1]
+    return next(r for r in rows if r.name is None)
+
+
+def _place_orphans(rows: list[_Row], orphans: list[list[str]]) -> None:
+    """Descriptions printed away from their rows go to the rows without one, in order.
+
+    Where a row without a description sits before a row whose description has a line
+    starting a new sentence (two cells printed as one: '[-1]: Stop ... [ms]' /
+    'Whether to do offset, ...'), the first part is that row's.
+    """
+    for i, r in enumerate(rows[:-1]):
+        nxt = rows[i + 1]
+        if r.paras or not nxt.paras or r.returns:
+            continue
+        lines = [x for p in nxt.paras for x in p]
+        cut = next(
+            (j for j in range(1, len(lines)) if re.match(r"^[A-Z][a-z]", lines[j])),
+            None,
+        )
+        if cut is not None and (orphans == [] or len(lines) > 2):
+            r.paras = [lines[:cut]]
+            nxt.paras = [lines[cut:]]
+    empty = [r for r in rows if not r.paras and r.name and r.name.lower() != "errcode"]
+    for r, p in zip(empty, orphans, strict=False):
+        r.paras = [p]
+    for r in rows:
+        if r.printed_type is None:
+            r.printed_type = "int" if (r.name or "").lower() == "errcode" else ""
+
+
+def _split_params_returns(rows: list[_Row], has_param_label: bool, frames: list[list[str]]) -> None:
+    """Which rows are return values: unnumbered ones, numbered ones after the numbering
+    starts again at 1, and all numbered ones when the table has no parameter label and
+    its example sends no argument."""
+    seen_numbered = False
+    state_returns = False
+    for r in rows:
+        if r.index is None:
+            r.returns = True
+            continue
+        if r.index == 1 and seen_numbered:
+            state_returns = True
+        seen_numbered = True
+        r.returns = state_returns
+    if not has_param_label and frames and re.search(r"\(\s*\)III", "".join(frames[0])):
+        for r in rows:
+            r.returns = True
