@@ -1,0 +1,276 @@
+"""The port-8083 state packet layouts, as data: ``specs/fairino-<version>/state.json``.
+
+Each layout is the DATA of one controller version's state packet (the 8083 state
+manual's table 2-2, written by ``tools/extract_state.py``): named C fields at byte
+offsets, little-endian and packed (the file's ``frame.byte_order_source`` and erratum
+S1 say why).  :class:`StateLayout` compiles one into a single precompiled
+:class:`struct.Struct` for the whole DATA, so a packet is read with one
+``unpack_from`` and its values are turned into named fields only when asked.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import math
+import struct
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from ..errors import LocalProtocolError, Rule, SpecError
+from ..spec import specs_root
+
+__all__ = [
+    "StateField",
+    "StateLayout",
+    "known_layouts",
+    "layout_for",
+    "load_layout",
+]
+
+#: C type -> struct format character (state.json's ``ctype``).
+_FORMATS: Mapping[str, str] = {
+    "uint8_t": "B",
+    "int8_t": "b",
+    "uint16_t": "H",
+    "int16_t": "h",
+    "int": "i",
+    "int32_t": "i",
+    "uint32_t": "I",
+    "float": "f",
+    "double": "d",
+}
+
+
+@dataclass(frozen=True, kw_only=True)
+class StateField:
+    """One field of table 2-2: ``count`` elements of ``ctype`` at ``offset`` in DATA.
+
+    ``members`` is a structure's (name, ctype) list (``exaxis_status``, table 2-3);
+    ``first``/``width`` locate the field's values in the layout's unpacked tuple.
+    """
+
+    name: str
+    ctype: str
+    count: int
+    offset: int
+    size: int
+    unit: str | None
+    members: tuple[tuple[str, str], ...] = ()
+    first: int = 0
+    width: int = 1
+
+    @property
+    def format(self) -> str:
+        if self.ctype == "char":
+            return f"{self.count}s"
+        if self.members:
+            return "".join(_FORMATS[c] for _, c in self.members) * self.count
+        return _FORMATS[self.ctype] * self.count
+
+
+def _text(raw: bytes) -> str:
+    """A ``char[n]`` field: the text before its NUL (UTF-8, undecodable bytes replaced)."""
+    return raw.split(b"\x00", 1)[0].decode("utf-8", "replace")
+
+
+class StateLayout:
+    """One version's state packet DATA, compiled for reading and writing."""
+
+    def __init__(
+        self, version: str, fields: Sequence[StateField], *, doc: Mapping[str, Any]
+    ) -> None:
+        self.version = version
+        placed: list[StateField] = []
+        first = 0
+        offset = 0
+        for f in fields:
+            if f.offset != offset:
+                raise SpecError(
+                    f"state layout {version}: {f.name} at {f.offset}, expected {offset}"
+                )
+            n = 1 if f.ctype == "char" else f.count * max(1, len(f.members))
+            placed.append(
+                StateField(
+                    name=f.name,
+                    ctype=f.ctype,
+                    count=f.count,
+                    offset=f.offset,
+                    size=f.size,
+                    unit=f.unit,
+                    members=f.members,
+                    first=first,
+                    width=n,
+                )
+            )
+            first += n
+            offset += f.size
+        self.fields: tuple[StateField, ...] = tuple(placed)
+        self.by_name = {f.name: f for f in self.fields}
+        #: The whole DATA as one precompiled struct (little-endian, packed).
+        self.struct = struct.Struct("<" + "".join(f.format for f in self.fields))
+        self.data_length = offset
+        if self.struct.size != self.data_length:
+            raise SpecError(f"state layout {version}: struct size {self.struct.size} != {offset}")
+        frame = doc.get("frame", {})
+        period = frame.get("period_ms", {})
+        #: The period range and default the manual gives (section 1).
+        self.period_ms: tuple[int, int, int] = (
+            int(period.get("min", 8)),
+            int(period.get("max", 100)),
+            int(period.get("default", 100)),
+        )
+        self.header = int(frame.get("header", {}).get("value", 0x5A5A))
+        self.doc = doc
+
+    def __repr__(self) -> str:
+        return f"StateLayout(version={self.version!r}, fields={len(self.fields)}, LEN={self.data_length})"
+
+    # ------------------------------------------------------------------ reading
+
+    def unpack(self, buf: bytes | bytearray | memoryview, offset: int = 0) -> tuple[Any, ...]:
+        """DATA's values, flat, in layout order (one ``unpack_from``)."""
+        return self.struct.unpack_from(buf, offset)
+
+    def to_fields(self, values: Sequence[Any]) -> dict[str, Any]:
+        """Flat values as named fields: scalars, lists for arrays, text for ``char[n]``,
+        a list of dicts for an array of structures."""
+        out: dict[str, Any] = {}
+        for f in self.fields:
+            if f.ctype == "char":
+                out[f.name] = _text(values[f.first])
+            elif f.members:
+                k = len(f.members)
+                names = [n for n, _ in f.members]
+                items = [
+                    dict(zip(names, values[f.first + i * k : f.first + (i + 1) * k], strict=True))
+                    for i in range(f.count)
+                ]
+                out[f.name] = items if f.count > 1 else items[0]
+            elif f.count == 1:
+                out[f.name] = values[f.first]
+            else:
+                out[f.name] = list(values[f.first : f.first + f.count])
+        return out
+
+    # ------------------------------------------------------------------ writing
+
+    def pack(self, fields: Mapping[str, Any]) -> bytes:
+        """DATA for ``fields`` (by name; a field not given is zero, an empty text).
+
+        A value the field's C type cannot hold (text for a joint, 300 in a uint8_t, 21
+        bytes in a char[20]) is a :class:`LocalProtocolError` naming the field.
+        """
+        unknown = sorted(set(fields) - set(self.by_name))
+        if unknown:
+            raise LocalProtocolError(
+                f"no field {', '.join(unknown)} in the v{self.version} state layout",
+                rule=Rule.UNENCODABLE,
+            )
+        values: list[Any] = []
+        for f in self.fields:
+            v = fields.get(f.name)
+            try:
+                values += self._flat(f, v)
+            except (TypeError, ValueError, KeyError) as e:
+                raise LocalProtocolError(
+                    f"state field {f.name} ({f.ctype}[{f.count}]): {e}", rule=Rule.UNENCODABLE
+                ) from None
+        try:
+            return self.struct.pack(*values)
+        except struct.error as e:
+            bad = self._culprit(values)
+            raise LocalProtocolError(f"state field {bad}: {e}", rule=Rule.UNENCODABLE) from None
+
+    def _flat(self, f: StateField, v: Any) -> list[Any]:
+        if f.ctype == "char":
+            raw = v.encode("utf-8") if isinstance(v, str) else bytes(v or b"")
+            if len(raw) > f.count:
+                raise ValueError(f"{len(raw)} bytes do not fit in {f.count}")
+            return [raw]
+        if f.members:
+            items = v if isinstance(v, list) else [v] if v is not None else []
+            if len(items) > f.count:
+                raise ValueError(f"{len(items)} structures, the field holds {f.count}")
+            out: list[Any] = []
+            for i in range(f.count):
+                item = items[i] if i < len(items) else {}
+                out += [_number(c, item.get(n, 0)) for n, c in f.members]
+            return out
+        seq = [v] if f.count == 1 and not isinstance(v, (list, tuple)) else list(v or [])
+        if f.count == 1 and v is None:
+            seq = [0]
+        if len(seq) > f.count:
+            raise ValueError(f"{len(seq)} values, the field holds {f.count}")
+        seq += [0] * (f.count - len(seq))
+        return [_number(f.ctype, x) for x in seq]
+
+    def _culprit(self, values: Sequence[Any]) -> str:
+        for f in self.fields:
+            try:
+                struct.pack("<" + f.format, *values[f.first : f.first + f.width])
+            except struct.error:
+                return f.name
+        return "?"
+
+
+def _number(ctype: str, x: Any) -> int | float:
+    if isinstance(x, bool) or not isinstance(x, (int, float)):
+        raise TypeError(f"{x!r} is not a number")
+    if _FORMATS[ctype] in "fd":
+        return float(x)
+    if isinstance(x, float):
+        if not math.isfinite(x) or x != int(x):
+            raise ValueError(f"{x!r} is not an integer")
+        return int(x)
+    return x
+
+
+def _field(raw: Mapping[str, Any], structs: Mapping[str, Any]) -> StateField:
+    members: tuple[tuple[str, str], ...] = ()
+    if raw["ctype"] == "struct":
+        members = tuple((m["name"], m["ctype"]) for m in structs[raw["struct"]]["members"])
+    return StateField(
+        name=raw["name"],
+        ctype=raw["ctype"],
+        count=raw["count"],
+        offset=raw["offset"],
+        size=raw["size"],
+        unit=raw.get("unit"),
+        members=members,
+    )
+
+
+def load_layout(path: Path | str) -> StateLayout:
+    """The layout in one ``state.json`` (written by ``tools/extract_state.py``)."""
+    p = Path(path)
+    try:
+        doc = json.loads(p.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as e:
+        raise SpecError(f"cannot read the state layout: {e}", path=str(p)) from None
+    try:
+        structs = doc["structs"]
+        fields = [_field(f, structs) for f in doc["fields"]]
+        return StateLayout(str(doc["spec_version"]), fields, doc=doc)
+    except (KeyError, TypeError) as e:
+        raise SpecError(f"not a state layout (missing {e})", path=str(p)) from None
+
+
+@functools.lru_cache(maxsize=1)
+def known_layouts() -> tuple[StateLayout, ...]:
+    """Every ``specs/*/state.json``, oldest version first."""
+    root = specs_root()
+    found = [load_layout(p) for p in sorted(root.glob("*/state.json"))]
+    return tuple(sorted(found, key=lambda lay: tuple(int(x) for x in lay.version.split("."))))
+
+
+def layout_for(version: str) -> StateLayout:
+    """The layout of ``version`` (``3.8.2``); a :class:`SpecError` names the known ones."""
+    v = version.removeprefix("v")
+    for lay in known_layouts():
+        if lay.version == v:
+            return lay
+    have = ", ".join(lay.version for lay in known_layouts()) or "none"
+    raise SpecError(f"no state layout for version {version} (known: {have})")
