@@ -48,3 +48,40 @@ def test_item_8_info_of_an_imported_pcap_shows_when_its_traffic_started(
         assert main(["info", str(path), "--json"]) == 0
         md = json.loads(capsys.readouterr().out)["metadata"]
         assert md["start_time"] == first and md["imported_time"] > first
+
+
+def test_item_8_split_size_files_end_within_the_size(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`--split-size 20K` produced a 56 KB first file: the size was looked at only when the
+    recorder flushed (once a second), and then without the chunk in progress."""
+    from conformance.frame import encode_frame
+    from conformance.recording import RotatingWriter, read_recording
+
+    split = 20 * 1024
+    w = RotatingWriter(tmp_path / "r.mcap", metadata={"source": "test"}, split_size=split)
+    sent = 3000  # about 300 KB of JSON, never flushed: the size alone rotates
+    for i in range(sent):
+        for d, raw in (("c2s", encode_frame(i, 201, f'MoveJ("P{i}")')), ("s2c", b"1")):
+            w.write_frame(1, "tcp", d, i, 201, "MoveJ", str(i), len(raw), 0, i, i, raw, None)
+    w.close()
+    sizes = [(tmp_path / p).stat().st_size for p in w.paths]
+    assert len(sizes) >= 3
+    assert all(split * 0.8 <= s <= split for s in sizes[:-1]), sizes  # within, not far below
+    assert sizes[-1] <= split
+    got = [f.cnt for p in w.paths for f in read_recording(p).frames if f.dir == "c2s"]
+    assert got == list(range(sent))  # nothing lost, in order
+    # The commands refuse a size a file's own index would fill.
+    with pytest.raises(SystemExit):
+        main(
+            [
+                "proxy",
+                "--upstream",
+                "127.0.0.1:1",
+                "-o",
+                str(tmp_path / "x.mcap"),
+                "--split-size",
+                "4K",
+            ]
+        )
+    assert "'4K' is below 16K" in capsys.readouterr().err

@@ -16,6 +16,7 @@ from ..errors import UsageError
 from ..frame import DEFAULT_MAX_FRAME_SIZE
 from ..net.addresses import Address, format_address, parse_address
 from ..recording import C2S, FrameRecord
+from ..recording.rotating import MIN_SPLIT_SIZE
 from ._specs_option import add_specs_dir, specs_of
 
 __all__ = ["format_frame_line", "parse_duration", "parse_size", "register"]
@@ -28,6 +29,22 @@ def parse_size(text: str) -> int:
         raise argparse.ArgumentTypeError(f"bad size {text!r} (e.g. 100M)")
     mult = {"": 1, "k": 1 << 10, "m": 1 << 20, "g": 1 << 30}[m.group(2).lower()]
     return int(float(m.group(1)) * mult)
+
+
+_SPLIT_SIZE_HELP = (
+    "start a new file before this one would pass SIZE (e.g. 100M; at least 16K): each file "
+    "ends within SIZE, its index included, unless one batch of frames is larger than a "
+    "chunk (SIZE/4, at most 1M)"
+)
+
+
+def _split_size(text: str) -> int:
+    size = parse_size(text)
+    if size < MIN_SPLIT_SIZE:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is below {MIN_SPLIT_SIZE // 1024}K: a file holds its own index (about 5K)"
+        )
+    return size
 
 
 def parse_duration(text: str) -> float:
@@ -61,9 +78,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument(
         "--udp-upstream", help="controller UDP address (default: the --upstream host, port 20007)"
     )
-    p.add_argument(
-        "--split-size", type=parse_size, help="start a new file after this size (e.g. 100M)"
-    )
+    p.add_argument("--split-size", type=_split_size, metavar="SIZE", help=_SPLIT_SIZE_HELP)
     p.add_argument(
         "--split-duration", type=parse_duration, help="start a new file after this time (e.g. 15m)"
     )
@@ -138,9 +153,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         help="controller UDP port (default 20007; repeatable)",
     )
     cp.add_argument("--out", "-o", required=True, help="MCAP file to write")
-    cp.add_argument(
-        "--split-size", type=parse_size, help="start a new file after this size (e.g. 100M)"
-    )
+    cp.add_argument("--split-size", type=_split_size, metavar="SIZE", help=_SPLIT_SIZE_HELP)
     cp.add_argument(
         "--split-duration", type=parse_duration, help="start a new file after this time (e.g. 15m)"
     )

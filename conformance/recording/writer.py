@@ -10,7 +10,7 @@ import socket
 import time
 from collections.abc import Mapping, Sequence
 from itertools import chain
-from typing import IO, Any
+from typing import IO, Any, cast
 
 from .._version import __version__
 from .layout import (
@@ -93,6 +93,28 @@ def _flush_chunk(writer: Any) -> None:
         writer._Writer__finalize_chunk()
 
 
+class _Counted:
+    """The file a writer opened, counting what is written to it: its ``tell()`` without a
+    system call, cheap enough for :class:`~.rotating.RotatingWriter` to ask after every
+    write.  (MCAP's writer only writes, tells and flushes.)"""
+
+    __slots__ = ("_file", "n")
+
+    def __init__(self, file: IO[bytes]) -> None:
+        self._file = file
+        self.n = 0
+
+    def write(self, data: bytes) -> int:
+        self.n += len(data)
+        return self._file.write(data)
+
+    def tell(self) -> int:
+        return self.n
+
+    def flush(self) -> None:
+        self._file.flush()
+
+
 class RecordingWriter:
     """Writes records to one MCAP file (or stream) in the recording layout (:mod:`.layout`).
 
@@ -115,12 +137,15 @@ class RecordingWriter:
         batch_frames: int = BATCH_FRAMES,
         batch_bytes: int = BATCH_BYTES,
     ) -> None:
+        stream: IO[bytes] | _Counted
         if isinstance(output, (str, os.PathLike)):
             self._file: IO[bytes] | None = open(output, "wb")  # noqa: SIM115 (closed in close())
-            stream: IO[bytes] = self._file
+            self._counted: _Counted | None = _Counted(self._file)
+            stream = self._counted
             self.path: str | None = os.fspath(output)
         else:
             self._file = None
+            self._counted = None
             stream = output
             self.path = None
         self._stream = stream
@@ -130,7 +155,8 @@ class RecordingWriter:
             kind = CompressionType[compression.upper()]
         except KeyError:
             raise ValueError(f"unknown compression {compression!r}") from None
-        self._mcap = Writer(stream, chunk_size=chunk_size, compression=kind)
+        # A _Counted file stands in for the file: it has all the Writer calls.
+        self._mcap = Writer(cast(IO[bytes], stream), chunk_size=chunk_size, compression=kind)
         self._mcap.start(profile="", library=f"fairino-conformance/{__version__}")
         schema_ids = {
             name: self._mcap.register_schema(name, "jsonschema", json.dumps(s).encode("utf-8"))
@@ -167,7 +193,10 @@ class RecordingWriter:
         return sum(self._seq.values())
 
     def tell(self) -> int:
-        """Bytes written so far (chunks in progress not included)."""
+        """Bytes written so far (chunks in progress not included; after :meth:`close`, the
+        file's size).  A file the writer opened counts them: no system call."""
+        if self._counted is not None:
+            return self._counted.n
         try:
             return self._stream.tell()
         except (OSError, ValueError):
