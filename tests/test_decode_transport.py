@@ -5,20 +5,15 @@ recorded for UDP only (the SDKs' servo stream) is not cited for them (it was, wi
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
+
+from tests.cli_run import cli_run_bytes
 
 # The SDKs send ServoMoveStart over UDP only (python-sdk-005, cpp-sdk-004).
 UDP_ONLY = b"/f/bIII0III689III16IIIServoMoveStart()III/b/f"
 
 
 def decode(*args: str) -> dict[str, object]:
-    proc = subprocess.run(
-        [sys.executable, "-m", "conformance", "decode", "--json", "--dir", "c2s", *args],
-        input=UDP_ONLY,
-        capture_output=True,
-        timeout=120,
-    )
+    proc = cli_run_bytes("decode", "--json", "--dir", "c2s", *args, input=UDP_ONLY)
     assert proc.returncode == 0, proc.stderr
     (doc,) = [json.loads(x) for x in proc.stdout.splitlines() if x.strip()]
     assert isinstance(doc, dict)

@@ -31,6 +31,7 @@ from conformance.net.client import Client
 from conformance.net.emulator import EmulatorServer
 from conformance.report import Outcome
 from conformance.spec import default_specs
+from tests.cli_run import cli_run
 
 SPECS = default_specs()
 FIELD = Judge(SPECS, default_dialects())
@@ -337,16 +338,10 @@ def _reply_dialect(tmp: Path) -> Path:
 
 def _run(tmp: Path, *extra: str, env: dict[str, str]) -> tuple[int, dict[str, Any]]:
     report = tmp / "run.json"
-    p = subprocess.run(
-        [
-            sys.executable, "-m", "conformance", "run", "-q", "--profile", "quick",
-            "--commands", "214", "--groups", "examples,valid",
-            "--emulator-fault", "wrong_count:214", "--report-json", str(report), *extra,
-        ],
-        capture_output=True,
-        text=True,
+    p = cli_run(
+        "run", "-q", "--profile", "quick", "--commands", "214", "--groups", "examples,valid",
+        "--emulator-fault", "wrong_count:214", "--report-json", str(report), *extra,
         env=env,
-        timeout=300,
     )  # fmt: skip
     assert "Traceback" not in p.stderr, p.stderr
     return p.returncode, json.loads(report.read_text(encoding="utf-8"))

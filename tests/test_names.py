@@ -9,7 +9,6 @@ import re
 import signal
 import socket
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -25,6 +24,7 @@ from conformance.recording import C2S, read_recording
 from conformance.replay import replay_to_target
 from conformance.safety import SafetyPolicy
 from conformance.spec import default_specs
+from tests.cli_run import cli_run
 from tests.test_proxy import _start_proxy_cli, recv_frames
 
 SPECS = default_specs()
@@ -34,9 +34,7 @@ PLAIN = encode_frame(2, 229, "GetGripperConfig()")
 
 
 def cli(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "conformance", *args], capture_output=True, text=True, timeout=120
-    )
+    return cli_run(*args)
 
 
 @pytest.fixture(scope="module")

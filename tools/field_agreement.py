@@ -26,6 +26,8 @@ as ``check``'s.  Exit 1 if any front-end disagrees.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
 import json
 import re
 import subprocess
@@ -40,6 +42,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from conformance.cli import main as cli_main  # noqa: E402
 from conformance.frame import Frame, decode_all, encode_frame  # noqa: E402
 from conformance.net.client import Client  # noqa: E402
 from conformance.net.emulator import EmulatorServer  # noqa: E402
@@ -142,13 +145,15 @@ def start_serve(
 
 
 def cli(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "conformance", *args],
-        capture_output=True,
-        text=True,
-        timeout=600,
-        cwd=ROOT,
-    )
+    """``fairino-conformance ARGS`` in this process (one Python start-up less per reading;
+    ``serve`` alone runs as its own process, as a field engineer starts it)."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            code = cli_main(list(args))
+        except SystemExit as e:
+            code = e.code if isinstance(e.code, int) else 2
+    return subprocess.CompletedProcess(list(args), code, out.getvalue(), err.getvalue())
 
 
 def lines(text: str) -> list[dict[str, Any]]:
