@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import re
+import shlex
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+
+from tests.cli_run import cli_run
 
 ROOT = Path(__file__).resolve().parent.parent
 README = (ROOT / "README.md").read_text(encoding="utf-8")
@@ -40,15 +43,28 @@ def test_readme_has_console_examples() -> None:
 
 @pytest.mark.parametrize(("command", "expected"), EXAMPLES, ids=[c for c, _ in EXAMPLES])
 def test_console_example(command: str, expected: str) -> None:
-    cli = f"{sys.executable} -m conformance"
-    proc = subprocess.run(
-        command.replace("fairino-conformance", cli),
-        shell=True,
-        capture_output=True,
-        text=True,
-        timeout=60,
-        cwd=ROOT,
-    )
+    """Each example as a shell runs it: what comes before ``| fairino-conformance`` (a
+    ``printf``) runs in bash, the kit's command in this process (tests/cli_run.py)."""
+    head, bar, tail = command.rpartition("| fairino-conformance ")
+    if not bar and command.startswith("fairino-conformance "):
+        tail = command.removeprefix("fairino-conformance ")
+    if not tail or any(c in tail for c in "|;&<>`$"):  # anything else: a real shell
+        cli = f"{sys.executable} -m conformance"
+        proc = subprocess.run(
+            command.replace("fairino-conformance", cli),
+            shell=True,
+            capture_output=True,
+            text=True,
+            timeout=60,
+            cwd=ROOT,
+        )
+    else:
+        feed = (
+            subprocess.run(["bash", "-c", head], capture_output=True, check=True).stdout
+            if head
+            else b""
+        )
+        proc = cli_run(*shlex.split(tail), input=feed, cwd=ROOT)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.rstrip("\n") == expected
 
