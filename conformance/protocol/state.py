@@ -130,7 +130,6 @@ class StatePacket:
 
     def __init__(
         self,
-        *,
         cnt: int,
         length: int,
         layout: StateLayout | None,
@@ -209,6 +208,13 @@ def _sum16(data: bytes, stop: int) -> int:
     the byte sum modulo 65521, which is the exact sum for 256 bytes or fewer (at most
     65280), so the sum is taken 256 bytes at a time (``tools/bench_state.py``: about
     six times faster than ``sum()`` over a 429-byte packet)."""
+    if stop <= 768:  # both layouts' packets (429 and 657 bytes): unrolled
+        total = (adler32(data[: min(stop, 256)]) & 0xFFFF) - 1
+        if stop > 256:
+            total += (adler32(data[256 : min(stop, 512)]) & 0xFFFF) - 1
+            if stop > 512:
+                total += (adler32(data[512:stop]) & 0xFFFF) - 1
+        return total & 0xFFFF
     total = 0
     for i in range(0, stop, 256):
         total += (adler32(data[i : min(i + 256, stop)]) & 0xFFFF) - 1
@@ -349,12 +355,14 @@ class StateDecoder:
 
     def _feed(self, data: bytes | bytearray | memoryview, time: float | None) -> list[StateEvent]:
         out: list[StateEvent] = []
-        buf = self._buf
-        buf += data
+        # Work on immutable bytes: a packet is then one slice (one copy) of it.
+        buf = bytes(self._buf) + data if self._buf else bytes(data)
         pos = 0
         n = len(buf)
         by_length = self.by_length
         expected = self.expected
+        no_period = time is None or not self.period_ms
+        base = self._base
         while pos < n:
             if buf[pos] != 0x5A or (pos + 1 < n and buf[pos + 1] != 0x5A):
                 nxt = buf.find(HEADER, pos + 1)
@@ -374,7 +382,7 @@ class StateDecoder:
             end = pos + HEAD_SIZE + length + TAIL_SIZE
             if end > n:
                 break
-            raw = bytes(buf[pos:end])
+            raw = buf[pos:end]
             got = raw[-2] | raw[-1] << 8
             computed = _sum16(raw, end - pos - TAIL_SIZE)
             if lay is None and got != computed:
@@ -384,36 +392,36 @@ class StateDecoder:
             if self._garbage:
                 self._flush_garbage(out, time)
             cnt = raw[2]
+            last = self._last_cnt
             if (
                 got == computed
-                and lay is not None
-                and (lay is expected or expected is None)
-                and (time is None or not self.period_ms)
-                and cnt == ((self._last_cnt or 0) + 1) & 0xFF
-                and self._last_cnt is not None
+                and last is not None
+                and cnt == (last + 1) & 0xFF
+                and (lay is expected or (expected is None and lay is not None))
+                and no_period
             ):
                 # The usual packet: nothing to report (the checks of _packet, inlined).
+                assert lay is not None
                 self._last_cnt = cnt
                 self.packets += 1
                 out.append(
                     StatePacket(
-                        cnt=cnt,
-                        length=length,
-                        layout=lay,
-                        values=lay.struct.unpack_from(raw, HEAD_SIZE),
-                        raw=raw,
-                        checksum=got,
-                        computed=computed,
-                        offset=self._base + pos,
-                        time=time,
+                        cnt,
+                        length,
+                        lay,
+                        lay.struct.unpack_from(raw, HEAD_SIZE),
+                        raw,
+                        got,
+                        computed,
+                        base + pos,
+                        time,
                     )
                 )
             else:
-                self._packet(raw, self._base + pos, length, lay, got, computed, out, time)
+                self._packet(raw, base + pos, length, lay, got, computed, out, time)
             pos = end
-        if pos:
-            del buf[:pos]
-            self._base += pos
+        self._buf = bytearray(buf[pos:])
+        self._base = base + pos
         return out
 
     def _packet(
@@ -520,7 +528,12 @@ class StateDecoder:
         )
 
     def _skip_bytes(
-        self, buf: bytearray, start: int, stop: int, out: list[StateEvent], time: float | None
+        self,
+        buf: bytes | bytearray,
+        start: int,
+        stop: int,
+        out: list[StateEvent],
+        time: float | None,
     ) -> None:
         if stop <= start:
             return

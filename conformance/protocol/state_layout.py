@@ -71,6 +71,9 @@ class StateField:
         return _FORMATS[self.ctype] * self.count
 
 
+_SCALAR, _ARRAY, _TEXT, _STRUCT, _STRUCTS = range(5)
+
+
 def _text(raw: bytes) -> str:
     """A ``char[n]`` field: the text before its NUL (UTF-8, undecodable bytes replaced)."""
     return raw.split(b"\x00", 1)[0].decode("utf-8", "replace")
@@ -109,6 +112,17 @@ class StateLayout:
             offset += f.size
         self.fields: tuple[StateField, ...] = tuple(placed)
         self.by_name = {f.name: f for f in self.fields}
+        #: How to_fields names the flat values: (kind, name, first, stop, member names).
+        self._plan: list[tuple[int, str, int, int, tuple[str, ...]]] = []
+        for f in self.fields:
+            if f.ctype == "char":
+                kind = _TEXT
+            elif f.members:
+                kind = _STRUCTS if f.count > 1 else _STRUCT
+            else:
+                kind = _ARRAY if f.count > 1 else _SCALAR
+            names = tuple(n for n, _ in f.members)
+            self._plan.append((kind, f.name, f.first, f.first + f.width, names))
         #: The whole DATA as one precompiled struct (little-endian, packed).
         self.struct = struct.Struct("<" + "".join(f.format for f in self.fields))
         self.data_length = offset
@@ -136,23 +150,21 @@ class StateLayout:
 
     def to_fields(self, values: Sequence[Any]) -> dict[str, Any]:
         """Flat values as named fields: scalars, lists for arrays, text for ``char[n]``,
-        a list of dicts for an array of structures."""
+        a dict (a list of dicts for an array) per structure."""
         out: dict[str, Any] = {}
-        for f in self.fields:
-            if f.ctype == "char":
-                out[f.name] = _text(values[f.first])
-            elif f.members:
-                k = len(f.members)
-                names = [n for n, _ in f.members]
-                items = [
-                    dict(zip(names, values[f.first + i * k : f.first + (i + 1) * k], strict=True))
-                    for i in range(f.count)
-                ]
-                out[f.name] = items if f.count > 1 else items[0]
-            elif f.count == 1:
-                out[f.name] = values[f.first]
+        for kind, name, first, stop, names in self._plan:
+            if kind == _SCALAR:
+                out[name] = values[first]
+            elif kind == _ARRAY:
+                out[name] = list(values[first:stop])
+            elif kind == _TEXT:
+                out[name] = _text(values[first])
             else:
-                out[f.name] = list(values[f.first : f.first + f.count])
+                k = len(names)
+                items = [
+                    dict(zip(names, values[i : i + k], strict=True)) for i in range(first, stop, k)
+                ]
+                out[name] = items if kind == _STRUCTS else items[0]
         return out
 
     # ------------------------------------------------------------------ writing
