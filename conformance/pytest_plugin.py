@@ -37,7 +37,6 @@ ended in ERROR (kit or connection error), pytest's own codes otherwise.
 
 from __future__ import annotations
 
-import json
 import os
 import random
 import sys
@@ -53,9 +52,11 @@ from .net.addresses import format_address, parse_address
 from .net.client import Client
 from .net.emulator import EmulatorServer
 from .report import CaseResult, Report, write_reports
+from .report.text import plural
 from .suite.config import SuiteConfig
 from .suite.engine import Engine, stop_report
 from .suite.options import OPTIONS, option, resolve, suite_config
+from .suite.present import dry_run_lines
 from .suite.runner import Case
 from .verdict import Outcome, fails
 
@@ -65,9 +66,12 @@ _CONFIG_KEY = pytest.StashKey[SuiteConfig]()
 _ENGINE_KEY = pytest.StashKey["Engine | None"]()
 _CASES_KEY = pytest.StashKey["list[Case]"]()
 _MERGED_KEY = pytest.StashKey[Report]()
-#: The user property carrying a case's result from a worker to the controller.
-_RESULT_PROP = "fairino_result"
-_STOPPED_PROP = "fairino_stopped"
+_WRITTEN_KEY = pytest.StashKey["list[str]"]()
+#: The test report's attributes carrying a case's result (and why the run stopped) from a
+#: worker to the controller: pytest and xdist pass a report's extra attributes along, and
+#: JUnit XML does not write them (a user property would carry the JSON into every testcase).
+_RESULT_ATTR = "fairino_result"
+_STOPPED_ATTR = "fairino_stopped"
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
@@ -157,7 +161,7 @@ def pytest_configure(config: pytest.Config) -> None:
         transport=sc.transport,
         strict=sc.strict,
         reference=sc.reference,
-        meta={"profile": sc.profile.name},
+        meta={"profile": sc.profile.name, **({"dry_run": True} if sc.dry_run else {})},
     )
     config.stash[_MERGED_KEY] = merged
     if not _is_worker(config):
@@ -231,6 +235,9 @@ class CaseItem(pytest.Item):
     def __init__(self, *, case: Case, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.case = case
+        #: The case's result and why the run stopped, once run (see pytest_runtest_makereport).
+        self.result: CaseResult | None = None
+        self.stopped: str | None = None
         self.add_marker("conformance")
         self.user_properties.append(("case_id", case.id))
         self.user_properties.append(("group", case.group))
@@ -239,12 +246,12 @@ class CaseItem(pytest.Item):
         config = self.config.stash[_CONFIG_KEY]
         engine = _engine(self.config)
         result = engine.step(self.case).result  # the engine's CaseFinished, as ``run`` gets it
-        # The controller (xdist) or this process rebuilds the report from these.
-        self.user_properties.append((_RESULT_PROP, json.dumps(_result_json(result))))
+        # The controller (xdist) or this process rebuilds the report from it.
+        self.result = result
         if engine.runner.stopped is not None:
             # Unreachable, dead, or out of budget: the rest would only repeat it.
             self.session.shouldstop = engine.runner.stopped
-            self.user_properties.append((_STOPPED_PROP, engine.runner.stopped))
+            self.stopped = engine.runner.stopped
         outcome = result.outcome
         if outcome is Outcome.DIALECT:
             # JUnit shows the dialect and its source as properties of the testcase.
@@ -270,6 +277,18 @@ class CaseItem(pytest.Item):
 
     def reportinfo(self) -> tuple[Path, int | None, str]:
         return Path(__file__).parent / "suite" / "cases" / "__init__.py", None, self.case.id
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) -> Any:
+    """The call's test report carries the case's result as attributes of its own (not user
+    properties, which JUnit XML would write into every testcase)."""
+    report = yield
+    if isinstance(item, CaseItem) and call.when == "call" and item.result is not None:
+        setattr(report, _RESULT_ATTR, _result_json(item.result))
+        if item.stopped is not None:
+            setattr(report, _STOPPED_ATTR, item.stopped)
+    return report
 
 
 def _result_json(r: CaseResult) -> dict[str, Any]:
@@ -303,8 +322,33 @@ def pytest_collection_modifyitems(
         cid: CommandNode.from_parent(session, name=str(cid), nodeid=str(cid), cases=cs)
         for cid, cs in nodes.items()
     }
-    by_id = {cid: {i.name: i for i in col.collect()} for cid, col in collectors.items()}
+    by_id: dict[int, dict[str, pytest.Item]] = {}
+    for cid, col in collectors.items():
+        collected = col.collect()
+        by_id[cid] = {i.name: i for i in collected}
+        # Reported as collected, as pytest's own collectors are: "collected N items"
+        # then counts the cases (it said "collected 0 items", then ran 3,457).
+        session.ihook.pytest_collectreport(
+            report=pytest.CollectReport(col.nodeid, "passed", None, list[Any](collected))
+        )
     items.extend(by_id[c.cmd_id][c.item_name] for c in cases)
+
+
+def pytest_report_collectionfinish(
+    config: pytest.Config, items: list[pytest.Item]
+) -> str | list[str]:
+    """After "collected N items": what the suite added, and against what."""
+    cases = config.stash.get(_CASES_KEY, None)
+    if cases is None or _is_worker(config):
+        return []
+    sc = config.stash[_CONFIG_KEY]
+    commands = len({c.cmd_id for c in cases})
+    groups = ", ".join(sorted({c.group for c in cases}))
+    dry = "; dry run, nothing is sent" if sc.dry_run else ""
+    return (
+        f"fairino-conformance: {plural(len(cases), 'case')} of "
+        f"{plural(commands, 'command')} ({groups}) against {sc.target_label()}{dry}"
+    )
 
 
 # --------------------------------------------------------------------------- reporting
@@ -317,12 +361,11 @@ class _Collector:
         self.report = report
 
     def pytest_runtest_logreport(self, report: pytest.TestReport) -> None:
-        props = dict(report.user_properties)
-        raw = props.get(_RESULT_PROP)
-        if raw is None or report.when != "call":
+        doc = getattr(report, _RESULT_ATTR, None)
+        if not isinstance(doc, dict) or report.when != "call":
             return
-        self.report.add(_result_from(json.loads(str(raw))))
-        stopped = props.get(_STOPPED_PROP)
+        self.report.add(_result_from(doc))
+        stopped = getattr(report, _STOPPED_ATTR, None)
         if stopped and self.report.stopped is None:
             self.report.stopped = str(stopped)
 
@@ -333,12 +376,19 @@ def pytest_terminal_summary(terminalreporter: Any, exitstatus: int, config: pyte
         return
     tr = terminalreporter
     tr.section("FAIRINO conformance: results per command ID")
-    width = getattr(tr, "_tw", None)
-    tr.write_line(report.render_terminal(width=max(getattr(width, "fullwidth", 100), 80)))
     values = _values(config)
-    for key in ("report_json", "report_html", "junitxml"):
-        if values[key]:
-            tr.write_line(f"{key.replace('_', ' ')} written to {values[key]}")
+    verbose = config.getoption("verbose", default=0) > 0 or values["verbose"]
+    if report.meta.get("dry_run"):
+        tr.write_line("\n".join(dry_run_lines(report, verbose=verbose)))
+    else:  # quiet by default, as ``run``: the rows that are not PASS; -v lists every command
+        width = getattr(getattr(tr, "_tw", None), "fullwidth", 100)
+        text = report.render_terminal(
+            width=max(width, 80), only_failures=not verbose, hidden_note="-v lists them"
+        )
+        tr.write_line(text)
+    written = config.stash.get(_WRITTEN_KEY, [])
+    if written:
+        tr.write_line(f"reports written: {', '.join(written)}")
 
 
 def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
@@ -384,7 +434,7 @@ def _finish_report(
 
 def _write_reports(config: pytest.Config, report: Report) -> None:
     values = _values(config)
-    write_reports(
+    config.stash[_WRITTEN_KEY] = write_reports(
         report,
         json_path=values["report_json"],
         html_path=values["report_html"],

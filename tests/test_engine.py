@@ -99,8 +99,9 @@ def test_progress_in_a_log_is_plain_lines_with_elapsed_and_eta(tmp_path: Path) -
     lines = [x for x in p.stderr.splitlines() if "cases," in x]
     assert 3 <= len(lines) <= 13  # about one a 10 %, and the last
     assert all("elapsed" in x for x in lines)
-    assert any("left" in x for x in lines)
-    assert lines[-1].startswith("done: ")
+    # The estimate of the time left is tested on a clock of its own (tests/test_newcomer_run.py):
+    # a run this short may end before it has one.  The last line never has one.
+    assert lines[-1].startswith("done: ") and "left" not in lines[-1]
 
 
 def test_ctrl_c_says_interrupted(tmp_path: Path) -> None:
@@ -130,10 +131,10 @@ def test_baseline_warns_shows_xfail_and_says_why_a_listed_case_fails(tmp_path: P
     p = run(
         "-q", "--commands", "212", "--groups", "framing",
         "--emulator-fault", "wrong_cnt:212", "--expected-failures", str(baseline),
-        "--report-json", "r.json",
+        "--report-json", "r.json", "-v",  # -v: the PASS row with its XFAIL count
         cwd=tmp_path,
     )  # fmt: skip
-    assert "1 listed case ID(s) match no case in this selection: 999/Nope/framing/x" in p.stderr
+    assert "1 listed case ID matches no case in this selection: 999/Nope/framing/x" in p.stderr
     doc = json.loads((tmp_path / "r.json").read_text())
     cases = {c["id"]: c for c in doc["commands"]["212"]["cases"]}
     assert cases[FRAMING]["expected"] is True and cases[FRAMING]["outcome"] == "FAIL"

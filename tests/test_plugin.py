@@ -50,6 +50,7 @@ def test_suite_runs_against_embedded_emulator(pytester: pytest.Pytester, tmp_pat
         "--junitxml",
         str(junit),
         "--hypothesis-seed=7",
+        "-v",  # -v: every command's row, the passing ones too
     )
     assert result.ret == 0
     out = result.stdout.str()

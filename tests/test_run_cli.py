@@ -63,7 +63,9 @@ def test_whole_suite_against_a_refusing_target_stops_in_one_line(tmp_path: Path)
     assert proc.stderr.strip().splitlines()[-1] == f"fairino-conformance run: {line}"
     # A compact summary, not a table of ERROR rows without a reason.
     assert re.search(rf"^\d+ cases not run: {re.escape(line)}$", proc.stdout, re.M)
-    assert len(proc.stdout.strip().splitlines()) == 2
+    _, totals, written = proc.stdout.strip().splitlines()  # no row: no case ran
+    assert re.fullmatch(rf"commands: \d+ NOT-RUN \(target 127\.0\.0\.1:{port}\)", totals)
+    assert written == "reports written: r.json"
     doc = json.loads((tmp_path / "r.json").read_text(encoding="utf-8"))
     assert doc["stopped"] == line
 

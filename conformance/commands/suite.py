@@ -49,7 +49,7 @@ def _add_emulate(sub: Any) -> None:
 def _add_limits(p: Any) -> None:
     """What one client may cost the emulator (``emulate`` and ``serve``)."""
     from ..frame import DEFAULT_MAX_FRAME_SIZE
-    from ..net.emulator import DEFAULT_MAX_CONNECTIONS
+    from ..net._server import DEFAULT_MAX_CONNECTIONS
 
     p.add_argument(
         "--max-connections",
@@ -126,12 +126,14 @@ def _drop_summary(server: Any) -> str | None:
     """One line on what the server had to close itself, or None."""
     if not server.dropped_total:
         return None
+    from ..report.text import plural
+
     kinds: dict[str, int] = {}
     for d in server.dropped:
         kinds[d.kind] = kinds.get(d.kind, 0) + 1
     last = ", ".join(f"{k} {n}" for k, n in sorted(kinds.items()))
     return (
-        f"{server.dropped_total} connection(s) closed by the server "
+        f"{plural(server.dropped_total, 'connection')} closed by the server "
         f"({server.connections_refused} refused at --max-connections; "
         f"last {len(server.dropped)}: {last})"
     )
@@ -225,7 +227,7 @@ def _run(args: argparse.Namespace) -> int:
     from ..report import write_reports
     from ..suite.engine import Engine, EngineError, Interrupted, RunFinished
     from ..suite.options import OPTIONS, resolve, suite_config
-    from ..suite.present import Progress, failure_lines
+    from ..suite.present import Progress, dry_run_lines, failure_lines
 
     values = resolve({o.name: getattr(args, o.name, None) for o in OPTIONS if o.run})
     if values["emulator_fault"] and values["target"]:
@@ -258,7 +260,7 @@ def _run(args: argparse.Namespace) -> int:
     finally:
         errors = engine.finish()
     report = engine.report
-    write_reports(
+    written = write_reports(
         report,
         json_path=values["report_json"],
         html_path=values["report_html"],
@@ -268,7 +270,13 @@ def _run(args: argparse.Namespace) -> int:
     if lines:
         print("\n".join(lines))
         print()
-    print(report.render_terminal())
+    if values["dry_run"]:
+        print("\n".join(dry_run_lines(report, verbose=values["verbose"])))
+    else:  # quiet by default: the rows that are not PASS; -v lists every command
+        verbose = values["verbose"]
+        print(report.render_terminal(only_failures=not verbose, hidden_note="-v lists them"))
+    if written:
+        print(f"reports written: {', '.join(written)}")
     if report.stopped:
         # The one line that says why the run stopped early (unreachable, dead, budget, Ctrl-C).
         print(f"fairino-conformance run: {report.stopped}", file=sys.stderr)
@@ -296,10 +304,14 @@ def _add_serve(sub: Any) -> None:
     )
     p.add_argument("--listen", default="127.0.0.1:8080", help="TCP HOST:PORT")
     p.add_argument("--udp", default=None, metavar="HOST:PORT", help="also listen on UDP")
-    p.add_argument("--duration", type=float, default=None, metavar="SECONDS")
-    p.add_argument("--max-frames", type=int, default=None)
-    p.add_argument("--report-json", metavar="PATH")
-    p.add_argument("--report-html", metavar="PATH")
+    p.add_argument(
+        "--duration", type=float, default=None, metavar="SECONDS", help="stop after SECONDS"
+    )
+    p.add_argument(
+        "--max-frames", type=int, default=None, metavar="N", help="stop after N client frames"
+    )
+    p.add_argument("--report-json", metavar="PATH", help="write the JSON report here")
+    p.add_argument("--report-html", metavar="PATH", help="write the HTML report here")
     p.add_argument("--strict", action="store_true", help="NON-STRICT departures fail")
     p.add_argument(
         "--verdicts",

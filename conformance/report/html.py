@@ -7,7 +7,8 @@ import re
 from collections.abc import Iterable, Mapping
 
 from ..verdict import SEVERITY, Outcome, aggregate, worst
-from .model import CaseResult, CommandSummary, Report
+from .model import NOT_RUN, CaseResult, CommandSummary, Report
+from .text import plural
 
 __all__ = ["MAX_LISTED_FAILURES", "render_html", "render_html_sections"]
 
@@ -102,10 +103,15 @@ def _cell(
 ) -> str:
     """One target's results for one command: overall outcome and one box per case group.
 
-    ``open_``: the cases that are not PASS unfold at once (a failing command).
+    ``open_``: the cases that are not PASS unfold at once (a failing command).  The
+    outcomes are those of the cases that ran (as the totals count them): a command the
+    run never reached says NOT-RUN, a group none of whose cases ran has an empty box.
     """
     if not cases:
         return '<td class="none">-</td>'
+    if all(c.not_run for c in cases):
+        return f'<td class="cell" data-outcome="{NOT_RUN}"><span class="ov">{NOT_RUN}</span></td>'
+    cases = [c for c in cases if not c.not_run]
     overall = aggregate(c.outcome for c in cases)
     boxes = []
     for g in groups:
@@ -125,7 +131,7 @@ def _cell(
         items = [_case_item(c) for c in bad[:50]]
         more = f"<li>... {len(bad) - 50} more</li>" if len(bad) > 50 else ""
         details = (
-            f"<details{' open' if open_ else ''}><summary>{len(bad)} case(s)</summary>"
+            f"<details{' open' if open_ else ''}><summary>{plural(len(bad), 'case')}</summary>"
             f"<ul>{''.join(items)}{more}</ul></details>"
         )
     color = _COLORS[overall]
@@ -175,24 +181,30 @@ def _rows(
     """One row per command, one cell per report; failing commands first (worst, then ID)."""
     labels = _group_labels(groups)
     names = {i: s.name for p in per for i, s in p.items()}
-    worst_of: dict[int, Outcome] = {}
+    worst_of: dict[int, Outcome | None] = {}
     for i in names:
-        outs = [p[i].outcome for p in per if i in p]
-        worst_of[i] = worst(outs) if outs else Outcome.SKIPPED
+        outs = [p[i].outcome for p in per if i in p and p[i].ran]
+        worst_of[i] = worst(outs) if outs else None  # never run anywhere: NOT-RUN, last
+
+    def order(i: int) -> tuple[int, int]:
+        w = worst_of[i]
+        return (len(SEVERITY) if w is None else SEVERITY[w], i)
+
     rows = []
-    for i in sorted(names, key=lambda i: (SEVERITY[worst_of[i]], i)):
+    for i in sorted(names, key=order):
         cells = "".join(
             _cell(
                 list(p[i].cases) if i in p else [],
                 groups,
                 labels,
-                open_=i in p and _failing(r, p[i].outcome),
+                open_=i in p and bool(p[i].ran) and _failing(r, p[i].outcome),
             )
             for r, p in zip(reports, per, strict=True)
         )
         key = _esc(f"{i} {names[i]}".lower())
+        w = worst_of[i]
         rows.append(
-            f'<tr data-worst="{worst_of[i].value}" data-key="{key}"><td class=id>{i}</td>'
+            f'<tr data-worst="{w.value if w else NOT_RUN}" data-key="{key}"><td class=id>{i}</td>'
             f"<td class=name>{_esc(names[i])}</td>{cells}</tr>"
         )
     return rows
@@ -259,7 +271,8 @@ def render_html_sections(reports: list[Report], *, title: str = "FAIRINO conform
                 "</li>"
             )
         stopped = (
-            f"<p class=stopped>{not_run} cases not run: {_esc(r.stopped or 'the run stopped')}</p>"
+            f"<p class=stopped>{plural(not_run, 'case')} not run: "
+            f"{_esc(r.stopped or 'the run stopped')}</p>"
             if not_run
             else ""
         )

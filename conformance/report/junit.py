@@ -14,7 +14,9 @@ __all__ = ["junit_xml", "write_junit"]
 
 
 def _testcase(c: CaseResult, report: Report) -> ET.Element:
-    tc = ET.Element("testcase", classname=str(c.cmd_id), name=c.id.split("/", 1)[-1], time="0")
+    tc = ET.Element(
+        "testcase", classname=str(c.cmd_id), name=c.id.split("/", 1)[-1], time=_seconds(c.duration)
+    )
     props = ET.SubElement(tc, "properties")
     ET.SubElement(props, "property", name="case_id", value=c.id)
     ET.SubElement(props, "property", name="group", value=c.group)
@@ -31,6 +33,12 @@ def _testcase(c: CaseResult, report: Report) -> ET.Element:
     elif c.outcome in (Outcome.SKIPPED, Outcome.UNIMPLEMENTED):
         ET.SubElement(tc, "skipped", message=f"{c.outcome.value}: {c.detail}"[:500])
     return tc
+
+
+def _seconds(duration: float) -> str:
+    """A case's time as JUnit writes it: seconds (to the microsecond: a case against the
+    built-in emulator may take less than a millisecond)."""
+    return f"{duration:.6f}"
 
 
 def junit_xml(report: Report, cases: Sequence[CaseResult] | None = None) -> str:
@@ -50,6 +58,7 @@ def junit_xml(report: Report, cases: Sequence[CaseResult] | None = None) -> str:
         skipped=str(
             sum(c.expected or c.outcome in (Outcome.SKIPPED, Outcome.UNIMPLEMENTED) for c in rows)
         ),
+        time=_seconds(sum(c.duration for c in rows)),
     )
     props = ET.SubElement(suite, "properties")
     for k, v in (("target", report.target), ("seed", report.seed), ("reference", report.reference)):

@@ -17,13 +17,14 @@ from typing import Any
 from .._version import __version__
 from ..errors import EXIT_ERROR, EXIT_FAIL, EXIT_INTERRUPTED, EXIT_OK, ReportFileError
 from ..verdict import SEVERITY, Outcome, aggregate, fails
-from .text import printable
+from .text import plural, printable
 
 __all__ = [
     "MAX_DETAIL",
     "MAX_FRAME_LINE",
     "MAX_FRAME_LINES",
     "MAX_NAME_WIDTH",
+    "NOT_RUN",
     "CaseResult",
     "CommandSummary",
     "Outcome",
@@ -34,6 +35,10 @@ __all__ = [
 
 
 # The severity order and the failing rule live in conformance/verdict.py (one place).
+
+#: What the totals and a command's counts call cases (and commands) the run never reached:
+#: not an outcome (nothing was judged), so counted apart from them.
+NOT_RUN = "NOT-RUN"
 
 
 #: Bounds on one case's failure text, so that a report stays small whatever the
@@ -70,6 +75,8 @@ class CaseResult:
     expected: bool = False
     #: How many frames the case stands for (``check`` and ``serve`` fold alike frames into one).
     count: int = 1
+    #: Seconds the case took (0 for a case not run, and where nobody timed it).
+    duration: float = 0.0
 
     def __post_init__(self) -> None:
         # Frozen: the bounds and the escaping are applied once, here, so no front-end
@@ -99,6 +106,7 @@ class CaseResult:
             source=doc.get("source", ""),
             expected=bool(doc.get("expected", False)),
             count=int(doc.get("count", 1)),
+            duration=float(doc.get("duration", 0.0)),
         )
 
     def to_json(self) -> dict[str, Any]:
@@ -118,6 +126,8 @@ class CaseResult:
             out["expected"] = True
         if self.count != 1:
             out["count"] = self.count
+        if self.duration:
+            out["duration"] = round(self.duration, 6)
         return out
 
 
@@ -128,15 +138,28 @@ class CommandSummary:
     cases: tuple[CaseResult, ...]
 
     @property
+    def ran(self) -> tuple[CaseResult, ...]:
+        """The cases that ran (the others the run never reached: ``not_run``)."""
+        return tuple(c for c in self.cases if not c.not_run)
+
+    @property
     def outcome(self) -> Outcome:
-        """The worst case's outcome; a baseline's expected failure counts as passed."""
-        return aggregate(Outcome.PASS if c.expected else c.outcome for c in self.cases)
+        """The worst outcome of the cases that ran; a baseline's expected failure counts as
+        passed.  ERROR for a command none of whose cases ran (:attr:`status` says NOT-RUN)."""
+        ran = self.ran or self.cases
+        return aggregate(Outcome.PASS if c.expected else c.outcome for c in ran)
+
+    @property
+    def status(self) -> str:
+        """What the totals count the command as: its outcome, or NOT-RUN when no case ran."""
+        return self.outcome.value if self.ran else NOT_RUN
 
     def counts(self) -> dict[str, int]:
-        """Cases by outcome; expected failures (the baseline) as ``XFAIL``."""
+        """Cases by outcome; expected failures (the baseline) as ``XFAIL``, cases the run
+        never reached as ``NOT-RUN``."""
         out: dict[str, int] = {}
         for c in self.cases:
-            key = "XFAIL" if c.expected else c.outcome.value
+            key = NOT_RUN if c.not_run else "XFAIL" if c.expected else c.outcome.value
             out[key] = out.get(key, 0) + 1
         return out
 
@@ -178,26 +201,31 @@ class Report:
         return fails(outcome, self.reference, self.strict)
 
     def failing_cases(self) -> list[CaseResult]:
-        """The cases that fail this run: the only source of the exit code and the failing totals."""
-        return [c for c in self.cases if not c.expected and self.fails(c.outcome)]
+        """The cases that fail this run: the only source of the exit code and the failing totals.
+
+        A case the run never reached is not among them: nothing was judged.  It makes the
+        run an error of its own (:meth:`exit_code`), and the totals count it as NOT-RUN."""
+        return [c for c in self.cases if not (c.expected or c.not_run) and self.fails(c.outcome)]
 
     def failing_ids(self) -> list[int]:
         """Command IDs with a failing case, in order."""
         return sorted({c.cmd_id for c in self.failing_cases()})
 
     def exit_code(self) -> int:
-        """0 conformant, 1 conformance failures, 2 kit or connection error, 130 interrupted."""
+        """0 conformant, 1 conformance failures, 2 kit or connection error (a run that stopped
+        before some cases is one), 130 interrupted."""
         if self.interrupted:
             return EXIT_INTERRUPTED
         failing = self.failing_cases()
-        if any(c.outcome is Outcome.ERROR for c in failing):
+        if any(c.not_run for c in self.cases) or any(c.outcome is Outcome.ERROR for c in failing):
             return EXIT_ERROR
         return EXIT_FAIL if failing else EXIT_OK
 
     def totals(self) -> dict[str, int]:
-        out: dict[str, int] = {o.value: 0 for o in Outcome}
+        """Commands by :attr:`CommandSummary.status`: each outcome, and NOT-RUN."""
+        out: dict[str, int] = {**{o.value: 0 for o in Outcome}, NOT_RUN: 0}
         for s in self.commands().values():
-            out[s.outcome.value] += 1
+            out[s.status] += 1
         return out
 
     def _why_failing(self) -> str:
@@ -241,7 +269,7 @@ class Report:
             "commands": {
                 str(k): {
                     "name": s.name,
-                    "outcome": s.outcome.value,
+                    "outcome": s.status,
                     "counts": s.counts(),
                     "cases": [c.to_json() for c in s.cases],
                 }
@@ -293,33 +321,38 @@ class Report:
             out.append(f"       (+{len(seen) - limit} more; the JSON report lists them all)")
         return out
 
-    def render_terminal(self, *, width: int = 100, only_failures: bool = False) -> str:
-        """Per-command table, failures first.
+    def render_terminal(
+        self, *, width: int = 100, only_failures: bool = False, hidden_note: str = ""
+    ) -> str:
+        """Per-command table, failures first, then the totals.
 
-        Cases that never ran (the run stopped) are left out of the rows: one line
-        counts them and gives the reason, instead of a table of ERROR rows without
-        one.  (They still count as ERROR in the totals, the JSON and the exit code.)
+        A row's outcome and the totals come from the same cases, those that ran: a
+        command none of whose cases ran has no row and counts as NOT-RUN, and a row
+        counts its cases the run never reached as ``NOT-RUN=n``.  One line counts them
+        and gives the reason, instead of a table of ERROR rows without one.
+        ``only_failures`` leaves out PASS and SKIPPED rows; ``hidden_note`` (``-v lists
+        them``) then follows the line that counts them.
         """
-        ran = [
-            CommandSummary(
-                cmd_id=s.cmd_id, name=s.name, cases=tuple(c for c in s.cases if not c.not_run)
-            )
-            for s in self.commands().values()
-        ]
-        rows = sorted((s for s in ran if s.cases), key=lambda s: (SEVERITY[s.outcome], s.cmd_id))
+        ran = [s for s in self.commands().values() if s.ran]
+        rows = sorted(ran, key=lambda s: (SEVERITY[s.outcome], s.cmd_id))
+        hidden = 0
         if only_failures:
-            rows = [s for s in rows if s.outcome not in (Outcome.PASS, Outcome.SKIPPED)]
+            shown = [s for s in rows if s.outcome not in (Outcome.PASS, Outcome.SKIPPED)]
+            hidden, rows = len(rows) - len(shown), shown
         w = _name_width(s.name for s in rows)
         lines = [f"{'ID':>5}  {'name':<{w}} {'outcome':<14} counts"] if rows else []
         for s in rows:
             counts = " ".join(f"{k}={v}" for k, v in sorted(s.counts().items()))
             line = f"{s.cmd_id:>5}  {_fit(s.name, w):<{w}} {s.outcome.value:<14} {counts}"
             lines.append(_fit(line, max(width, len(line) - len(counts) + 1)))
+        if hidden:
+            note = f"; {hidden_note}" if hidden_note else ""
+            lines.append(f"({plural(hidden, 'command')} PASS or SKIPPED not listed{note})")
         t = self.totals()
         counts = ", ".join(f"{v} {k}" for k, v in t.items() if v)
         not_run = sum(c.not_run for c in self.cases)
         if not_run:
-            lines.append(f"{not_run} cases not run: {self.stopped or 'the run stopped'}")
+            lines.append(f"{plural(not_run, 'case')} not run: {self.stopped or 'the run stopped'}")
         lines += self._dialect_lines()
         lines.append(f"commands: {counts} (target {self.target}){self.failing_note()}")
         return "\n".join(lines)

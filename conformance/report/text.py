@@ -3,7 +3,7 @@ reproduces them byte for byte (the reproduction lines of ``run`` and ``serve``).
 
 from __future__ import annotations
 
-__all__ = ["printable", "shell_printf", "show"]
+__all__ = ["plural", "printable", "shell_printf", "show"]
 
 
 def shell_printf(raw: bytes) -> str:
@@ -38,3 +38,9 @@ def printable(text: str) -> str:
     if text.isprintable():
         return text
     return "".join(ch if ch.isprintable() or ch in "\n\t" else repr(ch)[1:-1] for ch in text)
+
+
+def plural(n: int, word: str, many: str | None = None) -> str:
+    """``n`` and ``word`` in its number: ``1 case``, ``2 cases``, ``0 cases``
+    (``many``: where the plural is not ``word + "s"``)."""
+    return f"{n} {word if n == 1 else many or word + 's'}"

@@ -24,6 +24,7 @@ from dataclasses import dataclass, replace
 from ..errors import EmulatorError, UsageError
 from ..net.addresses import format_address
 from ..report import CaseResult, Report
+from ..report.text import plural
 from ..spec import SpecSet, default_specs
 from ..verdict import Outcome, fails
 from .cases import build_cases
@@ -31,6 +32,7 @@ from .config import SuiteConfig
 from .runner import Case, SuiteRunner, not_run_result
 
 __all__ = [
+    "WOULD_RUN",
     "CaseFinished",
     "Engine",
     "EngineError",
@@ -41,6 +43,9 @@ __all__ = [
     "RunWarning",
     "stop_report",
 ]
+
+#: A dry run's detail for a case it would run (the others say why they would not).
+WOULD_RUN = "dry run: would run"
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -128,9 +133,10 @@ class Engine:
         if not stale:
             return []
         shown = ", ".join(stale[:3]) + (f" (+{len(stale) - 3} more)" if len(stale) > 3 else "")
+        listed = plural(len(stale), "listed case ID")
         return [
-            f"--expected-failures: {len(stale)} listed case ID(s) match no case in this "
-            f"selection: {shown}"
+            f"--expected-failures: {listed} {'matches' if len(stale) == 1 else 'match'} no case "
+            f"in this selection: {shown}"
         ]
 
     # ------------------------------------------------------------------ running
@@ -164,7 +170,8 @@ class Engine:
         return baselined
 
     def _dry(self, case: Case) -> CaseResult:
-        why = "dry run: would run"
+        self.report.meta["dry_run"] = True
+        why = WOULD_RUN
         if case.command is not None:
             ok, reason = self.config.safety.permits(case.command, self.specs)
             if not ok:
@@ -196,6 +203,7 @@ class Engine:
     def step(self, case: Case, *, index: int = 1, total: int = 1) -> CaseFinished:
         """Run one case (or, once the run has stopped, list it as not run): the event both
         front-ends consume, ``run`` in :meth:`events` and the pytest plugin per test item."""
+        self.start()  # the target's probe first: a run it stops reaches no case, not even one
         result = self.not_run(case) if self.runner.stopped is not None else self.run_case(case)
         return CaseFinished(
             index=index, total=total, case=case, result=result, elapsed=time.monotonic() - self._t0
@@ -273,7 +281,7 @@ def stop_report(report: Report, cases: Sequence[Case], *, interrupted: bool = Fa
     if interrupted:
         report.interrupted = True
         if report.stopped is None:
-            report.stopped = f"interrupted after {len(done)} of {len(cases)} cases"
+            report.stopped = f"interrupted after {len(done)} of {plural(len(cases), 'case')}"
     if report.stopped is None:
         return None
     for case in cases:

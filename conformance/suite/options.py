@@ -219,6 +219,13 @@ OPTIONS: tuple[Option, ...] = (
         pytest_flag=None,  # pytest: -q
         help="no progress line",
     ),
+    Option(
+        name="verbose",
+        kind="flag",
+        pytest_flag=None,  # pytest: -v
+        help="every command's row in the table (default: the failures, the rows that are "
+        "not PASS and the totals)",
+    ),
 )
 
 _BY_NAME = {o.name: o for o in OPTIONS}
@@ -233,7 +240,7 @@ def add_to_argparse(p: argparse.ArgumentParser) -> None:
     for o in OPTIONS:
         if o.run is None:
             continue
-        flags = [o.run] + (["-q"] if o.name == "quiet" else [])
+        flags = [o.run, *{"quiet": ["-q"], "verbose": ["-v"]}.get(o.name, [])]
         help_text = f"{o.help} [ini {o.ini}, env {o.env}]"
         if o.kind == "flag":
             p.add_argument(*flags, dest=o.name, action="store_true", default=None, help=help_text)
@@ -418,6 +425,7 @@ def options_table() -> str:
                 "seed": "`--hypothesis-seed`",
                 "junitxml": "`--junitxml` (pytest's)",
                 "quiet": "`-q` (pytest's)",
+                "verbose": "`-v` (pytest's)",
             }.get(o.name, "-")
         )
         what = o.help

@@ -3,20 +3,22 @@
 
 The progress line goes to stderr: redrawn in place (``\\r``) on a terminal, and
 on anything else (a CI log) one plain line at the start, about every 10 % or 30
-seconds, and at the end.  Each shows cases done, failures, elapsed time and an
-estimate of the time left.
+seconds, and at the end.  Each shows the cases decided, those that failed, those
+never run (the run stopped), elapsed time and an estimate of the time left
+(:class:`Estimate`).
 """
 
 from __future__ import annotations
 
-import time
+import math
 from typing import TextIO
 
 from ..report import Report, junit_xml, write_junit
+from ..report.text import plural
 from ..verdict import Reference, fails
-from .engine import CaseFinished, Event, RunFinished, RunStarted, RunWarning
+from .engine import WOULD_RUN, CaseFinished, Event, RunFinished, RunStarted, RunWarning
 
-__all__ = ["Progress", "failure_lines", "junit_xml", "write_junit"]
+__all__ = ["Estimate", "Progress", "dry_run_lines", "failure_lines", "junit_xml", "write_junit"]
 
 
 def _clock(seconds: float) -> str:
@@ -26,8 +28,56 @@ def _clock(seconds: float) -> str:
     )
 
 
+class Estimate:
+    """The time a run has left, smoothed so that it counts down instead of jumping.
+
+    A reading is the cases left times the mean time a case has taken since the first
+    one (the start-up before it, the emulator's or the target's probe, is not the
+    cases' pace), taken once ``min_cases`` cases and ``min_seconds`` seconds have
+    passed: the first few cases said 2:36, the next 0:02.  Between readings the shown
+    value counts down with the clock and moves towards the new reading as the cases
+    go by, about two thirds of the way per ``memory`` of the run (a fraction of its
+    cases), so a group of slower cases bends it instead of throwing it.
+    """
+
+    def __init__(self, *, memory: float = 0.05, min_cases: int = 3, min_seconds: float = 0.5):
+        self.memory = memory
+        self.min_cases = min_cases
+        self.min_seconds = min_seconds
+        self._base: tuple[float, int] | None = None
+        self._shown: float | None = None
+        self._at = (0.0, 0)
+
+    def update(self, elapsed: float, done: int, total: int) -> float | None:
+        """Seconds left after ``done`` of ``total`` cases at ``elapsed``; None while unknown."""
+        if done >= total:
+            return None
+        if self._base is None:
+            self._base = (elapsed, done)
+            return None
+        t0, n0 = self._base
+        span, count = elapsed - t0, done - n0
+        if count < max(self.min_cases, int(total * self.memory / 2)) or span < self.min_seconds:
+            return None
+        reading = (total - done) * span / count  # the mean pace since the first case
+        if self._shown is None:
+            self._shown = reading
+        elif done > self._at[1]:
+            t, n = self._at
+            counted = max(self._shown - (elapsed - t), 0.0)
+            weight = 1 - math.exp(-(done - n) / max(total * self.memory, 1.0))
+            self._shown = counted + weight * (reading - counted)
+        self._at = (elapsed, done)
+        return self._shown
+
+
 class Progress:
-    """Draws the engine's events on ``stream`` (a progress line, warnings, the stop reason)."""
+    """Draws the engine's events on ``stream`` (a progress line, warnings, the stop reason).
+
+    Its counts mean cases: decided (the bar), failed among those that ran, and not
+    run (the run had stopped: they are not failures).  Draws are paced by the events'
+    own clock (``CaseFinished.elapsed``).
+    """
 
     def __init__(
         self,
@@ -44,21 +94,25 @@ class Progress:
         self.total = 0
         self.done = 0
         self.failed = 0
+        self.not_run = 0
         self.reference = Reference.FIELD
         self.strict = False
-        self._last_draw = 0.0
+        self.estimate = Estimate()
+        self._left: float | None = None
+        self._last_draw = -math.inf
         self._last_step = -1
-        self._drawn = False
+        self._drawn = 0  # the width of the line on the terminal, to blank what is left of it
 
     def line(self, elapsed: float) -> str:
         width = 30
         filled = int(width * self.done / max(self.total, 1))
         bar = "#" * filled + "-" * (width - filled)
+        not_run = f", {self.not_run} not run" if self.not_run else ""
         eta = ""
-        if 0 < self.done < self.total:
-            eta = f", about {_clock(elapsed / self.done * (self.total - self.done))} left"
+        if self._left is not None and self._left >= 0.5 and self.done < self.total:
+            eta = f", about {_clock(self._left)} left"
         return (
-            f"[{bar}] {self.done}/{self.total} cases, {self.failed} failed, "
+            f"[{bar}] {self.done}/{self.total} cases, {self.failed} failed{not_run}, "
             f"{_clock(elapsed)} elapsed{eta}"
         )
 
@@ -68,7 +122,7 @@ class Progress:
             self.reference, self.strict = Reference(ev.reference), ev.strict
             if not self.quiet:
                 self.stream.write(
-                    f"running {ev.total} cases against {ev.target} (seed {ev.seed})\n"
+                    f"running {plural(ev.total, 'case')} against {ev.target} (seed {ev.seed})\n"
                 )
                 self.stream.flush()
         elif isinstance(ev, RunWarning):
@@ -77,9 +131,11 @@ class Progress:
             self.stream.flush()
         elif isinstance(ev, CaseFinished):
             self.done = ev.index
-            self.failed += (
-                fails(ev.result.outcome, self.reference, self.strict) and not ev.result.expected
-            )
+            r = ev.result
+            if r.not_run:
+                self.not_run += 1
+            elif fails(r.outcome, self.reference, self.strict) and not r.expected:
+                self.failed += 1
             self._draw(ev.elapsed)
         elif isinstance(ev, RunFinished) and not self.quiet:
             self._clear()
@@ -90,32 +146,35 @@ class Progress:
     def _draw(self, elapsed: float) -> None:
         if self.quiet:
             return
-        now = time.monotonic()
         if self.tty:
-            if now - self._last_draw >= 0.1 or self.done == self.total:
-                self.stream.write("\r" + self.line(elapsed))
+            if elapsed - self._last_draw >= 0.1 or self.done == self.total:
+                self._left = self.estimate.update(elapsed, self.done, self.total)
+                text = self.line(elapsed)
+                # Blank what a longer line drawn before left behind (", about 0:03 left").
+                self.stream.write("\r" + text + " " * max(self._drawn - len(text), 0))
                 self.stream.flush()
-                self._drawn = True
-                self._last_draw = now
+                self._drawn = len(text)
+                self._last_draw = elapsed
             return
         step = 10 * self.done // max(self.total, 1)  # a line each 10 %, or each `every` s
         if (
             step != self._last_step and self.done < self.total
-        ) or now - self._last_draw >= self.every:
+        ) or elapsed - self._last_draw >= self.every:
+            self._left = self.estimate.update(elapsed, self.done, self.total)
             self.stream.write(self.line(elapsed) + "\n")
             self.stream.flush()
-            self._last_draw = now
+            self._last_draw = elapsed
             self._last_step = step
 
     def _clear(self) -> None:
         if self.tty and self._drawn:
             self.stream.write("\n")
-            self._drawn = False
+            self._drawn = 0
 
 
 def failure_lines(report: Report, *, limit: int = 50) -> list[str]:
     """Each failing case (not baselined): its ID, outcome, reason, frames and reproduction."""
-    bad = [c for c in report.failing_cases() if not c.not_run]
+    bad = report.failing_cases()
     out: list[str] = []
     for c in bad[:limit]:
         out.append(f"{c.outcome.value} {c.id}: {c.detail}")
@@ -123,5 +182,35 @@ def failure_lines(report: Report, *, limit: int = 50) -> list[str]:
         if c.reproduce:
             out.append(f"    reproduce: {c.reproduce}")
     if len(bad) > limit:
-        out.append(f"(+{len(bad) - limit} more failing cases; the JSON report lists them all)")
+        more = plural(len(bad) - limit, "more failing case")
+        out.append(f"(+{more}; the JSON report lists them all)")
+    return out
+
+
+def dry_run_lines(report: Report, *, verbose: bool = False) -> list[str]:
+    """What a dry run decided: per command, the cases it would run and those it would skip
+    with why (the safety profile); ``verbose`` lists every case.  Every case of a dry run is
+    SKIPPED in the report (nothing was sent), so the outcome table alone would not say it."""
+    out: list[str] = []
+    would = 0
+    cmds = report.commands().values()
+    w = max([4, *(len(s.name) for s in cmds)])
+    out.append(f"{'ID':>5}  {'name':<{w}} {'run':>5} {'skip':>5}  why skipped")
+    for s in cmds:
+        run = [c for c in s.cases if c.detail == WOULD_RUN]
+        why = sorted({c.detail.removeprefix("dry run: ") for c in s.cases if c.detail != WOULD_RUN})
+        would += len(run)
+        row = f"{s.cmd_id:>5}  {s.name:<{w}} {len(run):>5} {len(s.cases) - len(run):>5}  "
+        out.append((row + "; ".join(why)).rstrip())
+        if verbose:
+            out += [
+                f"         {c.id}: {'would run' if c.detail == WOULD_RUN else c.detail}"
+                for c in s.cases
+            ]
+    skipped = len(report.cases) - would
+    hint = "" if verbose else "; -v lists every case"
+    out.append(
+        f"dry run, nothing sent: {would} of {plural(len(report.cases), 'case')} would run, "
+        f"{skipped} skipped (target {report.target}){hint}"
+    )
     return out

@@ -562,6 +562,7 @@ class SuiteRunner:
     def run(self, case: Case) -> CaseResult:
         """Run one case (never raises): safety, a dead target and kit errors become outcomes."""
         self._dialects = []
+        started = time.monotonic()
         verdict = self._run(case)
         source = ""
         if verdict.outcome is Outcome.PASS and self._dialects:
@@ -598,6 +599,7 @@ class SuiteRunner:
             frames=verdict.frames,
             not_run=verdict.not_run,
             source=source,
+            duration=0.0 if verdict.not_run else time.monotonic() - started,
         )
         self.report.add(result)
         if not verdict.not_run:
@@ -611,10 +613,8 @@ class SuiteRunner:
         return result
 
     def _run(self, case: Case) -> Verdict:
-        if case.command is not None:
-            ok, why = self.config.safety.permits(case.command, self.specs)
-            if not ok:
-                return Verdict(outcome=Outcome.SKIPPED, detail=why)
+        # A stopped run reaches no case, one the safety profile skips neither: it is not
+        # run, not SKIPPED (a lone SKIPPED row under "350 ERROR" told another story).
         now = time.monotonic()
         if self.stopped is None and now >= self.run_deadline:
             after = f" after case {self.last_case}" if self.last_case else ""
@@ -622,6 +622,10 @@ class SuiteRunner:
             self.report.stopped = self.stopped
         if self.stopped is not None:
             return Verdict(outcome=Outcome.ERROR, detail=f"not run: {self.stopped}", not_run=True)
+        if case.command is not None:
+            ok, why = self.config.safety.permits(case.command, self.specs)
+            if not ok:
+                return Verdict(outcome=Outcome.SKIPPED, detail=why)
         self.case_started = now
         self.case_deadline = min(now + self.config.case_timeout, self.run_deadline)
         self._suspect = False
