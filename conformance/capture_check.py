@@ -397,6 +397,9 @@ def check_recording(
             rep.frame(), req.frame() if req is not None else None, rv, transport=rep.transport
         )
         add(rep, "controller", v, (req.raw, rep.raw) if req is not None else (rep.raw,))
+    # The controller's garbage is the request's it answered (as diff and replay blame it);
+    # the client's bytes that are no frame, like serve's, the protocol's as a whole (ID 0).
+    answered = rec.answered_by() if side != "client" else {}
     for p in rec.problems:
         group = "client" if p.dir == C2S else "controller"
         if side != "both" and group != side:
@@ -404,9 +407,10 @@ def check_recording(
         pv = judge.problem(p.rule, p.detail, Direction.REQUEST if p.dir == C2S else Direction.REPLY)
         if on_verdict is not None:
             on_verdict(p, pv)
+        blamed = answered.get(id(p))
         cases.add(
-            FRAMING_ID,
-            "(framing)",
+            FRAMING_ID if blamed is None else blamed.cmd_id,
+            "(framing)" if blamed is None else _name(specs, blamed),
             group,
             pv.outcome,
             p.rule,

@@ -427,7 +427,8 @@ def diff_recordings(
         cid = e.cmd_id
         c = cmds.get(cid)
         if c is None:
-            c = cmds[cid] = CommandDiff(cmd_id=cid, name=e.name or "?")
+            known = specs.resolve(cid) if specs is not None and not e.name else None
+            c = cmds[cid] = CommandDiff(cmd_id=cid, name=e.name or (known and known.name) or "?")
         return c
 
     for e in ex_a:

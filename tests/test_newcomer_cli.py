@@ -85,3 +85,50 @@ def test_item_8_split_size_files_end_within_the_size(
             ]
         )
     assert "'4K' is below 16K" in capsys.readouterr().err
+
+
+def _recording(path: Path, *, garbage: bytes) -> None:
+    """SetSpeed (206) then GetGripperConfig (229) on one connection, the controller's
+    ``garbage`` (the emulator's garbage fault) before the 206 reply; on a second one a
+    206 answered with garbage only."""
+    from conformance.frame import encode_frame
+    from conformance.recording import RecordingWriter, StreamRecorder
+
+    with RecordingWriter(path) as w:
+        r = StreamRecorder(w)
+        r.open(1, t_ns=1)
+        r.data(1, "c2s", 2, encode_frame(1, 206, "SetSpeed(32)"))
+        r.data(1, "s2c", 3, garbage + encode_frame(1, 206, "1"))
+        r.data(1, "c2s", 4, encode_frame(2, 229, "GetGripperConfig()"))
+        r.data(1, "s2c", 5, encode_frame(2, 229, "0,0,0,0"))
+        r.close(1, t_ns=6, reason="client closed")
+        r.open(2, t_ns=7)
+        r.data(2, "c2s", 8, encode_frame(1, 206, "SetSpeed(32)"))
+        r.data(2, "s2c", 9, garbage)
+        r.close(2, t_ns=10, reason="server closed")
+
+
+def test_item_8_check_blames_a_controllers_garbage_on_the_request_it_answered(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`check` blamed the controller's garbage on ID 0, where `diff` and `replay` blamed 206."""
+    from conformance.faults import GARBAGE_BYTES
+
+    faulty, clean = tmp_path / "faulty.mcap", tmp_path / "clean.mcap"
+    _recording(faulty, garbage=GARBAGE_BYTES)
+    _recording(clean, garbage=b"")
+    rj = tmp_path / "check.json"
+    assert main(["check", str(faulty), "--side", "controller", "--report-json", str(rj)]) == 1
+    capsys.readouterr()
+    commands = json.loads(rj.read_text())["commands"]
+    garbage = [
+        (k, cmd["name"], c["count"])
+        for k, cmd in commands.items()
+        for c in cmd["cases"]
+        if c["id"].endswith("/controller/garbage")
+    ]
+    assert garbage == [("206", "SetSpeed", 2)] and "0" not in commands
+    # diff blames the same request (the one rule: Recording.answered_by / noise_before).
+    assert main(["diff", str(clean), str(faulty)]) == 1
+    out = capsys.readouterr().out
+    assert "  206  SetSpeed" in out and "framing: 11 malformed bytes before the reply" in out
