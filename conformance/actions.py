@@ -9,7 +9,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-__all__ = ["Action", "DropKind", "Dropped"]
+__all__ = ["DISPATCH_MODES", "Action", "DropKind", "Dropped"]
+
+#: How the emulator reads a call that names another command than its ID's (``--dispatch``).
+DISPATCH_MODES = ("recorded", "any", "off")
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -19,7 +19,7 @@ import math
 import re
 from collections.abc import Iterable, Sequence
 
-from .actions import Action, DropKind, Dropped
+from .actions import DISPATCH_MODES, Action, DropKind, Dropped
 from .data import Arg, Call, Number, Text, format_number, parse_reply
 from .dialects import Dialect, default_dialects
 from .errors import ProtocolError, Rule
@@ -318,10 +318,6 @@ _RULE_VALUES = {r.value: r for r in Rule}
 def _rules(v: Verdict) -> list[Rule]:
     """The protocol rules among a verdict's findings (not ``dialect`` or ``cnt_step``)."""
     return [_RULE_VALUES[f.rule] for f in v.findings if f.rule in _RULE_VALUES]
-
-
-#: How the emulator reads a call that names another command than its ID's.
-DISPATCH_MODES = ("recorded", "any", "off")
 
 
 class Controller:

@@ -71,7 +71,7 @@ def _add_limits(p: Any) -> None:
 
 def _add_emulation(p: Any) -> None:
     """What the emulator accepts (``emulate`` and ``serve``): reference, dialects, dispatch."""
-    from ..model import DISPATCH_MODES
+    from ..actions import DISPATCH_MODES
     from ._judging import add_judge_options
 
     add_judge_options(p)

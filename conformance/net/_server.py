@@ -59,6 +59,10 @@ TRANSIENT_ERRNOS = frozenset(
         if hasattr(errno, name)
     }
 )
+#: Connections served at once; more are accepted and closed at once.  256 threads
+#: and descriptors stay well inside the usual ``ulimit -n`` of 1024.
+DEFAULT_MAX_CONNECTIONS = 256
+
 BACKOFF_FIRST = 0.01
 BACKOFF_MAX = 1.0
 

@@ -47,7 +47,14 @@ from ..frame import DEFAULT_MAX_FRAME_SIZE, Frame, Malformed
 from ..judge import Judge
 from ..model import Controller, ControllerConnection
 from ..spec import SpecSet
-from ._server import BACKOFF_MAX, Backoff, ConnectionSet, family, serve_forever
+from ._server import (
+    BACKOFF_MAX,
+    DEFAULT_MAX_CONNECTIONS,
+    Backoff,
+    ConnectionSet,
+    family,
+    serve_forever,
+)
 from .addresses import format_address, format_sockaddr
 
 __all__ = [
@@ -69,9 +76,6 @@ Observer = Callable[[str, Frame | Malformed, list[Action]], None]
 #: the server dropped.
 OnClose = Callable[[str, Dropped | None], None]
 
-#: Connections served at once; more are accepted and closed at once.  256 threads
-#: and descriptors stay well inside the usual ``ulimit -n`` of 1024.
-DEFAULT_MAX_CONNECTIONS = 256
 
 _log = logging.getLogger(__name__)
 
