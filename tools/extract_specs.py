@@ -121,6 +121,7 @@ LOOKALIKES = str.maketrans(
 )
 
 CJK = r"\u3000-\u303f\u4e00-\u9fff\uff00-\uffef"
+CURLY_QUOTES = str.maketrans({"\u201c": '"', "\u201d": '"'})
 
 
 def clean_text(s: str) -> str:
@@ -492,11 +493,17 @@ def frame_candidates(parts: list[str], *, request: bool) -> list[tuple[FrameText
 
     Each reading's ``repairs`` lists what was done to the printed text to get it.
     """
-    raw = [p.strip() for p in parts if p.strip()]
+    printed = [p.strip() for p in parts if p.strip()]
+    # the English manual prints the quotes of a string argument as curly quotes; its LEN
+    # counts the ASCII ones (MoveJ("P1"), LEN 11, table 2-3)
+    raw = [p.translate(CURLY_QUOTES) for p in printed]
+    curly = ("curly quotes read as the ASCII quotes the LEN counts",) if raw != printed else ()
     ps = [re.sub(r"(?<=I)[\]|l](?=$)", "I", p) for p in raw]
     if not ps:
         return []
-    base: tuple[str, ...] = ("OCR forms of the separator III repaired",) if ps != raw else ()
+    base: tuple[str, ...] = curly + (
+        ("OCR forms of the separator III repaired",) if ps != raw else ()
+    )
     # OCR forms of the separator and the tail: "]]]"/"ПП" for III, "[" debris, "/b/1"
     ocr = [
         re.sub(r"\[(?=\d)", "", p.replace("ПП", "III").replace("]", "I").replace("|", "I"))

@@ -351,8 +351,11 @@ def parse_variant_en(
     para_open = False
     has_param_label = False
     after_rows = False  # the command number or the examples were seen
-    toks = [(n, ln.strip().translate(CURLY)) for n, ln in body]
+    toks = [(n, ln.strip()) for n, ln in body]
+    ids: list[tuple[int, str, bool]] = []  # command-number candidates: (ID, text, labelled)
+    prev = ""
     for _n, s in toks:
+        before, prev = prev, (s if s and not FOOTER_RE.match(s) else prev)
         if not s:
             para_open = False
             continue
@@ -384,8 +387,7 @@ def parse_variant_en(
             continue
         m = re.fullmatch(r"(?:Command number\s*)?(\d{3,5})", s)
         if m:
-            v.cmd_ids.append(int(m.group(1)))
-            v.printed_cmd_id = s
+            ids.append((int(m.group(1)), s, before in ("number", "Command number")))
             para_open = False
             continue
         if TYPE_EN.match(s) and not after_rows:
@@ -452,6 +454,14 @@ def parse_variant_en(
             else:
                 target.paras.append([s])
         para_open = True
+    # the command number: one printed after its label, else one the example sends
+    # (years of a version history just before the table are numbers too: table 6-1-4)
+    sent = {int(x) for f in frames[:1] for x in re.findall(r"^/f/bI+\d+I+(\d+)", "".join(f))}
+    chosen = [x for x in ids if x[2]] or [x for x in ids if x[0] in sent] or ids
+    for cid, text, _ in chosen:
+        if cid not in v.cmd_ids:
+            v.cmd_ids.append(cid)
+            v.printed_cmd_id = v.printed_cmd_id or text
     _place_orphans(rows, orphans)
     _split_params_returns(rows, has_param_label, frames)
     for r in rows:

@@ -10,11 +10,21 @@ from typing import Any
 
 from ..data import Call
 from ..dialects import default_dialects
-from ..errors import UsageError
+from ..errors import EXIT_FAIL, EXIT_OK, UsageError
 from ..frame import DEFAULT_MAX_FRAME_SIZE, Event, FrameDecoder, Malformed
 from ..judge import Direction, Judge, Verdict
 from ..judge_stream import Pairing
-from ..spec import Command, Example, Param, ReturnValue, SpecSet
+from ..spec import (
+    ENGLISH_SPEC_VERSION,
+    Command,
+    Example,
+    Param,
+    ReturnValue,
+    SpecSet,
+    english_title,
+    load_spec_version,
+)
+from ..spec_diff import diff_specs
 from ._judging import add_judge_options, judge_from
 from ._specs_option import add_specs_dir, specs_of
 
@@ -45,6 +55,19 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         metavar="PATH",
         help="write a Wireshark Lua dissector (wireshark -X lua_script:PATH)",
     )
+    dp = ssub.add_parser(
+        "diff",
+        help="what changed between two spec sets (exit 0: no protocol-visible change, 1: changes)",
+        description="Commands added, removed, renamed, renumbered; per command parameters "
+        "added/removed/re-typed, ranges and enums, reply shape, safety class; error codes "
+        "added/removed/reworded.  A and B are spec versions (3.8.2, 3.9.8) or spec-set "
+        "directories.",
+    )
+    dp.add_argument("a", metavar="A", help="the older spec set: a version or a directory")
+    dp.add_argument("b", metavar="B", help="the newer spec set: a version or a directory")
+    dfmt = dp.add_mutually_exclusive_group()
+    dfmt.add_argument("--json", action="store_true", help="JSON on standard output")
+    dfmt.add_argument("--markdown", action="store_true", help="Markdown fit for release notes")
     p.set_defaults(func=_run_specs)
 
     d = sub.add_parser("decode", help="decode frames from bytes (file, stdin or --hex)")
@@ -176,9 +199,11 @@ def _erratum_json(e: Any) -> dict[str, Any]:
 
 
 def _run_specs(args: argparse.Namespace) -> int:
-    specs = specs_of(args)
     out = sys.stdout
     action = args.specs_command
+    if action == "diff":
+        return _run_diff(args, out)
+    specs = specs_of(args)
     if action == "list":
         cmds = [c for c in specs if not args.safety or c.safety.value == args.safety]
         if args.safety and not cmds:
@@ -255,6 +280,20 @@ def _run_specs(args: argparse.Namespace) -> int:
     return 0
 
 
+def _run_diff(args: argparse.Namespace, out: Any) -> int:
+    """``specs diff A B``: exit 0 when nothing protocol-visible changed, else 1."""
+    diff = diff_specs(
+        load_spec_version(args.a), load_spec_version(args.b), a_label=args.a, b_label=args.b
+    )
+    if args.json:
+        out.write(diff.json_text())
+    elif args.markdown:
+        out.write(diff.markdown())
+    else:
+        out.write(diff.table())
+    return EXIT_FAIL if diff.visible else EXIT_OK
+
+
 def _write_wireshark(path: str, specs: SpecSet) -> None:
     from ..wireshark import lua_dissector
 
@@ -271,6 +310,10 @@ def _show_text(c: Command, specs: SpecSet, out: Any) -> None:
     if c.alt_cmd_ids:
         out.write(f"  also ID: {', '.join(map(str, c.alt_cmd_ids))}\n")
     out.write(f"  {c.title}\n")
+    if specs.spec_version != ENGLISH_SPEC_VERSION:
+        en = english_title(c.name)
+        if en and en != c.title:
+            out.write(f"  {en} (v{ENGLISH_SPEC_VERSION} manual)\n")
     for v in c.variants:
         out.write(f"  table {v.table} ({v.form}): {v.caption}\n")
         for i, p in enumerate(v.params, 1):
