@@ -41,6 +41,7 @@ __all__ = [
     "default_specs",
     "english_error_code",
     "english_title",
+    "error_code_text",
     "load_spec_version",
     "load_specs",
     "schema_path",
@@ -658,6 +659,19 @@ def english_error_code(code: int) -> ErrorCode | None:
     except SpecError:
         return None
     return specs.error_code(code)
+
+
+def error_code_text(specs: SpecSet, code: int) -> str | None:
+    """An error code's meaning as the kit shows it: the set's own chapter-9 text, and the
+    v3.9.8 English one beside it when that table has the code and says something else
+    (``参数个数异常 / The number of parameters is abnormal``); None for an unknown code."""
+    own = specs.error_code(code)
+    en = english_error_code(code) if specs.spec_version != ENGLISH_SPEC_VERSION else None
+    if own is None:
+        return en.meaning if en is not None else None
+    if en is None or en.meaning == own.meaning:
+        return own.meaning
+    return f"{own.meaning} / {en.meaning}"
 
 
 def english_title(name: str) -> str | None:

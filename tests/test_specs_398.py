@@ -21,6 +21,7 @@ from conformance.errors import SpecError
 from conformance.spec import (
     SpecSet,
     english_error_code,
+    error_code_text,
     load_spec_version,
     spec_set_dir,
     validate_document,
@@ -133,3 +134,26 @@ def test_spec_sets_by_version_or_path() -> None:
     assert load_spec_version("3.8.2").spec_version == "3.8.2"
     with pytest.raises(SpecError, match=r"shipped: 3\.8\.2, 3\.9\.8"):
         spec_set_dir("1.0")
+
+
+def test_error_code_text_shows_the_english_beside_chapter_9() -> None:
+    """Issue 22: one accessor (spec.error_code_text) for the text the kit shows."""
+    v382 = load_spec_version("3.8.2")
+    assert error_code_text(v382, 3) == "参数个数异常 / The number of parameters is abnormal"
+    assert error_code_text(v382, 165) == "CNC communication error"  # only v3.9.8 has it
+    assert error_code_text(specs_398(), 3) == "The number of parameters is abnormal"
+    assert error_code_text(v382, 999) is None
+
+
+def specs_398() -> SpecSet:
+    return load_spec_version("3.9.8")
+
+
+def test_specs_show_prints_the_english_title(capsys: pytest.CaptureFixture[str]) -> None:
+    from conformance.cli import main
+
+    assert main(["specs", "show", "MoveJ"]) == 0
+    out = capsys.readouterr().out
+    assert "Control the robot's PTP joint movement. (v3.9.8 manual)" in out
+    assert main(["specs", "--specs-dir", str(SPEC_DIR), "show", "MoveJ"]) == 0
+    assert "(v3.9.8 manual)" not in capsys.readouterr().out

@@ -27,7 +27,7 @@ from ..judge import Direction, Judge, Verdict
 from ..net import format_address, parse_address
 from ..net.client import Client, Exchange, TargetUnreachable
 from ..safety import SafetyPolicy
-from ..spec import Command, SpecSet
+from ..spec import Command, SpecSet, error_code_text
 from ._judging import add_judge_options, judge_from, verdict_line
 from ._safety import add_safety_options, safety_policy
 from ._specs_option import add_specs_dir, specs_of
@@ -297,8 +297,8 @@ def _judged(v: Verdict, specs: SpecSet) -> str:
     if v.refused:
         what = "refusal"
         if v.code is not None:
-            known = specs.error_code(v.code)
-            what += f", code {v.code}" + (f" ({known.meaning})" if known else "")
+            known = error_code_text(specs, v.code)
+            what += f", code {v.code}" + (f" ({known})" if known else "")
     return f"{v.outcome.value} ok: {what}" + (f" [{v.source}]" if v.source else "")
 
 
