@@ -50,8 +50,10 @@ HEAD_SIZE = 5
 #: The checksum after DATA.
 TAIL_SIZE = 2
 #: Largest LEN the decoder waits for when it matches no known layout (a longer one is
-#: read as garbage at once: a stray 0x5A5A must not stall the stream for 64 KiB).
-DEFAULT_MAX_LENGTH = 4096
+#: read as garbage at once: a stray 0x5A5A must not stall the stream for 64 KiB, and
+#: each stray header costs a checksum over at most this many bytes).  About three times
+#: the longest layout known (v3.9.8: 650).
+DEFAULT_MAX_LENGTH = 2048
 #: Bytes of a garbage run kept in its problem's ``raw`` (the count is exact).
 _RAW_KEPT = 256
 #: A garbage run is reported at least every this many bytes (bounded memory).
@@ -81,7 +83,8 @@ class StateProblem:
 
     Typed values where a judge needs them: ``expected``/``actual`` (the computed and
     the received checksum, the expected and the matched version, the expected and
-    the seen CNT, the asked and the measured period in ms), ``lost`` for a CNT gap.
+    the seen CNT, the asked and the measured period in ms; ``actual`` is the bytes
+    skipped or left for ``garbage`` and ``truncated``), ``lost`` for a CNT gap.
     """
 
     kind: StateProblemKind
@@ -277,6 +280,8 @@ class StateDecoder:
         self._period_asked = False
         self.period_factor = period_factor
         self._buf = bytearray()
+        #: Bytes _buf must hold before the next decision (a packet begun: all of it).
+        self._need = 0
         self._base = 0  # stream offset of _buf[0]
         self._garbage = 0  # bytes of the garbage run being skipped
         self._garbage_at = 0
@@ -306,12 +311,16 @@ class StateDecoder:
         self, data: bytes | bytearray | memoryview, time: float | None = None
     ) -> list[StateEvent]:
         """Decode what ``data`` completes; ``time`` (seconds) is when it arrived."""
+        if len(self._buf) + len(data) < self._need:  # the packet begun is not complete yet
+            self._buf += data
+            return []
         try:
             return self._feed(data, time)
         except Exception as e:  # a decoder bug must not take the caller down ...
             if self.raise_bugs:  # ... unless the fuzzer is looking for them
                 raise
             self._buf.clear()
+            self._need = 0
             return [
                 StateProblem(
                     kind=StateProblemKind.GARBAGE,
@@ -342,12 +351,14 @@ class StateDecoder:
                         offset=self._base,
                         raw=bytes(buf[:_RAW_KEPT]),
                         time=time,
+                        actual=len(buf),
                     )
                 )
             else:
                 self._skip(len(buf), out, time)
             self._base += len(buf)
             buf.clear()
+        self._need = 0
         self._flush_garbage(out, time)
         return out
 
@@ -381,6 +392,7 @@ class StateDecoder:
                 continue
             end = pos + HEAD_SIZE + length + TAIL_SIZE
             if end > n:
+                self._need = end - pos
                 break
             raw = buf[pos:end]
             got = raw[-2] | raw[-1] << 8
@@ -421,6 +433,8 @@ class StateDecoder:
                 self._packet(raw, base + pos, length, lay, got, computed, out, time)
             pos = end
         self._buf = bytearray(buf[pos:])
+        if len(self._buf) < HEAD_SIZE:
+            self._need = 0
         self._base = base + pos
         return out
 
@@ -566,6 +580,7 @@ class StateDecoder:
                 offset=self._garbage_at,
                 raw=bytes(self._garbage_raw),
                 time=time,
+                actual=n,
             )
         )
         self._garbage = 0

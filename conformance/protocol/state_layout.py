@@ -112,6 +112,8 @@ class StateLayout:
             offset += f.size
         self.fields: tuple[StateField, ...] = tuple(placed)
         self.by_name = {f.name: f for f in self.fields}
+        #: Every field zero (an empty text): what pack() starts from.
+        self._zeros: tuple[Any, ...] = tuple(v for f in self.fields for v in self._flat(f, None))
         #: How to_fields names the flat values: (kind, name, first, stop, member names).
         self._plan: list[tuple[int, str, int, int, tuple[str, ...]]] = []
         for f in self.fields:
@@ -181,12 +183,13 @@ class StateLayout:
                 f"no field {', '.join(unknown)} in the v{self.version} state layout",
                 rule=Rule.UNENCODABLE,
             )
-        values: list[Any] = []
-        for f in self.fields:
-            v = fields.get(f.name)
+        values = list(self._zeros)
+        by_name = self.by_name
+        for name, v in fields.items():
+            f = by_name[name]
             try:
-                values += self._flat(f, v)
-            except (TypeError, ValueError, KeyError) as e:
+                values[f.first : f.first + f.width] = self._flat(f, v)
+            except (TypeError, ValueError, KeyError, AttributeError) as e:
                 raise LocalProtocolError(
                     f"state field {f.name} ({f.ctype}[{f.count}]): {e}", rule=Rule.UNENCODABLE
                 ) from None
