@@ -138,11 +138,12 @@ def _reply_table(specs: SpecSet, dialects: DialectSet) -> Iterable[str]:
 
 def english_meanings(specs: SpecSet) -> dict[int, str]:
     """Code -> English meaning for ``specs``' error codes, where the v3.9.8 English
-    manual's table has the code (:func:`conformance.spec.english_error_code`)."""
+    manual's table has the code (:func:`conformance.spec.english_error_code`) and
+    ``specs`` does not already say the same (the v3.9.8 set itself)."""
     return {
         e.code: en.meaning
         for e in specs.error_codes
-        if (en := english_error_code(e.code)) is not None
+        if (en := english_error_code(e.code)) is not None and en.meaning != e.meaning
     }
 
 
