@@ -163,9 +163,9 @@ def check(
         return None
     seen = {e.raw: e for e in whole if isinstance(e, StatePacket) and e.checksum_ok}
     for p in packets:
-        e = seen.get(p)
-        if e is not None and e.layout is not None:
-            again = encode_state(e.layout, e.fields, cnt=e.cnt)
+        got = seen.get(p)
+        if got is not None and got.layout is not None:
+            again = encode_state(got.layout, got.fields, cnt=got.cnt)
             if again != p:
                 return "a valid packet's fields do not encode back to its bytes"
     return None
@@ -217,16 +217,16 @@ def main(argv: list[str] | None = None) -> int:
         data, packets = make_input(rnd, layouts)
         try:
             broke = check(data, packets, rnd, reencode=i % 10 == 0)
-        except Exception as e:
-            broke = f"{type(e).__name__}"
+        except Exception as exc:
+            broke = f"{type(exc).__name__}"
             first.setdefault(broke, f"{data[:80]!r}: {traceback.format_exc(limit=3)}")
         if broke is not None:
             key = broke.split(":")[0]
             surprises[key] += 1
             first.setdefault(key, f"input {i}: {data[:80]!r} -> {broke}")
         if i % 50 == 0:
-            for e in _decode(data, [len(data)]):
-                kinds["packet" if isinstance(e, StatePacket) else e.kind.value] += 1
+            for ev in _decode(data, [len(data)]):
+                kinds["packet" if isinstance(ev, StatePacket) else ev.kind.value] += 1
     wall = time.perf_counter() - t0
     print(
         f"{args.inputs} inputs, seed {args.seed}: {wall:.1f} s, {args.inputs / wall:,.0f} inputs/s"
