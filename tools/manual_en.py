@@ -300,9 +300,11 @@ def split_variants_en(sec: RawSection) -> list[tuple[str, str, int, list[tuple[i
             continue
         if chunks:
             chunks[-1][3].append((n, ln))
-        elif not _starts_table(s) and not chunks and s and not title_done(title, s):
+        elif not s or FOOTER_RE.match(s.replace("\f", "")):
+            continue
+        elif not _starts_table(s) and not title_done(title, s):
             title.append(s)
-        else:
+        elif _starts_table(s):
             chunks.append(["§" + sec.key, "", n, [(n, ln)]])
     sec.title = _tidy(" ".join(title))
     return [(c[0], c[1], c[2], c[3]) for c in chunks]
