@@ -11,9 +11,9 @@ non-loopback target; what it holds back is reported as SKIPPED.
 ``replay --serve``: :class:`ReplyBook` answers requests with the recorded
 replies, matched by command ID and DATA, each echoing the request's CNT and
 CMD_ID (the recorded request's CNT is irrelevant); a request the recording never saw is
-answered by the ``unmatched`` policy: ``error`` (DATA ``0``, the manual's
-refusal), ``nearest`` (the recorded reply of the same command ID whose request
-DATA is most alike) or ``drop`` (no reply).  A book may hold one transport's
+answered by the ``unmatched`` policy: ``error`` (the refusal ``robot errcode:-1``, see
+:data:`NOT_RECORDED`), ``nearest`` (the recorded reply of the same command ID whose
+request DATA is most alike) or ``drop`` (no reply).  A book may hold one transport's
 sessions only (``transport``): ``replay --serve --udp-port`` answers UDP from the
 UDP sessions and TCP from the TCP ones.  The socket side is
 :class:`~conformance.net.replay_server.ReplayServer`.
@@ -25,6 +25,7 @@ import difflib
 import re
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -38,7 +39,7 @@ from .safety import SafetyPolicy
 from .spec import SpecSet
 from .verdict import Outcome
 
-__all__ = ["ReplayResult", "ReplyBook", "replay_to_target"]
+__all__ = ["NOT_RECORDED", "NOT_RECORDED_CODE", "ReplayResult", "ReplyBook", "replay_to_target"]
 
 # ``nearest``: DATA compared on this many characters, against this many distinct
 # recorded requests of the same command ID at most.
@@ -48,6 +49,14 @@ _NEAREST_CACHE = 4096  # nearest choices remembered
 
 
 _UNKNOWN = "command ID not in the specs: not sent to a non-loopback target"
+
+#: ``replay --serve --unmatched error``: the answer to a request the recording has no reply
+#: for.  The text refusal any command may get (``robot errcode:N``, manual chapter 9), with
+#: a code no chapter 9 table has (they run from 0, success, up): a client reads an error, not
+#: success and not made-up data (``0`` was both: "success" as a code, a plausible value of a
+#: query), and the judge shows a refusal whose code it does not know.
+NOT_RECORDED_CODE = -1
+NOT_RECORDED = f"robot errcode:{NOT_RECORDED_CODE}"
 
 
 # --------------------------------------------------------------------------- serve
@@ -85,7 +94,12 @@ class ReplyBook:
     """
 
     def __init__(
-        self, rec: Recording, *, unmatched: str = "error", transport: str | None = None
+        self,
+        rec: Recording,
+        *,
+        unmatched: str = "error",
+        transport: str | None = None,
+        on_unmatched: Callable[[Frame, bytes | None], None] | None = None,
     ) -> None:
         if unmatched not in ("error", "nearest", "drop"):
             raise ValueError(f"unmatched policy must be error, nearest or drop, not {unmatched!r}")
@@ -93,6 +107,8 @@ class ReplyBook:
             raise ValueError(f"transport must be tcp, udp or None, not {transport!r}")
         self.unmatched = unmatched
         self.transport = transport
+        #: Called with each request the recording has no reply for, and what it was sent.
+        self.on_unmatched = on_unmatched
         self._book: dict[tuple[int, str], deque[FrameRecord]] = {}
         self._last: dict[tuple[int, str], FrameRecord] = {}
         self._by_id: dict[int, dict[str, FrameRecord]] = {}
@@ -124,13 +140,19 @@ class ReplyBook:
             self.answered += 1
             return _echoing(rep.raw, rep.data, frame.cnt, frame.cmd_id)
         self.unmatched_count += 1
+        out = self._unmatched(frame)
+        if self.on_unmatched is not None:
+            self.on_unmatched(frame, out)
+        return out
+
+    def _unmatched(self, frame: Frame) -> bytes | None:
         if self.unmatched == "drop":
             return None
         if self.unmatched == "nearest":
             near = self._nearest_reply(frame)
             if near is not None:
                 return encode_frame(frame.cnt, frame.cmd_id, near.data)
-        return encode_frame(frame.cnt, frame.cmd_id, "0")
+        return encode_frame(frame.cnt, frame.cmd_id, NOT_RECORDED)
 
     def _nearest_reply(self, frame: Frame) -> FrameRecord | None:
         cands = self._by_id.get(frame.cmd_id)

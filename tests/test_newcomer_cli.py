@@ -132,3 +132,62 @@ def test_item_8_check_blames_a_controllers_garbage_on_the_request_it_answered(
     assert main(["diff", str(clean), str(faulty)]) == 1
     out = capsys.readouterr().out
     assert "  206  SetSpeed" in out and "framing: 11 malformed bytes before the reply" in out
+
+
+def test_item_8_an_unmatched_replay_request_gets_a_refusal_that_is_no_success(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """An unmatched `replay --serve` request got `0`, which `send` showed as "refusal, code 0
+    (成功)": chapter 9's code 0 is success, and for a query `0` is a made-up value."""
+    import re
+    import subprocess
+    import sys
+
+    from conformance.frame import encode_frame
+    from conformance.net.replay_server import ReplayServer
+    from conformance.recording import RecordingWriter, StreamRecorder, read_recording
+    from conformance.replay import ReplyBook
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "conformance", "replay", str(ROOT / "captures" / "session.mcap"),
+         "--serve", "127.0.0.1:0", "--count", "1"],
+        stderr=subprocess.PIPE, text=True, cwd=ROOT,
+    )  # fmt: skip
+    try:
+        assert proc.stderr is not None
+        m = re.search(r"on 127\.0\.0\.1:(\d+) ", proc.stderr.readline())
+        assert m, "no address line"
+        assert (
+            main(["send", f"127.0.0.1:{m.group(1)}", "--cmd-id", "206", "--data", "SetSpeed(99)"])
+            == 0
+        )
+        _, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    reply = "/f/bIII1III206III16IIIrobot errcode:-1III/b/f"
+    out = capsys.readouterr().out.splitlines()
+    assert (
+        out[1]
+        == f"<< {reply}  PASS ok: refusal, code -1 (no manual table has it) [manual 5.1.8, table 5-1-8]"
+    )
+    assert (
+        f"replay: not in the recording: /f/bIII1III206III12IIISetSpeed(99)III/b/f -> {reply}" in err
+    )
+    assert "0 requests answered from the recording, 1 unmatched" in err
+
+    # A controller's own `0` (failure where success is 1) is a refusal without a code.
+    path = tmp_path / "zero.mcap"
+    with RecordingWriter(path) as w:
+        r = StreamRecorder(w)
+        r.open(1, t_ns=1)
+        r.data(1, "c2s", 2, encode_frame(1, 206, "SetSpeed(32)"))
+        r.data(1, "s2c", 3, encode_frame(1, 206, "0"))
+        r.close(1, t_ns=4, reason="client closed")
+    with ReplayServer(ReplyBook(read_recording(path))) as srv:
+        target = f"127.0.0.1:{srv.address[1]}"
+        assert main(["send", target, "--cmd-id", "206", "--data", "SetSpeed(32)"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[1].endswith(
+        "PASS ok: refusal: 0, failed without an error code [manual 5.1.8, table 5-1-8]"
+    )
+    assert "成功" not in out[1]

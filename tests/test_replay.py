@@ -12,7 +12,7 @@ from conformance.frame import Frame, FrameDecoder, encode_frame
 from conformance.net.emulator import EmulatorServer
 from conformance.net.proxy import ReplayServer
 from conformance.recording import read_recording
-from conformance.replay import ReplyBook, replay_to_target
+from conformance.replay import NOT_RECORDED, ReplyBook, replay_to_target
 from conformance.safety import SafetyPolicy
 from conformance.spec import default_specs
 
@@ -125,7 +125,7 @@ def test_serve_answers_with_recorded_replies(session) -> None:  # type: ignore[n
     }
     assert (got[0].cnt, got[0].data) == (77, recorded[(400, "GetVersion()")].data)
     assert (got[1].cnt, got[1].data) == (78, recorded[(212, "GetDI(0,0)")].data)
-    assert (got[2].cnt, got[2].cmd_id, got[2].data) == (79, 212, "0")
+    assert (got[2].cnt, got[2].cmd_id, got[2].data) == (79, 212, NOT_RECORDED)
     assert book.unmatched_count == 1
 
 

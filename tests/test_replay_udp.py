@@ -23,7 +23,7 @@ from conformance.net.emulator import EmulatorServer
 from conformance.net.proxy import RecordingProxy
 from conformance.net.replay_server import ReplayServer
 from conformance.recording import Recording, read_recording
-from conformance.replay import ReplyBook
+from conformance.replay import NOT_RECORDED, ReplyBook
 
 ROOT = Path(__file__).resolve().parent.parent
 WAIT = 30.0
@@ -183,7 +183,7 @@ def test_tcp_still_answers_from_the_tcp_sessions(
     assert _recorded(rec, "tcp", *POS)[0] != _recorded(rec, "udp", *POS)[0]
     # And a request recorded on TCP only is unknown on UDP.
     (di,) = _udp_ask(udp, server.udp_address, encode_frame(43, 212, "GetDI(0,0)"))
-    assert (di.cnt, di.cmd_id, di.data) == (43, 212, "0")
+    assert (di.cnt, di.cmd_id, di.data) == (43, 212, NOT_RECORDED)
 
 
 @pytest.mark.parametrize("unmatched", ["error", "nearest"])
@@ -196,7 +196,7 @@ def test_an_unknown_request_gets_what_the_tcp_side_gives(
         (by_udp,) = _udp_ask(udp, srv.udp_address, encode_frame(61, *UNKNOWN))
         (by_tcp,) = _tcp_ask(srv.address, encode_frame(61, *UNKNOWN))
     assert by_udp.raw == by_tcp.raw
-    assert (by_udp.cnt, by_udp.cmd_id, by_udp.data) == (61, UNKNOWN[0], "0")
+    assert (by_udp.cnt, by_udp.cmd_id, by_udp.data) == (61, UNKNOWN[0], NOT_RECORDED)
     assert books[1].unmatched_count == 1
 
 

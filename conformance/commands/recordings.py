@@ -17,10 +17,11 @@ from typing import Any
 from ..capture_check import SIDES
 from ..diff import ignore_help
 from ..errors import UsageError
-from ..frame import DEFAULT_MAX_FRAME_SIZE
+from ..frame import DEFAULT_MAX_FRAME_SIZE, Frame
 from ..net.addresses import Address, format_address, parse_address
 from ..pcap import read_capture
 from ..recording import recover
+from ..replay import NOT_RECORDED
 from ._judging import add_judge_options, judge_from, verdict_line
 from ._judging import verdict_sink as _verdict_sink
 from ._safety import add_safety_options
@@ -28,6 +29,16 @@ from ._specs_option import add_specs_dir, specs_of
 from .capture import parse_size
 
 __all__ = ["register"]
+
+#: replay --serve: unmatched requests printed, the first this many.
+_UNMATCHED_SHOWN = 20
+
+
+def _text(raw: bytes) -> str:
+    """Frame bytes as one printable line (control bytes escaped, long ones cut)."""
+    text = raw[:200].decode("utf-8", "backslashreplace")
+    text = "".join(ch if ch.isprintable() else repr(ch)[1:-1] for ch in text)
+    return text + (f"... ({len(raw)} bytes)" if len(raw) > 200 else "")
 
 
 def _write_json(path: str, doc: Any) -> None:
@@ -126,8 +137,11 @@ def _register_more(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
         "--unmatched",
         choices=("error", "nearest", "drop"),
         default="error",
-        help="serve: a request the recording has no reply for gets an error reply, "
-        "the nearest recorded reply of its command ID, or none",
+        help="serve: what a request the recording has no reply for gets: error (default), "
+        f"the refusal '{NOT_RECORDED}' (a code no manual table has: not in the recording; "
+        "never a success or a made-up value); nearest, the recorded reply of its command ID "
+        "whose request is most alike (else the refusal); drop, no reply. Each is printed "
+        f"(the first {_UNMATCHED_SHOWN}), and counted at the end",
     )
     rp.add_argument("--count", type=int, default=0, help="serve: stop after this many connections")
     rp.add_argument(
@@ -284,7 +298,25 @@ def _run_replay(args: argparse.Namespace) -> int:
         udp_listen = Address(address.host, args.udp_port) if udp else None
         # With UDP, each transport answers from its own sessions, in their recorded order.
         transports = ("tcp", "udp") if udp else (None,)
-        books = [ReplyBook(rec, unmatched=args.unmatched, transport=t) for t in transports]
+        shown = [0]
+
+        def unmatched(frame: Frame, answer: bytes | None) -> None:
+            # Under the server's lock: one line at a time, the first few only.
+            shown[0] += 1
+            if shown[0] > _UNMATCHED_SHOWN:
+                return
+            sent = "nothing" if answer is None else _text(answer)
+            more = " (more are counted, not shown)" if shown[0] == _UNMATCHED_SHOWN else ""
+            print(
+                f"replay: not in the recording: {_text(frame.raw)} -> {sent}{more}",
+                file=sys.stderr,
+                flush=True,
+            )
+
+        books = [
+            ReplyBook(rec, unmatched=args.unmatched, transport=t, on_unmatched=unmatched)
+            for t in transports
+        ]
         try:
             server = ReplayServer(
                 books[0],

@@ -28,6 +28,7 @@ from ..net import format_address, parse_address
 from ..net.client import Client, Exchange, TargetUnreachable
 from ..safety import SafetyPolicy
 from ..spec import Command, SpecSet, error_code_text
+from ..validate import RefusalForm
 from ._judging import add_judge_options, judge_from, verdict_line
 from ._safety import add_safety_options, safety_policy
 from ._specs_option import add_specs_dir, specs_of
@@ -296,9 +297,12 @@ def _judged(v: Verdict, specs: SpecSet) -> str:
     what = "conforms"
     if v.refused:
         what = "refusal"
-        if v.code is not None:
+        if v.form is RefusalForm.ZERO:
+            # 0 where success is 1: a failure with no code, not chapter 9's code 0 (success).
+            what += ": 0, failed without an error code"
+        elif v.code is not None:
             known = error_code_text(specs, v.code)
-            what += f", code {v.code}" + (f" ({known})" if known else "")
+            what += f", code {v.code} ({known or 'no manual table has it'})"
     return f"{v.outcome.value} ok: {what}" + (f" [{v.source}]" if v.source else "")
 
 
