@@ -191,3 +191,52 @@ def test_item_8_an_unmatched_replay_request_gets_a_refusal_that_is_no_success(
         "PASS ok: refusal: 0, failed without an error code [manual 5.1.8, table 5-1-8]"
     )
     assert "成功" not in out[1]
+
+
+def test_rough_edge_a_directory_as_out_is_named_as_a_directory(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`-o DIR` named a temporary file in its error (`Is a directory: /x/.dir.1a2b.part`)."""
+    pcap = ROOT / "captures" / "field_segments.pcap"
+    session = ROOT / "captures" / "session.mcap"
+    out = tmp_path / "out"
+    out.mkdir()
+    for argv in (
+        ["import-pcap", str(pcap), "-o", str(out)],
+        ["recover", str(session), "-o", str(out)],
+        ["export-pcap", str(session), "-o", str(out)],
+    ):
+        assert main(argv) == 2
+        assert capsys.readouterr().err.splitlines() == [
+            f"fairino-conformance {argv[0]}: error: cannot write {out}: it is a directory "
+            "(give the name of a file to write)"
+        ]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # no temporary file left
+
+
+def test_rough_edge_import_pcap_names_the_flows_it_took_on_other_ports(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`import-pcap` silently decoded flows on other ports whose data looks like frames."""
+    from scapy.utils import wrpcap
+
+    from conformance.recording import read_recording
+    from tests.test_pcap import C, S, conversation
+
+    pcap = tmp_path / "site.pcap"
+    proxied = ("10.1.0.2", 18080)  # the kit's proxy, in the path of a second client
+    wrpcap(str(pcap), conversation() + conversation(c=(C[0], 40002), s=proxied, isn_c=5000))
+    out = tmp_path / "all.mcap"
+    assert main(["import-pcap", str(pcap), "-o", str(out)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[1] == (
+        "also taken, their first bytes being a frame: tcp port 18080 (1 connection); to take "
+        "only the controller's ports, name them (--port 8080 --udp-port 20007)"
+    )
+    ups = [c.upstream for c in read_recording(out).connections if c.event == "open"]
+    assert ups == [f"{S[0]}:{S[1]}", "10.1.0.2:18080"]
+    only = tmp_path / "only.mcap"
+    assert main(["import-pcap", str(pcap), "-o", str(only), "--port", "8080"]) == 0
+    assert len(capsys.readouterr().out.splitlines()) == 1  # nothing else taken
+    ups = [c.upstream for c in read_recording(only).connections if c.event == "open"]
+    assert ups == [f"{S[0]}:{S[1]}"]

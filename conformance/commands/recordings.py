@@ -45,6 +45,8 @@ def _write_json(path: str, doc: Any) -> None:
     text = json.dumps(doc, indent=2, ensure_ascii=False) + "\n"
     if path == "-":
         sys.stdout.write(text)
+    elif Path(path).is_dir():
+        raise UsageError(f"--json {path}: it is a directory (give the name of a file to write)")
     else:
         Path(path).write_text(text, encoding="utf-8")
 
@@ -185,7 +187,14 @@ def _register_more(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
     add_judge_options(d)
     d.set_defaults(func=_run_diff)
 
-    ip = sub.add_parser("import-pcap", help="turn a pcap/pcapng capture into a recording")
+    ip = sub.add_parser(
+        "import-pcap",
+        help="turn a pcap/pcapng capture into a recording",
+        description="Without --port and --udp-port: the flows on TCP 8080 and UDP 20007, and any "
+        "flow on another port whose first payload is a frame (a proxy's port, a controller "
+        "moved), each such port named in a line. With either: only the ports given (and the "
+        "other transport's default).",
+    )
     ip.add_argument("pcap", help="the pcap or pcapng capture")
     ip.add_argument("-o", "--out", required=True, help="the MCAP recording to write")
     ip.add_argument(
@@ -193,14 +202,14 @@ def _register_more(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
         type=int,
         action="append",
         default=[],
-        help="controller TCP port (default 8080; repeatable)",
+        help="controller TCP port (default 8080; repeatable); given, no other port is taken",
     )
     ip.add_argument(
         "--udp-port",
         type=int,
         action="append",
         default=[],
-        help="controller UDP port (default 20007; repeatable)",
+        help="controller UDP port (default 20007; repeatable); given, no other port is taken",
     )
     add_specs_dir(ip)
     ip.set_defaults(func=_run_import_pcap)
@@ -416,12 +425,16 @@ def _run_import_pcap(args: argparse.Namespace) -> int:
             if not 0 < port < 65536:
                 raise UsageError(f"{flag} {port}: a port is 1..65535")
     t0 = time.perf_counter()
+    tports = tuple(args.port) or DEFAULT_TCP_PORTS
+    uports = tuple(args.udp_port) or DEFAULT_UDP_PORTS
     st = import_pcap(
         args.pcap,
         args.out,
-        tcp_ports=args.port or DEFAULT_TCP_PORTS,
-        udp_ports=args.udp_port or DEFAULT_UDP_PORTS,
+        tcp_ports=tports,
+        udp_ports=uports,
         specs=specs_of(args),
+        # Ports named: those only.  Else the defaults and what looks like the protocol.
+        guess=not (args.port or args.udp_port),
     )
     dt = time.perf_counter() - t0
     print(
@@ -429,6 +442,17 @@ def _run_import_pcap(args: argparse.Namespace) -> int:
         f"{st.connections} connections, {st.frames} frames, {st.problems} problems, "
         f"{st.retransmitted_bytes} retransmitted bytes dropped -> {args.out}"
     )
+    if st.guessed:
+        flows = ", ".join(
+            f"{transport} port {port} ({n} {'connection' if transport == 'tcp' else 'flow'}"
+            f"{'s' if n > 1 else ''})"
+            for transport, port, n in st.guessed
+        )
+        named = " ".join([f"--port {p}" for p in tports] + [f"--udp-port {p}" for p in uports])
+        print(
+            f"also taken, their first bytes being a frame: {flows}; to take only the "
+            f"controller's ports, name them ({named})"
+        )
     return 0
 
 

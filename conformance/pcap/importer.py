@@ -95,10 +95,13 @@ def import_pcap(
     tcp_ports: Iterable[int] = DEFAULT_TCP_PORTS,
     udp_ports: Iterable[int] = DEFAULT_UDP_PORTS,
     specs: SpecSet | None = None,
+    guess: bool = True,
 ) -> ImportStats:
     """Turn a pcap/pcapng capture into a recording (see the module docstring).
 
-    ``out`` appears only once the import succeeded: it is written to a temporary file
+    Flows to or from ``tcp_ports`` and ``udp_ports`` are taken, and with ``guess`` also
+    those on other ports whose first payload is a frame head (``ImportStats.guessed``
+    names them).  ``out`` appears only once the import succeeded: it is written to a temporary file
     next to it and renamed (a failure removes the temporary file)."""
     tports, uports = frozenset(tcp_ports), frozenset(udp_ports)
     bad = sorted(p for p in tports | uports if not 0 < p < 65536)
@@ -109,7 +112,7 @@ def import_pcap(
 
         specs = default_specs()
     with atomic_output(out) as tmp:
-        return _import(path, tmp, tports, uports, specs)
+        return _import(path, tmp, tports, uports, specs, guess)
 
 
 def _import(
@@ -118,6 +121,7 @@ def _import(
     tports: frozenset[int],
     uports: frozenset[int],
     specs: SpecSet,
+    guess: bool,
 ) -> ImportStats:
     stream = read_packets(path)
     first = next(stream, None)
@@ -133,7 +137,12 @@ def _import(
     md["listen"] = ""
     writer = RecordingWriter(out, metadata=md)
     packets = PacketRecorder(
-        writer, tcp_ports=tports, udp_ports=uports, specs=specs, together=IMPORT_TOGETHER
+        writer,
+        tcp_ports=tports,
+        udp_ports=uports,
+        specs=specs,
+        guess=guess,
+        together=IMPORT_TOGETHER,
     )
     feed = packets.feed
     for lt, t, data in itertools.chain(() if first is None else (first,), stream):

@@ -9,6 +9,7 @@ capture and a proxy recording read, check and diff alike.
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
@@ -60,6 +61,9 @@ class ImportStats:
     frames: int
     problems: int
     retransmitted_bytes: int
+    #: Flows on no configured port taken because their first payload is a frame: for each
+    #: (transport, the server's port), how many connections or UDP flows.
+    guessed: tuple[tuple[str, int, int], ...] = ()
 
 
 def _fmt(addr: tuple[str, int]) -> str:
@@ -114,6 +118,7 @@ class PacketRecorder:
         self.udp_conns: list[int] = []
         # Keyed by _canonical(flow):
         self.candidates: dict[bytes, _Candidate] = {}
+        self.guessed: Counter[tuple[str, int]] = Counter()
         self.ignored_flows: set[bytes] = set()
         self.finished: set[bytes] = set()  # closed: late ACKs ignored
         self.next_conn = 0
@@ -136,6 +141,7 @@ class PacketRecorder:
             frames=self.rec.frames,
             problems=self.rec.problems,
             retransmitted_bytes=self.retrans,
+            guessed=tuple((t, port, n) for (t, port), n in sorted(self.guessed.items())),
         )
 
     def feed(self, t: int, linktype: int, data: bytes) -> None:
@@ -235,6 +241,7 @@ class PacketRecorder:
                 self.ignored += len(cand.segments)
                 return
             self._open_tcp(flow, cand.first_ns)
+            self.guessed["tcp", dport] += 1
             for qt, qflow, qpayload, qseq, qflags in cand.segments:
                 qway = self.tcp_ways.get(qflow)
                 if qway is None:  # closed by a RST or FINs held before the first payload
@@ -294,6 +301,7 @@ class PacketRecorder:
             c2s = _reverse(flow)
         elif self.guess and payload.startswith(HEAD):
             c2s = flow
+            self.guessed["udp", dport] += 1
         else:
             return None
         self.next_conn += 1

@@ -25,6 +25,12 @@ def atomic_output(dst: str | os.PathLike[str]) -> Iterator[str]:
     from ..errors import RecordingError
 
     final = os.fspath(dst)
+    if os.path.isdir(final):
+        # Said before a temporary name next to it could be the one an error names.
+        raise RecordingError(
+            f"cannot write {final}: it is a directory (give the name of a file to write)",
+            path=final,
+        )
     head, name = os.path.split(final)
     tmp = os.path.join(head, f".{name}.{secrets.token_hex(4)}.part")
     try:
@@ -34,7 +40,10 @@ def atomic_output(dst: str | os.PathLike[str]) -> Iterator[str]:
         raise RecordingError(f"cannot write {final}: {e.strerror or e}", path=str(final)) from None
     try:
         yield tmp
-        os.replace(tmp, final)
+        try:
+            os.replace(tmp, final)
+        except OSError as e:  # a directory made meanwhile, a read-only target...
+            raise RecordingError(f"cannot write {final}: {e.strerror or e}", path=final) from None
     except BaseException:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
