@@ -19,8 +19,10 @@ from .errors import UsageError
 from .frame import HEAD, SEP, TAIL
 
 __all__ = [
+    "STATE_KINDS",
     "Fault",
     "FaultKind",
+    "StateFaults",
     "active_fault",
     "known_cmd_ids",
     "mangle_reply",
@@ -58,22 +60,55 @@ class FaultKind(str, enum.Enum):
     #: The controller splits frames with a regular expression and ignores LEN, so it
     #: executes frames whose LEN disagrees with DATA.
     IGNORE_LEN = "ignore_len"
+    #: The state port (8083) sends every Nth packet with a wrong checksum
+    #: (``state_checksum:N``, default 10): frcobot_ros2 #7 "Status data and checksum failed!".
+    STATE_CHECKSUM = "state_checksum"
+    #: The state port sends another version's layout (``state_layout:VERSION``, default
+    #: the other known one): fairino-cpp-sdk #3, fairino-python-sdk #13.
+    STATE_LAYOUT = "state_layout"
+    #: The state port sends nothing for SECONDS after every Nth packet
+    #: (``state_stall:N@SECONDS``, defaults 10 and 3): a stalled stream.
+    STATE_STALL = "state_stall"
+    #: The state port skips a CNT every Nth packet (``state_cnt_gap:N``, default 10): a
+    #: packet lost.
+    STATE_CNT_GAP = "state_cnt_gap"
 
 
-_DEFAULT_DELAY = {FaultKind.SLOW: 2.0, FaultKind.CRASH_ON_MALFORMED: 0.5}
+#: The kinds that act on the state port, not on command replies: their ``:ARG`` is a
+#: packet count N (``state_layout``: a version), not command IDs.
+STATE_KINDS = frozenset(
+    {
+        FaultKind.STATE_CHECKSUM,
+        FaultKind.STATE_LAYOUT,
+        FaultKind.STATE_STALL,
+        FaultKind.STATE_CNT_GAP,
+    }
+)
+#: Every how many packets a state fault strikes when ``:N`` is not given.
+_DEFAULT_EVERY = 10
+_MAX_EVERY = 1_000_000
+
+
+_DEFAULT_DELAY = {
+    FaultKind.SLOW: 2.0,
+    FaultKind.CRASH_ON_MALFORMED: 0.5,
+    FaultKind.STATE_STALL: 3.0,
+}
 
 
 @dataclass(frozen=True, kw_only=True)
 class Fault:
     """A fault of ``kind`` on ``cmd_ids`` (empty: on every command).
 
-    ``delay`` is the reply delay of ``slow`` and the restart time of
-    ``crash_on_malformed`` (seconds; ``None``: the kind's default).
+    ``delay`` is the reply delay of ``slow``, the restart time of
+    ``crash_on_malformed`` and the pause of ``state_stall`` (seconds; ``None``: the
+    kind's default).  ``arg`` is a state kind's ``:N`` (or ``state_layout``'s version).
     """
 
     kind: FaultKind
     cmd_ids: frozenset[int] = frozenset()
     delay: float | None = None
+    arg: str | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.kind, FaultKind):
@@ -83,7 +118,14 @@ class Fault:
             raise UsageError(f"fault delay must not be negative (got {self.delay})")
 
     def applies(self, cmd_id: int | None) -> bool:
+        if self.kind in STATE_KINDS:
+            return False  # the state port's, never a command reply's
         return not self.cmd_ids or (cmd_id is not None and cmd_id in self.cmd_ids)
+
+    @property
+    def every(self) -> int:
+        """A state kind's N: the fault strikes on every Nth packet."""
+        return int(self.arg) if self.arg and self.arg.isdigit() else _DEFAULT_EVERY
 
     @property
     def seconds(self) -> float:
@@ -93,6 +135,8 @@ class Fault:
         text = self.kind.value
         if self.cmd_ids:
             text += ":" + ",".join(str(i) for i in sorted(self.cmd_ids))
+        if self.arg is not None:
+            text += f":{self.arg}"
         if self.delay is not None:
             text += f"@{self.delay:g}"
         return text
@@ -112,11 +156,14 @@ def known_cmd_ids() -> frozenset[int]:
 
 
 def parse_fault(text: str, *, known: Iterable[int] | None = None) -> Fault:
-    """Read ``KIND[:CMD_ID,...][@SECONDS]``, e.g. ``wrong_cnt:201,203`` or ``slow:201@0.5``.
+    """Read ``KIND[:CMD_ID,...][@SECONDS]``, e.g. ``wrong_cnt:201,203`` or ``slow:201@0.5``;
+    for the state port's kinds ``KIND[:N][@SECONDS]`` (``state_checksum:5``,
+    ``state_stall:20@2``) or ``state_layout[:VERSION]``.
 
     Every command ID must be one of ``known`` (default: :func:`known_cmd_ids`), so a
     typo does not silently inject nothing; ``@SECONDS`` is a finite, non-negative
-    number and only for the kinds that wait (``slow``, ``crash_on_malformed``).
+    number and only for the kinds that wait (``slow``, ``crash_on_malformed``,
+    ``state_stall``).
     Anything else is a :class:`UsageError` naming the part that is wrong.
     """
     raw = text.strip()
@@ -138,11 +185,16 @@ def parse_fault(text: str, *, known: Iterable[int] | None = None) -> Fault:
         kinds = ", ".join(k.value for k in FaultKind)
         raise UsageError(f"unknown fault kind {_shown(name)} (one of: {kinds})") from None
     if delay is not None and kind not in _DEFAULT_DELAY:
-        waits = " and ".join(k.value for k in _DEFAULT_DELAY)
+        names = [k.value for k in _DEFAULT_DELAY]
+        waits = ", ".join(names[:-1]) + " and " + names[-1]
         raise UsageError(f"fault {_shown(text)}: @SECONDS applies only to {waits}")
     if colon and not ids.strip():
         raise UsageError(
             f"fault {_shown(text)}: no command ID after ':' (omit ':' for every command)"
+        )
+    if kind in STATE_KINDS:
+        return Fault(
+            kind=kind, delay=delay, arg=_state_arg(text, kind, ids.strip() if colon else None)
         )
     cmd_ids: set[int] = set()
     for part in ids.split(",") if colon else ():
@@ -163,6 +215,66 @@ def parse_fault(text: str, *, known: Iterable[int] | None = None) -> Fault:
             "dialects (see 'specs list')"
         )
     return Fault(kind=kind, cmd_ids=frozenset(cmd_ids), delay=delay)
+
+
+def _state_arg(text: str, kind: FaultKind, arg: str | None) -> str | None:
+    """A state kind's ``:N`` (1..10^6 packets) or ``state_layout``'s ``:VERSION``."""
+    if arg is None:
+        return None
+    if kind is FaultKind.STATE_LAYOUT:
+        from .protocol.state_layout import known_layouts
+
+        have = [lay.version for lay in known_layouts()]
+        if arg.removeprefix("v") not in have:
+            raise UsageError(
+                f"fault {_shown(text)}: no state layout {arg!r} (known: {', '.join(have)})"
+            )
+        return arg.removeprefix("v")
+    if not (arg.isascii() and arg.isdigit() and len(arg) <= 7 and 1 <= int(arg) <= _MAX_EVERY):
+        raise UsageError(
+            f"fault {_shown(text)}: {arg[:20]!r} is not a packet count N (every Nth packet, "
+            f"1 to {_MAX_EVERY})"
+        )
+    return str(int(arg))
+
+
+@dataclass(frozen=True, kw_only=True)
+class StateFaults:
+    """What the state faults do to packet number ``n`` (1, 2, ...) of a connection.
+
+    :meth:`step` is pure: (bad checksum?, CNT values skipped before it, seconds of
+    silence after it).  ``layout``: the version to send instead of the served one.
+    """
+
+    checksum_every: int | None = None
+    cnt_gap_every: int | None = None
+    stall_every: int | None = None
+    stall_seconds: float = 0.0
+    layout: str | None = None
+    #: ``state_layout`` given without a version: the other known one.
+    other_layout: bool = False
+
+    @classmethod
+    def of(cls, faults: Iterable[Fault]) -> StateFaults:
+        kw: dict[str, object] = {}
+        for f in faults:
+            if f.kind is FaultKind.STATE_CHECKSUM:
+                kw["checksum_every"] = f.every
+            elif f.kind is FaultKind.STATE_CNT_GAP:
+                kw["cnt_gap_every"] = f.every
+            elif f.kind is FaultKind.STATE_STALL:
+                kw["stall_every"] = f.every
+                kw["stall_seconds"] = f.seconds
+            elif f.kind is FaultKind.STATE_LAYOUT:
+                kw["layout"] = f.arg
+                kw["other_layout"] = f.arg is None
+        return cls(**kw)  # type: ignore[arg-type]
+
+    def step(self, n: int) -> tuple[bool, int, float]:
+        bad = bool(self.checksum_every) and n % (self.checksum_every or 1) == 0
+        skip = 1 if self.cnt_gap_every and n % self.cnt_gap_every == 0 else 0
+        stall = self.stall_seconds if self.stall_every and n % self.stall_every == 0 else 0.0
+        return bad, skip, stall
 
 
 def _shown(text: str) -> str:

@@ -40,6 +40,7 @@ from .knowledge import (
     refusal_data,
     target_args,
 )
+from .protocol.state_layout import layout_for
 from .spec import Command, Returns, ReturnValue, SpecSet, Variant, default_specs
 from .validate import ERR_ARG_COUNT, ERR_ARG_VALUE, ERR_EXEC_FAILED
 from .verdict import Outcome, Reference, fails
@@ -128,6 +129,46 @@ def _fmt(x: float) -> str:
     return f"{x:.3f}" if abs(x) >= 0.0005 else "0.000"
 
 
+#: The state port (the 8083 state manual's title) and the layout the emulator serves.
+STATE_PORT = 8083
+STATE_VERSION = "3.8.2"
+
+
+def _set_bit(bits: int, index: float | None, on: float | None, width: int) -> int:
+    if index is None or on is None or not 0 <= index < width or index != int(index):
+        return bits
+    mask = 1 << int(index)
+    return bits | mask if on else bits & ~mask
+
+
+def _set_do(m: RobotModel, a: list[float | None]) -> None:
+    m.do_bits = _set_bit(m.do_bits, a[0], a[1], 16)  # 3.1.1 SetDO(nIO 0..15, bopen, ...)
+
+
+def _set_tool_do(m: RobotModel, a: list[float | None]) -> None:
+    m.tool_do_bits = _set_bit(m.tool_do_bits, a[0], a[1], 2)  # 3.1.3 SetToolDO(nIO 0..1, ...)
+
+
+def _mode(m: RobotModel, a: list[float | None]) -> None:
+    if a and a[0] in (0, 1):  # 5.1.3 Mode(0 automatic, 1 manual): table 2-2's robot_mode
+        m.robot_mode = int(a[0] or 0)
+
+
+def _state_period(m: RobotModel, a: list[float | None]) -> None:
+    lo, hi = m.state_period_range
+    if len(a) == 2 and a[0] == STATE_PORT and a[1] is not None and lo <= a[1] <= hi:
+        m.state_period_ms = int(a[1])
+
+
+#: What an executed command changes of the state the 8083 stream shows.
+_STATE_EFFECTS = {
+    "SetDO": _set_do,
+    "SetToolDO": _set_tool_do,
+    "Mode": _mode,
+    "SetStatePeriod": _state_period,
+}
+
+
 class RobotModel:
     """The emulated controller's state: stored Set values, joint and TCP position.
 
@@ -139,9 +180,19 @@ class RobotModel:
     32 "joint over limit", 29 for ServoJ).
     """
 
-    def __init__(self, specs: SpecSet, robot: str | None = None) -> None:
+    def __init__(
+        self, specs: SpecSet, robot: str | None = None, *, state_version: str = STATE_VERSION
+    ) -> None:
         self.specs = specs
         self.robot = robot_named(robot)
+        #: What the 8083 state stream shows beyond the joints and the TCP (table 2-2).
+        lo, hi, default = layout_for(state_version).period_ms
+        self.state_period_range = (lo, hi)
+        #: The state port's period (ms): section 1's default until SetStatePeriod(8083, p).
+        self.state_period_ms = default
+        self.do_bits = 0  # control box DO 15..0 (SetDO)
+        self.tool_do_bits = 0  # tool DO 1..0 (SetToolDO)
+        self.robot_mode = 0  # 0 automatic, 1 manual (Mode)
         self.pairs = derive_pairs(specs)
         self._by_setter: dict[tuple[str, str], list[StatePair]] = {}
         for p in self.pairs:
@@ -180,7 +231,41 @@ class RobotModel:
         m = self._targets(command, variant)
         if m is not None and len(args) == len(variant.params):
             self._move(command, m, args)
+        effect = _STATE_EFFECTS.get(command.name)
+        if effect is not None:
+            effect(self, [_num(t) for t in texts])
         return self.reply_values(command, variant, args)
+
+    # ------------------------------------------------------------------ the state port
+
+    def state_period_asked(self, command: Command | None, args: Sequence[Arg]) -> int | None:
+        """The period ``SetStatePeriod(8083, period)`` asks, when the 8083 manual allows it.
+
+        The command manual (5.1.35) lets SetStatePeriod set port 20002 only, 100..1000
+        ms, which the judge checks; the 8083 state manual (section 1) gives port 8083
+        8..100 ms (``state.json``, erratum S2).  The emulator takes the call for 8083.
+        """
+        if command is None or command.name != "SetStatePeriod" or len(args) != 2:
+            return None
+        port, period = (_num(_arg_text(a)) for a in args)
+        lo, hi = self.state_period_range
+        if port != STATE_PORT or period is None or period != int(period):
+            return None
+        return int(period) if lo <= period <= hi else None
+
+    def state_fields(self) -> dict[str, object]:
+        """The model's state as the 8083 packet's fields (table 2-2; the rest stay zero)."""
+        return {
+            "program_state": 1,  # 1 stopped: the emulator runs no programs
+            "error_code": 0,
+            "robot_mode": self.robot_mode,
+            "jt_cur_pos": [_num(j) or 0.0 for j in self.joints],
+            "tl_cur_pos": [_num(t) or 0.0 for t in self.tcp],
+            "cl_dgt_output_h": self.do_bits >> 8 & 0xFF,
+            "cl_dgt_output_l": self.do_bits & 0xFF,
+            "tl_dgt_output_l": self.tool_do_bits & 0x03,  # "only bit0-bit1 works"
+            "robot_motion_done": 1,  # motions complete at once
+        }
 
     def _targets(self, command: Command, variant: Variant) -> MotionTargets | None:
         """Where a variant's arguments put the arm: the manual's variants are known up front,
@@ -341,8 +426,11 @@ class Controller:
         judge: Judge | None = None,
         dispatch: str = "recorded",
         robot: str | None = None,
+        state_version: str = STATE_VERSION,
     ) -> None:
         self.specs = specs if specs is not None else default_specs()
+        #: The layout version of the state port (8083) this controller serves.
+        self.state_version = state_version
         #: The arm model the twin's kinematics follow (``emulate --robot``; default FR5).
         self.robot = robot
         if dispatch not in DISPATCH_MODES:
@@ -352,7 +440,7 @@ class Controller:
         self.dispatch = dispatch
         #: The manual alone: the codes a refused dialect frame gets.
         self._manual = Judge(self.specs, strict=self.judge.strict)
-        self.model = RobotModel(self.specs, robot)
+        self.model = RobotModel(self.specs, robot, state_version=state_version)
         self.frames_answered = 0
 
     def connection(
@@ -362,7 +450,7 @@ class Controller:
 
     def restart(self) -> None:
         """A crash loses the state, as a controller restart would."""
-        self.model = RobotModel(self.specs, self.robot)
+        self.model = RobotModel(self.specs, self.robot, state_version=self.state_version)
 
     def _fault(self, kind: FaultKind, cmd_id: int | None) -> Fault | None:
         return active_fault(self.faults, kind, cmd_id)
@@ -419,6 +507,12 @@ class Controller:
             return self._reply(frame, refusal_data(None, ERR_EXEC_FAILED))
         if self._fault(FaultKind.ACCEPT_OUT_OF_RANGE, frame.cmd_id) is not None:
             rules = [r for r in rules if r is not Rule.ARG_RANGE]
+        if (
+            rules == [Rule.ARG_RANGE]
+            and isinstance(v.parsed, Call)
+            and self.model.state_period_asked(v.command, v.parsed.args) is not None
+        ):
+            rules = []  # SetStatePeriod(8083, 8..100): the 8083 manual's range, not 20002's
         if rules:
             code = next((_CODE_FOR[r] for r in rules if r in _CODE_FOR), ERR_EXEC_FAILED)
             return self._reply(frame, refusal_data(returns, code))

@@ -33,11 +33,26 @@ def _add_emulate(sub: Any) -> None:
     )
     p.add_argument("--udp", default=None, metavar="HOST:PORT", help="also answer UDP here")
     p.add_argument(
+        "--state-listen",
+        default=None,
+        metavar="HOST:PORT",
+        help="serve the state port (8083 status feedback) here; default: --listen's host, "
+        "port 8083 when --listen's port is 8080, else off; 'off': never",
+    )
+    p.add_argument(
+        "--state-version",
+        default="3.8.2",
+        metavar="VERSION",
+        help="the state packet layout served: 3.8.2 (default) or 3.9.8 (specs/*/state.json)",
+    )
+    p.add_argument(
         "--fault",
         action="append",
         default=[],
         metavar="KIND[:CMD_IDS][@SECONDS]",
-        help="inject a fault (repeatable), e.g. wrong_cnt:201,203",
+        help="inject a fault (repeatable), e.g. wrong_cnt:201,203; on the state port: "
+        "state_checksum[:N], state_cnt_gap[:N], state_stall[:N][@SECONDS], "
+        "state_layout[:VERSION] (every Nth packet, default 10)",
     )
     add_specs_dir(p, "--specs")  # --specs: the old spelling, kept working
     p.add_argument("--duration", type=float, default=None, help="stop after SECONDS")
@@ -150,10 +165,31 @@ def _listen_addresses(args: argparse.Namespace) -> tuple[str, int, int | None]:
     return host, port, udp_port
 
 
+def _state_port(args: argparse.Namespace, host: str, port: int) -> int | None:
+    """``--state-listen``: the state port to serve (on ``--listen``'s host), or None."""
+    if args.state_listen is None:
+        return 8083 if port == 8080 else None
+    if args.state_listen.strip().lower() == "off":
+        return None
+    shost, sport = parse_address(
+        args.state_listen, default_port=8083, listen=True, option="--state-listen"
+    )
+    if shost != host:
+        raise UsageError("--state-listen must use the same host as --listen")
+    return sport
+
+
 def _emulate(args: argparse.Namespace) -> int:
+    from ..errors import SpecError
     from ..net.emulator import EmulatorServer
+    from ..protocol.state_layout import layout_for
 
     host, port, udp_port = _listen_addresses(args)
+    state_port = _state_port(args, host, port)
+    try:
+        layout_for(args.state_version)
+    except SpecError as e:
+        raise UsageError(f"--state-version: {e}") from None
     if args.duration is not None and args.duration < 0:
         raise UsageError("--duration must not be negative")
     specs = specs_of(args)
@@ -167,6 +203,8 @@ def _emulate(args: argparse.Namespace) -> int:
         port=port,
         udp_port=udp_port,
         faults=faults,
+        state_port=state_port,
+        state_version=args.state_version,
         **_limits(args),
         **emulation,
     )
@@ -174,6 +212,9 @@ def _emulate(args: argparse.Namespace) -> int:
     try:
         where = format_address(*server.address)
         udp = f", UDP {format_address(*server.udp_address)}" if server.udp_address else ""
+        if server.state_address is not None:
+            v = server.controller.state_version
+            udp += f", state port {format_address(*server.state_address)} (v{v} layout)"
         flts = ", ".join(str(f) for f in faults) or "none"
         n = len(server.controller.specs)
         judge = server.controller.judge

@@ -45,7 +45,7 @@ from ..errors import EmulatorError, RemoteProtocolError, UsageError
 from ..faults import Fault, FaultKind, parse_fault, parse_faults
 from ..frame import DEFAULT_MAX_FRAME_SIZE, Frame, Malformed
 from ..judge import Judge
-from ..model import Controller, ControllerConnection
+from ..model import STATE_VERSION, Controller, ControllerConnection
 from ..spec import SpecSet
 from ._server import (
     BACKOFF_MAX,
@@ -56,6 +56,7 @@ from ._server import (
     serve_forever,
 )
 from .addresses import format_address, format_sockaddr
+from .emulator_state import StatePort
 
 __all__ = [
     "DEFAULT_MAX_CONNECTIONS",
@@ -150,7 +151,9 @@ class EmulatorServer:
     ``reraise_kit_errors`` (default True): whether :meth:`check` and
     :meth:`close` re-raise the first kit exception a peer's bytes caused (the
     connection is closed either way).  ``on_close`` is told when a connection
-    ends, and why when the server ended it.
+    ends, and why when the server ended it.  ``state_port`` (default off; 0: an
+    ephemeral port) also serves the state port 8083 in ``state_version``'s layout
+    (:mod:`conformance.net.emulator_state`).
     """
 
     def __init__(
@@ -169,10 +172,20 @@ class EmulatorServer:
         judge: Judge | None = None,
         dispatch: str = "recorded",
         robot: str | None = None,
+        state_port: int | None = None,
+        state_version: str = STATE_VERSION,
     ) -> None:
         self.controller = Controller(
-            specs, faults=parse_faults(faults), judge=judge, dispatch=dispatch, robot=robot
+            specs,
+            faults=parse_faults(faults),
+            judge=judge,
+            dispatch=dispatch,
+            robot=robot,
+            state_version=state_version,
         )
+        #: The state port (8083) to serve, if any (0: an ephemeral one); see :attr:`state`.
+        self._state_port = state_port
+        self.state: StatePort | None = None
         self.host = host.strip("[]")
         self._port = port
         self._udp_port = udp_port
@@ -227,6 +240,11 @@ class EmulatorServer:
         return self.host, int(self._udp.getsockname()[1])
 
     @property
+    def state_address(self) -> tuple[str, int] | None:
+        """Where the state port (8083) listens, if it is served."""
+        return self.state.address if self.state is not None else None
+
+    @property
     def target(self) -> str:
         return format_address(*self.address)
 
@@ -274,8 +292,44 @@ class EmulatorServer:
                 raise
             self._udp = udp
             self._spawn(self._serve_udp, "emulator-udp")
+        if self._state_port is not None:
+            self._start_state(self._state_port)
         self._spawn(self._serve_tcp, "emulator-accept")
         return self
+
+    def _start_state(self, port: int) -> None:
+        state = StatePort(
+            host=self.host,
+            port=port,
+            version=self.controller.state_version,
+            faults=self.controller.faults,
+            snapshot=self._state_snapshot,
+            conns=self._conns,
+            spawn=self._spawn,
+            stop=self._stop,
+            down=self._down,
+            changed=self._notify,
+            backoff=_backoff("state port accept", lambda: f"{self.open_connections} open"),
+        )
+        try:
+            state.start()
+        except OSError as e:
+            for s in (self._tcp, self._udp):
+                if s is not None:
+                    s.close()
+            self._tcp = self._udp = None
+            self._stop.set()
+            raise _bind_error("TCP", self.host, port, e) from e
+        self.state = state
+
+    def _state_snapshot(self) -> tuple[dict[str, object], float]:
+        with self._lock:  # the model as one command's answer leaves it
+            model = self.controller.model
+            return model.state_fields(), float(model.state_period_ms)
+
+    def _notify(self) -> None:
+        with self._conns_lock:
+            self.changed.notify_all()
 
     def close(self) -> None:
         """Stop every thread, close every socket, re-raise a background failure."""
@@ -283,6 +337,8 @@ class EmulatorServer:
         for s in (self._tcp, self._udp):
             if s is not None:
                 s.close()
+        if self.state is not None:
+            self.state.close()
         for c in self._conns.snapshot():
             _shutdown(c)
         for t in list(self._threads):

@@ -512,7 +512,7 @@ class StateDecoder:
             if prev is not None and period:
                 ms = (time - prev) * 1000.0
                 if ms > period * self.period_factor:
-                    asked = "SetStatePeriod asked" if self._period_asked else "the default is"
+                    asked = "SetStatePeriod asked" if self._period_asked else "expected"
                     out.append(
                         StateProblem(
                             kind=StateProblemKind.PERIOD,
