@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from numpy.typing import NDArray
 
@@ -215,6 +215,13 @@ def test_inverse_round_trips_with_forward(name: str) -> None:
     name=st.sampled_from(MODELS),
     u=st.lists(st.floats(0.0, 1.0), min_size=6, max_size=6),
 )
+# Wrist straight (q5 = 0) with the arm stretched out (q3 = 0) and joint 6 far from the
+# home's: joint 6 is free only within a narrow interval there (was UNREACHABLE).
+@example(name="FR3", u=[0.0, 0.0, 0.5, 0.5, 0.5, 0.0])
+# Wrist straight anywhere (q5 from an arccosine near 1 was noise to divide by) ...
+@example(name="FR30", u=[0.8977, 0.2777, 0.5, 0.2810, 0.5, 0.7341])
+# ... and with joints 4 and 6 at their limits: only some splits of their sum fit both.
+@example(name="FR20", u=[0.0272, 1.0, 0.5, 0.6973, 0.5, 1.0])
 def test_inverse_from_home_reaches_the_pose(name: str, u: list[float]) -> None:
     r = robot(name)
     q = [lim.min + (lim.max - lim.min) * v for lim, v in zip(r.joint_limits, u, strict=True)]

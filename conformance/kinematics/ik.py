@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import enum
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -55,8 +55,10 @@ __all__ = [
     "solve",
 ]
 
-#: |sin q5| below this: the wrist is singular (joints 4 and 6 turn about one axis).
-WRIST_SINGULAR = 1e-10
+#: |sin q5| below this: the wrist is singular (joints 4 and 6 turn about parallel axes).
+#: Not smaller: q5 comes from an arccosine, which turns a rounding error of 1e-15 in a
+#: straight wrist's cosine into 1e-7 rad, and dividing by that sine gave joint 6 noise.
+WRIST_SINGULAR = 1e-6
 #: How far outside [-1, 1] a cosine may fall from rounding before a branch counts as unreachable.
 COS_SLACK = 1e-9
 #: The polish stops once the flange is this close (mm; radians for the rotation).
@@ -141,11 +143,55 @@ def _inv(m: Matrix) -> Matrix:
     return out
 
 
-def branches(chain: DHChain, target: Matrix, q6_hint: float = 0.0) -> list[Branch]:
+def _singular_t6s(
+    frame4: Callable[[float], Matrix], hints: Sequence[float], a2: float, a3: float
+) -> list[float]:
+    """Joint 6's angles (radians, DH) at a wrist singularity, one per hint: the hint if it
+    leaves frame 4 within the elbow's reach, else the angle nearest the hint that does.
+
+    With joint 5 straight, joints 2, 3, 4 and 6 turn about parallel axes: the flange's
+    orientation fixes only the sum of joints 4 and 6, and each split of it puts frame 4
+    (``d5`` from the wrist centre) elsewhere on a circle in the arm's plane.  Only part of
+    that circle lies within reach of the two arm links (|a2 - a3| to a2 + a3 from
+    joint 2), so joint 6 is free within an interval, not over the whole turn: a hint
+    outside it found no solution where the arm is stretched out.
+    """
+
+    def reach2(t6: float) -> float:
+        m = frame4(t6)
+        return float(m[0, 3]) ** 2 + float(m[1, 3]) ** 2
+
+    # |frame 4|^2 = mean + amp * cos(t6 - phase): three angles give the curve.
+    f0, f90, f180 = reach2(0.0), reach2(math.pi / 2.0), reach2(math.pi)
+    mean = (f0 + f180) / 2.0
+    amp = math.hypot((f0 - f180) / 2.0, f90 - mean)
+    phase = math.atan2(f90 - mean, (f0 - f180) / 2.0)
+    lo, hi = (a2 - a3) ** 2, (a2 + a3) ** 2
+    slack = COS_SLACK * 2.0 * abs(a2 * a3)
+    edges: list[float] = []  # the angles where frame 4 meets the edge of the reach
+    for edge in (lo, hi):
+        k = (edge - mean) / amp if amp > 0.0 else 2.0
+        if abs(k) <= 1.0 + COS_SLACK:
+            turn = math.acos(min(1.0, max(-1.0, k)))
+            edges += [phase + turn, phase - turn]
+    out: list[float] = []
+    for hint in hints:
+        f = mean + amp * math.cos(hint - phase)
+        if lo - slack <= f <= hi + slack or not edges:
+            out.append(hint)
+        else:
+            out.append(hint + min((math.remainder(e - hint, math.tau) for e in edges), key=abs))
+    return list(dict.fromkeys(out))
+
+
+def branches(
+    chain: DHChain, target: Matrix, q6_hint: float = 0.0, q6_more: Sequence[float] = ()
+) -> list[Branch]:
     """All closed-form solutions (up to eight) for the flange transform ``target``.
 
     Angles are in degrees, wrapped to (-180, 180], limits not applied.  At a
-    wrist singularity joint 6 is free; it takes ``q6_hint`` (degrees).
+    wrist singularity joint 6 is free within an interval: each of ``q6_hint`` and
+    ``q6_more`` (degrees) gives a solution, at that angle or the nearest in the interval.
     """
     rows = chain.rows
     # d1 and d5 only shift frames 1 and 5 along their own axes: the closed form needs neither.
@@ -168,31 +214,38 @@ def branches(chain: DHChain, target: Matrix, q6_hint: float = 0.0) -> list[Branc
         inv_a1 = _inv(chain.link(0, t1 - offs[0]))
         for wrist, t5 in ((0, a5), (1, -a5)):
             s5 = math.sin(t5)
+
+            def frame4(t6: float, t5: float = t5, inv_a1: Matrix = inv_a1) -> Matrix:
+                """Frame 4 in frame 1 for this t1, t5 and t6."""
+                return (
+                    inv_a1
+                    @ target
+                    @ _inv(chain.link(5, t6 - offs[5]))
+                    @ _inv(chain.link(4, t5 - offs[4]))
+                )
+
             if abs(s5) < WRIST_SINGULAR:
-                t6 = math.radians(q6_hint) + offs[5]
+                hints = [math.radians(h) + offs[5] for h in (q6_hint, *q6_more)]
+                t6s = _singular_t6s(frame4, hints, a2, a3)
             else:
                 nx = float(x6[0]) * s1 - float(x6[1]) * c1
                 ny = float(y6[0]) * s1 - float(y6[1]) * c1
-                t6 = math.atan2(-ny / s5, nx / s5)
-            t14 = (
-                inv_a1
-                @ target
-                @ _inv(chain.link(5, t6 - offs[5]))
-                @ _inv(chain.link(4, t5 - offs[4]))
-            )
-            x, y = float(t14[0, 3]), float(t14[1, 3])
-            a3c = _acos((x * x + y * y - a2 * a2 - a3 * a3) / (2.0 * a2 * a3))
-            if a3c is None:
-                continue
-            t234 = math.atan2(float(t14[1, 0]), float(t14[0, 0]))
-            for elbow, t3 in ((0, a3c), (1, -a3c)):
-                t2 = math.atan2(y, x) - math.atan2(a3 * math.sin(t3), a2 + a3 * math.cos(t3))
-                t4 = t234 - t2 - t3
-                thetas = (t1, t2, t3, t4, t5, t6)
-                joints = tuple(
-                    wrap_deg(math.degrees(t - o)) for t, o in zip(thetas, offs, strict=True)
-                )
-                out.append(Branch(config=4 * shoulder + 2 * elbow + wrist, joints=joints))
+                t6s = [math.atan2(-ny / s5, nx / s5)]
+            for t6 in t6s:
+                t14 = frame4(t6)
+                x, y = float(t14[0, 3]), float(t14[1, 3])
+                a3c = _acos((x * x + y * y - a2 * a2 - a3 * a3) / (2.0 * a2 * a3))
+                if a3c is None:
+                    continue
+                t234 = math.atan2(float(t14[1, 0]), float(t14[0, 0]))
+                for elbow, t3 in ((0, a3c), (1, -a3c)):
+                    t2 = math.atan2(y, x) - math.atan2(a3 * math.sin(t3), a2 + a3 * math.cos(t3))
+                    t4 = t234 - t2 - t3
+                    thetas = (t1, t2, t3, t4, t5, t6)
+                    joints = tuple(
+                        wrap_deg(math.degrees(t - o)) for t, o in zip(thetas, offs, strict=True)
+                    )
+                    out.append(Branch(config=4 * shoulder + 2 * elbow + wrist, joints=joints))
     return out
 
 
@@ -239,6 +292,14 @@ def _polish(chain: DHChain, target: Matrix, joints: tuple[float, ...]) -> tuple[
     return tuple(float(v) for v in q)
 
 
+def _q6_choices(lim: JointLimit) -> tuple[float, ...]:
+    """Joint 6 angles tried at a wrist singularity besides the reference's: its limits and
+    every 10 degrees between, so that some split of joints 4 and 6 within both limits is
+    met (the reference's alone can leave joint 4 out of its limits)."""
+    steps = int((lim.max - lim.min) // 10.0)
+    return (lim.min, lim.max, *(lim.min + 10.0 * k for k in range(1, steps + 1)))
+
+
 def solve(
     chain: DHChain,
     limits: Sequence[JointLimit],
@@ -255,7 +316,9 @@ def solve(
     if config is not None and not 0 <= config <= 7:
         raise ValueError(f"config is -1 (None) or 0..7, got {config}")
     found = [
-        b for b in branches(chain, target, q6_hint=ref[5]) if config is None or b.config == config
+        b
+        for b in branches(chain, target, q6_hint=ref[5], q6_more=_q6_choices(limits[5]))
+        if config is None or b.config == config
     ]
     if not found:
         return IKResult(status=IKStatus.UNREACHABLE)
