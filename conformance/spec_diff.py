@@ -269,9 +269,9 @@ def _variant_changes(a: Variant, b: Variant) -> Iterable[tuple[str, str, str, st
         if n not in pa:
             yield "param_added", q.name, "", _type(q)
     for n, p in pa.items():
-        q = pb.get(n)
-        if q is None:
+        if n not in pb:
             continue
+        q = pb[n]
         if _type(p) != _type(q):
             yield "param_retyped", q.name, _type(p), _type(q)
         if _ranges(p.range) != _ranges(q.range):
