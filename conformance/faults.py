@@ -22,6 +22,7 @@ __all__ = [
     "STATE_KINDS",
     "Fault",
     "FaultKind",
+    "StateFaultKind",
     "StateFaults",
     "active_fault",
     "known_cmd_ids",
@@ -60,6 +61,15 @@ class FaultKind(str, enum.Enum):
     #: The controller splits frames with a regular expression and ignores LEN, so it
     #: executes frames whose LEN disagrees with DATA.
     IGNORE_LEN = "ignore_len"
+
+
+class StateFaultKind(str, enum.Enum):
+    """One way the state port (8083) fails, as the field has met it.
+
+    Apart from :class:`FaultKind`: these act on the state stream, not on command
+    replies, and their ``:ARG`` is a packet count N (``state_layout``: a version).
+    """
+
     #: The state port (8083) sends every Nth packet with a wrong checksum
     #: (``state_checksum:N``, default 10): frcobot_ros2 #7 "Status data and checksum failed!".
     STATE_CHECKSUM = "state_checksum"
@@ -74,25 +84,17 @@ class FaultKind(str, enum.Enum):
     STATE_CNT_GAP = "state_cnt_gap"
 
 
-#: The kinds that act on the state port, not on command replies: their ``:ARG`` is a
-#: packet count N (``state_layout``: a version), not command IDs.
-STATE_KINDS = frozenset(
-    {
-        FaultKind.STATE_CHECKSUM,
-        FaultKind.STATE_LAYOUT,
-        FaultKind.STATE_STALL,
-        FaultKind.STATE_CNT_GAP,
-    }
-)
+#: The state port's kinds.
+STATE_KINDS = frozenset(StateFaultKind)
 #: Every how many packets a state fault strikes when ``:N`` is not given.
 _DEFAULT_EVERY = 10
 _MAX_EVERY = 1_000_000
 
 
-_DEFAULT_DELAY = {
+_DEFAULT_DELAY: dict[FaultKind | StateFaultKind, float] = {
     FaultKind.SLOW: 2.0,
     FaultKind.CRASH_ON_MALFORMED: 0.5,
-    FaultKind.STATE_STALL: 3.0,
+    StateFaultKind.STATE_STALL: 3.0,
 }
 
 
@@ -105,14 +107,14 @@ class Fault:
     kind's default).  ``arg`` is a state kind's ``:N`` (or ``state_layout``'s version).
     """
 
-    kind: FaultKind
+    kind: FaultKind | StateFaultKind
     cmd_ids: frozenset[int] = frozenset()
     delay: float | None = None
     arg: str | None = None
 
     def __post_init__(self) -> None:
-        if not isinstance(self.kind, FaultKind):
-            object.__setattr__(self, "kind", FaultKind(self.kind))
+        if not isinstance(self.kind, (FaultKind, StateFaultKind)):
+            object.__setattr__(self, "kind", _kind(self.kind))
         object.__setattr__(self, "cmd_ids", frozenset(self.cmd_ids))
         if self.delay is not None and self.delay < 0:
             raise UsageError(f"fault delay must not be negative (got {self.delay})")
@@ -132,7 +134,7 @@ class Fault:
         return self.delay if self.delay is not None else _DEFAULT_DELAY.get(self.kind, 0.0)
 
     def __str__(self) -> str:
-        text = self.kind.value
+        text = str(self.kind.value)
         if self.cmd_ids:
             text += ":" + ",".join(str(i) for i in sorted(self.cmd_ids))
         if self.arg is not None:
@@ -180,9 +182,9 @@ def parse_fault(text: str, *, known: Iterable[int] | None = None) -> Fault:
             )
     name, colon, ids = raw.partition(":")
     try:
-        kind = FaultKind(name.strip().lower().replace("-", "_"))
+        kind = _kind(name.strip().lower().replace("-", "_"))
     except ValueError:
-        kinds = ", ".join(k.value for k in FaultKind)
+        kinds = ", ".join(k.value for k in (*FaultKind, *StateFaultKind))
         raise UsageError(f"unknown fault kind {_shown(name)} (one of: {kinds})") from None
     if delay is not None and kind not in _DEFAULT_DELAY:
         names = [k.value for k in _DEFAULT_DELAY]
@@ -217,11 +219,18 @@ def parse_fault(text: str, *, known: Iterable[int] | None = None) -> Fault:
     return Fault(kind=kind, cmd_ids=frozenset(cmd_ids), delay=delay)
 
 
-def _state_arg(text: str, kind: FaultKind, arg: str | None) -> str | None:
+def _kind(value: str) -> FaultKind | StateFaultKind:
+    try:
+        return FaultKind(value)
+    except ValueError:
+        return StateFaultKind(value)
+
+
+def _state_arg(text: str, kind: FaultKind | StateFaultKind, arg: str | None) -> str | None:
     """A state kind's ``:N`` (1..10^6 packets) or ``state_layout``'s ``:VERSION``."""
     if arg is None:
         return None
-    if kind is FaultKind.STATE_LAYOUT:
+    if kind is StateFaultKind.STATE_LAYOUT:
         from .protocol.state_layout import known_layouts
 
         have = [lay.version for lay in known_layouts()]
@@ -258,14 +267,14 @@ class StateFaults:
     def of(cls, faults: Iterable[Fault]) -> StateFaults:
         kw: dict[str, object] = {}
         for f in faults:
-            if f.kind is FaultKind.STATE_CHECKSUM:
+            if f.kind is StateFaultKind.STATE_CHECKSUM:
                 kw["checksum_every"] = f.every
-            elif f.kind is FaultKind.STATE_CNT_GAP:
+            elif f.kind is StateFaultKind.STATE_CNT_GAP:
                 kw["cnt_gap_every"] = f.every
-            elif f.kind is FaultKind.STATE_STALL:
+            elif f.kind is StateFaultKind.STATE_STALL:
                 kw["stall_every"] = f.every
                 kw["stall_seconds"] = f.seconds
-            elif f.kind is FaultKind.STATE_LAYOUT:
+            elif f.kind is StateFaultKind.STATE_LAYOUT:
                 kw["layout"] = f.arg
                 kw["other_layout"] = f.arg is None
         return cls(**kw)  # type: ignore[arg-type]

@@ -13,7 +13,7 @@ import pytest
 
 from conformance.cli import main
 from conformance.errors import UsageError
-from conformance.faults import StateFaults, parse_fault
+from conformance.faults import StateFaultKind, StateFaults, parse_fault
 from conformance.frame import Frame, decode_all, encode_frame
 from conformance.net.emulator import EmulatorServer
 from conformance.protocol.state import StateDecoder, StateEvent, StatePacket, StateProblem
@@ -128,6 +128,8 @@ def test_state_faults_parse_and_plan() -> None:
         (True, 0, 0.5),
     ]
     assert str(parse_fault("state_layout:v3.9.8")) == "state_layout:3.9.8"
+    assert parse_fault("state_cnt_gap").kind is StateFaultKind.STATE_CNT_GAP
+    assert not parse_fault("state_checksum").applies(204)  # never a command reply's
     for bad in ("state_checksum:0", "state_layout:1.2.3", "state_cnt_gap@1"):
         with pytest.raises(UsageError):
             parse_fault(bad)
