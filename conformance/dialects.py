@@ -20,11 +20,12 @@ import json
 import os
 import re
 from collections.abc import Iterable, Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 from .errors import Rule, SpecError, UsageError
+from .firmware import VersionRange, evidence_range, version_tuple
 from .spec import (
     Command,
     Param,
@@ -109,6 +110,11 @@ class Dialect:
     #: A known bug of the source, not a form a controller is known to accept: the
     #: judge names the entry as the cause, and the frame stays FAIL.
     defect: bool = False
+    #: The firmware its evidence was seen with (:func:`~conformance.firmware.evidence_range`);
+    #: None: no evidence states one, and the entry applies to every firmware.
+    versions: VersionRange | None = None
+    #: The firmware version that selected the entry (:meth:`DialectSet.within`), if one did.
+    selected_by: str | None = None
 
     @property
     def variant(self) -> Variant:
@@ -125,7 +131,12 @@ class Dialect:
     def cite(self) -> str:
         """``python-sdk-004 (repo@commit path:line function)``: the entry and its first evidence."""
         more = f" +{len(self.evidence) - 1} more" if len(self.evidence) > 1 else ""
-        return f"{self.id} ({self.evidence[0].cite()}{more})"
+        chosen = (
+            f"; firmware {self.selected_by} within {self.versions}"
+            if self.selected_by is not None and self.versions is not None
+            else ""
+        )
+        return f"{self.id} ({self.evidence[0].cite()}{more}{chosen})"
 
     def describe(self) -> str:
         """What the form is, in a few words (``ServoJ with 8 arguments``)."""
@@ -160,6 +171,10 @@ class DialectSet:
 
     entries: tuple[Dialect, ...] = ()
     sources: Mapping[str, str] = field(default_factory=dict)
+    #: The firmware version these entries were chosen for (:meth:`within`); None: all apply.
+    firmware: str | None = None
+    #: Entries left out because that firmware is outside their range.
+    left_out: tuple[str, ...] = ()
     _by_id: Mapping[int, tuple[Dialect, ...]] = field(default_factory=dict, repr=False)
     _by_rule: Mapping[str, tuple[Dialect, ...]] = field(default_factory=dict, repr=False)
 
@@ -202,6 +217,23 @@ class DialectSet:
             for d in self._by_rule.get(rule, ())
             if d.defect is defect and (transport is None or transport in d.transport)
         )
+
+    def within(self, version: str | None) -> DialectSet:
+        """The entries whose firmware range holds ``version`` (each citing the version that
+        selected it), the others named in :attr:`left_out`; every entry when the version is
+        unknown (None)."""
+        v = version_tuple(version) if version is not None else None
+        if version is None or v is None:
+            return self
+        kept = [
+            replace(e, selected_by=version) if e.versions is not None else e
+            for e in self.entries
+            if e.versions is None or v in e.versions
+        ]
+        out = {e.id for e in kept}
+        narrowed = DialectSet.build(kept, self.sources)
+        left = tuple(e.id for e in self.entries if e.id not in out)
+        return replace(narrowed, firmware=version, left_out=left)
 
     def get(self, entry_id: str) -> Dialect | None:
         return next((e for e in self.entries if e.id == entry_id), None)
@@ -289,6 +321,7 @@ def _entry(raw: Mapping[str, Any], source: str, path: str) -> Dialect:
         rule=rule,
         defect=raw.get("defect", False),
         note=raw["note"],
+        versions=evidence_range(e.get("version") for e in raw["evidence"]),
     )
 
 
@@ -371,18 +404,20 @@ def load_dialects(
 DIALECTS_ENV = "FAIRINO_DIALECTS_DIR"
 
 
-def dialects_from(directory: str | None, specs: SpecSet) -> DialectSet:
-    """The dialects of ``directory`` (else ``$FAIRINO_DIALECTS_DIR``, else the shipped ones).
+def dialects_from(
+    directory: str | None, specs: SpecSet, *, version: str | None = None
+) -> DialectSet:
+    """The dialects of ``directory`` (else ``$FAIRINO_DIALECTS_DIR``, else the shipped ones),
+    those whose firmware range holds ``version`` when it is known (:meth:`DialectSet.within`).
 
     A missing or malformed directory is the user's mistake: :class:`UsageError`.
     """
     directory = directory or os.environ.get(DIALECTS_ENV) or None
     try:
-        if directory is None:
-            return default_dialects()
-        return load_dialects(directory, specs)
+        found = default_dialects() if directory is None else load_dialects(directory, specs)
     except SpecError as e:
         raise UsageError(f"dialects: {e}") from None
+    return found.within(version)
 
 
 @functools.lru_cache(maxsize=1)

@@ -36,6 +36,7 @@ FLOORS: dict[str, int] = {
     "faults": 2,
     "strategies": 2,
     "spec_diff": 2,
+    "firmware": 2,
     "wireshark": 2,
     "kinematics": 2,
     # 3: the one judge (frames; judge_stream: CNT steps and pairing over a stream).

@@ -7,6 +7,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
 from ..errors import UsageError
+from ..firmware import SpecChoice
 from ..frame import DEFAULT_MAX_FRAME_SIZE
 from ..net import format_address
 from ..safety import SafetyPolicy
@@ -109,6 +110,16 @@ class SuiteConfig:
     hypothesis_profile: str | None = None
     #: Decide every case (selection, safety) but send nothing.
     dry_run: bool = False
+    #: ``--spec-version`` as given: None (the default set), a version, a directory, or ``auto``.
+    spec_version: str | None = None
+    #: The spec set chosen for it (:func:`conformance.suite.spec_choice.with_spec`); its
+    #: firmware, when known, selects the field dialects.
+    spec: SpecChoice | None = None
+
+    @property
+    def firmware(self) -> str | None:
+        """The firmware version that selects the field dialects (None: every entry applies)."""
+        return self.spec.firmware if self.spec is not None else None
 
     def __post_init__(self) -> None:
         if self.reference not in ("field", "manual"):

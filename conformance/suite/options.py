@@ -57,6 +57,8 @@ class Option:
     pytest_flag: str | None = ""
     #: Must be > 0 (timeouts, budget, rate).
     positive: bool = False
+    #: The default as the README's table shows it, where ``default`` is None for a reason.
+    default_text: str | None = None
 
     @property
     def flag(self) -> str:
@@ -100,6 +102,15 @@ OPTIONS: tuple[Option, ...] = (
         choices=("field", "manual"),
         default="field",
         help="field: a recorded field dialect is DIALECT, not a failure; manual: the manual alone",
+    ),
+    Option(
+        name="spec_version",
+        kind="text",
+        metavar="VERSION",
+        default_text="3.8.2",
+        help="the spec set to judge against: 3.8.2, 3.9.8, a spec-set directory, or auto "
+        "(ask the target's GetSoftwareVersion, ID 905, once: the newest spec set not newer "
+        "than its firmware)",
     ),
     Option(
         name="commands",
@@ -399,6 +410,7 @@ def suite_config(values: Mapping[str, Any], *, seed: int | None = None) -> Suite
         emulator_faults=tuple(faults),
         expected_failures=load_expected_failures(expected) if expected else frozenset(),
         dry_run=values["dry_run"],
+        spec_version=values["spec_version"],
     )
 
 
@@ -413,6 +425,8 @@ def options_table() -> str:
             default = "off"
         elif o.kind == "list":
             default = "all" if o.name in ("commands", "groups") else "none"
+        elif o.default_text is not None:
+            default = o.default_text
         elif o.default is None:
             default = "-"
         else:

@@ -118,7 +118,7 @@ class SuiteRunner:
         #: reference; the built-in emulator judges with it too.
         self.frame_judge = RequestMemo(
             specs,
-            dialects_from(None, specs),
+            dialects_from(None, specs, version=config.firmware),
             reference=Reference(config.reference),
             strict=config.strict,
         )
