@@ -367,6 +367,10 @@ class RobotModel:
                 # 6.1.4 GetSoftwareVersion: the model the twin is (its example says FR16-...).
                 shown = example[i] if example is not None else self.robot.name
                 out.append(re.sub(r"^FR\d+", self.robot.name, shown))
+            elif rv.name.lower() == "webversion":
+                # 6.1.4 GetSoftwareVersion: the firmware is the spec set's (the field names a
+                # firmware by its web version: conformance/firmware.py); --spec-version picks it.
+                out.append(f"v{self.specs.spec_version}")
             elif example is not None:
                 out.append(example[i])
             else:
