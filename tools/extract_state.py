@@ -273,14 +273,16 @@ def en_rows(
         structs[which] = members
     # Table 2-4 prints each member's heading ("Weld Interruption Status:") above the type.
     heads = re.findall(r"^([^\n]+):\n\nuint8_t", block, flags=re.M)
-    for m, h in zip(structs["welding_state"], heads, strict=True):
-        m["meaning"] = f"{h}: {m['meaning']}"
+    for member, h in zip(structs["welding_state"], heads, strict=True):
+        member["meaning"] = f"{h}: {member['meaning']}"
     # exaxis_oflin's meaning starts on the line above its type (the table wraps it).
-    for m in structs["exaxis_status"]:
-        if m["name"] == "exaxis_absofln":
-            m["meaning"] = m["meaning"].replace(" The communication timed out, and the", "")
-        if m["name"] == "exaxis_oflin":
-            m["meaning"] = "The communication timed out, and the " + m["meaning"]
+    for member in structs["exaxis_status"]:
+        if member["name"] == "exaxis_absofln":
+            member["meaning"] = member["meaning"].replace(
+                " The communication timed out, and the", ""
+            )
+        if member["name"] == "exaxis_oflin":
+            member["meaning"] = "The communication timed out, and the " + member["meaning"]
     app = text[s_end:]
     codes = [
         {"code": int(c), "meaning": _clean(t)}
@@ -411,7 +413,7 @@ FRAME = {
 
 
 def _frame(version: str, data_length: int) -> dict[str, Any]:
-    doc = json.loads(json.dumps(FRAME))
+    doc: dict[str, Any] = json.loads(json.dumps(FRAME))
     doc["header_size"] = 5
     doc["trailer_size"] = 2
     doc["data_length"] = data_length
