@@ -36,6 +36,7 @@ __all__ = [
     "SoftwareVersion",
     "SpecChoice",
     "VersionRange",
+    "choice_from_json",
     "choose_spec",
     "evidence_range",
     "firmware_versions_in",
@@ -51,6 +52,9 @@ GET_SOFTWARE_VERSION_ID = 905
 GET_SOFTWARE_VERSION = "GetSoftwareVersion()"
 
 Version = tuple[int, ...]
+
+#: A version given by name (``3.9.8``, ``v3.9.8``), not a directory or ``auto``.
+_GIVEN_VERSION = re.compile(r"[vV]?\d+(?:\.\d+)+")
 
 _NUMBER = re.compile(r"\d+(?:\.\d+)+")
 #: frcobot_ros2's reading of the reply (fairino_version.cpp:290): a lower-case ``v``, the
@@ -166,13 +170,15 @@ class SpecChoice:
 
     @property
     def firmware(self) -> str | None:
-        """The firmware version that selects the field dialects (None: unknown, all apply):
-        the one reported, else one given by name."""
+        """The firmware version that selects the field dialects, or None (unknown: every entry
+        applies, as without the option): under ``auto`` the one reported; for a version given
+        by name, the one reported where the traffic has it, else that version.  The default
+        and a directory name no firmware."""
+        if self.asked == "default":
+            return None
         if self.reported is not None:
             return self.reported.version
-        if self.asked not in ("default", AUTO) and version_tuple(self.asked) is not None:
-            return self.version
-        return None
+        return self.version if _GIVEN_VERSION.fullmatch(self.asked) else None
 
     def label(self) -> str:
         """``3.9.8 (auto: target … reports FR5-V1-001(V6.0),v3.9.8,V3.7.77)``."""
@@ -198,11 +204,34 @@ class SpecChoice:
                 "controller": self.reported.controller,
                 "where": self.where,
             }
+        elif self.where:
+            out["where"] = self.where
+        if self.note:
+            out["note"] = self.note
         if self.firmware is not None:
             out["firmware"] = self.firmware
         if self.warning:
             out["warning"] = self.warning
         return out
+
+
+def choice_from_json(doc: dict[str, Any]) -> SpecChoice:
+    """A :class:`SpecChoice` from :meth:`SpecChoice.to_json` (an xdist worker gets the one its
+    controller made, instead of asking the target again)."""
+    rep = doc.get("reported")
+    reported = None
+    if isinstance(rep, dict):
+        reported = SoftwareVersion(
+            data=rep["data"], model=rep["model"], web=rep["web"], controller=rep["controller"]
+        )
+    return SpecChoice(
+        version=doc["version"],
+        asked=doc.get("asked", "default"),
+        reported=reported,
+        where=rep.get("where", "") if isinstance(rep, dict) else doc.get("where", ""),
+        note=doc.get("note", ""),
+        warning=doc.get("warning"),
+    )
 
 
 def choose_spec(

@@ -58,6 +58,7 @@ from .suite.engine import Engine, stop_report
 from .suite.options import OPTIONS, option, resolve, suite_config
 from .suite.present import dry_run_lines
 from .suite.runner import Case
+from .suite.spec_choice import load_chosen, note_spec, with_spec
 from .verdict import Outcome, fails
 
 __all__ = ["CaseItem", "CommandNode", "Target"]
@@ -134,11 +135,16 @@ def _suite_config(config: pytest.Config) -> SuiteConfig:
         except InvalidArgument as e:
             raise pytest.UsageError(f"--hypothesis-profile: {e}") from None
     sc = suite_config(values, seed=seed if seed is not None else random.getrandbits(32))
-    if hyp_profile is not None:
-        from dataclasses import replace
+    from dataclasses import replace
 
+    if hyp_profile is not None:
         sc = replace(sc, hypothesis_profile=hyp_profile)
-    return sc
+    chosen = workerinput.get("fairino_spec") if workerinput is not None else None
+    if chosen is not None:  # the controller asked the target once; its workers do not
+        from .firmware import choice_from_json
+
+        return replace(sc, spec=choice_from_json(chosen))
+    return with_spec(sc)
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -152,6 +158,8 @@ def pytest_configure(config: pytest.Config) -> None:
     except ConformanceError as e:
         raise pytest.UsageError(str(e)) from None
     _refuse_shared_state_in_parallel(config, sc)
+    if sc.spec is not None and sc.spec.warning and not _is_worker(config):
+        print(f"fairino-conformance: warning: {sc.spec.warning}", file=sys.stderr)
     config.stash[_CONFIG_KEY] = sc
     config.stash[_ENGINE_KEY] = None
     merged = Report(
@@ -195,6 +203,8 @@ def pytest_configure_node(node: Any) -> None:
     sc = node.config.stash.get(_CONFIG_KEY, None)
     if sc is not None:
         node.workerinput["fairino_seed"] = sc.seed
+        if sc.spec is not None:
+            node.workerinput["fairino_spec"] = sc.spec.to_json()
 
 
 def _is_worker(config: pytest.Config) -> bool:
@@ -204,7 +214,7 @@ def _is_worker(config: pytest.Config) -> bool:
 def _engine(config: pytest.Config) -> Engine:
     engine = config.stash.get(_ENGINE_KEY, None)
     if engine is None:
-        engine = Engine(config.stash[_CONFIG_KEY])
+        engine = Engine(config.stash[_CONFIG_KEY])  # the spec set its config chose
         config.stash[_ENGINE_KEY] = engine
     return engine
 
@@ -345,9 +355,10 @@ def pytest_report_collectionfinish(
     commands = len({c.cmd_id for c in cases})
     groups = ", ".join(sorted({c.group for c in cases}))
     dry = "; dry run, nothing is sent" if sc.dry_run else ""
+    spec = f"; spec {sc.spec.label()}" if sc.spec is not None else ""
     return (
         f"fairino-conformance: {plural(len(cases), 'case')} of "
-        f"{plural(commands, 'command')} ({groups}) against {sc.target_label()}{dry}"
+        f"{plural(commands, 'command')} ({groups}) against {sc.target_label()}{spec}{dry}"
     )
 
 
@@ -418,9 +429,12 @@ def _finish_report(
 ) -> None:
     """Spec version, the emulator's address, and the cases a stopped or interrupted session
     never ran (the engine's :func:`~conformance.suite.engine.stop_report`, as for ``run``)."""
-    from .spec import default_specs
+    from .dialects import dialects_from
 
-    report.spec_version = default_specs().spec_version
+    sc = config.stash[_CONFIG_KEY]
+    if sc.spec is not None:
+        dialects = dialects_from(None, load_chosen(sc.spec), version=sc.firmware)
+        note_spec(report, sc.spec, dialects)
     if engine is not None:
         report.meta.update({k: v for k, v in engine.report.meta.items() if k not in report.meta})
     cases = config.stash.get(_CASES_KEY, None)
@@ -466,7 +480,9 @@ EmulatorFactory = Callable[..., EmulatorServer]
 @pytest.fixture(scope="session")
 def fairino_emulator_factory() -> Iterator[EmulatorFactory]:
     """Start emulators for the session: ``factory(faults=("wrong_cnt:201",), reference="manual",
-    dispatch="any", udp=True)``; each listens on 127.0.0.1, ports chosen by the kernel.
+    dispatch="any", udp=True, spec_version="3.9.8")``; each listens on 127.0.0.1, ports chosen
+    by the kernel, and plays the firmware of its spec set (the default's, else the one named:
+    GetSoftwareVersion answers it, and the field dialects are those of its range).
     Closed at the end of the session, re-raising any failure of their own."""
     servers: list[EmulatorServer] = []
 
@@ -476,14 +492,22 @@ def fairino_emulator_factory() -> Iterator[EmulatorFactory]:
         reference: str = "field",
         dispatch: str = "recorded",
         udp: bool = True,
+        spec_version: str | None = None,
     ) -> EmulatorServer:
-        from .dialects import default_dialects
+        from .dialects import dialects_from
         from .judge import Judge, Reference
-        from .spec import default_specs
+        from .suite.spec_choice import choose
 
-        judge = Judge(default_specs(), default_dialects(), reference=Reference(reference))
+        choice = choose(spec_version, option="spec_version")
+        specs = load_chosen(choice)
+        dialects = dialects_from(None, specs, version=choice.firmware)
+        judge = Judge(specs, dialects, reference=Reference(reference))
         emu = EmulatorServer(
-            udp_port=0 if udp else None, faults=tuple(faults), judge=judge, dispatch=dispatch
+            specs,
+            udp_port=0 if udp else None,
+            faults=tuple(faults),
+            judge=judge,
+            dispatch=dispatch,
         )
         emu.start()
         servers.append(emu)
@@ -525,7 +549,11 @@ def fairino_target(
     if values["target"]:
         host, port = parse_address(values["target"], default_port=8080, option="--target")
         return Target(host, port, values["transport"], timeout)
-    emu = fairino_emulator_factory(udp=values["transport"] == "udp")
+    played = values["spec_version"]  # auto: the emulator plays the default
+    emu = fairino_emulator_factory(
+        udp=values["transport"] == "udp",
+        spec_version=None if (played or "").lower() in ("", "auto") else played,
+    )
     if values["transport"] == "udp":
         assert emu.udp_address is not None
         return Target(emu.udp_address[0], emu.udp_address[1], "udp", timeout)

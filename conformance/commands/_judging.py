@@ -56,9 +56,17 @@ def reference_of(args: argparse.Namespace) -> Reference:
 
 
 def judge_from(args: argparse.Namespace, specs: SpecSet, *, strict: bool = False) -> Judge:
+    """The judge the options describe; its field dialects are those of the firmware the
+    spec choice knows (``args.spec_choice``, set by ``specs_of``/``spec_choice_of``), all of
+    them when it knows none."""
+    choice = getattr(args, "spec_choice", None)
     return Judge(
         specs,
-        dialects_from(getattr(args, "dialects_dir", None), specs),
+        dialects_from(
+            getattr(args, "dialects_dir", None),
+            specs,
+            version=choice.firmware if choice is not None else None,
+        ),
         reference=reference_of(args),
         strict=strict,
     )

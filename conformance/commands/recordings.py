@@ -25,7 +25,7 @@ from ..replay import NOT_RECORDED
 from ._judging import add_judge_options, judge_from, verdict_line
 from ._judging import verdict_sink as _verdict_sink
 from ._safety import add_safety_options
-from ._specs_option import add_specs_dir, specs_of
+from ._specs_option import add_specs_dir, reported_by, spec_choice_of, specs_of
 from .capture import parse_size
 
 __all__ = ["register"]
@@ -223,6 +223,11 @@ def _register_more(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
 # --------------------------------------------------------------------------- recover / info / check
 
 
+def _reported(rec: Any) -> Any:
+    """The controller's first GetSoftwareVersion (905) reply in a recording, read."""
+    return reported_by((f.dir, f.cmd_id, f.data) for f in rec.frames)
+
+
 def _run_recover(args: argparse.Namespace) -> int:
     res = recover(args.capture, args.out)
     state = (
@@ -237,8 +242,9 @@ def _run_recover(args: argparse.Namespace) -> int:
 def _run_info(args: argparse.Namespace) -> int:
     from ..capture_check import render_info, summarize
 
-    specs = specs_of(args)
-    info = summarize(read_capture(args.capture), specs, judge=judge_from(args, specs))
+    rec = read_capture(args.capture)
+    specs, _ = spec_choice_of(args, traffic=_reported(rec))
+    info = summarize(rec, specs, judge=judge_from(args, specs))
     if args.json:
         _write_json("-", info)
     else:
@@ -250,9 +256,9 @@ def _run_check(args: argparse.Namespace) -> int:
     from ..capture_check import check_recording, failing_ids_by_side, judgeable
     from ..report import write_reports
 
-    specs = specs_of(args)
-    judge = judge_from(args, specs, strict=args.strict)
     rec = read_capture(args.capture)
+    specs, choice = spec_choice_of(args, traffic=_reported(rec))
+    judge = judge_from(args, specs, strict=args.strict)
     if (warning := judgeable(rec)) is not None:  # an empty one raises: empty is never success
         print(warning, file=sys.stderr)
     side = args.side
@@ -267,6 +273,9 @@ def _run_check(args: argparse.Namespace) -> int:
             )
     else:
         report = check_recording(rec, specs, judge=judge, side=side)
+    from ..suite.spec_choice import note_spec
+
+    note_spec(report, choice, judge.dialects)
     write_reports(report, json_path=args.report_json)  # as run and serve write theirs
     if args.report_json != "-":
         print(report.render_terminal(only_failures=args.only_failures))
@@ -300,7 +309,12 @@ def _run_replay(args: argparse.Namespace) -> int:
     if args.udp_port is not None and not low <= args.udp_port < 65536:
         raise UsageError(f"--udp-port must be {low}..65535, not {args.udp_port}")
     rec = read_capture(args.capture)
-    specs = specs_of(args)
+    if args.serve is not None:
+        specs = specs_of(args)
+    else:  # auto: the target's own answer first, else the recording's
+        specs, _ = spec_choice_of(
+            args, target=(address.host, address.port), timeout=args.timeout, traffic=_reported(rec)
+        )
     ignore = Ignore.parse(args.ignore, specs=specs)
     if args.serve is not None:
         udp = args.udp_port is not None
@@ -401,10 +415,13 @@ def _run_replay(args: argparse.Namespace) -> int:
 def _run_diff(args: argparse.Namespace) -> int:
     from ..diff import Ignore, diff_recordings
 
-    specs = specs_of(args)
+    a, b = read_capture(args.a), read_capture(args.b)
+    specs, _ = spec_choice_of(
+        args, traffic=_reported(a) or _reported(b), traffic_where="the recordings"
+    )
     res = diff_recordings(
-        read_capture(args.a),
-        read_capture(args.b),
+        a,
+        b,
         specs=specs,
         ignore=Ignore.parse(args.ignore, specs=specs),
         latency_threshold=args.latency_threshold,

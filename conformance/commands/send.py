@@ -31,7 +31,7 @@ from ..spec import Command, SpecSet, error_code_text
 from ..validate import RefusalForm
 from ._judging import add_judge_options, judge_from, verdict_line
 from ._safety import add_safety_options, safety_policy
-from ._specs_option import add_specs_dir, specs_of
+from ._specs_option import add_specs_dir, spec_choice_of
 
 __all__ = ["register"]
 
@@ -389,7 +389,8 @@ def _run_send(args: argparse.Namespace) -> int:
     host, port = parse_address(args.target, default_port=_UDP_PORT if args.udp else _TCP_PORT)
     where = format_address(host, port)
     raw = _payload(args)
-    specs = specs_of(args)
+    # --spec-version auto: the target's GetSoftwareVersion (905) reply, asked once first.
+    specs, _ = spec_choice_of(args, target=(host, port), transport=transport, timeout=args.timeout)
     judge = judge_from(args, specs)
     events = decode_all(raw)
     verdicts = {

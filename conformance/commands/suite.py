@@ -15,7 +15,7 @@ from typing import Any
 from ..errors import EXIT_ERROR, EXIT_INTERRUPTED, EXIT_OK, EmulatorError, UsageError
 from ..faults import parse_fault
 from ..net import format_address, parse_address
-from ._specs_option import add_specs_dir, specs_of
+from ._specs_option import add_specs_dir, spec_choice_of
 
 __all__ = ["register"]
 
@@ -192,7 +192,7 @@ def _emulate(args: argparse.Namespace) -> int:
         raise UsageError(f"--state-version: {e}") from None
     if args.duration is not None and args.duration < 0:
         raise UsageError("--duration must not be negative")
-    specs = specs_of(args)
+    specs, _ = spec_choice_of(args, allow_auto=False)  # the firmware it plays, 905 included
     emulation = _emulation(args, specs)
     # A fault's IDs are checked against what this emulator knows: its specs and dialects.
     known = {*specs.cmd_ids, *emulation["judge"].dialects.cmd_ids}
@@ -225,7 +225,8 @@ def _emulate(args: argparse.Namespace) -> int:
         )
         arm = server.controller.model.robot.name
         print(
-            f"emulating {n} commands on TCP {where}{udp}; {dialects}; faults: {flts}; robot {arm}",
+            f"emulating {n} commands of spec {specs.spec_version} on TCP {where}{udp}; "
+            f"{dialects}; faults: {flts}; robot {arm}",
             flush=True,
         )
         deadline = None if args.duration is None else time.monotonic() + args.duration
@@ -269,6 +270,7 @@ def _run(args: argparse.Namespace) -> int:
     from ..suite.engine import Engine, EngineError, Interrupted, RunFinished
     from ..suite.options import OPTIONS, resolve, suite_config
     from ..suite.present import Progress, dry_run_lines, failure_lines
+    from ..suite.spec_choice import choice_line, with_spec
 
     values = resolve({o.name: getattr(args, o.name, None) for o in OPTIONS if o.run})
     if values["emulator_fault"] and values["target"]:
@@ -280,7 +282,12 @@ def _run(args: argparse.Namespace) -> int:
         parent = Path(path).resolve().parent
         if not parent.is_dir():
             raise UsageError(f"cannot write {path}: no directory {parent}")
-    engine = Engine(suite_config(values))
+    config = with_spec(suite_config(values))  # auto: the target's 905 reply, asked once
+    assert config.spec is not None
+    line = choice_line(config.spec)
+    if line is not None:
+        print(f"fairino-conformance run: {line}", file=sys.stderr)
+    engine = Engine(config)  # judged against config.spec's set, which every report names
     cases = engine.select(values["case"])
     if not cases:  # empty is never success (a selection that leaves nothing to run)
         raise UsageError(
@@ -359,6 +366,7 @@ def _add_serve(sub: Any) -> None:
         metavar="PATH",
         help="write every frame's verdict, one JSON line each (- for stdout)",
     )
+    add_specs_dir(p)  # --spec-version: the firmware served (GetSoftwareVersion answers it)
     _add_limits(p)
     _add_emulation(p)
     p.set_defaults(func=_serve)
@@ -368,15 +376,16 @@ def _serve(args: argparse.Namespace) -> int:
     from ..client_mode import ClientValidator
     from ..net.emulator import EmulatorServer
     from ..report import write_reports
-    from ..spec import default_specs
     from ..suite.present import failure_lines
+    from ..suite.spec_choice import note_spec
 
     host, port, udp_port = _listen_addresses(args)
     if args.duration is not None and args.duration <= 0:
         raise UsageError("--duration must be positive")
     if args.max_frames is not None and args.max_frames <= 0:
         raise UsageError("--max-frames must be positive")
-    specs = default_specs()
+    # serve is the controller: auto has no target to ask, so the default firmware is played.
+    specs, choice = spec_choice_of(args, no_target="serve plays the controller, no target to ask")
     limits = _limits(args)
     emulation = _emulation(args, specs, strict=args.strict)
     sink = contextlib.ExitStack()
@@ -435,6 +444,7 @@ def _serve(args: argparse.Namespace) -> int:
                 failure = failure or str(e)
             sink.close()
     report = validator.report()
+    note_spec(report, choice, validator.judge.dialects)
     if server.connections_refused:
         report.meta["connections_refused"] = server.connections_refused
     summary = _drop_summary(server)

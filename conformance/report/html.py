@@ -7,7 +7,7 @@ import re
 from collections.abc import Iterable, Mapping
 
 from ..verdict import SEVERITY, Outcome, aggregate, worst
-from .model import NOT_RUN, CaseResult, CommandSummary, Report
+from .model import NOT_RUN, CaseResult, CommandSummary, Report, spec_label
 from .text import plural
 
 __all__ = ["MAX_LISTED_FAILURES", "render_html", "render_html_sections"]
@@ -111,13 +111,16 @@ def _cell(
         return '<td class="none">-</td>'
     if all(c.not_run for c in cases):
         return f'<td class="cell" data-outcome="{NOT_RUN}"><span class="ov">{NOT_RUN}</span></td>'
+    never = [c for c in cases if c.not_run]
     cases = [c for c in cases if not c.not_run]
     overall = aggregate(c.outcome for c in cases)
     boxes = []
     for g in groups:
         gc = [c for c in cases if c.group == g]
         if not gc:
-            boxes.append(f'<span class="box empty" title="{_esc(g)}: no case"></span>')
+            missed = sum(1 for c in never if c.group == g)
+            tip = f"{_esc(g)}: " + (f"{plural(missed, 'case')} not run" if missed else "no case")
+            boxes.append(f'<span class="box empty" title="{tip}"></span>')
             continue
         o = aggregate(c.outcome for c in gc)
         tip = f"{_esc(g)}: {o.value} ({len(gc)})"
@@ -135,16 +138,20 @@ def _cell(
             f"<ul>{''.join(items)}{more}</ul></details>"
         )
     color = _COLORS[overall]
+    # A command the run left half done says so beside its outcome (of the cases that ran).
+    partly = (
+        f"<small> ({len(never)} of {len(never) + len(cases)} not run)</small> " if never else ""
+    )
     return (
         f'<td class="cell" data-outcome="{overall.value}">'
-        f'<span class="ov" style="color:{color}">{overall.value}</span> '
+        f'<span class="ov" style="color:{color}">{overall.value}</span>{partly} '
         f"{''.join(boxes)}{details}</td>"
     )
 
 
 def _head(r: Report) -> str:
     """What a report ran against and how: transport, specs, seed, strictness, reference, faults."""
-    text = f"{_esc(r.transport)} · {_esc(r.spec_version)} · seed {_esc(r.seed)}"
+    text = f"{_esc(r.transport)} · spec {_esc(spec_label(r))} · seed {_esc(r.seed)}"
     if r.strict:
         text += " · strict"
     text += f" · reference {_esc(r.reference)}"
@@ -159,7 +166,8 @@ def _totals(r: Report) -> str:
     banner = ""
     if r.stopped:  # an interrupted or stopped run says so before anything else
         what = "Interrupted" if r.interrupted else "Stopped early"
-        banner = f"<p class=stopped><b>{what}:</b> {_esc(r.stopped)}</p>"
+        why = r.stopped.removeprefix("interrupted ") if r.interrupted else r.stopped
+        banner = f"<p class=stopped><b>{what}</b> {_esc(why)}</p>"
     return (
         f"{banner}<p><b>{_esc(r.target)}</b>: {_esc(counts + r.failing_note())} "
         f"(exit code {r.exit_code()})</p>"

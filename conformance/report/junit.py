@@ -8,7 +8,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ..verdict import Outcome
-from .model import CaseResult, Report
+from .model import CaseResult, Report, spec_label
 
 __all__ = ["junit_xml", "write_junit"]
 
@@ -61,8 +61,17 @@ def junit_xml(report: Report, cases: Sequence[CaseResult] | None = None) -> str:
         time=_seconds(sum(c.duration for c in rows)),
     )
     props = ET.SubElement(suite, "properties")
-    for k, v in (("target", report.target), ("seed", report.seed), ("reference", report.reference)):
+    for k, v in (
+        ("target", report.target),
+        ("seed", report.seed),
+        ("reference", report.reference),
+        ("spec_version", report.spec_version),
+        ("spec", spec_label(report)),
+    ):
         ET.SubElement(props, "property", name=k, value=str(v))
+    firmware = report.meta.get("dialects", {}).get("firmware")
+    if firmware:  # the firmware version that selected the field dialects
+        ET.SubElement(props, "property", name="dialects_firmware", value=str(firmware))
     for c in rows:
         suite.append(_testcase(c, report))
     root = ET.Element("testsuites")

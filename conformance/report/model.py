@@ -31,6 +31,7 @@ __all__ = [
     "Report",
     "aggregate",
     "load_report",
+    "spec_label",
 ]
 
 
@@ -312,7 +313,9 @@ class Report:
         verdict = (
             "FAIL under the manual reference" if self.fails(Outcome.DIALECT) else "not failures"
         )
-        out = [f"field dialects ({verdict}; frames per entry):"]
+        firmware = self.meta.get("dialects", {}).get("firmware")
+        chosen = f"; entries within firmware {firmware}'s range" if firmware else ""
+        out = [f"field dialects ({verdict}; frames per entry{chosen}):"]
         shown = sorted(seen.items())[:limit]
         w = _name_width(name for _, (name, _) in shown)
         for (cid, src), (name, n) in shown:
@@ -371,6 +374,14 @@ def _name_width(names: Iterable[str]) -> int:
 def _fit(text: str, width: int) -> str:
     """``text`` in at most ``width`` characters; a cut one ends with ``…``."""
     return text if len(text) <= width else text[: width - 1] + "…"
+
+
+def spec_label(report: Report) -> str:
+    """The spec set a report was judged against, as its run said it in one line
+    (``3.9.8 (auto: target … reports …)``; ``meta.spec.label``), else its version."""
+    spec = report.meta.get("spec")
+    label = spec.get("label") if isinstance(spec, dict) else None
+    return str(label) if label else report.spec_version
 
 
 def load_report(path: str) -> Report:

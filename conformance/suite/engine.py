@@ -30,6 +30,7 @@ from ..verdict import Outcome, fails
 from .cases import build_cases
 from .config import SuiteConfig
 from .runner import Case, SuiteRunner, not_run_result
+from .spec_choice import load_chosen, note_spec
 
 __all__ = [
     "WOULD_RUN",
@@ -104,8 +105,12 @@ class Engine:
 
     def __init__(self, config: SuiteConfig, specs: SpecSet | None = None) -> None:
         self.config = config
-        self.specs = specs if specs is not None else default_specs()
+        if specs is None:  # the spec set the config chose (--spec-version), else the default
+            specs = load_chosen(config.spec) if config.spec is not None else default_specs()
+        self.specs = specs
         self.runner = SuiteRunner(config, self.specs)
+        if config.spec is not None:  # every report says which spec set, and why
+            note_spec(self.report, config.spec, self.runner.frame_judge.dialects)
         self._started = False
         self._frozen = False
         self._t0 = time.monotonic()

@@ -16,6 +16,7 @@ from collections.abc import Iterable
 from dataclasses import replace
 from pathlib import Path
 
+from ..dialects import DialectSet
 from ..errors import SpecError, UsageError
 from ..firmware import (
     AUTO,
@@ -28,11 +29,13 @@ from ..firmware import (
 )
 from ..net.addresses import format_address
 from ..net.client import Client, TargetUnreachable
+from ..report import Report
 from ..spec import (
     DEFAULT_SPEC_SET,
     SPEC_SET_PREFIX,
     SpecSet,
     available_spec_versions,
+    default_specs,
     load_spec_version,
     spec_set_dir,
 )
@@ -41,8 +44,10 @@ from .config import SuiteConfig
 __all__ = [
     "DEFAULT_SPEC_VERSION",
     "ask_software_version",
+    "choice_line",
     "choose",
     "load_chosen",
+    "note_spec",
     "reported_in",
     "with_spec",
 ]
@@ -92,7 +97,8 @@ def _given(asked: str, option: str) -> SpecChoice:
     if Path(asked).is_dir():
         version = load_spec_version(d).spec_version
         return SpecChoice(version=version, asked=str(asked))
-    return SpecChoice(version=d.name.removeprefix(SPEC_SET_PREFIX), asked=asked)
+    version = d.name.removeprefix(SPEC_SET_PREFIX)
+    return SpecChoice(version=version, asked=version)
 
 
 def choose(
@@ -138,6 +144,8 @@ def choose(
 
 def load_chosen(choice: SpecChoice) -> SpecSet:
     """The spec set a choice names (a directory given, else the shipped version)."""
+    if choice.asked == "default":
+        return default_specs()
     try:
         if os.path.isdir(choice.asked):
             return load_spec_version(choice.asked)
@@ -149,14 +157,13 @@ def load_chosen(choice: SpecChoice) -> SpecSet:
 def with_spec(config: SuiteConfig) -> SuiteConfig:
     """``config`` with its spec set chosen (``run`` and the pytest plugin): ``auto`` asks
     ``--target``; the built-in emulator plays the default set, so ``auto`` without a target
-    takes that without a warning."""
+    takes that without a warning, as does a dry run (which sends nothing)."""
     if config.spec is not None:
         return config
     asked = (config.spec_version or "").strip()
-    if config.embedded and asked.lower() == AUTO:
-        choice = SpecChoice(
-            version=DEFAULT_SPEC_VERSION, asked=AUTO, note="the built-in emulator plays the default"
-        )
+    if asked.lower() == AUTO and (config.embedded or config.dry_run):
+        why = "the built-in emulator plays" if config.embedded else "a dry run asks nothing:"
+        choice = SpecChoice(version=DEFAULT_SPEC_VERSION, asked=AUTO, note=f"{why} the default")
     else:
         choice = choose(
             asked or None,
@@ -165,3 +172,39 @@ def with_spec(config: SuiteConfig) -> SuiteConfig:
             timeout=config.reply_timeout,
         )
     return replace(config, spec=choice)
+
+
+def note_spec(report: Report, choice: SpecChoice, dialects: DialectSet | None = None) -> None:
+    """Put the choice in a report: its spec version, ``meta.spec`` (the one line as
+    ``label``, what was asked, what the target reported and where), and under
+    ``meta.dialects`` the firmware that selected the field dialects and the entries it left
+    out (where a firmware is known)."""
+    report.spec_version = choice.version
+    report.meta["spec"] = choice.to_json()
+    if dialects is not None and dialects.firmware is not None:
+        report.meta["dialects"] = {
+            "firmware": dialects.firmware,
+            "entries": len(dialects),
+            "left_out": list(dialects.left_out),
+        }
+
+
+def choice_line(choice: SpecChoice) -> str | None:
+    """What a front-end says about the choice, in one line (None: nothing to say): the
+    warning of a fallback; else the choice ``auto`` made (``spec 3.9.8 (auto: target …
+    reports …)``); else, where the traffic reports a firmware another spec set fits, that."""
+    if choice.warning:
+        return f"warning: {choice.warning}"
+    if choice.asked == AUTO:
+        return f"spec {choice.label()}"
+    if choice.reported is None:
+        return None
+    fits = choose_spec(
+        choice.reported, available_spec_versions(), default=DEFAULT_SPEC_VERSION, where=""
+    ).version
+    if fits == choice.version:
+        return None
+    return (
+        f"{choice.where} reports {choice.reported.data}: judged against spec {choice.version}; "
+        f"--spec-version auto would take {fits}"
+    )
