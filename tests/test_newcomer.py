@@ -204,3 +204,21 @@ def test_item_7_check_never_passes_an_empty_recording_and_says_unfinished(
     out = capsys.readouterr()
     assert f"warning: {cut} is unfinished: run `recover`" in out.err
     assert code in (0, 1) and "commands:" in out.out  # what was there is judged
+
+
+def test_item_8_a_zero_reply_is_never_read_as_code_0_success(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """A `0` where success is `1` read as "refusal, code 0 (成功)" — chapter 9's code 0 is
+    success.  `decode` names it as `send` does, and a chapter 9 code with both texts."""
+    zero = b"/f/bIII4III201III1III0III/b/f".hex()
+    assert main(["decode", "--hex", zero]) == 0
+    out = capsys.readouterr().out
+    assert "(refusal: 0, failed without an error code)" in out and "code 0" not in out
+    assert main(["decode", "--hex", zero, "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["refused"] is True and doc["code"] is None
+    coded = b"/f/bIII4III377III16IIIrobot errcode:14III/b/f".hex()
+    assert main(["decode", "--hex", coded]) == 0
+    out = capsys.readouterr().out
+    assert "(refusal, code 14 (指令执行失败 / The instruction execution failed))" in out

@@ -232,11 +232,6 @@ def test_rough_edge_one_case_is_one_case_not_1_cases() -> None:
 #: when it gets one (the test says so).
 OWED_ELSEWHERE = {
     "fairino-conformance proxy --connect-timeout",
-    "fairino-conformance specs list --json",
-    "fairino-conformance specs show name_or_id",
-    "fairino-conformance specs show --json",
-    "fairino-conformance specs errata --json",
-    "fairino-conformance decode --max-frame-size",
 }
 
 

@@ -14,6 +14,7 @@ from ..errors import EXIT_FAIL, EXIT_OK, UsageError
 from ..frame import DEFAULT_MAX_FRAME_SIZE, Event, FrameDecoder, Malformed
 from ..judge import Direction, Judge, Verdict
 from ..judge_stream import Pairing
+from ..report.text import refusal_text
 from ..spec import (
     ENGLISH_SPEC_VERSION,
     Command,
@@ -25,6 +26,7 @@ from ..spec import (
     load_spec_version,
 )
 from ..spec_diff import diff_specs
+from ..validate import RefusalForm
 from ._judging import add_judge_options, judge_from
 from ._specs_option import add_specs_dir, specs_of
 
@@ -37,13 +39,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     ssub = p.add_subparsers(dest="specs_command", metavar="ACTION")
     ssub.required = True
     lp = ssub.add_parser("list", help="one line per command")
-    lp.add_argument("--json", action="store_true")
+    lp.add_argument("--json", action="store_true", help="JSON on standard output")
     lp.add_argument("--safety", help="only this safety class")
     sp = ssub.add_parser("show", help="one command, by name, ID or section")
-    sp.add_argument("name_or_id")
-    sp.add_argument("--json", action="store_true")
+    sp.add_argument("name_or_id", help="a command's name (MoveJ), ID (201) or manual section (2.1)")
+    sp.add_argument("--json", action="store_true", help="JSON on standard output")
     ep = ssub.add_parser("errata", help="the manual's contradictions and the readings adopted")
-    ep.add_argument("--json", action="store_true")
+    ep.add_argument("--json", action="store_true", help="JSON on standard output")
     ep.add_argument("--kind", help="only this erratum kind")
     xp = ssub.add_parser(
         "export", help="the complete spec set as one JSON document, or a Wireshark dissector"
@@ -77,7 +79,14 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     d.add_argument(
         "--strict", action="store_true", help="strict reading: every deviation is malformed"
     )
-    d.add_argument("--max-frame-size", type=int, default=DEFAULT_MAX_FRAME_SIZE)
+    d.add_argument(
+        "--max-frame-size",
+        type=int,
+        default=DEFAULT_MAX_FRAME_SIZE,
+        metavar="BYTES",
+        help="largest frame read; a larger one is malformed (oversize) "
+        f"(default {DEFAULT_MAX_FRAME_SIZE})",
+    )
     add_specs_dir(d)
     d.add_argument(
         "--dir",
@@ -415,7 +424,9 @@ def event_json(
         out["details"] = [f.message for f in verdict.findings]
     if verdict.refused:
         out["refused"] = True
-        out["code"] = verdict.code
+        # A 0 where success is 1 has no code: null, not chapter 9's 0 (success).
+        out["code"] = None if verdict.form is RefusalForm.ZERO else verdict.code
+        out["refusal"] = refusal_text(verdict, specs)
     out.update(judged)
     return out
 
@@ -483,7 +494,7 @@ def _run_decode(args: argparse.Namespace) -> int:
             if verdict.findings:
                 line += f" {verdict.rule}: {_clip(verdict.message)} [{verdict.source}]"
             elif verdict.refused:
-                line += f" (refusal, code {verdict.code})"
+                line += f" ({refusal_text(verdict, specs)})"
             out.write(line + "\n")
         else:
             out.write(

@@ -3,7 +3,11 @@ reproduces them byte for byte (the reproduction lines of ``run`` and ``serve``).
 
 from __future__ import annotations
 
-__all__ = ["plural", "printable", "shell_printf", "show"]
+from ..judge import Verdict
+from ..spec import SpecSet, error_code_text
+from ..validate import RefusalForm
+
+__all__ = ["plural", "printable", "refusal_text", "shell_printf", "show"]
 
 
 def shell_printf(raw: bytes) -> str:
@@ -44,3 +48,15 @@ def plural(n: int, word: str, many: str | None = None) -> str:
     """``n`` and ``word`` in its number: ``1 case``, ``2 cases``, ``0 cases``
     (``many``: where the plural is not ``word + "s"``)."""
     return f"{n} {word if n == 1 else many or word + 's'}"
+
+
+def refusal_text(v: Verdict, specs: SpecSet) -> str:
+    """How every front-end names a refusal: ``refusal, code 14 (<chapter 9 text>)``; a
+    ``0`` where success is ``1`` is a failure without a code, never chapter 9's code 0
+    (成功, success); a code no table has says so."""
+    if v.form is RefusalForm.ZERO:
+        return "refusal: 0, failed without an error code"
+    if v.code is None:
+        return "refusal"
+    known = error_code_text(specs, v.code)
+    return f"refusal, code {v.code} ({known or 'no manual table has it'})"
