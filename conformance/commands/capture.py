@@ -85,7 +85,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument(
         "--print", dest="print_frames", action="store_true", help="print one line per frame"
     )
-    p.add_argument("--connect-timeout", type=float, default=5.0)
+    p.add_argument(
+        "--connect-timeout",
+        type=float,
+        default=5.0,
+        metavar="SECONDS",
+        help="how long to wait for the upstream to accept each connection (default 5)",
+    )
     p.add_argument(
         "--max-connections",
         type=int,
