@@ -104,7 +104,10 @@ def test_progress_in_a_log_is_plain_lines_with_elapsed_and_eta(tmp_path: Path) -
     assert lines[-1].startswith("done: ") and "left" not in lines[-1]
 
 
-def test_ctrl_c_says_interrupted(tmp_path: Path) -> None:
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_ctrl_c_says_interrupted(tmp_path: Path, sig: signal.Signals) -> None:
+    """Ctrl-C, and a CI time-out's SIGTERM (which killed the run with no report): exit 130,
+    the report written, the cases not run listed."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("FAIRINO_")}
     proc = subprocess.Popen(
         [sys.executable, "-m", "conformance", "run", "--emulator-fault", "slow@0.05",
@@ -114,7 +117,7 @@ def test_ctrl_c_says_interrupted(tmp_path: Path) -> None:
     assert proc.stderr is not None
     first = proc.stderr.readline()  # "running N cases ...": the run has begun
     assert first.startswith("running ")
-    proc.send_signal(signal.SIGINT)
+    proc.send_signal(sig)
     out, err = proc.communicate(timeout=120)
     assert proc.returncode == 130, err
     assert "interrupted" in err

@@ -65,22 +65,23 @@ def test_item_6_an_interrupted_run_says_130_everywhere(
     from conformance.suite.engine import stop_report
 
     cases = [
-        Case(id=f"201/MoveJ/valid/{i}", cmd_id=201, name="MoveJ", group="valid", run=_never)
-        for i in "ab"
+        Case(id=f"201/MoveJ/{g}/{i}", cmd_id=201, name="MoveJ", group=g, run=_never)
+        for g, i in (("valid", "a"), ("valid", "b"), ("invalid", "a"))
     ]
     report = Report(target="t", spec_version="3.8.2")
     report.add(
         CaseResult(id=cases[0].id, cmd_id=201, name="MoveJ", group="valid", outcome=Outcome.PASS)
     )
     stop_report(report, cases, interrupted=True)
-    assert report.exit_code() == 130 and report.stopped == "interrupted after 1 of 2 cases"
+    assert report.exit_code() == 130 and report.stopped == "interrupted after 1 of 3 cases"
     doc = json.loads(report.dumps())
     assert doc["interrupted"] is True and doc["exit_code"] == 130
     assert Report.from_json(doc).exit_code() == 130
     html = render_html([report])
-    assert (
-        "<b>Interrupted:</b> interrupted after 1 of 2 cases" in html and "(exit code 130)" in html
-    )
+    assert "<b>Interrupted</b> after 1 of 3 cases" in html and "(exit code 130)" in html
+    # The half-run command's PASS is of the one case that ran, and the cell says so.
+    assert "PASS</span><small> (2 of 3 not run)</small>" in html
+    assert 'title="invalid: 1 case not run"' in html  # a group none of whose cases ran
     with pytest.raises(SystemExit):
         main(["run", "--help"])
     assert "130 interrupted" in " ".join(capsys.readouterr().out.split())

@@ -256,7 +256,7 @@ def _add_run(sub: Any) -> None:
         "failure with its reproduction and the per-command table. Every option is also an "
         "ini key (fairino_*, in pytest.ini) for pytest and a FAIRINO_* environment variable. "
         "Exit code: 0 conformant, 1 conformance failures, 2 kit or connection error, "
-        "130 interrupted (Ctrl-C).",
+        "130 interrupted (Ctrl-C or SIGTERM; the reports are still written).",
     )
     add_to_argparse(p)
     p.set_defaults(func=_run)
@@ -298,10 +298,11 @@ def _run(args: argparse.Namespace) -> int:
     errors: list[EngineError] = []
     try:
         try:
-            for ev in engine.events(cases):
-                progress.handle(ev)
-                if isinstance(ev, RunFinished):
-                    finished = ev
+            with _sigterm_interrupts():  # a CI time-out's SIGTERM ends the run as Ctrl-C does
+                for ev in engine.events(cases):
+                    progress.handle(ev)
+                    if isinstance(ev, RunFinished):
+                        finished = ev
         except KeyboardInterrupt:  # between two cases, outside the engine
             finished = engine.interrupt(cases)
             progress.handle(finished)
@@ -464,7 +465,8 @@ def _serve(args: argparse.Namespace) -> int:
 
 @contextlib.contextmanager
 def _sigterm_interrupts() -> Iterator[None]:
-    """SIGTERM ends ``serve`` as Ctrl-C does (the report is still written)."""
+    """SIGTERM ends ``run`` and ``serve`` as Ctrl-C does (the reports are still written,
+    exit code 130)."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
