@@ -26,9 +26,9 @@ from ..frame import Event, Frame, Malformed, decode_all, encode_frame
 from ..judge import Direction, Judge, Verdict
 from ..net import format_address, parse_address
 from ..net.client import Client, Exchange, TargetUnreachable
+from ..report.text import refusal_text
 from ..safety import SafetyPolicy
-from ..spec import Command, SpecSet, error_code_text
-from ..validate import RefusalForm
+from ..spec import Command, SpecSet
 from ._judging import add_judge_options, judge_from, verdict_line
 from ._safety import add_safety_options, safety_policy
 from ._specs_option import add_specs_dir, spec_choice_of
@@ -294,15 +294,7 @@ def _judged(v: Verdict, specs: SpecSet) -> str:
         msg = v.message
         head = msg if msg.startswith(f"{v.rule}:") else f"{v.rule}: {msg}"
         return f"{v.outcome.value} {head} [{v.source}]"
-    what = "conforms"
-    if v.refused:
-        what = "refusal"
-        if v.form is RefusalForm.ZERO:
-            # 0 where success is 1: a failure with no code, not chapter 9's code 0 (success).
-            what += ": 0, failed without an error code"
-        elif v.code is not None:
-            known = error_code_text(specs, v.code)
-            what += f", code {v.code} ({known or 'no manual table has it'})"
+    what = refusal_text(v, specs) if v.refused else "conforms"
     return f"{v.outcome.value} ok: {what}" + (f" [{v.source}]" if v.source else "")
 
 
