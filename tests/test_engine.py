@@ -14,7 +14,8 @@ from typing import Any
 
 import pytest
 
-from conformance.spec import default_specs
+from conformance.spec import CACHE_ENV, default_specs
+from tests.cli_run import cli_run
 
 ROOT = Path(__file__).resolve().parent.parent
 SPECS = default_specs()
@@ -25,15 +26,10 @@ FRAMING = f"{QUERY.cmd_id}/{QUERY.name}/framing/{QUERY.variants[0].table}"
 def run(
     *args: str, cwd: Path, env: dict[str, str] | None = None
 ) -> subprocess.CompletedProcess[str]:
-    base = {k: v for k, v in os.environ.items() if not k.startswith("FAIRINO_")}
-    return subprocess.run(
-        [sys.executable, "-m", "conformance", "run", *args],
-        capture_output=True,
-        text=True,
-        cwd=cwd,
-        env={**base, **(env or {})},
-        timeout=300,
-    )
+    """``fairino-conformance run ARGS`` in this process (tests/cli_run.py), with no
+    FAIRINO_* setting of the user's but the spec cache's."""
+    base = {k: v for k, v in os.environ.items() if not k.startswith("FAIRINO_") or k == CACHE_ENV}
+    return cli_run("run", *args, cwd=cwd, env={**base, **(env or {})})
 
 
 def test_run_does_not_call_pytest() -> None:

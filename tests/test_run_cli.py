@@ -6,23 +6,18 @@ import json
 import re
 import socket
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from conformance.net.emulator import EmulatorServer
+from tests.cli_run import cli_run
 from tests.hostile_targets import HostileTarget, refusing_port
 
 
 def run(*argv: str, cwd: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "conformance", "run", "--profile", "quick", *argv],
-        capture_output=True,
-        text=True,
-        timeout=300,
-        cwd=cwd,
-    )
+    """``fairino-conformance run --profile quick ARGV`` in this process (tests/cli_run.py)."""
+    return cli_run("run", "--profile", "quick", *argv, cwd=cwd)
 
 
 def test_clean_emulator_is_conformant(tmp_path: Path) -> None:

@@ -15,7 +15,6 @@ import contextlib
 import json
 import re
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -26,6 +25,7 @@ from conformance.net.emulator import EmulatorServer
 from conformance.net.proxy import RecordingProxy
 from conformance.report import CaseResult, Report
 from conformance.verdict import SEVERITY, Outcome, Reference, aggregate, fails, worst
+from tests.cli_run import cli_run
 from tools.field_agreement import start_serve
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -64,13 +64,7 @@ def assert_agree(out: str, code: int, doc: dict[str, object]) -> None:
 
 
 def cli(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "conformance", *args],
-        capture_output=True,
-        text=True,
-        timeout=300,
-        cwd=cwd,
-    )
+    return cli_run(*args, cwd=cwd)
 
 
 # --------------------------------------------------------------------------- the rule
