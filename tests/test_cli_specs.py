@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -12,6 +10,7 @@ import pytest
 from conformance.cli import main
 from conformance.frame import encode_frame
 from conformance.spec import default_specs
+from tests.cli_run import cli_run, cli_run_bytes
 
 SPECS = default_specs()
 
@@ -115,10 +114,9 @@ def test_decode_strict_exit_code(capsys: pytest.CaptureFixture[str]) -> None:
     ],
 )
 def test_bad_input_is_one_line_error(argv: list[str], message: str) -> None:
-    """Run as a real process: a one-line message, exit 2, and never a traceback."""
-    proc = subprocess.run(
-        [sys.executable, "-m", "conformance", *argv], capture_output=True, text=True, timeout=60
-    )
+    """A one-line message, exit 2, and never a traceback (an exception escaping ``main``
+    would raise here as it would print one in a process)."""
+    proc = cli_run(*argv)
     assert proc.returncode == 2
     assert "Traceback" not in proc.stderr
     lines = proc.stderr.strip().splitlines()
@@ -127,12 +125,7 @@ def test_bad_input_is_one_line_error(argv: list[str], message: str) -> None:
 
 def test_decode_reads_stdin() -> None:
     frame = encode_frame(9, 375, "GetActualJointPosDegree()")
-    proc = subprocess.run(
-        [sys.executable, "-m", "conformance", "decode", "-", "--json"],
-        input=frame[:10] + frame[10:],
-        capture_output=True,
-        timeout=60,
-    )
+    proc = cli_run_bytes("decode", "-", "--json", input=frame[:10] + frame[10:])
     assert proc.returncode == 0
     (row,) = [json.loads(line) for line in proc.stdout.decode().splitlines()]
     assert row["name"] == "GetActualJointPosDegree" and row["cnt"] == 9

@@ -5,11 +5,10 @@ from __future__ import annotations
 import json
 import os
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 from conformance.report import CaseResult, Outcome, Report, load_report, render_html
+from tests.cli_run import cli_run
 
 
 def _report(target: str, outcome: Outcome) -> Report:
@@ -58,12 +57,9 @@ def test_report_merge_cli(tmp_path: Path) -> None:
     a.write_text(_report("alpha:1", Outcome.FAIL).dumps())
     b.write_text(_report("beta:2", Outcome.PASS).dumps())
     assert load_report(str(a)).target == "alpha:1"
-    cli = [sys.executable, "-m", "conformance", "report"]
-    done = subprocess.run(
-        [*cli, "merge", str(a), str(b), "-o", str(out)], capture_output=True, text=True
-    )
+    done = cli_run("report", "merge", str(a), str(b), "-o", str(out))
     assert done.returncode == 0 and "beta:2" in out.read_text()
-    bad = subprocess.run([*cli, "show", str(out)], capture_output=True, text=True)
+    bad = cli_run("report", "show", str(out))
     assert bad.returncode == 2 and "not a JSON conformance report" in bad.stderr
     assert "Traceback" not in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
 
@@ -275,13 +271,10 @@ def test_report_html_is_sections_and_merge_is_a_matrix(tmp_path: Path) -> None:
     a, b = tmp_path / "a.json", tmp_path / "b.json"
     a.write_text(_report("alpha:1", Outcome.FAIL).dumps())
     b.write_text(_report("beta:2", Outcome.PASS).dumps())
-    cli = [sys.executable, "-m", "conformance", "report"]
     pages = {}
     for action in ("html", "merge"):
         out = tmp_path / f"{action}.html"
-        done = subprocess.run(
-            [*cli, action, str(a), str(b), "-o", str(out)], capture_output=True, text=True
-        )
+        done = cli_run("report", action, str(a), str(b), "-o", str(out))
         assert done.returncode == 0, done.stderr
         pages[action] = _parse(out.read_text(encoding="utf-8"))
     assert pages["html"].text != pages["merge"].text
@@ -310,7 +303,7 @@ def test_report_html_is_sections_and_merge_is_a_matrix(tmp_path: Path) -> None:
 
     # The help says so.
     env = {**os.environ, "COLUMNS": "300"}
-    helped = subprocess.run([*cli, "--help"], capture_output=True, text=True, env=env).stdout
+    helped = cli_run("report", "--help", env=env).stdout
     html_help = next(ln for ln in helped.splitlines() if ln.strip().startswith("html "))
     merge_help = next(ln for ln in helped.splitlines() if ln.strip().startswith("merge "))
     assert "own section" in html_help and "failing cases" in html_help

@@ -21,6 +21,7 @@ from conformance.frame import encode_frame
 from conformance.net.client import Client, TargetUnreachable
 from conformance.net.emulator import EmulatorServer
 from conformance.spec import default_specs
+from tests.cli_run import cli_run
 from tests.hostile_targets import HostileTarget, refusing_port
 
 MOVEJ = '/f/bIII4III201III11IIIMoveJ("P1")III/b/f'
@@ -48,12 +49,8 @@ def send(
 
 
 def run_cli(*argv: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "conformance", "send", *argv],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    """``fairino-conformance send ARGV`` in this process (tests/cli_run.py)."""
+    return cli_run("send", *argv)
 
 
 @pytest.fixture
