@@ -12,6 +12,7 @@ from __future__ import annotations
 import enum
 
 __all__ = [
+    "EXIT_DAMAGED",
     "EXIT_ERROR",
     "EXIT_FAIL",
     "EXIT_INTERRUPTED",
@@ -188,5 +189,9 @@ EXIT_OK = 0
 EXIT_FAIL = 1
 #: Kit error, bad usage, unreachable target.
 EXIT_ERROR = 2
+#: A damaged recording (a chunk or message that could not be read): the readable rest
+#: was read and judged, each damaged part named on stderr (``check``, ``info``,
+#: ``recover``, ``diff``, ``export-pcap``); a recording that lost data never passes.
+EXIT_DAMAGED = 3
 #: Interrupted (Ctrl-C, SIGTERM): 128 + SIGINT, as shells report it.
 EXIT_INTERRUPTED = 130

@@ -16,7 +16,7 @@ from typing import Any
 
 from ..capture_check import SIDES
 from ..diff import ignore_help
-from ..errors import UsageError
+from ..errors import EXIT_DAMAGED, UsageError
 from ..frame import DEFAULT_MAX_FRAME_SIZE, Frame
 from ..net.addresses import Address, format_address, parse_address
 from ..pcap import read_capture
@@ -223,6 +223,14 @@ def _register_more(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
 # --------------------------------------------------------------------------- recover / info / check
 
 
+def _damaged(rec: Any) -> bool:
+    """Each part of a recording that could not be read, one line on stderr (what it
+    cost, where): a recording that lost data is never a silent pass."""
+    for d in rec.damage:
+        print(f"damaged: {rec.path}: {d}", file=sys.stderr)
+    return bool(rec.damage)
+
+
 def _reported(rec: Any) -> Any:
     """The controller's first GetSoftwareVersion (905) reply in a recording, read."""
     return reported_by((f.dir, f.cmd_id, f.data) for f in rec.frames)
@@ -235,8 +243,12 @@ def _run_recover(args: argparse.Namespace) -> int:
         if res.was_complete
         else f"was unfinished ({res.stopped or 'no footer'})"
     )
+    if res.damage:
+        state += f"; {len(res.damage)} damaged part(s) could not be kept (below)"
     print(f"recovered {res.messages} messages to {args.out}; {args.capture} {state}")
-    return 0
+    for d in res.damage:
+        print(f"not recovered: {args.capture}: {d}", file=sys.stderr)
+    return EXIT_DAMAGED if res.damage else 0
 
 
 def _run_info(args: argparse.Namespace) -> int:
@@ -249,7 +261,7 @@ def _run_info(args: argparse.Namespace) -> int:
         _write_json("-", info)
     else:
         print(render_info(info))
-    return 0
+    return EXIT_DAMAGED if _damaged(rec) else 0
 
 
 def _run_check(args: argparse.Namespace) -> int:
@@ -289,7 +301,7 @@ def _run_check(args: argparse.Namespace) -> int:
                 "suite, which sends invalid requests on purpose, use --side controller)"
             )
         print(line)
-    return report.exit_code()
+    return EXIT_DAMAGED if _damaged(rec) else report.exit_code()
 
 
 # --------------------------------------------------------------------------- replay / diff / pcap
@@ -309,6 +321,7 @@ def _run_replay(args: argparse.Namespace) -> int:
     if args.udp_port is not None and not low <= args.udp_port < 65536:
         raise UsageError(f"--udp-port must be {low}..65535, not {args.udp_port}")
     rec = read_capture(args.capture)
+    _damaged(rec)  # what it holds is served or resent; what it lost is said
     if args.serve is not None:
         specs = specs_of(args)
     else:  # auto: the target's own answer first, else the recording's
@@ -431,7 +444,8 @@ def _run_diff(args: argparse.Namespace) -> int:
         _write_json("-", res.to_json())
     else:
         print(res.render())
-    return 1 if res.changed else 0
+    damaged = [_damaged(r) for r in (a, b)]
+    return EXIT_DAMAGED if any(damaged) else 1 if res.changed else 0
 
 
 def _run_import_pcap(args: argparse.Namespace) -> int:
@@ -476,6 +490,7 @@ def _run_import_pcap(args: argparse.Namespace) -> int:
 def _run_export_pcap(args: argparse.Namespace) -> int:
     from ..pcap import export_pcap
 
-    n = export_pcap(read_capture(args.capture), args.out)
+    rec = read_capture(args.capture)
+    n = export_pcap(rec, args.out)
     print(f"wrote {n} packets to {args.out}")
-    return 0
+    return EXIT_DAMAGED if _damaged(rec) else 0

@@ -3,16 +3,26 @@ requests paired with their replies (:class:`RecordedExchange`)."""
 
 from __future__ import annotations
 
+import binascii
 import json
 import os
-from collections.abc import Iterator, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import IO, Any
+from typing import Any
 
-from .layout import C2S, METADATA_NAME, TOPIC_C2S, TOPIC_CONNECTIONS, TOPIC_PROBLEMS, TOPIC_S2C
+from .layout import (
+    C2S,
+    METADATA_NAME,
+    SCHEMAS,
+    TOPIC_C2S,
+    TOPIC_CONNECTIONS,
+    TOPIC_PROBLEMS,
+    TOPIC_S2C,
+)
 from .records import ConnectionRecord, FrameBatch, FrameRecord, ProblemRecord
+from .salvage import MAGIC, Damage, Walk
 
-__all__ = ["RecordedExchange", "Recording", "read_recording"]
+__all__ = ["Damage", "RecordedExchange", "Recording", "read_recording"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -55,6 +65,10 @@ class Recording:
     complete: bool = True
     #: Why reading stopped early, for an unfinished file.
     truncated: str = ""
+    #: The parts that could not be read (a chunk, a message, a region): each says what
+    #: it cost.  Every front-end says so, and ``check``/``info`` exit
+    #: :data:`~conformance.errors.EXIT_DAMAGED`: a recording that lost data never passes.
+    damage: tuple[Damage, ...] = ()
 
     @property
     def start_ns(self) -> int:
@@ -166,26 +180,114 @@ class Recording:
         return [e for e in out if e is not None]
 
 
-def _iter_tolerant(stream: IO[bytes]) -> Iterator[tuple[Any, str]]:
-    """MCAP records in file order; stops (with a reason) where an unfinished file breaks off."""
-    from mcap.stream_reader import StreamReader
+#: Every integer of a recording's messages (connection numbers, CNT, CMD_ID, lengths,
+#: offsets, sizes, times in ns since the epoch, counts) is a non-negative 64-bit value.
+_INT_MAX = (1 << 63) - 1
 
-    reader = StreamReader(stream, record_size_limit=1 << 30)
-    it = reader.records
-    while True:
-        try:
-            rec = next(it)
-        except StopIteration:
-            return
-        except Exception as e:  # truncated record, bad chunk, missing magic: the file ends here
-            yield None, f"{type(e).__name__}: {e}" if str(e) else type(e).__name__
-            return
-        yield rec, ""
+
+def _kind(v: Any) -> str:
+    if v is None:
+        return "null"
+    if isinstance(v, bool):
+        return "a boolean"
+    return {int: "an integer", float: "a number", str: "a string", list: "an array"}.get(
+        type(v), "an object"
+    )
+
+
+def _misfit(v: Any, schema: Mapping[str, Any], name: str) -> str | None:
+    """Why the JSON value ``v`` does not fit ``schema`` (the part of JSON schema the
+    recording layout uses: type, items, enum, required), or None when it fits."""
+    types = schema.get("type")
+    if types is not None:
+        allowed = [types] if isinstance(types, str) else list(types)
+        ok = (
+            ("integer" in allowed and type(v) is int)
+            or ("string" in allowed and isinstance(v, str))
+            or ("null" in allowed and v is None)
+            or ("array" in allowed and isinstance(v, list))
+            or ("object" in allowed and isinstance(v, dict))
+        )
+        if not ok:
+            return f"{name} is {_kind(v)}, not {' or '.join(allowed)}"
+        if type(v) is int and not 0 <= v <= _INT_MAX:
+            return f"{name} is {v}, not a non-negative 64-bit integer"
+    if "enum" in schema and v not in schema["enum"]:
+        return f"{name} is {str(v)[:40]!r}, not one of {', '.join(schema['enum'])}"
+    if isinstance(v, list) and "items" in schema:
+        for k, item in enumerate(v):
+            why = _misfit(item, schema["items"], f"{name}[{k}]")
+            if why is not None:
+                return why
+    if isinstance(v, dict):
+        missing = [k for k in schema.get("required", ()) if k not in v]
+        if missing:
+            return f"{name} has no {', '.join(repr(k) for k in missing)}"
+        props = schema.get("properties", {})
+        for k, sub in props.items():
+            if k in v:
+                why = _misfit(v[k], sub, repr(k))
+                if why is not None:
+                    return why
+    return None
+
+
+def _layout1_schema() -> dict[str, Any]:
+    """Layout 1's ``fairino.Frame`` (one frame a message): the batch's columns as single
+    values, ``problems`` one frame's list."""
+    batch = SCHEMAS["fairino.Frames"]
+    props = {
+        k: (sub["items"] if sub.get("type") == "array" and k not in ("problems",) else sub)
+        for k, sub in batch["properties"].items()
+        if k != "size"
+    }
+    props["problems"] = batch["properties"]["problems"]["items"]
+    return {
+        "type": "object",
+        "properties": props,
+        "required": ["conn", "dir", "cnt", "cmd_id", "data", "complete_ns", "raw"],
+    }
+
+
+#: The topics read here and the schema their messages must fit.
+_SCHEMA_OF_TOPIC = {
+    TOPIC_C2S: SCHEMAS["fairino.Frames"],
+    TOPIC_S2C: SCHEMAS["fairino.Frames"],
+    TOPIC_PROBLEMS: SCHEMAS["fairino.Problem"],
+    TOPIC_CONNECTIONS: SCHEMAS["fairino.Connection"],
+}
+
+
+def _record_of(topic: str, doc: Any) -> list[FrameRecord] | ProblemRecord | ConnectionRecord:
+    """The records of one message on one of the recording's topics, its JSON checked
+    against the topic's schema first (:data:`~.layout.SCHEMAS`): a ``ValueError``
+    saying what does not fit."""
+    if not isinstance(doc, dict):
+        raise ValueError(f"the message is {_kind(doc)}, not an object")
+    frames = topic in (TOPIC_C2S, TOPIC_S2C)
+    layout1 = frames and not isinstance(doc.get("cnt"), list)
+    schema = _layout1_schema() if layout1 else _SCHEMA_OF_TOPIC[topic]
+    why = _misfit(doc, schema, "the message")
+    if why is not None:
+        raise ValueError(why)
+    try:
+        if layout1:
+            return [FrameRecord.from_json(doc)]
+        if frames:
+            return FrameBatch.from_json(doc).records()
+        if topic == TOPIC_PROBLEMS:
+            return ProblemRecord.from_json(doc)
+        return ConnectionRecord.from_json(doc)
+    except (binascii.Error, KeyError, TypeError) as e:
+        raise ValueError(f"{type(e).__name__}: {e}") from None
 
 
 def read_recording(path: str | os.PathLike[str]) -> Recording:
-    """Read a recording, finished or not (an unfinished one reads up to its last whole chunk)."""
-    from mcap.records import Channel, Footer, Message, Metadata, Schema
+    """Read a recording, finished or not (an unfinished one reads up to its last whole
+    chunk), damaged or not: a chunk that cannot be read is skipped and the reading goes
+    on (:class:`~.salvage.Walk`), and a message on the recording's topics whose JSON does
+    not fit its schema is skipped; each is in :attr:`Recording.damage`."""
+    from mcap.records import Channel, Message, Metadata
 
     from ..errors import RecordingError
 
@@ -195,49 +297,55 @@ def read_recording(path: str | os.PathLike[str]) -> Recording:
     conns: list[ConnectionRecord] = []
     metadata: dict[str, str] = {}
     topics: dict[int, str] = {}
-    complete = False
-    truncated = ""
     try:
         f = open(p, "rb")  # noqa: SIM115
     except FileNotFoundError:
         raise RecordingError(f"no such recording: {p}", path=str(p)) from None
+    except OSError as e:
+        raise RecordingError(f"cannot read {p}: {e.strerror or e}", path=str(p)) from None
     with f:
         head = f.read(8)
-        if head != b"\x89MCAP0\r\n":
+        if head != MAGIC:
             raise RecordingError(f"{p} is not an MCAP file", path=str(p))
-        f.seek(0)
-        for rec, why in _iter_tolerant(f):
-            if rec is None:
-                truncated = why
-                break
-            if isinstance(rec, Schema):
-                continue
+        walk = Walk(f, p)
+        for r in walk.summary_records():
+            if isinstance(r, Channel):
+                topics[r.id] = r.topic
+        damage = walk.damage
+        count = 0
+        for rec, where in walk.records():
             if isinstance(rec, Channel):
                 topics[rec.id] = rec.topic
             elif isinstance(rec, Message):
+                count += 1
                 topic = topics.get(rec.channel_id)
-                if topic is None:
-                    continue
+                if topic not in _SCHEMA_OF_TOPIC:
+                    continue  # a foreign topic: not ours to read
                 try:
-                    doc = json.loads(rec.data)
-                    if topic in (TOPIC_C2S, TOPIC_S2C):
-                        if isinstance(doc.get("cnt"), list):
-                            frames += FrameBatch.from_json(doc).records()
-                        else:  # layout 1: one frame a message
-                            frames.append(FrameRecord.from_json(doc))
-                    elif topic == TOPIC_PROBLEMS:
-                        problems.append(ProblemRecord.from_json(doc))
-                    elif topic == TOPIC_CONNECTIONS:
-                        conns.append(ConnectionRecord.from_json(doc))
-                except (ValueError, KeyError, TypeError):
-                    continue  # a foreign message on our topic: not ours to judge
+                    got = _record_of(topic, json.loads(rec.data))
+                except (ValueError, RecursionError) as e:  # JSONDecodeError, UnicodeError too
+                    damage.append(
+                        Damage(
+                            where=f"message {count} on {topic} (sequence {rec.sequence})",
+                            offset=where,
+                            reason=str(e) if isinstance(e, ValueError) else "nested too deep",
+                            lost=1,
+                            message=True,
+                        )
+                    )
+                    continue
+                if isinstance(got, list):
+                    frames += got
+                elif isinstance(got, ProblemRecord):
+                    problems.append(got)
+                else:
+                    conns.append(got)
             elif isinstance(rec, Metadata) and rec.name == METADATA_NAME and not metadata:
                 metadata = dict(rec.metadata)
-            elif isinstance(rec, Footer):
-                complete = True
     if not metadata:
+        lost = f" ({walk.damage[0]})" if walk.damage else ""
         raise RecordingError(
-            f"{p} is an MCAP file but not a fairino-conformance recording", path=str(p)
+            f"{p} is an MCAP file but not a fairino-conformance recording{lost}", path=str(p)
         )
     return Recording(
         path=p,
@@ -245,6 +353,7 @@ def read_recording(path: str | os.PathLike[str]) -> Recording:
         frames=tuple(frames),
         problems=tuple(problems),
         connections=tuple(conns),
-        complete=complete,
-        truncated=truncated,
+        complete=walk.complete,
+        truncated=walk.stopped if not walk.complete else "",
+        damage=tuple(damage),
     )

@@ -9,7 +9,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 
 from .._version import __version__
-from .reader import _iter_tolerant
+from .salvage import MAGIC, Damage, Walk
 
 __all__ = ["RecoverResult", "atomic_output", "recover"]
 
@@ -55,15 +55,20 @@ class RecoverResult:
     messages: int
     was_complete: bool
     stopped: str
+    #: What could not be kept (damaged chunks, regions): each says what it cost.
+    damage: tuple[Damage, ...] = ()
 
 
 def recover(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> RecoverResult:
-    """Rewrite an unfinished recording (e.g. of a killed proxy) as a valid, indexed MCAP file.
+    """Rewrite an unfinished or damaged recording (e.g. of a killed proxy, a copy with a
+    bad chunk) as a valid, indexed MCAP file.
 
-    Every record up to the point where the file breaks off is kept: schemas,
-    channels, messages (with their times and sequence numbers) and metadata.
+    Every record that can be read is kept: schemas, channels, messages (with their
+    times and sequence numbers) and metadata, from every readable chunk; a damaged
+    chunk is skipped and the reading goes on (:class:`~.salvage.Walk`), and each part
+    not kept is in the result's ``damage``.
     """
-    from mcap.records import Channel, Footer, Message, Metadata, Schema
+    from mcap.records import Channel, Message, Metadata, Schema
     from mcap.writer import Writer
 
     from ..errors import RecordingError, UsageError
@@ -74,38 +79,58 @@ def recover(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> Recover
         fin = open(src, "rb")  # noqa: SIM115
     except FileNotFoundError:
         raise RecordingError(f"no such recording: {os.fspath(src)}", path=os.fspath(src)) from None
+    except OSError as e:
+        name = os.fspath(src)
+        raise RecordingError(f"cannot read {name}: {e.strerror or e}", path=name) from None
     with fin, atomic_output(dst) as tmp, open(tmp, "wb") as fout:
-        if fin.read(8) != b"\x89MCAP0\r\n":
+        if fin.read(8) != MAGIC:
             raise RecordingError(f"{os.fspath(src)} is not an MCAP file", path=os.fspath(src))
-        fin.seek(0)
+        walk = Walk(fin, os.fspath(src))
         out = Writer(fout)
         out.start(profile="", library=f"fairino-conformance/{__version__} (recovered)")
         schema_map: dict[int, int] = {}
         chan_map: dict[int, int] = {}
+        # A channel first declared in a lost chunk: its summary's copy, declared when
+        # a message of it comes (as the file's own order would have it).
+        known = {r.id: r for r in walk.summary_records() if isinstance(r, Channel)}
+        schemas = {r.id: r for r in walk.summary_records() if isinstance(r, Schema)}
+
+        def schema(sid: int) -> int:
+            if sid not in schema_map and sid in schemas:
+                s = schemas[sid]
+                schema_map[sid] = out.register_schema(s.name, s.encoding, s.data)
+            return schema_map.get(sid, 0)
+
+        def channel(c: Channel) -> None:
+            chan_map[c.id] = out.register_channel(
+                c.topic, c.message_encoding, schema(c.schema_id), dict(c.metadata)
+            )
+
         n = 0
-        complete = False
-        stopped = ""
-        for rec, why in _iter_tolerant(fin):
-            if rec is None:
-                stopped = why
-                break
-            if isinstance(rec, Schema) and rec.id not in schema_map:
-                schema_map[rec.id] = out.register_schema(rec.name, rec.encoding, rec.data)
+        for rec, _ in walk.records():
+            if isinstance(rec, Schema):
+                schemas.setdefault(rec.id, rec)
+                schema(rec.id)
             elif isinstance(rec, Channel) and rec.id not in chan_map:
-                chan_map[rec.id] = out.register_channel(
-                    rec.topic,
-                    rec.message_encoding,
-                    schema_map.get(rec.schema_id, 0),
-                    dict(rec.metadata),
-                )
-            elif isinstance(rec, Message) and rec.channel_id in chan_map:
-                out.add_message(
-                    chan_map[rec.channel_id], rec.log_time, rec.data, rec.publish_time, rec.sequence
-                )
-                n += 1
+                channel(rec)
+            elif isinstance(rec, Message):
+                if rec.channel_id not in chan_map and rec.channel_id in known:
+                    channel(known[rec.channel_id])
+                if rec.channel_id in chan_map:
+                    out.add_message(
+                        chan_map[rec.channel_id],
+                        rec.log_time,
+                        rec.data,
+                        rec.publish_time,
+                        rec.sequence,
+                    )
+                    n += 1
             elif isinstance(rec, Metadata):
                 out.add_metadata(rec.name, dict(rec.metadata))
-            elif isinstance(rec, Footer):
-                complete = True
         out.finish()  # type: ignore[no-untyped-call]
-    return RecoverResult(messages=n, was_complete=complete, stopped=stopped)
+    return RecoverResult(
+        messages=n,
+        was_complete=walk.complete,
+        stopped="" if walk.complete else walk.stopped,
+        damage=tuple(walk.damage),
+    )

@@ -1,0 +1,128 @@
+"""Lose nothing, hide nothing (issue 21): a damaged file costs only its damage, and says so.
+
+A recording with one corrupt chunk of five is read past that chunk (the reader lost
+every later chunk before), the chunk is named with what it cost, and ``check``,
+``info`` and ``recover`` exit ``EXIT_DAMAGED``, never 0."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+
+from conformance.errors import EXIT_DAMAGED
+from conformance.frame import encode_frame
+from conformance.recording import RecordingWriter, StreamRecorder, read_recording
+from tests.cli_run import cli_run
+
+#: 5 chunks of 28 requests and 28 replies each (one frame a message): 280 frames.
+CHUNKS, PER_CHUNK = 5, 28
+
+
+def _write(path: Path) -> None:
+    w = RecordingWriter(path, metadata={"format": "fairino-conformance/2", "source": "test"})
+    r = StreamRecorder(w)
+    r.open(1, t_ns=1, client="127.0.0.1:5000", upstream="127.0.0.1:8080")
+    for i in range(CHUNKS * PER_CHUNK):
+        r.data(1, "c2s", 10 + 2 * i, encode_frame(i % 65536, 400, "GetVersion()"))
+        r.data(1, "s2c", 11 + 2 * i, encode_frame(i % 65536, 400, "1"))
+        if i % PER_CHUNK == PER_CHUNK - 1 and i < CHUNKS * PER_CHUNK - 1:
+            w.flush()
+    r.close(1, t_ns=10**6, reason="client closed")
+    w.close()
+
+
+@pytest.fixture(scope="module")
+def good(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("lose") / "good.mcap"
+    _write(path)
+    return path
+
+
+def _chunks(path: Path) -> list[tuple[int, int]]:
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    return [(c.chunk_start_offset, c.chunk_length) for c in summary.chunk_indexes]
+
+
+#: Where a chunk is hit: its compressed data's first bytes (the zstd frame header: the
+#: chunk cannot be decompressed), its middle (decompresses to other bytes: the CRC), and
+#: its record length (the records after it are no longer where it says).
+_HITS = {"zstd": 9 + 8 + 8 + 8 + 4 + 4 + 4 + 8, "middle": None, "length": 1}
+
+
+def _corrupt(good: Path, out: Path, k: int, hit: str, *, cut: int | None = None) -> int:
+    """``good`` with chunk ``k`` (1-based) damaged, written to ``out``; the offset hit."""
+    data = bytearray(good.read_bytes())
+    start, length = _chunks(good)[k - 1]
+    into = _HITS[hit]
+    at = start + (into if into is not None else length // 2)
+    for j in range(8):
+        data[at + j] ^= 0xFF
+    out.write_bytes(bytes(data[:cut]))
+    return start
+
+
+@pytest.mark.parametrize("k", range(1, CHUNKS + 1))
+def test_a_corrupt_chunk_costs_only_its_frames(good: Path, tmp_path: Path, k: int) -> None:
+    """Before: chunk 1 of 5 corrupt read 0 of 280 frames; chunk 3, the 112 before it."""
+    assert len(_chunks(good)) == CHUNKS
+    whole = read_recording(good)
+    assert len(whole.frames) == 2 * CHUNKS * PER_CHUNK and not whole.damage
+    for hit in ("zstd", "middle", "length"):
+        bad = tmp_path / f"bad-{hit}.mcap"
+        start = _corrupt(good, bad, k, hit)
+        rec = read_recording(bad)
+        assert rec.complete, hit
+        assert len(rec.frames) == 2 * (CHUNKS - 1) * PER_CHUNK, hit
+        lost = [f for f in whole.frames if f not in rec.frames]
+        assert {f.cnt for f in lost} == set(range((k - 1) * PER_CHUNK, k * PER_CHUNK)), hit
+        assert len(rec.damage) == 1, hit
+        text = str(rec.damage[0])
+        assert text.startswith(f"chunk {k} of {CHUNKS} at offset {start}: "), text
+        # The messages of chunk 1 include the connection's open record.
+        n = 2 * PER_CHUNK + (k == 1) + (k == CHUNKS)
+        assert text.endswith(f"its {n} messages are lost"), text
+    assert "CRC mismatch" in str(read_recording(tmp_path / "bad-middle.mcap").damage[0])
+
+
+def test_an_unfinished_file_resyncs_at_the_next_chunk_header(good: Path, tmp_path: Path) -> None:
+    """No summary (the recorder was killed): after a chunk whose length is garbage, the
+    next place a chunk header adds up is where reading goes on."""
+    bad = tmp_path / "cut.mcap"
+    fourth, _ = _chunks(good)[3]
+    _corrupt(good, bad, 2, "length", cut=fourth + 50)  # cut inside chunk 4
+    rec = read_recording(bad)
+    assert not rec.complete and "ends inside a record" in rec.truncated
+    # Chunks 1 and 3 read; 2 damaged (how many messages: no index to say); 4 cut off.
+    cnts = sorted({f.cnt for f in rec.frames})
+    assert cnts == list(range(PER_CHUNK)) + list(range(2 * PER_CHUNK, 3 * PER_CHUNK))
+    assert [d.lost for d in rec.damage] == [None]
+    assert "an unknown number of messages are lost" in str(rec.damage[0])
+
+
+def test_check_info_recover_say_what_was_lost_and_exit_damaged(good: Path, tmp_path: Path) -> None:
+    """Before: check exited 0 ('0 failing IDs' on an empty read, or the chunks before the
+    damage), info 0, recover 'recovered 0 messages', exit 0."""
+    bad = tmp_path / "bad.mcap"
+    _corrupt(good, bad, 3, "zstd")
+    for cmd in ("check", "info"):
+        p = cli_run(cmd, str(bad))
+        assert p.returncode == EXIT_DAMAGED, (cmd, p.stdout, p.stderr)
+        lines = [ln for ln in p.stderr.splitlines() if ln.startswith("damaged:")]
+        assert lines == [
+            f"damaged: {bad}: chunk 3 of 5 at offset {_chunks(good)[2][0]}: "
+            "ZstdError: error determining content size from frame header; "
+            "its 56 messages are lost"
+        ], (cmd, p.stderr)
+        assert "internal error" not in p.stderr
+    out = tmp_path / "fixed.mcap"
+    p = cli_run("recover", str(bad), "-o", str(out))
+    assert p.returncode == EXIT_DAMAGED, p.stderr
+    assert "recovered 226 messages" in p.stdout and "could not be kept" in p.stdout
+    assert "not recovered: " in p.stderr and "chunk 3 of 5" in p.stderr
+    fixed = read_recording(out)
+    assert fixed.complete and not fixed.damage and len(fixed.frames) == 4 * 2 * PER_CHUNK
+    assert cli_run("info", str(out)).returncode == 0
