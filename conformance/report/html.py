@@ -4,7 +4,7 @@ case group, failing cases unfolded (``run --report-html``, ``report merge``)."""
 from __future__ import annotations
 
 import re
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 
 from ..verdict import SEVERITY, Outcome, aggregate, worst
 from .model import NOT_RUN, CaseResult, CommandSummary, Report, spec_label
@@ -161,7 +161,7 @@ def _head(r: Report) -> str:
     return text
 
 
-def _totals(r: Report) -> str:
+def _totals(r: Report, name: str | None = None) -> str:
     counts = ", ".join(f"{v} {k}" for k, v in r.totals().items() if v)
     banner = ""
     if r.stopped:  # an interrupted or stopped run says so before anything else
@@ -169,7 +169,7 @@ def _totals(r: Report) -> str:
         why = r.stopped.removeprefix("interrupted ") if r.interrupted else r.stopped
         banner = f"<p class=stopped><b>{what}</b> {_esc(why)}</p>"
     return (
-        f"{banner}<p><b>{_esc(r.target)}</b>: {_esc(counts + r.failing_note())} "
+        f"{banner}<p><b>{_esc(name or r.target)}</b>: {_esc(counts + r.failing_note())} "
         f"(exit code {r.exit_code()})</p>"
     )
 
@@ -183,10 +183,34 @@ def _legends(groups: list[str], labels: Mapping[str, str]) -> str:
     return f'<p>{outcomes}<br><small class="glegend">case groups: {_esc(glegend)}</small></p>'
 
 
+#: A matrix cell a report has no case for: (column, command ID) -> its text (``absent in
+#: 3.8.2``), or None for the plain ``-``.
+Missing = Callable[[int, int], str | None]
+
+
+def _missing_cell(text: str | None) -> str:
+    if text is None:
+        return '<td class="none">-</td>'
+    return f'<td class="absent" data-outcome="ABSENT">{_esc(text)}</td>'
+
+
 def _rows(
-    reports: list[Report], per: list[dict[int, CommandSummary]], groups: list[str]
+    reports: list[Report],
+    per: list[dict[int, CommandSummary]],
+    groups: list[str],
+    *,
+    order: Sequence[int] | None = None,
+    missing: Missing | None = None,
+    differs: Collection[int] = (),
+    unfold: bool = True,
 ) -> list[str]:
-    """One row per command, one cell per report; failing commands first (worst, then ID)."""
+    """One row per command, one cell per report; failing commands first (worst, then ID).
+
+    ``order``: the command IDs in row order instead (``report matrix``: the rows that
+    differ first); ``missing`` names the cells a report has no case for; ``differs``:
+    the rows marked as differing between the columns (a filter of the page); ``unfold``
+    False leaves a failing command's cases folded (a matrix of many columns stays readable).
+    """
     labels = _group_labels(groups)
     names = {i: s.name for p in per for i, s in p.items()}
     worst_of: dict[int, Outcome | None] = {}
@@ -194,26 +218,29 @@ def _rows(
         outs = [p[i].outcome for p in per if i in p and p[i].ran]
         worst_of[i] = worst(outs) if outs else None  # never run anywhere: NOT-RUN, last
 
-    def order(i: int) -> tuple[int, int]:
+    def by_worst(i: int) -> tuple[int, int]:
         w = worst_of[i]
         return (len(SEVERITY) if w is None else SEVERITY[w], i)
 
     rows = []
-    for i in sorted(names, key=order):
+    for i in order if order is not None else sorted(names, key=by_worst):
         cells = "".join(
             _cell(
-                list(p[i].cases) if i in p else [],
+                list(p[i].cases),
                 groups,
                 labels,
-                open_=i in p and bool(p[i].ran) and _failing(r, p[i].outcome),
+                open_=unfold and bool(p[i].ran) and _failing(r, p[i].outcome),
             )
-            for r, p in zip(reports, per, strict=True)
+            if i in p
+            else _missing_cell(missing(col, i) if missing is not None else None)
+            for col, (r, p) in enumerate(zip(reports, per, strict=True))
         )
         key = _esc(f"{i} {names[i]}".lower())
         w = worst_of[i]
+        mark = ' data-differs="1" class="differs"' if i in differs else ""
         rows.append(
-            f'<tr data-worst="{w.value if w else NOT_RUN}" data-key="{key}"><td class=id>{i}</td>'
-            f"<td class=name>{_esc(names[i])}</td>{cells}</tr>"
+            f'<tr data-worst="{w.value if w else NOT_RUN}" data-key="{key}"{mark}>'
+            f"<td class=id>{i}</td><td class=name>{_esc(names[i])}</td>{cells}</tr>"
         )
     return rows
 
@@ -225,25 +252,51 @@ def _table(heads: Iterable[str], rows: list[str]) -> str:
     )
 
 
-def render_html(reports: list[Report], *, title: str = "FAIRINO conformance") -> str:
+def render_html(
+    reports: list[Report],
+    *,
+    title: str = "FAIRINO conformance",
+    order: Sequence[int] | None = None,
+    missing: Missing | None = None,
+    differs: Collection[int] | None = None,
+    heads: Sequence[str] | None = None,
+) -> str:
     """The side-by-side matrix (``report merge``): one row per command, one column per target.
 
     A self-contained page (no network).  Rows can be filtered by text (ID or name)
     and to commands that are not PASS everywhere; failing commands come first
     (worst outcome, then ID), their failing cases unfolded with frames and
-    reproduction line.
+    reproduction line.  ``report matrix`` (:mod:`.matrix`) gives the row ``order``,
+    the text of ``missing`` cells (``absent in 3.8.2``), the rows that ``differs`` (a
+    filter of their own) and the column ``heads`` (plain text, escaped here).
     """
     if not reports:
         raise ValueError("no report to render")
     groups = _groups(reports)
     per = [r.commands() for r in reports]
-    rows = _rows(reports, per, groups)
-    heads = [f"<th>{_esc(r.target)}<br><small>{_head(r)}</small></th>" for r in reports]
+    rows = _rows(
+        reports,
+        per,
+        groups,
+        order=order,
+        missing=missing,
+        differs=differs or (),
+        unfold=differs is None,
+    )
+    names = list(heads) if heads is not None else [r.target for r in reports]
+    cols = [f"{_esc(h)}<br><small>{_head(r)}</small>" for h, r in zip(names, reports, strict=True)]
+    controls = _CONTROLS
+    if differs is not None:
+        controls = controls.replace(
+            "<span id=",
+            '<label><input type="checkbox" id="dif"> only rows that differ</label>\n<span id=',
+            1,
+        )
     body = (
-        "".join(_totals(r) for r in reports)
+        "".join(_totals(r, n) for r, n in zip(reports, names, strict=True))
         + _legends(groups, _group_labels(groups))
-        + _CONTROLS
-        + _table(heads, rows)
+        + controls
+        + _table([f"<th>{h}</th>" for h in cols], rows)
     )
     return _PAGE.format(title=_esc(title), body=body, count=len(rows))
 
@@ -317,25 +370,37 @@ th {{ background: #f3f3f3; position: sticky; top: 0; }}
 details ul, ol.failures {{ margin: 0.3em 0; padding-left: 1.2em; max-width: 70em; }}
 section.report {{ border-top: 2px solid #ccc; margin-top: 1.5em; }}
 .controls {{ margin: 0.5em 0; }}
+td.cell[data-outcome="FAIL"], td.cell[data-outcome="ERROR"] {{ background: #fdecea; }}
+td.cell[data-outcome="NON-STRICT"] {{ background: #fff3e0; }}
+td.cell[data-outcome="DIALECT"] {{ background: #e3f2fd; }}
+td.cell[data-outcome="UNIMPLEMENTED"] {{ background: #f3e5f5; }}
+td.cell[data-outcome="PASS"] {{ background: #edf7ed; }}
+td.absent {{ background: repeating-linear-gradient(45deg, #f5f5f5, #f5f5f5 6px, #e8e8e8 6px,
+            #e8e8e8 12px); color: #555; font-style: italic; }}
+tr.differs td.id {{ border-left: 4px solid #ef6c00; }}
 </style></head><body>
 <h1>{title}</h1>
 {body}
 <script>
 (function () {{
   var q = document.getElementById("q"), bad = document.getElementById("bad");
+  var dif = document.getElementById("dif");
   var rows = document.querySelectorAll("table.m tbody tr");
   var shown = document.getElementById("shown");
   function apply() {{
     var t = q.value.trim().toLowerCase(), n = 0;
     rows.forEach(function (r) {{
       var ok = (!t || r.dataset.key.indexOf(t) >= 0) &&
-               (!bad.checked || r.dataset.worst !== "PASS");
+               (!bad.checked || r.dataset.worst !== "PASS") &&
+               (!dif || !dif.checked || r.dataset.differs === "1");
       r.style.display = ok ? "" : "none";
       if (ok) n++;
     }});
     shown.textContent = n + " of {count} rows shown";
   }}
-  q.addEventListener("input", apply); bad.addEventListener("change", apply); apply();
+  q.addEventListener("input", apply); bad.addEventListener("change", apply);
+  if (dif) dif.addEventListener("change", apply);
+  apply();
 }})();
 </script>
 </body></html>

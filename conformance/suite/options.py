@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import re
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -276,7 +277,20 @@ def add_to_argparse(p: argparse.ArgumentParser) -> None:
 
 
 def _split(text: str) -> list[str]:
-    return [x.strip() for x in text.replace("\n", ",").split(",") if x.strip()]
+    """Comma-separated items; a bare command ID after ``KIND:IDS`` belongs to it
+    (``--emulator-fault wrong_cnt:201,203`` is one fault on two IDs, not two items)."""
+    out: list[str] = []
+    for x in (x.strip() for x in text.replace("\n", ",").split(",")):
+        if not x:
+            continue
+        if out and ":" in out[-1] and _MORE_IDS.fullmatch(x):
+            out[-1] += f",{x}"
+        else:
+            out.append(x)
+    return out
+
+
+_MORE_IDS = re.compile(r"\d+(@[0-9.]+)?")
 
 
 def _convert(o: Option, raw: Any, where: str) -> Any:
