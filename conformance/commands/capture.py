@@ -78,6 +78,18 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument(
         "--udp-upstream", help="controller UDP address (default: the --upstream host, port 20007)"
     )
+    p.add_argument(
+        "--state-upstream",
+        metavar="HOST:PORT",
+        help="also proxy the controller's state port (8083 status feedback) and record its "
+        "packets on /fairino/state (default port 8083)",
+    )
+    p.add_argument(
+        "--state-listen",
+        metavar="HOST:PORT",
+        help="where clients connect for the state port (default: the --listen host, port "
+        "18083); given alone, the state upstream is the --upstream host, port 8083",
+    )
     p.add_argument("--split-size", type=_split_size, metavar="SIZE", help=_SPLIT_SIZE_HELP)
     p.add_argument(
         "--split-duration", type=parse_duration, help="start a new file after this time (e.g. 15m)"
@@ -158,6 +170,14 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         default=[],
         help="controller UDP port (default 20007; repeatable)",
     )
+    cp.add_argument(
+        "--state-port",
+        type=int,
+        action="append",
+        default=[],
+        help="controller state port (8083 status feedback): its packets recorded on "
+        "/fairino/state (repeatable; default none)",
+    )
     cp.add_argument("--out", "-o", required=True, help="MCAP file to write")
     cp.add_argument("--split-size", type=_split_size, metavar="SIZE", help=_SPLIT_SIZE_HELP)
     cp.add_argument(
@@ -204,6 +224,20 @@ def _run_proxy(args: argparse.Namespace) -> int:
                 args.udp_listen, default_port=20007, listen=True, option="--udp-listen"
             )
         )
+    state_upstream = state_listen = None
+    if args.state_upstream is not None or args.state_listen is not None:
+        state_upstream = (
+            Address(upstream.host, 8083)
+            if args.state_upstream is None
+            else parse_address(args.state_upstream, default_port=8083, option="--state-upstream")
+        )
+        state_listen = (
+            Address(listen.host, 18083)
+            if args.state_listen is None
+            else parse_address(
+                args.state_listen, default_port=18083, listen=True, option="--state-listen"
+            )
+        )
     specs = specs_of(args)
     on_frame = None
     if args.print_frames:
@@ -234,6 +268,8 @@ def _run_proxy(args: argparse.Namespace) -> int:
             listen=listen,
             udp_upstream=udp_upstream,
             udp_listen=udp_listen,
+            state_upstream=state_upstream,
+            state_listen=state_listen,
             specs=specs,
             split_size=args.split_size,
             split_duration=args.split_duration,
@@ -261,6 +297,8 @@ def _run_proxy(args: argparse.Namespace) -> int:
     msg = f"proxy: listening on {format_address(*proxy.address)} -> {upstream}"
     if proxy.udp_address and udp_upstream:
         msg += f" (udp {format_address(*proxy.udp_address)} -> {udp_upstream})"
+    if proxy.state_address and state_upstream:
+        msg += f" (state {format_address(*proxy.state_address)} -> {state_upstream})"
     print(msg + f", recording to {args.out}", file=sys.stderr, flush=True)
     failure: BaseException | None = None
     try:
@@ -284,7 +322,8 @@ def _run_proxy(args: argparse.Namespace) -> int:
         )
     print(
         f"proxy: stopped; {st.connections} connections{extra}, {proxy.frames_recorded} frames "
-        f"recorded to {', '.join(proxy.paths)}",
+        + (f"and {proxy.recorder.state_packets} state packets " if state_upstream else "")
+        + f"recorded to {', '.join(proxy.paths)}",
         file=sys.stderr,
     )
     if failure is not None:
@@ -300,7 +339,11 @@ def _run_capture(args: argparse.Namespace) -> int:
     from ..net.capture import LiveCapture
     from ..pcap import DEFAULT_TCP_PORTS, DEFAULT_UDP_PORTS
 
-    for flag, ports in (("--port", args.port), ("--udp-port", args.udp_port)):
+    for flag, ports in (
+        ("--port", args.port),
+        ("--udp-port", args.udp_port),
+        ("--state-port", args.state_port),
+    ):
         for port in ports:
             if not 0 < port < 65536:
                 raise UsageError(f"{flag} {port}: a port is 1..65535")
@@ -316,12 +359,17 @@ def _run_capture(args: argparse.Namespace) -> int:
         specs=specs_of(args),
         split_size=args.split_size,
         split_duration=args.split_duration,
+        state_ports=tuple(args.state_port),
     )
     stop = threading.Event()
     old = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
 
     def ready() -> None:
-        ports = ", ".join([f"tcp {p}" for p in tports] + [f"udp {p}" for p in uports])
+        ports = ", ".join(
+            [f"tcp {p}" for p in tports]
+            + [f"udp {p}" for p in uports]
+            + [f"state {p}" for p in args.state_port]
+        )
         print(
             f"capture: listening on {args.iface} ({ports}), recording to {args.out}",
             file=sys.stderr,
@@ -340,7 +388,9 @@ def _run_capture(args: argparse.Namespace) -> int:
     )
     print(
         f"capture: stopped; {st.packets} packets ({st.ignored} not ours), {st.connections} "
-        f"connections, {st.frames} frames, {st.problems} problems recorded to "
+        f"connections, {st.frames} frames, "
+        + (f"{st.state_packets} state packets, " if args.state_port else "")
+        + f"{st.problems} problems recorded to "
         f"{', '.join(st.paths)}{drops}",
         file=sys.stderr,
     )

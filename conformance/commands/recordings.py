@@ -211,6 +211,14 @@ def _register_more(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
         default=[],
         help="controller UDP port (default 20007; repeatable); given, no other port is taken",
     )
+    ip.add_argument(
+        "--state-port",
+        type=int,
+        action="append",
+        default=[],
+        help="controller state port (8083 status feedback): its packets recorded on "
+        "/fairino/state (repeatable; default none)",
+    )
     add_specs_dir(ip)
     ip.set_defaults(func=_run_import_pcap)
 
@@ -451,7 +459,11 @@ def _run_diff(args: argparse.Namespace) -> int:
 def _run_import_pcap(args: argparse.Namespace) -> int:
     from ..pcap import DEFAULT_TCP_PORTS, DEFAULT_UDP_PORTS, import_pcap
 
-    for flag, ports in (("--port", args.port), ("--udp-port", args.udp_port)):
+    for flag, ports in (
+        ("--port", args.port),
+        ("--udp-port", args.udp_port),
+        ("--state-port", args.state_port),
+    ):
         for port in ports:
             if not 0 < port < 65536:
                 raise UsageError(f"{flag} {port}: a port is 1..65535")
@@ -466,11 +478,14 @@ def _run_import_pcap(args: argparse.Namespace) -> int:
         specs=specs_of(args),
         # Ports named: those only.  Else the defaults and what looks like the protocol.
         guess=not (args.port or args.udp_port),
+        state_ports=tuple(args.state_port),
     )
     dt = time.perf_counter() - t0
     print(
         f"imported {st.packets} packets ({st.ignored} not ours) in {dt:.2f} s: "
-        f"{st.connections} connections, {st.frames} frames, {st.problems} problems, "
+        f"{st.connections} connections, {st.frames} frames, "
+        + (f"{st.state_packets} state packets, " if args.state_port else "")
+        + f"{st.problems} problems, "
         f"{st.retransmitted_bytes} retransmitted bytes dropped -> {args.out}"
     )
     if st.guessed:

@@ -48,12 +48,17 @@ class ProxyBase:
         return self._next_conn
 
 
-def open_payload(transport: str, client: Any, upstream: Any, local: Any) -> bytes:
-    """An open event's payload: the connection's addresses, as JSON."""
+def open_payload(
+    transport: str, client: Any, upstream: Any, local: Any, *, stream: str = ""
+) -> bytes:
+    """An open event's payload: the connection's addresses (and ``stream``: ``state`` for
+    the state port), as JSON (:meth:`~conformance.recording.StreamRecorder.open`'s keywords)."""
     doc = {
         "transport": transport,
         "client": format_sockaddr(client),
         "upstream": format_sockaddr(upstream),
         "local": format_sockaddr(local),
     }
+    if stream:
+        doc["stream"] = stream
     return json.dumps(doc).encode("utf-8")

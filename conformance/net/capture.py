@@ -230,6 +230,7 @@ class CaptureStats:
     frames: int
     problems: int
     paths: tuple[str, ...]
+    state_packets: int = 0
 
 
 class LiveCapture:
@@ -254,9 +255,14 @@ class LiveCapture:
         flush_interval: float = 0.5,
         idle_resolve: float = 1.0,
         tick: float = 0.01,
+        state_ports: Iterable[int] = (),
     ) -> None:
         self.tcp_ports, self.udp_ports = frozenset(tcp_ports), frozenset(udp_ports)
-        bad = sorted(p for p in self.tcp_ports | self.udp_ports if not 0 < p < 65536)
+        #: The state port's (8083): recorded as state packets on /fairino/state.
+        self.state_ports = frozenset(state_ports)
+        bad = sorted(
+            p for p in self.tcp_ports | self.udp_ports | self.state_ports if not 0 < p < 65536
+        )
         if bad:
             raise UsageError(f"a port is 1..65535, not {bad[0]}")
         self.iface = iface
@@ -264,7 +270,9 @@ class LiveCapture:
         #: Whether a kernel filter keeps other traffic (and lo's outgoing copies) out.
         self.filtered = False
         program = (
-            port_filter(self.tcp_ports, self.udp_ports, drop_outgoing=self.loopback)
+            port_filter(
+                self.tcp_ports | self.state_ports, self.udp_ports, drop_outgoing=self.loopback
+            )
             if self.linktype == DLT_EN10MB
             else None
         )
@@ -286,6 +294,8 @@ class LiveCapture:
             tcp_ports=",".join(map(str, sorted(self.tcp_ports))),
             udp_ports=",".join(map(str, sorted(self.udp_ports))),
         )
+        if self.state_ports:
+            md["state_ports"] = ",".join(map(str, sorted(self.state_ports)))
         md["upstream"] = ""
         md["listen"] = ""
         try:
@@ -306,6 +316,7 @@ class LiveCapture:
             udp_ports=self.udp_ports,
             specs=specs,
             guess=False,
+            state_ports=self.state_ports,
         )
         self.flush_interval = flush_interval
         self.tick = tick
@@ -407,4 +418,5 @@ class LiveCapture:
             frames=st.frames,
             problems=st.problems,
             paths=tuple(self.writer.paths),
+            state_packets=st.state_packets,
         )

@@ -107,6 +107,8 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
         listen: tuple[str, int] = ("127.0.0.1", 0),
         udp_upstream: tuple[str, int] | None = None,
         udp_listen: tuple[str, int] | None = None,
+        state_upstream: tuple[str, int] | None = None,
+        state_listen: tuple[str, int] | None = None,
         specs: SpecSet | None = None,
         metadata: Mapping[str, str] | None = None,
         split_size: int | None = None,
@@ -133,6 +135,7 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
             specs = default_specs()
         self.upstream = upstream
         self.udp_upstream = udp_upstream
+        self.state_upstream = state_upstream
         self.specs = specs
         self.flush_interval = flush_interval
         self.connect_timeout = connect_timeout
@@ -156,7 +159,7 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
         )
         self._accept_at = 0.0  # monotonic time the listener listens again
         self._listening = True
-        self._upstream_down = False  # the last connection to the upstream failed (said once)
+        self._upstream_down: set[tuple[str, int]] = set()  # last connection failed (said once)
         self._io_done = threading.Event()
 
         self._listener = socket.create_server(listen, family=family(listen[0]), backlog=512)
@@ -170,6 +173,21 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
             self._udp.bind(ul)
             self._udp.setblocking(False)
             self.udp_address = self._udp.getsockname()[:2]
+        # The state port (8083): a listener of its own, its connections recorded as state
+        # streams (one /fairino/state message a packet).
+        self._state_listener: socket.socket | None = None
+        self.state_address: tuple[str, int] | None = None
+        if state_upstream is not None:
+            sl = state_listen or (listen[0], 0)
+            try:
+                self._state_listener = socket.create_server(sl, family=family(sl[0]), backlog=64)
+            except OSError:
+                self._listener.close()
+                if self._udp is not None:
+                    self._udp.close()
+                raise
+            self._state_listener.setblocking(False)
+            self.state_address = self._state_listener.getsockname()[:2]
 
         md = dict(
             default_metadata(
@@ -181,6 +199,9 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
         if udp_upstream is not None and self.udp_address is not None:
             md["udp_upstream"] = format_sockaddr(udp_upstream)
             md["udp_listen"] = format_sockaddr(self.udp_address)
+        if state_upstream is not None and self.state_address is not None:
+            md["state_upstream"] = format_sockaddr(state_upstream)
+            md["state_listen"] = format_sockaddr(self.state_address)
         md.update(metadata or {})
         self.metadata = md
         self.out = os.fspath(out)
@@ -195,9 +216,9 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
             with open(first, "wb"):
                 pass
         except OSError:
-            self._listener.close()
-            if self._udp is not None:
-                self._udp.close()
+            for sock in (self._listener, self._udp, self._state_listener):
+                if sock is not None:
+                    sock.close()
             raise
 
         self._sel = selectors.DefaultSelector()
@@ -228,6 +249,8 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
     def start(self) -> RecordingProxy:
         self._start_recorder()
         self._sel.register(self._listener, _READ, "listen")
+        if self._state_listener is not None:
+            self._sel.register(self._state_listener, _READ, "state-listen")
         self._sel.register(self._wake_r, _READ, "wake")
         if self._udp is not None:
             self._sel.register(self._udp, _READ, "udp")
@@ -367,6 +390,8 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
                             self._pair_failed(tag, e)
                     elif tag == "listen":
                         self._accept()
+                    elif tag == "state-listen":
+                        self._accept(state=True)
                     elif tag == "wake":
                         with contextlib.suppress(OSError):
                             self._wake_r.recv(64)
@@ -414,10 +439,12 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
 
     _rec_since = 0.0
 
-    def _accept(self) -> None:
+    def _accept(self, *, state: bool = False) -> None:
+        listener = self._state_listener if state else self._listener
+        assert listener is not None
         for _ in range(64):
             try:
-                client, addr = self._listener.accept()
+                client, addr = listener.accept()
             except (BlockingIOError, InterruptedError):
                 return
             except OSError as e:
@@ -427,7 +454,7 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
                 # the listener is closing: nothing to record.
                 return
             try:
-                self._new_pair(client, addr)
+                self._new_pair(client, addr, state=state)
             except Exception as e:
                 with contextlib.suppress(OSError):
                     client.close()
@@ -436,12 +463,19 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
             if not self._listening:
                 return  # resting after a shortage (see _accept_failed)
 
-    def _new_pair(self, client: socket.socket, addr: Any) -> None:
+    def _new_pair(self, client: socket.socket, addr: Any, *, state: bool = False) -> None:
         client.setblocking(False)
         conn = self._new_conn()
         self.stats.connections += 1
         t = time.time_ns()
-        self._put(OPEN, conn, "", t, open_payload("tcp", addr, self.upstream, self.address))
+        target = self.upstream
+        if state:
+            assert self.state_upstream is not None and self.state_address is not None
+            target = self.state_upstream
+            payload = open_payload("tcp", addr, target, self.state_address, stream="state")
+        else:
+            payload = open_payload("tcp", addr, target, self.address)
+        self._put(OPEN, conn, "", t, payload)
         if self._open_pairs >= self.max_connections:
             # Accepted and closed at once: the client learns at once, and the queue
             # behind it does not fill with clients that would wait in vain.
@@ -453,7 +487,7 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
             return
         client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         try:
-            up = socket.socket(family(self.upstream[0]), socket.SOCK_STREAM)
+            up = socket.socket(family(target[0]), socket.SOCK_STREAM)
         except OSError as e:
             self.stats.refused += 1
             with contextlib.suppress(OSError):
@@ -470,12 +504,13 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
             client=client,
             upstream=up,
             deadline=time.monotonic() + self.connect_timeout,
+            target=target,
         )
         self._pairs[client] = pair
         self._pairs[up] = pair
         self._open_pairs += 1
         self._backoff.succeeded()  # a whole pair: the end of a shortage episode, if one was on
-        err = up.connect_ex(self.upstream)
+        err = up.connect_ex(target)
         if err not in (0, errno.EINPROGRESS, errno.EWOULDBLOCK, errno.EAGAIN):
             self._refused(pair, err)
             return
@@ -486,8 +521,10 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
         self.stats.accept_errors += 1
         self._accept_at = time.monotonic() + self._backoff.failed(e)
         if self._listening:
-            with contextlib.suppress(KeyError, ValueError):
-                self._sel.unregister(self._listener)
+            for sock in (self._listener, self._state_listener):
+                if sock is not None:
+                    with contextlib.suppress(KeyError, ValueError):
+                        self._sel.unregister(sock)
             self._listening = False
         self._next_deadlines = min(self._next_deadlines, self._accept_at)
 
@@ -508,6 +545,9 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
         if not self._listening and not self._stopping.is_set():
             with contextlib.suppress(KeyError, ValueError, OSError):
                 self._sel.register(self._listener, _READ, "listen")
+            if self._state_listener is not None:
+                with contextlib.suppress(KeyError, ValueError, OSError):
+                    self._sel.register(self._state_listener, _READ, "state-listen")
             self._listening = True
 
     def _deadlines(self) -> None:
@@ -532,7 +572,7 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
                     self._send(p, to_client=to_client)
             self._close_pair(p, "proxy stopped")
         self._close_sessions("proxy stopped")
-        for sock in (self._listener, self._udp):
+        for sock in (self._listener, self._udp, self._state_listener):
             if sock is not None:
                 with contextlib.suppress(OSError):
                     sock.close()

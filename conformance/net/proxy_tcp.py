@@ -47,6 +47,8 @@ class _Pair:
     closed: bool = False
     first_close: str = ""  # who closed first
     interest: dict[int, int] = field(default_factory=dict)
+    #: The upstream this pair connects to (the command port's, or the state port's).
+    target: tuple[str, int] = ("", 0)
 
 
 class TcpForwarding(ProxyBase):
@@ -58,7 +60,8 @@ class TcpForwarding(ProxyBase):
     max_pending: int
     _pairs: dict[socket.socket, _Pair]
     _open_pairs: int
-    _upstream_down: bool
+    #: Upstreams whose last connection failed (said once per episode).
+    _upstream_down: set[tuple[str, int]]
     _reads_paused = False  # the recorder fell behind: no reads until it catches up
     _reply_due = False  # a request was forwarded in this turn of the I/O loop
 
@@ -90,19 +93,19 @@ class TcpForwarding(ProxyBase):
     def _upstream_failed(self, pair: _Pair, why: str) -> None:
         """The upstream would not take a client's connection: close it, with the reason
         in the file; say so once per episode (until a connection to it succeeds)."""
-        up = format_address(*self.upstream)
-        if not self._upstream_down:
-            self._upstream_down = True
+        up = format_address(*pair.target)
+        if pair.target not in self._upstream_down:
+            self._upstream_down.add(pair.target)
             self.log(
                 f"proxy: upstream {up} {why}; closing each client until it accepts "
                 "connections again (said once)"
             )
         self._close_pair(pair, f"upstream {up} {why}")
 
-    def _upstream_up(self) -> None:
-        if self._upstream_down:
-            self._upstream_down = False
-            self.log(f"proxy: upstream {format_address(*self.upstream)} accepts connections again")
+    def _upstream_up(self, target: tuple[str, int]) -> None:
+        if target in self._upstream_down:
+            self._upstream_down.discard(target)
+            self.log(f"proxy: upstream {format_address(*target)} accepts connections again")
 
     def _update(self, p: _Pair) -> None:
         """Register what each socket of the pair should wait for."""
@@ -149,7 +152,7 @@ class TcpForwarding(ProxyBase):
                 return
             p.connected = True
             p.deadline = 0.0
-            self._upstream_up()
+            self._upstream_up(p.target)
             if p.to_upstream:
                 self._send(p, to_client=False)
             if p.client_eof and not p.to_upstream:

@@ -51,8 +51,9 @@ _DIR_CODE = {C2S: 0, S2C: 1, "": 2}
 _DIR_NAME = (C2S, S2C, "")
 _F_SETPIPE_SZ = 1031  # Linux fcntl: grow the pipe (1 MiB, the unprivileged maximum)
 _PIPE_SIZE = 1 << 20
-# Counters the recorder process keeps in shared memory: frames, problems, bytes taken.
-_COUNTERS = struct.Struct("<qqq")
+# Counters the recorder process keeps in shared memory: frames, problems, bytes taken,
+# state packets.
+_COUNTERS = struct.Struct("<qqqq")
 # And one value the proxy writes there: when stopping, the time.monotonic() (one clock
 # for every process on the machine) after which the recorder stops decoding and
 # copies what is left to the file undecoded, so that a stop never waits on a backlog.
@@ -65,19 +66,19 @@ class RecorderCounters:
 
     def __init__(self, shared: mmap.mmap) -> None:
         self._shared = shared
-        self._final: tuple[int, int, int] | None = None
+        self._final: tuple[int, int, int, int] | None = None
 
     def freeze(self) -> None:
         """Keep the last values: the shared memory is about to be closed."""
         self._final = self._get()
 
-    def _get(self) -> tuple[int, int, int]:
+    def _get(self) -> tuple[int, int, int, int]:
         if self._final is not None:
             return self._final
         try:
             return _COUNTERS.unpack_from(self._shared)  # type: ignore[return-value]
         except ValueError:  # closed
-            return (0, 0, 0)
+            return (0, 0, 0, 0)
 
     @property
     def frames(self) -> int:
@@ -93,6 +94,11 @@ class RecorderCounters:
     def taken(self) -> int:
         """Payload bytes the recorder has taken from the pipe."""
         return self._get()[2]
+
+    @property
+    def state_packets(self) -> int:
+        """State-port packets recorded (``/fairino/state`` messages)."""
+        return self._get()[3]
 
 
 class RecorderProcess:
@@ -497,7 +503,8 @@ class _Recorder:
 
     def publish(self) -> None:
         """Counters to shared memory, frames (for ``on_frame``) and new paths to the proxy."""
-        _COUNTERS.pack_into(self.shared, 0, self.rec.frames, self.rec.problems, self.taken)
+        rec = self.rec
+        _COUNTERS.pack_into(self.shared, 0, rec.frames, rec.problems, self.taken, rec.state_packets)
         try:
             if self.out_frames:
                 self.status.send(("frames", list(self.out_frames)))

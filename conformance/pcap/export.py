@@ -129,6 +129,15 @@ def export_pcap(rec: Recording, out: str | os.PathLike[str]) -> int:
         if p.kind == "malformed" and p.raw:
             order += 1
             events.append((p.complete_ns, order, p.conn, p.dir, (p.offset, p.raw)))
+    # The state port's packets and the bytes its decoder kept as problems (garbage, a
+    # truncated packet, the client's bytes), each at its stream offset.
+    for s in rec.states:
+        order += 1
+        events.append((s.complete_ns, order, s.conn, S2C, (s.offset, s.raw)))
+    for p in rec.state_problems:
+        if p.raw:
+            order += 1
+            events.append((p.complete_ns, order, p.conn, p.dir, (p.offset, p.raw)))
     conn_ids = sorted({e[2] for e in events} | set(opened))
     first_t = {cid: min((e[0] for e in events if e[2] == cid), default=0) for cid in conn_ids}
     last_t = {cid: max((e[0] for e in events if e[2] == cid), default=0) for cid in conn_ids}

@@ -69,6 +69,7 @@ def read_capture(
     tcp_ports: Iterable[int] = DEFAULT_TCP_PORTS,
     udp_ports: Iterable[int] = DEFAULT_UDP_PORTS,
     specs: SpecSet | None = None,
+    state_ports: Iterable[int] = (),
 ) -> Recording:
     """A recording, or a pcap/pcapng capture imported as one (:func:`import_pcap`, into a
     temporary file that is gone on return); which one is told by the magic bytes."""
@@ -83,7 +84,9 @@ def read_capture(
         raise CaptureError(f"{p}: neither an MCAP recording nor a pcap/pcapng capture", path=str(p))
     with tempfile.TemporaryDirectory(prefix="fairino-capture-") as d:
         out = os.path.join(d, "imported.mcap")
-        import_pcap(p, out, tcp_ports=tcp_ports, udp_ports=udp_ports, specs=specs)
+        import_pcap(
+            p, out, tcp_ports=tcp_ports, udp_ports=udp_ports, specs=specs, state_ports=state_ports
+        )
         rec = read_recording(out)
     return dataclasses.replace(rec, path=p)
 
@@ -96,15 +99,19 @@ def import_pcap(
     udp_ports: Iterable[int] = DEFAULT_UDP_PORTS,
     specs: SpecSet | None = None,
     guess: bool = True,
+    state_ports: Iterable[int] = (),
 ) -> ImportStats:
     """Turn a pcap/pcapng capture into a recording (see the module docstring).
 
+    Flows to or from ``state_ports`` (8083) are recorded as state streams (one
+    ``/fairino/state`` message a packet).
     Flows to or from ``tcp_ports`` and ``udp_ports`` are taken, and with ``guess`` also
     those on other ports whose first payload is a frame head (``ImportStats.guessed``
     names them).  ``out`` appears only once the import succeeded: it is written to a temporary file
     next to it and renamed (a failure removes the temporary file)."""
     tports, uports = frozenset(tcp_ports), frozenset(udp_ports)
-    bad = sorted(p for p in tports | uports if not 0 < p < 65536)
+    sports = frozenset(state_ports)
+    bad = sorted(p for p in tports | uports | sports if not 0 < p < 65536)
     if bad:
         raise ValueError(f"ports must be 1..65535, not {bad[0]}")
     if specs is None:
@@ -112,7 +119,7 @@ def import_pcap(
 
         specs = default_specs()
     with atomic_output(out) as tmp:
-        return _import(path, tmp, tports, uports, specs, guess)
+        return _import(path, tmp, tports, uports, specs, guess, sports)
 
 
 def _import(
@@ -122,6 +129,7 @@ def _import(
     uports: frozenset[int],
     specs: SpecSet,
     guess: bool,
+    sports: frozenset[int] = frozenset(),
 ) -> ImportStats:
     stream = read_packets(path)
     first = next(stream, None)
@@ -143,6 +151,7 @@ def _import(
         specs=specs,
         guess=guess,
         together=IMPORT_TOGETHER,
+        state_ports=sports,
     )
     feed = packets.feed
     for lt, t, data in itertools.chain(() if first is None else (first,), stream):

@@ -61,6 +61,8 @@ class ImportStats:
     frames: int
     problems: int
     retransmitted_bytes: int
+    #: State-port packets recorded (``state_ports``).
+    state_packets: int = 0
     #: Flows on no configured port taken because their first payload is a frame: for each
     #: (transport, the server's port), how many connections or UDP flows.
     guessed: tuple[tuple[str, int, int], ...] = ()
@@ -108,8 +110,12 @@ class PacketRecorder:
         specs: SpecSet | None = None,
         guess: bool = True,
         together: int = 1,
+        state_ports: Iterable[int] = (),
     ) -> None:
         self.tports, self.uports = frozenset(tcp_ports), frozenset(udp_ports)
+        #: TCP ports of the state stream (8083): their connections are recorded as
+        #: state packets (``StreamRecorder.open(..., stream="state")``).
+        self.sports = frozenset(state_ports)
         self.guess = guess
         self.rec = StreamRecorder(sink, specs=specs)
         self.conns: dict[int, _TcpConn] = {}  # open TCP connections by id, in opening order
@@ -140,6 +146,7 @@ class PacketRecorder:
             connections=self.next_conn,
             frames=self.rec.frames,
             problems=self.rec.problems,
+            state_packets=self.rec.state_packets,
             retransmitted_bytes=self.retrans,
             guessed=tuple((t, port, n) for (t, port), n in sorted(self.guessed.items())),
         )
@@ -221,7 +228,12 @@ class PacketRecorder:
             self.ignored += 1
             return
         sport, dport = _PORTS(flow, len(flow) - 4)
-        if dport in self.tports:
+        if dport in self.sports:
+            self._tcp_packet(self._open_tcp(flow, t, state=True), t, payload, seq, flags)
+        elif sport in self.sports:
+            self._open_tcp(_reverse(flow), t, state=True)
+            self._tcp_packet(self.tcp_ways[flow], t, payload, seq, flags)
+        elif dport in self.tports:
             self._tcp_packet(self._open_tcp(flow, t), t, payload, seq, flags)
         elif sport in self.tports:
             self._open_tcp(_reverse(flow), t)
@@ -261,7 +273,7 @@ class PacketRecorder:
             if len(c.fins) == 2:
                 self._close_tcp(c, t, "client closed" if c.fins[0] == C2S else "server closed")
 
-    def _open_tcp(self, flow: bytes, t: int) -> _TcpWay:
+    def _open_tcp(self, flow: bytes, t: int, *, state: bool = False) -> _TcpWay:
         """A connection whose client sends ``flow``; returns that direction's way."""
         self.next_conn += 1
         rev = _reverse(flow)
@@ -271,7 +283,12 @@ class PacketRecorder:
         self.tcp_ways[rev] = (c.conn, S2C, c.halves[S2C], c)
         way = self.tcp_ways[flow] = (c.conn, C2S, c.halves[C2S], c)
         self.rec.open(
-            c.conn, t_ns=t, transport="tcp", client=_fmt(c.client), upstream=_fmt(c.server)
+            c.conn,
+            t_ns=t,
+            transport="tcp",
+            client=_fmt(c.client),
+            upstream=_fmt(c.server),
+            stream="state" if state else "",
         )
         return way
 

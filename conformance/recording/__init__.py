@@ -5,10 +5,11 @@ the reader and repair.
 module             holds
 =================  ===================================================================
 ``layout``         the topics, JSON schemas and format constants (the layout described)
-``records``        FrameRecord, FrameBatch, ProblemRecord, ConnectionRecord, their JSON
+``records``        FrameRecord, FrameBatch, ProblemRecord, ConnectionRecord, StateRecord, JSON
 ``writer``         RecordingWriter (one MCAP file), default_metadata, utc_time
 ``rotating``       RotatingWriter (segment files by size or duration), segment_path
 ``names``          command names of frames from the specs (StreamRecorder's lookups)
+``state_stream``   StateStream: a state-port connection's bytes in, state records out
 ``recorder``       StreamRecorder: bytes and times in, records out (sans-I/O)
 ``reader``         read_recording, Recording, RecordedExchange
 ``repair``         recover, atomic_output
@@ -34,7 +35,9 @@ from .layout import (
     TOPIC_CONNECTIONS,
     TOPIC_PROBLEMS,
     TOPIC_S2C,
+    TOPIC_STATE,
     DirectionText,
+    state_schema,
 )
 from .reader import RecordedExchange, Recording, read_recording
 from .recorder import DECODE_SLICE, StreamRecorder
@@ -45,9 +48,11 @@ from .records import (
     ProblemRecord,
     Record,
     RecordSink,
+    StateRecord,
 )
 from .repair import RecoverResult, atomic_output, recover
 from .rotating import RotatingWriter, segment_path
+from .state_stream import StateStream
 from .writer import RecordingWriter, default_metadata, utc_time
 
 __all__ = [
@@ -64,6 +69,7 @@ __all__ = [
     "TOPIC_CONNECTIONS",
     "TOPIC_PROBLEMS",
     "TOPIC_S2C",
+    "TOPIC_STATE",
     "ConnectionRecord",
     "DirectionText",
     "FrameBatch",
@@ -76,6 +82,8 @@ __all__ = [
     "RecordingWriter",
     "RecoverResult",
     "RotatingWriter",
+    "StateRecord",
+    "StateStream",
     "StreamRecorder",
     "atomic_output",
     "default_metadata",
@@ -83,5 +91,6 @@ __all__ = [
     "read_recording",
     "recover",
     "segment_path",
+    "state_schema",
     "utc_time",
 ]

@@ -11,6 +11,7 @@ topic                      schema                one message per
 ``/fairino/s2c``           ``fairino.Frames``    batch of frames sent by the controller to a client
 ``/fairino/problems``      ``fairino.Problem``   malformed bytes, partial frame, capture gap
 ``/fairino/connections``   ``fairino.Connection`` connection opened, closed or refused
+``/fairino/state``         ``fairino.State``     state packet of port 8083 (decoded fields + raw)
 =========================  ====================  ===========================================
 
 and one metadata record, ``fairino.recording`` (kit and spec version, source,
@@ -24,13 +25,26 @@ client's read of 64 KiB holds hundreds, written as one message instead of one ea
 (``mcap.Writer.add_message`` costs about 4 us a call, the JSON per frame less in
 columns than as objects: ``tools/bench_proxy.py --section record``).  The message's
 log time is the time the batch's last byte arrived, its publish time the time the
-first byte of its earliest frame arrived (ns since the Unix epoch).  Layout version
+first byte of its earliest frame arrived (ns since the Unix epoch).
+
+A state connection (port 8083: ``proxy --state-upstream``, ``capture``/``import-pcap
+--state-port``) is a connection like the others (its ``fairino.Connection`` records
+carry ``"stream": "state"``), but its packets go one message each to
+``/fairino/state``: header fields, the layout version its LEN matched, both
+checksums, the decoded fields by the name of the 8083 manual's table 2-2
+(``fields.jt_cur_pos[0]`` is J1 in degrees: Foxglove's Plot panel draws it against
+the log time) and the exact bytes.  Its schema is made from ``specs/*/state.json``
+(:func:`state_schema`) and registered with the first state message.  What the state
+decoder finds (checksum, CNT gap, garbage, truncated packet) goes to
+``/fairino/problems`` with ``kind`` ``state``, its ``rule`` the decoder's kind and
+its ``detail`` the decoder's words; a garbage run's bytes are all kept.  Layout version
 1 (``format`` ``fairino-conformance/1`` in the metadata) had one ``fairino.Frame``
 object per frame; :func:`~conformance.recording.read_recording` reads both.
 """
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping
 from typing import Any, Literal
 
@@ -47,7 +61,9 @@ __all__ = [
     "TOPIC_CONNECTIONS",
     "TOPIC_PROBLEMS",
     "TOPIC_S2C",
+    "TOPIC_STATE",
     "DirectionText",
+    "state_schema",
 ]
 
 #: A recorded frame's direction as its text on disk: the values of
@@ -63,6 +79,13 @@ TOPIC_C2S = "/fairino/c2s"
 TOPIC_S2C = "/fairino/s2c"
 TOPIC_PROBLEMS = "/fairino/problems"
 TOPIC_CONNECTIONS = "/fairino/connections"
+#: The state port's packets (one message each; schema ``fairino.State``).
+TOPIC_STATE = "/fairino/state"
+STATE_SCHEMA = "fairino.State"
+#: The ``kind`` of a state decoder's problem on ``/fairino/problems``.
+STATE_KIND = "state"
+#: ``fairino.Connection``'s ``stream`` for a state-port connection.
+STATE_STREAM = "state"
 METADATA_NAME = "fairino.recording"
 #: Layout version, stored in the metadata; bump on incompatible changes.
 FORMAT = "fairino-conformance/2"
@@ -143,7 +166,7 @@ SCHEMAS: Mapping[str, Mapping[str, Any]] = {
             "conn": _CONN,
             "transport": _TRANSPORT,
             "dir": _DIR,
-            "kind": {"type": "string", "enum": ["malformed", "gap"]},
+            "kind": {"type": "string", "enum": ["malformed", "gap", "state"]},
             "rule": {"type": "string"},
             "detail": {"type": "string"},
             "offset": {"type": "integer"},
@@ -171,6 +194,11 @@ SCHEMAS: Mapping[str, Mapping[str, Any]] = {
             "bytes_s2c": {"type": "integer"},
             "frames_c2s": {"type": "integer"},
             "frames_s2c": {"type": "integer"},
+            "stream": {
+                "type": "string",
+                "enum": ["state"],
+                "description": "state: the state port (8083), its packets on /fairino/state",
+            },
         },
         "required": ["conn", "event", "t_ns"],
     },
@@ -182,3 +210,110 @@ _TOPICS = {
     TOPIC_PROBLEMS: "fairino.Problem",
     TOPIC_CONNECTIONS: "fairino.Connection",
 }
+
+
+_NUMBER = {"type": ["number", "null"], "description": "non-finite values as null"}
+
+
+def _ctype_schema(ctype: str) -> dict[str, Any]:
+    return dict(_NUMBER) if ctype in ("float", "double") else {"type": "integer"}
+
+
+def _field_schema(f: Any) -> dict[str, Any]:
+    """One table 2-2 field (a :class:`~conformance.protocol.state_layout.StateField`)."""
+    if f.ctype == "char":
+        one: dict[str, Any] = {"type": "string", "maxLength": f.count}
+    elif f.members:
+        one = {
+            "type": "object",
+            "properties": {n: _ctype_schema(c) for n, c in f.members},
+            "required": [n for n, _ in f.members],
+        }
+        if f.count > 1:
+            one = {"type": "array", "items": one, "minItems": f.count, "maxItems": f.count}
+    elif f.count > 1:
+        one = {
+            "type": "array",
+            "items": _ctype_schema(f.ctype),
+            "minItems": f.count,
+            "maxItems": f.count,
+        }
+    else:
+        one = _ctype_schema(f.ctype)
+    return one
+
+
+@functools.lru_cache(maxsize=1)
+def state_schema() -> Mapping[str, Any]:
+    """``fairino.State``: a state packet as ``/fairino/state`` holds it.
+
+    ``fields`` has a property per field of every known layout (``specs/*/state.json``,
+    the union; a field whose type differs between versions takes either), typed as the
+    decoder gives it: integers, numbers (a non-finite float as null), fixed-length
+    arrays, text, and objects for the structures."""
+    from ..protocol.state_layout import known_layouts
+
+    props: dict[str, dict[str, Any]] = {}
+    seen: dict[str, list[str]] = {}
+    for lay in known_layouts():
+        for f in lay.fields:
+            s = _field_schema(f)
+            meaning = next(
+                (r.get("meaning") for r in lay.doc.get("fields", ()) if r.get("name") == f.name),
+                None,
+            )
+            words = "; ".join(x for x in (meaning, f.unit) if x)
+            seen.setdefault(f.name, []).append(lay.version)
+            if f.name in props and props[f.name].get("x-shape") != s:
+                old = props[f.name]
+                shapes = old.get("anyOf", [old["x-shape"]])
+                props[f.name] = {"anyOf": [*shapes, s], "x-shape": s}
+            else:
+                props.setdefault(f.name, {**s, "x-shape": s})
+            props[f.name]["description"] = (
+                f"{words} (v{', v'.join(seen[f.name])})"
+                if words
+                else f"v{', v'.join(seen[f.name])}"
+            )
+    fields = {k: {x: y for x, y in v.items() if x != "x-shape"} for k, v in props.items()}
+    return {
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": STATE_SCHEMA,
+        "description": (
+            "One port-8083 state packet (the 8083 state manual, 2.1 table 2-1): header "
+            "0x5A5A, CNT, LEN, DATA (table 2-2 of the version its LEN matched), checksum; "
+            "fields by table 2-2's names (jt_cur_pos: J1..J6 in degrees)"
+        ),
+        "type": "object",
+        "properties": {
+            "conn": _CONN,
+            "transport": _TRANSPORT,
+            "cnt": {"type": "integer", "minimum": 0, "maximum": 255},
+            "len": {"type": "integer", "description": "LEN: the bytes of DATA"},
+            "version": {
+                "type": ["string", "null"],
+                "description": "the layout LEN matched (null: none known)",
+            },
+            "checksum": {"type": "integer", "description": "the checksum sent"},
+            "computed": {"type": "integer", "description": "the sum of header through DATA"},
+            "checksum_ok": {"type": "boolean"},
+            "offset": {"type": "integer", "description": "stream offset of the header"},
+            "first_ns": {"type": "integer", "description": "when the first byte came"},
+            "complete_ns": {"type": "integer", "description": "when the last byte came"},
+            "fields": {"type": "object", "properties": fields},
+            "raw": {**_B64, "description": "the packet's bytes, header to checksum"},
+        },
+        "required": [
+            "conn",
+            "cnt",
+            "len",
+            "version",
+            "checksum",
+            "computed",
+            "checksum_ok",
+            "offset",
+            "complete_ns",
+            "fields",
+            "raw",
+        ],
+    }

@@ -14,12 +14,14 @@ from .layout import (
     C2S,
     METADATA_NAME,
     SCHEMAS,
+    STATE_KIND,
     TOPIC_C2S,
     TOPIC_CONNECTIONS,
     TOPIC_PROBLEMS,
     TOPIC_S2C,
+    TOPIC_STATE,
 )
-from .records import ConnectionRecord, FrameBatch, FrameRecord, ProblemRecord
+from .records import ConnectionRecord, FrameBatch, FrameRecord, ProblemRecord, StateRecord
 from .salvage import MAGIC, Damage, Walk
 
 __all__ = ["Damage", "RecordedExchange", "Recording", "read_recording"]
@@ -69,6 +71,11 @@ class Recording:
     #: it cost.  Every front-end says so, and ``check``/``info`` exit
     #: :data:`~conformance.errors.EXIT_DAMAGED`: a recording that lost data never passes.
     damage: tuple[Damage, ...] = ()
+    #: The state port's packets (``/fairino/state``), in file order.
+    states: tuple[StateRecord, ...] = ()
+    #: The state decoder's problems (``kind`` ``state`` on ``/fairino/problems``): kept
+    #: apart from :attr:`problems`, which are the command port's.
+    state_problems: tuple[ProblemRecord, ...] = ()
 
     @property
     def start_ns(self) -> int:
@@ -258,12 +265,19 @@ _SCHEMA_OF_TOPIC = {
 }
 
 
-def _record_of(topic: str, doc: Any) -> list[FrameRecord] | ProblemRecord | ConnectionRecord:
+def _record_of(
+    topic: str, doc: Any
+) -> list[FrameRecord] | ProblemRecord | ConnectionRecord | StateRecord:
     """The records of one message on one of the recording's topics, its JSON checked
     against the topic's schema first (:data:`~.layout.SCHEMAS`): a ``ValueError``
     saying what does not fit."""
     if not isinstance(doc, dict):
         raise ValueError(f"the message is {_kind(doc)}, not an object")
+    if topic == TOPIC_STATE:  # its schema comes from the spec set's state layouts
+        try:
+            return StateRecord.from_json(doc)
+        except (binascii.Error, KeyError, TypeError) as e:
+            raise ValueError(f"{type(e).__name__}: {e}") from None
     frames = topic in (TOPIC_C2S, TOPIC_S2C)
     layout1 = frames and not isinstance(doc.get("cnt"), list)
     schema = _layout1_schema() if layout1 else _SCHEMA_OF_TOPIC[topic]
@@ -295,6 +309,8 @@ def read_recording(path: str | os.PathLike[str]) -> Recording:
     frames: list[FrameRecord] = []
     problems: list[ProblemRecord] = []
     conns: list[ConnectionRecord] = []
+    states: list[StateRecord] = []
+    state_problems: list[ProblemRecord] = []
     metadata: dict[str, str] = {}
     topics: dict[int, str] = {}
     try:
@@ -319,7 +335,7 @@ def read_recording(path: str | os.PathLike[str]) -> Recording:
             elif isinstance(rec, Message):
                 count += 1
                 topic = topics.get(rec.channel_id)
-                if topic not in _SCHEMA_OF_TOPIC:
+                if topic is None or (topic not in _SCHEMA_OF_TOPIC and topic != TOPIC_STATE):
                     continue  # a foreign topic: not ours to read
                 try:
                     got = _record_of(topic, json.loads(rec.data))
@@ -337,7 +353,10 @@ def read_recording(path: str | os.PathLike[str]) -> Recording:
                 if isinstance(got, list):
                     frames += got
                 elif isinstance(got, ProblemRecord):
-                    problems.append(got)
+                    # The state decoder's problems apart from the command port's.
+                    (state_problems if got.kind == STATE_KIND else problems).append(got)
+                elif isinstance(got, StateRecord):
+                    states.append(got)
                 else:
                     conns.append(got)
             elif isinstance(rec, Metadata) and rec.name == METADATA_NAME and not metadata:
@@ -356,4 +375,6 @@ def read_recording(path: str | os.PathLike[str]) -> Recording:
         complete=walk.complete,
         truncated=walk.stopped if not walk.complete else "",
         damage=tuple(damage),
+        states=tuple(states),
+        state_problems=tuple(state_problems),
     )

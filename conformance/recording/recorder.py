@@ -26,9 +26,10 @@ from ..frame import (
     Malformed,
 )
 from ..spec import SpecSet
-from .layout import C2S, PROBLEM_RAW_LIMIT, S2C, DirectionText
+from .layout import C2S, PROBLEM_RAW_LIMIT, S2C, STATE_STREAM, DirectionText
 from .names import _CommandNames
 from .records import ConnectionRecord, FrameBatch, FrameRecord, ProblemRecord, RecordSink
+from .state_stream import StateStream
 
 __all__ = ["DECODE_SLICE", "StreamRecorder"]
 
@@ -76,6 +77,8 @@ class _Conn:
     upstream: str
     local: str
     streams: dict[str, _Stream]
+    #: A state-port connection's packets (``open(..., stream="state")``), else None.
+    state: StateStream | None = None
 
 
 class StreamRecorder(_CommandNames):
@@ -101,6 +104,7 @@ class StreamRecorder(_CommandNames):
         on_frame: Callable[[FrameRecord], None] | None = None,
         slice_size: int = DECODE_SLICE,
         checkpoint: Callable[[], None] | None = None,
+        state_version: str | None = None,
     ) -> None:
         if slice_size < 1:
             raise ValueError("slice_size must be positive")
@@ -127,6 +131,10 @@ class StreamRecorder(_CommandNames):
         self._id_names: dict[int, object] = {}
         self.frames = 0
         self.problems = 0
+        #: The state layout a state connection should send (None: any known one).
+        self.state_version = state_version
+        #: State packets recorded, over every state connection.
+        self.state_packets = 0
 
     # -- connection life
 
@@ -139,13 +147,21 @@ class StreamRecorder(_CommandNames):
         client: str = "",
         upstream: str = "",
         local: str = "",
+        stream: str = "",
     ) -> None:
+        """A connection opened; ``stream="state"``: a state-port (8083) connection, its
+        bytes read as state packets (:class:`~.state_stream.StateStream`)."""
         self._conns[conn] = _Conn(
             transport=transport,
             client=client,
             upstream=upstream,
             local=local,
             streams={C2S: _Stream(self.max_frame_size), S2C: _Stream(self.max_frame_size)},
+            state=(
+                StateStream(self.sink, conn, transport=transport, version=self.state_version)
+                if stream == STATE_STREAM
+                else None
+            ),
         )
         self.sink.write(
             ConnectionRecord(
@@ -156,6 +172,7 @@ class StreamRecorder(_CommandNames):
                 client=client,
                 upstream=upstream,
                 local=local,
+                stream=STATE_STREAM if stream == STATE_STREAM else "",
             )
         )
 
@@ -165,6 +182,9 @@ class StreamRecorder(_CommandNames):
     def close(self, conn: int, *, t_ns: int, reason: str) -> None:
         c = self._conns.pop(conn, None)
         if c is None:
+            return
+        if c.state is not None:
+            self._state_close(conn, c, c.state, t_ns, reason)
             return
         for d, st in c.streams.items():
             self._emit(conn, c.transport, d, st, st.decoder.close(), t_ns)  # type: ignore[arg-type]
@@ -184,6 +204,43 @@ class StreamRecorder(_CommandNames):
                 frames_s2c=c.streams[S2C].frames,
             )
         )
+
+    def _state_close(self, conn: int, c: _Conn, s: StateStream, t_ns: int, reason: str) -> None:
+        before = s.packets, s.problems
+        s.close(t_ns)
+        self.state_packets += s.packets - before[0]
+        self.problems += s.problems - before[1]
+        c_bytes, s_bytes = s.bytes[C2S], s.bytes[S2C]
+        self.sink.write(
+            ConnectionRecord(
+                conn=conn,
+                event="close",
+                t_ns=t_ns,
+                transport=s.transport,
+                client=c.client,
+                upstream=c.upstream,
+                local=c.local,
+                reason=reason,
+                bytes_c2s=c_bytes,
+                bytes_s2c=s_bytes,
+                frames_s2c=s.packets,
+                stream=STATE_STREAM,
+            )
+        )
+
+    def _state_data(self, c: _Conn, direction: DirectionText, t_ns: int, data: bytes) -> None:
+        """A state connection's bytes (each read on its own: packets are small and slow)."""
+        s = c.state
+        assert s is not None
+        before = s.packets, s.problems
+        if self.undecoded_reason is not None:
+            s.undecoded(direction, t_ns, data, self.undecoded_reason)
+        else:
+            s.data(direction, t_ns, data)
+        self.state_packets += s.packets - before[0]
+        self.problems += s.problems - before[1]
+        if self.checkpoint is not None:
+            self.checkpoint()
 
     def finish(self, *, t_ns: int, reason: str = "recording ended") -> None:
         for conn in list(self._conns):
@@ -216,6 +273,9 @@ class StreamRecorder(_CommandNames):
             return
         # A short read (request/reply traffic: one frame): straight to the decoder.
         c = self._conns[conn]
+        if c.state is not None:
+            self._state_data(c, direction, t_ns, data)
+            return
         st = c.streams[direction]
         st.bytes += n
         st.last_ns = t_ns
@@ -241,6 +301,10 @@ class StreamRecorder(_CommandNames):
         if not reads:
             return
         c = self._conns[conn]
+        if c.state is not None:
+            for t_ns, piece in reads:
+                self._state_data(c, direction, t_ns, piece)
+            return
         st = c.streams[direction]
         transport = c.transport
         if len(reads) == 1:
@@ -406,6 +470,12 @@ class StreamRecorder(_CommandNames):
     ) -> None:
         """``missing`` bytes of the stream were never captured: record it, restart decoding."""
         c = self._conns[conn]
+        if c.state is not None:
+            before = c.state.packets, c.state.problems
+            c.state.gap(direction, t_ns, missing, detail)
+            self.state_packets += c.state.packets - before[0]
+            self.problems += c.state.problems - before[1]
+            return
         st = c.streams[direction]
         self._emit(conn, c.transport, direction, st, st.decoder.close(), t_ns)
         offset = st.base + st.decoder.stream_offset

@@ -22,6 +22,7 @@ __all__ = [
     "ProblemRecord",
     "Record",
     "RecordSink",
+    "StateRecord",
 ]
 
 
@@ -379,9 +380,11 @@ class ConnectionRecord:
     bytes_s2c: int = 0
     frames_c2s: int = 0
     frames_s2c: int = 0
+    #: ``state`` for a state-port (8083) connection (its packets: :class:`StateRecord`).
+    stream: str = ""
 
     def to_json(self) -> dict[str, Any]:
-        return {
+        doc: dict[str, Any] = {
             "conn": self.conn,
             "transport": self.transport,
             "event": self.event,
@@ -395,6 +398,9 @@ class ConnectionRecord:
             "frames_c2s": self.frames_c2s,
             "frames_s2c": self.frames_s2c,
         }
+        if self.stream:
+            doc["stream"] = self.stream
+        return doc
 
     @classmethod
     def from_json(cls, d: Mapping[str, Any]) -> ConnectionRecord:
@@ -411,10 +417,68 @@ class ConnectionRecord:
             bytes_s2c=d.get("bytes_s2c", 0),
             frames_c2s=d.get("frames_c2s", 0),
             frames_s2c=d.get("frames_s2c", 0),
+            stream=d.get("stream", ""),
         )
 
 
-Record = FrameRecord | ProblemRecord | ConnectionRecord
+@dataclass(frozen=True, kw_only=True)
+class StateRecord:
+    """One state-port packet (topic ``/fairino/state``): header fields, the layout its LEN
+    matched, the checksum sent and the one computed, its fields by name, its bytes."""
+
+    conn: int
+    cnt: int
+    length: int
+    version: str | None
+    checksum: int
+    computed: int
+    raw: bytes = field(repr=False)
+    complete_ns: int
+    first_ns: int = 0
+    offset: int = 0
+    fields: Mapping[str, Any] = field(default_factory=dict, repr=False)
+    transport: str = "tcp"
+
+    @property
+    def checksum_ok(self) -> bool:
+        return self.checksum == self.computed
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "conn": self.conn,
+            "transport": self.transport,
+            "cnt": self.cnt,
+            "len": self.length,
+            "version": self.version,
+            "checksum": self.checksum,
+            "computed": self.computed,
+            "checksum_ok": self.checksum_ok,
+            "offset": self.offset,
+            "first_ns": self.first_ns or self.complete_ns,
+            "complete_ns": self.complete_ns,
+            "fields": dict(self.fields),
+            "raw": _b64(self.raw),
+        }
+
+    @classmethod
+    def from_json(cls, d: Mapping[str, Any]) -> StateRecord:
+        return cls(
+            conn=d["conn"],
+            transport=d.get("transport", "tcp"),
+            cnt=d["cnt"],
+            length=d["len"],
+            version=d.get("version"),
+            checksum=d["checksum"],
+            computed=d["computed"],
+            offset=d.get("offset", 0),
+            first_ns=d.get("first_ns", d["complete_ns"]),
+            complete_ns=d["complete_ns"],
+            fields=d.get("fields") or {},
+            raw=base64.b64decode(d["raw"]),
+        )
+
+
+Record = FrameRecord | ProblemRecord | ConnectionRecord | StateRecord
 
 
 class RecordSink(Protocol):

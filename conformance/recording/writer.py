@@ -22,11 +22,14 @@ from .layout import (
     METADATA_NAME,
     S2C,
     SCHEMAS,
+    STATE_SCHEMA,
     TOPIC_C2S,
     TOPIC_CONNECTIONS,
     TOPIC_PROBLEMS,
     TOPIC_S2C,
+    TOPIC_STATE,
     DirectionText,
+    state_schema,
 )
 from .records import (
     _BATCH_JSON,
@@ -36,6 +39,7 @@ from .records import (
     FrameRecord,
     ProblemRecord,
     Record,
+    StateRecord,
     _batch_of_one,
     _json_ints,
     _json_str,
@@ -206,6 +210,14 @@ class RecordingWriter:
         if isinstance(record, FrameRecord):
             self.write_frames(FrameBatch.of([record]))
             return
+        if isinstance(record, StateRecord):
+            if TOPIC_STATE not in self._channels:
+                self._register_state()
+            log = record.complete_ns
+            self.write_json(
+                TOPIC_STATE, record.to_json(), log_time=log, publish_time=record.first_ns or log
+            )
+            return
         if isinstance(record, ProblemRecord):
             topic, log, pub = (
                 TOPIC_PROBLEMS,
@@ -215,6 +227,15 @@ class RecordingWriter:
         else:
             topic, log, pub = TOPIC_CONNECTIONS, record.t_ns, record.t_ns
         self.write_json(topic, record.to_json(), log_time=log, publish_time=pub)
+
+    def _register_state(self) -> None:
+        """The state topic and its schema, with the first state packet (a recording of the
+        command port alone does not carry them)."""
+        sid = self._mcap.register_schema(
+            STATE_SCHEMA, "jsonschema", json.dumps(state_schema()).encode("utf-8")
+        )
+        ch = self._channels[TOPIC_STATE] = self._mcap.register_channel(TOPIC_STATE, "json", sid)
+        self._seq[ch] = 0
 
     def write_json(
         self, topic: str, doc: Mapping[str, Any], *, log_time: int, publish_time: int

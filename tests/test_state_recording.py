@@ -1,0 +1,266 @@
+"""The state port (8083) in recordings: proxy, capture and import-pcap record its packets on
+/fairino/state (decoded fields, raw bytes, a JSON schema), the decoder's problems on
+/fairino/problems, and no byte is lost.
+
+Real sockets against the emulator's state port where the proxy is tested; the recorder
+itself is sans-I/O and tested with bytes.
+"""
+
+from __future__ import annotations
+
+import json
+import socket
+import sys
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+
+import jsonschema
+import pytest
+from mcap.reader import make_reader
+
+from conformance.frame import Frame, decode_all, encode_frame
+from conformance.net.emulator import EmulatorServer
+from conformance.net.proxy import RecordingProxy
+from conformance.pcap import export_pcap, import_pcap
+from conformance.protocol.state import StateDecoder, StatePacket, encode_state
+from conformance.recording import (
+    TOPIC_STATE,
+    Recording,
+    RecordingWriter,
+    StreamRecorder,
+    read_recording,
+    state_schema,
+)
+
+from .cli_run import cli_run
+
+TARGET = [10.0, -20.0, 30.0, -40.0, 50.0, 60.0]
+MOVEJ = "MoveJ({},0,0,0,0,0,0,0,0,100,100,100,0,0,0,0,-1,0,0,0,0,0,0,0)".format(
+    ",".join(f"{j:g}" for j in TARGET)
+)
+
+
+def command(sock: socket.socket, cnt: int, cmd_id: int, data: str) -> Frame:
+    sock.sendall(encode_frame(cnt, cmd_id, data))
+    buf = b""
+    while True:
+        chunk = sock.recv(4096)
+        assert chunk, "the command port closed"
+        buf += chunk
+        frames = [f for f in decode_all(buf) if isinstance(f, Frame)]
+        if frames:
+            return frames[0]
+
+
+def read_packets(sock: socket.socket, n: int) -> list[StatePacket]:
+    """The next ``n`` packets on a state connection (each recv bounded by the timeout)."""
+    dec = StateDecoder()
+    out: list[StatePacket] = []
+    while len(out) < n:
+        data = sock.recv(65536)
+        assert data, "the state port closed"
+        out += [e for e in dec.feed(data) if isinstance(e, StatePacket)]
+    return out
+
+
+def validate_state_messages(path: Path | str) -> int:
+    """Every /fairino/state message validated against the schema the file carries."""
+    n = 0
+    with open(path, "rb") as f:
+        for schema, channel, message in make_reader(f).iter_messages(topics=[TOPIC_STATE]):
+            assert schema is not None and schema.name == "fairino.State"
+            assert channel.message_encoding == "json" and schema.encoding == "jsonschema"
+            jsonschema.validate(json.loads(message.data), json.loads(schema.data))
+            n += 1
+    return n
+
+
+@pytest.fixture
+def emulator() -> Iterator[EmulatorServer]:
+    with EmulatorServer(state_port=0, faults=["state_checksum:4"]) as emu:
+        yield emu
+
+
+# --------------------------------------------------------------------------- proxy
+
+
+def test_proxy_records_the_state_stream_beside_the_command_port(
+    tmp_path: Path, emulator: EmulatorServer
+) -> None:
+    out = tmp_path / "cell.mcap"
+    assert emulator.state_address is not None
+    with RecordingProxy(emulator.address, out=out, state_upstream=emulator.state_address) as proxy:
+        assert proxy.state_address is not None
+        with (
+            socket.create_connection(proxy.state_address, timeout=10) as state,
+            socket.create_connection(proxy.address, timeout=10) as cmd,
+        ):
+            assert command(cmd, 1, 1207, "SetStatePeriod(8083,8)").data == "1"
+            assert command(cmd, 2, 201, MOVEJ).data == "1"
+            seen = read_packets(state, 12)
+    rec = read_recording(out)
+    assert rec.metadata["state_upstream"].endswith(f":{emulator.state_address[1]}")
+    state_conns = [c for c in rec.connections if c.stream == "state"]
+    assert state_conns and {c.event for c in state_conns} == {"open", "close"}
+    assert len(rec.states) >= len(seen) >= 12
+    # What the client read is what was recorded, byte for byte, in order.
+    assert [s.raw for s in rec.states[: len(seen)]] == [p.raw for p in seen]
+    assert rec.states[-1].fields["jt_cur_pos"] == TARGET
+    assert all(s.version == "3.8.2" for s in rec.states)
+    assert {f.name for f in rec.frames} >= {"SetStatePeriod", "MoveJ"}
+    # Every fourth packet's checksum is one off: the decoder's words on /fairino/problems.
+    bad = [s for s in rec.states if not s.checksum_ok]
+    assert bad and len(bad) == len(rec.states) // 4
+    sums = [p for p in rec.state_problems if p.rule == "checksum"]
+    assert [p.detail for p in sums] == [
+        f"checksum 0x{s.checksum:04x}, computed 0x{s.computed:04x}" for s in bad
+    ]
+    assert not rec.problems  # the command port's own are none
+    assert validate_state_messages(out) == len(rec.states)
+
+
+def test_state_schema_types_each_field_of_both_layouts() -> None:
+    fields = state_schema()["properties"]["fields"]["properties"]
+    joints = fields["jt_cur_pos"]
+    assert joints["type"] == "array" and joints["minItems"] == joints["maxItems"] == 6
+    assert "deg" in joints["description"] and "v3.8.2, v3.9.8" in joints["description"]
+    assert fields["program_name"]["type"] == "string"
+    assert fields["loadCog"]["description"].endswith("(v3.9.8)")  # 3.9.8 only
+    bad = {"conn": 1, "cnt": 300, "len": 1, "version": None, "checksum": 0, "computed": 0}
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.validate(
+            {**bad, "checksum_ok": True, "offset": 0, "complete_ns": 1, "fields": {}, "raw": ""},
+            state_schema(),
+        )
+
+
+# --------------------------------------------------------------------------- sans-I/O recorder
+
+
+def _stream() -> bytes:
+    """Garbage, packets (one with a bad checksum, one CNT lost), a truncated tail."""
+    packets = [
+        encode_state("3.8.2", {"jt_cur_pos": [i, 0, 0, 0, 0, 0]}, cnt=i, bad_checksum=i == 3)
+        for i in range(6)
+        if i != 2
+    ]
+    return b"\x00junk\x5a" + b"".join(packets[:2]) + b"x" * 70_000 + b"".join(packets[2:])
+
+
+def _record(tmp_path: Path, stream: bytes, step: int, name: str) -> Path:
+    out = tmp_path / name
+    with RecordingWriter(out) as w:
+        rec = StreamRecorder(w)
+        rec.open(1, t_ns=1, client="10.0.0.1:40000", upstream="10.0.0.2:8083", stream="state")
+        for k in range(0, len(stream), step):
+            rec.data(1, "s2c", 10 + k, stream[k : k + step])
+        rec.data(1, "c2s", 20, b"hello")
+        rec.data(1, "s2c", 30, b"\x5a\x5a\x07\xa6")  # a packet begun, never ended
+        rec.finish(t_ns=99)
+    return out
+
+
+def test_every_byte_of_the_state_stream_is_kept(tmp_path: Path) -> None:
+    stream = _stream()
+    rec = read_recording(_record(tmp_path, stream, 1000, "a.mcap"))
+    pieces = sorted(
+        [(s.offset, s.raw) for s in rec.states]
+        + [(p.offset, p.raw) for p in rec.state_problems if p.dir == "s2c"]
+    )
+    assert b"".join(r for _, r in pieces) == stream + b"\x5a\x5a\x07\xa6"
+    rules = [p.rule for p in rec.state_problems]
+    assert rules.count("garbage") >= 2 and "truncated" in rules and "client_bytes" in rules
+    assert "checksum" in rules and "cnt_gap" in rules
+    client = [p for p in rec.state_problems if p.rule == "client_bytes"]
+    assert client[0].raw == b"hello" and client[0].dir == "c2s"
+    assert [s.cnt for s in rec.states] == [0, 1, 3, 4, 5]
+    # The state connection's bytes are its own: no frame, no command-port problem.
+    assert not rec.frames and not rec.problems
+    closed = next(c for c in rec.connections if c.event == "close")
+    assert closed.frames_s2c == 5 and closed.bytes_c2s == 5
+
+
+def test_the_records_do_not_depend_on_how_the_bytes_came(tmp_path: Path) -> None:
+    stream = _stream()
+    whole = read_recording(_record(tmp_path, stream, len(stream), "whole.mcap"))
+    small = read_recording(_record(tmp_path, stream, 7, "small.mcap"))
+
+    def shape(rec: Recording) -> list[tuple[object, ...]]:
+        states = [(s.offset, s.raw, s.cnt) for s in rec.states]
+        return [*states, *((p.offset, p.rule, p.size, p.raw) for p in rec.state_problems)]
+
+    assert shape(whole) == shape(small)
+
+
+# --------------------------------------------------------------------------- pcap
+
+
+def test_import_pcap_state_port_reads_an_exported_state_stream(tmp_path: Path) -> None:
+    original = read_recording(_record(tmp_path, _stream(), 1400, "orig.mcap"))
+    pcap = tmp_path / "cell.pcap"
+    export_pcap(original, pcap)
+    back = tmp_path / "back.mcap"
+    st = import_pcap(pcap, back, state_ports=[8083], guess=False)
+    assert st.state_packets == len(original.states) == 5
+    rec = read_recording(back)
+    assert [s.raw for s in rec.states] == [s.raw for s in original.states]
+    assert sorted((p.dir, p.offset, p.rule, p.raw) for p in rec.state_problems) == sorted(
+        (p.dir, p.offset, p.rule, p.raw) for p in original.state_problems
+    )
+    assert validate_state_messages(back) == 5
+    # Without --state-port the flow is not the command port's: nothing of it is taken.
+    plain = tmp_path / "plain.mcap"
+    assert import_pcap(pcap, plain, tcp_ports=[8080], guess=False).state_packets == 0
+
+
+def _raw_socket_ok() -> bool:
+    try:
+        s = socket.socket(socket.AF_PACKET, socket.SOCK_RAW, socket.htons(3))
+    except (PermissionError, AttributeError, OSError):
+        return False
+    s.close()
+    return True
+
+
+@pytest.mark.skipif(
+    not sys.platform.startswith("linux") or not _raw_socket_ok(), reason="needs CAP_NET_RAW"
+)
+def test_live_capture_records_the_state_port(tmp_path: Path, emulator: EmulatorServer) -> None:
+    from conformance.net.capture import LiveCapture
+
+    assert emulator.state_address is not None
+    out = tmp_path / "cap.mcap"
+    cap = LiveCapture(
+        "lo", out, tcp_ports=[emulator.address[1]], state_ports=[emulator.state_address[1]]
+    )
+    stop, ready = threading.Event(), threading.Event()
+    t = threading.Thread(target=lambda: cap.run(stop, ready=ready.set), daemon=True)
+    t.start()
+    assert ready.wait(10)
+    with socket.create_connection(emulator.state_address, timeout=10) as state:
+        seen = read_packets(state, 5)
+    stop.set()
+    t.join(30)
+    rec = read_recording(out)
+    assert [s.raw for s in rec.states[: len(seen)]] == [p.raw for p in seen]
+    assert validate_state_messages(out) == len(rec.states)
+
+
+def test_import_pcap_cli_state_port(tmp_path: Path) -> None:
+    original = read_recording(_record(tmp_path, _stream(), 1400, "orig.mcap"))
+    pcap = tmp_path / "cell.pcap"
+    export_pcap(original, pcap)
+    out = tmp_path / "cli.mcap"
+    r = cli_run("import-pcap", str(pcap), "-o", str(out), "--state-port", "8083")
+    assert r.returncode == 0, r.stderr
+    assert "5 state packets" in r.stdout
+    assert len(read_recording(out).states) == 5
+    bad = cli_run("import-pcap", str(pcap), "-o", str(out), "--state-port", "0")
+    assert bad.returncode == 2 and "--state-port 0: a port is 1..65535" in bad.stderr
+
+
+def test_proxy_cli_names_a_bad_state_address(tmp_path: Path) -> None:
+    out = str(tmp_path / "x.mcap")
+    r = cli_run("proxy", "--upstream", "127.0.0.1:1", "-o", out, "--state-upstream", "h:99999")
+    assert r.returncode == 2 and "--state-upstream" in r.stderr, r.stderr
