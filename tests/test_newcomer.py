@@ -172,12 +172,12 @@ def test_item_2_parallel_workers_never_share_the_arm_of_one_target(
 
     with EmulatorServer() as emu:
         target = f"127.0.0.1:{emu.address[1]}"
-        refused = pytester.runpytest_subprocess(
+        refused = pytester.runpytest(
             "-p", "no:cacheprovider", "-n", "2", "--target", target, "--groups", "stateful"
         )  # fmt: skip
         assert refused.ret == pytest.ExitCode.USAGE_ERROR
         assert "must not share one --target: run it with -n 0" in refused.stderr.str()
-        parallel = pytester.runpytest_subprocess(
+        parallel = pytester.runpytest(
             "-p", "no:cacheprovider", "-n", "2", "--target", target, "--groups", "framing",
             "--commands", "229",
         )  # fmt: skip
