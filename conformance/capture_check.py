@@ -25,6 +25,7 @@ from .net.addresses import client_host
 from .recording import C2S, FrameRecord, ProblemRecord, Recording
 from .report import CaseResult, Report
 from .spec import SpecSet
+from .state_check import render_state, state_cases, state_figures
 from .verdict import Outcome
 
 __all__ = [
@@ -48,7 +49,7 @@ def judgeable(rec: Recording) -> str | None:
     is a :class:`~conformance.errors.RecordingError`, never an empty table that passes; for
     an unfinished one (no summary: the recorder was killed, a truncated copy) a warning."""
     unfinished = "" if rec.complete else " (UNFINISHED: run `recover`)"
-    if not rec.frames and not rec.problems:
+    if not rec.frames and not rec.problems and not rec.states and not rec.state_problems:
         raise RecordingError(
             f"nothing to judge: {rec.path} holds no frame{unfinished}", path=rec.path
         )
@@ -190,6 +191,10 @@ def summarize(
         },
         "problems": dict(sorted(problems.items())),
         "commands": {str(k): figures[k].to_json() for k in sorted(figures)},
+        # The state port (8083): per connection, read again by the state decoder.
+        "state": [
+            f.to_json() for f in state_figures(rec, version=specs.spec_version if specs else None)
+        ],
     }
 
 
@@ -218,6 +223,7 @@ def render_info(info: dict[str, Any]) -> str:
     ]
     if info["problems"]:
         lines.append("problems   " + ", ".join(f"{k}={v}" for k, v in info["problems"].items()))
+    lines += render_state(info.get("state", []))
     head = ("req", "rep", "noreply", "errors", "dialect", "fail")
     lines.append(
         f"{'ID':>5}  {'name':<28} "
@@ -435,4 +441,7 @@ def check_recording(
     )
     for c in cases.results():
         report.add(c)
+    if side != "client":  # the state port's stream is the controller's
+        for c in state_cases(rec, version=specs.spec_version):
+            report.add(c)
     return report

@@ -52,6 +52,7 @@ FLOORS: dict[str, int] = {
     # 5: sockets, and the offline readings of recordings.
     "net": 5,
     "capture_check": 5,
+    "state_check": 5,
     "client_mode": 5,
     "diff": 5,
     "replay": 5,

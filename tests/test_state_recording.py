@@ -264,3 +264,85 @@ def test_proxy_cli_names_a_bad_state_address(tmp_path: Path) -> None:
     out = str(tmp_path / "x.mcap")
     r = cli_run("proxy", "--upstream", "127.0.0.1:1", "-o", out, "--state-upstream", "h:99999")
     assert r.returncode == 2 and "--state-upstream" in r.stderr, r.stderr
+
+
+# --------------------------------------------------------------------------- check and info
+
+
+def record_emulator(tmp_path: Path, faults: list[str], packets: int = 24) -> Path:
+    """The emulator's command and state ports read through real sockets, their bytes
+    recorded as the proxy's recorder records them (in-process: no recorder process)."""
+    import time
+
+    out = tmp_path / "emu.mcap"
+    with EmulatorServer(state_port=0, faults=faults) as emu, RecordingWriter(out) as w:
+        assert emu.state_address is not None
+        rec = StreamRecorder(w)
+        rec.open(1, t_ns=time.time_ns(), client="127.0.0.1:1", upstream="127.0.0.1:8080")
+        rec.open(
+            2, t_ns=time.time_ns(), client="127.0.0.1:2", upstream="127.0.0.1:8083", stream="state"
+        )
+        with socket.create_connection(emu.address, timeout=10) as cmd:
+            request = encode_frame(1, 1207, "SetStatePeriod(8083,8)")
+            rec.data(1, "c2s", time.time_ns(), request)
+            assert command(cmd, 1, 1207, "SetStatePeriod(8083,8)").data == "1"
+            rec.data(1, "s2c", time.time_ns(), encode_frame(1, 1207, "1"))
+        with socket.create_connection(emu.state_address, timeout=10) as state:
+            dec = StateDecoder()
+            seen = 0
+            while seen < packets:
+                data = state.recv(65536)
+                assert data
+                rec.data(2, "s2c", time.time_ns(), data)
+                seen += sum(isinstance(e, StatePacket) for e in dec.feed(data))
+        rec.finish(t_ns=time.time_ns())
+    return out
+
+
+@pytest.mark.parametrize(
+    "fault,message",
+    [
+        ("state_checksum:3", "checksum 0x"),
+        ("state_cnt_gap:3", "(1 packet lost)"),
+        ("state_layout", "LEN 650 matches no v3.8.2 layout; it matches v3.9.8"),
+        ("state_stall:6@0.1", "ms, SetStatePeriod asked 8 ms"),
+    ],
+)
+def test_check_reports_each_state_fault_in_the_decoders_words(
+    tmp_path: Path, fault: str, message: str
+) -> None:
+    from conformance.capture_check import check_recording
+    from conformance.spec import default_specs
+
+    rec = read_recording(record_emulator(tmp_path, [fault]))
+    report = check_recording(rec, default_specs(), side="controller")
+    state = [c for c in report.cases if c.name == "(state port 8083)"]
+    failing = [c for c in state if c.outcome.value == "FAIL"]
+    assert failing and all(c.id.startswith("0/controller/state-") for c in failing)
+    assert any(message in c.detail for c in failing), [c.detail for c in failing]
+    assert report.exit_code() == 1
+    passing = next(c for c in state if c.outcome.value == "PASS")
+    assert passing.detail.startswith(f"{len(rec.states)} state packets read")
+
+
+def test_check_and_info_cli_on_a_clean_and_a_faulty_state_stream(tmp_path: Path) -> None:
+    clean = record_emulator(tmp_path, [], packets=12)
+    r = cli_run("check", str(clean), "--side", "controller")
+    assert "(state port 8083)" in r.stdout and "12 state packets read" not in r.stderr
+    assert r.returncode == 0, r.stdout + r.stderr
+    info = cli_run("info", str(clean), "--json")
+    state = json.loads(info.stdout)["state"]
+    assert len(state) == 1 and state[0]["packets"] >= 12 and state[0]["lost"] == 0
+    assert state[0]["versions"] == {"3.8.2": state[0]["packets"]}
+    assert state[0]["period_ms"] == 8 and state[0]["period_asked"] is True
+    assert 4 < state[0]["interval_ms"]["median"] < 16
+    faulty = tmp_path / "faulty"
+    faulty.mkdir()
+    bad = record_emulator(faulty, ["state_cnt_gap:4"], packets=12)
+    r = cli_run("check", str(bad), "--side", "controller", "--report-json", "-")
+    assert r.returncode == 1 and "(state port 8083)" in r.stdout
+    cases = json.loads(r.stdout)["commands"]["0"]["cases"]
+    gaps = [c for c in cases if c["id"] == "0/controller/state-cnt_gap"]
+    assert gaps and "(1 packet lost)" in gaps[0]["detail"], cases
+    text = cli_run("info", str(bad)).stdout
+    assert "checksum failures, layout v3.8.2" in text and "cnt_gap=" in text

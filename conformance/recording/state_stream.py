@@ -105,7 +105,7 @@ class StateStream:
                 conn=self.conn,
                 transport=self.transport,
                 dir=direction,
-                kind="gap",
+                kind=STATE_KIND,
                 rule="gap",
                 detail=detail or f"{missing} bytes missing from the capture",
                 offset=at,
