@@ -6,6 +6,8 @@ every later chunk before), the chunk is named with what it cost, and ``check``,
 
 from __future__ import annotations
 
+import gzip
+import struct
 from pathlib import Path
 
 import pytest
@@ -126,3 +128,141 @@ def test_check_info_recover_say_what_was_lost_and_exit_damaged(good: Path, tmp_p
     fixed = read_recording(out)
     assert fixed.complete and not fixed.damage and len(fixed.frames) == 4 * 2 * PER_CHUNK
     assert cli_run("info", str(out)).returncode == 0
+
+
+# --------------------------------------------------------------------------- captures
+
+
+def _pcap_records(data: bytes) -> list[int]:
+    """The offsets of a little-endian classic pcap's records."""
+    out, pos = [], 24
+    while pos + 16 <= len(data):
+        out.append(pos)
+        pos += 16 + struct.unpack_from("<I", data, pos + 8)[0]
+    return out
+
+
+@pytest.fixture(scope="module")
+def good_pcap(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from scapy.utils import wrpcap
+
+    from tests.test_pcap import conversation
+
+    packets = []
+    for k in range(12):  # 12 connections of 14 packets: 168
+        packets += conversation(c=("10.1.0.5", 40001 + k), isn_c=1000 + 7 * k)
+    path = tmp_path_factory.mktemp("pcap") / "good.pcap"
+    wrpcap(str(path), packets)
+    return path
+
+
+def test_a_corrupt_pcap_record_length_is_named_and_the_rest_imported(
+    good_pcap: Path, tmp_path: Path
+) -> None:
+    """Before: a record length of 0xDEADBEEF in record 7 of 168 imported 7 packets (the
+    7th its bytes to the end of the file) and exited 0, 'imported 7 packets'."""
+    data = bytearray(good_pcap.read_bytes())
+    at = _pcap_records(bytes(data))[6]
+    for bad_len in (0xDEADBEEF, 0x200):
+        struct.pack_into("<I", data, at + 8, bad_len)
+        bad = tmp_path / "bad.pcap"
+        bad.write_bytes(bytes(data))
+        out = tmp_path / "out.mcap"
+        p = cli_run("import-pcap", str(bad), "-o", str(out))
+        assert p.returncode == EXIT_DAMAGED, (p.stdout, p.stderr)
+        assert "imported 167 packets" in p.stdout, p.stdout
+        assert p.stderr.splitlines()[-1] == (
+            f"damaged: {bad}: record 7 at offset {at}: its length {bad_len} is more than the "
+            "packet's length on the wire, 83 (a corrupt length); 99 bytes skipped to the next "
+            "record that reads"
+        ), p.stderr
+        rec = read_recording(out)
+        assert len(rec.connections) == 2 * 12
+        # The lost packet was a request: its connection has a gap, the others all frames.
+        assert len(rec.frames) == 12 * 8 - 1 and [p.kind for p in rec.problems] == ["gap"]
+        # check and info on the capture itself say so too.
+        q = cli_run("info", str(bad))
+        assert q.returncode == EXIT_DAMAGED and "capture record 7" in q.stderr, q.stderr
+
+
+def test_a_cut_capture_is_imported_as_far_as_it_goes_and_says_so(
+    good_pcap: Path, tmp_path: Path
+) -> None:
+    """Before: a truncated .pcap.gz imported nothing or failed as an internal error
+    (gzip's EOFError), and a pcap cut inside a record exited 0."""
+    data = good_pcap.read_bytes()
+    cut = tmp_path / "cut.pcap"
+    cut.write_bytes(data[: _pcap_records(data)[100] + 30])
+    p = cli_run("import-pcap", str(cut), "-o", str(tmp_path / "a.mcap"))
+    assert p.returncode == EXIT_DAMAGED and "imported 101 packets" in p.stdout, p
+    assert "record 101 at offset" in p.stderr and "the file ends inside it (14 of" in p.stderr
+    gz = tmp_path / "cut.pcap.gz"
+    gz.write_bytes(gzip.compress(data)[: len(gzip.compress(data)) // 2])
+    p = cli_run("import-pcap", str(gz), "-o", str(tmp_path / "b.mcap"))
+    assert p.returncode == EXIT_DAMAGED, (p.stdout, p.stderr)
+    n = int(p.stdout.split("imported ")[1].split()[0])
+    assert n > 50, p.stdout  # what the half that is there holds, not nothing
+    assert "Compressed file ended before the end-of-stream marker" in p.stderr
+    assert "internal error" not in p.stderr
+
+
+def _pcapng_blocks(data: bytes) -> list[int]:
+    out, pos = [], 0
+    while pos + 8 <= len(data):
+        out.append(pos)
+        pos += struct.unpack_from("<I", data, pos + 4)[0]
+    return out
+
+
+@pytest.mark.parametrize(
+    ("length", "why"),
+    [
+        (0xFFFFFFF0, "a block length asks for 4294967268 bytes, past the bound"),
+        (8, "a block that cannot be read (its length is less than a block's header)"),
+        (5000, "a block length asks for 4988 more bytes where"),
+    ],
+)
+def test_a_corrupt_pcapng_block_length_is_bounded_and_named(
+    tmp_path: Path, length: int, why: str
+) -> None:
+    """Before: scapy was asked to read up to 4 GiB for one block, and any bad block
+    length ended the import silently, exit 0."""
+    from scapy.utils import wrpcapng
+
+    from tests.test_pcap import conversation
+
+    src = tmp_path / "x.pcapng"
+    wrpcapng(str(src), conversation())
+    data = bytearray(src.read_bytes())
+    at = _pcapng_blocks(bytes(data))[5]  # section header, interface, 3 packets, then this
+    struct.pack_into("<I", data, at + 4, length)
+    src.write_bytes(bytes(data))
+    p = cli_run("import-pcap", str(src), "-o", str(tmp_path / "x.mcap"))
+    assert p.returncode == EXIT_DAMAGED, (p.stdout, p.stderr)
+    assert "imported 3 packets" in p.stdout
+    assert f"damaged: {src}: record 4 at offset {at}: {why}" in p.stderr, p.stderr
+
+
+def test_a_pcapng_simple_packet_block_has_the_time_before_it(tmp_path: Path) -> None:
+    """A simple packet block has no timestamp (pcapng 4.4): before, an internal error."""
+    from scapy.utils import wrpcapng
+
+    from tests.test_pcap import conversation
+
+    src = tmp_path / "x.pcapng"
+    wrpcapng(str(src), conversation())
+    data = src.read_bytes()
+    at = _pcapng_blocks(data)[5]
+    size = struct.unpack_from("<I", data, at + 4)[0]
+    caplen = struct.unpack_from("<I", data, at + 20)[0]
+    pkt = data[at + 28 : at + 28 + caplen]
+    pad = -len(pkt) % 4
+    spb = struct.pack("<III", 3, 16 + len(pkt) + pad, len(pkt)) + pkt + b"\0" * pad
+    spb += struct.pack("<I", 16 + len(pkt) + pad)
+    src.write_bytes(data[:at] + spb + data[at + size :])
+    p = cli_run("import-pcap", str(src), "-o", str(tmp_path / "x.mcap"))
+    assert p.returncode == 0 and "imported 14 packets" in p.stdout, (p.stdout, p.stderr)
+    frames = read_recording(tmp_path / "x.mcap").frames
+    assert len(frames) == 8
+    # The request's packet (at 0.010 s) lost its time: it has the ACK's before it.
+    assert frames[0].complete_ns == 1_700_000_000_002_000_000

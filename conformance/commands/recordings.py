@@ -458,6 +458,7 @@ def _run_diff(args: argparse.Namespace) -> int:
 
 def _run_import_pcap(args: argparse.Namespace) -> int:
     from ..pcap import DEFAULT_TCP_PORTS, DEFAULT_UDP_PORTS, import_pcap
+    from ..pcap.read import CaptureDamage
 
     for flag, ports in (
         ("--port", args.port),
@@ -470,6 +471,7 @@ def _run_import_pcap(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     tports = tuple(args.port) or DEFAULT_TCP_PORTS
     uports = tuple(args.udp_port) or DEFAULT_UDP_PORTS
+    damage: list[CaptureDamage] = []
     st = import_pcap(
         args.pcap,
         args.out,
@@ -478,6 +480,7 @@ def _run_import_pcap(args: argparse.Namespace) -> int:
         specs=specs_of(args),
         # Ports named: those only.  Else the defaults and what looks like the protocol.
         guess=not (args.port or args.udp_port),
+        damage=damage,
         state_ports=tuple(args.state_port),
     )
     dt = time.perf_counter() - t0
@@ -499,7 +502,9 @@ def _run_import_pcap(args: argparse.Namespace) -> int:
             f"also taken, their first bytes being a frame: {flows}; to take only the "
             f"controller's ports, name them ({named})"
         )
-    return 0
+    for d in damage:  # what was read is imported; what was not is said, and not a success
+        print(f"damaged: {args.pcap}: {d}", file=sys.stderr)
+    return EXIT_DAMAGED if damage else 0
 
 
 def _run_export_pcap(args: argparse.Namespace) -> int:

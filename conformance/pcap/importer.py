@@ -23,8 +23,9 @@ from ..recording import (
     read_recording,
     utc_time,
 )
+from ..recording.salvage import Damage
 from ..spec import SpecSet
-from .read import read_packets
+from .read import CaptureDamage, read_packets
 from .recorder import (
     DEFAULT_TCP_PORTS,
     DEFAULT_UDP_PORTS,
@@ -82,13 +83,27 @@ def read_capture(
         return read_recording(p)
     if fmt is None:
         raise CaptureError(f"{p}: neither an MCAP recording nor a pcap/pcapng capture", path=str(p))
+    lost: list[CaptureDamage] = []
     with tempfile.TemporaryDirectory(prefix="fairino-capture-") as d:
         out = os.path.join(d, "imported.mcap")
         import_pcap(
-            p, out, tcp_ports=tcp_ports, udp_ports=udp_ports, specs=specs, state_ports=state_ports
+            p,
+            out,
+            tcp_ports=tcp_ports,
+            udp_ports=udp_ports,
+            specs=specs,
+            state_ports=state_ports,
+            damage=lost,
         )
         rec = read_recording(out)
-    return dataclasses.replace(rec, path=p)
+    return dataclasses.replace(rec, path=p, damage=rec.damage + tuple(map(as_damage, lost)))
+
+
+def as_damage(d: CaptureDamage) -> Damage:
+    """A capture's damaged part as a recording's (what ``check`` and ``info`` name)."""
+    cost = str(d).rsplit("; ", 1)[-1]
+    where = f"capture record {d.record}" if d.record else "the capture"
+    return Damage(where=where, offset=d.offset, reason=d.reason, lost=None, cost=cost)
 
 
 def import_pcap(
@@ -99,6 +114,7 @@ def import_pcap(
     udp_ports: Iterable[int] = DEFAULT_UDP_PORTS,
     specs: SpecSet | None = None,
     guess: bool = True,
+    damage: list[CaptureDamage] | None = None,
     state_ports: Iterable[int] = (),
 ) -> ImportStats:
     """Turn a pcap/pcapng capture into a recording (see the module docstring).
@@ -107,8 +123,10 @@ def import_pcap(
     ``/fairino/state`` message a packet).
     Flows to or from ``tcp_ports`` and ``udp_ports`` are taken, and with ``guess`` also
     those on other ports whose first payload is a frame head (``ImportStats.guessed``
-    names them).  ``out`` appears only once the import succeeded: it is written to a temporary file
-    next to it and renamed (a failure removes the temporary file)."""
+    names them).  A damaged capture is imported as far as it reads, each damaged part
+    appended to ``damage`` (:func:`~.read.read_packets`).  ``out`` appears only once the
+    import succeeded: it is written to a temporary file next to it and renamed (a failure
+    removes the temporary file)."""
     tports, uports = frozenset(tcp_ports), frozenset(udp_ports)
     sports = frozenset(state_ports)
     bad = sorted(p for p in tports | uports | sports if not 0 < p < 65536)
@@ -119,7 +137,7 @@ def import_pcap(
 
         specs = default_specs()
     with atomic_output(out) as tmp:
-        return _import(path, tmp, tports, uports, specs, guess, sports)
+        return _import(path, tmp, tports, uports, specs, guess, sports, damage=damage)
 
 
 def _import(
@@ -130,8 +148,10 @@ def _import(
     specs: SpecSet,
     guess: bool,
     sports: frozenset[int] = frozenset(),
+    *,
+    damage: list[CaptureDamage] | None = None,
 ) -> ImportStats:
-    stream = read_packets(path)
+    stream = read_packets(path, damage)
     first = next(stream, None)
     # The traffic started with the capture's first packet, not when it was imported
     # (``imported_time``); an empty capture has no first packet: the import time then.

@@ -11,53 +11,153 @@ from __future__ import annotations
 
 import os
 import struct
-from collections.abc import Iterator
+import zlib
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from typing import Any
 
 from ..errors import CaptureError
 
+__all__ = ["CaptureDamage", "read_packets"]
 
-def read_packets(path: str | os.PathLike[str]) -> Iterator[tuple[int, int, bytes]]:
+
+@dataclass(frozen=True, kw_only=True)
+class CaptureDamage:
+    """A part of a capture that could not be read: record (or pcapng block) ``record``
+    at ``offset`` (of the file, of its decompressed bytes for a ``.gz``), why, and what
+    it cost: ``skipped`` bytes up to the next record that reads, or None when reading
+    stopped there (what follows is lost)."""
+
+    record: int
+    offset: int
+    reason: str
+    skipped: int | None
+
+    def __str__(self) -> str:
+        cost = (
+            "reading stops here: what follows is lost"
+            if self.skipped is None
+            else f"{self.skipped} bytes skipped to the next record that reads"
+        )
+        where = f"record {self.record} at offset" if self.record else "at offset"
+        return f"{where} {self.offset}: {self.reason}; {cost}"
+
+
+def read_packets(
+    path: str | os.PathLike[str], damage: list[CaptureDamage] | None = None
+) -> Iterator[tuple[int, int, bytes]]:
     """(link type, time in ns, bytes) for each packet of a pcap or pcapng file.
 
     scapy opens the file (gzip too) and reads its header at once (a file that is not a
     capture is a :class:`~conformance.errors.CaptureError` here), and reads pcapng blocks;
     the records of a classic pcap are read by :func:`_classic_records`.  The file is
-    closed when the iterator is exhausted or closed."""
+    closed when the iterator is exhausted or closed.
+
+    A damaged capture gives what can be read: each damaged part (a record length that
+    cannot be right, a compressed file cut short, a pcapng block past its bound) is
+    appended to ``damage`` as a :class:`CaptureDamage`, never silently dropped; a
+    classic pcap is read on from the next record that reads."""
     from scapy.error import Scapy_Exception
     from scapy.utils import RawPcapNgReader, RawPcapReader
 
+    name = os.fspath(path)
     try:
-        reader = RawPcapReader(os.fspath(path))
+        reader = RawPcapReader(name)
     except FileNotFoundError:
-        raise CaptureError(f"no such capture: {os.fspath(path)}", path=os.fspath(path)) from None
-    except Scapy_Exception as e:
-        raise CaptureError(f"{os.fspath(path)}: {e}", path=os.fspath(path)) from None
+        raise CaptureError(f"no such capture: {name}", path=name) from None
+    except (Scapy_Exception, EOFError, OSError, zlib.error) as e:
+        # A .gz cut inside the header, or not gzip after all: the file's fault.
+        raise CaptureError(f"{name}: {e}", path=name) from None
+    sink = damage if damage is not None else []
     # The generator itself is returned (not delegated to with ``yield from``: that is
     # one more frame to resume for every packet).
     if isinstance(reader, RawPcapNgReader):
-        return _pcapng_blocks(reader, os.fspath(path))
-    return _classic_records(reader)
+        return _pcapng_blocks(reader, name, sink)
+    return _classic_records(reader, sink)
 
 
-def _pcapng_blocks(reader: Any, name: str) -> Iterator[tuple[int, int, bytes]]:
+class _Bounded:
+    """scapy's pcapng reader's file, its reads bounded: a block length asks scapy to
+    read up to 4 GiB at once (the length field is 32 bits), and a read of N bytes
+    allocates N first.  A read over the bound is refused (an ``OSError``, which scapy
+    turns into the end of its reading); :attr:`refused` and :attr:`short` say why the
+    reading ended."""
+
+    def __init__(self, f: Any, bound: int) -> None:
+        self._f = f
+        self._bound = bound
+        self.offset = 0  # bytes read so far (the next read's offset)
+        self.refused = 0  # a read refused, its size
+        self.short: tuple[int, int] | None = None  # the last read's (asked, got), if short
+        self.error = ""  # the file's own error (a .gz cut short, corrupt)
+
+    def read(self, n: int = -1) -> bytes:
+        if n < 0 or n > self._bound:
+            self.refused = n
+            raise OSError(f"a read of {n} bytes, past the bound of {self._bound}")
+        try:
+            data: bytes = self._f.read(n)
+        except (EOFError, OSError, zlib.error) as e:
+            self.error = f"{type(e).__name__}: {e}"
+            raise OSError(self.error) from None
+        self.short = (n, len(data)) if len(data) < n else None
+        self.offset += len(data)
+        return data
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._f, name)
+
+
+def _pcapng_blocks(
+    reader: Any, name: str, damage: list[CaptureDamage]
+) -> Iterator[tuple[int, int, bytes]]:
     from scapy.error import Scapy_Exception
 
+    # The section header was read by scapy already (its length is the offset now).
+    f = reader.f = _Bounded(reader.f, _MAX_PACKET + _BLOCK_OVERHEAD)
+    try:
+        f.offset = f._f.tell()
+    except (OSError, AttributeError):
+        f.offset = 0
+    blocks = 0
+    last_t = 0
     with reader:
         # Iterating scapy's readers asks for ``size=MTU`` (65,535) and silently cuts
         # longer packets; a loopback capture with TSO/GRO holds 65,536+ byte ones.
         # ``_read_packet(size=...)`` is the reader's own call with a size: a block
         # is read whole (its length is in the file), so nothing is cut.
         while True:
+            at = f.offset
             try:
                 data, md = reader._read_packet(size=_MAX_PACKET)
             except EOFError:
+                # The end, or scapy's word for a block it could not read: which one is
+                # told by the reads (pcapng blocks carry no marker to resync on).
+                why = _pcapng_end(f)
+                if why:
+                    damage.append(
+                        CaptureDamage(record=blocks + 1, offset=at, reason=why, skipped=None)
+                    )
                 return
-            except Scapy_Exception as e:  # e.g. a corrupt section header further on
-                raise CaptureError(f"{name}: {e}", path=name) from None
-            ts = (md.tshigh << 32) | md.tslow
-            res = md.tsresol or 1_000_000
-            t = ts * 1_000_000_000 // res
+            except (Scapy_Exception, struct.error, ValueError) as e:
+                # e.g. a corrupt section header or option further on
+                damage.append(
+                    CaptureDamage(
+                        record=blocks + 1,
+                        offset=at,
+                        reason=f"{type(e).__name__}: {e}",
+                        skipped=None,
+                    )
+                )
+                return
+            blocks += 1
+            if md.tshigh is None or md.tslow is None:
+                # A simple packet block has no time (pcapng 4.4): the one before's.
+                t = last_t
+            else:
+                ts = (md.tshigh << 32) | md.tslow
+                res = md.tsresol or 1_000_000
+                t = ts * 1_000_000_000 // res
             if t >> 64:
                 # A 64-bit timestamp read with a corrupt resolution (a classic pcap's
                 # 32-bit seconds always fit): no recording can hold the time.
@@ -66,17 +166,46 @@ def _pcapng_blocks(reader: Any, name: str) -> Iterator[tuple[int, int, bytes]]:
                     "holds (2^64 ns): a corrupt pcapng block?",
                     path=name,
                 )
+            last_t = t
             yield md.linktype, t, data
+
+
+def _pcapng_end(f: _Bounded) -> str:
+    """Why scapy's pcapng reading ended: "" for the file's end, else what broke."""
+    if f.error:
+        return f"the file cannot be read on ({f.error})"
+    if f.refused:
+        return (
+            f"a block length asks for {f.refused} bytes, past the bound of "
+            f"{_MAX_PACKET + _BLOCK_OVERHEAD} (a corrupt length)"
+        )
+    if f.short is not None and f.short[1] > 0:
+        asked, got = f.short
+        return f"a block length asks for {asked} more bytes where {got} are left"
+    if f.short is not None and f.short[0] > 4:
+        return f"a block length asks for {f.short[0]} more bytes where none are left"
+    try:
+        more = f._f.read(1)
+    except (EOFError, OSError, zlib.error):
+        more = b""
+    if more:  # scapy stopped before the end: a block length under 12, say
+        return "a block that cannot be read (its length is less than a block's header)"
+    return ""
 
 
 #: Largest packet read whole (a pcapng block or pcap record claiming more is cut here,
 #: bounding memory against a corrupt length field; Linux BIG TCP packets reach 512 KB).
 _MAX_PACKET = 16 << 20
+#: A pcapng block's bytes besides its packet data (headers, options), at most.
+_BLOCK_OVERHEAD = 1 << 16
 #: Bytes of a classic pcap read at a time; the records in them are sliced out of it.
 _CHUNK = 1 << 20
+#: A record whose seconds are further than this from the last good record's is not
+#: taken as the next record when reading resyncs after a damaged one.
+_RESYNC_SECONDS = 86_400
 
 
-def _classic_records(reader: Any) -> Iterator[tuple[int, int, bytes]]:
+def _classic_records(reader: Any, damage: list[CaptureDamage]) -> Iterator[tuple[int, int, bytes]]:
     """(link type, time in ns, bytes) of each record of a classic pcap whose header
     scapy's ``RawPcapReader`` read (byte order, ns or µs, link type); a record cut short
     by the end of the file is the last one.
@@ -86,36 +215,93 @@ def _classic_records(reader: Any) -> Iterator[tuple[int, int, bytes]]:
     the file is read ``_CHUNK`` bytes at a time and each record is sliced out of the
     chunk (one ``unpack_from`` on its 16-byte header, one slice for its bytes), in about
     half the time.  A record longer than ``_MAX_PACKET`` keeps its first ``_MAX_PACKET``
-    bytes; the rest is skipped."""
+    bytes; the rest is skipped.
+
+    A record header that cannot be right (more bytes captured than the packet had on
+    the wire, a fraction of a second of a second or more) is damage: it is named in
+    ``damage`` and reading goes on at the next offset where a record header and the
+    one after it are plausible (:func:`_resync`); a file cut inside a record, or a
+    ``.gz`` cut short or corrupt, is named too."""
     head = struct.Struct(reader.endian + "IIII").unpack_from
     mult = 1 if reader.nano else 1000
+    fmax = 1_000_000_000 if reader.nano else 1_000_000
     linktype = reader.linktype
-    read = reader.f.read
+    f = reader.f
+    broken: list[str] = []
+    taken = [24]  # bytes of the (decompressed) file read so far
+
+    def read(n: int) -> bytes:
+        if broken:
+            return b""
+        try:
+            data: bytes = f.read(n)
+        except (EOFError, OSError, zlib.error) as e:  # a .gz cut short or corrupt
+            broken.append(f"the file cannot be read on ({type(e).__name__}: {e})")
+            # gzip's read loses what it decompressed in the call that failed: that
+            # much is decompressed again, as far as it goes.
+            return _gunzip_rest(reader.filename, taken[0]) if hasattr(f, "fileobj") else b""
+        taken[0] += len(data)
+        return data
+
     buf = b""
     pos = 0
+    off = 24  # the file offset of buf[0] (after the 24-byte file header)
+    n_rec = 0  # records read
     sec = base = 0  # base: sec in ns (most records share the second of the one before)
     with reader:
         while True:
             n = len(buf)
             while pos + 16 <= n:  # the records wholly in the buffer
-                s, frac, caplen, _wirelen = head(buf, pos)
+                s, frac, caplen, wirelen = head(buf, pos)
                 end = pos + 16 + caplen
-                if end > n or caplen > _MAX_PACKET:
+                if end > n or caplen > _MAX_PACKET or caplen > wirelen or frac >= fmax:
                     break
                 if s != sec:
                     sec, base = s, s * 1_000_000_000
+                n_rec += 1
                 yield linktype, base + frac * mult, buf[pos + 16 : end]
                 pos = end
             buf = buf[pos:]
+            off += pos
             pos = 0
             if len(buf) < 16:
                 more = read(_CHUNK)
                 if not more:
-                    return  # the end (or a record header cut short: nothing follows)
+                    # The end (or a record header cut short: nothing follows).
+                    where = off + len(buf)
+                    if broken:
+                        damage.append(
+                            CaptureDamage(record=0, offset=where, reason=broken[0], skipped=None)
+                        )
+                    elif buf:
+                        damage.append(
+                            CaptureDamage(
+                                record=n_rec + 1,
+                                offset=off,
+                                reason=f"the file ends inside its header ({len(buf)} of 16 bytes)",
+                                skipped=None,
+                            )
+                        )
+                    return
                 buf += more
                 continue
+            s, frac, caplen, wirelen = head(buf, 0)
+            why = _implausible(frac, caplen, wirelen, fmax)
+            if why:
+                # A length (or time) that cannot be right: the next record that reads.
+                buf, skipped = _resync(buf, read, head, fmax, sec if n_rec else None)
+                damage.append(
+                    CaptureDamage(record=n_rec + 1, offset=off, reason=why, skipped=skipped)
+                )
+                if skipped is None:
+                    if broken:
+                        damage.append(
+                            CaptureDamage(record=0, offset=off, reason=broken[0], skipped=None)
+                        )
+                    return
+                off += skipped
+                continue
             # A record the buffer holds only the start of (or longer than the bound).
-            s, frac, caplen, _wirelen = head(buf, 0)
             t = s * 1_000_000_000 + frac * mult
             want = 16 + min(caplen, _MAX_PACKET)
             while len(buf) < want:
@@ -123,6 +309,17 @@ def _classic_records(reader: Any) -> Iterator[tuple[int, int, bytes]]:
                 if not more:
                     # The file ends inside this record: its bytes are the last packet
                     # (as scapy's reader gives them), and nothing follows.
+                    damage.append(
+                        CaptureDamage(
+                            record=n_rec + 1,
+                            offset=off,
+                            reason=broken[0]
+                            if broken
+                            else f"the file ends inside it ({len(buf) - 16} of {caplen} bytes)",
+                            skipped=None,
+                        )
+                    )
+                    n_rec += 1
                     yield linktype, t, buf[16:]
                     return
                 buf += more
@@ -130,6 +327,7 @@ def _classic_records(reader: Any) -> Iterator[tuple[int, int, bytes]]:
                 continue  # whole in the buffer now
             data = buf[16:want]
             skip = caplen - (want - 16)
+            off += want + skip
             if len(buf) - want >= skip:
                 buf = buf[want + skip :]
             else:
@@ -140,4 +338,85 @@ def _classic_records(reader: Any) -> Iterator[tuple[int, int, bytes]]:
                     if not got:
                         break
                     skip -= got
+            n_rec += 1
             yield linktype, t, data
+
+
+def _gunzip_rest(name: str, skip: int) -> bytes:
+    """The decompressed bytes of the gzip file ``name`` after its first ``skip``, as far as
+    they decompress (at most ``_CHUNK`` + ``_MAX_PACKET``: the read that failed asked
+    for no more)."""
+    d = zlib.decompressobj(wbits=31)
+    out = bytearray()
+    seen = 0
+    try:
+        with open(name, "rb") as raw:
+            while len(out) < _CHUNK + _MAX_PACKET and not d.eof:
+                chunk = raw.read(1 << 16)
+                if not chunk:
+                    break
+                piece = d.decompress(chunk)
+                if seen + len(piece) > skip:
+                    out += piece[max(0, skip - seen) :]
+                seen += len(piece)
+    except (OSError, zlib.error):
+        pass
+    return bytes(out[: _CHUNK + _MAX_PACKET])
+
+
+def _implausible(frac: int, caplen: int, wirelen: int, fmax: int) -> str:
+    """Why a record header cannot be right ("" when it can)."""
+    if caplen > wirelen:
+        return (
+            f"its length {caplen} is more than the packet's length on the wire, "
+            f"{wirelen} (a corrupt length)"
+        )
+    if frac >= fmax:
+        return f"its fraction of a second, {frac}, is not below {fmax} (a corrupt header)"
+    return ""
+
+
+def _resync(
+    buf: bytes,
+    read: Callable[[int], bytes],
+    head: Callable[[bytes, int], tuple[int, int, int, int]],
+    fmax: int,
+    sec: int | None,
+) -> tuple[bytes, int | None]:
+    """From a damaged record header at ``buf[0]``, the next offset where a record header
+    is plausible and so is the one after it (or the file ends right after it): the
+    buffer from there and the bytes skipped; (b"", None) when none is found.
+
+    Plausible: its length within what the packet had on the wire and the bound, its
+    fraction of a second below one second, its seconds within a day of the last good
+    record's (``sec``).  Memory: the buffer holds at most a record and a chunk."""
+
+    def plausible(b: bytes, q: int) -> int:  # the record's length, or -1
+        s, frac, caplen, wirelen = head(b, q)
+        if _implausible(frac, caplen, wirelen, fmax) or caplen > _MAX_PACKET:
+            return -1
+        if sec is not None and abs(s - sec) > _RESYNC_SECONDS:
+            return -1
+        return caplen
+
+    dropped = 0
+    q = 1
+    eof = False
+    while True:
+        if q + 16 > len(buf):
+            more = b"" if eof else read(_CHUNK)
+            if not more:
+                return b"", None
+            dropped += q
+            buf, q = buf[q:] + more, 0
+            continue
+        caplen = plausible(buf, q)
+        if caplen >= 0:
+            nxt = q + 16 + caplen
+            while len(buf) < nxt + 16 and not eof:
+                more = read(max(_CHUNK, nxt + 16 - len(buf)))
+                eof = not more
+                buf += more
+            if len(buf) == nxt or (len(buf) >= nxt + 16 and plausible(buf, nxt) >= 0):
+                return buf[q:], dropped + q
+        q += 1

@@ -62,9 +62,13 @@ class Damage:
     lost: int | None
     #: The part is one message (skipped); else a chunk or region (its messages lost).
     message: bool = False
+    #: What it cost, in words, when not messages (a capture's records, say).
+    cost: str = ""
 
     def __str__(self) -> str:
-        if self.message:
+        if self.cost:
+            cost = self.cost
+        elif self.message:
             cost = "skipped"
         elif self.lost is None:
             cost = "an unknown number of messages are lost"
