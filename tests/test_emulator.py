@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import socket
 import threading
 import time
@@ -606,3 +607,34 @@ def test_decoder_failure_closes_only_that_connection(monkeypatch: pytest.MonkeyP
     # Not a frame: nothing to blame but the protocol as a whole (client mode's ID 0).
     assert (drop.kind, drop.cmd_id, drop.raw) == ("error", None, b"")
     assert "RecursionError: seeded decoder failure" in drop.reason
+
+
+def test_one_datagram_never_brings_back_more_than_its_reply_budget() -> None:
+    """A datagram full of requests got a reply packet for each (1,336 from one): the replies
+    to one datagram stop at UDP_REPLY_FACTOR times its size, and the drop is recorded."""
+    from conformance.net.emulator import UDP_REPLY_FACTOR
+
+    query = encode_frame(1, 427, "GetJointSoftLimitDeg(0)")  # replies 2.4x its size
+    datagram = query * 10
+    with EmulatorServer(udp_port=0) as emu, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as u:
+        assert emu.udp_address is not None
+        u.settimeout(30)
+        u.sendto(datagram, emu.udp_address)  # within the default budget: every frame answered
+        replies = [u.recv(65535) for _ in range(10)]
+        assert all(r.startswith(b"/f/bIII1III427III") for r in replies)
+        emu.udp_reply_factor = 1.0  # a budget the same datagram's replies pass
+        u.sendto(datagram, emu.udp_address)
+        assert emu.wait_for(lambda: emu.dropped_total == 1, timeout=10)
+        u.setblocking(False)
+        sent = []
+        with contextlib.suppress(BlockingIOError):
+            while True:
+                sent.append(u.recv(65535))
+        assert 1 <= len(sent) < 10
+        assert sum(len(r) + 28 for r in sent) <= 1.0 * (len(datagram) + 28)
+        (drop,) = emu.dropped
+        assert drop.kind == "limit" and drop.cmd_id == 427
+        assert f"{10 - len(sent)} of its 10 frames unanswered" in drop.reason
+    # The default budget holds the largest reply there is to its smallest request, each
+    # reply in a datagram (and headers) of its own: 2.8 times here.
+    assert sum(len(r) + 28 for r in replies) <= UDP_REPLY_FACTOR * (len(datagram) + 28)

@@ -82,6 +82,12 @@ _log = logging.getLogger(__name__)
 
 _IDLE = 0.2  # seconds of silence before a pending frame is decided on
 _UDP_MAX = 65535
+#: The most bytes the emulator sends back for one datagram, as a multiple of its own size,
+#: IP and UDP headers counted on both sides (28 bytes a datagram): a spoofed source cannot
+#: turn it into an amplifier.  The largest reply of any command to its smallest request is
+#: 2.4 times the request (GetJointSoftLimitDeg), well inside.
+UDP_REPLY_FACTOR = 4.0
+_UDP_HEADERS = 28
 _DROPPED_KEPT = 100  # Dropped records kept (the total is counted)
 _DROPS_LOGGED = 20  # drops logged one line each; the rest are counted
 _KIT_ERRORS_KEPT = 10
@@ -193,6 +199,8 @@ class EmulatorServer:
         self._on_close = on_close
         self.max_connections = max_connections
         self.max_frame_size = max_frame_size
+        #: Replies to one datagram stop at this multiple of its size (UDP_REPLY_FACTOR).
+        self.udp_reply_factor = UDP_REPLY_FACTOR
         self.reraise_kit_errors = reraise_kit_errors
         # The model's lock: held for one event's answer at a time, never across
         # socket I/O, so a slow or stalled client cannot hold up the others.
@@ -586,19 +594,42 @@ class EmulatorServer:
             peer=name,
             cc=self.controller.connection(max_frame_size=self.max_frame_size, transport="udp"),
         )
+        # What may go back for this datagram (UDP_REPLY_FACTOR), in bytes on the wire.
+        budget = [self.udp_reply_factor * (len(data) + _UDP_HEADERS)]
         try:
             # Each datagram is a stream of its own (frames do not span datagrams).
             events = s.cc.decoder.feed(data) + s.cc.decoder.close()
-            for ev in events:
-                if not self._udp_perform(self._udp, addr, self._answer(s, ev)):
+            for k, ev in enumerate(events):
+                if not self._udp_perform(self._udp, addr, self._answer(s, ev), budget):
+                    if budget[0] < 0:
+                        self._record(
+                            Dropped(
+                                peer=name,
+                                kind="limit",
+                                reason=f"replies to one datagram of {len(data)} bytes would pass "
+                                f"{self.udp_reply_factor:g} times its size; "
+                                f"{len(events) - k} of its {len(events)} frames unanswered",
+                                cmd_id=ev.cmd_id if isinstance(ev, Frame) else None,
+                            )
+                        )
                     break
         except Exception as e:  # this datagram only
             self._closed(name, self._failed(s, e))
 
     def _udp_perform(
-        self, udp: socket.socket, addr: tuple[str, int], actions: list[Action]
+        self,
+        udp: socket.socket,
+        addr: tuple[str, int],
+        actions: list[Action],
+        budget: list[float] | None = None,
     ) -> bool:
+        """Send ``actions``' replies; False to stop answering the datagram (a crash, or
+        ``budget``, the bytes it may still bring back, spent: then it is left negative)."""
         for a in actions:
+            if budget is not None and a.data:
+                budget[0] -= len(a.data) + _UDP_HEADERS
+                if budget[0] < 0:
+                    return False
             if a.crash:
                 self._crash(a.delay)
                 return False
