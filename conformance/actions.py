@@ -27,7 +27,7 @@ class Action:
 
 
 #: What closed a connection, in :attr:`Dropped.kind`.
-DropKind = Literal["error", "protocol", "limit", "slow"]
+DropKind = Literal["error", "protocol", "limit", "slow", "idle"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -38,7 +38,7 @@ class Dropped:
     should have turned into a verdict: a bug), ``"protocol"`` the kit's own
     protocol error escaped while judging them, ``"limit"`` a server limit
     (``--max-connections``, no thread left), ``"slow"`` the peer stopped reading
-    its replies.  ``cmd_id`` and ``raw`` name the frame being handled (``None``
+    its replies, ``"idle"`` the peer sent nothing for ``--idle-timeout`` seconds.  ``cmd_id`` and ``raw`` name the frame being handled (``None``
     and ``b""`` when it was not a frame).
     """
 

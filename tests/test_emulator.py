@@ -638,3 +638,26 @@ def test_one_datagram_never_brings_back_more_than_its_reply_budget() -> None:
     # The default budget holds the largest reply there is to its smallest request, each
     # reply in a datagram (and headers) of its own: 2.8 times here.
     assert sum(len(r) + 28 for r in replies) <= UDP_REPLY_FACTOR * (len(datagram) + 28)
+
+
+def test_an_idle_client_is_closed_after_idle_timeout() -> None:
+    """256 idle connections locked every new client out (no idle timeout): a client that
+    sends nothing for --idle-timeout seconds is closed, and the drop says why."""
+    with EmulatorServer(idle_timeout=0.5) as emu:
+        with socket.create_connection(emu.address, timeout=30) as quiet:
+            assert emu.wait_for(lambda: emu.dropped_total == 1, timeout=30)
+            assert quiet.recv(1) == b""  # closed by the emulator, not by this test
+        (drop,) = emu.dropped
+        assert drop.kind == "idle" and "sent nothing for" in drop.reason
+        assert "--idle-timeout 0.5" in drop.reason
+        with socket.create_connection(emu.address, timeout=30) as busy:  # a talking one stays
+            assert _exchange(busy, encode_frame(5, 201, 'MoveJ("P1")')) == encode_frame(5, 201, "1")
+    with EmulatorServer(idle_timeout=None) as emu:
+        assert emu.idle_timeout is None
+
+
+def test_idle_timeout_option_is_checked(capsys: pytest.CaptureFixture[str]) -> None:
+    from conformance.cli import main
+
+    assert main(["emulate", "--idle-timeout", "-1", "--listen", "127.0.0.1:0"]) == 2
+    assert "--idle-timeout must be 0 (never) or a number of seconds" in capsys.readouterr().err

@@ -64,8 +64,16 @@ def _add_emulate(sub: Any) -> None:
 def _add_limits(p: Any) -> None:
     """What one client may cost the emulator (``emulate`` and ``serve``)."""
     from ..frame import DEFAULT_MAX_FRAME_SIZE
-    from ..net._server import DEFAULT_MAX_CONNECTIONS
+    from ..net._server import DEFAULT_IDLE_TIMEOUT, DEFAULT_MAX_CONNECTIONS
 
+    p.add_argument(
+        "--idle-timeout",
+        type=float,
+        default=DEFAULT_IDLE_TIMEOUT,
+        metavar="SECONDS",
+        help="close a TCP client that sends nothing for this long, so idle connections "
+        f"cannot lock new clients out (default {DEFAULT_IDLE_TIMEOUT:g}; 0: never)",
+    )
     p.add_argument(
         "--max-connections",
         type=int,
@@ -130,9 +138,12 @@ def _limits(args: argparse.Namespace) -> dict[str, Any]:
         raise UsageError("--max-connections must be at least 1")
     if args.max_frame_size < 64:
         raise UsageError("--max-frame-size must be at least 64 bytes")
+    if not args.idle_timeout >= 0:
+        raise UsageError("--idle-timeout must be 0 (never) or a number of seconds")
     return {
         "max_connections": args.max_connections,
         "max_frame_size": args.max_frame_size,
+        "idle_timeout": args.idle_timeout or None,
         "reraise_kit_errors": False,
     }
 

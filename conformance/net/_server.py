@@ -62,6 +62,11 @@ TRANSIENT_ERRNOS = frozenset(
 #: Connections served at once; more are accepted and closed at once.  256 threads
 #: and descriptors stay well inside the usual ``ulimit -n`` of 1024.
 DEFAULT_MAX_CONNECTIONS = 256
+#: Seconds a TCP client may send nothing before its connection is closed: 256 idle
+#: connections locked every new client out.  Ten minutes outlasts the pauses of real
+#: sessions (the SDKs poll state on their own ports, and a client that waits on a
+#: motion sends nothing on 8080 meanwhile); ``--idle-timeout 0`` never closes one.
+DEFAULT_IDLE_TIMEOUT = 600.0
 
 BACKOFF_FIRST = 0.01
 BACKOFF_MAX = 1.0

@@ -49,6 +49,7 @@ from ..model import STATE_VERSION, Controller, ControllerConnection
 from ..spec import SpecSet
 from ._server import (
     BACKOFF_MAX,
+    DEFAULT_IDLE_TIMEOUT,
     DEFAULT_MAX_CONNECTIONS,
     Backoff,
     ConnectionSet,
@@ -174,6 +175,7 @@ class EmulatorServer:
         on_close: OnClose | None = None,
         max_connections: int = DEFAULT_MAX_CONNECTIONS,
         max_frame_size: int = DEFAULT_MAX_FRAME_SIZE,
+        idle_timeout: float | None = DEFAULT_IDLE_TIMEOUT,
         reraise_kit_errors: bool = True,
         judge: Judge | None = None,
         dispatch: str = "recorded",
@@ -199,6 +201,8 @@ class EmulatorServer:
         self._on_close = on_close
         self.max_connections = max_connections
         self.max_frame_size = max_frame_size
+        #: A TCP client that sends nothing for this long is closed (None or 0: never).
+        self.idle_timeout = idle_timeout or None
         #: Replies to one datagram stop at this multiple of its size (UDP_REPLY_FACTOR).
         self.udp_reply_factor = UDP_REPLY_FACTOR
         self.reraise_kit_errors = reraise_kit_errors
@@ -541,15 +545,22 @@ class EmulatorServer:
 
     def _converse(self, conn: socket.socket, s: _Session) -> None:
         dec = s.cc.decoder
+        heard = time.monotonic()
         while not self._stop.is_set():
             try:
                 data = conn.recv(65536)
             except TimeoutError:
                 if dec.buffered and not self._handle(conn, s, dec.resolve_pending()):
                     return
+                idle = time.monotonic() - heard
+                if self.idle_timeout is not None and idle >= self.idle_timeout:
+                    reason = f"sent nothing for {idle:.0f} s (--idle-timeout {self.idle_timeout:g})"
+                    s.drop = Dropped(peer=s.peer, kind="idle", reason=reason)
+                    return
                 continue
             except OSError:
                 return
+            heard = time.monotonic()
             if not data:
                 self._handle(conn, s, dec.close())
                 return
