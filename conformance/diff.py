@@ -32,6 +32,7 @@ __all__ = [
     "Ignore",
     "compare_replies",
     "diff_recordings",
+    "diff_state",
 ]
 
 #: Difference kinds.
@@ -45,6 +46,7 @@ KINDS = (
     "framing",
     "closed",
     "verdict",
+    "state",
 )
 
 
@@ -81,6 +83,7 @@ IGNORE_RULES: dict[str, str] = {
     "framing": "framing problems or malformed bytes before a reply changed",
     "closed": "the target closed the connection instead of replying",
     "verdict": "the judge's verdict on a reply changed",
+    "state": "the state port's stream changed shape: layout, fields, period, problems (diff)",
     "volatile": "volatile values changed type too",
     "latency": "a command's p50 latency changed (diff)",
     "missing": "missing_reply, and requests only in A (diff)",
@@ -357,10 +360,12 @@ class DiffResult:
     a: str
     b: str
     commands: dict[int, CommandDiff]
+    #: How the state port's streams differ in shape (:func:`diff_state`).
+    state: list[Difference] = field(default_factory=list)
 
     @property
     def changed(self) -> bool:
-        return any(c.changed for c in self.commands.values())
+        return bool(self.state) or any(c.changed for c in self.commands.values())
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -368,6 +373,7 @@ class DiffResult:
             "b": self.b,
             "changed": self.changed,
             "commands": {str(k): v.to_json() for k, v in sorted(self.commands.items())},
+            "state": [d.to_json() for d in self.state],
         }
 
     def render(self, *, all_commands: bool = False) -> str:
@@ -391,6 +397,8 @@ class DiffResult:
                 lines.append(f"         {d.kind}: {d.detail}")
         changed = sum(1 for c in self.commands.values() if c.changed)
         lines.append(f"{changed} of {len(self.commands)} command IDs differ")
+        for d in self.state:
+            lines.append(f"state port: {d.detail}")
         return "\n".join(lines)
 
 
@@ -483,7 +491,116 @@ def diff_recordings(
                 )
     for cid in [k for k, c in cmds.items() if ignore.skips_command(k, c.name)]:
         del cmds[cid]
-    return DiffResult(a=a.path, b=b.path, commands=cmds)
+    state = [] if "state" in ignore.kinds else diff_state(a, b, specs=specs)
+    return DiffResult(a=a.path, b=b.path, commands=cmds, state=state)
+
+
+# --------------------------------------------------------------------------- the state port
+
+
+def _value_shape(v: Any) -> str:
+    """A decoded state field's shape: its values are volatile (joints, currents, times)."""
+    if isinstance(v, bool):
+        return "bool"
+    if isinstance(v, int):
+        return "int"
+    if isinstance(v, float) or v is None:  # a non-finite float is recorded as null
+        return "float"
+    if isinstance(v, str):
+        return "text"
+    if isinstance(v, list):
+        return f"{_value_shape(v[0]) if v else '?'}[{len(v)}]"
+    if isinstance(v, dict):
+        return "{" + ",".join(f"{k}:{_value_shape(x)}" for k, x in v.items()) + "}"
+    return type(v).__name__
+
+
+@dataclass(frozen=True)
+class _StateShape:
+    versions: frozenset[str]
+    lengths: frozenset[int]
+    fields: dict[str, str]
+    period_ms: float | None
+    problems: frozenset[str]
+    packets: int
+
+
+def _state_shape(rec: Recording, version: str | None) -> _StateShape | None:
+    from .state_check import state_figures
+
+    if not rec.states and not rec.state_problems:
+        return None
+    figs = state_figures(rec, version=version)
+    medians = [f.to_json()["interval_ms"]["median"] for f in figs]
+    periods = [m for m in medians if m is not None]
+    fields: dict[str, str] = {}
+    for s in rec.states:
+        if s.checksum_ok and s.fields:
+            fields = {k: _value_shape(v) for k, v in s.fields.items()}
+            break
+    return _StateShape(
+        versions=frozenset(v for f in figs for v in f.versions),
+        lengths=frozenset(s.length for s in rec.states),
+        fields=fields,
+        period_ms=min(periods) if periods else None,
+        problems=frozenset(k for f in figs for k in f.problems),
+        packets=sum(f.packets for f in figs),
+    )
+
+
+def diff_state(
+    a: Recording, b: Recording, *, specs: SpecSet | None = None, period_tolerance: float = 0.5
+) -> list[Difference]:
+    """How B's state-port stream differs from A's, by shape: present or not, the layout
+    versions its packets' LEN matched, the fields and their types (values are volatile:
+    joints, currents, times), the period (median packet interval, beyond
+    ``period_tolerance`` of A's and 2 ms) and the kinds of problem the state decoder finds
+    (read again as ``check`` reads them, against ``specs``' layout)."""
+    version = specs.spec_version if specs is not None else None
+    sa, sb = _state_shape(a, version), _state_shape(b, version)
+    out: list[Difference] = []
+
+    def add(detail: str, recorded: str = "", new: str = "") -> None:
+        out.append(Difference(kind="state", cmd_id=0, detail=detail, recorded=recorded, new=new))
+
+    if sa is None and sb is None:
+        return out
+    if sa is None or sb is None:
+        which = "A" if sb is None else "B"
+        add(f"a state stream only in {which}")
+        return out
+
+    def vs(x: Iterable[Any]) -> str:
+        return ", ".join(sorted(map(str, x))) or "none"
+
+    if sa.versions != sb.versions:
+        add(f"layout {vs(sb.versions)} (recorded {vs(sa.versions)})")
+    elif sa.lengths != sb.lengths:
+        add(f"LEN {vs(sb.lengths)} (recorded {vs(sa.lengths)})")
+    if sa.fields and sb.fields and sa.fields != sb.fields:
+        gone = [k for k in sa.fields if k not in sb.fields]
+        new = [k for k in sb.fields if k not in sa.fields]
+        retyped = [
+            f"{k} {sb.fields[k]} (recorded {sa.fields[k]})"
+            for k in sa.fields
+            if k in sb.fields and sa.fields[k] != sb.fields[k]
+        ]
+        parts = []
+        if new:
+            parts.append(f"fields added: {', '.join(new[:8])}{' ...' if len(new) > 8 else ''}")
+        if gone:
+            parts.append(f"fields gone: {', '.join(gone[:8])}{' ...' if len(gone) > 8 else ''}")
+        if retyped:
+            parts.append(f"fields re-typed: {'; '.join(retyped[:4])}")
+        add("; ".join(parts))
+    pa, pb = sa.period_ms, sb.period_ms
+    if pa is not None and pb is not None:
+        delta = abs(pb - pa)
+        if delta > 2 and delta > period_tolerance * pa:
+            add(f"period {pb:g} ms (recorded {pa:g} ms)")
+    if sa.problems != sb.problems:
+        add(f"state problems {vs(sb.problems)} (recorded {vs(sa.problems)})")
+    return out
 
 
 def _show(e: RecordedExchange) -> str:

@@ -346,3 +346,29 @@ def test_check_and_info_cli_on_a_clean_and_a_faulty_state_stream(tmp_path: Path)
     assert gaps and "(1 packet lost)" in gaps[0]["detail"], cases
     text = cli_run("info", str(bad)).stdout
     assert "checksum failures, layout v3.8.2" in text and "cnt_gap=" in text
+
+
+def test_diff_compares_the_state_streams_by_shape(tmp_path: Path) -> None:
+    from conformance.diff import Ignore, diff_recordings
+    from conformance.spec import default_specs
+
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    (tmp_path / "c").mkdir()
+    a = read_recording(record_emulator(tmp_path / "a", [], packets=10))
+    same = read_recording(record_emulator(tmp_path / "b", [], packets=10))
+    other = read_recording(record_emulator(tmp_path / "c", ["state_layout"], packets=10))
+    specs = default_specs()
+    quiet = Ignore.parse(["latency"])
+    # Joints and times differ between two runs; the shape does not.
+    assert diff_recordings(a, same, specs=specs, ignore=quiet).state == []
+    res = diff_recordings(a, other, specs=specs, ignore=quiet)
+    details = [d.detail for d in res.state]
+    assert "layout 3.9.8 (recorded 3.8.2)" in details
+    assert any(d.startswith("fields added: smartToolState, toolCoord") for d in details)
+    assert "state problems layout (recorded none)" in details
+    assert res.changed and res.to_json()["state"][0]["kind"] == "state"
+    assert "state port: layout 3.9.8 (recorded 3.8.2)" in res.render()
+    assert not diff_recordings(
+        a, other, specs=specs, ignore=Ignore.parse(["latency", "state"])
+    ).state
