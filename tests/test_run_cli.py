@@ -6,6 +6,7 @@ import json
 import re
 import socket
 import subprocess
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -63,6 +64,34 @@ def test_whole_suite_against_a_refusing_target_stops_in_one_line(tmp_path: Path)
     assert written == "reports written: r.json"
     doc = json.loads((tmp_path / "r.json").read_text(encoding="utf-8"))
     assert doc["stopped"] == line
+
+
+def test_a_target_whose_every_reply_pairs_with_no_request_stops_the_run(
+    tmp_path: Path, unanswered: Callable[..., None]
+) -> None:
+    """Wrong CNT in every reply: the target answers, so it counted as alive and a run went on
+    for about two hours.  Cases of 8 command IDs in a row with no paired reply stop it (exit
+    2, one line); a fault on a few commands never does (their neighbours pair)."""
+    from conformance.suite.liveness import ASTRAY_COMMANDS
+
+    unanswered()  # no reply pairs with any request: each wait must expire (0.2 s, not 2)
+    proc = run("--emulator-fault", "wrong_cnt", "--report-json", "r.json", cwd=tmp_path)
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    last = proc.stderr.strip().splitlines()[-1]
+    assert "paired no reply with its request in the last" in last
+    assert f"({ASTRAY_COMMANDS} command IDs, up to case " in last
+    doc = json.loads((tmp_path / "r.json").read_text(encoding="utf-8"))
+    ran = [c for cmd in doc["commands"].values() for c in cmd["cases"] if not c.get("not_run")]
+    assert len({c["id"].split("/")[0] for c in ran}) == ASTRAY_COMMANDS
+    # Seven faulted commands in a row are failures of their own, not a dead target.
+    ids = "201,202,203,204,206,209,210"
+    unanswered(*map(int, ids.split(",")))
+    proc = run("--emulator-fault", f"wrong_cnt:{ids}", "--commands", f"{ids},212",
+               "--groups", "framing", "--report-json", "f.json", cwd=tmp_path)  # fmt: skip
+    assert proc.returncode == 1, proc.stdout + proc.stderr
+    doc = json.loads((tmp_path / "f.json").read_text(encoding="utf-8"))
+    assert doc["stopped"] is None
+    assert {k for k, c in doc["commands"].items() if c["outcome"] == "FAIL"} == set(ids.split(","))
 
 
 @pytest.mark.parametrize("behaviour", ["silent", "endless", "blob"])

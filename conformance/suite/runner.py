@@ -38,6 +38,7 @@ from ..verdict import Outcome, fails
 from .config import SuiteConfig
 from .evidence import describe_exchange, reproduction, shell_printf
 from .judging import RequestMemo, reply_classification, request_frame, transport_free
+from .liveness import AstrayWatch
 
 __all__ = [
     "Case",
@@ -144,6 +145,7 @@ class SuiteRunner:
         # closed): after the case, make sure it is still alive.
         self._suspect = False
         self._request_frames: tuple[tuple[bytes, int, int], Frame] | None = None
+        self._liveness = AstrayWatch()
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -233,6 +235,7 @@ class SuiteRunner:
 
     def _waited(self, ex: Exchange) -> None:
         """Note an exchange without a reply: silence past the case's end is not the target's fault."""
+        self._liveness.exchange(ex)
         if ex.reply is None:
             if not ex.unsolicited_count:
                 self._suspect = True
@@ -575,6 +578,9 @@ class SuiteRunner:
                 frames=verdict.frames,
                 raw=verdict.raw,
             )
+        astray = self._liveness.case_done(case.cmd_id, case.id)
+        if astray is not None and self.stopped is None:
+            self.stopped = self.report.stopped = f"target {self.target_label()} {astray}"
         if self._suspect and self.stopped is None:
             # The case ended with the target silent or gone: alive, or the run stops.
             self._suspect = False
