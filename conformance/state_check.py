@@ -26,7 +26,14 @@ from .recording import C2S, Recording
 from .report import CaseResult
 from .verdict import Outcome
 
-__all__ = ["STATE_ID", "StateFigures", "render_state", "state_cases", "state_figures"]
+__all__ = [
+    "STATE_ID",
+    "StateFigures",
+    "recorded_state_stream",
+    "render_state",
+    "state_cases",
+    "state_figures",
+]
 
 #: The case ID of the state port's cases (no command has it; ``(framing)`` is 0 too).
 STATE_ID = 0
@@ -156,6 +163,23 @@ def state_figures(rec: Recording, *, version: str | None = None) -> list[StateFi
     for conn, fig in sorted(conns.items()):
         _read_again(fig, sorted(pieces.get(conn, ()), key=lambda x: x[:2]), expected, asked)
     return [conns[k] for k in sorted(conns)]
+
+
+def recorded_state_stream(rec: Recording, conn: int | None = None) -> list[tuple[int, bytes]]:
+    """The controller's bytes of one state connection (``conn``, default the first), in
+    stream order: each packet and each run of bytes that was no packet, with the time it
+    was complete (``replay --serve --state-serve`` sends them so)."""
+    conns = sorted({s.conn for s in rec.states} | {p.conn for p in rec.state_problems})
+    if not conns:
+        return []
+    which = conns[0] if conn is None else conn
+    pieces = [(s.offset, s.complete_ns, s.raw) for s in rec.states if s.conn == which]
+    pieces += [
+        (p.offset, p.complete_ns, p.raw)
+        for p in rec.state_problems
+        if p.conn == which and p.dir != C2S and p.raw
+    ]
+    return [(t, raw) for _, t, raw in sorted(pieces, key=lambda x: x[0])]
 
 
 def _median_period(items: list[tuple[int, int, int, bytes | None]]) -> float | None:

@@ -372,3 +372,81 @@ def test_diff_compares_the_state_streams_by_shape(tmp_path: Path) -> None:
     assert not diff_recordings(
         a, other, specs=specs, ignore=Ignore.parse(["latency", "state"])
     ).state
+
+
+# --------------------------------------------------------------------------- replay --serve
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _read_until_closed(addr: tuple[str, int], deadline: float = 20.0) -> bytes:
+    import time
+
+    end = time.monotonic() + deadline
+    while True:
+        try:
+            sock = socket.create_connection(addr, timeout=10)
+            break
+        except ConnectionRefusedError:
+            assert time.monotonic() < end, "the state port never listened"
+            time.sleep(0.05)
+    got = b""
+    with sock:
+        while chunk := sock.recv(65536):
+            got += chunk
+    return got
+
+
+def test_replay_serves_the_recorded_state_stream_at_its_pace(tmp_path: Path) -> None:
+    from conformance.net.replay_state import StatePlayer
+    from conformance.state_check import recorded_state_stream
+
+    rec = read_recording(record_emulator(tmp_path, ["state_checksum:3"], packets=10))
+    pieces = recorded_state_stream(rec)
+    assert b"".join(p for _, p in pieces) == b"".join(s.raw for s in rec.states)
+    span = (pieces[-1][0] - pieces[0][0]) / 1e9
+    import time
+
+    with StatePlayer(pieces) as player:
+        t0 = time.monotonic()
+        got = _read_until_closed(player.address)
+        took = time.monotonic() - t0
+    assert got == b"".join(p for _, p in pieces)
+    assert took >= span * 0.8  # the recorded pace, not all at once
+    dec = StateDecoder()
+    events = dec.feed(got)
+    assert sum(isinstance(e, StatePacket) for e in events) == len(rec.states)
+    assert dec.checksum_failures == sum(not s.checksum_ok for s in rec.states) > 0
+
+
+def test_replay_cli_state_serve(tmp_path: Path) -> None:
+    out = record_emulator(tmp_path, [], packets=6)
+    cmd_port, state_port = _free_port(), _free_port()
+    got: list[bytes] = []
+
+    def client() -> None:
+        got.append(_read_until_closed(("127.0.0.1", state_port)))
+        socket.create_connection(("127.0.0.1", cmd_port), timeout=10).close()
+
+    t = threading.Thread(target=client, daemon=True)
+    t.start()
+    r = cli_run(
+        "replay",
+        str(out),
+        "--serve",
+        f"127.0.0.1:{cmd_port}",
+        "--state-serve",
+        f"127.0.0.1:{state_port}",
+        "--count",
+        "1",
+    )
+    t.join(20)
+    assert r.returncode == 0, r.stderr
+    assert f"state port 127.0.0.1:{state_port}" in r.stderr
+    assert got and got[0] == b"".join(s.raw for s in read_recording(out).states)
+    bad = cli_run("replay", str(out), "--target", "127.0.0.1:1", "--state-serve", ":0")
+    assert bad.returncode == 2 and "need --serve" in bad.stderr

@@ -147,6 +147,17 @@ def _register_more(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
     )
     rp.add_argument("--count", type=int, default=0, help="serve: stop after this many connections")
     rp.add_argument(
+        "--state-serve",
+        metavar="HOST:PORT",
+        help="serve: also play the recorded state port (8083) stream here, to each client at "
+        "its recorded pace, then close (default port 8083)",
+    )
+    rp.add_argument(
+        "--state-loop",
+        action="store_true",
+        help="serve: play the state stream again from its start when it ends (its CNT jumps there)",
+    )
+    rp.add_argument(
         "--max-connections",
         type=int,
         default=64,
@@ -315,12 +326,33 @@ def _run_check(args: argparse.Namespace) -> int:
 # --------------------------------------------------------------------------- replay / diff / pcap
 
 
+def _state_player(args: argparse.Namespace, rec: Any) -> Any:
+    """``--state-serve``: a StatePlayer of the recording's state stream (None: not asked)."""
+    if args.state_serve is None:
+        if args.state_loop:
+            raise UsageError("--state-loop needs --state-serve")
+        return None
+    from ..net.replay_state import StatePlayer
+    from ..state_check import recorded_state_stream
+
+    where = parse_address(args.state_serve, default_port=8083, listen=True, option="--state-serve")
+    pieces = recorded_state_stream(rec)
+    if not pieces:
+        raise UsageError(f"--state-serve: {rec.path} holds no state stream")
+    try:
+        return StatePlayer(pieces, listen=where, loop=args.state_loop)
+    except OSError as e:
+        raise UsageError(f"cannot listen on {where}: {e.strerror or e}") from None
+
+
 def _run_replay(args: argparse.Namespace) -> int:
     from ..diff import Ignore
     from ..net.replay_server import ReplayServer
     from ..replay import ReplyBook, replay_to_target
     from ._safety import safety_policy
 
+    if args.serve is None and (args.state_serve is not None or args.state_loop):
+        raise UsageError("--state-serve and --state-loop need --serve")
     if args.serve is not None:
         address = parse_address(args.serve, default_port=8080, listen=True, option="--serve")
     else:
@@ -374,10 +406,21 @@ def _run_replay(args: argparse.Namespace) -> int:
             raise UsageError(f"cannot listen on {address}: {e.strerror or e}") from None
         except ValueError as e:
             raise UsageError(str(e)) from None
+        try:
+            player = _state_player(args, rec)
+        except UsageError:
+            server.close()
+            raise
         stop = threading.Event()
         old = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
         server.start()
-        on_udp = f", UDP {format_address(*server.udp_address)}" if server.udp_address else ""
+        if player is not None:
+            player.start()
+            on_udp = f", state port {format_address(*player.address)}"
+            on_udp += f" ({len(player.pieces)} pieces recorded)"
+        else:
+            on_udp = ""
+        on_udp += f", UDP {format_address(*server.udp_address)}" if server.udp_address else ""
         print(
             f"replay: serving {args.capture} on {format_address(*server.address)}{on_udp} "
             f"(unmatched: {args.unmatched})",
@@ -392,6 +435,8 @@ def _run_replay(args: argparse.Namespace) -> int:
             for s, h_ in old.items():
                 signal.signal(s, h_)
             server.close()
+            if player is not None:
+                player.close()
         dropped = ""
         if server.refused or server.close_reasons:
             reasons = ", ".join(f"{n} {r}" for r, n in server.close_reasons.most_common(3))
