@@ -450,3 +450,50 @@ def test_replay_cli_state_serve(tmp_path: Path) -> None:
     assert got and got[0] == b"".join(s.raw for s in read_recording(out).states)
     bad = cli_run("replay", str(out), "--target", "127.0.0.1:1", "--state-serve", ":0")
     assert bad.returncode == 2 and "need --serve" in bad.stderr
+
+
+# --------------------------------------------------------------------------- serve
+
+
+def test_serve_also_serves_the_state_port(tmp_path: Path) -> None:
+    import time
+
+    cmd_port, state_port = _free_port(), _free_port()
+    seen: list[list[float]] = []
+
+    def client() -> None:
+        end = time.monotonic() + 20
+        while True:
+            try:
+                state = socket.create_connection(("127.0.0.1", state_port), timeout=10)
+                break
+            except ConnectionRefusedError:
+                assert time.monotonic() < end
+                time.sleep(0.05)
+        with state, socket.create_connection(("127.0.0.1", cmd_port), timeout=10) as cmd:
+            assert command(cmd, 1, 1207, "SetStatePeriod(8083,8)").data == "1"
+            assert command(cmd, 2, 201, MOVEJ).data == "1"
+            dec = StateDecoder()
+            while len(seen) < 200 and (not seen or seen[-1] != TARGET):
+                data = state.recv(65536)
+                assert data, "the state port closed"
+                events = dec.feed(data)
+                seen.extend(e.fields["jt_cur_pos"] for e in events if isinstance(e, StatePacket))
+            command(cmd, 3, 1207, "SetStatePeriod(8083,100)")  # the third frame ends serve
+
+    t = threading.Thread(target=client, daemon=True)
+    t.start()
+    r = cli_run(
+        "serve",
+        "--listen",
+        f"127.0.0.1:{cmd_port}",
+        "--state-listen",
+        f"127.0.0.1:{state_port}",
+        "--max-frames",
+        "3",
+        "--duration",
+        "20",
+    )
+    t.join(20)
+    assert f"state port 127.0.0.1:{state_port} (v3.8.2 layout)" in r.stdout, r.stdout + r.stderr
+    assert seen and seen[-1] == TARGET  # the joints the client's MoveJ asked for

@@ -365,6 +365,19 @@ def _add_serve(sub: Any) -> None:
     p.add_argument("--listen", default="127.0.0.1:8080", help="TCP HOST:PORT")
     p.add_argument("--udp", default=None, metavar="HOST:PORT", help="also listen on UDP")
     p.add_argument(
+        "--state-listen",
+        default=None,
+        metavar="HOST:PORT",
+        help="also serve the state port (8083 status feedback), as emulate does: default "
+        "--listen's host, port 8083 when --listen's port is 8080, else off; 'off': never",
+    )
+    p.add_argument(
+        "--state-version",
+        default="3.8.2",
+        metavar="VERSION",
+        help="the state packet layout served: 3.8.2 (default) or 3.9.8",
+    )
+    p.add_argument(
         "--duration", type=float, default=None, metavar="SECONDS", help="stop after SECONDS"
     )
     p.add_argument(
@@ -392,6 +405,14 @@ def _serve(args: argparse.Namespace) -> int:
     from ..suite.spec_choice import note_spec
 
     host, port, udp_port = _listen_addresses(args)
+    state_port = _state_port(args, host, port)  # the state port too, as emulate serves it
+    from ..errors import SpecError
+    from ..protocol.state_layout import layout_for
+
+    try:
+        layout_for(args.state_version)
+    except SpecError as e:
+        raise UsageError(f"--state-version: {e}") from None
     if args.duration is not None and args.duration <= 0:
         raise UsageError("--duration must be positive")
     if args.max_frames is not None and args.max_frames <= 0:
@@ -425,6 +446,8 @@ def _serve(args: argparse.Namespace) -> int:
         udp_port=udp_port,
         observer=validator.observe,
         on_close=validator.connection_closed,
+        state_port=state_port,
+        state_version=args.state_version,
         **limits,
         **emulation,
     )
@@ -435,6 +458,9 @@ def _serve(args: argparse.Namespace) -> int:
     with _sigterm_interrupts():
         try:
             udp = f", UDP {format_address(*server.udp_address)}" if server.udp_address else ""
+            if server.state_address is not None:
+                v = server.controller.state_version
+                udp += f", state port {format_address(*server.state_address)} (v{v} layout)"
             where = format_address(*server.address)
             print(f"playing the controller on {where}{udp}; Ctrl-C to stop", flush=True)
             while deadline is None or time.monotonic() < deadline:
