@@ -468,3 +468,41 @@ def test_run_window_grows_and_falls_back() -> None:
     run = d.take_run(frame * 2 + b"garbage" + frame)
     assert run is not None and len(run.raw) == 2 * len(frame)
     assert d._window == 4096
+
+
+def test_feed_reads_long_runs_column_wise_and_gives_what_a_frame_at_a_time_gives(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Fed at once, runs of standard frames (512 bytes and more) are read column-wise, as
+    take_run reads them (the public API is the fast one); fed a byte at a time, a frame at a
+    time.  The events are the same, frames and what lies between them alike, strict or not."""
+    good = [encode_frame(k % 65536, 201 + k % 7, f"MoveJ({k},2,3)") for k in range(300)]
+    odd = [
+        b"garbage!",  # between frames
+        b"/f/bIII9III201III99IIIshortIII/b/f",  # LEN mismatch (lenient: a frame with a problem)
+        b"/f/bIII9III201III5III\xff\xfe\xfd\xfc\xfbIII/b/f",  # DATA not UTF-8
+        b"/f/bIII9III201II5IIIabcdeIII/b/f",  # a II separator
+        "/f/bIII9III201III6IIIMoveJ(Ü)III/b/f".encode(),  # LEN counts characters
+        b"\x00" * 40,  # NUL padding
+    ]
+    stream = b"".join(good[:100] + odd[:3] + good[100:200] + odd[3:] + good[200:])
+    import conformance.protocol.decoder as decoder
+
+    column_wise: list[int] = []
+    read = decoder._canonical_run  # type: ignore[attr-defined]
+
+    def spy(seg: bytes, max_size: int) -> object:
+        out = read(seg, max_size)
+        column_wise.append(out[0] if out else 0)
+        return out
+
+    monkeypatch.setattr(decoder, "_canonical_run", spy)
+    for strict in (False, True):
+        whole = FrameDecoder(strict=strict)
+        fast = whole.feed(stream) + whole.close()
+        slow = feed_bytewise(stream, strict=strict)
+        assert fast == slow
+        frames = [e for e in fast if isinstance(e, Frame)]
+        assert [f.raw for f in frames if not f.problems][:300] == good[: len(good)]
+        assert len(fast) > 300
+    assert sum(column_wise) > len(stream) // 2  # most of it was read column-wise

@@ -55,12 +55,11 @@ from .frame_run import (
     _canonical_run,
     _standard_run,
 )
+from .skipped import skipped_rule
 
 __all__ = ["FrameDecoder", "decode_all"]
 
 _MAX_SEP = 4
-# A preamble: printable ASCII and line breaks / tabs only.
-_PRINTABLE_RE = re.compile(rb"[\x20-\x7e\r\n\t]+")
 # Progressive header reading: always matches; where it stops tells what broke.
 # Each field is read one byte past its bound at most, so that the match (and the
 # bytes a broken header is reported with) never depends on how the stream was cut:
@@ -78,6 +77,9 @@ _MAX_HEADER = len(HEAD) + 3 * (_MAX_SEP + 1) + 3 * (_MAX_DIGITS + 1)
 # everything else (garbage, a deviation, an incomplete frame) to that path.
 _FAST_HEAD_RE = re.compile(rb"/f/bIII(\d{1,5})III(\d{1,10})III(\d{1,10})III")
 _FAST_END = b"III/b/f"
+#: Bytes from which feed reads runs column-wise (below, a frame or two: per frame is as fast).
+_COLUMNS_MIN = 512
+_RUN_HEAD = HEAD + SEP
 # 1.1 with the CMD_ID field empty (``/f/bIII7IIIIII0IIIIII/b/f``: frcobot_ros2's frame
 # for a name missing from its map).  Tried only where the header reading broke, at
 # the head only: it reads at most a header's bytes.
@@ -85,31 +87,6 @@ _EMPTY_ID_RE = re.compile(rb"/f/bIII(\d{1,%d})IIIIII(\d{1,%d})(?!\d)" % (_MAX_DI
 #: The CMD_ID a frame with an empty CMD_ID field is read as: what C's ``atoi`` makes
 #: of the empty field (the frame's problems say it was empty).
 EMPTY_CMD_ID_VALUE = 0
-
-
-def _stale_text(chunk: bytes) -> int | None:
-    """How many bytes of ``chunk`` are stale frame text, if it is the rest of a fixed-size
-    send buffer written with ``sprintf`` and sent whole; else None.
-
-    Such a rest starts with the NUL that ends the new frame's text; after it, each
-    position holds what the latest frame that reached it left there, so the bytes
-    are NULs and pieces of earlier, longer frames, each piece running to the end of
-    its frame: it ends with ``/b/f``, or is the end of one (``f``, ``/f``, ``b/f``).
-    Linear in the bytes, and the NULs that end the buffer are passed over at C speed:
-    every piece ends with ``f``, so the text ends at the last one.
-    """
-    if chunk[:1] != b"\x00":
-        return None
-    end = chunk.rfind(b"f") + 1
-    if not end or not chunk.endswith(bytes(len(chunk) - end)):
-        return None
-    stale = 0
-    for piece in chunk[:end].split(b"\x00"):
-        if piece:
-            if not (piece.endswith(TAIL) or TAIL.endswith(piece)):
-                return None
-            stale += len(piece)
-    return stale
 
 
 _HEADER_FIELDS = (
@@ -180,6 +157,9 @@ class FrameDecoder:
         self._head_found = -1
         self._window = _RUN_FIRST_WINDOW  # take_run's, see there
         self._run_resume = 0  # stream offset before which take_run does not look
+        # The same for feed's column-wise reading of runs (see _columns).
+        self._col_window = _RUN_FIRST_WINDOW
+        self._col_resume = 0
 
     # ------------------------------------------------------------------ public API
 
@@ -321,23 +301,9 @@ class FrameDecoder:
     def _emit_run(self, chunk: bytes, offset: int) -> None:
         rule, detail = self._run_rule, self._run_detail
         if rule is None:
-            if chunk.count(0) == len(chunk):
-                rule, detail = Rule.NUL_PADDING, f"{len(chunk)} NUL bytes"
-                if self._frames_seen:
-                    detail += " after a frame"
-            elif offset == self._frame_end and (stale := _stale_text(chunk)) is not None:
-                rule = Rule.BUFFER_TAIL
-                detail = (
-                    f"{len(chunk)} bytes after a frame: the rest of a fixed-size send buffer "
-                    f"({stale} bytes of earlier frames' text, {len(chunk) - stale} NUL bytes)"
-                )
-            elif offset == 0 and _PRINTABLE_RE.fullmatch(chunk):
-                rule = Rule.PREAMBLE
-                detail = f"{len(chunk)} bytes of text before the first frame"
-            else:
-                rule = Rule.GARBAGE
-                where = "before the first frame" if not self._frames_seen else "between frames"
-                detail = f"{len(chunk)} bytes that are not a frame, {where}"
+            rule, detail = skipped_rule(
+                chunk, offset, after_frame=offset == self._frame_end, frames=self._frames_seen
+            )
         self._events.append(Malformed(raw=chunk, rule=rule, detail=detail, offset=offset))
         # Continuation chunks of a broken header's run are plain garbage.
         self._run_rule, self._run_detail = None, ""
@@ -360,6 +326,11 @@ class FrameDecoder:
                 fast_from = pos
                 pending = self._pending
                 while pending is None or pending.offset != base + pos:
+                    if n - pos >= _COLUMNS_MIN and base + pos >= self._col_resume:
+                        at = self._columns(pos)
+                        if at != pos:  # a run read column-wise; try again after it
+                            pos = at
+                            continue
                     m = header(buf, pos)
                     if m is None:
                         break
@@ -411,6 +382,44 @@ class FrameDecoder:
         finally:
             self._pos = pos
         self._compact()
+
+    def _columns(self, pos: int) -> int:
+        """Standard frames back to back from ``pos``, read column-wise as :meth:`take_run`
+        reads them (frame_run.py: a split and a few maps in C instead of a regex match a
+        frame) and emitted as the frames the per-frame path would give; where they end.
+
+        Looks at a window of the buffer that doubles while whole windows are frames, and
+        not again before the end of a window it has seen end otherwise: each byte of a
+        stream of anything else is looked at here at most once.
+        """
+        buf = self._buf
+        window = self._col_window
+        seg = bytes(buf[pos : pos + window])
+        if not seg.startswith(_RUN_HEAD):
+            self._col_resume = self._base + pos + 1
+            return pos
+        size, cnts, ids, datas, lens, sizes = _canonical_run(
+            seg, self.max_frame_size
+        ) or _standard_run(seg, self.max_frame_size)
+        if size and seg.find(_TAIL_SEP, size) < 0:
+            self._col_window = min(window * 2, _RUN_MAX_WINDOW)
+        else:
+            self._col_window = _RUN_FIRST_WINDOW
+            self._col_resume = self._base + pos + len(seg)
+        if not size:
+            return pos
+        if self._run:
+            self._flush_run()
+        append = self._events.append
+        new = tuple.__new__
+        at = 0
+        off = self._base + pos
+        for cnt, cmd_id, data, length, n in zip(cnts, ids, datas, lens, sizes, strict=True):
+            append(new(Frame, (cnt, cmd_id, data, length, seg[at : at + n], (), off + at)))
+            at += n
+        self._frames_seen += 1
+        self._frame_end = off + size
+        return pos + size
 
     def _compact(self) -> None:
         if self._pos > 65536 or (self._pos and self._pos == len(self._buf)):
