@@ -56,6 +56,7 @@ FLOORS: dict[str, int] = {
     "client_mode": 5,
     "diff": 5,
     "replay": 5,
+    "fleet": 5,  # a fleet's recordings as Parquet, judged as check judges them; DuckDB over it
     # 6: the suite's engine and runner.
     "suite": 6,
     # 7: front-ends.
