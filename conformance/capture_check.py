@@ -24,9 +24,10 @@ from .judge_stream import CntSteps
 from .net.addresses import client_host
 from .recording import C2S, FrameRecord, ProblemRecord, Recording
 from .report import CaseResult, Report
+from .report.text import shell_printf
 from .spec import SpecSet
 from .state_check import render_state, state_cases, state_figures
-from .verdict import Outcome
+from .verdict import Outcome, Reference
 
 __all__ = [
     "SIDES",
@@ -243,6 +244,9 @@ def render_info(info: dict[str, Any]) -> str:
 
 # --------------------------------------------------------------------------- check
 
+#: Bytes of frames put into a reproduction line, as serve does (client_mode._REPRO_MAX).
+_REPRO_MAX = 4096
+
 
 @dataclass
 class _Bucket:
@@ -254,13 +258,19 @@ class _Bucket:
     source: str = ""
     count: int = 0
     frames: list[str] = field(default_factory=list)
+    reproduce: str = ""
 
 
 class _Cases:
-    """Aggregates per (command, side, outcome, rule)."""
+    """Aggregates per (command, side, outcome, rule).
 
-    def __init__(self) -> None:
+    ``decode_flags``: the judge's reference and strictness as ``decode`` takes them: a
+    client's finding is reproduced by its first frame through ``decode`` (the verdict of a
+    request, or of bytes that are no frame, needs nothing else of the recording)."""
+
+    def __init__(self, decode_flags: str = "") -> None:
         self.buckets: dict[tuple[int, str, str, str], _Bucket] = {}
+        self.decode_flags = decode_flags
 
     def add(
         self,
@@ -272,6 +282,7 @@ class _Cases:
         detail: str,
         frames: Sequence[bytes],
         source: str = "",
+        transport: str = "tcp",
     ) -> None:
         k = (cmd_id, group, outcome.value, key)
         b = self.buckets.get(k)
@@ -282,6 +293,12 @@ class _Cases:
         b.count += 1
         if len(b.frames) < 4:
             b.frames.extend(f.decode("utf-8", "replace") for f in frames)
+        if not b.reproduce and group == "client" and outcome is not Outcome.PASS and frames:
+            udp = " --transport udp" if transport == "udp" else ""
+            b.reproduce = (
+                f"printf {shell_printf(b''.join(frames)[:_REPRO_MAX])} | "
+                f"fairino-conformance decode --dir c2s{udp}{self.decode_flags}"
+            )
 
     def results(self) -> list[CaseResult]:
         out = []
@@ -301,6 +318,7 @@ class _Cases:
                     frames=tuple(b.frames[:4]),
                     source=b.source,
                     count=b.count,
+                    reproduce=b.reproduce,
                 )
             )
         return out
@@ -335,7 +353,8 @@ def check_recording(
         raise ValueError(f"side must be one of {', '.join(SIDES)}, not {side!r}")
     if judge is None:
         judge = Judge(specs, default_dialects(), strict=strict)
-    cases = _Cases()
+    flags = " --reference manual" if judge.reference is Reference.MANUAL else ""
+    cases = _Cases(flags + (" --strict" if judge.strict else ""))
     steps = CntSteps()
     sequences = Sequences()
     clients: dict[int, object] = {
@@ -358,7 +377,9 @@ def check_recording(
             key = (
                 fd.rule if fd.rule != "dialect" or v.dialect is None else f"dialect-{v.dialect.id}"
             )
-            cases.add(f.cmd_id, name, group, fd.outcome, key, fd.message, frames, fd.source)
+            cases.add(
+                f.cmd_id, name, group, fd.outcome, key, fd.message, frames, fd.source, f.transport
+            )
 
     for ex in rec.exchanges():
         req, rep = ex.request, ex.reply

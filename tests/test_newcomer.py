@@ -223,3 +223,34 @@ def test_item_8_a_zero_reply_is_never_read_as_code_0_success(
     assert main(["decode", "--hex", coded]) == 0
     out = capsys.readouterr().out
     assert "(refusal, code 14 (指令执行失败 / The instruction execution failed))" in out
+
+
+def test_item_4_check_prints_each_failure_with_its_frames_and_a_reproduction(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """`check` printed only the table (as `serve` did): each failure now comes with its
+    frames and counts, and a client's finding with a `decode` line that gives it again."""
+    import shlex
+    import subprocess
+
+    faults = Path(__file__).parent.parent / "captures" / "session_faults.mcap"
+    assert main(["check", str(faults)]) == 1
+    out = capsys.readouterr().out
+    assert "FAIL 203/client/arg_count: 1x 8 arguments, table 2-6 lists 31" in out
+    assert '    /f/bIII5III203III37IIIMoveL("seamPos",0,0,100,100,100,-1,0)III/b/f' in out
+    assert "FAIL 201/controller/bad_cnt: 3x reply CNT 5, request CNT 4" in out
+    lines = out.splitlines()
+    repro: list[tuple[str, str]] = []  # (the case's rule, its reproduction)
+    rule = ""
+    for ln in lines:
+        if ln.startswith("FAIL "):
+            rule = ln.split(":")[0].split("/")[-1]
+        elif ln.startswith("    reproduce: "):
+            repro.append((rule, ln.split("reproduce: ", 1)[1]))
+    assert {"garbage", "arg_count", "name_mismatch"} <= {r for r, _ in repro}
+    for rule, line in repro:  # printf ... | fairino-conformance decode ...: run it so
+        printf, decode = line.split(" | ")
+        raw = subprocess.run(["bash", "-c", printf], capture_output=True, check=True).stdout
+        assert main([*shlex.split(decode)[1:], "--hex", raw.hex(), "--json"]) == 0
+        (doc,) = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
+        assert doc["outcome"] == "FAIL" and rule in doc["problems"], (rule, doc)

@@ -286,6 +286,7 @@ def _run_info(args: argparse.Namespace) -> int:
 def _run_check(args: argparse.Namespace) -> int:
     from ..capture_check import check_recording, failing_ids_by_side, judgeable
     from ..report import write_reports
+    from ..suite.present import failure_lines
 
     rec = read_capture(args.capture)
     specs, choice = spec_choice_of(args, traffic=_reported(rec))
@@ -309,6 +310,9 @@ def _run_check(args: argparse.Namespace) -> int:
     note_spec(report, choice, judge.dialects)
     write_reports(report, json_path=args.report_json)  # as run and serve write theirs
     if args.report_json != "-":
+        lines = failure_lines(report)  # frames, counts and reproductions, as run prints them
+        if lines:
+            print("\n".join(lines) + "\n")
         print(report.render_terminal(only_failures=args.only_failures))
         # Whose the failures are (each case's group says so too: client / controller).
         counts = failing_ids_by_side(report)
