@@ -209,9 +209,10 @@ def test_serve_answers_905_with_the_version_it_plays(
     started: list[EmulatorServer] = []
 
     class Noted(EmulatorServer):
-        def start(self) -> None:
+        def start(self) -> EmulatorServer:
             super().start()
             started.append(self)
+            return self
 
     monkeypatch.setattr(conformance.net.emulator, "EmulatorServer", Noted)
     rj = tmp_path / "serve.json"
