@@ -266,3 +266,173 @@ def test_a_pcapng_simple_packet_block_has_the_time_before_it(tmp_path: Path) -> 
     assert len(frames) == 8
     # The request's packet (at 0.010 s) lost its time: it has the ACK's before it.
     assert frames[0].complete_ns == 1_700_000_000_002_000_000
+
+
+# --------------------------------------------------------------------------- malformed files
+
+
+def _recording_with(path: Path, topic: str, doc: object) -> None:
+    """A small recording (one exchange) with ``doc`` as one more message on ``topic``
+    (any JSON value, or bytes as they are)."""
+    import json
+
+    from conformance.recording import FrameBatch, FrameRecord
+
+    req, rep = encode_frame(1, 201, 'MoveJ("P1")'), encode_frame(1, 201, "1")
+    with RecordingWriter(path, metadata={"format": "fairino-conformance/2"}) as w:
+        w.write_frames(
+            FrameBatch.of(
+                [
+                    FrameRecord(
+                        conn=1,
+                        dir="c2s",
+                        cnt=1,
+                        cmd_id=201,
+                        data='MoveJ("P1")',
+                        raw=req,
+                        complete_ns=10,
+                    )
+                ]
+            )
+        )
+        w.write_frames(
+            FrameBatch.of(
+                [
+                    FrameRecord(
+                        conn=1, dir="s2c", cnt=1, cmd_id=201, data="1", raw=rep, complete_ns=11
+                    )
+                ]
+            )
+        )
+        w.flush()
+        ch = w._channels[topic]  # the message as it is: the writer would not write it
+        body = doc if isinstance(doc, bytes) else json.dumps(doc).encode()
+        w._mcap.add_message(ch, 20, body, 20, 7)
+
+
+def _batch(**change: object) -> dict[str, object]:
+    from conformance.recording import FrameBatch, FrameRecord
+
+    raw = encode_frame(2, 201, "1")
+    r = FrameRecord(conn=1, dir="s2c", cnt=2, cmd_id=201, data="1", raw=raw, complete_ns=30)
+    return {**FrameBatch.of([r]).to_json(), **change}
+
+
+#: Messages of the wrong JSON types on each topic: each was an internal error in check,
+#: info, diff or export-pcap (113 distinct ones over 3,904 mutations of one field).
+_BAD_MESSAGES = [
+    ("/fairino/s2c", _batch(data=[1]), "'data'[0] is an integer, not string"),
+    ("/fairino/s2c", _batch(complete_ns=["x"]), "'complete_ns'[0] is a string, not integer"),
+    ("/fairino/s2c", _batch(complete_ns=[2**62]), "not a time in ns from 1970 to 2106"),
+    ("/fairino/c2s", {**_batch(), "dir": "c2s", "cnt": [-1]}, "'cnt'[0] is -1, not a non-neg"),
+    (
+        "/fairino/problems",
+        {
+            "conn": 1,
+            "dir": "s2c",
+            "kind": "malformed",
+            "rule": "garbage",
+            "size": 3,
+            "complete_ns": 15,
+            "offset": {},
+        },
+        "'offset' is an object, not integer",
+    ),
+    (
+        "/fairino/connections",
+        {"conn": 1, "event": "open", "t_ns": None},
+        "'t_ns' is null, not integer",
+    ),
+    ("/fairino/connections", [1, 2], "the message is an array, not an object"),
+    ("/fairino/problems", b"\xff{", "UnicodeDecodeError"),
+    ("/fairino/problems", b"[" * 100_000, "nested too deep"),
+]
+
+
+@pytest.mark.parametrize(("topic", "doc", "why"), _BAD_MESSAGES)
+def test_a_message_of_the_wrong_types_is_named_never_an_internal_error(
+    tmp_path: Path, topic: str, doc: object, why: str
+) -> None:
+    bad = tmp_path / "bad.mcap"
+    _recording_with(bad, topic, doc)
+    good = tmp_path / "good.mcap"
+    _recording_with(
+        good,
+        "/fairino/problems",
+        {"conn": 1, "dir": "s2c", "kind": "gap", "rule": "gap", "size": 1, "complete_ns": 1},
+    )
+    for cmd in (
+        ("check", str(bad)),
+        ("info", str(bad)),
+        ("diff", str(good), str(bad)),
+        ("export-pcap", str(bad), "-o", str(tmp_path / "x.pcap")),
+    ):
+        p = cli_run(*cmd)
+        assert "internal error" not in p.stderr, (cmd, p.stderr)
+        assert p.returncode == EXIT_DAMAGED, (cmd, p.returncode, p.stderr)
+        (line,) = [ln for ln in p.stderr.splitlines() if ln.startswith("damaged:")]
+        assert line.startswith(f"damaged: {bad}: message 3 on {topic} (sequence 7) at offset ")
+        assert why in line and line.endswith("; skipped"), line
+    # The frames around it are all read.
+    assert len(read_recording(bad).frames) == 2
+
+
+def _report_with(path: Path, **change: object) -> None:
+    import json
+
+    doc = {
+        "target": "t",
+        "spec_version": "3.8.2",
+        "meta": {},
+        "commands": {
+            "201": {
+                "name": "MoveJ",
+                "cases": [{"id": "201/x", "group": "valid", "outcome": "FAIL"}],
+            }
+        },
+    }
+    case = doc["commands"]["201"]["cases"][0]  # type: ignore[index]
+    case.update(change)
+    path.write_text(json.dumps(doc))
+
+
+@pytest.mark.parametrize(
+    ("content", "why"),
+    [
+        ({"group": None}, "command 201's case 1's 'group' is NoneType, not str"),
+        ({"frames": [1]}, "command 201's case 1's frames are not all text"),
+        ({"count": True}, "command 201's case 1's 'count' is bool, not int"),
+        (b'{"a": ' + b"[" * 100_000, "nested too deep"),
+        (b'{"target": "\xff"}', "0xff"),
+    ],
+)
+def test_odd_report_json_is_a_report_file_error(tmp_path: Path, content: object, why: str) -> None:
+    """Before: report show/merge/html on these were internal errors (a case's group
+    compared with a string, json's RecursionError), and so was --expected-failures."""
+    path = tmp_path / "r.json"
+    if isinstance(content, bytes):
+        path.write_bytes(content)
+    else:
+        assert isinstance(content, dict)
+        _report_with(path, **content)
+    runs = [
+        ("report", "show", str(path)),
+        ("report", "merge", str(path), str(path), "-o", str(tmp_path / "m.html")),
+        ("report", "html", str(path), "-o", str(tmp_path / "h.html")),
+        ("run", "--dry-run", "--expected-failures", str(path)),
+    ]
+    for cmd in runs:
+        p = cli_run(*cmd)
+        assert p.returncode == 2, (cmd, p.stdout, p.stderr)
+        (line,) = p.stderr.strip().splitlines()
+        assert "internal error" not in line and str(path) in line and why in line, (cmd, line)
+
+
+def test_expected_failures_not_utf8_is_named(tmp_path: Path) -> None:
+    path = tmp_path / "expected.txt"
+    path.write_bytes(b"201/x\nabc\xff\n")
+    p = cli_run("run", "--dry-run", "--expected-failures", str(path))
+    assert p.returncode == 2
+    assert p.stderr.strip().endswith(
+        f"--expected-failures: {path} is not UTF-8 text (byte 0xff at offset 9)"
+    ), p.stderr

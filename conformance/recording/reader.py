@@ -190,6 +190,9 @@ class Recording:
 #: Every integer of a recording's messages (connection numbers, CNT, CMD_ID, lengths,
 #: offsets, sizes, times in ns since the epoch, counts) is a non-negative 64-bit value.
 _INT_MAX = (1 << 63) - 1
+#: A time (``*_ns``: ns since the Unix epoch) is before 2106-02-07, the end of the 32-bit
+#: seconds a classic pcap (``export-pcap``) holds.
+_TIME_MAX = (1 << 32) * 1_000_000_000 - 1
 
 
 def _kind(v: Any) -> str:
@@ -202,9 +205,10 @@ def _kind(v: Any) -> str:
     )
 
 
-def _misfit(v: Any, schema: Mapping[str, Any], name: str) -> str | None:
+def _misfit(v: Any, schema: Mapping[str, Any], name: str, top: int = _INT_MAX) -> str | None:
     """Why the JSON value ``v`` does not fit ``schema`` (the part of JSON schema the
-    recording layout uses: type, items, enum, required), or None when it fits."""
+    recording layout uses: type, items, enum, required), or None when it fits.  An
+    integer is at most ``top``."""
     types = schema.get("type")
     if types is not None:
         allowed = [types] if isinstance(types, str) else list(types)
@@ -217,13 +221,15 @@ def _misfit(v: Any, schema: Mapping[str, Any], name: str) -> str | None:
         )
         if not ok:
             return f"{name} is {_kind(v)}, not {' or '.join(allowed)}"
-        if type(v) is int and not 0 <= v <= _INT_MAX:
+        if type(v) is int and not 0 <= v <= top:
+            if top == _TIME_MAX:
+                return f"{name} is {v}, not a time in ns from 1970 to 2106"
             return f"{name} is {v}, not a non-negative 64-bit integer"
     if "enum" in schema and v not in schema["enum"]:
         return f"{name} is {str(v)[:40]!r}, not one of {', '.join(schema['enum'])}"
     if isinstance(v, list) and "items" in schema:
         for k, item in enumerate(v):
-            why = _misfit(item, schema["items"], f"{name}[{k}]")
+            why = _misfit(item, schema["items"], f"{name}[{k}]", top)
             if why is not None:
                 return why
     if isinstance(v, dict):
@@ -233,7 +239,7 @@ def _misfit(v: Any, schema: Mapping[str, Any], name: str) -> str | None:
         props = schema.get("properties", {})
         for k, sub in props.items():
             if k in v:
-                why = _misfit(v[k], sub, repr(k))
+                why = _misfit(v[k], sub, repr(k), _TIME_MAX if k.endswith("_ns") else _INT_MAX)
                 if why is not None:
                     return why
     return None
@@ -338,13 +344,23 @@ def read_recording(path: str | os.PathLike[str]) -> Recording:
                 if topic is None or (topic not in _SCHEMA_OF_TOPIC and topic != TOPIC_STATE):
                     continue  # a foreign topic: not ours to read
                 try:
-                    got = _record_of(topic, json.loads(rec.data))
-                except (ValueError, RecursionError) as e:  # JSONDecodeError, UnicodeError too
+                    doc = json.loads(rec.data)
+                except RecursionError:
+                    why = "not JSON that can be read (nested too deep)"
+                except ValueError as e:  # JSONDecodeError, UnicodeDecodeError
+                    why = f"not JSON ({type(e).__name__}: {e})"
+                else:
+                    try:
+                        got = _record_of(topic, doc)
+                        why = ""
+                    except ValueError as e:
+                        why = str(e)
+                if why:
                     damage.append(
                         Damage(
                             where=f"message {count} on {topic} (sequence {rec.sequence})",
                             offset=where,
-                            reason=str(e) if isinstance(e, ValueError) else "nested too deep",
+                            reason=why,
                             lost=1,
                             message=True,
                         )

@@ -384,20 +384,100 @@ def spec_label(report: Report) -> str:
     return str(label) if label else report.spec_version
 
 
+#: The JSON types of a report's fields, as :meth:`Report.to_json` writes them (absent is
+#: allowed where ``from_json`` has a default); ``None`` is JSON null.
+_REPORT_TYPES: dict[str, tuple[type | None, ...]] = {
+    "target": (str,),
+    "spec_version": (str,),
+    "seed": (int, None),
+    "kit_version": (str,),
+    "transport": (str,),
+    "strict": (bool,),
+    "reference": (str,),
+    "stopped": (str, None),
+    "interrupted": (bool,),
+    "meta": (dict,),
+    "commands": (dict,),
+}
+_COMMAND_TYPES: dict[str, tuple[type | None, ...]] = {"name": (str,), "cases": (list,)}
+_CASE_TYPES: dict[str, tuple[type | None, ...]] = {
+    "id": (str,),
+    "group": (str,),
+    "outcome": (str,),
+    "detail": (str,),
+    "reproduce": (str,),
+    "frames": (list,),
+    "not_run": (bool,),
+    "source": (str,),
+    "expected": (bool,),
+    "count": (int,),
+    "duration": (int, float),
+}
+
+
+def _misfit(doc: Any, types: Mapping[str, tuple[type | None, ...]], where: str) -> str:
+    """What in ``doc`` (a JSON object) is not of the type ``types`` says ("" when all is)."""
+    if not isinstance(doc, dict):
+        return f"{where} is not an object"
+    for key, allowed in types.items():
+        if key not in doc:
+            continue
+        v = doc[key]
+        ok = any(
+            v is None if t is None else isinstance(v, t) and (t is bool or not isinstance(v, bool))
+            for t in allowed
+        )
+        if not ok:
+            names = " or ".join("null" if t is None else t.__name__ for t in allowed)
+            return f"{where}'s {key!r} is {type(v).__name__}, not {names}"
+    return ""
+
+
+def _check_report(doc: Any) -> str:
+    """Why ``doc`` is not a report's JSON ("" when it is one): every field of the
+    report, its commands and cases of the type :meth:`Report.to_json` writes."""
+    if not isinstance(doc, dict) or "commands" not in doc or "target" not in doc:
+        return "no target/commands"
+    why = _misfit(doc, _REPORT_TYPES, "the report")
+    for cid, cmd in doc["commands"].items() if not why else ():
+        if not cid.isdigit():
+            return f"command ID {cid[:20]!r} is not a number"
+        why = _misfit(cmd, _COMMAND_TYPES, f"command {cid}")
+        if not why and "cases" not in cmd:
+            why = f"command {cid} has no cases"
+        for k, case in enumerate(cmd.get("cases", ()) if not why else ()):
+            why = _misfit(case, _CASE_TYPES, f"command {cid}'s case {k + 1}")
+            if not why and not all(isinstance(f, str) for f in case.get("frames", ())):
+                why = f"command {cid}'s case {k + 1}'s frames are not all text"
+            if why:
+                break
+        if why:
+            break
+    return why
+
+
 def load_report(path: str) -> Report:
     """Read a JSON report written by ``--report-json``; a file that is missing, not JSON or not
-    a report is a :class:`~conformance.errors.ReportFileError` naming it."""
+    a report (a field of another type than the kit writes, say) is a
+    :class:`~conformance.errors.ReportFileError` naming it."""
     try:
         with open(path, encoding="utf-8") as f:
             doc = json.load(f)
     except FileNotFoundError:
         raise ReportFileError(f"no such report: {path}", path=path) from None
+    except OSError as e:
+        raise ReportFileError(f"cannot read {path}: {e.strerror or e}", path=path) from None
     except (ValueError, UnicodeDecodeError) as e:  # JSONDecodeError is a ValueError
         raise ReportFileError(
             f"{path} is not a JSON conformance report ({type(e).__name__}: {e})", path=path
         ) from None
-    if not isinstance(doc, dict) or "commands" not in doc or "target" not in doc:
-        raise ReportFileError(f"{path} is not a conformance report (no target/commands)", path=path)
+    except RecursionError:
+        raise ReportFileError(
+            f"{path} is not a JSON conformance report (nested too deep)", path=path
+        ) from None
+    why = _check_report(doc)
+    if why:
+        raise ReportFileError(f"{path} is not a conformance report ({why})", path=path)
     try:
         return Report.from_json(doc)
     except (ValueError, KeyError, TypeError, AttributeError) as e:

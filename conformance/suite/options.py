@@ -356,20 +356,30 @@ def resolve(
 
 
 def load_expected_failures(path: str) -> frozenset[str]:
-    """Case IDs, one a line; ``#`` starts a comment.  A JSON report works too (its FAILs)."""
+    """Case IDs, one a line; ``#`` starts a comment.  A JSON report works too (its FAILs),
+    read by :func:`~conformance.report.load_report`.  A file that is not UTF-8 text or not
+    a report is a :class:`~conformance.errors.ReportFileError` naming it."""
+    from ..errors import ReportFileError
+
     try:
-        text = Path(path).read_text(encoding="utf-8")
+        data = Path(path).read_bytes()
     except OSError as e:
         raise UsageError(f"--expected-failures: cannot read {path}: {e.strerror or e}") from None
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise ReportFileError(
+            f"--expected-failures: {path} is not UTF-8 text (byte 0x{data[e.start]:02x} at "
+            f"offset {e.start})",
+            path=path,
+        ) from None
     if text.lstrip().startswith("{"):
-        import json
-
-        from ..report import Report
+        from ..report import load_report
 
         try:
-            rep = Report.from_json(json.loads(text))
-        except (ValueError, KeyError, TypeError) as e:
-            raise UsageError(f"--expected-failures: {path} is not a report: {e}") from None
+            rep = load_report(path)
+        except ReportFileError as e:
+            raise ReportFileError(f"--expected-failures: {e}", path=path) from None
         return frozenset(c.id for c in rep.cases if rep.fails(c.outcome))
     ids = (line.split("#", 1)[0].strip() for line in text.splitlines())
     return frozenset(i for i in ids if i)
