@@ -1,0 +1,21 @@
+"""A fleet's recordings as one table: a hive-partitioned Parquet dataset (``export-parquet``)
+and DuckDB's reports over it (``query``).
+
+=============  ==========================================================================
+module         holds
+=============  ==========================================================================
+``schema``     the dataset's contract: tables, columns, types, partitioning, schema version
+``memo``       MemoJudge: the one judge, remembering its verdicts per distinct frame
+``export``     a recording (MCAP, pcap, pcapng) to the dataset's files; many, in processes
+``query``      DuckDB views over the dataset and the built-in reports
+``html``       the reports as one HTML page with inline SVG charts
+=============  ==========================================================================
+
+pyarrow and duckdb are the ``fleet`` extra (``pip install 'fairino-conformance[fleet]'``);
+without them the commands say so in one line.  The layout is documented in the README
+("A fleet's recordings as one table") as a contract with :data:`schema.SCHEMA_VERSION`.
+"""
+
+from .schema import PARTITIONS, SCHEMA_VERSION, TABLES
+
+__all__ = ["PARTITIONS", "SCHEMA_VERSION", "TABLES"]

@@ -1,0 +1,417 @@
+"""Recordings to the fleet dataset (``export-parquet``): one recording at a time, each frame's
+verdict the one ``check`` gives it, the rows written in row groups as they come.
+
+Each recording is read (MCAP, or a pcap/pcapng capture imported as ``check`` imports it),
+judged by :func:`~conformance.capture_check.check_recording` (its ``on_verdict`` hands
+over every frame's and malformed run's verdict: the rows carry exactly those) with a
+:class:`~.memo.MemoJudge`, and written as one Parquet file per table into its partition
+(:mod:`.schema`).  A recording already in the dataset (its content hash has a
+``_recordings/<id>.json``) is skipped, and a new one only adds files: appending never
+rewrites what is there.  Memory holds one recording (a rotated recording's segment) and
+one row group per table, whatever the number of recordings; ``jobs`` processes take the
+recordings one at a time each.
+"""
+
+from __future__ import annotations
+
+import glob
+import hashlib
+import json
+import multiprocessing
+import os
+import time
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from ..errors import FileError, UsageError
+from ..firmware import GET_SOFTWARE_VERSION_ID, parse_software_version
+from ..judge import Judge, Verdict
+from ..recording import C2S, FrameRecord, ProblemRecord, Recording
+from .memo import MemoJudge
+from .schema import COLUMNS, SCHEMA_VERSION, TABLES, arrow_schema, partition_value
+
+__all__ = [
+    "RECORDING_SUFFIXES",
+    "ExportResult",
+    "JudgeFor",
+    "expand_inputs",
+    "export_many",
+    "export_recording",
+    "firmware_in",
+    "open_dataset",
+]
+
+#: What a directory given as input is searched for (recursively).
+RECORDING_SUFFIXES = (".mcap", ".pcap", ".pcapng", ".cap", ".pcap.gz", ".pcapng.gz")
+#: Rows per row group (and the most a table holds in memory before writing).
+ROW_GROUP = 131_072
+
+#: The judge for a firmware version (None: the traffic names none): the front-end's choice
+#: of spec set and dialects, as ``check`` makes it.  Must pickle for ``jobs`` > 1.
+JudgeFor = Callable[[str | None], Judge]
+
+
+@dataclass
+class ExportResult:
+    """What one recording gave the dataset."""
+
+    recording: str
+    recording_id: str
+    robot: str = ""
+    date: str = ""
+    firmware: str | None = None
+    spec_version: str = ""
+    rows: dict[str, int] = field(default_factory=dict)
+    #: Already in the dataset: nothing written.
+    skipped: bool = False
+    damage: list[str] = field(default_factory=list)
+    seconds: float = 0.0
+
+    def to_json(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def expand_inputs(items: Sequence[str]) -> list[str]:
+    """Files, directories (searched for recordings) and globs, in order, each file once;
+    an input that names nothing is a :class:`UsageError`."""
+    out: list[str] = []
+    for item in items:
+        if any(c in item for c in "*?["):
+            found = sorted(p for p in glob.glob(item, recursive=True) if os.path.isfile(p))
+        elif os.path.isdir(item):
+            found = sorted(
+                str(p)
+                for p in Path(item).rglob("*")
+                if p.is_file() and p.name.lower().endswith(RECORDING_SUFFIXES)
+            )
+        elif os.path.isfile(item):
+            found = [item]
+        else:
+            raise UsageError(f"{item}: no such file or directory")
+        if not found:
+            raise UsageError(f"{item}: names no recording (.mcap, .pcap, .pcapng)")
+        out += found
+    unique: dict[str, str] = {}
+    for p in out:
+        unique.setdefault(os.path.realpath(p), p)
+    return list(unique.values())
+
+
+def recording_id(path: str) -> str:
+    """A recording's identity in the dataset: its size and the hash of its first and last
+    MiB (the same file copied elsewhere is the same recording)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        size = os.fstat(f.fileno()).st_size
+        h.update(str(size).encode())
+        h.update(f.read(1 << 20))
+        if size > 2 << 20:
+            f.seek(-(1 << 20), os.SEEK_END)
+            h.update(f.read())
+    return h.hexdigest()[:16]
+
+
+def open_dataset(out: str | os.PathLike[str]) -> Path:
+    """The dataset directory, made with its ``_fleet.json`` if new; one written by another
+    schema version is a :class:`FileError`."""
+    d = Path(out)
+    if d.exists() and not d.is_dir():
+        raise UsageError(f"-o {d}: it is a file, not a directory")
+    marker = d / "_fleet.json"
+    if marker.exists():
+        try:
+            version = json.loads(marker.read_text(encoding="utf-8")).get("schema_version")
+        except (OSError, ValueError, AttributeError) as e:
+            raise FileError(
+                f"{marker}: not a fleet dataset marker ({e})", path=str(marker)
+            ) from None
+        if version != SCHEMA_VERSION:
+            raise FileError(
+                f"{d} holds schema version {version}; this kit writes {SCHEMA_VERSION}: "
+                "export into a new directory",
+                path=str(d),
+            )
+        return d
+    (d / "_recordings").mkdir(parents=True, exist_ok=True)
+    marker.write_text(
+        json.dumps({"schema_version": SCHEMA_VERSION, "tables": list(TABLES)}, indent=2) + "\n",
+        encoding="utf-8",
+    )
+    return d
+
+
+def firmware_in(rec: Recording) -> str | None:
+    """The firmware version the controller's first GetSoftwareVersion (905) reply names."""
+    for f in rec.frames:
+        if f.dir != C2S and f.cmd_id == GET_SOFTWARE_VERSION_ID:
+            sv = parse_software_version(f.data)
+            if sv is not None:
+                return sv.version
+    return None
+
+
+def _robot_of(rec: Recording, given: str | None) -> str:
+    """``--robot``, else the metadata's ``robot`` or ``cell``, else the controller's host."""
+    if given:
+        return given
+    md = rec.metadata
+    for key in ("robot", "cell"):
+        if md.get(key):
+            return md[key]
+    up = md.get("upstream") or next((c.upstream for c in rec.connections if c.upstream), "")
+    host = up.rsplit(":", 1)[0].strip("[]") if up else ""
+    return host or "unknown"
+
+
+def _port(address: str) -> int | None:
+    tail = address.rsplit(":", 1)[-1] if ":" in address else ""
+    return int(tail) if tail.isdigit() and int(tail) < 65536 else None
+
+
+class _Table:
+    """One table's file of one recording: rows gathered, written a row group at a time."""
+
+    def __init__(self, path: Path, table: str, constants: dict[str, object]) -> None:
+        self.path, self.table = path, table
+        self.schema = arrow_schema(table)
+        self.constants = constants
+        self.own = [c for c, _, _ in COLUMNS[table] if c not in constants]
+        self.rows: list[tuple[object, ...]] = []
+        self.count = 0
+        self._writer: Any = None
+
+    def add(self, row: tuple[object, ...]) -> None:
+        self.rows.append(row)
+        if len(self.rows) >= ROW_GROUP:
+            self.flush()
+
+    def flush(self) -> None:
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        n = len(self.rows)
+        if not n:
+            return
+        cols = dict(zip(self.own, zip(*self.rows, strict=True), strict=True))
+        arrays = []
+        for f in self.schema:
+            if f.name in cols and pa.types.is_timestamp(f.type):
+                # The recordings' times are ns since the epoch; the files hold microseconds.
+                ns = pa.array(cols[f.name], type=pa.timestamp("ns", tz="UTC"))
+                arrays.append(ns.cast(f.type, safe=False))
+            elif f.name in cols:
+                arrays.append(pa.array(cols[f.name], type=f.type))
+            else:
+                arrays.append(pa.repeat(pa.scalar(self.constants[f.name], type=f.type), n))
+        batch = pa.RecordBatch.from_arrays(arrays, schema=self.schema)
+        if self._writer is None:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._writer = pq.ParquetWriter(
+                str(self.path) + ".tmp", self.schema, compression="zstd"
+            )
+        self._writer.write_batch(batch, row_group_size=ROW_GROUP)
+        self.count += n
+        self.rows = []
+
+    def close(self) -> None:
+        """Write what is left and put the file in its place (nothing for no rows)."""
+        self.flush()
+        if self._writer is not None:
+            self._writer.close()
+            os.replace(str(self.path) + ".tmp", self.path)
+
+
+def _frame_row(f: FrameRecord, v: Verdict, port: int | None, data: bool) -> tuple[object, ...]:
+    length = f.length if f.length is not None else len(f.data.encode("utf-8"))
+    return (
+        f.transport,
+        port,
+        f.dir,
+        f.conn,
+        f.first_ns or f.complete_ns,
+        f.complete_ns,
+        f.cnt,
+        f.cmd_id,
+        _shown_name(f, v),
+        length,
+        "len_mismatch" not in f.problems and "bad_len" not in f.problems,
+        f.data if data else None,
+        v.outcome.value,
+        v.rule,
+        v.source,
+        v.dialect.id if v.dialect is not None else None,
+        v.refused,
+        v.form.value if v.refused and v.form is not None else None,
+        v.code if v.refused else None,
+    )
+
+
+def _shown_name(f: FrameRecord, v: Verdict) -> str | None:
+    """The name ``check`` shows: the dialect's or the command's, else the judge's, else the
+    recorded one."""
+    if v.command is not None:
+        return v.command.name if v.dialect is None else v.dialect.name
+    return v.name or f.name
+
+
+def export_recording(
+    path: str,
+    out: str | os.PathLike[str],
+    *,
+    judge_for: JudgeFor,
+    robot: str | None = None,
+    firmware: str | None = None,
+    data: bool = False,
+) -> ExportResult:
+    """One recording into the dataset at ``out`` (made by :func:`open_dataset`)."""
+    from ..capture_check import check_recording
+    from ..pcap import read_capture
+
+    t0 = time.perf_counter()
+    dataset = Path(out)
+    rid = recording_id(path)
+    result = ExportResult(recording=path, recording_id=rid)
+    mark = dataset / "_recordings" / f"{rid}.json"
+    if mark.exists():
+        result.skipped = True
+        return result
+    rec = read_capture(path)
+    result.damage = [str(d) for d in rec.damage]
+    fw = firmware or firmware_in(rec)
+    memo = MemoJudge.of(judge_for(fw))
+    label = partition_value(_robot_of(rec, robot))
+    start = int(rec.metadata.get("start_ns", "0") or 0) or rec.start_ns
+    date = time.strftime("%Y-%m-%d", time.gmtime(start // 1_000_000_000))
+    seg = rec.metadata.get("segment", "0")
+    constants: dict[str, object] = {
+        "recording": os.path.basename(path),
+        "recording_id": rid,
+        "segment": int(seg) if seg.isdigit() else 0,
+        "firmware": fw,
+        "spec_version": memo.specs.spec_version,
+    }
+    result.robot, result.date, result.firmware = label, date, fw
+    result.spec_version = memo.specs.spec_version
+    part = f"date={date}/robot={label}/{rid}.parquet"
+    tables = {t: _Table(dataset / t / part, t, constants) for t in TABLES}
+    ports = {c.conn: _port(c.upstream) for c in rec.connections if c.event == "open"}
+    verdicts: dict[int, Verdict] = {}
+    problems: list[tuple[ProblemRecord, Verdict]] = []
+    frames = tables["frames"]
+
+    def on_verdict(x: FrameRecord | ProblemRecord, v: Verdict) -> None:
+        if isinstance(x, FrameRecord):
+            verdicts[id(x)] = v
+            frames.add(_frame_row(x, v, ports.get(x.conn), data))
+        else:
+            problems.append((x, v))
+
+    check_recording(rec, memo.specs, judge=memo, on_verdict=on_verdict)
+    _exchanges(rec, verdicts, tables["exchanges"])
+    if problems:
+        answered = rec.answered_by()
+        for p, v in problems:
+            blamed = answered.get(id(p))
+            tables["problems"].add(
+                (
+                    *(p.transport, p.conn, p.dir, p.kind, p.rule, p.detail, p.size),
+                    p.complete_ns,
+                    blamed.cmd_id if blamed is not None else None,
+                    v.outcome.value,
+                    v.source,
+                )
+            )
+    for c in rec.connections:
+        tables["connections"].add(
+            (c.conn, c.event, c.t_ns, c.transport, c.client, c.upstream, c.reason, c.stream)
+        )
+    _state(rec, tables["state"])
+    for t, tab in tables.items():
+        tab.close()
+        result.rows[t] = tab.count
+    result.seconds = round(time.perf_counter() - t0, 3)
+    tmp = mark.with_suffix(".tmp")
+    tmp.write_text(json.dumps(result.to_json(), indent=2) + "\n", encoding="utf-8")
+    os.replace(tmp, mark)  # the commit: from here on the recording is in the dataset
+    return result
+
+
+def _exchanges(rec: Recording, verdicts: dict[int, Verdict], table: _Table) -> None:
+    for ex in rec.exchanges():
+        req, rep = ex.request, ex.reply
+        rv = verdicts.get(id(req)) if req is not None else None
+        pv = verdicts.get(id(rep)) if rep is not None else None
+        f = req or rep
+        assert f is not None
+        v = rv or pv
+        table.add(
+            (
+                f.transport,
+                ex.conn,
+                f.cmd_id,
+                _shown_name(f, v) if v is not None else f.name,
+                f.cnt,
+                req.complete_ns if req is not None else None,
+                rep.complete_ns if rep is not None else None,
+                ex.latency_ns,
+                rv.outcome.value if rv is not None else None,
+                pv.outcome.value if pv is not None else None,
+                pv.rule if pv is not None else None,
+                bool(pv is not None and pv.refused),
+                pv.code if pv is not None and pv.refused else None,
+                req is not None and rep is None,
+            )
+        )
+
+
+def _state(rec: Recording, table: _Table) -> None:
+    last: dict[int, int] = {}
+    for s in rec.states:
+        prev = last.get(s.conn)
+        # 2.1 (2): the packet counter is one byte; the state decoder's reading of a step
+        # (conformance/protocol/state.py): 255 after a packet is a repeat, not a loss.
+        gap = 0 if prev is None else (s.cnt - prev - 1) & 0xFF
+        last[s.conn] = s.cnt
+        table.add(
+            (
+                s.conn,
+                s.complete_ns,
+                s.cnt,
+                s.length,
+                s.version,
+                s.checksum_ok,
+                0 if gap == 255 else gap,
+            )
+        )
+
+
+def _one(args: tuple[str, str, JudgeFor, str | None, str | None, bool]) -> ExportResult:
+    path, out, judge_for, robot, firmware, data = args
+    return export_recording(
+        path, out, judge_for=judge_for, robot=robot, firmware=firmware, data=data
+    )
+
+
+def export_many(
+    paths: Iterable[str],
+    out: str | os.PathLike[str],
+    *,
+    judge_for: JudgeFor,
+    robot: str | None = None,
+    firmware: str | None = None,
+    data: bool = False,
+    jobs: int = 1,
+) -> Iterator[ExportResult]:
+    """Each recording into the dataset (made if new), ``jobs`` processes at a time; results
+    as recordings finish."""
+    open_dataset(out)
+    work = [(p, os.fspath(out), judge_for, robot, firmware, data) for p in paths]
+    if jobs <= 1 or len(work) <= 1:
+        for w in work:
+            yield _one(w)
+        return
+    ctx = multiprocessing.get_context("fork" if hasattr(os, "fork") else "spawn")
+    with ctx.Pool(min(jobs, len(work)), maxtasksperchild=16) as pool:
+        yield from pool.imap_unordered(_one, work)

@@ -1,0 +1,156 @@
+"""The dataset's contract: tables, their columns and types, the partitioning, the version.
+
+A dataset directory holds one directory per table, each partitioned the hive way by the
+recording's start date (UTC) and its robot label::
+
+    DIR/_fleet.json                                 {"schema_version": 1, "tables": [...]}
+    DIR/_recordings/<recording_id>.json             one per recording exported (the commit mark)
+    DIR/frames/date=2026-01-01/robot=r03/<recording_id>.parquet
+    DIR/exchanges/date=.../robot=.../<recording_id>.parquet
+    DIR/problems/...   DIR/connections/...   DIR/state/...
+
+``date`` and ``robot`` are the partition columns (in the path only, as hive partitioning
+has them; DuckDB's ``hive_partitioning`` and Spark read them back as columns).  Every
+file's key-value metadata carries ``fairino.schema_version``.  A change that removes or
+retypes a column raises :data:`SCHEMA_VERSION`; new columns at the end do not.
+
+Times are ``timestamp[us, UTC]`` (microseconds: what Spark reads; Parquet's nanosecond
+timestamps it refuses); latencies are ``int64`` nanoseconds, the recordings' own precision.  Outcomes are the
+judge's (:class:`~conformance.verdict.Outcome` values: ``PASS``, ``NON-STRICT``,
+``DIALECT``, ``FAIL``), the same verdicts ``check`` gives.
+"""
+
+from __future__ import annotations
+
+import re
+from typing import Any
+
+__all__ = [
+    "COLUMNS",
+    "PARTITIONS",
+    "SCHEMA_VERSION",
+    "TABLES",
+    "arrow_schema",
+    "partition_value",
+]
+
+SCHEMA_VERSION = 1
+PARTITIONS = ("date", "robot")
+
+#: What every table starts with: which recording, robot's firmware, where in it.
+_RECORDING = (
+    ("recording", "string", "the recording's file name as given"),
+    ("recording_id", "string", "content hash of the recording file (16 hex digits)"),
+    ("segment", "int32", "the recording's segment number (metadata ``segment``; 0: not split)"),
+    ("firmware", "string", "the web version a 905 reply names (or --firmware); null: unknown"),
+    ("spec_version", "string", "the spec set the frames were judged against"),
+)
+
+#: table -> (column, arrow type, meaning), in file order (partition columns not included).
+COLUMNS: dict[str, tuple[tuple[str, str, str], ...]] = {
+    "frames": (
+        *_RECORDING,
+        ("transport", "string", "tcp or udp"),
+        ("port", "int32", "the controller's port (the connection's upstream); null: unknown"),
+        ("direction", "string", "c2s (request) or s2c (reply)"),
+        ("conn", "int64", "connection number within the recording"),
+        ("first_time", "timestamp", "the frame's first byte"),
+        ("time", "timestamp", "the frame's last byte"),
+        ("cnt", "int32", "CNT"),
+        ("cmd_id", "int32", "CMD_ID"),
+        ("name", "string", "the command's name, as check shows it"),
+        ("len", "int32", "LEN as sent"),
+        ("len_ok", "bool", "LEN is DATA's length in UTF-8 bytes"),
+        ("data", "string", "DATA (null unless --data)"),
+        ("outcome", "string", "the judge's outcome"),
+        ("rule", "string", "the deciding rule (``ok`` when none)"),
+        ("source", "string", "where the rule or reading comes from (manual section, dialect)"),
+        ("dialect", "string", "the field dialect entry the frame follows; null: none"),
+        ("refused", "bool", "a reply saying no"),
+        ("refusal_form", "string", "zero, errcode or text; null unless refused"),
+        ("refusal_code", "int32", "the error code of a refusal; null unless refused"),
+    ),
+    "exchanges": (
+        *_RECORDING,
+        ("transport", "string", "tcp or udp"),
+        ("conn", "int64", "connection number"),
+        ("cmd_id", "int32", "the request's CMD_ID (the reply's if it stands alone)"),
+        ("name", "string", "the command's name"),
+        ("cnt", "int32", "the request's CNT"),
+        ("request_time", "timestamp", "the request's last byte; null: a reply with no request"),
+        ("reply_time", "timestamp", "the reply's last byte; null: missing"),
+        (
+            "latency_ns",
+            "int64",
+            "the reply's last byte after the request's, in ns (the recording's own precision); null unless both",
+        ),
+        ("request_outcome", "string", "the judge's outcome of the request"),
+        ("reply_outcome", "string", "of the reply; null: missing"),
+        ("reply_rule", "string", "the reply's deciding rule; null: missing"),
+        ("refused", "bool", "the reply says no"),
+        ("refusal_code", "int32", "its error code; null unless refused"),
+        ("missing_reply", "bool", "a request no reply was recorded for (check's no_reply FAIL)"),
+    ),
+    "problems": (
+        *_RECORDING,
+        ("transport", "string", "tcp or udp"),
+        ("conn", "int64", "connection number"),
+        ("direction", "string", "c2s or s2c"),
+        ("kind", "string", "malformed, gap, state, ..."),
+        ("rule", "string", "the recorder's rule"),
+        ("detail", "string", "what it says"),
+        ("size", "int64", "bytes"),
+        ("time", "timestamp", "when"),
+        ("cmd_id", "int32", "the request a controller's bytes answered (check's blame); null"),
+        ("outcome", "string", "the judge's outcome"),
+        ("source", "string", "the rule's source"),
+    ),
+    "connections": (
+        *_RECORDING,
+        ("conn", "int64", "connection number"),
+        ("event", "string", "open or close"),
+        ("time", "timestamp", "when"),
+        ("transport", "string", "tcp or udp"),
+        ("client", "string", "HOST:PORT of the client"),
+        ("upstream", "string", "HOST:PORT of the controller"),
+        ("reason", "string", "why it closed"),
+        ("stream", "string", "``state`` for a state-port (8083) connection"),
+    ),
+    "state": (
+        *_RECORDING,
+        ("conn", "int64", "connection number"),
+        ("time", "timestamp", "the packet's last byte"),
+        ("cnt", "int32", "the packet's counter"),
+        ("len", "int32", "its LEN"),
+        ("layout", "string", "the state layout version LEN matched; null: none"),
+        ("checksum_ok", "bool", "the sum sent is the one computed"),
+        ("gap", "int32", "packets lost before this one (CNT step - 1; 0 for the first)"),
+    ),
+}
+TABLES = tuple(COLUMNS)
+
+
+def arrow_schema(table: str) -> Any:
+    """The pyarrow schema of ``table``'s files, with the schema version in its metadata."""
+    import pyarrow as pa
+
+    types = {
+        "string": pa.string(),
+        "int32": pa.int32(),
+        "int64": pa.int64(),
+        "bool": pa.bool_(),
+        "timestamp": pa.timestamp("us", tz="UTC"),
+    }
+    return pa.schema(
+        [pa.field(name, types[t]) for name, t, _ in COLUMNS[table]],
+        metadata={"fairino.schema_version": str(SCHEMA_VERSION), "fairino.table": table},
+    )
+
+
+_UNSAFE = re.compile(r"[^A-Za-z0-9._-]")
+
+
+def partition_value(text: str) -> str:
+    """A robot label as a partition directory name: letters, digits, ``.``, ``_`` and ``-``
+    kept, anything else ``_`` (a path separator or ``=`` never reaches the path)."""
+    return _UNSAFE.sub("_", text.strip()) or "unknown"

@@ -1,0 +1,164 @@
+"""export-parquet and query (issue 19): a small synthetic fleet with injected faults, and the
+committed captures, as one Parquet dataset; DuckDB's reports find each fault where it was put."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+pytest.importorskip("pyarrow")
+duckdb = pytest.importorskip("duckdb")
+
+from tests.cli_run import cli_run  # noqa: E402
+from tools.synth_fleet import Fault, write_recording  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+CAPTURES = ROOT / "captures"
+START = 1_767_225_600_000_000_000  # 2026-01-01T00:00:00Z
+DAY = 86_400_000_000_000
+
+FAULTS = (
+    Fault("refusal", "r01", "3.9.8", 201),
+    Fault("timeout", "r02", "3.8.2", 214),
+    Fault("slow", "r01", "3.8.2", 212),
+    Fault("bad", "r02", "3.9.8", 682),
+)
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """(recordings, dataset): 2 robots x 2 firmwares x 700 frames, and session_faults.mcap
+    (garbage, wrong CNT: problems and FAIL frames) and field_segments.pcap (a capture)."""
+    base = tmp_path_factory.mktemp("fleet")
+    rec = base / "recordings"
+    for i, robot in enumerate(("r01", "r02")):
+        for j, fw in enumerate(("3.8.2", "3.9.8")):
+            write_recording(
+                rec / robot / f"fw-{fw}.mcap", robot, fw, 700, FAULTS, START + j * DAY + i
+            )
+    shutil.copy(CAPTURES / "session_faults.mcap", rec / "session_faults.mcap")
+    shutil.copy(CAPTURES / "field_segments.pcap", rec / "field_segments.pcap")
+    out = base / "dataset"
+    p = cli_run("export-parquet", str(rec), "-o", str(out))
+    assert p.returncode == 0, p.stderr
+    assert "6 recordings (0 already there)" in p.stdout
+    return rec, out
+
+
+def _sql(dataset: Path, sql: str) -> list[tuple[object, ...]]:
+    p = cli_run("query", str(dataset), "--sql", sql, "--format", "json")
+    assert p.returncode == 0, p.stderr
+    return [tuple(r.values()) for r in json.loads(p.stdout)]
+
+
+def _report(dataset: Path, name: str) -> list[dict[str, Any]]:
+    p = cli_run("query", str(dataset), "--report", name, "--format", "json")
+    assert p.returncode == 0, p.stderr
+    return list(json.loads(p.stdout))
+
+
+def test_frames_per_recording_are_the_frames_info_counts(fleet: tuple[Path, Path]) -> None:
+    _, out = fleet
+    got = _sql(out, "SELECT recording_id, count(*) FROM frames GROUP BY ALL")
+    marks = {
+        m["recording_id"]: m["recording"]
+        for m in (json.loads(p.read_text()) for p in (out / "_recordings").glob("*.json"))
+    }
+    assert len(got) == len(marks) == 6
+    for rid, n in got:
+        info = cli_run("info", marks[str(rid)], "--json")
+        assert info.returncode == 0, info.stderr
+        frames = json.loads(info.stdout)["frames"]
+        assert n == frames["c2s"] + frames["s2c"], marks[str(rid)]
+
+
+def test_verdicts_are_checks(fleet: tuple[Path, Path], tmp_path: Path) -> None:
+    """Each frame's outcome and rule as check --verdicts gives them (a recording with
+    garbage, a wrong CNT and a wrong count)."""
+    _, out = fleet
+    lines = tmp_path / "v.jsonl"
+    p = cli_run("check", str(CAPTURES / "session_faults.mcap"), "--verdicts", str(lines))
+    assert p.returncode != 0  # it has failures
+    want: dict[tuple[str, str, str], int] = {}
+    for line in lines.read_text().splitlines():
+        d = json.loads(line)
+        if d.get("kind") == "malformed":
+            continue
+        key = (d["dir"], d["outcome"], d["rule"])
+        want[key] = want.get(key, 0) + 1
+    got = _sql(
+        out,
+        "SELECT direction, outcome, rule, count(*) FROM frames "
+        "WHERE recording = 'session_faults.mcap' GROUP BY ALL",
+    )
+    assert {(str(a), str(b), str(c)): n for a, b, c, n in got} == want
+    assert any(o == "FAIL" for _, o, _ in want)
+    problems = _sql(out, "SELECT count(*) FROM problems WHERE recording = 'session_faults.mcap'")
+    assert int(str(problems[0][0])) >= 1
+
+
+def test_injected_faults_show_up_where_they_were_put(fleet: tuple[Path, Path]) -> None:
+    _, out = fleet
+    failures = _report(out, "failures")
+    synth = [f for f in failures if f["robot"] in ("r01", "r02")]
+    where = {(f["robot"], f["firmware"], f["cmd_id"], f["what"]) for f in synth}
+    assert where == {
+        ("r01", "3.9.8", 201, "refusal"),
+        ("r02", "3.8.2", 214, "no reply"),
+        ("r02", "3.9.8", 682, "FAIL reply"),
+    }
+    refusal = next(f for f in synth if f["what"] == "refusal")
+    assert refusal["detail"] == "code 14"
+    latency = _report(out, "latency")
+    slow = {(r["robot"], r["firmware"], r["cmd_id"]) for r in latency if r["p99_ms"] >= 200}
+    assert slow == {("r01", "3.8.2", 212)}
+    firmware = {r["firmware"]: r for r in _report(out, "firmware")}
+    assert firmware["3.9.8"]["refusals"] > 0 and firmware["3.8.2"]["refusals"] == 0
+    assert firmware["3.8.2"]["no_reply"] > 0
+
+
+def test_appending_does_not_rewrite(fleet: tuple[Path, Path], tmp_path: Path) -> None:
+    rec, out = fleet
+    ds = tmp_path / "ds"
+    shutil.copytree(out, ds)
+    before = {p: (p.stat().st_ino, p.stat().st_mtime_ns) for p in ds.rglob("*.parquet")}
+    new = tmp_path / "new" / "r03.mcap"
+    write_recording(new, "r03", "3.9.8", 100, (), START + 3 * DAY)
+    p = cli_run("export-parquet", str(new), str(rec / "r01"), "-o", str(ds), "--jobs", "2")
+    assert p.returncode == 0, p.stderr
+    assert "3 recordings (2 already there)" in p.stdout
+    after = {p: (p.stat().st_ino, p.stat().st_mtime_ns) for p in ds.rglob("*.parquet")}
+    assert {p: after[p] for p in before} == before
+    added = sorted(str(p.relative_to(ds)) for p in set(after) - set(before))
+    assert added and all("date=2026-01-04/robot=r03/" in a for a in added)
+    assert _sql(ds, "SELECT count(*) FROM frames WHERE robot = 'r03'") == [(100,)]
+
+
+def test_query_outputs_and_html(fleet: tuple[Path, Path], tmp_path: Path) -> None:
+    _, out = fleet
+    csv = cli_run("query", str(out), "--report", "dialects", "--format", "csv")
+    assert csv.returncode == 0, csv.stderr
+    assert csv.stdout.splitlines()[0] == "robot,firmware,direction,cmd_id,name,dialect,frames"
+    table = cli_run("query", str(out), "--report", "latency")
+    assert "p99_ms" in table.stdout and "rows)" in table.stdout
+    page = tmp_path / "fleet.html"
+    p = cli_run("query", str(out), "--html", str(page))
+    assert p.returncode == 0, p.stderr
+    text = page.read_text()
+    assert text.count("<svg") == 2 and "GetAxleExtIOConfig" in text
+
+
+def test_errors_are_one_line(fleet: tuple[Path, Path], tmp_path: Path) -> None:
+    _, out = fleet
+    p = cli_run("query", str(tmp_path), "--report", "latency")
+    assert p.returncode == 2 and "not a fleet dataset" in p.stderr and "Traceback" not in p.stderr
+    p = cli_run("query", str(out), "--report", "state")
+    assert p.returncode == 2 and "no state" in p.stderr
+    p = cli_run("query", str(out), "--sql", "SELECT nope FROM frames")
+    assert p.returncode == 2 and "--sql" in p.stderr
+    p = cli_run("export-parquet", str(tmp_path / "missing.mcap"), "-o", str(tmp_path / "d"))
+    assert p.returncode == 2 and "no such file" in p.stderr

@@ -1,0 +1,240 @@
+"""A synthetic fleet: robots x firmwares x frames as MCAP recordings, with injected faults.
+
+    python tools/synth_fleet.py OUT --robots 20 --firmwares 3.8.2,3.9.5,3.9.8 --frames 1000000
+    python tools/synth_fleet.py OUT --refusal r03/3.9.8/201 --timeout r07/3.8.2/214 \\
+        --slow r11/3.9.5/212 --bad r05/3.9.8/682
+
+One recording per robot and firmware (``OUT/<robot>/fw-<firmware>.mcap``, metadata
+``robot`` and ``upstream``), written with the kit's own :class:`RecordingWriter` in its
+layout: each connection asks ``GetSoftwareVersion()`` (905) first, whose reply names the
+firmware, then cycles through the requests of :data:`SESSION` in pipelined bursts (a
+burst's requests, then their replies, as a pipelining client's traffic is batched).  The
+replies are the emulator's (:class:`~conformance.model.Controller` answering each request
+once; the CNT is then the request's), so the traffic has the emulator's shapes.
+
+Faults (``ROBOT/FIRMWARE/CMD_ID``; ``*`` for any robot or firmware), each on a fifth of
+that command's requests: ``--refusal`` (the reply is error code 14), ``--timeout`` (no
+reply), ``--slow`` (the reply 250 ms late instead of about 1 ms), ``--bad`` (the reply's
+DATA is ``x``, which no return value reads: a FAIL).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from conformance.firmware import version_tuple  # noqa: E402
+from conformance.frame import Frame, decode_all, encode_frame  # noqa: E402
+from conformance.model import Controller  # noqa: E402
+from conformance.recording import (  # noqa: E402
+    C2S,
+    S2C,
+    ConnectionRecord,
+    FrameBatch,
+    RecordingWriter,
+    default_metadata,
+)
+from conformance.spec import available_spec_versions, load_spec_version  # noqa: E402
+
+#: The requests each connection cycles through after its 905 (CMD_ID, DATA).
+SESSION: tuple[tuple[int, str], ...] = (
+    (212, "GetDI(0,0)"),
+    (214, "GetAI(0,0)"),
+    (201, 'MoveJ("P1")'),
+    (212, "GetDI(1,0)"),
+    (214, "GetAI(1,0)"),
+    (682, "GetAxleExtIOConfig()"),
+    (201, 'MoveJ("P2")'),
+)
+KINDS = ("refusal", "timeout", "slow", "bad")
+#: A fault hits every FAULT_EVERY-th request of its command.
+FAULT_EVERY = 5
+BURST = 64
+FRAMES_PER_CONNECTION = 200_000
+START_NS = 1_767_225_600_000_000_000  # 2026-01-01T00:00:00Z
+
+
+@dataclass(frozen=True)
+class Fault:
+    kind: str
+    robot: str
+    firmware: str
+    cmd_id: int
+
+    def hits(self, robot: str, firmware: str) -> bool:
+        return self.robot in ("*", robot) and self.firmware in ("*", firmware)
+
+
+def parse_fault(kind: str, text: str) -> Fault:
+    parts = text.split("/")
+    if len(parts) != 3 or not parts[2].isdigit():
+        raise SystemExit(f"--{kind} {text}: give ROBOT/FIRMWARE/CMD_ID (e.g. r03/3.9.8/201)")
+    return Fault(kind, parts[0], parts[1], int(parts[2]))
+
+
+def spec_for(firmware: str) -> str:
+    """The newest shipped spec set not newer than ``firmware`` (else the oldest)."""
+    fw = version_tuple(firmware) or (0,)
+    known = sorted(available_spec_versions(), key=lambda v: version_tuple(v) or (0,))
+    fit = [v for v in known if (version_tuple(v) or (0,)) <= fw]
+    return (fit or known)[-1]
+
+
+def reply_data(firmware: str) -> dict[tuple[int, str], str]:
+    """The emulator's reply DATA to each request of the session (and to 905)."""
+    ctl = Controller(load_spec_version(spec_for(firmware)))
+    out = {}
+    for cid, data in ((905, "GetSoftwareVersion()"), *SESSION):
+        frames = [
+            e
+            for a in ctl.answer(Frame(cnt=1, cmd_id=cid, data=data), "tcp")
+            for e in decode_all(a.data)
+            if isinstance(e, Frame)
+        ]
+        out[(cid, data)] = frames[0].data if frames else "0"
+    # 6.1.4: the web version names the firmware.
+    out[(905, "GetSoftwareVersion()")] = f"FR5-V1-001(V6.0),v{firmware},V3.7.77"
+    return out
+
+
+def _batch(
+    conn: int, direction: str, rows: Sequence[tuple[int, int, str, int, bytes]]
+) -> FrameBatch:
+    """rows: (cnt, cmd_id, data, t_ns, raw)."""
+    return FrameBatch(
+        conn=conn,
+        transport="tcp",
+        dir=direction,  # type: ignore[arg-type]
+        cnts=[r[0] for r in rows],
+        cmd_ids=[r[1] for r in rows],
+        names=[None] * len(rows),
+        datas=[r[2] for r in rows],
+        lengths=[len(r[2].encode()) for r in rows],
+        offsets=[0] * len(rows),
+        first_ns=[r[3] for r in rows],
+        complete_ns=[r[3] for r in rows],
+        sizes=[len(r[4]) for r in rows],
+        raw=b"".join(r[4] for r in rows),
+    )
+
+
+def write_recording(
+    path: Path, robot: str, firmware: str, frames: int, faults: Sequence[Fault], start_ns: int
+) -> int:
+    """One robot's recording on one firmware: ``frames`` frames (requests and replies);
+    returns how many were written."""
+    replies = reply_data(firmware)
+    mine = {(f.kind, f.cmd_id) for f in faults if f.hits(robot, firmware)}
+    encoded: dict[tuple[int, int, str], bytes] = {}
+
+    def raw(cnt: int, cid: int, data: str) -> bytes:
+        key = (cnt, cid, data)
+        b = encoded.get(key)
+        if b is None:
+            if len(encoded) > 200_000:
+                encoded.clear()
+            b = encoded[key] = encode_frame(cnt, cid, data)
+        return b
+
+    host = f"10.0.{int(robot.strip('r') or 0) % 250}.{len(firmware)}"
+    md = default_metadata(start_ns, robot=robot, upstream=f"{host}:8080", source="synth_fleet")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    written = 0
+    t = start_ns
+    conn = 0
+    seen: dict[int, int] = {}
+    with RecordingWriter(path, metadata=md) as w:
+        while written < frames:
+            conn += 1
+            w.write(
+                ConnectionRecord(
+                    conn=conn,
+                    event="open",
+                    t_ns=t,
+                    client=f"10.1.0.9:{40000 + conn}",
+                    upstream=f"{host}:8080",
+                )
+            )
+            per_conn = min(FRAMES_PER_CONNECTION, frames - written)
+            cnt = 0
+            step = 0
+            while per_conn - 0 > 0 and written < frames:
+                reqs: list[tuple[int, int, str, int, bytes]] = []
+                reps: list[tuple[int, int, str, int, bytes]] = []
+                n = min(BURST, max(1, (frames - written) // 2))
+                for _ in range(n):
+                    cnt = (cnt + 1) % 0x10000
+                    cid, data = (
+                        (905, "GetSoftwareVersion()")
+                        if step == 0
+                        else SESSION[(step - 1) % len(SESSION)]
+                    )
+                    step += 1
+                    t += 1_000_000  # a request a millisecond
+                    reqs.append((cnt, cid, data, t, raw(cnt, cid, data)))
+                    k = seen[cid] = seen.get(cid, 0) + 1
+                    hit = k % FAULT_EVERY == 0
+                    if hit and ("timeout", cid) in mine:
+                        continue
+                    rdata = replies[(cid, data)]
+                    late = 800_000 + (cnt % 7) * 50_000
+                    if hit and ("refusal", cid) in mine:
+                        rdata = "14"
+                    if hit and ("bad", cid) in mine:
+                        rdata = "x"
+                    if hit and ("slow", cid) in mine:
+                        late = 250_000_000
+                    reps.append((cnt, cid, rdata, t + late, raw(cnt, cid, rdata)))
+                w.write_frames(_batch(conn, C2S, reqs))
+                written += len(reqs)
+                per_conn -= len(reqs)
+                if reps and written < frames:
+                    reps = reps[: frames - written]
+                    w.write_frames(_batch(conn, S2C, reps))
+                    written += len(reps)
+                    per_conn -= len(reps)
+            t += 2_000_000
+            w.write(ConnectionRecord(conn=conn, event="close", t_ns=t, reason="client closed"))
+    return written
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    ap.add_argument("out", help="the directory to write the recordings into")
+    ap.add_argument("--robots", type=int, default=20)
+    ap.add_argument("--firmwares", default="3.8.2,3.9.5,3.9.8")
+    ap.add_argument("--frames", type=int, default=100_000, help="frames per robot and firmware")
+    for k in KINDS:
+        ap.add_argument(f"--{k}", action="append", default=[], metavar="ROBOT/FW/CMD_ID")
+    a = ap.parse_args(argv)
+    faults = [parse_fault(k, x) for k in KINDS for x in getattr(a, k)]
+    firmwares = [f.strip() for f in a.firmwares.split(",") if f.strip()]
+    out = Path(a.out)
+    t0 = time.perf_counter()
+    total = 0
+    for i in range(a.robots):
+        robot = f"r{i + 1:02d}"
+        for j, fw in enumerate(firmwares):
+            # A day per firmware: the fleet upgraded on 1 and 2 January.
+            start = START_NS + j * 86_400_000_000_000 + i * 1_000_000_000
+            total += write_recording(
+                out / robot / f"fw-{fw}.mcap", robot, fw, a.frames, faults, start
+            )
+    dt = time.perf_counter() - t0
+    print(
+        f"{total} frames in {a.robots * len(firmwares)} recordings, {dt:.1f} s ({total / dt:,.0f} frames/s)"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
