@@ -370,11 +370,11 @@ th {{ background: #f3f3f3; position: sticky; top: 0; }}
 details ul, ol.failures {{ margin: 0.3em 0; padding-left: 1.2em; max-width: 70em; }}
 section.report {{ border-top: 2px solid #ccc; margin-top: 1.5em; }}
 .controls {{ margin: 0.5em 0; }}
-td.cell[data-outcome="FAIL"], td.cell[data-outcome="ERROR"] {{ background: #fdecea; }}
-td.cell[data-outcome="NON-STRICT"] {{ background: #fff3e0; }}
-td.cell[data-outcome="DIALECT"] {{ background: #e3f2fd; }}
-td.cell[data-outcome="UNIMPLEMENTED"] {{ background: #f3e5f5; }}
-td.cell[data-outcome="PASS"] {{ background: #edf7ed; }}
+td.cell[data-outcome=FAIL], td.cell[data-outcome=ERROR] {{ background: #fdecea; }}
+td.cell[data-outcome=NON-STRICT] {{ background: #fff3e0; }}
+td.cell[data-outcome=DIALECT] {{ background: #e3f2fd; }}
+td.cell[data-outcome=UNIMPLEMENTED] {{ background: #f3e5f5; }}
+td.cell[data-outcome=PASS] {{ background: #edf7ed; }}
 td.absent {{ background: repeating-linear-gradient(45deg, #f5f5f5, #f5f5f5 6px, #e8e8e8 6px,
             #e8e8e8 12px); color: #555; font-style: italic; }}
 tr.differs td.id {{ border-left: 4px solid #ef6c00; }}
