@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import gzip
 import struct
+import time
 from pathlib import Path
 
 import pytest
@@ -436,3 +437,113 @@ def test_expected_failures_not_utf8_is_named(tmp_path: Path) -> None:
     assert p.stderr.strip().endswith(
         f"--expected-failures: {path} is not UTF-8 text (byte 0xff at offset 9)"
     ), p.stderr
+
+
+# --------------------------------------------------------------------------- a full disk
+
+
+def test_a_recording_that_cannot_be_written_says_so_and_counts_what_is_lost(
+    tmp_path: Path,
+) -> None:
+    """The recorder's file may not grow past 256 KiB (RLIMIT_FSIZE, as ``ulimit -f`` sets
+    it; a full disk gives ENOSPC the same way).  Before: the recorder process was killed
+    by SIGXFSZ (or, on a full disk, kept decoding into memory), the proxy said nothing
+    until it stopped, and claimed every frame it had decoded as recorded."""
+    import os
+    import resource
+    import socket
+
+    from conformance.net.emulator import EmulatorServer
+    from conformance.net.proxy import RecordingProxy
+
+    out = tmp_path / "r.mcap"
+    soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
+    with EmulatorServer() as emu:
+        proxy = RecordingProxy(emu.address, out=out, flush_interval=0.05)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (256 * 1024, hard))
+        try:
+            proxy.start()  # the recorder process inherits the limit
+        finally:
+            resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
+        try:
+            with socket.create_connection(proxy.address) as c:
+                i = 0
+
+                def exchange(n: int) -> None:
+                    nonlocal i
+                    c.sendall(
+                        b"".join(
+                            encode_frame((i + k) % 65536, 905, os.urandom(600).hex())
+                            for k in range(n)
+                        )
+                    )
+                    got = b""
+                    while got.count(b"/b/f") < n:
+                        chunk = c.recv(1 << 16)
+                        assert chunk, "the proxy closed the connection"
+                        got += chunk
+                    i += n
+
+                deadline = time.monotonic() + 30
+                while proxy.error is None:  # about 256 KiB of zstd-proof frames, then
+                    assert time.monotonic() < deadline, "no write error reported"
+                    exchange(4)
+                    time.sleep(0.02)  # a few flushes (chunks) before the limit
+                assert isinstance(proxy.error, OSError), proxy.error
+                lost = proxy.recorder.lost
+                pid = proxy._recorder.proc.pid  # type: ignore[union-attr]
+                rss = _rss_kb(pid)
+                for _ in range(60):  # forwarding goes on: 1,200 more exchanges, ~3 MB
+                    exchange(20)
+                wait_for = time.monotonic() + 10
+                while proxy.recorder.lost < lost + 1_000_000 and time.monotonic() < wait_for:
+                    time.sleep(0.01)
+                assert proxy.recorder.lost >= lost + 1_000_000  # counted, not recorded
+                assert _rss_kb(pid) - rss < 8 * 1024, "the recorder grew while not writing"
+        finally:
+            with pytest.raises(OSError):
+                proxy.close()
+    rec = read_recording(out)
+    assert not rec.complete
+    # What the proxy says it recorded is what the file holds.
+    assert proxy.frames_recorded == len(rec.frames) > 0
+
+
+def _rss_kb(pid: int) -> int:
+    with open(f"/proc/{pid}/status") as f:
+        return int(f.read().split("VmRSS:")[1].split()[0])
+
+
+def test_the_proxy_says_at_once_what_a_write_error_costs(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """``proxy``'s lines when the recording cannot be written: at once, then once a
+    second forwarding on (the default), or stopping (``--on-write-error stop``)."""
+    import argparse
+    from types import SimpleNamespace
+
+    from conformance.commands.capture import _write_failed
+
+    recorder = SimpleNamespace(lost=0)
+    proxy = SimpleNamespace(
+        paths=["/full/r.mcap"],
+        error=OSError(28, "No space left on device"),
+        frames_recorded=120,
+        recorder=recorder,
+    )
+    forward = argparse.Namespace(on_write_error="forward", out="/full/r.mcap")
+    said = _write_failed(proxy, forward, 0.0)
+    assert said is not None
+    assert capsys.readouterr().err == (
+        "proxy: cannot write the recording /full/r.mcap: No space left on device; at least "
+        "120 frames are in the file; forwarding on, NOT recording (--on-write-error forward; "
+        "stop says how much was lost)\n"
+    )
+    recorder.lost = 5000
+    assert _write_failed(proxy, forward, said) == said  # not yet a second
+    assert capsys.readouterr().err == ""
+    assert _write_failed(proxy, forward, said - 1.0) != said - 1.0
+    assert capsys.readouterr().err == "proxy: NOT recording: 5000 bytes not recorded so far\n"
+    stop = argparse.Namespace(on_write_error="stop", out="/full/r.mcap")
+    assert _write_failed(proxy, stop, 0.0) is None
+    assert "stopping: every connection is closed" in capsys.readouterr().err

@@ -11,6 +11,7 @@ import signal
 import sys
 import threading
 import time
+from typing import Any
 
 from ..errors import UsageError
 from ..frame import DEFAULT_MAX_FRAME_SIZE
@@ -144,6 +145,15 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         metavar="SECONDS",
         help="on SIGINT/SIGTERM, decode what the recorder is behind on for this long, then "
         "write the rest to the file undecoded (default 1)",
+    )
+    p.add_argument(
+        "--on-write-error",
+        choices=("forward", "stop"),
+        default="forward",
+        help="when the recording cannot be written (disk full, file too large, I/O error), "
+        "said at once either way: forward keeps forwarding, unrecorded, and says every "
+        "second how many bytes are not recorded (the default: the proxy never stops a "
+        "cell); stop closes every connection and stops, so nothing passes unrecorded",
     )
     add_specs_dir(p)
     p.set_defaults(func=_run_proxy)
@@ -304,8 +314,12 @@ def _run_proxy(args: argparse.Namespace) -> int:
     try:
         # A failed I/O thread (a bug) ends the run: the file is finished below, and
         # the exit code says it failed, rather than a live process forwarding nothing.
+        said: float | None = 0.0
         while not stop.wait(0.2) and proxy.running:
-            pass
+            if proxy.error is not None:
+                said = _write_failed(proxy, args, said or 0.0)
+                if said is None:
+                    break  # --on-write-error stop
     finally:
         for s, h_ in old.items():
             signal.signal(s, h_)
@@ -320,6 +334,8 @@ def _run_proxy(args: argparse.Namespace) -> int:
             f" ({st.rejected} refused for --max-connections, {st.accept_errors} accept "
             f"errors, {st.errors} closed by an error)"
         )
+    if proxy.recorder.lost:
+        extra += f"; {proxy.recorder.lost} bytes not recorded (the recording could not be written)"
     print(
         f"proxy: stopped; {st.connections} connections{extra}, {proxy.frames_recorded} frames "
         + (f"and {proxy.recorder.state_packets} state packets " if state_upstream else "")
@@ -330,6 +346,39 @@ def _run_proxy(args: argparse.Namespace) -> int:
         print(f"proxy: failed: {type(failure).__name__}: {failure}", file=sys.stderr)
         return 2
     return 0
+
+
+def _write_failed(proxy: Any, args: argparse.Namespace, said: float) -> float | None:
+    """The recording cannot be written: said at once (and, forwarding on, how much is not
+    recorded, once a second).  The time it was last said; None: stop the proxy."""
+    now = time.monotonic()
+    if not said:
+        where = proxy.paths[-1] if proxy.paths else args.out
+        e = proxy.error
+        why = e.strerror if isinstance(e, OSError) and e.strerror else str(e)
+        then = (
+            "stopping: every connection is closed (--on-write-error stop)"
+            if args.on_write_error == "stop"
+            else "forwarding on, NOT recording (--on-write-error forward; stop says how much "
+            "was lost)"
+        )
+        print(
+            f"proxy: cannot write the recording {where}: {why}; at least "
+            f"{proxy.frames_recorded} frames are in the file; {then}",
+            file=sys.stderr,
+            flush=True,
+        )
+        if args.on_write_error == "stop":
+            return None
+        return now
+    if now - said >= 1.0:
+        print(
+            f"proxy: NOT recording: {proxy.recorder.lost} bytes not recorded so far",
+            file=sys.stderr,
+            flush=True,
+        )
+        return now
+    return said
 
 
 # --------------------------------------------------------------------------- capture

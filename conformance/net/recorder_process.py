@@ -52,8 +52,8 @@ _DIR_NAME = (C2S, S2C, "")
 _F_SETPIPE_SZ = 1031  # Linux fcntl: grow the pipe (1 MiB, the unprivileged maximum)
 _PIPE_SIZE = 1 << 20
 # Counters the recorder process keeps in shared memory: frames, problems, bytes taken,
-# state packets.
-_COUNTERS = struct.Struct("<qqqq")
+# state packets, bytes not recorded (taken after the file could not be written).
+_COUNTERS = struct.Struct("<qqqqq")
 # And one value the proxy writes there: when stopping, the time.monotonic() (one clock
 # for every process on the machine) after which the recorder stops decoding and
 # copies what is left to the file undecoded, so that a stop never waits on a backlog.
@@ -66,23 +66,24 @@ class RecorderCounters:
 
     def __init__(self, shared: mmap.mmap) -> None:
         self._shared = shared
-        self._final: tuple[int, int, int, int] | None = None
+        self._final: tuple[int, int, int, int, int] | None = None
 
     def freeze(self) -> None:
         """Keep the last values: the shared memory is about to be closed."""
         self._final = self._get()
 
-    def _get(self) -> tuple[int, int, int, int]:
+    def _get(self) -> tuple[int, int, int, int, int]:
         if self._final is not None:
             return self._final
         try:
             return _COUNTERS.unpack_from(self._shared)  # type: ignore[return-value]
         except ValueError:  # closed
-            return (0, 0, 0, 0)
+            return (0, 0, 0, 0, 0)
 
     @property
     def frames(self) -> int:
-        """Frames recorded."""
+        """Frames recorded (once the file could not be written: those in the file, as of
+        its last whole flush)."""
         return self._get()[0]
 
     @property
@@ -99,6 +100,11 @@ class RecorderCounters:
     def state_packets(self) -> int:
         """State-port packets recorded (``/fairino/state`` messages)."""
         return self._get()[3]
+
+    @property
+    def lost(self) -> int:
+        """Payload bytes taken but not recorded: the file could not be written."""
+        return self._get()[4]
 
 
 class RecorderProcess:
@@ -348,6 +354,12 @@ class _Recorder:
         self.stop_timeout = config["stop_timeout"]
         self.taken = 0
         self.error_sent = False
+        #: The file could not be written (disk full, file too large...): what comes is
+        #: taken from the pipe (the proxy must not stall) and counted, not recorded, and
+        #: the counters stay at what the file holds as of its last whole flush.
+        self.broken = False
+        self.lost = 0
+        self.saved = (0, 0, 0)  # frames, problems, state packets at the last whole flush
         self.paths = list(writer.paths)
         self.last_flush = time.monotonic()
         self.latest_ns = 0  # arrival time of the newest event taken from the pipe
@@ -355,9 +367,16 @@ class _Recorder:
         rec.checkpoint = self.checkpoint
 
     def fail(self, e: BaseException) -> None:
-        """The recording failed (disk full...): tell the proxy once, and carry on."""
+        """The recording failed (disk full...): tell the proxy at once, and stop writing.
+
+        An ``OSError`` (ENOSPC, EFBIG, EIO) is the file's end: nothing more is written
+        (a writer retrying would buffer in memory what it cannot write), the counters
+        stay at the last whole flush, and what comes is counted as lost."""
+        if isinstance(e, OSError):
+            self.broken = True
         if not self.error_sent:
             self.error_sent = True
+            self.publish()
             with contextlib.suppress(OSError):
                 self.status.send(("error", _picklable(e)))
 
@@ -382,11 +401,14 @@ class _Recorder:
 
     def flush(self, now: float, idle_now_ns: int) -> None:
         self.last_flush = now
-        try:
-            self.rec.idle(idle_now_ns, self.idle_ns)
-            self.writer.flush()
-        except Exception as e:
-            self.fail(e)
+        if not self.broken:
+            try:
+                self.rec.idle(idle_now_ns, self.idle_ns)
+                self.writer.flush()
+            except Exception as e:
+                self.fail(e)
+            else:
+                self.saved = (self.rec.frames, self.rec.problems, self.rec.state_packets)
         self.publish()
 
     def run(self) -> None:
@@ -431,15 +453,20 @@ class _Recorder:
             now = time.monotonic()
             if now - self.last_flush >= self.flush_interval:
                 self.flush(now, time.time_ns() if drained else self.latest_ns)
-        if not stopped:
+        if not stopped and not self.broken:
             try:
                 self.rec.finish(t_ns=time.time_ns(), reason="proxy died")
             except Exception as e:
                 self.fail(e)
-        try:
-            self.writer.close()
-        except Exception as e:
-            self.fail(e)
+        if not self.broken:
+            try:
+                self.writer.close()
+            except Exception as e:
+                self.fail(e)
+            else:
+                self.saved = (self.rec.frames, self.rec.problems, self.rec.state_packets)
+        if self.broken:
+            self.saved = self.in_files()
         self.publish()
         with contextlib.suppress(OSError):
             self.status.send(("done", self.writer.paths))
@@ -457,6 +484,8 @@ class _Recorder:
         pos = 0
         end = len(buf)
         stop = False
+        if self.broken:
+            return self.discard(buf)
         reads: list[tuple[int, bytes]] = []
         key = (-1, -1)
 
@@ -468,7 +497,7 @@ class _Recorder:
                     self.fail(e)
                 reads.clear()
 
-        while end - pos >= size:
+        while end - pos >= size and not self.broken:
             kind, d, conn, t_ns, n = unpack(buf, pos)
             if end - pos - size < n:
                 break
@@ -499,12 +528,55 @@ class _Recorder:
                 self.fail(e)
         flush_reads()
         del buf[:pos]
+        if self.broken and not stop:  # it broke on the way: the rest is lost
+            return self.discard(buf)
+        return stop
+
+    def in_files(self) -> tuple[int, int, int]:
+        """Frames, problems and state packets the files hold, read back (after a failed
+        write the counts at the last flush are a lower bound: chunks written since count
+        too, the one being written when the disk filled does not)."""
+        from ..recording import read_recording
+
+        counts = [0, 0, 0]
+        try:
+            for path in self.writer.paths:
+                r = read_recording(path)
+                counts[0] += len(r.frames)
+                counts[1] += len(r.problems) + len(r.state_problems)
+                counts[2] += len(r.states)
+        except Exception:
+            return self.saved
+        return counts[0], counts[1], counts[2]
+
+    def discard(self, buf: bytearray) -> bool:
+        """The file cannot be written: the whole events in ``buf`` taken and counted as
+        lost (and removed); True at the stop event."""
+        unpack, size = _EVENT.unpack_from, _EVENT.size
+        pos, end = 0, len(buf)
+        stop = False
+        while end - pos >= size:
+            kind, _, _, _, n = unpack(buf, pos)
+            if end - pos - size < n:
+                break
+            pos += size + n
+            if kind in (DATA, DGRAM):
+                self.taken += n
+                self.lost += n
+            elif kind == STOP:
+                stop = True
+                break
+        del buf[:pos]
         return stop
 
     def publish(self) -> None:
         """Counters to shared memory, frames (for ``on_frame``) and new paths to the proxy."""
         rec = self.rec
-        _COUNTERS.pack_into(self.shared, 0, rec.frames, rec.problems, self.taken, rec.state_packets)
+        if self.broken:  # what the file holds, as of its last whole flush
+            frames, problems, states = self.saved
+        else:
+            frames, problems, states = rec.frames, rec.problems, rec.state_packets
+        _COUNTERS.pack_into(self.shared, 0, frames, problems, self.taken, states, self.lost)
         try:
             if self.out_frames:
                 self.status.send(("frames", list(self.out_frames)))
