@@ -11,6 +11,11 @@ judge names it as the cause of a FAIL, and nothing accepts the form.  Each entry
 cites its evidence (repository, file, commit, line) and is schema-validated
 (``specs/spec.schema.json``, ``dialectsFile``).  This module loads them; the
 judge (:mod:`conformance.judge`) decides what a frame that follows one means.
+
+An entry's firmware range comes from its evidence's release texts
+(:func:`conformance.firmware.evidence_range`: from the oldest firmware stated, open
+above); :meth:`DialectSet.within` keeps the entries whose range holds a known firmware
+version (``--spec-version``, or a target's 905 reply) and has each cite that version.
 """
 
 from __future__ import annotations
