@@ -7,6 +7,7 @@ every later chunk before), the chunk is named with what it cost, and ``check``,
 from __future__ import annotations
 
 import gzip
+import json
 import struct
 import time
 from pathlib import Path
@@ -16,7 +17,7 @@ from mcap.reader import make_reader
 
 from conformance.errors import EXIT_DAMAGED
 from conformance.frame import encode_frame
-from conformance.recording import RecordingWriter, StreamRecorder, read_recording
+from conformance.recording import RecordingWriter, StreamRecorder, dump_json, read_recording
 from tests.cli_run import cli_run
 
 #: 5 chunks of 28 requests and 28 replies each (one frame a message): 280 frames.
@@ -121,6 +122,13 @@ def test_check_info_recover_say_what_was_lost_and_exit_damaged(good: Path, tmp_p
             "its 56 messages are lost"
         ], (cmd, p.stderr)
         assert "internal error" not in p.stderr
+    # The JSON forms say so too.
+    info = json.loads(cli_run("info", "--json", str(bad)).stdout)
+    third = _chunks(good)[2][0]
+    assert [d.split(":")[0] for d in info["damage"]] == [f"chunk 3 of 5 at offset {third}"]
+    report = json.loads(cli_run("check", str(bad), "--report-json", "-").stdout)
+    assert report["meta"]["damage"] == info["damage"]
+    assert dump_json(read_recording(bad))["damage"] == info["damage"]
     out = tmp_path / "fixed.mcap"
     p = cli_run("recover", str(bad), "-o", str(out))
     assert p.returncode == EXIT_DAMAGED, p.stderr
@@ -275,8 +283,6 @@ def test_a_pcapng_simple_packet_block_has_the_time_before_it(tmp_path: Path) -> 
 def _recording_with(path: Path, topic: str, doc: object) -> None:
     """A small recording (one exchange) with ``doc`` as one more message on ``topic``
     (any JSON value, or bytes as they are)."""
-    import json
-
     from conformance.recording import FrameBatch, FrameRecord
 
     req, rep = encode_frame(1, 201, 'MoveJ("P1")'), encode_frame(1, 201, "1")
@@ -379,8 +385,6 @@ def test_a_message_of_the_wrong_types_is_named_never_an_internal_error(
 
 
 def _report_with(path: Path, **change: object) -> None:
-    import json
-
     doc = {
         "target": "t",
         "spec_version": "3.8.2",

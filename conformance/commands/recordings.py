@@ -276,6 +276,7 @@ def _run_info(args: argparse.Namespace) -> int:
     rec = read_capture(args.capture)
     specs, _ = spec_choice_of(args, traffic=_reported(rec))
     info = summarize(rec, specs, judge=judge_from(args, specs))
+    info["damage"] = [str(d) for d in rec.damage]  # --json: what could not be read
     if args.json:
         _write_json("-", info)
     else:
@@ -308,6 +309,8 @@ def _run_check(args: argparse.Namespace) -> int:
     from ..suite.spec_choice import note_spec
 
     note_spec(report, choice, judge.dialects)
+    if rec.damage:  # the JSON report says it too (the process exits EXIT_DAMAGED)
+        report.meta["damage"] = [str(d) for d in rec.damage]
     write_reports(report, json_path=args.report_json)  # as run and serve write theirs
     if args.report_json != "-":
         lines = failure_lines(report)  # frames, counts and reproductions, as run prints them

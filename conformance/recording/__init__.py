@@ -11,6 +11,7 @@ module             holds
 ``names``          command names of frames from the specs (StreamRecorder's lookups)
 ``state_stream``   StateStream: a state-port connection's bytes in, state records out
 ``recorder``       StreamRecorder: bytes and times in, records out (sans-I/O)
+``salvage``        Walk, Damage: an MCAP file's records, a damaged chunk skipped and named
 ``reader``         read_recording, Recording, RecordedExchange
 ``repair``         recover, atomic_output
 ``dump``           dump_json (the golden corpus's decoded form)
@@ -52,6 +53,7 @@ from .records import (
 )
 from .repair import RecoverResult, atomic_output, recover
 from .rotating import RotatingWriter, segment_path
+from .salvage import Damage
 from .state_stream import StateStream
 from .writer import RecordingWriter, default_metadata, utc_time
 
@@ -71,6 +73,7 @@ __all__ = [
     "TOPIC_S2C",
     "TOPIC_STATE",
     "ConnectionRecord",
+    "Damage",
     "DirectionText",
     "FrameBatch",
     "FrameRecord",

@@ -29,6 +29,8 @@ def dump_json(rec: Recording, *, metadata: bool = True) -> dict[str, Any]:
     out["problems"] = [
         dict(p.to_json(), raw=p.raw.decode("utf-8", "backslashreplace")) for p in rec.problems
     ]
+    if rec.damage:  # what could not be read (absent for a whole file)
+        out["damage"] = [str(d) for d in rec.damage]
     if rec.states:
         out["states"] = [dict(s.to_json(), raw=s.raw.hex()) for s in rec.states]
     if rec.state_problems:
