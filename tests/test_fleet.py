@@ -162,3 +162,41 @@ def test_errors_are_one_line(fleet: tuple[Path, Path], tmp_path: Path) -> None:
     assert p.returncode == 2 and "--sql" in p.stderr
     p = cli_run("export-parquet", str(tmp_path / "missing.mcap"), "-o", str(tmp_path / "d"))
     assert p.returncode == 2 and "no such file" in p.stderr
+
+
+def test_fast_path_gives_the_general_paths_rows(tmp_path: Path) -> None:
+    """The columnar path (conformance/fleet/fast.py) and check_recording's give the same
+    rows: a wrong reply CNT (the pairing one by one), time-outs and refusals (at once)."""
+    from conformance.dialects import default_dialects
+    from conformance.fleet.export import export_recording, open_dataset
+    from conformance.fleet.fast import _pairs_at_once, read_columns
+    from conformance.judge import Judge
+    from conformance.spec import default_specs
+
+    faults = (
+        Fault("cnt", "*", "*", 212),
+        Fault("timeout", "*", "*", 201),
+        Fault("refusal", "*", "*", 214),
+    )
+    a, b = tmp_path / "a.mcap", tmp_path / "b.mcap"
+    write_recording(a, "r09", "3.9.8", 600, faults, START)
+    write_recording(b, "r09", "3.8.2", 600, faults[1:], START)
+    ca, cb = read_columns(str(a)), read_columns(str(b))
+    assert ca is not None and cb is not None
+    assert _pairs_at_once(ca) is None and _pairs_at_once(cb) is not None
+    judge = Judge(default_specs(), default_dialects())
+    tables = {}
+    for fast in (True, False):
+        out = open_dataset(tmp_path / f"ds-{fast}")
+        for path in (a, b):
+            export_recording(str(path), out, judge_for=lambda fw: judge, fast=fast)
+        tables[fast] = {
+            t: duckdb.sql(
+                f"SELECT * FROM read_parquet('{out}/{t}/**/*.parquet', hive_partitioning = true) "
+                "ORDER BY ALL"
+            ).fetchall()
+            for t in ("frames", "exchanges", "connections")
+        }
+    assert tables[True] == tables[False]
+    rules = {r[18] for r in tables[True]["frames"]}  # the rule column
+    assert "bad_cnt" in rules

@@ -15,7 +15,8 @@ once; the CNT is then the request's), so the traffic has the emulator's shapes.
 Faults (``ROBOT/FIRMWARE/CMD_ID``; ``*`` for any robot or firmware), each on a fifth of
 that command's requests: ``--refusal`` (the reply is error code 14), ``--timeout`` (no
 reply), ``--slow`` (the reply 250 ms late instead of about 1 ms), ``--bad`` (the reply's
-DATA is ``x``, which no return value reads: a FAIL).
+DATA is ``x``, which no return value reads: a FAIL), ``--cnt`` (the reply's CNT is one more
+than the request's: ``bad_cnt``, a FAIL).
 """
 
 from __future__ import annotations
@@ -53,7 +54,7 @@ SESSION: tuple[tuple[int, str], ...] = (
     (682, "GetAxleExtIOConfig()"),
     (201, 'MoveJ("P2")'),
 )
-KINDS = ("refusal", "timeout", "slow", "bad")
+KINDS = ("refusal", "timeout", "slow", "bad", "cnt")
 #: A fault hits every FAULT_EVERY-th request of its command.
 FAULT_EVERY = 5
 BURST = 64
@@ -191,7 +192,8 @@ def write_recording(
                         rdata = "x"
                     if hit and ("slow", cid) in mine:
                         late = 250_000_000
-                    reps.append((cnt, cid, rdata, t + late, raw(cnt, cid, rdata)))
+                    rcnt = (cnt + 1) % 0x10000 if hit and ("cnt", cid) in mine else cnt
+                    reps.append((rcnt, cid, rdata, t + late, raw(rcnt, cid, rdata)))
                 w.write_frames(_batch(conn, C2S, reqs))
                 written += len(reqs)
                 per_conn -= len(reqs)
