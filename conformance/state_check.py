@@ -191,6 +191,25 @@ def _median_period(items: list[tuple[int, int, int, bytes | None]]) -> float | N
     return float(round(med)) if med >= 1 else round(med, 3)
 
 
+#: A stall is an interval over twice the period and this much more than it: the times are
+#: when the recorder read the bytes, and its own host's scheduling (tens of ms on a busy
+#: machine) is not the controller's doing.
+STALL_SLACK_MS = 50.0
+
+
+def _factor(period_ms: float | None) -> float:
+    if not period_ms:
+        return 2.0
+    return max(2.0, (period_ms + STALL_SLACK_MS) / period_ms)
+
+
+def _decoder(expected: str | None, period_ms: float | None, *, asked: bool) -> StateDecoder:
+    dec = StateDecoder(expected, period_ms=period_ms, period_factor=_factor(period_ms))
+    if asked and period_ms is not None:
+        dec.set_period(period_ms, asked=True)
+    return dec
+
+
 def _read_again(
     fig: StateFigures,
     items: list[tuple[int, int, int, bytes | None]],
@@ -199,7 +218,7 @@ def _read_again(
 ) -> None:
     fig.expected_version = expected
     own = _median_period(items)
-    dec = StateDecoder(expected, period_ms=own)
+    dec = _decoder(expected, own, asked=False)
     fig.period_ms = own
     pending = list(asked)
     last_packet_ns: int | None = None
@@ -210,13 +229,12 @@ def _read_again(
         while pending and pending[0][0] <= t_ns:
             _, ms = pending.pop(0)
             dec.set_period(ms, asked=True)
+            dec.period_factor = _factor(ms)
             fig.period_ms, fig.period_asked = ms, True
             last_packet_ns = None
         if raw is None:  # a capture gap: the stream restarts after it
             _count(fig, dec.close(t_ns / 1e9))
-            dec = StateDecoder(expected, period_ms=fig.period_ms)
-            if fig.period_asked and fig.period_ms is not None:
-                dec.set_period(fig.period_ms, asked=True)
+            dec = _decoder(expected, fig.period_ms, asked=fig.period_asked)
             last_packet_ns = None
             continue
         events = dec.feed(raw, t_ns / 1e9)
