@@ -169,11 +169,21 @@ def pytest_configure(config: pytest.Config) -> None:
         transport=sc.transport,
         strict=sc.strict,
         reference=sc.reference,
-        meta={"profile": sc.profile.name, **({"dry_run": True} if sc.dry_run else {})},
+        meta={
+            "profile": sc.profile.name,
+            "ran": _how_it_ran(config),
+            **({"dry_run": True} if sc.dry_run else {}),
+        },
     )
     config.stash[_MERGED_KEY] = merged
     if not _is_worker(config):
         config.pluginmanager.register(_Collector(merged), "fairino-conformance-collector")
+
+
+def _how_it_ran(config: pytest.Config) -> str:
+    """How the session ran, for the report: one process, or xdist's workers."""
+    workers = getattr(config.option, "numprocesses", None)
+    return f"pytest -n {workers} (xdist workers)" if workers else "pytest, one process"
 
 
 #: The case group whose cases move the arm and read it back (Set/Get pairs, motion versus

@@ -179,9 +179,13 @@ def test_item_2_parallel_workers_never_share_the_arm_of_one_target(
         assert "must not share one --target: run it with -n 0" in refused.stderr.str()
         parallel = pytester.runpytest(
             "-p", "no:cacheprovider", "-n", "2", "--target", target, "--groups", "framing",
-            "--commands", "229",
+            "--commands", "229", "--report-json", "r.json", "--report-html", "r.html",
         )  # fmt: skip
         assert parallel.ret == 0, parallel.stdout.str()
+    # The report says how it ran.
+    doc = json.loads((pytester.path / "r.json").read_text(encoding="utf-8"))
+    assert doc["meta"]["ran"] == "pytest -n 2 (xdist workers)"
+    assert "ran as pytest -n 2 (xdist workers)" in (pytester.path / "r.html").read_text()
 
 
 def test_item_7_check_never_passes_an_empty_recording_and_says_unfinished(

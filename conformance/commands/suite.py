@@ -299,6 +299,7 @@ def _run(args: argparse.Namespace) -> int:
     if line is not None:
         print(f"fairino-conformance run: {line}", file=sys.stderr)
     engine = Engine(config)  # judged against config.spec's set, which every report names
+    engine.report.meta["ran"] = "fairino-conformance run, one process"
     cases = engine.select(values["case"])
     if not cases:  # empty is never success (a selection that leaves nothing to run)
         raise UsageError(

@@ -158,6 +158,8 @@ def _head(r: Report) -> str:
     faults = r.meta.get("emulator_faults")
     if faults:
         text += f" · faults {_esc(', '.join(map(str, faults)))}"
+    if r.meta.get("ran"):
+        text += f" · ran as {_esc(r.meta['ran'])}"
     return text
 
 
