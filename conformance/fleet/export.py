@@ -225,8 +225,18 @@ class _Table:
         batch = pa.RecordBatch.from_arrays(arrays, schema=self.schema)
         if self._writer is None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
+            # Strings repeat (dictionaries); times and CNT count up (deltas): a frames
+            # file is a twentieth of zstd alone, and written faster.
             self._writer = pq.ParquetWriter(
-                str(self.path) + ".tmp", self.schema, compression="zstd"
+                str(self.path) + ".tmp",
+                self.schema,
+                compression="zstd",
+                use_dictionary=[f.name for f in self.schema if pa.types.is_string(f.type)],
+                column_encoding={
+                    f.name: "DELTA_BINARY_PACKED"
+                    for f in self.schema
+                    if pa.types.is_timestamp(f.type) or f.name == "cnt"
+                },
             )
         self._writer.write_batch(batch, row_group_size=ROW_GROUP)
         self.count += n
@@ -403,8 +413,8 @@ def _fast_rows(
 
     qs, ps, which, rows = judge_columns(c, memo, shown)
     n = len(which)
-    if -1 in which:  # every frame is in an exchange: the pairing lost none
-        raise AssertionError(f"{which.count(-1)} frames without a verdict")
+    if n and which.min() < 0:  # every frame is in an exchange: the pairing lost none
+        raise AssertionError(f"{int((which < 0).sum())} frames without a verdict")
     # The distinct verdicts' columns, taken per frame (C speed: a fleet repeats itself).
     kinds = ("outcome", "rule", "source", "dialect", "refused", "refusal_form", "refusal_code")
     types = [pa.string()] * 4 + [pa.bool_(), pa.string(), pa.int32()]
@@ -412,7 +422,7 @@ def _fast_rows(
         k: pa.array([r[j] for r in rows], type=t)
         for j, (k, t) in enumerate(zip(kinds, types, strict=True))
     }
-    at = pa.array(which, type=pa.int32())
+    at = pa.array(which.astype("int32"))
     verdict_cols = {k: v.take(at) for k, v in distinct.items()}
     shown_names = pa.array([r[7] for r in rows], type=pa.string()).take(at)
     names = pc.coalesce(shown_names, pa.array(c.name, type=pa.string()))

@@ -20,6 +20,7 @@ them frame by frame):
 
 from __future__ import annotations
 
+import binascii
 import json
 from collections import defaultdict, deque
 from collections.abc import Callable
@@ -75,7 +76,8 @@ def read_columns(path: str) -> Columns | None:
                 if isinstance(rec, Message):
                     topic = topics.get(rec.channel_id)
                     if topic in (TOPIC_C2S, TOPIC_S2C):
-                        if not _batch(c, json.loads(rec.data)):
+                        doc, raw_size = _message(rec.data)
+                        if not _batch(c, doc, raw_size):
                             return None
                     elif topic == TOPIC_CONNECTIONS:
                         c.connections.append(ConnectionRecord.from_json(json.loads(rec.data)))
@@ -95,19 +97,50 @@ def read_columns(path: str) -> Columns | None:
     return c
 
 
-def _batch(c: Columns, d: Any) -> bool:
+#: A batch message ends with its frames' bytes, ``"raw":"<base64>"}`` (the writer's template,
+#: conformance/recording/records.py): the fast path checks them apart and parses the rest.
+_RAW = b',"raw":"'
+
+
+def _message(m: bytes) -> tuple[Any, int]:
+    """A frames message's JSON without ``raw``, and how many bytes ``raw`` holds (a
+    ``ValueError`` for base64 that does not read)."""
+    i = m.rfind(_RAW)
+    if i < 0 or not m.endswith(b'"}'):
+        return json.loads(m), -1
+    # Read as the reader reads it (base64.b64decode: characters outside the alphabet
+    # skipped), so the two paths take the same messages.
+    return json.loads(m[:i] + b"}"), len(binascii.a2b_base64(m[i + len(_RAW) : -2]))
+
+
+_INT = {int}
+_STR = {str}
+_NAME = {str, type(None)}
+
+
+def _batch(c: Columns, d: Any, raw_size: int) -> bool:
     """Add one ``fairino.Frames`` message's columns; False for one the fast path leaves."""
     if not isinstance(d, dict) or "problems" in d or not isinstance(d.get("cnt"), list):
         return False
+    sizes = d.get("size")
+    if not isinstance(sizes, list) or not {*map(type, sizes)} <= _INT or sum(sizes) != raw_size:
+        return False  # the frames' bytes are not all there: the reader names it
     n = len(d["cnt"])
     complete = d["complete_ns"]
     first: list[int] = d["first_ns"] if "first_ns" in d else complete  # noqa: SIM401
     names = d.get("name", [None] * n)
-    cols = (d["cmd_id"], d["data"], d["len"], complete, first, names)
+    cols = (d["cmd_id"], d["data"], d["len"], complete, first, names, sizes)
     if any(not isinstance(x, list) or len(x) != n for x in cols):
         return False
     conn, transport, direction = d["conn"], d.get("transport", "tcp"), d["dir"]
-    if type(conn) is not int or direction not in ("c2s", "s2c"):
+    if type(conn) is not int or direction not in ("c2s", "s2c") or type(transport) is not str:
+        return False
+    # The types the schema asks for (the reader checks each message so; here at C speed):
+    # anything else is the general path's to name.
+    ints = (d["cnt"], d["cmd_id"], d["len"], complete, first)
+    if any(not {*map(type, x)} <= _INT or (x and min(x) < 0) for x in ints):
+        return False
+    if not {*map(type, d["data"])} <= _STR or not {*map(type, names)} <= _NAME:
         return False
     c.conn += [conn] * n
     c.transport += [transport] * n
@@ -226,20 +259,53 @@ def _oldest(q: deque[int] | None, taken: list[bool]) -> int | None:
 Row = tuple[str, str, str, str | None, bool, str | None, int | None, str | None]
 
 
+def _codes(values: list[str]) -> Any:
+    """Each string's number among the distinct ones (numpy int64), at C speed."""
+    import numpy as np
+    import pyarrow as pa
+
+    return np.asarray(pa.array(values, type=pa.string()).dictionary_encode().indices).astype(
+        np.int64
+    )
+
+
+def _distinct(*cols: Any) -> tuple[Any, Any]:
+    """For rows given as equal-length integer columns: each row's key number and, per key,
+    the first row holding it."""
+    import numpy as np
+
+    n = len(cols[0])
+    if n == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    by = np.lexsort((np.arange(n), *reversed(cols)))  # ties in row order: firsts first
+    new = np.ones(n, dtype=bool)
+    new[1:] = np.any(np.stack([c[by][1:] != c[by][:-1] for c in cols]), axis=0)
+    key = np.empty(n, dtype=np.int64)
+    key[by] = np.cumsum(new) - 1
+    return key, by[new]
+
+
 def judge_columns(
     c: Columns, judge: Judge, shown_name: Callable[[Verdict], str | None]
-) -> tuple[list[int], list[int], list[int], list[Row]]:
+) -> tuple[list[int], list[int], Any, list[Row]]:
     """The exchanges (request and reply indices), each frame's verdict (an index into the
-    distinct verdicts' rows) and those rows."""
+    distinct verdicts' rows, numpy) and those rows.
+
+    The judge is asked once per distinct request (ID, DATA, transport), once per distinct
+    echoing reply (its DATA to a distinct request), and for every frame whose verdict
+    depends on more: a request whose CNT does not step by one from its connection's last
+    (:meth:`Judge.request` with ``previous_cnt``, as ``check``'s CntSteps gives it), a
+    reply whose CNT or ID is not its request's, or that answers none.  A reply's verdict
+    reads the request verdict's command, variant and dialect, never its CNT finding."""
+    import numpy as np
+
     qs, ps = _pairs(c)
-    which = [-1] * len(c.cnt)
-    memo_req: dict[tuple[int, str, str], Verdict] = {}
-    memo_rep: dict[tuple[object, ...], Verdict] = {}
+    n = len(c.cnt)
+    which = np.full(n, -1, dtype=np.int64)
     index: dict[int, int] = {}
     kept: list[Verdict] = []  # alive, so that each id() stays its verdict's
     rows: list[Row] = []
-    last: dict[int, int] = {}
-    cnt, cmd, data, tr, length, conn = c.cnt, c.cmd_id, c.data, c.transport, c.length, c.conn
+    cnt_l, cmd_l, data, tr, length = c.cnt, c.cmd_id, c.data, c.transport, c.length
 
     def row(v: Verdict) -> int:
         k = index.get(id(v))
@@ -261,34 +327,49 @@ def judge_columns(
         return k
 
     def frame(i: int) -> Frame:
-        return Frame(cnt=cnt[i], cmd_id=cmd[i], data=data[i], length=length[i])
+        return Frame(cnt=cnt_l[i], cmd_id=cmd_l[i], data=data[i], length=length[i])
 
-    for q, p in zip(qs, ps, strict=True):
-        rv: Verdict | None = None
-        if q >= 0:
-            k = conn[q]
-            prev = last.get(k)
-            last[k] = cnt[q]
-            key = (cmd[q], data[q], tr[q])
-            rv = memo_req.get(key)
-            if rv is None:
-                rv = memo_req[key] = judge.request(frame(q), transport=tr[q])
-            if prev is not None and cnt[q] != (prev + 1) % 0x10000:
-                rv = judge.request(frame(q), transport=tr[q], previous_cnt=prev)
-            which[q] = row(rv)
-        if p < 0:
-            continue
-        if q < 0:
-            v = judge.reply(frame(p), None, None, transport=tr[p])
-        elif cnt[p] == cnt[q] and cmd[p] == cmd[q]:
-            assert rv is not None
-            d = rv.dialect
-            rkey = (cmd[p], data[p], data[q], tr[p], d.id if d is not None else None)
-            got = memo_rep.get(rkey)
-            if got is None:
-                got = memo_rep[rkey] = judge.reply(frame(p), frame(q), rv, transport=tr[p])
-            v = got
-        else:
-            v = judge.reply(frame(p), frame(q), rv, transport=tr[p])
-        which[p] = row(v)
+    if n == 0:
+        return qs, ps, which, rows
+    cnt = np.array(cnt_l, dtype=np.int64)
+    cmd = np.array(cmd_l, dtype=np.int64)
+    conn = np.array(c.conn, dtype=np.int64)
+    dcode = _codes(data)
+    tcode = _codes(tr)
+    q = np.array(qs, dtype=np.int64)
+    p = np.array(ps, dtype=np.int64)
+    # Requests, in the order check judges them: one verdict per distinct (ID, DATA, transport).
+    rq = q[q >= 0]
+    rkey, rfirst = _distinct(cmd[rq], dcode[rq], tcode[rq])
+    base = [judge.request(frame(int(rq[f])), transport=tr[int(rq[f])]) for f in rfirst]
+    base_row = np.array([row(v) for v in base], dtype=np.int64)
+    which[rq] = base_row[rkey]
+    # CNT steps per connection (CntSteps): the request before on the same connection.
+    by_conn = np.argsort(conn[rq], kind="stable")
+    cs, cn = conn[rq][by_conn], cnt[rq][by_conn]
+    step_bad = (cs[1:] == cs[:-1]) & (cn[1:] != (cn[:-1] + 1) % 0x10000)
+    for k in np.flatnonzero(step_bad):
+        i = int(rq[by_conn[k + 1]])
+        v = judge.request(frame(i), transport=tr[i], previous_cnt=int(cn[k]))
+        which[i] = row(v)
+    # Replies echoing their request: one verdict per distinct (request, reply DATA).
+    key_of_frame = np.full(n, -1, dtype=np.int64)
+    key_of_frame[rq] = rkey
+    both = (q >= 0) & (p >= 0)
+    qb, pb = q[both], p[both]
+    echo = (cnt[pb] == cnt[qb]) & (cmd[pb] == cmd[qb])
+    qe, pe = qb[echo], pb[echo]
+    ekey, efirst = _distinct(key_of_frame[qe], dcode[pe], cmd[pe])
+    erow = []
+    for f in efirst:
+        i, r = int(pe[f]), int(qe[f])
+        rv = base[int(key_of_frame[r])]
+        erow.append(row(judge.reply(frame(i), frame(r), rv, transport=tr[i])))
+    which[pe] = np.array(erow, dtype=np.int64)[ekey] if erow else which[pe]
+    # The rest one by one: replies that do not echo their request, or answer none.
+    for r, i in zip(qb[~echo].tolist(), pb[~echo].tolist(), strict=True):
+        rv = base[int(key_of_frame[r])]
+        which[i] = row(judge.reply(frame(i), frame(r), rv, transport=tr[i]))
+    for i in p[(q < 0) & (p >= 0)].tolist():
+        which[i] = row(judge.reply(frame(i), None, None, transport=tr[i]))
     return qs, ps, which, rows

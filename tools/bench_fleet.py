@@ -1,0 +1,152 @@
+"""export-parquet and query over a synthetic fleet: frames/s per process, peak RSS, query time.
+
+    python tools/bench_fleet.py --robots 20 --firmwares 3.8.2,3.9.5,3.9.8 --frames 1000000
+    python tools/bench_fleet.py --fleet /tmp/fleet --frames 100000   # reuse a generated fleet
+
+Makes the fleet with tools/synth_fleet.py (unless it is there; injected refusals, time-outs,
+slow and bad replies on a few robots), then, each in its own process (its CPU time and peak
+RSS from ``wait4``):
+
+* the baseline: the same recordings read by the kit's reader alone (``read_recording``),
+  the first ``--sample`` of them;
+* ``export-parquet`` of those same recordings, one process (frames/s per process);
+* ``export-parquet`` of one recording and of all of them (the peak RSS of both: flat
+  memory means the same figure whatever the number of recordings); ``--jobs`` processes;
+* ``query --report latency`` over the whole dataset (``--threads``, default 2).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from tools.synth_fleet import START_NS, Fault, write_recording  # noqa: E402
+
+PY = sys.executable
+CLI = [PY, "-m", "conformance"]
+
+FAULTS = (
+    Fault("refusal", "r03", "3.9.8", 201),
+    Fault("timeout", "r07", "3.8.2", 214),
+    Fault("slow", "r11", "3.9.5", 212),
+    Fault("bad", "r05", "*", 682),
+)
+
+
+def run(cmd: list[str]) -> tuple[float, float, int, str]:
+    """(wall s, CPU s, peak RSS MiB, stdout) of one process."""
+    t0 = time.perf_counter()
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    out = p.stdout.read() if p.stdout else ""
+    _, status, ru = os.wait4(p.pid, 0)
+    p.returncode = os.waitstatus_to_exitcode(status)
+    wall = time.perf_counter() - t0
+    if p.returncode not in (0, 3):
+        raise SystemExit(f"{' '.join(cmd)}: exit {p.returncode}")
+    return wall, ru.ru_utime + ru.ru_stime, ru.ru_maxrss // 1024, out
+
+
+_READ = """
+import sys
+from conformance.recording import read_recording
+n = 0
+for p in sys.argv[1:]:
+    n += len(read_recording(p).frames)
+print(n)
+"""
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    ap.add_argument(
+        "--fleet", help="the fleet's directory (made if missing; default: a temporary one)"
+    )
+    ap.add_argument("--robots", type=int, default=20)
+    ap.add_argument("--firmwares", default="3.8.2,3.9.5,3.9.8")
+    ap.add_argument("--frames", type=int, default=100_000, help="frames per robot and firmware")
+    ap.add_argument("--sample", type=int, default=3, help="recordings timed one process each")
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--threads", type=int, default=2)
+    a = ap.parse_args()
+    tmp = tempfile.mkdtemp(prefix="bench-fleet-")
+    fleet = Path(a.fleet or os.path.join(tmp, "fleet"))
+    firmwares = [f for f in a.firmwares.split(",") if f]
+    if not fleet.exists():
+        t0 = time.perf_counter()
+        for i in range(a.robots):
+            for j, fw in enumerate(firmwares):
+                robot = f"r{i + 1:02d}"
+                start = START_NS + j * 86_400_000_000_000 + i * 1_000_000_000
+                write_recording(fleet / robot / f"fw-{fw}.mcap", robot, fw, a.frames, FAULTS, start)
+        print(
+            f"fleet: {a.robots} robots x {len(firmwares)} firmwares x {a.frames} frames "
+            f"made in {time.perf_counter() - t0:.0f} s"
+        )
+    files = sorted(str(p) for p in fleet.rglob("*.mcap"))
+    size = sum(os.path.getsize(f) for f in files) / 2**20
+    print(f"fleet {fleet}: {len(files)} recordings, {size:.0f} MiB")
+    sample = files[: a.sample]
+    try:
+        wall, cpu, rss, out = run([PY, "-c", _READ, *sample])
+        n = int(out.strip())
+        print(
+            f"baseline, read_recording alone ({len(sample)} recordings, {n} frames): "
+            f"{n / cpu:,.0f} frames/s CPU, {n / wall:,.0f} wall, peak RSS {rss} MiB"
+        )
+        base = n / cpu
+        ds = os.path.join(tmp, "ds-sample")
+        wall, cpu, rss, _ = run([*CLI, "export-parquet", *sample, "-o", ds])
+        print(
+            f"export-parquet, 1 process ({len(sample)} recordings): {n / cpu:,.0f} frames/s CPU "
+            f"({n / cpu / base:.1f}x the reader alone), {n / wall:,.0f} wall, peak RSS {rss} MiB"
+        )
+        one = os.path.join(tmp, "ds-one")
+        _, _, rss1, _ = run([*CLI, "export-parquet", files[0], "-o", one])
+        shutil.rmtree(one, ignore_errors=True)
+        ds_all = os.path.join(tmp, "ds-all")
+        wall, cpu, rss_all, _ = run(
+            [*CLI, "export-parquet", str(fleet), "-o", ds_all, "--jobs", "1"]
+        )
+        total = a.frames * len(files) if a.frames else 0
+        print(
+            f"export-parquet, all {len(files)} recordings, 1 process: {wall:.1f} s wall, "
+            f"{total / cpu:,.0f} frames/s CPU; peak RSS {rss_all} MiB (one recording: {rss1} MiB)"
+        )
+        if a.jobs > 1:
+            ds_jobs = os.path.join(tmp, "ds-jobs")
+            wall, cpu, rss_j, _ = run(
+                [*CLI, "export-parquet", str(fleet), "-o", ds_jobs, "--jobs", str(a.jobs)]
+            )
+            print(
+                f"export-parquet --jobs {a.jobs}: {wall:.1f} s wall, {total / wall:,.0f} frames/s wall "
+                f"(peak RSS of the parent {rss_j} MiB)"
+            )
+            shutil.rmtree(ds_jobs, ignore_errors=True)
+        for report in ("latency", "failures"):
+            wall, cpu, rss, out = run(
+                [*CLI, "query", ds_all, "--report", report, "--threads", str(a.threads)]
+            )
+            print(
+                f"query --report {report} --threads {a.threads}: {wall:.2f} s wall, {cpu:.2f} s CPU, "
+                f"peak RSS {rss} MiB, {out.count(chr(10)) - 3} rows"
+            )
+        ds_size = sum(p.stat().st_size for p in Path(ds_all).rglob("*.parquet")) / 2**20
+        print(f"dataset: {ds_size:.0f} MiB of Parquet ({size:.0f} MiB of MCAP)")
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
