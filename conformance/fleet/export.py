@@ -212,8 +212,8 @@ class _Table:
             col = cols.get(f.name)
             if isinstance(col, (pa.Array, pa.ChunkedArray)):
                 if pa.types.is_timestamp(f.type):  # ns since the epoch (int64)
-                    col = col.cast(pa.timestamp("ns", tz="UTC"))
-                arrays.append(col.cast(f.type, safe=False))
+                    col = col.cast(pa.timestamp("ns", tz="UTC")).cast(f.type, safe=False)
+                arrays.append(col.cast(f.type))
             elif col is not None and pa.types.is_timestamp(f.type):
                 # The recordings' times are ns since the epoch; the files hold microseconds.
                 ns = pa.array(col, type=pa.timestamp("ns", tz="UTC"))
@@ -270,8 +270,15 @@ def _frame_row(f: FrameRecord, v: Verdict, port: int | None, data: bool) -> tupl
         v.dialect.id if v.dialect is not None else None,
         v.refused,
         v.form.value if v.refused and v.form is not None else None,
-        v.code if v.refused else None,
+        _code(v),
     )
+
+
+def _code(v: Verdict) -> int | None:
+    """A refusal's code, where it is one a 64-bit column holds (a reply's digits are not
+    bounded)."""
+    code = v.code if v.refused else None
+    return code if code is not None and -(2**63) <= code < 2**63 else None
 
 
 def _shown_name(f: FrameRecord, v: Verdict) -> str | None:
@@ -411,13 +418,13 @@ def _fast_rows(
     import pyarrow as pa
     import pyarrow.compute as pc
 
-    qs, ps, which, rows = judge_columns(c, memo, shown)
+    qs, ps, which, rows = judge_columns(c, memo, shown, _code)
     n = len(which)
     if n and which.min() < 0:  # every frame is in an exchange: the pairing lost none
         raise AssertionError(f"{int((which < 0).sum())} frames without a verdict")
     # The distinct verdicts' columns, taken per frame (C speed: a fleet repeats itself).
     kinds = ("outcome", "rule", "source", "dialect", "refused", "refusal_form", "refusal_code")
-    types = [pa.string()] * 4 + [pa.bool_(), pa.string(), pa.int32()]
+    types = [pa.string()] * 4 + [pa.bool_(), pa.string(), pa.int64()]
     distinct = {
         k: pa.array([r[j] for r in rows], type=t)
         for j, (k, t) in enumerate(zip(kinds, types, strict=True))
@@ -429,15 +436,15 @@ def _fast_rows(
     tables["frames"].add_columns(
         {
             "transport": c.transport,
-            "port": [ports.get(k) for k in c.conn],
+            "port": [ports.get(k) for k in c.conn.tolist()],
             "direction": c.dir,
-            "conn": c.conn,
-            "first_time": c.first_ns,
-            "time": c.complete_ns,
-            "cnt": c.cnt,
-            "cmd_id": c.cmd_id,
+            "conn": pa.array(c.np("conn")),
+            "first_time": pa.array(c.np("first_ns")),
+            "time": pa.array(c.np("complete_ns")),
+            "cnt": pa.array(c.np("cnt")),
+            "cmd_id": pa.array(c.np("cmd_id")),
             "name": names,
-            "len": c.length,
+            "len": pa.array(c.np("length")),
             "len_ok": pa.repeat(pa.scalar(True), n),  # a LEN that does not fit: general path
             "data": c.data if data else pa.nulls(n, pa.string()),
             **verdict_cols,
@@ -452,17 +459,17 @@ def _fast_rows(
     qn = pc.if_else(has_q, q, pa.scalar(None, pa.int64()))
     pn = pc.if_else(has_p, p, pa.scalar(None, pa.int64()))
     f = pc.if_else(has_q, q, p)
-    complete = pa.array(c.complete_ns, type=pa.int64())
+    complete = pa.array(c.np("complete_ns"))
     req_ns, rep_ns = complete.take(qn), complete.take(pn)
     at_rep = at.take(pn)
     refused = pc.fill_null(distinct["refused"].take(at_rep), False)
     tables["exchanges"].add_columns(
         {
             "transport": pa.array(c.transport, type=pa.string()).take(f),
-            "conn": pa.array(c.conn, type=pa.int64()).take(f),
-            "cmd_id": pa.array(c.cmd_id, type=pa.int32()).take(f),
+            "conn": pa.array(c.np("conn")).take(f),
+            "cmd_id": pa.array(c.np("cmd_id")).take(f),
             "name": names.take(f),
-            "cnt": pa.array(c.cnt, type=pa.int32()).take(f),
+            "cnt": pa.array(c.np("cnt")).take(f),
             "request_time": req_ns,
             "reply_time": rep_ns,
             "latency_ns": pc.subtract(rep_ns, req_ns),
@@ -471,7 +478,7 @@ def _fast_rows(
             "reply_rule": distinct["rule"].take(at_rep),
             "refused": refused,
             "refusal_code": pc.if_else(
-                refused, distinct["refusal_code"].take(at_rep), pa.scalar(None, pa.int32())
+                refused, distinct["refusal_code"].take(at_rep), pa.scalar(None, pa.int64())
             ),
             "missing_reply": pc.and_(has_q, pc.invert(has_p)),
         },
@@ -501,7 +508,7 @@ def _exchanges(rec: Recording, verdicts: dict[int, Verdict], table: _Table) -> N
                 pv.outcome.value if pv is not None else None,
                 pv.rule if pv is not None else None,
                 bool(pv is not None and pv.refused),
-                pv.code if pv is not None and pv.refused else None,
+                _code(pv) if pv is not None else None,
                 req is not None and rep is None,
             )
         )

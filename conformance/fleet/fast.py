@@ -22,9 +22,11 @@ from __future__ import annotations
 
 import binascii
 import json
+import sys
+from array import array
 from collections import defaultdict, deque
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from ..frame import Frame
@@ -39,30 +41,44 @@ __all__ = ["Columns", "judge_columns", "read_columns"]
 _CONNECTIONS = CntSteps().limit
 
 
+def _ints() -> array[int]:
+    return array("q")
+
+
 @dataclass
 class Columns:
-    """A clean recording's frames as columns (file order), its connections and metadata."""
+    """A clean recording's frames as columns (file order), its connections and metadata.
 
-    metadata: dict[str, str]
-    connections: list[ConnectionRecord]
-    conn: list[int]
-    transport: list[str]
-    dir: list[str]
-    cnt: list[int]
-    cmd_id: list[int]
-    name: list[str | None]
-    data: list[str]
-    length: list[int]
-    first_ns: list[int]
-    complete_ns: list[int]
-    complete: bool
+    Numbers are kept as 64-bit arrays (8 bytes a value, not a Python int each), DATA
+    strings interned (a fleet sends the same few again and again): a million frames take
+    some 60 MB, not half a gigabyte."""
+
+    metadata: dict[str, str] = field(default_factory=dict)
+    connections: list[ConnectionRecord] = field(default_factory=list)
+    conn: array[int] = field(default_factory=_ints)
+    transport: list[str] = field(default_factory=list)
+    dir: list[str] = field(default_factory=list)
+    cnt: array[int] = field(default_factory=_ints)
+    cmd_id: array[int] = field(default_factory=_ints)
+    name: list[str | None] = field(default_factory=list)
+    data: list[str] = field(default_factory=list)
+    length: array[int] = field(default_factory=_ints)
+    first_ns: array[int] = field(default_factory=_ints)
+    complete_ns: array[int] = field(default_factory=_ints)
+    complete: bool = True
+
+    def np(self, name: str) -> Any:
+        """A number column as a numpy int64 array (a view, no copy)."""
+        import numpy as np
+
+        return np.frombuffer(getattr(self, name), dtype=np.int64)
 
 
 def read_columns(path: str) -> Columns | None:
     """The recording's columns, or None when the fast path cannot take it (see the module)."""
     from mcap.records import Channel, Message, Metadata
 
-    c = Columns({}, [], [], [], [], [], [], [], [], [], [], [], True)
+    c = Columns()
     topics: dict[int, str] = {}
     try:
         with open(path, "rb") as f:
@@ -90,7 +106,15 @@ def read_columns(path: str) -> Columns | None:
             if walk.damage or not c.metadata:
                 return None
             c.complete = walk.complete
-    except (ValueError, KeyError, TypeError, AttributeError, RecursionError, OSError):
+    except (
+        ValueError,
+        KeyError,
+        TypeError,
+        AttributeError,
+        RecursionError,
+        OverflowError,
+        OSError,
+    ):
         return None  # whatever is wrong, the general path says it in its words
     if len({*c.conn}) > _CONNECTIONS or any(x.stream for x in c.connections):
         return None
@@ -111,6 +135,10 @@ def _message(m: bytes) -> tuple[Any, int]:
     # Read as the reader reads it (base64.b64decode: characters outside the alphabet
     # skipped), so the two paths take the same messages.
     return json.loads(m[:i] + b"}"), len(binascii.a2b_base64(m[i + len(_RAW) : -2]))
+
+
+def _intern_name(x: str | None) -> str | None:
+    return None if x is None else sys.intern(x)
 
 
 _INT = {int}
@@ -142,16 +170,16 @@ def _batch(c: Columns, d: Any, raw_size: int) -> bool:
         return False
     if not {*map(type, d["data"])} <= _STR or not {*map(type, names)} <= _NAME:
         return False
-    c.conn += [conn] * n
+    c.conn.extend([conn] * n)
     c.transport += [transport] * n
     c.dir += [direction] * n
-    c.cnt += d["cnt"]
-    c.cmd_id += d["cmd_id"]
-    c.name += names
-    c.data += d["data"]
-    c.length += d["len"]
-    c.first_ns += first
-    c.complete_ns += complete
+    c.cnt.extend(d["cnt"])
+    c.cmd_id.extend(d["cmd_id"])
+    c.name += map(_intern_name, names)
+    c.data += map(sys.intern, d["data"])
+    c.length.extend(d["len"])
+    c.first_ns.extend(first)
+    c.complete_ns.extend(complete)
     return True
 
 
@@ -176,11 +204,8 @@ def _pairs_at_once(c: Columns) -> tuple[list[int], list[int]] | None:
     n = len(c.cnt)
     if n == 0:
         return [], []
-    try:
-        first = np.array(c.first_ns, dtype=np.int64)
-        keys = np.stack([np.array(x, dtype=np.int64) for x in (c.conn, c.cnt, c.cmd_id)], axis=1)
-    except OverflowError:
-        return None
+    first = c.np("first_ns")
+    keys = np.stack([c.np(x) for x in ("conn", "cnt", "cmd_id")], axis=1)
     order = np.argsort(first, kind="stable")
     pos = np.empty(n, dtype=np.int64)
     pos[order] = np.arange(n)
@@ -286,7 +311,10 @@ def _distinct(*cols: Any) -> tuple[Any, Any]:
 
 
 def judge_columns(
-    c: Columns, judge: Judge, shown_name: Callable[[Verdict], str | None]
+    c: Columns,
+    judge: Judge,
+    shown_name: Callable[[Verdict], str | None],
+    code: Callable[[Verdict], int | None],
 ) -> tuple[list[int], list[int], Any, list[Row]]:
     """The exchanges (request and reply indices), each frame's verdict (an index into the
     distinct verdicts' rows, numpy) and those rows.
@@ -320,7 +348,7 @@ def judge_columns(
                     v.dialect.id if v.dialect is not None else None,
                     v.refused,
                     v.form.value if v.refused and v.form is not None else None,
-                    v.code if v.refused else None,
+                    code(v),
                     shown_name(v),
                 )
             )
@@ -331,9 +359,7 @@ def judge_columns(
 
     if n == 0:
         return qs, ps, which, rows
-    cnt = np.array(cnt_l, dtype=np.int64)
-    cmd = np.array(cmd_l, dtype=np.int64)
-    conn = np.array(c.conn, dtype=np.int64)
+    cnt, cmd, conn = c.np("cnt"), c.np("cmd_id"), c.np("conn")
     dcode = _codes(data)
     tcode = _codes(tr)
     q = np.array(qs, dtype=np.int64)

@@ -41,7 +41,7 @@ PARTITIONS = ("date", "robot")
 _RECORDING = (
     ("recording", "string", "the recording's file name as given"),
     ("recording_id", "string", "content hash of the recording file (16 hex digits)"),
-    ("segment", "int32", "the recording's segment number (metadata ``segment``; 0: not split)"),
+    ("segment", "int64", "the recording's segment number (metadata ``segment``; 0: not split)"),
     ("firmware", "string", "the web version a 905 reply names (or --firmware); null: unknown"),
     ("spec_version", "string", "the spec set the frames were judged against"),
 )
@@ -51,15 +51,15 @@ COLUMNS: dict[str, tuple[tuple[str, str, str], ...]] = {
     "frames": (
         *_RECORDING,
         ("transport", "string", "tcp or udp"),
-        ("port", "int32", "the controller's port (the connection's upstream); null: unknown"),
+        ("port", "int64", "the controller's port (the connection's upstream); null: unknown"),
         ("direction", "string", "c2s (request) or s2c (reply)"),
         ("conn", "int64", "connection number within the recording"),
         ("first_time", "timestamp", "the frame's first byte"),
         ("time", "timestamp", "the frame's last byte"),
-        ("cnt", "int32", "CNT"),
-        ("cmd_id", "int32", "CMD_ID"),
+        ("cnt", "int64", "CNT"),
+        ("cmd_id", "int64", "CMD_ID"),
         ("name", "string", "the command's name, as check shows it"),
-        ("len", "int32", "LEN as sent"),
+        ("len", "int64", "LEN as sent"),
         ("len_ok", "bool", "LEN is DATA's length in UTF-8 bytes"),
         ("data", "string", "DATA (null unless --data)"),
         ("outcome", "string", "the judge's outcome"),
@@ -68,15 +68,15 @@ COLUMNS: dict[str, tuple[tuple[str, str, str], ...]] = {
         ("dialect", "string", "the field dialect entry the frame follows; null: none"),
         ("refused", "bool", "a reply saying no"),
         ("refusal_form", "string", "zero, errcode or text; null unless refused"),
-        ("refusal_code", "int32", "the error code of a refusal; null unless refused"),
+        ("refusal_code", "int64", "the error code of a refusal; null unless refused"),
     ),
     "exchanges": (
         *_RECORDING,
         ("transport", "string", "tcp or udp"),
         ("conn", "int64", "connection number"),
-        ("cmd_id", "int32", "the request's CMD_ID (the reply's if it stands alone)"),
+        ("cmd_id", "int64", "the request's CMD_ID (the reply's if it stands alone)"),
         ("name", "string", "the command's name"),
-        ("cnt", "int32", "the request's CNT"),
+        ("cnt", "int64", "the request's CNT"),
         ("request_time", "timestamp", "the request's last byte; null: a reply with no request"),
         ("reply_time", "timestamp", "the reply's last byte; null: missing"),
         (
@@ -88,7 +88,7 @@ COLUMNS: dict[str, tuple[tuple[str, str, str], ...]] = {
         ("reply_outcome", "string", "of the reply; null: missing"),
         ("reply_rule", "string", "the reply's deciding rule; null: missing"),
         ("refused", "bool", "the reply says no"),
-        ("refusal_code", "int32", "its error code; null unless refused"),
+        ("refusal_code", "int64", "its error code; null unless refused"),
         ("missing_reply", "bool", "a request no reply was recorded for (check's no_reply FAIL)"),
     ),
     "problems": (
@@ -101,7 +101,7 @@ COLUMNS: dict[str, tuple[tuple[str, str, str], ...]] = {
         ("detail", "string", "what it says"),
         ("size", "int64", "bytes"),
         ("time", "timestamp", "when"),
-        ("cmd_id", "int32", "the request a controller's bytes answered (check's blame); null"),
+        ("cmd_id", "int64", "the request a controller's bytes answered (check's blame); null"),
         ("outcome", "string", "the judge's outcome"),
         ("source", "string", "the rule's source"),
     ),
@@ -120,11 +120,11 @@ COLUMNS: dict[str, tuple[tuple[str, str, str], ...]] = {
         *_RECORDING,
         ("conn", "int64", "connection number"),
         ("time", "timestamp", "the packet's last byte"),
-        ("cnt", "int32", "the packet's counter"),
-        ("len", "int32", "its LEN"),
+        ("cnt", "int64", "the packet's counter"),
+        ("len", "int64", "its LEN"),
         ("layout", "string", "the state layout version LEN matched; null: none"),
         ("checksum_ok", "bool", "the sum sent is the one computed"),
-        ("gap", "int32", "packets lost before this one (CNT step - 1; 0 for the first)"),
+        ("gap", "int64", "packets lost before this one (CNT step - 1; 0 for the first)"),
     ),
 }
 TABLES = tuple(COLUMNS)
@@ -136,8 +136,7 @@ def arrow_schema(table: str) -> Any:
 
     types = {
         "string": pa.string(),
-        "int32": pa.int32(),
-        "int64": pa.int64(),
+        "int64": pa.int64(),  # every integer: a recording's numbers are 64-bit
         "bool": pa.bool_(),
         "timestamp": pa.timestamp("us", tz="UTC"),
     }
