@@ -430,14 +430,25 @@ def _fast_rows(
         for j, (k, t) in enumerate(zip(kinds, types, strict=True))
     }
     at = pa.array(which.astype("int32"))
-    verdict_cols = {k: v.take(at) for k, v in distinct.items()}
-    shown_names = pa.array([r[7] for r in rows], type=pa.string()).take(at)
-    names = pc.coalesce(shown_names, pa.array(c.name, type=pa.string()))
+
+    def per_frame(values: Any, indices: Any) -> Any:
+        # Strings stay a dictionary over the distinct verdicts' (written a row group at a
+        # time): a million frames' columns are their indices, not a million strings.
+        if pa.types.is_string(values.type):
+            return pa.DictionaryArray.from_arrays(indices, values)
+        return values.take(indices)
+
+    verdict_cols = {k: per_frame(v, at) for k, v in distinct.items()}
+    shown_names = pa.array([r[7] for r in rows], type=pa.string())
+    if shown_names.null_count == 0:
+        names = per_frame(shown_names, at)
+    else:  # a command the judge does not name: the recorded name
+        names = pc.coalesce(shown_names.take(at), pa.array(c.name, type=pa.string()))
     tables["frames"].add_columns(
         {
-            "transport": c.transport,
+            "transport": pa.array(c.transport, type=pa.string()).dictionary_encode(),
             "port": [ports.get(k) for k in c.conn.tolist()],
-            "direction": c.dir,
+            "direction": pa.array(c.dir, type=pa.string()).dictionary_encode(),
             "conn": pa.array(c.np("conn")),
             "first_time": pa.array(c.np("first_ns")),
             "time": pa.array(c.np("complete_ns")),
@@ -468,14 +479,16 @@ def _fast_rows(
             "transport": pa.array(c.transport, type=pa.string()).take(f),
             "conn": pa.array(c.np("conn")).take(f),
             "cmd_id": pa.array(c.np("cmd_id")).take(f),
-            "name": names.take(f),
+            "name": names.take(f)
+            if not isinstance(names, pa.DictionaryArray)
+            else per_frame(names.dictionary, names.indices.take(f)),
             "cnt": pa.array(c.np("cnt")).take(f),
             "request_time": req_ns,
             "reply_time": rep_ns,
             "latency_ns": pc.subtract(rep_ns, req_ns),
-            "request_outcome": distinct["outcome"].take(at.take(qn)),
-            "reply_outcome": distinct["outcome"].take(at_rep),
-            "reply_rule": distinct["rule"].take(at_rep),
+            "request_outcome": per_frame(distinct["outcome"], at.take(qn)),
+            "reply_outcome": per_frame(distinct["outcome"], at_rep),
+            "reply_rule": per_frame(distinct["rule"], at_rep),
             "refused": refused,
             "refusal_code": pc.if_else(
                 refused, distinct["refusal_code"].take(at_rep), pa.scalar(None, pa.int64())
