@@ -20,6 +20,7 @@ from collections import Counter
 from dataclasses import dataclass, field
 from typing import Any
 
+from .judge_state import state_verdict
 from .protocol.state import StateDecoder, StatePacket, StateProblem, StateProblemKind
 from .protocol.state_layout import known_layouts
 from .recording import C2S, Recording
@@ -39,14 +40,6 @@ __all__ = [
 STATE_ID = 0
 _NAME = "(state port 8083)"
 #: Where each problem's rule is in the 8083 state manual.
-_SOURCES = {
-    StateProblemKind.CHECKSUM: "8083 state manual 2.1, table 2-1 (checksum)",
-    StateProblemKind.LAYOUT: "8083 state manual 2.2, table 2-2 (LEN and DATA)",
-    StateProblemKind.CNT_GAP: "8083 state manual 2.1, table 2-1 (CNT counts 0..255)",
-    StateProblemKind.PERIOD: "8083 state manual 1 (a packet every period, 8..100 ms)",
-    StateProblemKind.GARBAGE: "8083 state manual 2.1, table 2-1 (frame format)",
-    StateProblemKind.TRUNCATED: "8083 state manual 2.1, table 2-1 (frame format)",
-}
 _SET_PERIOD = re.compile(r"SetStatePeriod\(\s*8083\s*,\s*(\d+(?:\.\d+)?)\s*\)")
 # Reasons a connection ended that are the recorder's, not the controller's: a packet cut
 # there is not the controller's fault.
@@ -302,16 +295,17 @@ def state_cases(rec: Recording, *, version: str | None = None) -> list[CaseResul
     for kind, n in sorted(problems.items()):
         ex = examples.get(kind, [])
         first = ex[0][0] if ex else kind
+        verdict = state_verdict(StateProblemKind(kind), first)  # the one judge decides
         out.append(
             CaseResult(
                 id=f"{STATE_ID}/controller/state-{kind}",
                 cmd_id=STATE_ID,
                 name=_NAME,
                 group="controller",
-                outcome=Outcome.FAIL,
+                outcome=verdict.outcome,
                 detail=f"{n}x {first}",
                 frames=tuple(d for d, _ in ex[:4]),
-                source=_SOURCES[StateProblemKind(kind)],
+                source=verdict.source,
                 count=n,
             )
         )

@@ -43,6 +43,7 @@ FLOORS: dict[str, int] = {
     "judge": 3,
     "judge_stream": 3,
     "judge_sequence": 3,
+    "judge_state": 3,
     # 4: what the judge's verdicts and the codec's events feed: the emulator's model,
     # recordings, captures, the results model.
     "model": 4,
