@@ -118,6 +118,9 @@ def read_columns(path: str) -> Columns | None:
         return None  # whatever is wrong, the general path says it in its words
     if len({*c.conn}) > _CONNECTIONS or any(x.stream for x in c.connections):
         return None
+    numbers = ("conn", "cnt", "cmd_id", "length", "first_ns", "complete_ns")
+    if c.cnt and min(int(c.np(k).min()) for k in numbers) < 0:
+        return None  # the recording's numbers are non-negative: the reader names the one
     return c
 
 
@@ -128,10 +131,11 @@ _RAW = b',"raw":"'
 
 def _message(m: bytes) -> tuple[Any, int]:
     """A frames message's JSON without ``raw``, and how many bytes ``raw`` holds (a
-    ``ValueError`` for base64 that does not read)."""
+    ``ValueError`` for base64 that does not read); None for one the fast path leaves (no
+    ``raw`` last, or a boolean, which no number column may hold, anywhere in it)."""
     i = m.rfind(_RAW)
-    if i < 0 or not m.endswith(b'"}'):
-        return json.loads(m), -1
+    if i < 0 or not m.endswith(b'"}') or b"true" in m or b"false" in m:
+        return None, -1
     # Read as the reader reads it (base64.b64decode: characters outside the alphabet
     # skipped), so the two paths take the same messages.
     return json.loads(m[:i] + b"}"), len(binascii.a2b_base64(m[i + len(_RAW) : -2]))
@@ -142,8 +146,6 @@ def _intern_name(x: str | None) -> str | None:
 
 
 _INT = {int}
-_STR = {str}
-_NAME = {str, type(None)}
 
 
 def _batch(c: Columns, d: Any, raw_size: int) -> bool:
@@ -163,19 +165,17 @@ def _batch(c: Columns, d: Any, raw_size: int) -> bool:
     conn, transport, direction = d["conn"], d.get("transport", "tcp"), d["dir"]
     if type(conn) is not int or direction not in ("c2s", "s2c") or type(transport) is not str:
         return False
-    # The types the schema asks for (the reader checks each message so; here at C speed):
-    # anything else is the general path's to name.
-    ints = (d["cnt"], d["cmd_id"], d["len"], complete, first)
-    if any(not {*map(type, x)} <= _INT or (x and min(x) < 0) for x in ints):
-        return False
-    if not {*map(type, d["data"])} <= _STR or not {*map(type, names)} <= _NAME:
-        return False
+    # The types the schema asks for, checked as they are stored: a 64-bit array takes only
+    # integers (TypeError, OverflowError), sys.intern only strings (TypeError); booleans,
+    # which an array would take as 0 and 1, keep a message off the fast path (_message),
+    # and negative numbers the recording as a whole (read_columns).  Whatever does not
+    # fit is the general path's to name.
     c.conn.extend([conn] * n)
     c.transport += [transport] * n
     c.dir += [direction] * n
     c.cnt.extend(d["cnt"])
     c.cmd_id.extend(d["cmd_id"])
-    c.name += map(_intern_name, names)
+    c.name += names if names.count(None) == n else map(_intern_name, names)
     c.data += map(sys.intern, d["data"])
     c.length.extend(d["len"])
     c.first_ns.extend(first)
