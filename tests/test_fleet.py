@@ -200,3 +200,44 @@ def test_fast_path_gives_the_general_paths_rows(tmp_path: Path) -> None:
     assert tables[True] == tables[False]
     rules = {r[18] for r in tables[True]["frames"]}  # the rule column
     assert "bad_cnt" in rules
+
+
+@pytest.mark.parametrize(
+    ("column", "value"),
+    [("cnt", True), ("cnt", -1), ("cmd_id", "201"), ("data", 7), ("cnt", 2**64)],
+)
+def test_a_message_that_does_not_fit_goes_the_general_way(
+    tmp_path: Path, column: str, value: object
+) -> None:
+    """A batch whose column holds what the schema does not allow is not the fast path's:
+    export-parquet reads the recording as check does (the reader names the message as
+    damage, exit 3), never an internal error."""
+    from conformance.fleet.fast import read_columns
+    from conformance.recording import TOPIC_C2S, FrameBatch, RecordingWriter, default_metadata
+
+    path = tmp_path / "odd.mcap"
+    with RecordingWriter(path, metadata=default_metadata(START, robot="r01")) as w:
+        good = FrameBatch(
+            1,
+            "tcp",
+            "c2s",
+            [1, 2],
+            [212, 212],
+            [None, None],
+            ["GetDI(0,0)"] * 2,
+            [10, 10],
+            [0, 1],
+            [START, START + 1],
+            [START, START + 1],
+            [1, 1],
+            b"ab",
+        )
+        w.write_frames(good)
+        w.flush()
+        doc = good.to_json()
+        doc[column] = [value, doc[column][1]]
+        w.write_json(TOPIC_C2S, doc, log_time=START + 2, publish_time=START + 2)
+    assert read_columns(str(path)) is None
+    p = cli_run("export-parquet", str(path), "-o", str(tmp_path / "ds"))
+    assert p.returncode == 3, p.stderr
+    assert "damaged:" in p.stderr and "internal error" not in p.stderr

@@ -18,6 +18,7 @@ RSS from ``wait4``):
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import shutil
 import subprocess
@@ -136,10 +137,11 @@ def main() -> int:
         for report in ("latency", "failures"):
             wall, cpu, rss, out = run(
                 [*CLI, "query", ds_all, "--report", report, "--threads", str(a.threads)]
+                + ["--format", "json"]
             )
             print(
                 f"query --report {report} --threads {a.threads}: {wall:.2f} s wall, {cpu:.2f} s CPU, "
-                f"peak RSS {rss} MiB, {out.count(chr(10)) - 3} rows"
+                f"peak RSS {rss} MiB, {len(json.loads(out))} rows"
             )
         ds_size = sum(p.stat().st_size for p in Path(ds_all).rglob("*.parquet")) / 2**20
         print(f"dataset: {ds_size:.0f} MiB of Parquet ({size:.0f} MiB of MCAP)")
