@@ -241,3 +241,30 @@ def test_a_message_that_does_not_fit_goes_the_general_way(
     p = cli_run("export-parquet", str(path), "-o", str(tmp_path / "ds"))
     assert p.returncode == 3, p.stderr
     assert "damaged:" in p.stderr and "internal error" not in p.stderr
+
+
+def test_state_packets_make_the_state_table(tmp_path: Path) -> None:
+    """A recorded state stream (8083): one row per packet, the CNT gap and the checksum
+    failure the state decoder finds show up in the state report."""
+    from conformance.protocol.state import encode_state
+    from conformance.recording import RecordingWriter, StreamRecorder, default_metadata
+
+    packets = [
+        encode_state("3.8.2", {"jt_cur_pos": [i, 0, 0, 0, 0, 0]}, cnt=i, bad_checksum=i == 3)
+        for i in range(6)
+        if i != 2
+    ]
+    path = tmp_path / "state.mcap"
+    with RecordingWriter(path, metadata=default_metadata(START, robot="r04")) as w:
+        rec = StreamRecorder(w)
+        rec.open(1, t_ns=START, client="10.0.0.1:40000", upstream="10.0.0.2:8083", stream="state")
+        for k, p in enumerate(packets):
+            rec.data(1, "s2c", START + 8_000_000 * (k + 1), p)
+        rec.finish(t_ns=START + 10**9)
+    out = tmp_path / "ds"
+    p = cli_run("export-parquet", str(path), "-o", str(out))
+    assert p.returncode == 0, p.stderr
+    state = _report(out, "state")
+    assert [(r["robot"], r["packets"], r["lost"], r["checksum_failures"]) for r in state] == [
+        ("r04", 5, 1, 1)
+    ]
