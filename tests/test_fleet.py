@@ -258,8 +258,8 @@ def test_state_packets_make_the_state_table(tmp_path: Path) -> None:
     with RecordingWriter(path, metadata=default_metadata(START, robot="r04")) as w:
         rec = StreamRecorder(w)
         rec.open(1, t_ns=START, client="10.0.0.1:40000", upstream="10.0.0.2:8083", stream="state")
-        for k, p in enumerate(packets):
-            rec.data(1, "s2c", START + 8_000_000 * (k + 1), p)
+        for k, packet in enumerate(packets):
+            rec.data(1, "s2c", START + 8_000_000 * (k + 1), packet)
         rec.finish(t_ns=START + 10**9)
     out = tmp_path / "ds"
     p = cli_run("export-parquet", str(path), "-o", str(out))
