@@ -118,7 +118,7 @@ def test_check_info_recover_say_what_was_lost_and_exit_damaged(good: Path, tmp_p
         lines = [ln for ln in p.stderr.splitlines() if ln.startswith("damaged:")]
         assert lines == [
             f"damaged: {bad}: chunk 3 of 5 at offset {_chunks(good)[2][0]}: "
-            "ZstdError: error determining content size from frame header; "
+            "cannot be decompressed (error determining content size from frame header); "
             "its 56 messages are lost"
         ], (cmd, p.stderr)
         assert "internal error" not in p.stderr

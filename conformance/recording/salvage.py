@@ -85,6 +85,8 @@ def _why(e: BaseException) -> str:
     if name == "CRCValidationError":
         return "CRC mismatch"
     text = str(e)
+    if type(e).__module__.split(".")[0] in ("zstandard", "lz4", "zlib"):
+        return f"cannot be decompressed ({text or name})"
     if len(text) > 120:
         text = text[:117] + "..."
     return f"{name}: {text}" if text else name
