@@ -475,7 +475,7 @@ def _fast_rows(
     tables["frames"].add_columns(
         {
             "transport": pa.array(c.transport, type=pa.string()).dictionary_encode(),
-            "port": [ports.get(k) for k in c.conn.tolist()],
+            "port": _ports_of(c.np("conn"), ports),
             "direction": pa.array(c.dir, type=pa.string()).dictionary_encode(),
             "conn": pa.array(c.np("conn")),
             "first_time": pa.array(c.np("first_ns")),
@@ -524,6 +524,17 @@ def _fast_rows(
             "missing_reply": pc.and_(has_q, pc.invert(has_p)),
         },
         len(qs),
+    )
+
+
+def _ports_of(conns: Any, ports: dict[int, int | None]) -> Any:
+    """Each frame's port: its connection's, looked up once per connection."""
+    import numpy as np
+    import pyarrow as pa
+
+    known, at = np.unique(conns, return_inverse=True)
+    return pa.array([ports.get(int(k)) for k in known], type=pa.int64()).take(
+        pa.array(at.reshape(-1).astype(np.int32))
     )
 
 

@@ -65,6 +65,8 @@ class Columns:
     length: array[int] = field(default_factory=_ints)
     first_ns: array[int] = field(default_factory=_ints)
     complete_ns: array[int] = field(default_factory=_ints)
+    #: 1 for a request (c2s), 0 for a reply: ``dir`` as bytes.
+    request: array[int] = field(default_factory=lambda: array("b"))
     complete: bool = True
 
     def np(self, name: str) -> Any:
@@ -173,6 +175,7 @@ def _batch(c: Columns, d: Any, raw_size: int) -> bool:
     c.conn.extend([conn] * n)
     c.transport += [transport] * n
     c.dir += [direction] * n
+    c.request.extend([direction == "c2s"] * n)
     c.cnt.extend(d["cnt"])
     c.cmd_id.extend(d["cmd_id"])
     c.name += names if names.count(None) == n else map(_intern_name, names)
@@ -209,7 +212,7 @@ def _pairs_at_once(c: Columns) -> tuple[list[int], list[int]] | None:
     order = np.argsort(first, kind="stable")
     pos = np.empty(n, dtype=np.int64)
     pos[order] = np.arange(n)
-    is_req = np.array(c.dir) == "c2s"
+    is_req = np.frombuffer(c.request, dtype=np.int8).astype(bool)
     # Each frame's (connection, CNT, CMD_ID) as a number: its rank among the distinct ones.
     by_key = np.lexsort((keys[:, 2], keys[:, 1], keys[:, 0]))
     ordered = keys[by_key]
@@ -361,7 +364,8 @@ def judge_columns(
         return qs, ps, which, rows
     cnt, cmd, conn = c.np("cnt"), c.np("cmd_id"), c.np("conn")
     dcode = _codes(data)
-    tcode = _codes(tr)
+    # One transport a connection: the transports' codes from the connections'.
+    tcode = _codes(tr) if len({*tr}) > 1 else np.zeros(n, dtype=np.int64)
     q = np.array(qs, dtype=np.int64)
     p = np.array(ps, dtype=np.int64)
     # Requests, in the order check judges them: one verdict per distinct (ID, DATA, transport).
