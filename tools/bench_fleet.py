@@ -131,13 +131,22 @@ def main() -> int:
             )
             print(
                 f"export-parquet --jobs {a.jobs}: {wall:.1f} s wall, {total / wall:,.0f} frames/s wall "
-                f"(peak RSS of the parent {rss_j} MiB)"
+                f"(peak RSS of any of its processes {rss_j} MiB)"
             )
             shutil.rmtree(ds_jobs, ignore_errors=True)
         for report in ("latency", "failures"):
             wall, cpu, rss, out = run(
-                [*CLI, "query", ds_all, "--report", report, "--threads", str(a.threads)]
-                + ["--format", "json"]
+                [
+                    *CLI,
+                    "query",
+                    ds_all,
+                    "--report",
+                    report,
+                    "--threads",
+                    str(a.threads),
+                    "--format",
+                    "json",
+                ]
             )
             print(
                 f"query --report {report} --threads {a.threads}: {wall:.2f} s wall, {cpu:.2f} s CPU, "
