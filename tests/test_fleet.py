@@ -162,6 +162,14 @@ def test_errors_are_one_line(fleet: tuple[Path, Path], tmp_path: Path) -> None:
     assert p.returncode == 2 and "--sql" in p.stderr
     p = cli_run("export-parquet", str(tmp_path / "missing.mcap"), "-o", str(tmp_path / "d"))
     assert p.returncode == 2 and "no such file" in p.stderr
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    (empty / "_fleet.json").write_text('{"schema_version": 1, "tables": []}')
+    p = cli_run("query", str(empty), "--html", str(tmp_path / "x.html"))
+    assert p.returncode == 2 and "nothing to chart" in p.stderr
+    (empty / "_fleet.json").write_text('{"schema_version": 9}')
+    p = cli_run("query", str(empty), "--report", "latency")
+    assert p.returncode == 2 and "schema version 9" in p.stderr
 
 
 def test_fast_path_gives_the_general_paths_rows(tmp_path: Path) -> None:

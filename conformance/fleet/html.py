@@ -8,7 +8,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from .query import Result, _cell, run_report, run_sql
+from ..errors import UsageError
+from .query import Result, _cell, run_report, run_sql, views
 
 __all__ = ["render_page"]
 
@@ -118,7 +119,10 @@ def _table_html(result: Result, limit: int = 40) -> str:
 
 
 def render_page(con: Any, dataset: str | Path) -> str:
-    """The page's HTML."""
+    """The page's HTML (a dataset without frames is a :class:`UsageError`)."""
+    missing = [t for t in ("frames", "exchanges") if t not in views(dataset)]
+    if missing:
+        raise UsageError(f"{dataset}: no {' and no '.join(missing)} table: nothing to chart")
     per_cmd = run_sql(con, _PER_COMMAND)[1]
     over_time = run_sql(con, _OVER_TIME)[1]
     firmware = run_report(con, dataset, "firmware")
