@@ -551,3 +551,18 @@ def test_the_proxy_says_at_once_what_a_write_error_costs(
     stop = argparse.Namespace(on_write_error="stop", out="/full/r.mcap")
     assert _write_failed(proxy, stop, 0.0) is None
     assert "stopping: every connection is closed" in capsys.readouterr().err
+
+
+def test_the_file_fuzzer_finds_nothing_on_a_small_seeded_corpus() -> None:
+    """``tools/fuzz_files.py`` (10^5 inputs a target on demand) on 25 inputs a target:
+    every reader gives its result or the kit's file error, nothing else."""
+    import importlib.util
+
+    root = Path(__file__).resolve().parent.parent
+    spec = importlib.util.spec_from_file_location("fuzz_files", root / "tools" / "fuzz_files.py")
+    assert spec is not None and spec.loader is not None
+    fuzz = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(fuzz)
+    for target in fuzz.TARGETS:
+        n, surprises, first = fuzz.run_target(target, 25, 7)
+        assert n == 25 and not surprises, (target, first)

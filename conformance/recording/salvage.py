@@ -44,6 +44,9 @@ _DATA_END = 0x0F
 #: DataEnd record (opcode, length, CRC), in bytes.
 _FOOTER_SIZE = 1 + 8 + 8 + 8 + 4
 _DATA_END_SIZE = 1 + 8 + 4
+#: The largest chunk read (uncompressed): the kit's chunks hold 1 MiB and a batch; the
+#: mcap library's writer's default is 1 MiB too.
+_MAX_CHUNK = 256 << 20
 #: Compressions a chunk may name (MCAP specification, "Chunk": "", "lz4", "zstd").
 _COMPRESSIONS = (b"", b"lz4", b"zstd")
 
@@ -84,6 +87,8 @@ def _why(e: BaseException) -> str:
     name = type(e).__name__
     if name == "CRCValidationError":
         return "CRC mismatch"
+    if type(e) is ValueError:  # the walk's own words
+        return str(e)
     text = str(e)
     if type(e).__module__.split(".")[0] in ("zstandard", "lz4", "zlib"):
         return f"cannot be decompressed ({text or name})"
@@ -227,7 +232,15 @@ class Walk:
             if opcode == _CHUNK:
                 self._chunks_seen += 1
                 try:
-                    inner = breakup_chunk(cls.read(stream), validate_crc=True)
+                    chunk = cls.read(stream)
+                    if chunk.uncompressed_size > _MAX_CHUNK:
+                        # zstd is handed this size to allocate: a corrupt one asks for
+                        # any amount up to 2^64 bytes.
+                        raise ValueError(
+                            f"its uncompressed size, {chunk.uncompressed_size} bytes, is "
+                            f"past the bound of {_MAX_CHUNK} (a corrupt size)"
+                        )
+                    inner = breakup_chunk(chunk, validate_crc=True)
                 except Exception as e:  # CRC, compression, a record inside: this chunk only
                     # Its messages: from the summary's index, else from the message
                     # index records that follow it (counted as they come).
@@ -315,6 +328,7 @@ class Walk:
         from mcap.data_stream import ReadDataStream
         from mcap.records import MessageIndex
 
+        end = min(end, self._size)  # a corrupt index length asks for more than there is
         self._f.seek(start)
         stream = ReadDataStream(io.BytesIO(self._f.read(max(0, end - start))))
         count, left = 0, end - start
