@@ -52,9 +52,10 @@ def _chunks(path: Path) -> list[tuple[int, int]]:
 
 
 #: Where a chunk is hit: its compressed data's first bytes (the zstd frame header: the
-#: chunk cannot be decompressed), its middle (decompresses to other bytes: the CRC), and
-#: its record length (the records after it are no longer where it says).
-_HITS = {"zstd": 9 + 8 + 8 + 8 + 4 + 4 + 4 + 8, "middle": None, "length": 1}
+#: chunk cannot be decompressed), its middle (decompresses to other bytes: the CRC),
+#: its record length (the records after it are no longer where it says), and its
+#: uncompressed size.
+_HITS = {"zstd": 9 + 8 + 8 + 8 + 4 + 4 + 4 + 8, "middle": None, "length": 1, "size": 9 + 8 + 8}
 
 
 def _corrupt(good: Path, out: Path, k: int, hit: str, *, cut: int | None = None) -> int:
@@ -75,7 +76,7 @@ def test_a_corrupt_chunk_costs_only_its_frames(good: Path, tmp_path: Path, k: in
     assert len(_chunks(good)) == CHUNKS
     whole = read_recording(good)
     assert len(whole.frames) == 2 * CHUNKS * PER_CHUNK and not whole.damage
-    for hit in ("zstd", "middle", "length"):
+    for hit in ("zstd", "middle", "length", "size"):
         bad = tmp_path / f"bad-{hit}.mcap"
         start = _corrupt(good, bad, k, hit)
         rec = read_recording(bad)
@@ -90,6 +91,8 @@ def test_a_corrupt_chunk_costs_only_its_frames(good: Path, tmp_path: Path, k: in
         n = 2 * PER_CHUNK + (k == 1) + (k == CHUNKS)
         assert text.endswith(f"its {n} messages are lost"), text
     assert "CRC mismatch" in str(read_recording(tmp_path / "bad-middle.mcap").damage[0])
+    # zstd would have been asked to allocate 2^64 bytes less the size (a MemoryError).
+    assert "is past the bound of" in str(read_recording(tmp_path / "bad-size.mcap").damage[0])
 
 
 def test_an_unfinished_file_resyncs_at_the_next_chunk_header(good: Path, tmp_path: Path) -> None:
