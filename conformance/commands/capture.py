@@ -384,10 +384,8 @@ def _write_failed(proxy: Any, args: argparse.Namespace, said: float) -> float | 
 # --------------------------------------------------------------------------- capture
 
 
-def _run_capture(args: argparse.Namespace) -> int:
-    from ..net.capture import LiveCapture
-    from ..pcap import DEFAULT_TCP_PORTS, DEFAULT_UDP_PORTS
-
+def check_ports(args: argparse.Namespace) -> None:
+    """``--port``, ``--udp-port`` and ``--state-port`` of ``capture`` and ``import-pcap``."""
     for flag, ports in (
         ("--port", args.port),
         ("--udp-port", args.udp_port),
@@ -396,6 +394,13 @@ def _run_capture(args: argparse.Namespace) -> int:
         for port in ports:
             if not 0 < port < 65536:
                 raise UsageError(f"{flag} {port}: a port is 1..65535")
+
+
+def _run_capture(args: argparse.Namespace) -> int:
+    from ..net.capture import LiveCapture
+    from ..pcap import DEFAULT_TCP_PORTS, DEFAULT_UDP_PORTS
+
+    check_ports(args)
     if args.max_frames is not None and args.max_frames < 1:
         raise UsageError(f"--max-frames {args.max_frames}: at least 1")
     tports = tuple(args.port) or DEFAULT_TCP_PORTS

@@ -26,7 +26,7 @@ from ._judging import add_judge_options, judge_from, verdict_line
 from ._judging import verdict_sink as _verdict_sink
 from ._safety import add_safety_options
 from ._specs_option import add_specs_dir, reported_by, spec_choice_of, specs_of
-from .capture import parse_size
+from .capture import check_ports, parse_size
 
 __all__ = ["register"]
 
@@ -512,14 +512,7 @@ def _run_import_pcap(args: argparse.Namespace) -> int:
     from ..pcap import DEFAULT_TCP_PORTS, DEFAULT_UDP_PORTS, import_pcap
     from ..pcap.read import CaptureDamage
 
-    for flag, ports in (
-        ("--port", args.port),
-        ("--udp-port", args.udp_port),
-        ("--state-port", args.state_port),
-    ):
-        for port in ports:
-            if not 0 < port < 65536:
-                raise UsageError(f"{flag} {port}: a port is 1..65535")
+    check_ports(args)
     t0 = time.perf_counter()
     tports = tuple(args.port) or DEFAULT_TCP_PORTS
     uports = tuple(args.udp_port) or DEFAULT_UDP_PORTS
