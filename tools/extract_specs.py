@@ -36,6 +36,7 @@ REPO = Path(__file__).resolve().parent.parent
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
+from tools._regenerate import write_or_check  # noqa: E402
 from tools.manual_model import FrameText, RawSection, RawVariant, Row  # noqa: E402
 
 DEFAULT_MANUAL = REPO.parent / "shared" / "manual" / "fairino-command-protocol-v3.8.2.zh.txt"
@@ -2077,22 +2078,8 @@ def main(argv: list[str] | None = None) -> int:
         rc = 1
     for name, doc in docs.items():
         path = args.out / f"{name}.json"
-        new = dump(doc)
-        if args.check:
-            old = path.read_text(encoding="utf-8") if path.exists() else ""
-            if old != new:
-                rc = 1
-                sys.stdout.writelines(
-                    difflib.unified_diff(
-                        old.splitlines(keepends=True),
-                        new.splitlines(keepends=True),
-                        fromfile=str(path),
-                        tofile=f"{path} (regenerated)",
-                    )
-                )
-        else:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_text(new, encoding="utf-8")
+        if not write_or_check(path, dump(doc), check=args.check):
+            rc = 1
     if args.audit:
         for a in audits:
             print(("ok  " if a.ok else "BAD ") + a.describe())

@@ -27,7 +27,6 @@ a unified diff when they differ.  Output is deterministic.
 from __future__ import annotations
 
 import argparse
-import difflib
 import html
 import json
 import re
@@ -37,6 +36,11 @@ from pathlib import Path
 from typing import Any
 
 REPO = Path(__file__).resolve().parent.parent
+if str(REPO) not in sys.path:
+    sys.path.insert(0, str(REPO))
+
+from tools._regenerate import write_or_check  # noqa: E402
+
 DEFAULT_MANUAL_DIR = REPO.parent / "shared" / "manual"
 ZH_FILE = "fairino-8083-state-v3.8.2-zh.html"
 EN_FILE = "fairino-8083-state-v3.9.8-en.md"
@@ -629,22 +633,9 @@ def main(argv: list[str] | None = None) -> int:
     for version, doc in docs.items():
         validate(doc)
         path = OUT[version]
-        new = dump(doc)
-        if args.check:
-            old = path.read_text(encoding="utf-8") if path.exists() else ""
-            if old != new:
-                rc = 1
-                sys.stdout.writelines(
-                    difflib.unified_diff(
-                        old.splitlines(keepends=True),
-                        new.splitlines(keepends=True),
-                        fromfile=str(path),
-                        tofile=f"{path} (regenerated)",
-                    )
-                )
-        else:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_text(new, encoding="utf-8")
+        if not write_or_check(path, dump(doc), check=args.check):
+            rc = 1
+        elif not args.check:
             print(
                 f"{path.relative_to(REPO)}: {doc['rows']} rows, {len(doc['fields'])} fields, "
                 f"DATA {doc['frame']['data_length']} bytes"
