@@ -266,6 +266,11 @@ class RecorderProcess:
             self.on_error(RuntimeError(f"the recorder process is gone: {e.strerror or e}"))
 
 
+#: The recorder process's niceness (the lowest priority short of SCHED_IDLE, which a
+#: saturated machine could starve for good).
+RECORDER_NICE = 19
+
+
 def _write_all(fd: int, data: bytes) -> None:
     view = memoryview(data)
     while view:
@@ -283,6 +288,10 @@ def _recorder_main(argv: list[str]) -> None:
     # A Ctrl-C or a SIGTERM to the process group is for the proxy: it stops us in order.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    # The forwarding side first: the recorder works in batches and may fall behind (the
+    # proxy's --max-backlog bounds by how much); the cell's traffic must not wait for it.
+    with contextlib.suppress(OSError):
+        os.nice(RECORDER_NICE)
     fd, status_fd, shared_fd = (int(a) for a in argv)
     status = Connection(status_fd, readable=False)
     shared = mmap.mmap(shared_fd, mmap.PAGESIZE)
