@@ -129,8 +129,11 @@ def test_check_info_recover_say_what_was_lost_and_exit_damaged(good: Path, tmp_p
     info = json.loads(cli_run("info", "--json", str(bad)).stdout)
     third = _chunks(good)[2][0]
     assert [d.split(":")[0] for d in info["damage"]] == [f"chunk 3 of 5 at offset {third}"]
-    report = json.loads(cli_run("check", str(bad), "--report-json", "-").stdout)
+    checked = cli_run("check", str(bad), "--report-json", "-")
+    report = json.loads(checked.stdout)
     assert report["meta"]["damage"] == info["damage"]
+    # One exit code: the JSON's is the process's (it said 0 or 1 while check exited 3).
+    assert report["exit_code"] == checked.returncode == EXIT_DAMAGED
     assert dump_json(read_recording(bad))["damage"] == info["damage"]
     out = tmp_path / "fixed.mcap"
     p = cli_run("recover", str(bad), "-o", str(out))

@@ -15,7 +15,14 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from .._version import __version__
-from ..errors import EXIT_ERROR, EXIT_FAIL, EXIT_INTERRUPTED, EXIT_OK, ReportFileError
+from ..errors import (
+    EXIT_DAMAGED,
+    EXIT_ERROR,
+    EXIT_FAIL,
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+    ReportFileError,
+)
 from ..verdict import SEVERITY, Outcome, aggregate, fails
 from .text import plural, printable
 
@@ -214,9 +221,12 @@ class Report:
 
     def exit_code(self) -> int:
         """0 conformant, 1 conformance failures, 2 kit or connection error (a run that stopped
-        before some cases is one), 130 interrupted."""
+        before some cases is one), 3 a damaged recording (``meta["damage"]``: what could not
+        be read; it never passes, whatever was judged), 130 interrupted."""
         if self.interrupted:
             return EXIT_INTERRUPTED
+        if self.meta.get("damage"):
+            return EXIT_DAMAGED
         failing = self.failing_cases()
         if any(c.not_run for c in self.cases) or any(c.outcome is Outcome.ERROR for c in failing):
             return EXIT_ERROR
