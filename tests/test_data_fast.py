@@ -214,9 +214,9 @@ def call_texts(draw: st.DrawFn) -> tuple[str, Command]:
     return text, against
 
 
-# 400 examples: about 17 per call variant, each shape of call_texts drawn dozens of
-# times; the domain edges are swept exhaustively below.
-@settings(max_examples=400, suppress_health_check=[HealthCheck.too_slow])
+# 200 examples: about 9 per call variant, each shape of call_texts drawn a dozen times
+# or more; the domain edges are swept exhaustively below.
+@settings(max_examples=200, suppress_health_check=[HealthCheck.too_slow])
 @given(case=call_texts())
 def test_fast_and_careful_paths_agree_on_spec_calls(case: tuple[str, Command]) -> None:
     text, command = case
