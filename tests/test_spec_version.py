@@ -347,3 +347,22 @@ def test_dialects_are_matched_only_within_their_range_when_the_firmware_is_known
     verdict = Judge(specs, new).request(frame, transport="tcp")
     assert verdict.outcome is Outcome.DIALECT
     assert "firmware 3.9.7 within 3.9.7+" in verdict.source
+
+
+def test_decode_auto_learns_the_version_from_a_905_reply_among_its_bytes() -> None:
+    """decode has no target to ask: with auto it read the default set whatever its bytes
+    said; a GetSoftwareVersion reply among them names the firmware, as in check."""
+    status = encode_frame(5, 1074, "CNCGetStatus()")  # in 3.9.8 only
+    with_905 = (
+        encode_frame(4, 905, "GetSoftwareVersion()")
+        + encode_frame(4, 905, "FR16-V1-001(V6.0),v3.9.8,V3.7.77")
+        + status
+    )
+    p = cli_run("decode", "--spec-version", "auto", "--json", input=with_905)
+    assert p.returncode == 0, p.stderr
+    assert "spec 3.9.8 (auto: the bytes decoded reports FR16-V1-001(V6.0),v3.9.8" in p.stderr
+    docs = [json.loads(x) for x in p.stdout.splitlines()]
+    assert docs[-1]["name"] == "CNCGetStatus" and docs[-1]["outcome"] == "PASS"
+    p = cli_run("decode", "--spec-version", "auto", "--json", input=status)
+    assert "warning: --spec-version auto: decode has no target to ask" in p.stderr
+    assert json.loads(p.stdout)["outcome"] == "FAIL"  # ID 1074 is not in 3.8.2

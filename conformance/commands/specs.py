@@ -11,7 +11,8 @@ from typing import Any
 from ..data import Call
 from ..dialects import default_dialects
 from ..errors import EXIT_FAIL, EXIT_OK, UsageError
-from ..frame import DEFAULT_MAX_FRAME_SIZE, Event, FrameDecoder, Malformed
+from ..firmware import AUTO
+from ..frame import DEFAULT_MAX_FRAME_SIZE, Event, Frame, FrameDecoder, Malformed, decode_all
 from ..judge import Direction, Judge, Verdict
 from ..judge_stream import Pairing
 from ..report.text import refusal_text
@@ -26,9 +27,10 @@ from ..spec import (
     load_spec_version,
 )
 from ..spec_diff import diff_specs
+from ..suite.spec_choice import reported_in
 from ..validate import RefusalForm
 from ._judging import add_judge_options, judge_from
-from ._specs_option import add_specs_dir, specs_of
+from ._specs_option import add_specs_dir, asked_spec_version, spec_choice_of, specs_of
 
 __all__ = ["command_json", "decode_stream", "event_json", "register"]
 
@@ -465,15 +467,22 @@ def _read_chunks(args: argparse.Namespace) -> Iterable[bytes]:
 def _run_decode(args: argparse.Namespace) -> int:
     if args.max_frame_size < 64:
         raise UsageError("--max-frame-size must be at least 64")
-    specs = specs_of(args)
+    chunks: Iterable[bytes] = _read_chunks(args)
+    traffic = None
+    if (asked_spec_version(args) or "").strip().lower() == AUTO:
+        # auto: the firmware a GetSoftwareVersion (905) reply among the bytes names, read
+        # before any frame is judged (so the bytes are read whole first).
+        data = b"".join(chunks)
+        chunks = [data]
+        events = decode_all(data, max_frame_size=args.max_frame_size)
+        traffic = reported_in((e.cmd_id, e.data) for e in events if isinstance(e, Frame))
+    specs, _ = spec_choice_of(args, traffic=traffic, traffic_where="the bytes decoded")
     judge = judge_from(args, specs, strict=args.strict)
     pairing = Pairing(judge)
     forced = None if args.dir == "auto" else Direction(args.dir)
     out = sys.stdout
     bad = 0
-    for ev in decode_stream(
-        _read_chunks(args), strict=args.strict, max_frame_size=args.max_frame_size
-    ):
+    for ev in decode_stream(chunks, strict=args.strict, max_frame_size=args.max_frame_size):
         if isinstance(ev, Malformed):
             verdict = judge.malformed(ev, forced or Direction.REQUEST)
         else:
