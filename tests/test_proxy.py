@@ -837,3 +837,53 @@ def test_udp_sessions_beyond_max_connections_are_recorded_not_forwarded(tmp_path
     assert sorted(f.raw for f in rec.frames) == [first, second]  # both recorded
     closes = {c.conn: c.reason for c in rec.connections if c.event == "close"}
     assert closes[2] == "refused: too many UDP sessions (max 1)"
+
+
+def test_a_udp_flood_past_the_backlog_is_forwarded_counted_and_recorded_as_a_gap(
+    tmp_path: Path,
+) -> None:
+    """--max-backlog paused TCP only: UDP kept filling the recorder's buffer (817-1,859 MB
+    under a flood).  Past it, datagrams are still forwarded but not queued: counted, and
+    each run recorded as a gap of its session and direction when recording resumes."""
+    usock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    usock.bind(("127.0.0.1", 0))
+
+    def echo() -> None:
+        while True:
+            try:
+                data, addr = usock.recvfrom(65535)
+                usock.sendto(data, addr)
+            except OSError:
+                return
+
+    threading.Thread(target=echo, daemon=True).start()
+    tcp = Upstream()
+    out = tmp_path / "r.mcap"
+    n = 40
+    frames = [encode_frame(k, 212, "GetDI(0,0)") for k in range(n + 1)]
+    with (
+        RecordingProxy(
+            tcp.address, out=out, udp_upstream=usock.getsockname()[:2], max_backlog=1024
+        ) as p,
+        socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as c,
+    ):
+        assert p.udp_address is not None
+        c.settimeout(30)
+        p._flush_rec = lambda: None  # type: ignore[method-assign]  # the recorder stalls
+        for raw in frames[:n]:
+            c.sendto(raw, p.udp_address)
+            assert c.recv(65535) == raw  # forwarded both ways all along
+        assert p.stats.udp_unrecorded > 0 and len(p._rec_buf) < 4096  # bounded
+        del p._flush_rec  # the recorder catches up
+        c.sendto(frames[n], p.udp_address)
+        assert c.recv(65535) == frames[n]
+        unrecorded = p.stats.udp_unrecorded
+    usock.close()
+    tcp.close()
+    rec = read_recording(out)
+    gaps = [q for q in rec.problems if q.kind == "gap"]
+    assert {q.dir for q in gaps} == {"c2s", "s2c"}
+    counted = sum(int(q.detail.split()[0]) for q in gaps)
+    assert counted == unrecorded
+    assert all("forwarded but not recorded" in q.detail for q in gaps)
+    assert len(rec.frames) + counted == 2 * (n + 1)  # every datagram: recorded or counted

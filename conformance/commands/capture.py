@@ -336,6 +336,11 @@ def _run_proxy(args: argparse.Namespace) -> int:
         )
     if proxy.recorder.lost:
         extra += f"; {proxy.recorder.lost} bytes not recorded (the recording could not be written)"
+    if st.udp_unrecorded:
+        extra += (
+            f"; {st.udp_unrecorded} UDP datagrams ({st.udp_unrecorded_bytes} bytes) forwarded "
+            "but not recorded, the recorder being --max-backlog behind (gaps in the recording)"
+        )
     print(
         f"proxy: stopped; {st.connections} connections{extra}, {proxy.frames_recorded} frames "
         + (f"and {proxy.recorder.state_packets} state packets " if state_upstream else "")

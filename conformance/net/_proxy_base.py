@@ -30,6 +30,10 @@ class ProxyStats:
     rejected: int = 0  # clients closed at once: --max-connections reached
     accept_errors: int = 0  # accept()/socket() failures for want of a resource
     errors: int = 0  # connections closed by an unexpected error while handling them
+    #: UDP datagrams forwarded but not recorded while the recorder was --max-backlog
+    #: behind (each run of them is a ``gap`` problem in the recording).
+    udp_unrecorded: int = 0
+    udp_unrecorded_bytes: int = 0
 
 
 class ProxyBase:

@@ -5,21 +5,27 @@ connected to the upstream; replies on that socket go back to that client.  A ses
 idle for ``udp_idle`` seconds is closed.  UDP may lose datagrams, and so may we: a
 datagram that cannot be sent, or that arrives while no socket can be had, is lost
 on the way (but recorded when it was read).
+
+UDP has no back-pressure: while the recorder is ``max_backlog`` bytes behind (TCP reads
+pause then), datagrams are still forwarded but not queued for it, so a flood cannot grow
+the proxy; each run of them is counted and recorded as a ``gap`` problem of its session
+and direction (never silent), and said once an episode on stderr.
 """
 
 from __future__ import annotations
 
 import contextlib
+import json
 import selectors
 import socket
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from ..recording import C2S, S2C
 from ._proxy_base import ProxyBase, open_payload
 from ._server import RESOURCE_ERRNOS, family
-from .recorder_process import CLOSE, DGRAM, OPEN
+from .recorder_process import CLOSE, DGRAM, GAP, OPEN
 
 __all__ = ["UdpForwarding"]
 
@@ -33,6 +39,8 @@ class _UdpSession:
     client_addr: Any
     sock: socket.socket
     last: float
+    #: Per direction: datagrams and bytes forwarded but not recorded since the last gap.
+    unrecorded: dict[str, list[int]] = field(default_factory=dict)
 
 
 class UdpForwarding(ProxyBase):
@@ -44,6 +52,38 @@ class UdpForwarding(ProxyBase):
     _udp: socket.socket | None
     _sessions: dict[Any, _UdpSession]
     _session_socks: dict[socket.socket, _UdpSession]
+
+    max_backlog: int
+    _rec_buf: bytearray
+
+    def _record_dgram(self, s: _UdpSession, direction: str, t: int, data: bytes) -> None:
+        """Queue a datagram for the recorder, unless it is ``max_backlog`` behind: then it
+        is counted, and the run is recorded as a gap when it ends."""
+        if len(self._rec_buf) > self.max_backlog:
+            run = s.unrecorded.setdefault(direction, [0, 0])
+            run[0] += 1
+            run[1] += len(data)
+            if not self.stats.udp_unrecorded:
+                self.log(
+                    "proxy: UDP: the recorder is more than --max-backlog behind: datagrams "
+                    "are forwarded but not recorded (counted, a gap in the recording)"
+                )
+            self.stats.udp_unrecorded += 1
+            self.stats.udp_unrecorded_bytes += len(data)
+            return
+        self._put_gap(s, direction, t)
+        self._put(DGRAM, s.conn, direction, t, data)
+
+    def _put_gap(self, s: _UdpSession, direction: str, t: int) -> None:
+        """The datagrams of ``direction`` forwarded but not recorded, as one gap event."""
+        run = s.unrecorded.pop(direction, None)
+        if run:
+            detail = (
+                f"{run[0]} datagrams ({run[1]} bytes) forwarded but not recorded: the "
+                f"recorder was more than {self.max_backlog} bytes behind"
+            )
+            gap = json.dumps({"missing": run[1], "detail": detail}).encode("utf-8")
+            self._put(GAP, s.conn, direction, t, gap)
 
     def _session_failed(self, s: _UdpSession, e: BaseException) -> None:
         self.stats.errors += 1
@@ -113,7 +153,7 @@ class UdpForwarding(ProxyBase):
             with contextlib.suppress(OSError):
                 s.sock.send(data)
             self.stats.bytes_c2s += len(data)
-            self._put(DGRAM, s.conn, C2S, t, data)
+            self._record_dgram(s, C2S, t, data)
 
     def _udp_from_upstream(self, s: _UdpSession) -> None:
         assert self._udp is not None
@@ -129,7 +169,7 @@ class UdpForwarding(ProxyBase):
             with contextlib.suppress(OSError):
                 self._udp.sendto(data, s.client_addr)
             self.stats.bytes_s2c += len(data)
-            self._put(DGRAM, s.conn, S2C, t, data)
+            self._record_dgram(s, S2C, t, data)
 
     def _close_session(self, s: _UdpSession, reason: str) -> None:
         self._sessions.pop(s.client_addr, None)
@@ -137,7 +177,10 @@ class UdpForwarding(ProxyBase):
         with contextlib.suppress(KeyError, ValueError):
             self._sel.unregister(s.sock)
         s.sock.close()
-        self._put(CLOSE, s.conn, "", time.time_ns(), reason.encode("utf-8"))
+        t = time.time_ns()
+        for direction in list(s.unrecorded):
+            self._put_gap(s, direction, t)
+        self._put(CLOSE, s.conn, "", t, reason.encode("utf-8"))
 
     def _session_deadlines(self) -> None:
         """Close the sessions idle for ``udp_idle`` seconds."""

@@ -45,7 +45,7 @@ __all__ = ["CLOSE", "DATA", "DGRAM", "OPEN", "STOP", "RecorderCounters", "Record
 # Events to the recorder process: a header (kind, direction, conn, t_ns, payload
 # length), then the payload: the bytes (data, datagram), the connection's
 # addresses as JSON (open) or the reason (close).
-OPEN, DATA, DGRAM, CLOSE, STOP = range(5)
+OPEN, DATA, DGRAM, CLOSE, STOP, GAP = range(6)
 _EVENT = struct.Struct("<BBIqI")
 _DIR_CODE = {C2S: 0, S2C: 1, "": 2}
 _DIR_NAME = (C2S, S2C, "")
@@ -529,6 +529,9 @@ class _Recorder:
                     rec.open(conn, t_ns=t_ns, **json.loads(payload))
                 elif kind == CLOSE:
                     rec.close(conn, t_ns=t_ns, reason=payload.decode("utf-8"))
+                elif kind == GAP:  # the proxy forwarded bytes it could not queue for us
+                    gap = json.loads(payload)
+                    rec.gap(conn, _DIR_NAME[d], t_ns, gap["missing"], gap["detail"])  # type: ignore[arg-type]
                 else:
                     rec.finish(t_ns=t_ns, reason="proxy stopped")
                     stop = True
