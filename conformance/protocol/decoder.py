@@ -393,11 +393,12 @@ class FrameDecoder:
         stream of anything else is looked at here at most once.
         """
         buf = self._buf
-        window = self._col_window
-        seg = bytes(buf[pos : pos + window])
-        if not seg.startswith(_RUN_HEAD):
+        if not buf.startswith(_RUN_HEAD, pos):  # no standard head here: nothing copied
+            self._col_window = _RUN_FIRST_WINDOW
             self._col_resume = self._base + pos + 1
             return pos
+        window = self._col_window
+        seg = bytes(buf[pos : pos + window])
         size, cnts, ids, datas, lens, sizes = _canonical_run(
             seg, self.max_frame_size
         ) or _standard_run(seg, self.max_frame_size)
