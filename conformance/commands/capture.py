@@ -215,6 +215,30 @@ def format_frame_line(f: FrameRecord, name: str | None = None) -> str:
     return f"{stamp} #{f.conn} {arrow} CNT={f.cnt} ID={f.cmd_id} {shown} {data}{extra}"
 
 
+def _side_ports(
+    upstream: Address,
+    listen: Address,
+    up: tuple[str | None, int, str],
+    local: tuple[str | None, int, str],
+) -> tuple[Address, Address]:
+    """The upstream and listen addresses of a port beside the command port (UDP, state):
+    each given as (option text or None, default port, option name); an option not given
+    takes the command port's host with the default port."""
+    text, port, option = up
+    up_addr = (
+        Address(upstream.host, port)
+        if text is None
+        else parse_address(text, default_port=port, option=option)
+    )
+    text, port, option = local
+    local_addr = (
+        Address(listen.host, port)
+        if text is None
+        else parse_address(text, default_port=port, listen=True, option=option)
+    )
+    return up_addr, local_addr
+
+
 def _run_proxy(args: argparse.Namespace) -> int:
     from ..net.proxy import RecordingProxy
 
@@ -222,32 +246,16 @@ def _run_proxy(args: argparse.Namespace) -> int:
     upstream = parse_address(args.upstream, default_port=8080, option="--upstream")
     udp_upstream = udp_listen = None
     if args.udp or args.udp_upstream is not None or args.udp_listen is not None:
-        udp_upstream = (
-            Address(upstream.host, 20007)
-            if args.udp_upstream is None
-            else parse_address(args.udp_upstream, default_port=20007, option="--udp-upstream")
-        )
-        udp_listen = (
-            Address(listen.host, 20007)
-            if args.udp_listen is None
-            else parse_address(
-                args.udp_listen, default_port=20007, listen=True, option="--udp-listen"
-            )
-        )
+        udp_upstream, udp_listen = _side_ports(
+            upstream, listen, (args.udp_upstream, 20007, "--udp-upstream"),
+            (args.udp_listen, 20007, "--udp-listen"),
+        )  # fmt: skip
     state_upstream = state_listen = None
     if args.state_upstream is not None or args.state_listen is not None:
-        state_upstream = (
-            Address(upstream.host, 8083)
-            if args.state_upstream is None
-            else parse_address(args.state_upstream, default_port=8083, option="--state-upstream")
-        )
-        state_listen = (
-            Address(listen.host, 18083)
-            if args.state_listen is None
-            else parse_address(
-                args.state_listen, default_port=18083, listen=True, option="--state-listen"
-            )
-        )
+        state_upstream, state_listen = _side_ports(
+            upstream, listen, (args.state_upstream, 8083, "--state-upstream"),
+            (args.state_listen, 18083, "--state-listen"),
+        )  # fmt: skip
     specs = specs_of(args)
     on_frame = None
     if args.print_frames:
