@@ -25,6 +25,7 @@ from .protocol.state import StateDecoder, StatePacket, StateProblem, StateProble
 from .protocol.state_layout import known_layouts
 from .recording import C2S, Recording
 from .report import CaseResult
+from .report.text import plural
 from .verdict import Outcome
 
 __all__ = [
@@ -286,8 +287,7 @@ def state_cases(rec: Recording, *, version: str | None = None) -> list[CaseResul
             name=_NAME,
             group="controller",
             outcome=Outcome.PASS,
-            detail=f"{packets} state packets read on {len(figs)} connection"
-            f"{'s' if len(figs) != 1 else ''}",
+            detail=f"{packets} state packets read on {plural(len(figs), 'connection')}",
             source="8083 state manual 2.1",
             count=max(1, packets),
         )
