@@ -12,7 +12,8 @@ import contextlib
 import json
 import sys
 import threading
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
+from typing import IO
 
 from ..dialects import DIALECTS_ENV, dialects_from
 from ..errors import UsageError
@@ -23,6 +24,7 @@ from ..spec import SpecSet
 
 __all__ = [
     "DIALECTS_ENV",
+    "VerdictSink",
     "add_judge_options",
     "dialects_from",
     "judge_from",
@@ -107,29 +109,81 @@ def verdict_line(
     return json.dumps(doc, ensure_ascii=False)
 
 
+class VerdictSink:
+    """Writes verdict lines to a file (``-``: stdout), flushed line by line.
+
+    A write that fails (a full disk: ENOSPC, EFBIG, EIO; a closed pipe) never ends the
+    command: it is said at once on stderr, naming the path, the error and the lines
+    written so far, and the lines after it are counted, not written (``lost``).  ``serve``
+    goes on serving; the command says at its end how many lines the file lacks.
+    """
+
+    def __init__(self, path: str, who: str) -> None:
+        self.path = path
+        self.who = who
+        self.written = 0
+        self.lost = 0
+        self.error: str | None = None
+        self._lock = threading.Lock()
+        if path == "-":
+            self._file: IO[str] = sys.stdout
+            return
+        try:
+            self._file = open(path, "w", encoding="utf-8")  # noqa: SIM115 - closed by close()
+        except OSError as e:
+            raise UsageError(f"cannot write {path}: {e.strerror}") from None
+
+    def __call__(self, line: str) -> None:
+        with self._lock:
+            if self.error is not None:
+                self.lost += 1
+                return
+            try:
+                self._file.write(line + "\n")
+                self._file.flush()
+            except (OSError, ValueError) as e:  # ValueError: a stdout closed under us
+                self.error = getattr(e, "strerror", None) or str(e)
+                self.lost += 1
+                print(
+                    f"{self.who}: cannot write verdicts to {self.path}: {self.error}; "
+                    f"{self.written} lines written, the ones after are not (it goes on)",
+                    file=sys.stderr,
+                    flush=True,
+                )
+            else:
+                self.written += 1
+
+    def summary(self) -> str | None:
+        """What the file lacks, for the command's last lines (None: nothing lost)."""
+        if not self.lost:
+            return None
+        return (
+            f"{self.who}: verdicts: {self.written} lines written to {self.path}, "
+            f"{self.lost} not written ({self.error})"
+        )
+
+    def close(self) -> None:
+        if self._file is sys.stdout:
+            with contextlib.suppress(OSError, ValueError):
+                sys.stdout.flush()
+            return
+        try:
+            self._file.close()  # its last flush may fail too: said as a write would be
+        except OSError as e:
+            if self.error is None:
+                self.error = e.strerror or str(e)
+                print(
+                    f"{self.who}: cannot write verdicts to {self.path}: {self.error}",
+                    file=sys.stderr,
+                    flush=True,
+                )
+
+
 @contextlib.contextmanager
-def verdict_sink(path: str) -> Iterator[Callable[[str], None]]:
-    """A line writer to ``path`` (``-``: stdout), flushed line by line, closed on exit."""
-    if path == "-":
-
-        def write_out(line: str) -> None:
-            sys.stdout.write(line + "\n")
-
-        yield write_out
-        sys.stdout.flush()
-        return
+def verdict_sink(path: str, who: str = "fairino-conformance") -> Iterator[VerdictSink]:
+    """A :class:`VerdictSink` to ``path``, closed on exit."""
+    sink = VerdictSink(path, who)
     try:
-        f = open(path, "w", encoding="utf-8")  # noqa: SIM115 - closed below
-    except OSError as e:
-        raise UsageError(f"cannot write {path}: {e.strerror}") from None
-    lock = threading.Lock()
-
-    def write(line: str) -> None:
-        with lock:
-            f.write(line + "\n")
-            f.flush()
-
-    try:
-        yield write
+        yield sink
     finally:
-        f.close()
+        sink.close()

@@ -16,7 +16,7 @@ from typing import Any
 
 from ..capture_check import SIDES
 from ..diff import ignore_help
-from ..errors import EXIT_DAMAGED, UsageError
+from ..errors import EXIT_DAMAGED, EXIT_ERROR, UsageError
 from ..frame import DEFAULT_MAX_FRAME_SIZE, Frame
 from ..net.addresses import Address, format_address, parse_address
 from ..pcap import read_capture
@@ -295,8 +295,9 @@ def _run_check(args: argparse.Namespace) -> int:
     if (warning := judgeable(rec)) is not None:  # an empty one raises: empty is never success
         print(warning, file=sys.stderr)
     side = args.side
+    lost = None
     if args.verdicts:
-        with _verdict_sink(args.verdicts) as sink:
+        with _verdict_sink(args.verdicts, "check") as sink:
             report = check_recording(
                 rec,
                 specs,
@@ -304,6 +305,7 @@ def _run_check(args: argparse.Namespace) -> int:
                 on_verdict=lambda f, v: sink(verdict_line(f, v)),
                 side=side,
             )
+        lost = sink.summary()
     else:
         report = check_recording(rec, specs, judge=judge, side=side)
     from ..suite.spec_choice import note_spec
@@ -328,6 +330,9 @@ def _run_check(args: argparse.Namespace) -> int:
             )
         print(line)
     _damaged(rec)  # its lines on stderr; the report's exit code counts the damage
+    if lost is not None:  # the verdicts asked for are not all in the file: an error
+        print(lost, file=sys.stderr)
+        return max(report.exit_code(), EXIT_ERROR)
     return report.exit_code()
 
 

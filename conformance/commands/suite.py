@@ -424,10 +424,12 @@ def _serve(args: argparse.Namespace) -> int:
     emulation = _emulation(args, specs, strict=args.strict)
     sink = contextlib.ExitStack()
     on_verdict = None
+    verdicts = None
     if args.verdicts:
         from ._judging import verdict_line, verdict_sink
 
-        write = sink.enter_context(verdict_sink(args.verdicts))
+        # A write that fails (a full disk) is said at once; serving goes on.
+        write = verdicts = sink.enter_context(verdict_sink(args.verdicts, "serve"))
 
         def on_verdict(peer: str, frame: Any, verdict: Any) -> None:
             transport = "udp" if peer.startswith("udp:") else "tcp"
@@ -489,6 +491,8 @@ def _serve(args: argparse.Namespace) -> int:
     summary = _drop_summary(server)
     if summary:
         print(f"serve: {summary}", file=sys.stderr)
+    if verdicts is not None and (lost := verdicts.summary()) is not None:
+        print(lost, file=sys.stderr)
     lines = failure_lines(report)  # as run prints them: the frames, the numbers, a reproduction
     if lines:
         print("\n".join(lines))
