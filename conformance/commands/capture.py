@@ -453,6 +453,11 @@ def _run_capture(args: argparse.Namespace) -> int:
         if st.kernel_drops
         else ""
     )
+    if st.unread:
+        drops += (
+            f"; {st.unread} packets queued before the stop were not read (it stops within "
+            "a second under load)"
+        )
     print(
         f"capture: stopped; {st.packets} packets ({st.ignored} not ours), {st.connections} "
         f"connections, {st.frames} frames, "

@@ -67,6 +67,12 @@ _LINKTYPES = {ARPHRD_ETHER: DLT_EN10MB, ARPHRD_LOOPBACK: DLT_EN10MB, ARPHRD_NONE
 #: Largest packet read whole: lo's MTU is 64 KiB, and GRO/BIG TCP aggregates can be
 #: larger (a longer one is cut, and the reassembler records the rest as a gap).
 SNAPLEN = 512 * 1024
+#: Seconds a stopped capture spends, at most, taking what the kernel queued before the stop.
+STOP_DRAIN = 0.5
+#: ... and then counting, at most, the packets it leaves unread.
+STOP_COUNT = 0.25
+#: Seconds one read of the socket's queue lasts at most (a packet can hold many frames).
+DRAIN_SLICE = 0.05
 RCVBUF = 32 << 20
 
 
@@ -231,6 +237,7 @@ class CaptureStats:
     problems: int
     paths: tuple[str, ...]
     state_packets: int = 0
+    unread: int = 0  # queued before a stop under load, left unread (STOP_DRAIN)
 
 
 class LiveCapture:
@@ -322,14 +329,21 @@ class LiveCapture:
         self.tick = tick
         self.idle_ns = int(idle_resolve * 1e9)
         self.kernel_drops = 0
+        #: Packets queued before a stop under load that the stop left unread.
+        self.unread = 0
         self._skipped = 0
 
     @property
     def frames(self) -> int:
         return self.packets.rec.frames
 
-    def _drain(self, limit: int = 4096) -> int:
-        """Feed the packets waiting in the socket (at most ``limit``); how many were read."""
+    def _drain(self, limit: int = 4096, until_ns: int | None = None) -> int:
+        """Feed the packets waiting in the socket (at most ``limit``, and for at most
+        DRAIN_SLICE seconds, so that a stop is seen soon under load); how many were read.
+
+        ``until_ns``: a packet the kernel stamped later is not fed, and reading stops
+        there (0 is returned: the capture's end has been reached)."""
+        give_up = time.monotonic() + DRAIN_SLICE
         recvmsg = self.sock.recvmsg
         feed = self.packets.feed
         linktype = self.linktype
@@ -342,6 +356,8 @@ class LiveCapture:
             except (BlockingIOError, InterruptedError):
                 break
             n += 1
+            if not n & 63 and time.monotonic() > give_up:
+                limit = n  # this packet is the slice's last
             if loopback and addr[2] == PACKET_OUTGOING:
                 self._skipped += 1  # the same packet comes again, arriving
                 continue
@@ -350,8 +366,32 @@ class LiveCapture:
                 if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS:
                     sec, nsec = _TIMESPEC.unpack_from(cdata)
                     t = sec * 1_000_000_000 + nsec
+            if until_ns is not None and t > until_ns:
+                return 0  # sent after the stop: not this capture's
             feed(t or time.time_ns(), linktype, data)
         return n
+
+    def _count_unread(self, until_ns: int) -> None:
+        """Count, without decoding, the packets queued before ``until_ns`` that the stop
+        leaves unread (at most the socket's buffer: tens of milliseconds of reading,
+        cut at STOP_COUNT seconds, when the count is a lower bound)."""
+        recvmsg = self.sock.recvmsg
+        space = socket.CMSG_SPACE(_TIMESPEC.size)
+        give_up = time.monotonic() + STOP_COUNT
+        while time.monotonic() < give_up:
+            for _ in range(256):
+                try:
+                    _data, anc, _flags, addr = recvmsg(SNAPLEN, space)
+                except (BlockingIOError, InterruptedError):
+                    return
+                if self.loopback and addr[2] == PACKET_OUTGOING:
+                    continue
+                for level, kind, cdata in anc:
+                    if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS:
+                        sec, nsec = _TIMESPEC.unpack_from(cdata)
+                        if sec * 1_000_000_000 + nsec > until_ns:
+                            return
+                self.unread += 1
 
     def _read_drops(self) -> None:
         try:
@@ -399,9 +439,16 @@ class LiveCapture:
                     self.packets.idle(time.time_ns(), self.idle_ns)
                     self.writer.flush()  # and rotates when due
                     self._read_drops()
-            # What the kernel had queued before the stop is ours too.
-            while self._drain():
-                pass
+            # What the kernel had queued before the stop is ours too; what comes after
+            # it is not.  Under load the queue never empties, so the packets are taken
+            # up to the stop's time stamp, for at most STOP_DRAIN seconds (before: it
+            # read on while traffic flowed, 7 to 45 s).
+            stop_ns = time.time_ns()
+            give_up = time.monotonic() + STOP_DRAIN
+            while self._drain(until_ns=stop_ns):
+                if time.monotonic() >= give_up:
+                    self._count_unread(stop_ns)  # said at the stop, never silently lost
+                    break
         finally:
             self._read_drops()
             self.sock.close()
@@ -419,4 +466,5 @@ class LiveCapture:
             problems=st.problems,
             paths=tuple(self.writer.paths),
             state_packets=st.state_packets,
+            unread=self.unread,
         )
