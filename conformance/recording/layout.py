@@ -87,6 +87,12 @@ STATE_KIND = "state"
 #: ``fairino.Connection``'s ``stream`` for a state-port connection.
 STATE_STREAM = "state"
 METADATA_NAME = "fairino.recording"
+#: Every integer of a recording's messages (connection numbers, CNT, CMD_ID, lengths,
+#: offsets, sizes, times in ns since the epoch, counts) is a non-negative 64-bit value.
+INT_MAX = (1 << 63) - 1
+#: A time (``*_ns``: ns since the Unix epoch) is before 2106-02-07, the end of the 32-bit
+#: seconds a classic pcap (``export-pcap``) holds.
+TIME_MAX = (1 << 32) * 1_000_000_000 - 1
 #: Layout version, stored in the metadata; bump on incompatible changes.
 FORMAT = "fairino-conformance/2"
 #: Most frames, and bytes of them, in one ``fairino.Frames`` message (RecordingWriter):

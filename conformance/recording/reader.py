@@ -13,9 +13,11 @@ from typing import Any
 
 from .layout import (
     C2S,
+    INT_MAX,
     METADATA_NAME,
     SCHEMAS,
     STATE_KIND,
+    TIME_MAX,
     TOPIC_C2S,
     TOPIC_CONNECTIONS,
     TOPIC_PROBLEMS,
@@ -188,12 +190,9 @@ class Recording:
         return [e for e in out if e is not None]
 
 
-#: Every integer of a recording's messages (connection numbers, CNT, CMD_ID, lengths,
-#: offsets, sizes, times in ns since the epoch, counts) is a non-negative 64-bit value.
-_INT_MAX = (1 << 63) - 1
-#: A time (``*_ns``: ns since the Unix epoch) is before 2106-02-07, the end of the 32-bit
-#: seconds a classic pcap (``export-pcap``) holds.
-_TIME_MAX = (1 << 32) * 1_000_000_000 - 1
+#: The ranges of a recording's integers (:data:`~.layout.INT_MAX`, :data:`~.layout.TIME_MAX`).
+_INT_MAX = INT_MAX
+_TIME_MAX = TIME_MAX
 
 
 def _kind(v: Any) -> str:

@@ -1,0 +1,601 @@
+"""Layout 3's frame batches: the ``fairino.Frames`` message in protobuf, written and read
+by hand (no protobuf library at run time).
+
+A batch's columns are packed repeated ``fixed64`` fields, so a column is written with
+``array("Q", values).tobytes()`` and read with ``numpy.frombuffer`` (no text per
+number); DATA and the frames' bytes are one ``string`` and one ``bytes`` field each,
+cut by their ``data_size`` and ``size`` columns.  The MCAP schema is a
+``FileDescriptorSet`` (schema encoding ``protobuf``), built from :data:`FIELDS` by the
+same few lines of wire encoding, so Foxglove and the ``mcap`` tools decode the messages
+as any protobuf recording.  In ``.proto`` terms::
+
+    syntax = "proto3";
+    package fairino;
+    message Frames {
+      uint64 conn = 1;                 // connection number, from 1
+      string transport = 2;            // tcp or udp (absent: tcp)
+      string dir = 3;                  // c2s (client to controller) or s2c
+      repeated fixed64 cnt = 4;        // frame k's CNT ...
+      repeated fixed64 cmd_id = 5;
+      repeated string names = 6;       // the batch's distinct command names
+      repeated fixed64 name = 7;       // 1 + index into names; 0: none (absent: none at all)
+      string data = 8;                 // the frames' DATA one after the other (UTF-8)
+      repeated fixed64 data_size = 9;  // bytes of frame k's DATA in data
+      repeated fixed64 len = 10;       // LEN as sent
+      repeated fixed64 offset = 11;    // stream offset of the frame's first byte
+      repeated fixed64 first_ns = 12;  // when its first byte came (absent: complete_ns)
+      repeated fixed64 complete_ns = 13;
+      repeated fixed64 size = 14;      // bytes of frame k in raw
+      bytes raw = 15;                  // the frames' bytes one after the other
+      repeated fixed64 problem_frame = 16;  // problem[j] is frame problem_frame[j]'s
+      repeated string problem = 17;
+    }
+
+The decoder reads any valid protobuf of this message (fields in any order, a packed
+column in several pieces or unpacked, unknown fields skipped) and checks what the JSON
+schema of layout 2 checks (columns of one length, integers and times in range, ``raw``
+and ``data`` holding their sizes); whatever does not read or fit is a ``ValueError``
+saying what, never another exception (the reader skips and names the message).
+"""
+
+from __future__ import annotations
+
+import struct
+import sys
+from array import array
+from collections.abc import Sequence
+from typing import Any, NamedTuple
+
+from .layout import INT_MAX, TIME_MAX, DirectionText
+from .records import FrameBatch
+
+__all__ = [
+    "FIELDS",
+    "FILE_DESCRIPTOR_SET",
+    "SCHEMA_NAME",
+    "BatchColumns",
+    "decode_batch",
+    "decode_columns",
+    "encode_batch",
+    "encode_one",
+]
+
+SCHEMA_NAME = "fairino.Frames"
+
+#: The message's fields: (name, number, protobuf type, repeated).
+FIELDS: tuple[tuple[str, int, str, bool], ...] = (
+    ("conn", 1, "uint64", False),
+    ("transport", 2, "string", False),
+    ("dir", 3, "string", False),
+    ("cnt", 4, "fixed64", True),
+    ("cmd_id", 5, "fixed64", True),
+    ("names", 6, "string", True),
+    ("name", 7, "fixed64", True),
+    ("data", 8, "string", False),
+    ("data_size", 9, "fixed64", True),
+    ("len", 10, "fixed64", True),
+    ("offset", 11, "fixed64", True),
+    ("first_ns", 12, "fixed64", True),
+    ("complete_ns", 13, "fixed64", True),
+    ("size", 14, "fixed64", True),
+    ("raw", 15, "bytes", False),
+    ("problem_frame", 16, "fixed64", True),
+    ("problem", 17, "string", True),
+)
+_NUMBER = {name: number for name, number, _, _ in FIELDS}
+#: The packed columns, by field number.
+_COLUMNS = {number: name for name, number, kind, _ in FIELDS if kind == "fixed64"}
+_TEXT = {_NUMBER["transport"], _NUMBER["dir"], _NUMBER["data"], _NUMBER["raw"]}
+_TEXTS = {_NUMBER["names"], _NUMBER["problem"]}
+
+# -- the wire format (protobuf encoding: varints, tags, length-delimited fields)
+
+_VARINT, _I64, _LEN, _I32 = 0, 1, 2, 5
+
+
+def _varint(v: int) -> bytes:
+    if v < 0x80:
+        return bytes((v,))
+    out = bytearray()
+    while v >= 0x80:
+        out.append((v & 0x7F) | 0x80)
+        v >>= 7
+    out.append(v)
+    return bytes(out)
+
+
+def _tag(number: int, wire: int) -> bytes:
+    return _varint(number << 3 | wire)
+
+
+def _field(number: int, payload: bytes) -> bytes:
+    """A length-delimited field: tag, length, payload."""
+    return _tag(number, _LEN) + _varint(len(payload)) + payload
+
+
+# -- the schema: a FileDescriptorSet (google/protobuf/descriptor.proto), encoded as above
+
+#: FieldDescriptorProto.Type and .Label values (descriptor.proto).
+_TYPES = {"fixed64": 6, "string": 9, "bytes": 12, "uint64": 4}
+_OPTIONAL, _REPEATED = 1, 3
+
+
+def _descriptor_set() -> bytes:
+    fields = b"".join(
+        _field(
+            2,  # DescriptorProto.field
+            _field(1, name.encode())  # name
+            + _tag(3, _VARINT)
+            + _varint(number)  # number
+            + _tag(4, _VARINT)
+            + _varint(_REPEATED if repeated else _OPTIONAL)  # label
+            + _tag(5, _VARINT)
+            + _varint(_TYPES[kind]),  # type
+        )
+        for name, number, kind, repeated in FIELDS
+    )
+    message = _field(1, b"Frames") + fields  # DescriptorProto: name, field
+    file = (
+        _field(1, b"fairino/frames.proto")  # FileDescriptorProto.name
+        + _field(2, b"fairino")  # package
+        + _field(4, message)  # message_type
+        + _field(12, b"proto3")  # syntax
+    )
+    return _field(1, file)  # FileDescriptorSet.file
+
+
+#: The MCAP schema's data for ``fairino.Frames`` (schema encoding ``protobuf``).
+FILE_DESCRIPTOR_SET = _descriptor_set()
+
+# -- encoding
+
+_BIG = sys.byteorder == "big"
+
+
+def _u64(values: Sequence[int]) -> bytes:
+    """Little-endian unsigned 64-bit values, in C (``array``)."""
+    try:
+        a = array("Q", values)
+    except (OverflowError, TypeError) as e:  # a negative or non-integer value: ours
+        raise ValueError(f"a column holds a value that is not a 64-bit count: {e}") from None
+    if _BIG:  # pragma: no cover - the wire is little-endian
+        a.byteswap()
+    return a.tobytes()
+
+
+def _column(number: int, values: Sequence[int]) -> bytes:
+    packed = _u64(values)
+    return _tag(number, _LEN) + _varint(len(packed)) + packed
+
+
+_HEAD_CACHE: dict[tuple[int, str, str], bytes] = {}
+
+
+def _head(conn: int, transport: str, direction: str) -> bytes:
+    """conn, transport and dir, the same for a connection's every message."""
+    key = (conn, transport, direction)
+    got = _HEAD_CACHE.get(key)
+    if got is None:
+        got = (
+            _tag(1, _VARINT)
+            + _varint(conn)
+            + _field(2, transport.encode())
+            + _field(3, direction.encode())
+        )
+        if len(_HEAD_CACHE) < 4096:
+            _HEAD_CACHE[key] = got
+    return got
+
+
+def _encode_data(datas: Sequence[str]) -> tuple[bytes, Sequence[int]]:
+    text = "".join(datas)
+    data = text.encode("utf-8", "surrogatepass")
+    if len(data) == len(text):  # ASCII: a character a byte
+        return data, list(map(len, datas))
+    return data, [len(d.encode("utf-8", "surrogatepass")) for d in datas]
+
+
+def _encode_names(names: Sequence[str | None]) -> bytes:
+    distinct = [n for n in dict.fromkeys(names) if n is not None]
+    if not distinct:
+        return b""
+    index: dict[str | None, int] = {None: 0}
+    parts = []
+    for k, n in enumerate(distinct, 1):
+        index[n] = k
+        parts.append(_field(6, n.encode("utf-8", "surrogatepass")))
+    parts.append(_column(7, list(map(index.__getitem__, names))))
+    return b"".join(parts)
+
+
+def _encode_problems(problems: Sequence[Sequence[str]] | None) -> bytes:
+    if problems is None:
+        return b""
+    frames = [k for k, ps in enumerate(problems) for _ in ps]
+    if not frames:
+        return b""
+    return _column(16, frames) + b"".join(
+        _field(17, p.encode("utf-8", "surrogatepass")) for ps in problems for p in ps
+    )
+
+
+def encode_batch(b: FrameBatch) -> bytes:
+    """A batch as its ``fairino.Frames`` message (a ``ValueError`` for a negative number)."""
+    data, data_sizes = _encode_data(b.datas)
+    complete = _column(13, b.complete_ns)
+    first = _column(12, b.first_ns)
+    return b"".join(
+        (
+            _head(b.conn, b.transport, b.dir),
+            _column(4, b.cnts),
+            _column(5, b.cmd_ids),
+            _encode_names(b.names),
+            _field(8, data),
+            _column(9, data_sizes),
+            _column(10, b.lengths),
+            _column(11, b.offsets),
+            b"" if first[1:] == complete[1:] else first,  # the same tag length: 1 byte
+            complete,
+            _column(14, b.sizes),
+            _field(15, b.raw),
+            _encode_problems(b.problems),
+        )
+    )
+
+
+# Each fixed64 column of one value: its tag, the length 8, the value (little-endian).
+_ONE_IDS = struct.Struct("<HQHQ")  # cnt (4), cmd_id (5)
+_ONE_NAME = struct.Struct("<HQ")  # name (7)
+_ONE_SIZES = struct.Struct("<HQHQHQ")  # data_size (9), len (10), offset (11)
+_ONE_FIRST = struct.Struct("<HQ")  # first_ns (12)
+_ONE_TAIL = struct.Struct("<HQHQ")  # complete_ns (13), size (14)
+
+
+def _one_tag(number: int) -> int:
+    """A one-value column's tag and length as the little-endian short ``_ONE_*`` packs."""
+    t = _tag(number, _LEN) + b"\x08"
+    assert len(t) == 2
+    return int.from_bytes(t, "little")
+
+
+_T = {name: _one_tag(number) for name, number, kind, _ in FIELDS if number < 16}
+_NAME_CACHE: dict[str, bytes] = {}
+
+
+def encode_one(
+    conn: int,
+    transport: str,
+    direction: str,
+    cnt: int,
+    cmd_id: int,
+    name: str | None,
+    data: str,
+    length: int,
+    offset: int,
+    first_ns: int,
+    complete_ns: int,
+    raw: bytes,
+    problems: Sequence[str] | None = None,
+) -> bytes:
+    """The message of a batch of one frame (request/reply traffic), without a
+    :class:`FrameBatch`: the same bytes as :func:`encode_batch` of it."""
+    encoded = data.encode("utf-8", "surrogatepass")
+    if name is None:
+        named = b""
+    else:
+        named = _NAME_CACHE.get(name, b"")
+        if not named:
+            named = _field(6, name.encode("utf-8", "surrogatepass")) + _ONE_NAME.pack(_T["name"], 1)
+            if len(_NAME_CACHE) < 4096:
+                _NAME_CACHE[name] = named
+    try:
+        parts = [
+            _head(conn, transport, direction),
+            _ONE_IDS.pack(_T["cnt"], cnt, _T["cmd_id"], cmd_id),
+            named,
+            b"\x42",  # data (8)
+            _varint(len(encoded)),
+            encoded,
+            _ONE_SIZES.pack(_T["data_size"], len(encoded), _T["len"], length, _T["offset"], offset),
+            b"" if first_ns == complete_ns else _ONE_FIRST.pack(_T["first_ns"], first_ns),
+            _ONE_TAIL.pack(_T["complete_ns"], complete_ns, _T["size"], len(raw)),
+            b"\x7a",  # raw (15)
+            _varint(len(raw)),
+            raw,
+        ]
+    except struct.error as e:
+        raise ValueError(f"a field holds a value that is not a 64-bit count: {e}") from None
+    if problems:
+        parts.append(_encode_problems([problems]))
+    return b"".join(parts)
+
+
+# -- decoding
+
+
+class BatchColumns(NamedTuple):
+    """One ``fairino.Frames`` message as read: the number columns as numpy ``uint64``
+    arrays (checked: every value at most 2^63 - 1, times before 2106), the rest as
+    Python values.  :meth:`batch` gives the :class:`FrameBatch`."""
+
+    conn: int
+    transport: str
+    dir: DirectionText
+    cnt: Any
+    cmd_id: Any
+    length: Any
+    offset: Any
+    first_ns: Any
+    complete_ns: Any
+    size: Any
+    data_size: Any
+    #: Each frame's command name (None: none).
+    names: list[str | None]
+    #: The frames' DATA, one after the other (UTF-8), and their bytes.
+    data: bytes
+    raw: bytes
+    #: Each frame's problems; None when no frame of the batch has any.
+    problems: list[list[str]] | None
+
+    def datas(self) -> list[str]:
+        """Each frame's DATA as text."""
+        n = len(self.data_size)
+        if n == 0:
+            return []
+        if n == 1:
+            return [self.data.decode("utf-8", "surrogatepass")]
+        text = self.data.decode("utf-8", "surrogatepass")
+        ends = _cumsum(self.data_size)
+        if len(text) == len(self.data):  # ASCII: cut the text where the bytes are cut
+            return [text[a:b] for a, b in zip([0, *ends[:-1]], ends, strict=True)]
+        d = self.data
+        return [
+            d[a:b].decode("utf-8", "surrogatepass")
+            for a, b in zip([0, *ends[:-1]], ends, strict=True)
+        ]
+
+    def batch(self) -> FrameBatch:
+        """The message as the batch it was written from (a ``ValueError`` for DATA of a
+        frame that is not UTF-8 where the message's cuts fall)."""
+        try:
+            datas = self.datas()
+        except UnicodeDecodeError as e:
+            raise ValueError(f"data is not UTF-8 where data_size cuts it: {e}") from None
+        return FrameBatch(
+            conn=self.conn,
+            transport=self.transport,
+            dir=self.dir,
+            cnts=self.cnt.tolist(),
+            cmd_ids=self.cmd_id.tolist(),
+            names=self.names,
+            datas=datas,
+            lengths=self.length.tolist(),
+            offsets=self.offset.tolist(),
+            first_ns=self.first_ns.tolist(),
+            complete_ns=self.complete_ns.tolist(),
+            sizes=self.size.tolist(),
+            raw=self.raw,
+            problems=self.problems,
+        )
+
+
+def _cumsum(col: Any) -> list[int]:
+    import numpy as np
+
+    out: list[int] = np.cumsum(col, dtype=np.uint64).tolist()
+    return out
+
+
+def _read_varint(buf: bytes, i: int) -> tuple[int, int]:
+    """The varint at ``buf[i]`` and the position after it (IndexError: cut short)."""
+    b = buf[i]
+    if b < 0x80:
+        return b, i + 1
+    v = b & 0x7F
+    shift = 7
+    while True:
+        i += 1
+        b = buf[i]
+        v |= (b & 0x7F) << shift
+        if b < 0x80:
+            if v >> 64:
+                raise ValueError(f"a varint at byte {i} is past 64 bits")
+            return v, i + 1
+        shift += 7
+        if shift >= 70:
+            raise ValueError(f"a varint at byte {i} is longer than 10 bytes")
+
+
+def _parse(buf: bytes) -> tuple[int, dict[int, list[bytes]]]:
+    """The message's ``conn`` and its length-delimited and fixed64 fields' pieces by
+    number, in order (unknown fields skipped)."""
+    n = len(buf)
+    i = 0
+    conn = 0
+    pieces: dict[int, list[bytes]] = {}
+    while i < n:
+        key = buf[i]
+        i += 1
+        if key >= 0x80:
+            key, i = _read_varint(buf, i - 1)
+        number, wire = key >> 3, key & 7
+        if wire == _LEN:
+            size = buf[i]
+            i += 1
+            if size >= 0x80:
+                size, i = _read_varint(buf, i - 1)
+            end = i + size
+            if end > n:
+                raise ValueError(f"field {number} runs {end - n} bytes past the message's end")
+            piece = buf[i:end]
+            i = end
+        elif wire == _VARINT:
+            value, i = _read_varint(buf, i)
+            if number == 1:
+                conn = value
+                continue
+            piece = b""
+        elif wire == _I64:
+            end = i + 8
+            if end > n:
+                raise ValueError(f"field {number} runs past the message's end")
+            piece = buf[i:end]
+            i = end
+        elif wire == _I32:
+            i += 4
+            if i > n:
+                raise ValueError(f"field {number} runs past the message's end")
+            piece = b""
+        else:
+            raise ValueError(f"field {number} has wire type {wire}, which protobuf has not")
+        if number in _COLUMNS:
+            if wire not in (_LEN, _I64):
+                raise ValueError(f"{_COLUMNS[number]} has wire type {wire}, not fixed64's")
+        elif number in _TEXT or number in _TEXTS:
+            if wire != _LEN:
+                raise ValueError(f"field {number} has wire type {wire}, not a string's")
+        elif number == 1:
+            raise ValueError(f"conn has wire type {wire}, not a varint's")
+        else:
+            continue  # a field this kit does not know: protobuf skips it
+        got = pieces.get(number)
+        if got is None:
+            pieces[number] = [piece]
+        else:
+            got.append(piece)
+    return conn, pieces
+
+
+def _numbers(pieces: dict[int, list[bytes]], number: int) -> Any:
+    import numpy as np
+
+    got = pieces.get(number)
+    if not got:
+        return None
+    buf = got[0] if len(got) == 1 else b"".join(got)
+    if len(buf) % 8:
+        raise ValueError(f"{_COLUMNS[number]} holds {len(buf)} bytes, not 8 a value")
+    return np.frombuffer(buf, dtype="<u8")
+
+
+def _text(pieces: dict[int, list[bytes]], number: int, name: str) -> str:
+    got = pieces.get(number)
+    if not got:
+        return ""
+    try:
+        return got[-1].decode("utf-8")  # a scalar given twice: the last one counts
+    except UnicodeDecodeError:
+        raise ValueError(f"{name} is not UTF-8") from None
+
+
+def decode_columns(buf: bytes) -> BatchColumns:
+    """A ``fairino.Frames`` message's columns; a ``ValueError`` saying what does not read
+    or does not fit (see the module)."""
+    try:
+        conn, pieces = _parse(buf)
+    except IndexError:
+        raise ValueError("the message ends inside a field") from None
+    if conn > INT_MAX:
+        raise ValueError(f"conn is {conn}, not a non-negative 64-bit integer")
+    transport = _text(pieces, 2, "transport") or "tcp"
+    if transport not in ("tcp", "udp"):
+        raise ValueError(f"transport is {transport[:40]!r}, not one of tcp, udp")
+    text = _text(pieces, 3, "dir")
+    if text != "c2s" and text != "s2c":
+        raise ValueError(f"dir is {text[:40]!r}, not one of c2s, s2c")
+    direction: DirectionText = "c2s" if text == "c2s" else "s2c"
+    cols: dict[str, Any] = {}
+    import numpy as np
+
+    empty = np.zeros(0, dtype="<u8")
+    cnt = _numbers(pieces, 4)
+    n = 0 if cnt is None else len(cnt)
+    for number, name in _COLUMNS.items():
+        col = cnt if number == 4 else _numbers(pieces, number)
+        if col is None:
+            if name in ("first_ns", "name", "problem_frame"):
+                cols[name] = None
+                continue
+            if n:
+                raise ValueError(f"the message has no {name!r}")
+            col = empty
+        if name != "problem_frame" and len(col) != n:
+            raise ValueError(f"{name} has {len(col)} values for {n} frames")
+        if n:
+            top = TIME_MAX if name.endswith("_ns") else INT_MAX
+            high = int(col.max())
+            if high > top:
+                what = "a time in ns from 1970 to 2106" if top == TIME_MAX else None
+                raise ValueError(
+                    f"{name} holds {high}, not {what or 'a non-negative 64-bit integer'}"
+                )
+        cols[name] = col
+    raw = pieces.get(15, [b""])[-1]
+    data = pieces.get(8, [b""])[-1]
+    for what, sizes, held in (("raw", cols["size"], raw), ("data", cols["data_size"], data)):
+        # Each size at most the bytes held first: the sum cannot wrap round then.
+        if n and (int(sizes.max()) > len(held) or int(sizes.sum()) != len(held)):
+            raise ValueError(f"the sizes do not add up to {what} ({len(held)} bytes)")
+        if not n and held:
+            raise ValueError(f"{what} holds {len(held)} bytes for no frame")
+    if cols["first_ns"] is None:
+        cols["first_ns"] = cols["complete_ns"]
+    names = _names(pieces, cols.pop("name"), n)
+    problems = _problems(pieces, cols.pop("problem_frame"), n)
+    return BatchColumns(
+        conn=conn,
+        transport=transport,
+        dir=direction,
+        cnt=cols["cnt"],
+        cmd_id=cols["cmd_id"],
+        length=cols["len"],
+        offset=cols["offset"],
+        first_ns=cols["first_ns"],
+        complete_ns=cols["complete_ns"],
+        size=cols["size"],
+        data_size=cols["data_size"],
+        names=names,
+        data=data,
+        raw=raw,
+        problems=problems,
+    )
+
+
+def _strings(pieces: dict[int, list[bytes]], number: int, name: str) -> list[str]:
+    try:
+        return [p.decode("utf-8") for p in pieces.get(number, ())]
+    except UnicodeDecodeError:
+        raise ValueError(f"{name} holds text that is not UTF-8") from None
+
+
+def _names(pieces: dict[int, list[bytes]], index: Any, n: int) -> list[str | None]:
+    table: list[str | None] = [None, *_strings(pieces, 6, "names")]
+    if index is None:
+        return [None] * n
+    if n and int(index.max()) >= len(table):
+        raise ValueError(f"name holds {int(index.max())}, past the {len(table) - 1} names")
+    return list(map(table.__getitem__, index.tolist()))
+
+
+def _problems(pieces: dict[int, list[bytes]], frames: Any, n: int) -> list[list[str]] | None:
+    texts = _strings(pieces, 17, "problem")
+    if frames is None:
+        if texts:
+            raise ValueError(f"{len(texts)} problems without problem_frame")
+        return None
+    if len(frames) != len(texts):
+        raise ValueError(f"problem_frame has {len(frames)} values for {len(texts)} problems")
+    if not texts:
+        return None
+    if int(frames.max()) >= n:
+        raise ValueError(f"problem_frame holds {int(frames.max())}, past the {n} frames")
+    out: list[list[str]] = [[] for _ in range(n)]
+    for k, p in zip(frames.tolist(), texts, strict=True):
+        out[k].append(p)
+    return out
+
+
+def decode_batch(buf: bytes) -> FrameBatch:
+    """A ``fairino.Frames`` message as its :class:`FrameBatch` (a ``ValueError`` for one
+    that does not read or fit)."""
+    return decode_columns(buf).batch()
