@@ -93,8 +93,14 @@ INT_MAX = (1 << 63) - 1
 #: A time (``*_ns``: ns since the Unix epoch) is before 2106-02-07, the end of the 32-bit
 #: seconds a classic pcap (``export-pcap``) holds.
 TIME_MAX = (1 << 32) * 1_000_000_000 - 1
-#: Layout version, stored in the metadata; bump on incompatible changes.
-FORMAT = "fairino-conformance/2"
+#: Each layout's ``format`` in the metadata (every one reads everywhere; a writer asked
+#: for layout 2 writes it, and ``RecordingWriter(layout=...)`` picks).
+FORMAT_1 = "fairino-conformance/1"
+FORMAT_2 = "fairino-conformance/2"
+FORMAT_3 = "fairino-conformance/3"
+#: The layout a recording is written in unless asked otherwise; bump on incompatible changes.
+LAYOUT = 2
+FORMAT = {2: FORMAT_2, 3: FORMAT_3}[LAYOUT]
 #: Most frames, and bytes of them, in one ``fairino.Frames`` message (RecordingWriter):
 #: a reader holds one message at a time, and a frame message stays well under a chunk.
 BATCH_FRAMES = 4096

@@ -11,6 +11,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from .frames_pb import decode_batch
 from .layout import (
     C2S,
     INT_MAX,
@@ -435,11 +436,21 @@ def _record_of(
         raise ValueError(f"{type(e).__name__}: {e}") from None
 
 
+def _channel(c: Any, topics: dict[int, str], binary: set[int]) -> None:
+    """Note a channel: its topic, and whether its frame batches are protobuf (layout 3)."""
+    topics[c.id] = c.topic
+    if c.topic in (TOPIC_C2S, TOPIC_S2C) and c.message_encoding == "protobuf":
+        binary.add(c.id)
+    else:
+        binary.discard(c.id)
+
+
 def read_recording(path: str | os.PathLike[str]) -> Recording:
     """Read a recording, finished or not (an unfinished one reads up to its last whole
     chunk), damaged or not: a chunk that cannot be read is skipped and the reading goes
     on (:class:`~.salvage.Walk`), and a message on the recording's topics whose JSON does
-    not fit its schema is skipped; each is in :attr:`Recording.damage`."""
+    not fit its schema (or, layout 3, whose protobuf frame batch does not read or fit:
+    :mod:`.frames_pb`) is skipped; each is in :attr:`Recording.damage`."""
     from mcap.records import Channel, Message, Metadata
 
     from ..errors import RecordingError
@@ -452,6 +463,8 @@ def read_recording(path: str | os.PathLike[str]) -> Recording:
     state_problems: list[ProblemRecord] = []
     metadata: dict[str, str] = {}
     topics: dict[int, str] = {}
+    # Channels whose frame batches are protobuf (layout 3), not JSON.
+    binary: set[int] = set()
     try:
         f = open(p, "rb")  # noqa: SIM115
     except FileNotFoundError:
@@ -465,29 +478,36 @@ def read_recording(path: str | os.PathLike[str]) -> Recording:
         walk = Walk(f, p)
         for r in walk.summary_records():
             if isinstance(r, Channel):
-                topics[r.id] = r.topic
+                _channel(r, topics, binary)
         damage = walk.damage
         count = 0
         for rec, where in walk.records():
             if isinstance(rec, Channel):
-                topics[rec.id] = rec.topic
+                _channel(rec, topics, binary)
             elif isinstance(rec, Message):
                 count += 1
                 topic = topics.get(rec.channel_id)
                 if topic is None or (topic not in _SCHEMA_OF_TOPIC and topic != TOPIC_STATE):
                     continue  # a foreign topic: not ours to read
-                try:
-                    doc = json.loads(rec.data)
-                except RecursionError:
-                    why = "not JSON that can be read (nested too deep)"
-                except ValueError as e:  # JSONDecodeError, UnicodeDecodeError
-                    why = f"not JSON ({type(e).__name__}: {e})"
+                if rec.channel_id in binary:
+                    try:
+                        frames += decode_batch(rec.data).records()
+                        continue
+                    except ValueError as e:
+                        why = f"not a fairino.Frames message that can be read ({e})"
                 else:
                     try:
-                        got = _record_of(topic, doc)
-                        why = ""
-                    except ValueError as e:
-                        why = str(e)
+                        doc = json.loads(rec.data)
+                    except RecursionError:
+                        why = "not JSON that can be read (nested too deep)"
+                    except ValueError as e:  # JSONDecodeError, UnicodeDecodeError
+                        why = f"not JSON ({type(e).__name__}: {e})"
+                    else:
+                        try:
+                            got = _record_of(topic, doc)
+                            why = ""
+                        except ValueError as e:
+                            why = str(e)
                 if why:
                     damage.append(
                         Damage(

@@ -13,12 +13,18 @@ from itertools import chain
 from typing import IO, Any, cast
 
 from .._version import __version__
+from .frames_pb import FILE_DESCRIPTOR_SET, encode_batch, encode_one
+from .frames_pb import SCHEMA_NAME as FRAMES_SCHEMA
 from .layout import (
     _TOPICS,
     BATCH_BYTES,
     BATCH_FRAMES,
     C2S,
     FORMAT,
+    FORMAT_1,
+    FORMAT_2,
+    FORMAT_3,
+    LAYOUT,
     METADATA_NAME,
     S2C,
     SCHEMAS,
@@ -83,6 +89,21 @@ def default_metadata(start_ns: int | None = None, **extra: str) -> dict[str, str
     return md
 
 
+def _layout_of(metadata: Mapping[str, str]) -> int:
+    """The layout a writer writes for this metadata: the one its ``format`` names (2 for
+    layout 1 too: a test's older file, layout 1's messages written by hand with
+    :meth:`RecordingWriter.write_json`), else :data:`~.layout.LAYOUT`."""
+    fmt = metadata.get("format", "")
+    if fmt in (FORMAT_1, FORMAT_2):
+        return 2
+    return 3 if fmt == FORMAT_3 else LAYOUT
+
+
+def _format_of(layout: int | None) -> dict[str, str]:
+    """The metadata's ``format`` for a writer asked for ``layout`` (None: the default)."""
+    return {"format": FORMAT_2 if layout == 2 else FORMAT_3} if layout is not None else {}
+
+
 def _flush_chunk(writer: Any) -> None:
     """End ``writer``'s chunk in progress and write it out, indexed.
 
@@ -140,6 +161,7 @@ class RecordingWriter:
         chunk_size: int = 1024 * 1024,
         batch_frames: int = BATCH_FRAMES,
         batch_bytes: int = BATCH_BYTES,
+        layout: int | None = None,
     ) -> None:
         stream: IO[bytes] | _Counted
         if isinstance(output, (str, os.PathLike)):
@@ -162,16 +184,36 @@ class RecordingWriter:
         # A _Counted file stands in for the file: it has all the Writer calls.
         self._mcap = Writer(cast(IO[bytes], stream), chunk_size=chunk_size, compression=kind)
         self._mcap.start(profile="", library=f"fairino-conformance/{__version__}")
+        self.metadata = dict(metadata if metadata is not None else default_metadata())
+        if metadata is None:
+            self.metadata.update(_format_of(layout))
+        #: The layout the frame batches are written in: 3 (protobuf, :mod:`.frames_pb`)
+        #: unless asked for 2 (JSON), or the metadata's ``format`` names layout 1 or 2.
+        self.layout = layout if layout is not None else _layout_of(self.metadata)
+        if self.layout not in (2, 3):
+            raise ValueError(f"no layout {self.layout} to write (2 or 3)")
+        binary = self.layout == 3
         schema_ids = {
             name: self._mcap.register_schema(name, "jsonschema", json.dumps(s).encode("utf-8"))
             for name, s in SCHEMAS.items()
+            if not (binary and name == FRAMES_SCHEMA)
         }
+        if binary:
+            schema_ids[FRAMES_SCHEMA] = self._mcap.register_schema(
+                FRAMES_SCHEMA, "protobuf", FILE_DESCRIPTOR_SET
+            )
         self._channels = {
-            topic: self._mcap.register_channel(topic, "json", schema_ids[schema])
+            topic: self._mcap.register_channel(
+                topic,
+                "protobuf" if binary and schema == FRAMES_SCHEMA else "json",
+                schema_ids[schema],
+            )
             for topic, schema in _TOPICS.items()
         }
         self._seq = dict.fromkeys(self._channels.values(), 0)
-        self.metadata = dict(metadata if metadata is not None else default_metadata())
+        if binary:
+            self._write_one = self._write_one_pb  # type: ignore[method-assign]
+            self._write_batch = self._write_batch_pb  # type: ignore[method-assign]
         self._mcap.add_metadata(METADATA_NAME, self.metadata)
         self._dumps = json.JSONEncoder(separators=(",", ":"), ensure_ascii=False).encode
         self._frame_channel: dict[str, int] = {
@@ -336,6 +378,18 @@ class RecordingWriter:
         if self._held_frames >= self.batch_frames or self._held_bytes >= self.batch_bytes:
             self._write_held()
 
+    def _write_one_pb(self, f: _OneFrame) -> None:
+        """One frame's message, from write_frame's fields (layout 3)."""
+        ch = self._frame_channel[f[2]]
+        seq = self._seq[ch] = self._seq[ch] + 1
+        self._add(ch, f[10], encode_one(*f), f[9], seq & 0xFFFFFFFF)
+
+    def _write_batch_pb(self, b: FrameBatch) -> None:
+        """A batch of more than one frame as its message (layout 3)."""
+        ch = self._frame_channel[b.dir]
+        seq = self._seq[ch] = self._seq[ch] + 1
+        self._add(ch, max(b.complete_ns), encode_batch(b), min(b.first_ns), seq & 0xFFFFFFFF)
+
     def _write_one(self, f: _OneFrame) -> None:
         """One frame's message, from write_frame's fields."""
         conn, transport, direction, cnt, cmd_id, name, data, length, offset, first, complete = f[
@@ -383,7 +437,6 @@ class RecordingWriter:
             )
         held.clear()
         self._held_frames = self._held_bytes = 0
-        js = self._json_str
         first, complete = b.first_ns, b.complete_ns
         if len(first) == 1:  # one frame: no join
             self._write_one(
@@ -404,6 +457,12 @@ class RecordingWriter:
                 )
             )
             return
+        self._write_batch(b)
+
+    def _write_batch(self, b: FrameBatch) -> None:
+        """A batch of more than one frame as its message: the template filled (layout 2)."""
+        js = self._json_str
+        first, complete = b.first_ns, b.complete_ns
         doc = _BATCH_JSON % (
             b.conn,
             js[b.transport],
