@@ -243,3 +243,28 @@ def test_every_cut_and_flipped_byte_reads_or_is_a_value_error() -> None:
 def test_any_bytes_read_or_are_a_value_error(data: bytes) -> None:
     with contextlib.suppress(ValueError):
         decode_batch(data)
+
+
+def test_the_one_frame_reading_is_the_general_one() -> None:
+    """decode_batch reads a message of one frame at fixed places when it is laid out as
+    encode_one lays it out: whatever that takes, the general parser reads the same."""
+    from conformance.recording.frames_pb import _one_frame
+
+    rng = random.Random(2)
+    taken = 0
+    for b in (batch(1), batch(1, names=[None], first_ns=[T0 + 1]), CASES["non-ASCII DATA"]):
+        for k in range(len(b.cnts)):
+            one = FrameBatch(*(c[k : k + 1] if isinstance(c, list) else c for c in b))
+            wire = encode_batch(one._replace(raw=b"ab", problems=None))
+            inputs = [wire] + [wire[:j] for j in range(len(wire))]
+            for _ in range(100):
+                m = bytearray(wire)
+                m[rng.randrange(len(m))] ^= 1 << rng.randrange(8)
+                inputs.append(bytes(m))
+            for x in inputs:
+                fast = _one_frame(x)
+                if fast is None:
+                    continue
+                taken += 1
+                assert fast == decode_columns(x, as_arrays=False).batch()
+    assert taken > 10

@@ -44,6 +44,7 @@ import struct
 import sys
 from array import array
 from collections.abc import Sequence
+from itertools import accumulate
 from typing import Any, NamedTuple
 
 from .layout import INT_MAX, TIME_MAX, DirectionText
@@ -315,8 +316,8 @@ def encode_one(
 
 class BatchColumns(NamedTuple):
     """One ``fairino.Frames`` message as read: the number columns as numpy ``uint64``
-    arrays (checked: every value at most 2^63 - 1, times before 2106), the rest as
-    Python values.  :meth:`batch` gives the :class:`FrameBatch`."""
+    arrays, or lists of ints (checked: every value at most 2^63 - 1, times before 2106),
+    the rest as Python values.  :meth:`batch` gives the :class:`FrameBatch`."""
 
     conn: int
     transport: str
@@ -345,7 +346,7 @@ class BatchColumns(NamedTuple):
         if n == 1:
             return [self.data.decode("utf-8", "surrogatepass")]
         text = self.data.decode("utf-8", "surrogatepass")
-        ends = _cumsum(self.data_size)
+        ends = list(accumulate(_list(self.data_size)))
         if len(text) == len(self.data):  # ASCII: cut the text where the bytes are cut
             return [text[a:b] for a, b in zip([0, *ends[:-1]], ends, strict=True)]
         d = self.data
@@ -365,25 +366,18 @@ class BatchColumns(NamedTuple):
             conn=self.conn,
             transport=self.transport,
             dir=self.dir,
-            cnts=self.cnt.tolist(),
-            cmd_ids=self.cmd_id.tolist(),
+            cnts=_list(self.cnt),
+            cmd_ids=_list(self.cmd_id),
             names=self.names,
             datas=datas,
-            lengths=self.length.tolist(),
-            offsets=self.offset.tolist(),
-            first_ns=self.first_ns.tolist(),
-            complete_ns=self.complete_ns.tolist(),
-            sizes=self.size.tolist(),
+            lengths=_list(self.length),
+            offsets=_list(self.offset),
+            first_ns=_list(self.first_ns),
+            complete_ns=_list(self.complete_ns),
+            sizes=_list(self.size),
             raw=self.raw,
             problems=self.problems,
         )
-
-
-def _cumsum(col: Any) -> list[int]:
-    import numpy as np
-
-    out: list[int] = np.cumsum(col, dtype=np.uint64).tolist()
-    return out
 
 
 def _read_varint(buf: bytes, i: int) -> tuple[int, int]:
@@ -466,16 +460,37 @@ def _parse(buf: bytes) -> tuple[int, dict[int, list[bytes]]]:
     return conn, pieces
 
 
-def _numbers(pieces: dict[int, list[bytes]], number: int) -> Any:
-    import numpy as np
-
+def _numbers(pieces: dict[int, list[bytes]], number: int, as_array: bool) -> Any:
+    """A column's values: a numpy ``uint64`` array (``as_array``) or a list of ints."""
     got = pieces.get(number)
     if not got:
         return None
     buf = got[0] if len(got) == 1 else b"".join(got)
     if len(buf) % 8:
         raise ValueError(f"{_COLUMNS[number]} holds {len(buf)} bytes, not 8 a value")
-    return np.frombuffer(buf, dtype="<u8")
+    if as_array:
+        import numpy as np
+
+        return np.frombuffer(buf, dtype="<u8")
+    if len(buf) == 8:  # a batch of one frame (request/reply traffic): no array
+        return [int.from_bytes(buf, "little")]
+    a = array("Q")
+    a.frombytes(buf)
+    if _BIG:  # pragma: no cover - the wire is little-endian
+        a.byteswap()
+    return a.tolist()
+
+
+def _high(col: Any) -> int:
+    return max(col) if type(col) is list else int(col.max())
+
+
+def _total(col: Any) -> int:
+    return sum(col) if type(col) is list else int(col.sum())
+
+
+def _list(col: Any) -> list[int]:
+    return col if type(col) is list else col.tolist()  # type: ignore[no-any-return]
 
 
 def _text(pieces: dict[int, list[bytes]], number: int, name: str) -> str:
@@ -488,9 +503,23 @@ def _text(pieces: dict[int, list[bytes]], number: int, name: str) -> str:
         raise ValueError(f"{name} is not UTF-8") from None
 
 
-def decode_columns(buf: bytes) -> BatchColumns:
+#: The columns as the decoder checks them: (number, name, largest value, may be absent).
+_CHECKS = tuple(
+    (
+        number,
+        name,
+        TIME_MAX if name.endswith("_ns") else INT_MAX,
+        name in ("first_ns", "name", "problem_frame"),
+    )
+    for number, name in _COLUMNS.items()
+    if number != 4
+)
+
+
+def decode_columns(buf: bytes, *, as_arrays: bool = True) -> BatchColumns:
     """A ``fairino.Frames`` message's columns; a ``ValueError`` saying what does not read
-    or does not fit (see the module)."""
+    or does not fit (see the module).  ``as_arrays``: the number columns as numpy
+    ``uint64`` arrays (else lists of ints: cheaper for a batch of a frame or a few)."""
     try:
         conn, pieces = _parse(buf)
     except IndexError:
@@ -498,43 +527,41 @@ def decode_columns(buf: bytes) -> BatchColumns:
     if conn > INT_MAX:
         raise ValueError(f"conn is {conn}, not a non-negative 64-bit integer")
     transport = _text(pieces, 2, "transport") or "tcp"
-    if transport not in ("tcp", "udp"):
+    if transport != "tcp" and transport != "udp":
         raise ValueError(f"transport is {transport[:40]!r}, not one of tcp, udp")
     text = _text(pieces, 3, "dir")
     if text != "c2s" and text != "s2c":
         raise ValueError(f"dir is {text[:40]!r}, not one of c2s, s2c")
     direction: DirectionText = "c2s" if text == "c2s" else "s2c"
-    cols: dict[str, Any] = {}
-    import numpy as np
-
-    empty = np.zeros(0, dtype="<u8")
-    cnt = _numbers(pieces, 4)
+    cnt = _numbers(pieces, 4, as_arrays)
     n = 0 if cnt is None else len(cnt)
-    for number, name in _COLUMNS.items():
-        col = cnt if number == 4 else _numbers(pieces, number)
+    if cnt is None:
+        cnt = _numbers({4: [b""]}, 4, as_arrays)
+    elif n and _high(cnt) > INT_MAX:
+        raise ValueError(f"cnt holds {_high(cnt)}, not a non-negative 64-bit integer")
+    cols: dict[str, Any] = {"cnt": cnt}
+    for number, name, top, optional in _CHECKS:
+        col = _numbers(pieces, number, as_arrays)
         if col is None:
-            if name in ("first_ns", "name", "problem_frame"):
+            if optional:
                 cols[name] = None
                 continue
             if n:
                 raise ValueError(f"the message has no {name!r}")
-            col = empty
-        if name != "problem_frame" and len(col) != n:
+            col = cnt
+        elif len(col) != n and number != 16:  # problem_frame: a value a problem
             raise ValueError(f"{name} has {len(col)} values for {n} frames")
-        if n:
-            top = TIME_MAX if name.endswith("_ns") else INT_MAX
-            high = int(col.max())
-            if high > top:
-                what = "a time in ns from 1970 to 2106" if top == TIME_MAX else None
-                raise ValueError(
-                    f"{name} holds {high}, not {what or 'a non-negative 64-bit integer'}"
-                )
+        elif n and _high(col) > top:
+            what = "a time in ns from 1970 to 2106" if top == TIME_MAX else None
+            raise ValueError(
+                f"{name} holds {_high(col)}, not {what or 'a non-negative 64-bit integer'}"
+            )
         cols[name] = col
     raw = pieces.get(15, [b""])[-1]
     data = pieces.get(8, [b""])[-1]
     for what, sizes, held in (("raw", cols["size"], raw), ("data", cols["data_size"], data)):
         # Each size at most the bytes held first: the sum cannot wrap round then.
-        if n and (int(sizes.max()) > len(held) or int(sizes.sum()) != len(held)):
+        if n and (_high(sizes) > len(held) or _total(sizes) != len(held)):
             raise ValueError(f"the sizes do not add up to {what} ({len(held)} bytes)")
         if not n and held:
             raise ValueError(f"{what} holds {len(held)} bytes for no frame")
@@ -546,7 +573,7 @@ def decode_columns(buf: bytes) -> BatchColumns:
         conn=conn,
         transport=transport,
         dir=direction,
-        cnt=cols["cnt"],
+        cnt=cnt,
         cmd_id=cols["cmd_id"],
         length=cols["len"],
         offset=cols["offset"],
@@ -572,9 +599,9 @@ def _names(pieces: dict[int, list[bytes]], index: Any, n: int) -> list[str | Non
     table: list[str | None] = [None, *_strings(pieces, 6, "names")]
     if index is None:
         return [None] * n
-    if n and int(index.max()) >= len(table):
-        raise ValueError(f"name holds {int(index.max())}, past the {len(table) - 1} names")
-    return list(map(table.__getitem__, index.tolist()))
+    if n and _high(index) >= len(table):
+        raise ValueError(f"name holds {_high(index)}, past the {len(table) - 1} names")
+    return list(map(table.__getitem__, _list(index)))
 
 
 def _problems(pieces: dict[int, list[bytes]], frames: Any, n: int) -> list[list[str]] | None:
@@ -587,10 +614,10 @@ def _problems(pieces: dict[int, list[bytes]], frames: Any, n: int) -> list[list[
         raise ValueError(f"problem_frame has {len(frames)} values for {len(texts)} problems")
     if not texts:
         return None
-    if int(frames.max()) >= n:
-        raise ValueError(f"problem_frame holds {int(frames.max())}, past the {n} frames")
+    if _high(frames) >= n:
+        raise ValueError(f"problem_frame holds {_high(frames)}, past the {n} frames")
     out: list[list[str]] = [[] for _ in range(n)]
-    for k, p in zip(frames.tolist(), texts, strict=True):
+    for k, p in zip(_list(frames), texts, strict=True):
         out[k].append(p)
     return out
 
@@ -598,4 +625,79 @@ def _problems(pieces: dict[int, list[bytes]], frames: Any, n: int) -> list[list[
 def decode_batch(buf: bytes) -> FrameBatch:
     """A ``fairino.Frames`` message as its :class:`FrameBatch` (a ``ValueError`` for one
     that does not read or fit)."""
-    return decode_columns(buf).batch()
+    one = _one_frame(buf)
+    return one if one is not None else decode_columns(buf, as_arrays=False).batch()
+
+
+def _one_frame(buf: bytes) -> FrameBatch | None:
+    """A batch of one frame laid out exactly as :func:`encode_one` lays it out, read at
+    fixed places (request/reply traffic: a message a frame); None for anything else,
+    which the general parser reads (or names what is wrong with)."""
+    try:
+        if buf[0] != 0x08 or buf[1] >= 0x80 or buf[2] != 0x12:
+            return None
+        conn = buf[1]
+        i = 4 + buf[3]
+        transport = buf[4:i]
+        if buf[i] != 0x1A or buf[i + 1] != 3:
+            return None
+        direction = buf[i + 2 : i + 5]
+        t1, cnt, t2, cmd_id = _ONE_IDS.unpack_from(buf, i + 5)
+        i += 25
+        if t1 != _T["cnt"] or t2 != _T["cmd_id"]:
+            return None
+        name = None
+        if buf[i] == 0x32:
+            end = i + 2 + buf[i + 1]
+            if buf[i + 1] >= 0x80 or _ONE_NAME.unpack_from(buf, end) != (_T["name"], 1):
+                return None
+            name = buf[i + 2 : end].decode("utf-8")
+            i = end + 10
+        if buf[i] != 0x42:
+            return None
+        size, i = _read_varint(buf, i + 1)
+        data = buf[i : i + size]
+        i += size
+        t1, data_size, t2, length, t3, offset = _ONE_SIZES.unpack_from(buf, i)
+        i += 30
+        if (t1, t2, t3) != (_T["data_size"], _T["len"], _T["offset"]) or data_size != len(data):
+            return None
+        first = None
+        if buf[i] == 0x62:
+            t1, first = _ONE_FIRST.unpack_from(buf, i)
+            i += 10
+            if t1 != _T["first_ns"]:
+                return None
+        t1, complete, t2, raw_size = _ONE_TAIL.unpack_from(buf, i)
+        if t1 != _T["complete_ns"] or t2 != _T["size"] or buf[i + 20] != 0x7A:
+            return None
+        size, i = _read_varint(buf, i + 21)
+        if i + size != len(buf) or size != raw_size:
+            return None
+        if first is None:
+            first = complete
+        if max(cnt, cmd_id, length, offset) > INT_MAX or max(first, complete) > TIME_MAX:
+            return None
+        if transport != b"tcp" and transport != b"udp":
+            return None
+        if direction != b"c2s" and direction != b"s2c":
+            return None
+        text = data.decode("utf-8", "surrogatepass")
+    except (IndexError, struct.error, UnicodeDecodeError, ValueError):
+        return None
+    return FrameBatch(
+        conn,
+        "tcp" if transport == b"tcp" else "udp",
+        "c2s" if direction == b"c2s" else "s2c",
+        [cnt],
+        [cmd_id],
+        [name],
+        [text],
+        [length],
+        [offset],
+        [first],
+        [complete],
+        [raw_size],
+        buf[i:],
+        None,
+    )
