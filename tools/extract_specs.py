@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import difflib
+import functools
 import json
 import re
 import sys
@@ -553,35 +554,52 @@ def frame_candidates_exact(
         texts = new[:512]
     out: list[tuple[FrameText, int]] = []
     for t, cost, tg in texts:
-        variants: list[Reading] = [(t, cost, tg)]
-        if request:
-            variants.append((strip_spaces_outside_quotes(t), cost, tg))
-        else:
-            variants.append((re.sub(r"\s*,\s*", ",", t), cost, tg))
-            # a cut inside a number ("-89 .816387", "0.00000 0") in a comma-separated reply
-            variants.append(
-                (re.sub(r"\s*,\s*", ",", re.sub(r"(?<=[\d.])\s+(?=[\d.])", "", t)), cost + 1, tg)
+        for extra, why, spaced, squeezed, g in _readings_of(t, request):
+            tags = _tag(tg, why) if why else tg
+            if spaced:
+                tags = _tag(tags, "spaces left by the cell cuts removed")
+            f = FrameText(
+                printed=squeezed,
+                cnt=g[1],
+                cmd_id=g[3],
+                length=g[5],
+                data=g[7],
+                separators=(g[0], g[2], g[4], g[6], g[8]),
             )
-        if not request:
-            # "1III1III/b/f" printed as "1IIIIIII/b/f": the errcode digit lost in the cut
-            variants += [
-                (
-                    re.sub(r"(III\d+III)I{3,4}/b/f$", r"\g<1>1III/b/f", v),
-                    c + 1,
-                    _tag(g, "the errcode digit lost in the cut restored as 1"),
-                )
-                for v, c, g in list(variants)
-                if re.search(r"(III\d+III)I{3,4}/b/f$", v)
-            ]
-        for v, c, g in variants:
-            squeezed = re.sub(r"\s*(I{2,4})\s*", r"\1", v.strip())
-            f = parse_frame(squeezed)
-            if f is not None:
-                if squeezed != t:
-                    g = _tag(g, "spaces left by the cell cuts removed")
-                f.repairs = g
-                out.append((f, c))
+            f.repairs = tags
+            out.append((f, cost + extra))
     return out
+
+
+@functools.lru_cache(maxsize=1 << 16)
+def _readings_of(t: str, request: bool) -> tuple[tuple[int, str, bool, str, tuple[str, ...]], ...]:
+    """The frames one joined text of cells reads as, each (extra repairs, the repair that
+    made it or '', whether the cuts' spaces were removed, its text, FRAME_RE's groups).
+    The joins of a frame's cells give the same text many times over: read once."""
+    variants: list[tuple[str, int, str]] = [(t, 0, "")]
+    if request:
+        variants.append((strip_spaces_outside_quotes(t), 0, ""))
+    else:
+        variants.append((re.sub(r"\s*,\s*", ",", t), 0, ""))
+        # a cut inside a number ("-89 .816387", "0.00000 0") in a comma-separated reply
+        variants.append((re.sub(r"\s*,\s*", ",", re.sub(r"(?<=[\d.])\s+(?=[\d.])", "", t)), 1, ""))
+        # "1III1III/b/f" printed as "1IIIIIII/b/f": the errcode digit lost in the cut
+        variants += [
+            (
+                re.sub(r"(III\d+III)I{3,4}/b/f$", r"\g<1>1III/b/f", v),
+                c + 1,
+                "the errcode digit lost in the cut restored as 1",
+            )
+            for v, c, _ in list(variants)
+            if re.search(r"(III\d+III)I{3,4}/b/f$", v)
+        ]
+    out = []
+    for v, c, why in variants:
+        squeezed = re.sub(r"\s*(I{2,4})\s*", r"\1", v.strip())
+        m = FRAME_RE.fullmatch(squeezed)
+        if m is not None:
+            out.append((c, why, squeezed != t, squeezed, m.groups()))
+    return tuple(out)
 
 
 def strip_spaces_outside_quotes(s: str) -> str:
@@ -600,7 +618,7 @@ def choose_frame(parts: list[str], *, name: str, cmd_id: int, request: bool) -> 
     best: tuple[tuple[int, ...], FrameText] | None = None
     for f, cost in frame_candidates(parts, request=request):
         assert f.data is not None and f.cmd_id is not None
-        form, dname, _args = data_shape(f.data)
+        form, dname = _shape_head(f.data)
         score = (
             4 * all(s == "III" for s in f.separators)
             + 4 * (int(f.cmd_id) == cmd_id)
@@ -1092,6 +1110,14 @@ def data_shape(data: str) -> tuple[str, str, list[str] | None]:
     if re.fullmatch(r"[A-Z]+", data):
         return "keyword", data, None
     return "raw", "", None
+
+
+@functools.lru_cache(maxsize=1 << 16)
+def _shape_head(data: str) -> tuple[str, str]:
+    """(form, name) of a request DATA: :func:`data_shape` without the arguments, once per
+    text (the readings of one frame repeat their DATA)."""
+    form, name, _args = data_shape(data)
+    return form, name
 
 
 def build_frame(cnt: str, cmd_id: int, data: str) -> str:
