@@ -172,9 +172,11 @@ def test_errors_are_one_line(fleet: tuple[Path, Path], tmp_path: Path) -> None:
     assert p.returncode == 2 and "schema version 9" in p.stderr
 
 
-def test_fast_path_gives_the_general_paths_rows(tmp_path: Path) -> None:
+@pytest.mark.parametrize("layout", [2, 3])
+def test_fast_path_gives_the_general_paths_rows(tmp_path: Path, layout: int) -> None:
     """The columnar path (conformance/fleet/fast.py) and check_recording's give the same
-    rows: a wrong reply CNT (the pairing one by one), time-outs and refusals (at once)."""
+    rows: a wrong reply CNT (the pairing one by one), time-outs and refusals (at once);
+    of layout 2's JSON batches and of layout 3's protobuf ones."""
     from conformance.dialects import default_dialects
     from conformance.fleet.export import export_recording, open_dataset
     from conformance.fleet.fast import _pairs_at_once, read_columns
@@ -187,8 +189,8 @@ def test_fast_path_gives_the_general_paths_rows(tmp_path: Path) -> None:
         Fault("refusal", "*", "*", 214),
     )
     a, b = tmp_path / "a.mcap", tmp_path / "b.mcap"
-    write_recording(a, "r09", "3.9.8", 600, faults, START)
-    write_recording(b, "r09", "3.8.2", 600, faults[1:], START)
+    write_recording(a, "r09", "3.9.8", 600, faults, START, layout)
+    write_recording(b, "r09", "3.8.2", 600, faults[1:], START, layout)
     ca, cb = read_columns(str(a)), read_columns(str(b))
     assert ca is not None and cb is not None
     assert _pairs_at_once(ca) is None and _pairs_at_once(cb) is not None
@@ -224,7 +226,8 @@ def test_a_message_that_does_not_fit_goes_the_general_way(
     from conformance.recording import TOPIC_C2S, FrameBatch, RecordingWriter, default_metadata
 
     path = tmp_path / "odd.mcap"
-    with RecordingWriter(path, metadata=default_metadata(START, robot="r01")) as w:
+    md = default_metadata(START, robot="r01", format="fairino-conformance/2")  # JSON batches
+    with RecordingWriter(path, metadata=md) as w:
         good = FrameBatch(
             1,
             "tcp",
@@ -245,6 +248,39 @@ def test_a_message_that_does_not_fit_goes_the_general_way(
         doc = good.to_json()
         doc[column] = [value, doc[column][1]]
         w.write_json(TOPIC_C2S, doc, log_time=START + 2, publish_time=START + 2)
+    assert read_columns(str(path)) is None
+    p = cli_run("export-parquet", str(path), "-o", str(tmp_path / "ds"))
+    assert p.returncode == 3, p.stderr
+    assert "damaged:" in p.stderr and "internal error" not in p.stderr
+
+
+@pytest.mark.parametrize(
+    ("old", "new"),
+    [
+        (b"\x22\x10", b"\x22\x11"),  # cnt one byte longer: a column cut inside a value
+        (b"\xd4\x00\x00\x00\x00\x00\x00\x00", b"\xff" * 8),  # cmd_id 212 past 2^63
+        (b"\x1a\x03c2s", b"\x1a\x03c3s"),  # no direction
+    ],
+)
+def test_a_protobuf_batch_that_does_not_fit_goes_the_general_way(
+    tmp_path: Path, old: bytes, new: bytes
+) -> None:
+    """Layout 3: a frame batch that does not read or fit is not the fast path's either;
+    export-parquet names it as damage (exit 3), never an internal error."""
+    from conformance.fleet.fast import read_columns
+    from conformance.recording import TOPIC_C2S, FrameBatch, RecordingWriter, default_metadata
+    from conformance.recording.frames_pb import encode_batch
+
+    path = tmp_path / "odd.mcap"
+    md = default_metadata(START, robot="r01", format="fairino-conformance/3")
+    good = FrameBatch(1, "tcp", "c2s", [1, 2], [212, 212], [None, None], ["GetDI(0,0)"] * 2,
+                      [10, 10], [0, 1], [START, START + 1], [START, START + 1], [1, 1], b"ab")  # fmt: skip
+    wire = encode_batch(good)
+    assert old in wire
+    with RecordingWriter(path, metadata=md) as w:
+        w.write_frames(good)
+        w.flush()
+        w._mcap.add_message(w._channels[TOPIC_C2S], START + 2, wire.replace(old, new), START, 9)
     assert read_columns(str(path)) is None
     p = cli_run("export-parquet", str(path), "-o", str(tmp_path / "ds"))
     assert p.returncode == 3, p.stderr

@@ -127,10 +127,17 @@ def _batch(
 
 
 def write_recording(
-    path: Path, robot: str, firmware: str, frames: int, faults: Sequence[Fault], start_ns: int
+    path: Path,
+    robot: str,
+    firmware: str,
+    frames: int,
+    faults: Sequence[Fault],
+    start_ns: int,
+    layout: int | None = None,
 ) -> int:
     """One robot's recording on one firmware: ``frames`` frames (requests and replies);
-    returns how many were written."""
+    returns how many were written.  ``layout``: the recording layout (default: the
+    writer's)."""
     replies = reply_data(firmware)
     mine = {(f.kind, f.cmd_id) for f in faults if f.hits(robot, firmware)}
     encoded: dict[tuple[int, int, str], bytes] = {}
@@ -151,6 +158,8 @@ def write_recording(
     t = start_ns
     conn = 0
     seen: dict[int, int] = {}
+    if layout is not None:
+        md["format"] = f"fairino-conformance/{layout}"
     with RecordingWriter(path, metadata=md) as w:
         while written < frames:
             conn += 1

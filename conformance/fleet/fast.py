@@ -1,7 +1,8 @@
 """``export-parquet``'s fast path: a clean recording read as columns, judged as ``check``
 judges it, without a record object per frame.
 
-A recording the fast path takes is an MCAP file of batched frames (layout 2) with no
+A recording the fast path takes is an MCAP file of batched frames (layout 2's JSON, or
+layout 3's protobuf, its columns read with ``numpy.frombuffer``) with no
 framing problem, no malformed run, no state stream and no damage: the bulk of a fleet's
 traffic.  Anything else (:func:`read_columns` returns None) goes the general way
 (:func:`~conformance.capture_check.check_recording` over the reader's records).  What the
@@ -33,6 +34,7 @@ from ..frame import Frame
 from ..judge import Judge, Verdict
 from ..judge_stream import CntSteps
 from ..recording import METADATA_NAME, TOPIC_C2S, TOPIC_CONNECTIONS, TOPIC_S2C, ConnectionRecord
+from ..recording.frames_pb import BatchColumns, decode_columns
 from ..recording.salvage import MAGIC, Walk
 
 __all__ = ["Columns", "judge_columns", "read_columns"]
@@ -82,6 +84,15 @@ def read_columns(path: str) -> Columns | None:
 
     c = Columns()
     topics: dict[int, str] = {}
+    binary: set[int] = set()  # frame channels in protobuf (layout 3)
+
+    def channel(r: Channel) -> None:
+        topics[r.id] = r.topic
+        if r.message_encoding == "protobuf":
+            binary.add(r.id)
+        else:
+            binary.discard(r.id)
+
     try:
         with open(path, "rb") as f:
             if f.read(8) != MAGIC:
@@ -89,11 +100,15 @@ def read_columns(path: str) -> Columns | None:
             walk = Walk(f, path)
             for r in walk.summary_records():
                 if isinstance(r, Channel):
-                    topics[r.id] = r.topic
+                    channel(r)
             for rec, _ in walk.records():
                 if isinstance(rec, Message):
                     topic = topics.get(rec.channel_id)
                     if topic in (TOPIC_C2S, TOPIC_S2C):
+                        if rec.channel_id in binary:
+                            if not _binary_batch(c, decode_columns(rec.data)):
+                                return None
+                            continue
                         doc, raw_size = _message(rec.data)
                         if not _batch(c, doc, raw_size):
                             return None
@@ -102,7 +117,7 @@ def read_columns(path: str) -> Columns | None:
                     elif topic is not None and topic.startswith("/fairino/"):
                         return None  # problems, the state stream: the general path
                 elif isinstance(rec, Channel):
-                    topics[rec.id] = rec.topic
+                    channel(rec)
                 elif isinstance(rec, Metadata) and rec.name == METADATA_NAME and not c.metadata:
                     c.metadata = dict(rec.metadata)
             if walk.damage or not c.metadata:
@@ -183,6 +198,31 @@ def _batch(c: Columns, d: Any, raw_size: int) -> bool:
     c.length.extend(d["len"])
     c.first_ns.extend(first)
     c.complete_ns.extend(complete)
+    return True
+
+
+def _binary_batch(c: Columns, b: BatchColumns) -> bool:
+    """Add one layout-3 ``fairino.Frames`` message's columns (read and checked by
+    :func:`~conformance.recording.frames_pb.decode_columns`: numpy arrays of values up to
+    2^63 - 1, so their bytes are the 64-bit arrays' as they are); False for one with
+    framing problems, which the general path judges."""
+    if b.problems is not None:
+        return False
+    n = len(b.cnt)
+    c.conn += array("q", [b.conn]) * n
+    c.transport += [b.transport] * n
+    c.dir += [b.dir] * n
+    c.request += array("b", [b.dir == "c2s"]) * n
+    for mine, theirs in (
+        (c.cnt, b.cnt),
+        (c.cmd_id, b.cmd_id),
+        (c.length, b.length),
+        (c.first_ns, b.first_ns),
+        (c.complete_ns, b.complete_ns),
+    ):
+        mine.frombytes(memoryview(theirs).cast("B"))
+    c.name += b.names
+    c.data += map(sys.intern, b.datas())
     return True
 
 
