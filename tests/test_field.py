@@ -32,6 +32,7 @@ from conformance.net.emulator import EmulatorServer
 from conformance.report import Outcome
 from conformance.spec import default_specs
 from tests.cli_run import cli_run
+from tests.serve_thread import ServeThread, start_serve
 
 SPECS = default_specs()
 FIELD = Judge(SPECS, default_dialects())
@@ -185,12 +186,8 @@ def test_emulator_replies_look_real() -> None:
 # --------------------------------------------------------------------------- serve
 
 
-def _serve(tmp_path: Path, *extra: str, frames: int) -> tuple[subprocess.Popen[str], int, int]:
-    report = str(tmp_path / "serve.json")
-    started: tuple[subprocess.Popen[str], int, int] = _agreement_tool().start_serve(
-        "--report-json", report, *extra, frames=frames
-    )
-    return started
+def _serve(tmp_path: Path, *extra: str, frames: int) -> tuple[ServeThread, int, int]:
+    return start_serve("--report-json", str(tmp_path / "serve.json"), *extra, frames=frames)
 
 
 def _send_session(tcp_port: int, udp_port: int, frames: list[dict[str, Any]]) -> None:

@@ -138,7 +138,7 @@ def test_item_4_serve_prints_each_failure_with_its_frame_numbers_and_reproductio
     """The details were only in --report-json; the README says serve prints them."""
     from conformance.frame import encode_frame
     from conformance.net.client import Client
-    from tools.field_agreement import start_serve
+    from tests.serve_thread import start_serve
 
     bad = b"/f/bIII1III1149III25IIIConveyorComDetectTrigger()III/b/f"  # LEN 25 for 26 bytes
     proc, tcp, _ = start_serve(frames=2)

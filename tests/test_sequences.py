@@ -29,7 +29,8 @@ from conformance.net.addresses import client_host
 from conformance.recording import read_recording
 from conformance.report import Outcome, Report
 from conformance.spec import default_specs, specs_root
-from tools.field_agreement import record, send, start_serve, traffic
+from tests.serve_thread import start_serve
+from tools.field_agreement import record, send, traffic
 
 SPECS = default_specs()
 DATA = Path(__file__).parent / "data" / "sdk_sessions"

@@ -14,7 +14,7 @@ import pytest
 
 from conformance.frame import encode_frame
 from conformance.net.client import Client
-from tools.field_agreement import start_serve
+from tests.serve_thread import start_serve
 
 WAIT = 30.0
 # A CNT that stands still (NON-STRICT), and frcobot_ros's fixed CNT 123 on 375 (DIALECT).

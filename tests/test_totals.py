@@ -26,7 +26,7 @@ from conformance.net.proxy import RecordingProxy
 from conformance.report import CaseResult, Report
 from conformance.verdict import SEVERITY, Outcome, Reference, aggregate, fails, worst
 from tests.cli_run import cli_run
-from tools.field_agreement import start_serve
+from tests.serve_thread import start_serve
 
 ROOT = Path(__file__).resolve().parent.parent
 WAIT = 30.0

@@ -14,7 +14,7 @@ import pytest
 from conformance.frame import encode_frame
 from conformance.net.client import Client
 from tests.cli_run import cli_run
-from tools.field_agreement import start_serve
+from tests.serve_thread import start_serve
 
 ROOT = Path(__file__).resolve().parent.parent
 FULL = "/dev/full"
