@@ -7,6 +7,7 @@ import contextlib
 import itertools
 import random
 import struct
+from typing import Any
 
 import pytest
 from hypothesis import given, settings
@@ -254,7 +255,8 @@ def test_the_one_frame_reading_is_the_general_one() -> None:
     taken = 0
     for b in (batch(1), batch(1, names=[None], first_ns=[T0 + 1]), CASES["non-ASCII DATA"]):
         for k in range(len(b.cnts)):
-            one = FrameBatch(*(c[k : k + 1] if isinstance(c, list) else c for c in b))
+            parts: list[Any] = [c[k : k + 1] if isinstance(c, list) else c for c in b]
+            one = FrameBatch(*parts)
             wire = encode_batch(one._replace(raw=b"ab", problems=None))
             inputs = [wire] + [wire[:j] for j in range(len(wire))]
             for _ in range(100):
