@@ -156,6 +156,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "cell); stop closes every connection and stops, so nothing passes unrecorded",
     )
     add_specs_dir(p)
+    add_label_options(p)
     p.set_defaults(func=_run_proxy)
 
     cp = sub.add_parser(
@@ -196,6 +197,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     cp.add_argument("--duration", type=parse_duration, help="stop after this long (e.g. 30s)")
     cp.add_argument("--max-frames", type=int, metavar="N", help="stop once N frames are recorded")
     add_specs_dir(cp)
+    add_label_options(cp)
     cp.set_defaults(func=_run_capture)
 
 
@@ -283,6 +285,7 @@ def _run_proxy(args: argparse.Namespace) -> int:
         proxy = RecordingProxy(
             upstream,
             out=args.out,
+            metadata=labels_of(args),
             listen=listen,
             udp_upstream=udp_upstream,
             udp_listen=udp_listen,
@@ -397,6 +400,39 @@ def _write_failed(proxy: Any, args: argparse.Namespace, said: float) -> float | 
 # --------------------------------------------------------------------------- capture
 
 
+#: What a label may hold: the fleet table partitions by it (``export-parquet``).
+_LABEL = re.compile(r"[^\x00-\x1f\x7f]{1,128}")
+
+
+def add_label_options(p: argparse.ArgumentParser) -> None:
+    """``--robot`` and ``--cell`` of ``proxy``, ``capture`` and ``import-pcap``: written to the
+    recording's metadata, where ``export-parquet`` finds the robot a recording is of."""
+    p.add_argument(
+        "--robot",
+        metavar="NAME",
+        help="the robot this traffic is of, kept in the recording's metadata "
+        "(export-parquet's robot column and partition)",
+    )
+    p.add_argument(
+        "--cell", metavar="NAME", help="the cell the robot works in, kept in the metadata"
+    )
+
+
+def labels_of(args: argparse.Namespace) -> dict[str, str]:
+    """The recording metadata ``--robot``/``--cell`` give (a bad one: a UsageError)."""
+    out = {}
+    for key in ("robot", "cell"):
+        value = getattr(args, key, None)
+        if value is None:
+            continue
+        if not _LABEL.fullmatch(value.strip()):
+            raise UsageError(
+                f"--{key} {value!r}: 1 to 128 printable characters (no control characters)"
+            )
+        out[key] = value.strip()
+    return out
+
+
 def check_ports(args: argparse.Namespace) -> None:
     """``--port``, ``--udp-port`` and ``--state-port`` of ``capture`` and ``import-pcap``."""
     for flag, ports in (
@@ -427,6 +463,7 @@ def _run_capture(args: argparse.Namespace) -> int:
         split_size=args.split_size,
         split_duration=args.split_duration,
         state_ports=tuple(args.state_port),
+        metadata=labels_of(args),
     )
     stop = threading.Event()
     old = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}

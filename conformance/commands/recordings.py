@@ -26,7 +26,7 @@ from ._judging import add_judge_options, judge_from, verdict_line
 from ._judging import verdict_sink as _verdict_sink
 from ._safety import add_safety_options
 from ._specs_option import add_specs_dir, reported_by, spec_choice_of, specs_of
-from .capture import check_ports, parse_size
+from .capture import add_label_options, check_ports, labels_of, parse_size
 
 __all__ = ["register"]
 
@@ -231,6 +231,7 @@ def _register_more(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
         "/fairino/state (repeatable; default none)",
     )
     add_specs_dir(ip)
+    add_label_options(ip)
     ip.set_defaults(func=_run_import_pcap)
 
     ep = sub.add_parser("export-pcap", help="write a recording as a pcap for Wireshark")
@@ -533,6 +534,7 @@ def _run_import_pcap(args: argparse.Namespace) -> int:
         guess=not (args.port or args.udp_port),
         damage=damage,
         state_ports=tuple(args.state_port),
+        metadata=labels_of(args),
     )
     dt = time.perf_counter() - t0
     print(

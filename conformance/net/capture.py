@@ -34,7 +34,7 @@ import struct
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 
 from ..errors import CaptureError, ConformanceError, UsageError
@@ -263,6 +263,7 @@ class LiveCapture:
         idle_resolve: float = 1.0,
         tick: float = 0.01,
         state_ports: Iterable[int] = (),
+        metadata: Mapping[str, str] | None = None,
     ) -> None:
         self.tcp_ports, self.udp_ports = frozenset(tcp_ports), frozenset(udp_ports)
         #: The state port's (8083): recorded as state packets on /fairino/state.
@@ -305,6 +306,7 @@ class LiveCapture:
             md["state_ports"] = ",".join(map(str, sorted(self.state_ports)))
         md["upstream"] = ""
         md["listen"] = ""
+        md.update(metadata or {})  # robot, cell
         try:
             self.writer = RotatingWriter(
                 out,

@@ -12,7 +12,7 @@ from __future__ import annotations
 import itertools
 import os
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 
 from ..errors import CaptureError
 from ..recording import (
@@ -116,8 +116,11 @@ def import_pcap(
     guess: bool = True,
     damage: list[CaptureDamage] | None = None,
     state_ports: Iterable[int] = (),
+    metadata: Mapping[str, str] | None = None,
 ) -> ImportStats:
     """Turn a pcap/pcapng capture into a recording (see the module docstring).
+
+    ``metadata``: more keys for the recording's metadata (``robot``, ``cell``).
 
     Flows to or from ``state_ports`` (8083) are recorded as state streams (one
     ``/fairino/state`` message a packet).
@@ -137,7 +140,9 @@ def import_pcap(
 
         specs = default_specs()
     with atomic_output(out) as tmp:
-        return _import(path, tmp, tports, uports, specs, guess, sports, damage=damage)
+        return _import(
+            path, tmp, tports, uports, specs, guess, sports, damage=damage, metadata=metadata
+        )
 
 
 def _import(
@@ -150,6 +155,7 @@ def _import(
     sports: frozenset[int] = frozenset(),
     *,
     damage: list[CaptureDamage] | None = None,
+    metadata: Mapping[str, str] | None = None,
 ) -> ImportStats:
     stream = read_packets(path, damage)
     first = next(stream, None)
@@ -163,6 +169,7 @@ def _import(
     )
     md["upstream"] = ""
     md["listen"] = ""
+    md.update(metadata or {})
     writer = RecordingWriter(out, metadata=md)
     packets = PacketRecorder(
         writer,
