@@ -20,10 +20,11 @@ to format), whatever the string.  It is linear in its input and bounded: at most
 most :data:`SHOWN_CHARS` characters of the DATA.  Lenient parsing accepts whitespace after commas and reports it as
 ``Rule.SPACE_IN_ARGS``; strict parsing refuses it.
 
-A call of plain numbers only (MoveJ's 29 values, at most 300 characters) keeps its
-argument text and makes its arguments on first use (:class:`Call`);
-:func:`match_variant` checks it against a variant from that text.  These fast paths
-(and the others, :data:`FAST_CHECKS`) give what the careful path gives.
+A call of plain numbers only (MoveJ's 29 values, at most 300 characters) is read in
+one pass: its values in one tuple (:attr:`Call.values`, also as a numpy array by
+:meth:`Call.array`), its per-argument :class:`Number` objects only on first use of
+``args``; :func:`match_variant` checks it against a variant from those values.  These
+fast paths (and the others, :data:`FAST_CHECKS`) give what the careful path gives.
 
 Validation of parsed arguments against a spec variant belongs here too
 (:func:`check_args`), so the emulator, the client-mode validator and the offline

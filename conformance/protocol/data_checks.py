@@ -15,9 +15,21 @@ from dataclasses import dataclass
 from ..errors import RemoteProtocolError, Rule
 from ..spec import Command, Param, Returns, ReturnValue, Variant
 from . import data_fast
-from .data_fast import _fast_ok, _fast_table, _plain_ok, _plain_table
+from .data_fast import _call_tables, _fast_ok, _fast_table, _plain_ok, _values_ok
 from .data_parse import parse_reply
-from .data_values import _PLAIN, Arg, Array, Keyword, Number, Parsed, RawData, Text, _shown
+from .data_values import (
+    _PLAIN,
+    _VALUES,
+    Arg,
+    Array,
+    Call,
+    Keyword,
+    Number,
+    Parsed,
+    RawData,
+    Text,
+    _shown,
+)
 
 __all__ = ["Violation", "check_args", "check_reply", "describe_domain", "match_variant"]
 
@@ -120,6 +132,41 @@ def check_args(variant: Variant, args: Sequence[Arg]) -> list[Violation]:
 
 def match_variant(command: Command, parsed: Parsed) -> tuple[Variant | None, list[Violation]]:
     """The variant a request matches best, with its violations (empty when it conforms)."""
+    if not isinstance(parsed, Call):
+        return _match_word(command, parsed)
+    # A plain-number call is checked from its values or its text first (see Call).
+    d = parsed.__dict__
+    plain = d.get(_PLAIN) if data_fast.FAST_CHECKS else None
+    values = d.get(_VALUES) if plain is not None else None
+    best: tuple[Variant | None, list[Violation]] = (None, [])
+    for v, table in _call_tables(command):
+        if (
+            plain is not None
+            and table is not None
+            and (_values_ok(table, values) if values is not None else _plain_ok(table, plain))
+        ):
+            return v, []
+        viols = check_args(v, parsed.args)
+        if not viols:
+            return v, []
+        # Prefer a variant whose arity matches (its violations are about types/ranges).
+        if best[0] is None or (
+            viols[0].rule is not Rule.ARG_COUNT and best[1][0].rule is Rule.ARG_COUNT
+        ):
+            best = (v, viols)
+    if best[0] is None:
+        if any(v.form == "raw" for v in command.variants):
+            return next(v for v in command.variants if v.form == "raw"), []
+        return None, [
+            Violation(rule=Rule.BAD_DATA, detail=f"{command.name} takes no call arguments")
+        ]
+    return best
+
+
+def _match_word(
+    command: Command, parsed: Keyword | RawData
+) -> tuple[Variant | None, list[Violation]]:
+    """:func:`match_variant` of a keyword or raw text."""
     if isinstance(parsed, Keyword):
         for v in command.variants:
             if v.form == "keyword":
@@ -141,47 +188,19 @@ def match_variant(command: Command, parsed: Parsed) -> tuple[Variant | None, lis
         return None, [
             Violation(rule=Rule.BAD_DATA, detail=f"{command.name} is not a keyword command")
         ]
-    if isinstance(parsed, RawData):
-        for v in command.variants:
-            if v.form == "raw":
-                return v, []
-        for v in command.variants:
-            # ``Stop`` for the manual's ``STOP``: the keyword in another letter case.
-            if v.form == "keyword" and parsed.text.upper() == command.name.upper():
-                return v, [
-                    Violation(
-                        rule=Rule.NAME_CASE,
-                        detail=f"keyword {parsed.text}; the manual spells it {command.name}",
-                    )
-                ]
-        return None, [Violation(rule=Rule.BAD_DATA, detail=f"DATA is not a call of {command.name}")]
-    # A plain-number call is checked from its text first (see Call).
-    plain = parsed.__dict__.get(_PLAIN) if data_fast.FAST_CHECKS else None
-    best: tuple[Variant | None, list[Violation]] = (None, [])
     for v in command.variants:
         if v.form == "raw":
-            continue
-        if v.form == "keyword":
-            continue
-        if plain is not None:
-            table = _plain_table(v)
-            if table is not None and _plain_ok(table, plain):
-                return v, []
-        viols = check_args(v, parsed.args)
-        if not viols:
             return v, []
-        # Prefer a variant whose arity matches (its violations are about types/ranges).
-        if best[0] is None or (
-            viols[0].rule is not Rule.ARG_COUNT and best[1][0].rule is Rule.ARG_COUNT
-        ):
-            best = (v, viols)
-    if best[0] is None:
-        if any(v.form == "raw" for v in command.variants):
-            return next(v for v in command.variants if v.form == "raw"), []
-        return None, [
-            Violation(rule=Rule.BAD_DATA, detail=f"{command.name} takes no call arguments")
-        ]
-    return best
+    for v in command.variants:
+        # ``Stop`` for the manual's ``STOP``: the keyword in another letter case.
+        if v.form == "keyword" and parsed.text.upper() == command.name.upper():
+            return v, [
+                Violation(
+                    rule=Rule.NAME_CASE,
+                    detail=f"keyword {parsed.text}; the manual spells it {command.name}",
+                )
+            ]
+    return None, [Violation(rule=Rule.BAD_DATA, detail=f"DATA is not a call of {command.name}")]
 
 
 def _flat(values: Sequence[ReturnValue]) -> list[ReturnValue]:

@@ -2,8 +2,9 @@
 
 :func:`_fast_table` compiles a variant's numeric parameters into tuples that
 :func:`_fast_ok` checks parsed arguments against; :func:`_plain_table` and
-:func:`_plain_ok` check a plain-number call (:class:`~.data_values.Call`) from its
-text, with the tokens known to be valid as sets.  Each says True only when
+:func:`_plain_ok` (:func:`_values_ok`) check a plain-number call
+(:class:`~.data_values.Call`) from its text (its values), with the tokens (values)
+known to be valid as sets.  Each says True only when
 :func:`~.data_checks.check_args` would find nothing; anything else goes the careful
 way, which decides and words it.  :data:`FAST_CHECKS` turns every fast path off
 (the parser's too): the results are the same (tests/test_data_fast.py).
@@ -17,7 +18,7 @@ from collections.abc import Callable, Sequence
 from operator import itemgetter
 from typing import NamedTuple
 
-from ..spec import TYPE_BOUNDS, Variant
+from ..spec import TYPE_BOUNDS, Command, Variant
 from .data_values import Arg, Number
 
 __all__ = ["FAST_CHECKS"]
@@ -103,9 +104,11 @@ class _PlainChecks(NamedTuple):
     #: The tokens of the parameters with a domain (a C integer type, a range or an
     #: enum), from the list of all tokens; a float or double without a domain
     #: takes any number of a plain list (all finite).
-    pick: Callable[[list[str]], tuple[str, ...]]
+    pick: Callable[[Sequence[object]], tuple[object, ...]]
     #: For each of them, tokens certainly in its domain (_words).
     words: tuple[frozenset[str], ...]
+    #: For each of them, values certainly in its domain (_value_words).
+    value_words: tuple[frozenset[int], ...]
     #: For each of them, its index and its _Fast.
     checks: tuple[tuple[int, _Fast], ...]
 
@@ -121,6 +124,16 @@ def _words(t: _Fast) -> frozenset[str]:
     hi = min(t[2], _WORDS_LIMIT)
     ks = range(math.ceil(lo), math.floor(hi) + 1) if lo <= hi else range(0)
     return frozenset(w for k in ks if _allows(t, k) for w in (str(k), f"{k}.000"))
+
+
+@functools.cache
+def _value_words(t: _Fast) -> frozenset[int]:
+    """Values certainly in a domain: its integers at most _WORDS_LIMIT from 0 (a float
+    equal to one is in the set too: 12.0 == 12, and is in the domain as 12 is)."""
+    lo = max(t[1], -_WORDS_LIMIT)
+    hi = min(t[2], _WORDS_LIMIT)
+    ks = range(math.ceil(lo), math.floor(hi) + 1) if lo <= hi else range(0)
+    return frozenset(k for k in ks if _allows(t, k))
 
 
 def _plain_table(variant: Variant) -> _PlainChecks | None:
@@ -139,13 +152,28 @@ def _plain_table(variant: Variant) -> _PlainChecks | None:
             and (p.is_integer or p.type in TYPE_BOUNDS or p.range is not None or p.enum is not None)
         ]
         words = [_words(t) for _, t in checks]
+        value_words = [_value_words(t) for _, t in checks]
         index = [i for i, _ in checks]
         if len(index) == 1:  # itemgetter gives a tuple for two indexes or more
             index *= 2
             words *= 2
+            value_words *= 2
         pick = itemgetter(*index) if index else (lambda tokens: ())
-        out = _PlainChecks(len(fast), pick, tuple(words), tuple(checks))
+        out = _PlainChecks(len(fast), pick, tuple(words), tuple(value_words), tuple(checks))
     _PLAIN_TABLES[id(variant)] = (variant, out)
+    return out
+
+
+_CALL_TABLES: dict[int, tuple[Command, tuple[tuple[Variant, _PlainChecks | None], ...]]] = {}
+
+
+def _call_tables(command: Command) -> tuple[tuple[Variant, _PlainChecks | None], ...]:
+    """The command's call variants, in order, each with its _plain_table."""
+    hit = _CALL_TABLES.get(id(command))
+    if hit is not None and hit[0] is command:
+        return hit[1]
+    out = tuple((v, _plain_table(v)) for v in command.variants if v.form not in ("raw", "keyword"))
+    _CALL_TABLES[id(command)] = (command, out)
     return out
 
 
@@ -159,7 +187,16 @@ def _plain_ok(table: _PlainChecks, text: str) -> bool:
         return True
     for i, t in table.checks:
         token = tokens[i]
-        # The value _plain_args makes of the token.
+        # The value _plain_values makes of the token.
         if not _allows(t, float(token) if "." in token else int(token)):
             return False
     return True
+
+
+def _values_ok(table: _PlainChecks, values: tuple[int | float, ...]) -> bool:
+    """:func:`_plain_ok` from the list's values (_plain_values) instead of its text."""
+    if len(values) != table.arity:
+        return False
+    if all(map(frozenset.__contains__, table.value_words, table.pick(values))):
+        return True
+    return all(_allows(t, values[i]) for i, t in table.checks)

@@ -23,7 +23,10 @@ most :data:`SHOWN_CHARS` characters of the DATA.  Lenient parsing accepts whites
 
 from __future__ import annotations
 
+import json
 import re
+from collections.abc import Callable
+from typing import Any
 
 from ..errors import RemoteProtocolError, Rule
 from . import data_fast
@@ -47,6 +50,9 @@ from .data_values import (
 __all__ = ["parse_data", "parse_reply"]
 
 _NAME_RE = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+# A call, its name and its argument text (what parse_data's careful reading takes
+# apart with _NAME_RE): tried first, for the plain-number fast path.
+_CALL_RE = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)\((.*)\)", re.S)
 # ASCII digits only (the protocol's), and unambiguous: "\d+\.?\d*" backtracked
 # quadratically over a long run of digits followed by a non-digit.
 _NUMBER_RE = re.compile(r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?", re.ASCII)
@@ -58,6 +64,14 @@ _SIMPLE_LIST_RE = re.compile(r'[^\s,(){}"]+(?:,[^\s,(){}"]+)*')
 # as long as it is short (see _number_value: the limits are past 300 characters).
 _PLAIN_NUMBER = r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)"
 _PLAIN_LIST_RE = re.compile(rf"{_PLAIN_NUMBER}(?:,{_PLAIN_NUMBER})*", re.ASCII)
+# The characters of such a list (deleted from its UTF-8 bytes, nothing may be left).
+# A JSON array of numbers written with these only ("[" + list + "]": no blanks,
+# exponents, NaN or Infinity) is one such list, and json reads each number as
+# _plain_values does: int() without a point, float() with one (its C scanner calls
+# them on the token; -0 is the int 0).  Its scanner (raw_decode without the call
+# around it) raises StopIteration or JSONDecodeError (a ValueError) where it stops.
+_PLAIN_CHARS = b"0123456789.,+-"
+_scan_json: Callable[[str, int], tuple[Any, int]] = json.JSONDecoder().scan_once  # type: ignore[attr-defined]
 # Characters that end a bare (unquoted) token.
 _BARE_STOP = frozenset(',(){}"')
 _REPLY_STOP = frozenset(',{}"')
@@ -200,17 +214,33 @@ def parse_data(data: str, *, strict: bool = False) -> Parsed:
     A DATA that starts like a call (``Name(``) must be a well-formed call, else
     :class:`RemoteProtocolError` with ``Rule.BAD_DATA``.
     """
+    c = _CALL_RE.fullmatch(data) if data_fast.FAST_CHECKS else None
+    if c is not None:
+        name, inner = c.groups()
+        if 0 < len(inner) <= 300 and not inner.encode("utf-8", "replace").translate(
+            None, _PLAIN_CHARS
+        ):
+            # The common call (MoveJ's 29 plain numbers): what _ArgParser.items reads
+            # on its fast path, without the parser (300 characters: under MAX_ITEMS
+            # values), its arguments made when first used (Call).  In JSON's form
+            # (-116.061, 0, as C's printf writes numbers) one pass of the json
+            # module's scanner both checks the list and reads its values; another
+            # plain list (.5, 5., +1, 007) is checked by the grammar and read when
+            # first used.
+            try:
+                values = _scan_json("[" + inner + "]", 0)[0]
+            except (ValueError, StopIteration):
+                values = None
+            if values is not None:
+                return _plain_call(name, inner, tuple(values))
+            if _PLAIN_LIST_RE.fullmatch(inner):
+                return _plain_call(name, inner)
     m = _NAME_RE.match(data)
     if m and data[m.end() : m.end() + 1] == "(":
         name = _shown(m.group()) if m.end() > SHOWN_CHARS else m.group()
         if not data.endswith(")"):
             raise _error(f"call {name} does not end with ')'", data)
         inner = data[m.end() + 1 : -1]
-        if data_fast.FAST_CHECKS and len(inner) <= 300 and _PLAIN_LIST_RE.fullmatch(inner):
-            # The common call (MoveJ's 29 plain numbers): what _ArgParser.items reads
-            # on its fast path, without the parser (300 characters: under MAX_ITEMS
-            # values), and read when first used (Call).
-            return _plain_call(m.group(), inner)
         p = _ArgParser(inner, strict=strict)
         try:
             items = p.items(None)

@@ -1,9 +1,9 @@
 """The values of the DATA grammar: arguments, calls, keywords, raw text, and the bounds.
 
 A call of plain numbers only (MoveJ's 29 values, at most 300 characters) keeps its
-argument text and makes its arguments on first use (:class:`Call`); the parser
-(:mod:`.data_parse`) makes such calls, the checks (:mod:`.data_checks`) read their
-text.  Errors about the peer's DATA are :class:`RemoteProtocolError` built by
+argument text and its values in one tuple (:attr:`Call.values`) and makes its
+arguments on first use (:class:`Call`); the parser (:mod:`.data_parse`) makes such
+calls, the checks (:mod:`.data_checks`) read their values or text.  Errors about the peer's DATA are :class:`RemoteProtocolError` built by
 :func:`_error`, whose messages show at most :data:`SHOWN_CHARS` characters.
 """
 
@@ -11,9 +11,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from itertools import repeat
 from typing import TYPE_CHECKING
 
 from ..errors import RemoteProtocolError, Rule
+
+if TYPE_CHECKING:
+    import numpy as np
+    from numpy.typing import NDArray
 
 __all__ = [
     "MAX_DEPTH",
@@ -126,12 +131,13 @@ class Call:
     """A call ``Name(arg,arg,...)``.
 
     A call :func:`parse_data` reads as a short list of plain numbers (MoveJ's 29
-    values) holds its argument text and makes ``args`` on first use: the text is
-    known to be such a list, so ``args`` cannot fail, and it is the tuple the
-    parser would have made (same values, same types).  :func:`match_variant`
-    checks such a call against a variant from the text, without ``args``
-    (tools/bench_codec.py, full MoveJ decode).  Equality, hash and repr read
-    ``args`` and are those of any call.
+    values) holds its argument text and, when it was read in one pass (the common
+    form, ``-116.061`` or ``0``), its :attr:`values`; it makes ``args`` on first
+    use: the text is known to be such a list, so ``args`` cannot fail, and it is
+    the tuple the parser would have made (same values, same types).
+    :func:`match_variant` checks such a call against a variant from its values or
+    text, without ``args`` (tools/bench_codec.py, full MoveJ decode).  Equality,
+    hash and repr read ``args`` and are those of any call.
     """
 
     name: str
@@ -147,35 +153,79 @@ class Call:
                 d = self.__dict__
                 text = d.get(_PLAIN)
                 if text is not None:
-                    args = d["args"] = _plain_args(text)
+                    args = d["args"] = _plain_args(text, self.values)
                     return args
             raise AttributeError(f"{type(self).__name__!r} object has no attribute {attr!r}")
 
+    @property
+    def values(self) -> tuple[int | float, ...] | None:
+        """The arguments' values in one tuple, when every argument is a number (else None).
 
-#: Key of a lazily read call's argument text in its instance dict (not a field).
+        ``tuple(a.value for a in args)``, same values and types (``0`` an int,
+        ``0.000`` a float), without making ``args``: a plain-number call read in
+        one pass has them from the parser; any other call makes them once from
+        its arguments.
+        """
+        d = self.__dict__
+        if _VALUES in d:
+            return d[_VALUES]  # type: ignore[no-any-return]
+        text = d.get(_PLAIN)
+        if text is not None:
+            values: tuple[int | float, ...] | None = _plain_values(text)
+        else:
+            args = self.args
+            nums = [a.value for a in args if type(a) is Number]
+            values = tuple(nums) if len(nums) == len(args) else None
+        d[_VALUES] = values
+        return values
+
+    def array(self) -> NDArray[np.float64] | None:
+        """:attr:`values` as a read-only float64 numpy array (None when an argument is
+        not a number); made on each call."""
+        values = self.values
+        if values is None:
+            return None
+        import numpy as np
+
+        out = np.array(values, dtype=np.float64)
+        out.flags.writeable = False
+        return out
+
+
+#: Keys of a lazily read call's argument text and of its values in its instance
+#: dict (not fields).
 _PLAIN = "_plain_args_text"
+_VALUES = "_values"
 
 
-def _plain_args(text: str) -> tuple[Number, ...]:
-    """The arguments of a plain-number list of at most 300 characters (_PLAIN_LIST_RE).
+def _plain_values(text: str) -> tuple[int | float, ...]:
+    """The values of a plain-number list of at most 300 characters (_PLAIN_LIST_RE).
 
     Each token is short and has no exponent, so _number_value could not refuse it
     (always finite): it is read by int() or float() directly.
     """
-    new = tuple.__new__
-    return tuple([new(Number, (t, float(t) if "." in t else int(t))) for t in text.split(",")])
+    return tuple([float(t) if "." in t else int(t) for t in text.split(",")])
+
+
+def _plain_args(text: str, values: tuple[int | float, ...] | None) -> tuple[Number, ...]:
+    """The arguments of a plain-number list (_plain_values), from its tokens and values."""
+    assert values is not None  # a plain list's values are all numbers
+    return tuple(map(tuple.__new__, repeat(Number), zip(text.split(","), values, strict=True)))  # type: ignore[arg-type]
 
 
 _object_new = object.__new__
 
 
-def _plain_call(name: str, text: str) -> Call:
-    """``Call(name=name, args=_plain_args(text))``, with ``args`` read when first used."""
+def _plain_call(name: str, text: str, values: tuple[int | float, ...] | None = None) -> Call:
+    """``Call(name=name, args=_plain_args(text, ...))``, with ``args`` made when first
+    used, and ``values`` those of ``text`` when already read (else read when asked)."""
     call = _object_new(Call)
     d = call.__dict__
     d["name"] = name
     d["problems"] = ()
     d[_PLAIN] = text
+    if values is not None:
+        d[_VALUES] = values
     return call
 
 
