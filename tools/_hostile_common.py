@@ -25,8 +25,17 @@ RSS_LIMIT_MB = 300
 # --------------------------------------------------------------------------- helpers
 
 
-def kit(*args: str) -> list[str]:
-    return [sys.executable, "-m", "conformance", *args]
+#: The checkout whose kit :func:`kit` runs when none is given (``--kit-root``); None: this one.
+KIT_ROOT: Path | None = None
+
+
+def kit(*args: str, root: Path | None = None) -> list[str]:
+    """The kit's command line: this checkout's, or another checkout's (``root``, else
+    :data:`KIT_ROOT`), found first on PYTHONPATH (``-P``: not the working directory's)."""
+    where = root if root is not None else KIT_ROOT
+    if where is None:
+        return [sys.executable, "-m", "conformance", *args]
+    return ["env", f"PYTHONPATH={where}", sys.executable, "-P", "-m", "conformance", *args]
 
 
 def health_query() -> tuple[Command, Variant]:

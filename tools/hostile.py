@@ -1,9 +1,11 @@
 """Play hostile peers against the kit's own processes; print time, peak RSS and outcome.
 
-    python tools/hostile.py [--part targets|clients|all] [--budget 120] [--garbage-mb 300]
-                            [--connections 3000] [--proxy-garbage-mb 64]
+    python tools/hostile.py [--part targets|clients|own|all] [--budget 120] [--garbage-mb 300]
+                            [--connections 3000] [--proxy-garbage-mb 64] [--kit-root PATH ...]
 
-Two parts, each a table:
+Three parts, each a table (``--kit-root``: the kit of another checkout, e.g. a ``git
+worktree`` of an older commit; repeated, each part runs once per checkout, and part
+``own`` prints them side by side):
 
 * **Hostile targets against ``run``** (the full default suite, every command): this
   script serves, on 127.0.0.1, a target that refuses, stays silent, closes at once,
@@ -23,6 +25,10 @@ Two parts, each a table:
   the server was still alive and answered.  At the end the proxy is stopped with
   SIGINT and its MCAP file is read back: every byte each client sent must be in
   it.
+* **The kit's own faults** (``--part own``, tools/_hostile_own.py; issue 21): a UDP flood
+  through the proxy, a full disk under the proxy's recorder, a corrupt MCAP chunk, SIGTERM
+  to ``run``, ``serve --verdicts /dev/full``, ``capture`` stopped under load, a target
+  answering with wrong CNTs.
 
 Only loopback is used; every port is chosen by the kernel.  The script is bounded:
 each hostile peer stops after its byte or time budget.
@@ -54,6 +60,7 @@ SERVER_NOFILE = 1024  # the issue's `ulimit -n 1024`
 RSS_LIMIT_MB = 300
 
 
+import tools._hostile_common as common  # noqa: E402
 from tools._hostile_common import (  # noqa: E402
     HEALTH,
     ask_health,
@@ -64,6 +71,7 @@ from tools._hostile_common import (  # noqa: E402
     table,
     vm_kb,
 )
+from tools._hostile_own import add_options, part_own  # noqa: E402
 from tools._hostile_targets import part_targets  # noqa: E402
 
 # --------------------------------------------------------------------------- hostile clients
@@ -412,7 +420,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    ap.add_argument("--part", choices=("targets", "clients", "all"), default="all")
+    ap.add_argument("--part", choices=("targets", "clients", "own", "all"), default="all")
     ap.add_argument(
         "--budget", type=float, default=120.0, help="run budget for each hostile target"
     )
@@ -422,13 +430,19 @@ def main() -> int:
     )
     ap.add_argument("--connections", type=int, default=3000)
     ap.add_argument("--only", action="append", default=[], help="rows whose name contains this")
+    add_options(ap)
     args = ap.parse_args()
     ok = True
     t0 = time.monotonic()
-    if args.part in ("targets", "all"):
-        ok &= part_targets(args)
-    if args.part in ("clients", "all"):
-        ok &= part_clients(args)
+    for root in args.kit_root or [None]:
+        common.KIT_ROOT = root
+        if args.part in ("targets", "all"):
+            ok &= part_targets(args)
+        if args.part in ("clients", "all"):
+            ok &= part_clients(args)
+    common.KIT_ROOT = None
+    if args.part in ("own", "all"):
+        ok &= part_own(args)
     print(f"\nall rows as required: {'yes' if ok else 'NO'} ({time.monotonic() - t0:.0f} s in all)")
     return 0 if ok else 1
 
