@@ -240,6 +240,7 @@ def full_movej(reps: int, *, read: str = "") -> int:
     (movej,) = default_specs().by_id(201)[:1]
     frame_bytes = encode_frame(4, 201, MOVEJ)
     ok = 0
+    values, args = read == "values", read == "args"
     for _ in range(reps):
         d = FrameDecoder(strict=True)
         (f,) = d.feed(frame_bytes)
@@ -247,13 +248,10 @@ def full_movej(reps: int, *, read: str = "") -> int:
         parsed = parse_data(f.data, strict=True)
         variant, viols = match_variant(movej, parsed)
         ok += variant is not None and not viols
-        if read:
-            assert isinstance(parsed, Call)
-            if read == "values":
-                values = parsed.values
-                assert values is not None and len(values) == 29
-            else:
-                assert len(parsed.args) == 29
+        if values:
+            assert isinstance(parsed, Call) and len(parsed.values or ()) == 29
+        elif args:
+            assert isinstance(parsed, Call) and len(parsed.args) == 29
     return ok
 
 
