@@ -81,6 +81,7 @@ class Proc:
             preexec_fn=preexec,
         )
         self.lines: list[tuple[float, str, str]] = []
+        self.signalled_at = 0.0
         self._lock = threading.Lock()
         self._readers = [
             threading.Thread(target=self._read, args=(s, n), daemon=True)
@@ -112,16 +113,17 @@ class Proc:
             time.sleep(0.05)
         raise RuntimeError(f"did not say {pattern!r} within {timeout:.0f} s")
 
-    def first_after(self, t: float, which: str = "err") -> tuple[float, str] | None:
+    def first_after(self, t: float, which: str = "err", has: str = "") -> tuple[float, str] | None:
+        """The first line of ``which`` read at ``t`` or later (containing ``has``)."""
         with self._lock:
             for at, n, x in self.lines:
-                if at >= t and n == which and x.strip():
+                if at >= t and n == which and x.strip() and has in x:
                     return at, x
         return None
 
     def stop(self, sig: int = signal.SIGINT, timeout: float = 30.0) -> tuple[int | None, float]:
         """Signal, wait: (exit code or None when it had to be killed, seconds taken)."""
-        t = time.monotonic()
+        t = self.signalled_at = time.monotonic()
         if self.p.poll() is None:
             self.p.send_signal(sig)
         try:
