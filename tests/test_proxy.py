@@ -153,8 +153,9 @@ def test_forwards_and_records_both_directions(tmp_path: Path, upstream: Upstream
         assert summary is not None and summary.statistics is not None
         topics = {c.topic: c for c in summary.channels.values()}
         assert {TOPIC_C2S, TOPIC_S2C, TOPIC_CONNECTIONS} <= set(topics)
-        assert topics[TOPIC_C2S].message_encoding == "json"
-        assert summary.schemas[topics[TOPIC_C2S].schema_id].encoding == "jsonschema"
+        assert topics[TOPIC_C2S].message_encoding == "protobuf"  # layout 3
+        assert summary.schemas[topics[TOPIC_C2S].schema_id].encoding == "protobuf"
+        assert topics[TOPIC_CONNECTIONS].message_encoding == "json"
         counts = summary.statistics.channel_message_counts
         assert counts[topics[TOPIC_C2S].id] == 20 and counts[topics[TOPIC_S2C].id] == 20
 

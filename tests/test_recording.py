@@ -36,6 +36,7 @@ from conformance.recording import (
     read_recording,
     recover,
 )
+from conformance.recording.frames_pb import decode_batch
 from conformance.spec import default_specs
 
 
@@ -74,8 +75,13 @@ def test_every_message_matches_its_schema(tmp_path: Path) -> None:
     topics: dict[str, int] = {}
     with open(out, "rb") as f:
         for schema, channel, message in make_reader(f).iter_messages():
-            assert schema is not None and schema.encoding == "jsonschema"
-            jsonschema.validate(json.loads(message.data), json.loads(schema.data))
+            assert schema is not None
+            if channel.topic in (TOPIC_C2S, TOPIC_S2C):  # layout 3: protobuf batches
+                assert (schema.encoding, schema.name) == ("protobuf", "fairino.Frames")
+                assert decode_batch(message.data).cnts
+            else:
+                assert schema.encoding == "jsonschema"
+                jsonschema.validate(json.loads(message.data), json.loads(schema.data))
             topics[channel.topic] = topics.get(channel.topic, 0) + 1
     # The two frames of the one read are one batch; the problems around them keep their
     # place (noise before, NUL padding and the partial frame after).
@@ -83,7 +89,7 @@ def test_every_message_matches_its_schema(tmp_path: Path) -> None:
     assert set(SCHEMAS) == {"fairino.Frames", "fairino.Problem", "fairino.Connection"}
     back = read_recording(out)
     assert [f.cnt for f in back.frames] == [4, 5, 1]
-    assert back.metadata["format"] == "fairino-conformance/2"
+    assert back.metadata["format"] == "fairino-conformance/3"
 
 
 def test_names_times_and_offsets() -> None:
@@ -346,9 +352,9 @@ def _write_frame(w: RecordingWriter, r: FrameRecord) -> None:
 
 
 def test_write_frames_is_write_json_of_the_batch(tmp_path: Path) -> None:
-    """The template path and the dict path give byte-identical files, and records
-    written one by one are batched exactly as the batch of them is."""
-    metadata = {"format": "x"}
+    """The template path and the dict path give byte-identical files (layout 2's JSON),
+    and records written one by one are batched exactly as the batch of them is."""
+    metadata = {"format": "fairino-conformance/2"}
     a, b, c = tmp_path / "a.mcap", tmp_path / "b.mcap", tmp_path / "c.mcap"
     groups = [_RECS[:1], _RECS[1:4], _RECS[4:]]
     with RecordingWriter(a, metadata=metadata) as w:
@@ -390,8 +396,8 @@ def test_batches_keep_record_order_and_limits(tmp_path: Path) -> None:
     counts: list[tuple[str, int]] = []
     with open(out, "rb") as f:
         for _, channel, message in make_reader(f).iter_messages(log_time_order=False):
-            doc = json.loads(message.data)
-            counts.append((channel.topic, len(doc["cnt"]) if "cnt" in doc else 0))
+            frames = channel.topic in (TOPIC_C2S, TOPIC_S2C)
+            counts.append((channel.topic, len(decode_batch(message.data).cnts) if frames else 0))
     assert counts == [
         (TOPIC_C2S, 2),
         (TOPIC_CONNECTIONS, 0),
@@ -422,7 +428,7 @@ def test_one_frame_path_and_batches_mix_in_order(tmp_path: Path) -> None:
 def test_batch_messages_that_do_not_add_up_are_skipped(tmp_path: Path) -> None:
     out = tmp_path / "r.mcap"
     good = FrameBatch.of(_RECS[1:4]).to_json()
-    with RecordingWriter(out, metadata={"format": "x"}) as w:
+    with RecordingWriter(out, metadata={"format": "x"}, layout=2) as w:  # JSON batches
         w.write_json(TOPIC_S2C, dict(good, size=[1, 2, 3]), log_time=1, publish_time=1)
         w.write_json(TOPIC_S2C, dict(good, cnt=[1]), log_time=1, publish_time=1)
         w.write_json(TOPIC_S2C, good, log_time=1, publish_time=1)
@@ -446,7 +452,7 @@ def test_same_bytes_as_the_mcap_library_writer(tmp_path: Path, compression: str)
     CRCs, and ``flush`` ends the chunk in progress as ``Writer.flush`` does."""
     from mcap.writer import CompressionType, Writer
 
-    metadata = {"format": "x", "host": "h"}
+    metadata = {"format": "fairino-conformance/2", "host": "h"}  # JSON on every topic
     topics = [TOPIC_CONNECTIONS, TOPIC_C2S, TOPIC_S2C, TOPIC_PROBLEMS]
     docs = [
         (topics[i % 7 % 4], 1000 - i if i % 5 == 0 else 1000 + i, {"i": i, "pad": "x" * (i % 90)})

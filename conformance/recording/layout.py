@@ -1,8 +1,16 @@
-"""The MCAP layout of a recording: its topics, JSON schemas and format constants.
+"""The MCAP layout of a recording: its topics, schemas and format constants.
 
-A recording is an MCAP file whose messages are JSON documents described by JSON
-schemas (``json`` message encoding, ``jsonschema`` schema encoding), so Foxglove
-and the ``mcap`` command-line tools open it as it is.  The topics are stable:
+A recording is an MCAP file that Foxglove and the ``mcap`` command-line tools open as it
+is.  Layout 3 (``format`` ``fairino-conformance/3`` in the metadata, written by default):
+the frame batches (``/fairino/c2s``, ``/fairino/s2c``) are protobuf messages (``protobuf``
+message encoding, a ``FileDescriptorSet`` schema: :mod:`~conformance.recording.frames_pb`),
+their columns packed fixed-width integers that the recorder writes and a reader reads as
+arrays (``array.tobytes``, ``numpy.frombuffer``), not JSON text: the hot path of the
+recorder and of every reader.  The other topics (problems, connections, state) are rare
+and stay JSON documents described by JSON schemas (``json`` message encoding,
+``jsonschema`` schema encoding).  Layout 2 (``fairino-conformance/2``) is the same but
+for the frame batches, which are the JSON objects of :data:`SCHEMAS`
+(``RecordingWriter(layout=2)`` still writes it).  The topics are stable:
 
 =========================  ====================  ===========================================
 topic                      schema                one message per
@@ -20,10 +28,12 @@ upstream, listen address, start time, host, segment number).
 A frame message is a batch, in columns: the frames of one connection and direction
 that the recorder completed from one read (so one ``complete_ns``), frame *k* being
 ``cnt[k]``, ``cmd_id[k]``, ``data[k]``... and its exact bytes the next ``size[k]``
-bytes of ``raw``.  At 1 kHz request/reply a batch holds one frame; a pipelining
+bytes of ``raw`` (layout 3: its DATA the next ``data_size[k]`` bytes of ``data``, its
+name ``names[name[k] - 1]``).  At 1 kHz request/reply a batch holds one frame; a pipelining
 client's read of 64 KiB holds hundreds, written as one message instead of one each
-(``mcap.Writer.add_message`` costs about 4 us a call, the JSON per frame less in
-columns than as objects: ``tools/bench_proxy.py --section record``).  The message's
+(``mcap.Writer.add_message`` costs about 4 us a call; a column costs a copy of its
+integers in layout 3, the text of each number in layout 2: ``tools/bench_proxy.py
+--section record``).  The message's
 log time is the time the batch's last byte arrived, its publish time the time the
 first byte of its earliest frame arrived (ns since the Unix epoch).
 
@@ -39,7 +49,9 @@ decoder finds (checksum, CNT gap, garbage, truncated packet) goes to
 ``/fairino/problems`` with ``kind`` ``state``, its ``rule`` the decoder's kind and
 its ``detail`` the decoder's words; a garbage run's bytes are all kept.  Layout version
 1 (``format`` ``fairino-conformance/1`` in the metadata) had one ``fairino.Frame``
-object per frame; :func:`~conformance.recording.read_recording` reads both.
+object per frame; :func:`~conformance.recording.read_recording` reads all three (a frame
+channel's message encoding says which: ``protobuf`` or ``json``), and a frame message
+that does not read or fit is skipped and named, whatever its layout.
 """
 
 from __future__ import annotations
@@ -99,7 +111,7 @@ FORMAT_1 = "fairino-conformance/1"
 FORMAT_2 = "fairino-conformance/2"
 FORMAT_3 = "fairino-conformance/3"
 #: The layout a recording is written in unless asked otherwise; bump on incompatible changes.
-LAYOUT = 2
+LAYOUT = 3
 FORMAT = {2: FORMAT_2, 3: FORMAT_3}[LAYOUT]
 #: Most frames, and bytes of them, in one ``fairino.Frames`` message (RecordingWriter):
 #: a reader holds one message at a time, and a frame message stays well under a chunk.
