@@ -43,30 +43,32 @@ import sys
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import pytest
 
 from .errors import EXIT_ERROR, EXIT_FAIL, EXIT_OK, ConformanceError, EmulatorError
 from .net.addresses import format_address, parse_address
-from .net.client import Client
-from .net.emulator import EmulatorServer
-from .report import CaseResult, Report, write_reports
-from .report.text import plural
-from .suite.config import SuiteConfig
-from .suite.engine import Engine, stop_report
-from .suite.options import OPTIONS, option, resolve, suite_config
-from .suite.present import dry_run_lines
-from .suite.runner import Case
-from .suite.spec_choice import load_chosen, note_spec, with_spec
+from .suite.options import OPTIONS, option, resolve
 from .verdict import Outcome, fails
+
+if TYPE_CHECKING:
+    from .net.client import Client
+    from .net.emulator import EmulatorServer
+    from .report import CaseResult, Report
+    from .suite.config import SuiteConfig
+    from .suite.engine import Engine
+    from .suite.runner import Case
+
+# pytest loads this plugin into every session of every project where the kit is installed:
+# the suite's machinery (engine, emulator, reports) is imported when a session uses it.
 
 __all__ = ["CaseItem", "CommandNode", "Target"]
 
-_CONFIG_KEY = pytest.StashKey[SuiteConfig]()
+_CONFIG_KEY = pytest.StashKey["SuiteConfig"]()
 _ENGINE_KEY = pytest.StashKey["Engine | None"]()
 _CASES_KEY = pytest.StashKey["list[Case]"]()
-_MERGED_KEY = pytest.StashKey[Report]()
+_MERGED_KEY = pytest.StashKey["Report"]()
 _WRITTEN_KEY = pytest.StashKey["list[str]"]()
 #: The test report's attributes carrying a case's result (and why the run stopped) from a
 #: worker to the controller: pytest and xdist pass a report's extra attributes along, and
@@ -120,6 +122,9 @@ def _enabled(config: pytest.Config) -> bool:
 
 
 def _suite_config(config: pytest.Config) -> SuiteConfig:
+    from .suite.options import suite_config
+    from .suite.spec_choice import with_spec
+
     values = _values(config)
     seed = None
     workerinput = getattr(config, "workerinput", None)
@@ -153,6 +158,8 @@ def pytest_configure(config: pytest.Config) -> None:
     )
     if not _enabled(config):
         return
+    from .report import Report
+
     try:
         sc = _suite_config(config)
     except ConformanceError as e:
@@ -222,6 +229,8 @@ def _is_worker(config: pytest.Config) -> bool:
 
 
 def _engine(config: pytest.Config) -> Engine:
+    from .suite.engine import Engine
+
     engine = config.stash.get(_ENGINE_KEY, None)
     if engine is None:
         engine = Engine(config.stash[_CONFIG_KEY])  # the spec set its config chose
@@ -316,6 +325,8 @@ def _result_json(r: CaseResult) -> dict[str, Any]:
 
 
 def _result_from(doc: dict[str, Any]) -> CaseResult:
+    from .report import CaseResult
+
     return CaseResult.from_json(doc, cmd_id=doc["cmd_id"], name=doc["name"])
 
 
@@ -358,6 +369,8 @@ def pytest_report_collectionfinish(
     config: pytest.Config, items: list[pytest.Item]
 ) -> str | list[str]:
     """After "collected N items": what the suite added, and against what."""
+    from .report.text import plural
+
     cases = config.stash.get(_CASES_KEY, None)
     if cases is None or _is_worker(config):
         return []
@@ -392,6 +405,8 @@ class _Collector:
 
 
 def pytest_terminal_summary(terminalreporter: Any, exitstatus: int, config: pytest.Config) -> None:
+    from .suite.present import dry_run_lines
+
     report = config.stash.get(_MERGED_KEY, None)
     if report is None or not report.cases or _is_worker(config):
         return
@@ -440,6 +455,8 @@ def _finish_report(
     """Spec version, the emulator's address, and the cases a stopped or interrupted session
     never ran (the engine's :func:`~conformance.suite.engine.stop_report`, as for ``run``)."""
     from .dialects import dialects_from
+    from .suite.engine import stop_report
+    from .suite.spec_choice import load_chosen, note_spec
 
     sc = config.stash[_CONFIG_KEY]
     if sc.spec is not None:
@@ -457,6 +474,8 @@ def _finish_report(
 
 
 def _write_reports(config: pytest.Config, report: Report) -> None:
+    from .report import write_reports
+
     values = _values(config)
     config.stash[_WRITTEN_KEY] = write_reports(
         report,
@@ -484,7 +503,7 @@ class Target:
         return format_address(self.host, self.port)
 
 
-EmulatorFactory = Callable[..., EmulatorServer]
+EmulatorFactory = Callable[..., "EmulatorServer"]
 
 
 @pytest.fixture(scope="session")
@@ -494,6 +513,9 @@ def fairino_emulator_factory() -> Iterator[EmulatorFactory]:
     by the kernel, and plays the firmware of its spec set (the default's, else the one named:
     GetSoftwareVersion answers it, and the field dialects are those of its range).
     Closed at the end of the session, re-raising any failure of their own."""
+    from .net.emulator import EmulatorServer
+    from .suite.spec_choice import load_chosen
+
     servers: list[EmulatorServer] = []
 
     def make(
@@ -540,6 +562,8 @@ def fairino_emulator() -> Iterator[EmulatorServer]:
 
     Its ``address`` / ``udp_address`` are where to connect; a failure of its own
     (a kit bug) is raised at teardown."""
+    from .net.emulator import EmulatorServer
+
     with EmulatorServer(udp_port=0) as emu:
         yield emu
 
@@ -574,6 +598,8 @@ def fairino_target(
 def fairino_client(fairino_target: Target) -> Iterator[Client]:
     """A client connected to ``fairino_target`` for one test (closed after it); it waits
     ``--reply-timeout`` for a reply."""
+    from .net.client import Client
+
     t = fairino_target
     with Client(t.host, t.port, transport=t.transport, timeout=t.reply_timeout) as c:
         yield c
