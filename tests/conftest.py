@@ -3,13 +3,21 @@
 from __future__ import annotations
 
 import os
+import sys
 import tempfile
 from collections.abc import Callable, Iterator
 
-import pytest
+# Where PYTHONDONTWRITEBYTECODE is set (some CI images set it), every pytest worker and
+# every CLI process a test starts would compile the kit and re-write the tests' asserts
+# from source: about 5 s of CPU a process.  The tests keep their bytecode caches
+# (``__pycache__``, ignored by git), set before the kit's modules are imported.
+sys.dont_write_bytecode = False
+os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
 
-from conformance.net.client import Client, Exchange
-from conformance.net.emulator import EmulatorServer
+import pytest  # noqa: E402
+
+from conformance.net.client import Client, Exchange  # noqa: E402
+from conformance.net.emulator import EmulatorServer  # noqa: E402
 
 pytest_plugins = ("pytester",)
 

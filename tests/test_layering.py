@@ -10,6 +10,7 @@ over 700 lines, the spec extractor aside.
 from __future__ import annotations
 
 import ast
+import functools
 from collections import defaultdict
 from pathlib import Path
 
@@ -109,7 +110,13 @@ def _top(module: str) -> str:
 
 
 MODS = _modules()
-EDGES = _imports(MODS)
+
+
+@functools.cache
+def _edges() -> dict[str, set[str]]:
+    """The import graph, parsed once, by the worker that runs these tests (not at import:
+    every pytest worker imports this module to collect it)."""
+    return _imports(MODS)
 
 
 def test_every_module_has_a_floor() -> None:
@@ -120,7 +127,7 @@ def test_every_module_has_a_floor() -> None:
 def test_no_module_imports_a_higher_floor() -> None:
     back = [
         f"{a} (floor {FLOORS[_top(a)]}) imports {b} (floor {FLOORS[_top(b)]})"
-        for a, bs in sorted(EDGES.items())
+        for a, bs in sorted(_edges().items())
         for b in sorted(bs)
         # The package root re-exports: importing it for a submodule's sake is no arrow.
         if _top(b) and FLOORS[_top(b)] > FLOORS[_top(a)]
@@ -132,7 +139,7 @@ def test_no_import_circles() -> None:
     """No cycle among modules, a package's ``__init__`` importing its own parts aside."""
     graph = {
         a: {b for b in bs if not (a == b.rsplit(".", 1)[0] or a == "conformance")}
-        for a, bs in EDGES.items()
+        for a, bs in _edges().items()
     }
     state: dict[str, int] = {}
     cycles: list[list[str]] = []
