@@ -195,7 +195,7 @@ def assert_values_agree(text: str) -> None:
 
 # 150 examples (about 1.5 s): each is read six ways (fast and careful, strict and
 # lenient, values or args first) and matched against two commands.
-@settings(max_examples=150, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(text=call_text())
 def test_values_equal_the_careful_path(text: str) -> None:
     assert_values_agree(text)
