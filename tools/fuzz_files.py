@@ -6,13 +6,20 @@ fault, never the kit's).
 
 Each target mutates one valid file of its kind and reads it through the public API:
 
-* ``mcap``: a recording of 5 chunks, bytes flipped, overwritten or cut;
+* ``mcap``: a recording of 5 chunks (layout 3), bytes flipped, overwritten or cut;
   :func:`~conformance.recording.read_recording` and
   :func:`~conformance.recording.recover` give a recording or a ``RecordingError``;
 * ``mcap-json``: one field of one message (frames, problem, connection) replaced
   by a hostile JSON value (wrong type, out of range, deep, huge, a lone surrogate);
   the recording is read, summarized and checked (``info`` and ``check``:
   :func:`~conformance.capture_check.summarize`, ``check_recording``);
+* ``frames-pb``: layout 3's protobuf frame batch (one frame, a batch with names,
+  problems and non-ASCII DATA) mutated (bytes flipped, overwritten, cut or repeated; a
+  column's value replaced by a hostile 64-bit one; a varint or a length made huge):
+  :func:`~conformance.recording.frames_pb.decode_batch` gives a batch or a
+  ``ValueError``;
+* ``mcap-pb``: one frame message of a layout-3 recording replaced by such a mutation;
+  the recording is read, summarized and checked as for ``mcap-json``;
 * ``pcap``, ``pcapng``, ``pcap.gz``: a capture's bytes mutated or cut;
   :func:`~conformance.pcap.read.read_packets` gives packets and damage, or a
   ``CaptureError``;
@@ -78,10 +85,11 @@ def _mutate(data: bytes, rng: random.Random) -> bytes:
     return bytes(b)
 
 
-def _recording(path: Path) -> None:
+def _recording(path: Path, layout: int = 3) -> None:
     from conformance.recording import RecordingWriter, StreamRecorder
 
-    w = RecordingWriter(path, metadata={"format": "fairino-conformance/2", "source": "fuzz"})
+    md = {"format": f"fairino-conformance/{layout}", "source": "fuzz"}
+    w = RecordingWriter(path, metadata=md)
     r = StreamRecorder(w)
     r.open(1, t_ns=1, client="127.0.0.1:5000", upstream="127.0.0.1:8080")
     for i in range(60):
@@ -91,6 +99,42 @@ def _recording(path: Path) -> None:
             w.flush()
     r.close(1, t_ns=10**6, reason="client closed")
     w.close()
+
+
+def _pb_messages() -> list[bytes]:
+    """Layout 3's frame batches to mutate: one frame, and a batch with names, problems,
+    non-ASCII DATA and first_ns apart from complete_ns."""
+    from conformance.recording import FrameBatch
+    from conformance.recording.frames_pb import encode_batch, encode_one
+
+    t = 1_700_000_000_000_000_000
+    raws = [encode_frame(k, 201, d) for k, d in enumerate(['MoveJ("P1")', "é", "1"])]
+    batch = FrameBatch(
+        2, "udp", "s2c", [0, 1, 2], [201, 201, 201], ["MoveJ", None, "MoveJ"],
+        ['MoveJ("P1")', "é", "1"], [11, 2, 1], [0, 40, 80], [t, t + 1, t + 2], [t + 3] * 3,
+        list(map(len, raws)), b"".join(raws), [["non-strict-separator"], [], ["x", "y"]],
+    )  # fmt: skip
+    one = encode_one(1, "tcp", "c2s", 7, 201, "MoveJ", "1", 1, 0, t, t, encode_frame(7, 201, "1"))
+    return [one, encode_batch(batch)]
+
+
+#: 64-bit values a column's value is replaced with.
+HOSTILE_U64 = [0, 1, 2**31, 2**32, 2**63 - 1, 2**63, 2**64 - 1, 4_294_967_296 * 10**9]
+
+
+def _mutate_pb(data: bytes, rng: random.Random) -> bytes:
+    """A protobuf batch mutated as bytes, or one 8-byte value replaced by a hostile one,
+    or a byte replaced by a varint's continuation (lengths and varints made huge)."""
+    kind = rng.randrange(3)
+    if kind == 0:
+        return _mutate(data, rng)
+    b = bytearray(data)
+    at = rng.randrange(len(b))
+    if kind == 1:
+        b[at : at + 8] = struct.pack("<Q", rng.choice(HOSTILE_U64))
+    else:
+        b[at : at + 1] = b"\xff" * rng.randrange(1, 11) + bytes([rng.randrange(128)])
+    return bytes(b)
 
 
 def _pcap(path: Path, ng: bool) -> None:
@@ -168,7 +212,7 @@ def _make(target: str, tmp: Path, rng: random.Random) -> Callable[[], Any]:
 
         specs = default_specs()
 
-        _recording(tmp / "good.mcap")
+        _recording(tmp / "good.mcap", layout=2)
         rec = read_recording(tmp / "good.mcap")
         docs = [("/fairino/connections", c.to_json()) for c in rec.connections]
         docs += [("/fairino/problems", p.to_json()) for p in rec.problems]
@@ -185,6 +229,39 @@ def _make(target: str, tmp: Path, rng: random.Random) -> Callable[[], Any]:
                     # As bytes, ASCII-escaped: a lone surrogate is valid JSON text too.
                     data = json.dumps(bad if j == k else d).encode()
                     w._mcap.add_message(w._channels[t], j + 1, data, j + 1, j)
+            got = read_recording(f)
+            summarize(got, specs)
+            check_recording(got, specs)
+            return got
+
+        return one
+    if target == "frames-pb":
+        from conformance.recording.frames_pb import decode_batch
+
+        goods = _pb_messages()
+
+        def one() -> Any:
+            try:
+                return decode_batch(_mutate_pb(rng.choice(goods), rng))
+            except ValueError:
+                raise FileError("the batch does not read") from None  # said, not a crash
+
+        return one
+    if target == "mcap-pb":
+        from conformance.capture_check import check_recording, summarize
+        from conformance.recording import RecordingWriter, read_recording
+        from conformance.spec import default_specs
+
+        specs = default_specs()
+        goods = _pb_messages()
+
+        def one() -> Any:
+            with RecordingWriter(f, metadata={"format": "fairino-conformance/3"}) as w:
+                w.write_frame(1, "tcp", "c2s", 1, 201, "MoveJ", 'MoveJ("P1")', 11, 0, 5, 6,
+                              encode_frame(1, 201, 'MoveJ("P1")'))  # fmt: skip
+                w.flush()
+                w._mcap.add_message(w._channels["/fairino/s2c"], 7,
+                                    _mutate_pb(rng.choice(goods), rng), 7, 1)  # fmt: skip
             got = read_recording(f)
             summarize(got, specs)
             check_recording(got, specs)
@@ -236,7 +313,17 @@ def _make(target: str, tmp: Path, rng: random.Random) -> Callable[[], Any]:
     raise ValueError(f"unknown target {target!r}")
 
 
-TARGETS = ("mcap", "mcap-json", "pcap", "pcapng", "pcap.gz", "report", "expected")
+TARGETS = (
+    "mcap",
+    "mcap-json",
+    "frames-pb",
+    "mcap-pb",
+    "pcap",
+    "pcapng",
+    "pcap.gz",
+    "report",
+    "expected",
+)
 
 
 def run_target(target: str, inputs: int, seed: int) -> tuple[int, Counter[str], dict[str, str]]:
