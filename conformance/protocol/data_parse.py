@@ -214,7 +214,9 @@ def parse_data(data: str, *, strict: bool = False) -> Parsed:
     A DATA that starts like a call (``Name(``) must be a well-formed call, else
     :class:`RemoteProtocolError` with ``Rule.BAD_DATA``.
     """
-    c = _CALL_RE.fullmatch(data) if data_fast.FAST_CHECKS else None
+    # Only a short DATA can be such a call (300 characters of arguments and a name):
+    # a long one is not looked at twice.
+    c = _CALL_RE.fullmatch(data) if data_fast.FAST_CHECKS and len(data) <= 400 else None
     if c is not None:
         name, inner = c.groups()
         if 0 < len(inner) <= 300 and not inner.encode("utf-8", "replace").translate(
