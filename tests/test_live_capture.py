@@ -112,14 +112,28 @@ def _talk(addr: tuple[str, int]) -> list[Frame]:
     return replies
 
 
+def _refuse_ring(monkeypatch: pytest.MonkeyPatch) -> None:
+    """As a kernel without TPACKET_V3 would: the capture reads with recvmsg."""
+
+    def refuse(*a: Any, **k: Any) -> None:
+        raise capture_mod.RingUnavailable(95, "refused by the test")
+
+    monkeypatch.setattr(capture_mod, "PacketRing", refuse)
+
+
 @needs_raw
+@pytest.mark.parametrize("reader", ["ring", "recvmsg"])
 def test_every_request_and_reply_recorded_once_paired_in_order(
-    tmp_path: Path, emu: EmulatorServer
+    tmp_path: Path, emu: EmulatorServer, reader: str, monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    """Through the TPACKET_V3 ring, and through recvmsg where the kernel refuses a ring."""
+    if reader == "recvmsg":
+        _refuse_ring(monkeypatch)
     out = tmp_path / "cell.mcap"
     port = emu.address[1]
     with EmulatorServer() as other:  # traffic on another port is not ours
         run = Running(out, tcp_ports=[port], udp_ports=[])
+        assert (run.cap.ring is not None) == (reader == "ring")
         replies = _talk(emu.address)
         with socket.create_connection(other.address) as c:
             for i in range(20):
@@ -295,8 +309,9 @@ def test_cli_max_frames_and_duration_stop_it(tmp_path: Path, emu: EmulatorServer
 
 
 @needs_raw
+@pytest.mark.parametrize("reader", ["ring", "recvmsg"])
 def test_a_stop_under_endless_load_ends_the_capture_while_the_load_goes_on(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, reader: str
 ) -> None:
     """Before, a stopped capture read on while packets kept coming (7 to 45 s under load;
     for ever under endless load).  Here the capture is made slower than the load (half a
@@ -311,6 +326,8 @@ def test_a_stop_under_endless_load_ends_the_capture_while_the_load_goes_on(
         return feed(self, *a)
 
     monkeypatch.setattr(PacketRecorder, "feed", slow_feed)
+    if reader == "recvmsg":
+        _refuse_ring(monkeypatch)
     ended = threading.Event()
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as rx:
         rx.bind(("127.0.0.1", 0))
