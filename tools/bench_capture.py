@@ -14,6 +14,13 @@ A client sends one request and waits for its reply, at ``--rate`` per second, to
   records it with a raw packet socket (not in the path; needs CAP_NET_RAW, else
   the row is skipped, saying why).
 
+- ``capture-recvmsg``: the same, the capture reading its socket with ``recvmsg`` instead of
+  its TPACKET_V3 ring (``FAIRINO_CAPTURE_RING=0``): the baseline for the ring.
+
+For the recording rows, the CPU time the recording processes spent while the traffic ran
+(the process and its children, from ``/proc``; its start-up left out) is printed per
+recorded frame.
+
 The rows alternate ``--rounds`` times (a neighbour's busy spell does not favour one
 row) and each row's samples are pooled; p50/p99/p99.9 of each row are printed with
 what it adds to the direct baseline's same percentile.  For ``capture`` the frames
@@ -69,13 +76,33 @@ def start_emulator() -> tuple[subprocess.Popen[str], int]:
     return p, int(p.stdout.readline())
 
 
-def start_cli(*args: str, pattern: str) -> tuple[subprocess.Popen[str], str]:
+def cpu_seconds(pid: int) -> float:
+    """CPU seconds (user + system) of ``pid`` and its descendants, from /proc."""
+    tick = os.sysconf("SC_CLK_TCK")
+    total = 0.0
+    todo = [pid]
+    while todo:
+        q = todo.pop()
+        try:
+            stat = Path(f"/proc/{q}/stat").read_text()
+            fields = stat.rsplit(")", 1)[1].split()
+            total += (int(fields[11]) + int(fields[12])) / tick
+            for task in Path(f"/proc/{q}/task").iterdir():
+                todo += [int(c) for c in (task / "children").read_text().split()]
+        except (OSError, IndexError, ValueError):
+            continue  # gone meanwhile
+    return total
+
+
+def start_cli(
+    *args: str, pattern: str, env: dict[str, str] | None = None
+) -> tuple[subprocess.Popen[str], str]:
     p = subprocess.Popen(
         [sys.executable, "-m", "conformance", *args],
         stderr=subprocess.PIPE,
         stdout=subprocess.DEVNULL,
         text=True,
-        env=_env(),
+        env={**_env(), **(env or {})},
         cwd=ROOT,
     )
     assert p.stderr is not None
@@ -161,9 +188,16 @@ def main() -> int:
     n, rate = args.requests, args.rate
 
     emu, port = start_emulator()
-    samples: dict[str, list[float]] = {"direct": [], "proxy": [], "socat": [], "capture": []}
+    samples: dict[str, list[float]] = {
+        "direct": [],
+        "proxy": [],
+        "socat": [],
+        "capture": [],
+        "capture-recvmsg": [],
+    }
     skipped: dict[str, str] = {}
-    recorded: list[tuple[int, int, int, str]] = []  # (c2s, s2c, sent, stderr line)
+    recorded: list[tuple[str, int, int, int, str]] = []  # (row, c2s, s2c, sent, stderr line)
+    cpu: dict[str, list[float]] = {}  # row: [CPU seconds while the traffic ran, frames]
     if shutil.which("socat") is None:
         skipped["socat"] = "socat not installed (apt-get install -y socat)"
     try:
@@ -187,9 +221,15 @@ def main() -> int:
                 m = re.search(r"listening on [\d.]+:(\d+)", line)
                 assert m
                 try:
+                    c0 = cpu_seconds(p.pid)
                     samples["proxy"] += rtt_run(int(m.group(1)), n, rate)
+                    c1 = cpu_seconds(p.pid)
                 finally:
                     stop(p)
+                frames = 2 * (n + WARMUP)  # every request and its reply
+                got = cpu.setdefault("proxy", [0.0, 0])
+                got[0] += c1 - c0
+                got[1] += frames
 
             def socat() -> None:
                 if "socat" in skipped:
@@ -201,12 +241,12 @@ def main() -> int:
                     p.terminate()
                     p.wait()
 
-            def capture() -> None:
-                if "capture" in skipped:
+            def capture(row: str = "capture", ring: bool = True) -> None:
+                if row in skipped:
                     return
                 from conformance.recording import read_recording
 
-                out = tmp / "capture.mcap"
+                out = tmp / f"{row}.mcap"
                 try:
                     p, _ = start_cli(
                         "capture",
@@ -219,20 +259,29 @@ def main() -> int:
                         "--out",
                         str(out),
                         pattern="listening on",
+                        env=None if ring else {"FAIRINO_CAPTURE_RING": "0"},
                     )
                 except RuntimeError as e:
-                    skipped["capture"] = str(e)
+                    skipped[row] = str(e)
                     return
                 try:
-                    samples["capture"] += rtt_run(port, n, rate)
+                    c0 = cpu_seconds(p.pid)
+                    samples[row] += rtt_run(port, n, rate)
+                    c1 = cpu_seconds(p.pid)
                 finally:
                     err = stop(p)
                 rec = read_recording(out)
                 c2s = sum(1 for f in rec.frames if f.dir == "c2s")
                 s2c = len(rec.frames) - c2s
-                recorded.append((c2s, s2c, n + WARMUP, err.strip().splitlines()[-1]))
+                recorded.append((row, c2s, s2c, n + WARMUP, err.strip().splitlines()[-1]))
+                got = cpu.setdefault(row, [0.0, 0])
+                got[0] += c1 - c0
+                got[1] += len(rec.frames)
 
-            rows: list[Callable[[], None]] = [direct, proxy, socat, capture]
+            def capture_recvmsg() -> None:
+                capture("capture-recvmsg", ring=False)
+
+            rows: list[Callable[[], None]] = [direct, proxy, socat, capture, capture_recvmsg]
             for r in range(args.rounds):
                 for row in rows if r % 2 == 0 else rows[::-1]:
                     row()
@@ -246,20 +295,29 @@ def main() -> int:
         f"request/reply at {rate:g}/s on 127.0.0.1 to the emulator, "
         f"{n} x {args.rounds} requests per row (after {WARMUP} warm-up each)"
     )
-    print(f"{'row':<8} {'p50 µs':>9} {'p99 µs':>9} {'p99.9 µs':>9}   added: p50 / p99 / p99.9 µs")
+    print(f"{'row':<15} {'p50 µs':>9} {'p99 µs':>9} {'p99.9 µs':>9}   added: p50 / p99 / p99.9 µs")
     for name, xs in samples.items():
         if not xs:
-            print(f"{name:<8} skipped: {skipped.get(name, 'no samples')}")
+            print(f"{name:<15} skipped: {skipped.get(name, 'no samples')}")
             continue
         q = [pct(xs, p) for p in (50, 99, 99.9)]
         added = [v - pct(base, p) for v, p in zip(q, (50, 99, 99.9), strict=True)]
         extra = (
             "   (baseline)" if name == "direct" else "   {:+.0f} / {:+.0f} / {:+.0f}".format(*added)
         )
-        print(f"{name:<8} {q[0]:9.0f} {q[1]:9.0f} {q[2]:9.0f}{extra}")
-    for c2s, s2c, sent, line in recorded:
-        print(f"capture: {c2s} requests and {s2c} replies recorded of {sent} sent and answered")
+        print(f"{name:<15} {q[0]:9.0f} {q[1]:9.0f} {q[2]:9.0f}{extra}")
+    for row, c2s, s2c, sent, line in recorded:
+        print(f"{row}: {c2s} requests and {s2c} replies recorded of {sent} sent and answered")
         print(f"  {line}")
+    if cpu:
+        print("\nCPU of the recording processes while the traffic ran (start-up left out):")
+        base_cpu = cpu.get("capture-recvmsg")
+        for row, (secs, frames) in cpu.items():
+            per = secs / frames * 1e6 if frames else float("nan")
+            ratio = ""
+            if base_cpu and row == "capture" and base_cpu[1] and base_cpu[0]:
+                ratio = f"   ({per / (base_cpu[0] / base_cpu[1] * 1e6):.2f}x capture-recvmsg)"
+            print(f"  {row:<15} {secs:7.2f} CPU-s for {frames:>7} frames: {per:6.1f} µs/frame{ratio}")
     return 0
 
 

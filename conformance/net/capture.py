@@ -31,6 +31,7 @@ says what would give it.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import select
 import socket
@@ -79,6 +80,9 @@ STOP_COUNT = 0.25
 #: Seconds one read of the socket's queue lasts at most (a packet can hold many frames).
 DRAIN_SLICE = 0.05
 RCVBUF = 32 << 20
+#: ``0`` in this environment variable: read with recvmsg, not the ring (a kernel whose
+#: ring misbehaves; ``tools/bench_capture.py``'s baseline).
+RING_ENV = "FAIRINO_CAPTURE_RING"
 #: The ring's block timeout: a block is handed over when full or this old.
 RING_TIMEOUT_MS = 4
 #: Blocks read at most before the loop looks at the clock and the stop again.
@@ -307,10 +311,10 @@ class LiveCapture:
                     break
         # The kernel writes the packets into a shared ring, handed over a block at a time
         # (one wake-up per few ms, no system call per packet); recvmsg where it cannot.
-        try:
-            self.ring: PacketRing | None = PacketRing(self.sock, timeout_ms=RING_TIMEOUT_MS)
-        except RingUnavailable:
-            self.ring = None
+        self.ring: PacketRing | None = None
+        if os.environ.get(RING_ENV, "1").strip() != "0":
+            with contextlib.suppress(RingUnavailable):  # then recvmsg
+                self.ring = PacketRing(self.sock, timeout_ms=RING_TIMEOUT_MS)
         md = default_metadata(
             source="capture",
             iface=iface,
