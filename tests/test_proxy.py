@@ -761,6 +761,22 @@ def _recorded_c2s(path: Path) -> list[int]:
         return []  # not even a header yet
 
 
+def _when_grown(path: Path, pred: Callable[[], bool]) -> Callable[[], bool]:
+    """``pred``, asked again only once the file has grown (a flush: at most twice a
+    second), not at each poll: reading megabytes of recording a hundred times a second
+    took the CPU the proxy under test needs."""
+    size = [-1]
+
+    def grown() -> bool:
+        now = path.stat().st_size if path.exists() else 0
+        if now == size[0]:
+            return False
+        size[0] = now
+        return pred()
+
+    return grown
+
+
 def test_hostile_traffic_keeps_the_flush_promise_and_sigterm_keeps_every_byte(
     tmp_path: Path,
 ) -> None:
@@ -778,7 +794,7 @@ def test_hostile_traffic_keeps_the_flush_promise_and_sigterm_keeps_every_byte(
                 assert recv_frames(b, 1, timeout=60)[0].cnt == 1
                 # The proxy runs; its file is unfinished, and still the normal frame of
                 # the second connection is in it (flushed between decoder slices).
-                wait_for(lambda: 77 in _recorded_c2s(out), timeout=120)
+                wait_for(_when_grown(out, lambda: 77 in _recorded_c2s(out)), timeout=120)
                 assert proc.poll() is None
                 with socket.create_connection(addr) as c:
                     c.sendall(sent[2])
