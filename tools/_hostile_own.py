@@ -216,9 +216,8 @@ def disk_full(k: Kit, args: argparse.Namespace, tmp: Path, policy: str) -> tuple
             f"{acked:,} / {after:,} ({after / max(1e-9, t_end - t_full):,.0f}/s)",
         )
     )
-    if said is not None:
-        late = sum(x.count(said[0]) for x in load)
-        rows.append(("  ... after its first stderr line", f"{late:,}"))
+    late = f"{sum(x.count(said[0]) for x in load):,}" if said is not None else "(it said nothing)"
+    rows.append(("  ... after its first stderr line", late))
     rows.append(
         (
             "frames: stop line claims / in the file (c2s)",
