@@ -9,7 +9,10 @@ RSS from ``wait4``):
 
 * the baseline: the same recordings read by the kit's reader alone (``read_recording``),
   the first ``--sample`` of them;
-* ``export-parquet`` of those same recordings, one process (frames/s per process);
+* ``export-parquet`` of those same recordings, one process (frames/s per process); and
+  with ``--baseline-layout 2`` (the default; ``''``: none) the reader and the export of
+  the same recordings written in that layout (layout 2: frame batches in JSON), in the
+  same run, with the ratios (layout 3's protobuf columns against layout 2's JSON);
 * ``export-parquet`` of one recording and of all of them (the peak RSS of both: flat
   memory means the same figure whatever the number of recordings); ``--jobs`` processes;
 * ``query --report latency`` over the whole dataset (``--threads``, default 2).
@@ -66,6 +69,49 @@ print(n)
 """
 
 
+def _format(path: str) -> str:
+    from conformance.recording import read_recording
+
+    return read_recording(path).metadata.get("format", "?")
+
+
+def _sample_in_layout(sample: list[str], fleet: Path, into: Path, layout: int) -> list[str]:
+    """The sample's recordings written again in ``layout`` (same robot, firmware, frames,
+    faults and start: the fleet's ``ROBOT/fw-FIRMWARE.mcap`` names say which)."""
+    from conformance.recording import read_recording
+
+    out = []
+    for f in sample:
+        p = Path(f)
+        robot, fw = p.parent.name, p.stem.removeprefix("fw-")
+        rec = read_recording(f)
+        start = int(rec.metadata["start_ns"])
+        dest = into / robot / p.name
+        write_recording(dest, robot, fw, len(rec.frames), FAULTS, start, layout)
+        out.append(str(dest))
+    return out
+
+
+def _time_sample(sample: list[str], tmp: str, label: str) -> tuple[float, float]:
+    """The reader alone and export-parquet (one process each) on ``sample``: frames/s CPU."""
+    wall, cpu, rss, out = run([PY, "-c", _READ, *sample])
+    n = int(out.strip())
+    print(
+        f"{label}: read_recording alone ({len(sample)} recordings, {n} frames): "
+        f"{n / cpu:,.0f} frames/s CPU, {n / wall:,.0f} wall, peak RSS {rss} MiB"
+    )
+    base = n / cpu
+    ds = tempfile.mkdtemp(prefix="ds-sample-", dir=tmp)
+    wall, cpu, rss, _ = run([*CLI, "export-parquet", *sample, "-o", ds])
+    print(
+        f"{label}: export-parquet, 1 process ({len(sample)} recordings): {n / cpu:,.0f} "
+        f"frames/s CPU ({n / cpu / base:.1f}x the reader alone), {n / wall:,.0f} wall, "
+        f"peak RSS {rss} MiB"
+    )
+    shutil.rmtree(ds, ignore_errors=True)
+    return base, n / cpu
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -79,6 +125,11 @@ def main() -> int:
     ap.add_argument("--sample", type=int, default=3, help="recordings timed one process each")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument(
+        "--baseline-layout",
+        default="2",
+        help="the sample also written in this recording layout, timed beside ('' for none)",
+    )
     a = ap.parse_args()
     tmp = tempfile.mkdtemp(prefix="bench-fleet-")
     fleet = Path(a.fleet or os.path.join(tmp, "fleet"))
@@ -99,19 +150,17 @@ def main() -> int:
     print(f"fleet {fleet}: {len(files)} recordings, {size:.0f} MiB")
     sample = files[: a.sample]
     try:
-        wall, cpu, rss, out = run([PY, "-c", _READ, *sample])
-        n = int(out.strip())
-        print(
-            f"baseline, read_recording alone ({len(sample)} recordings, {n} frames): "
-            f"{n / cpu:,.0f} frames/s CPU, {n / wall:,.0f} wall, peak RSS {rss} MiB"
-        )
-        base = n / cpu
-        ds = os.path.join(tmp, "ds-sample")
-        wall, cpu, rss, _ = run([*CLI, "export-parquet", *sample, "-o", ds])
-        print(
-            f"export-parquet, 1 process ({len(sample)} recordings): {n / cpu:,.0f} frames/s CPU "
-            f"({n / cpu / base:.1f}x the reader alone), {n / wall:,.0f} wall, peak RSS {rss} MiB"
-        )
+        if a.baseline_layout:
+            theirs = _sample_in_layout(sample, fleet, Path(tmp) / "base", int(a.baseline_layout))
+            mine = _time_sample(sample, tmp, "this layout")
+            old = _time_sample(theirs, tmp, f"layout {a.baseline_layout}")
+            print(
+                f"layout of the sample: {_format(sample[0])}; ratios to layout "
+                f"{a.baseline_layout}: reader {mine[0] / old[0]:.2f}x, "
+                f"export-parquet {mine[1] / old[1]:.2f}x (frames/s CPU, same run)"
+            )
+        else:
+            _time_sample(sample, tmp, "this layout")
         one = os.path.join(tmp, "ds-one")
         _, _, rss1, _ = run([*CLI, "export-parquet", files[0], "-o", one])
         shutil.rmtree(one, ignore_errors=True)

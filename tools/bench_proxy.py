@@ -28,15 +28,19 @@
 ``--section record`` (no sockets) times the recorder path in this process, on
 ``--frames`` frames each way: the pieces of the same run side by side, so the ratios
 say where the time goes (the proxy's recorder process runs this same path):
-decoding only (a sink that drops the frames), decoding and the JSON template (a sink
-that formats each batch and drops it), ``mcap.Writer.add_message`` alone on messages
+decoding only (a sink that drops the frames), decoding and the batch encoding (a sink
+that encodes each batch and drops it: layout 2's JSON template, layout 3's protobuf),
+``mcap.Writer.add_message`` alone on messages
 made beforehand, one per frame as layout 1 wrote them, and the whole path
 (StreamRecorder into RecordingWriter, to a complete file); then ``import-pcap`` of a
 pcap exported from that recording.  Then, in CPU time, the whole path and
+``read_recording`` writing layout 3 and layout 2 by this tree (interleaved rounds, the
+ratio layout 3's gain), and the whole path and
 ``import-pcap`` on pipelined traffic (64 KiB reads) and on request/reply traffic (a
 frame a read, directions alternating), and with ``--baseline-rev REV`` the same four
 figures by the code of that revision (exported with ``git archive`` and run in a
-subprocess with it first on the path), with the ratios.
+subprocess with it first on the path), with the ratios: ``--baseline-rev a63c3dc~1``
+is the last revision that wrote layout 2 (JSON batches), so the ratios are layout 3's.
 
 ``--section hostile-record`` feeds the recorder path hostile streams in 64 KiB reads
 (a frame and a byte of garbage, a tail flood, repeated headers, DATA holding
@@ -266,12 +270,13 @@ class _DropSink:
 
 
 class _TemplateSink(_DropSink):
-    """A sink that formats each batch with RecordingWriter's JSON template, then drops it."""
+    """A sink that encodes each batch as RecordingWriter does (``layout`` 2: its JSON
+    template; 3: protobuf), then drops it."""
 
-    def __init__(self, out: Path) -> None:
+    def __init__(self, out: Path, layout: int = 2) -> None:
         from conformance.recording import RecordingWriter
 
-        self._w = RecordingWriter(out, metadata={"format": "bench"})
+        self._w = RecordingWriter(out, metadata={"format": f"fairino-conformance/{layout}"})
         self._w._add = lambda *a: None  # type: ignore[method-assign]
         self.write_frames = self._w.write_frames  # type: ignore[method-assign,assignment]
 
@@ -342,6 +347,45 @@ def core_figures(tmp: Path, n: int, rounds: int) -> dict[str, float]:
     return out
 
 
+def layout_figures(tmp: Path, n: int, rounds: int) -> dict[str, tuple[float, float]]:
+    """The whole recorder path (to a complete file) and ``read_recording`` of its file, in
+    CPU frames/s, writing layout 2 (JSON batches) and layout 3 (protobuf) by this tree's
+    code, the two alternating round by round (a neighbour's busy spell favours neither):
+    (layout 3, layout 2) per figure."""
+    from conformance.recording import RecordingWriter, read_recording
+    from conformance.spec import default_specs
+
+    specs = default_specs()
+    stream = b"".join(encode_frame(i % 65536, 201, 'MoveJ("P1")') for i in range(n))
+    kinds: dict[str, Callable[[object], None]] = {
+        "pipelined": lambda w: _record(w, stream, specs),
+        "request/reply": lambda w: _record_exchanges(w, n // 4, specs),
+    }
+    best: dict[tuple[str, int], float] = {}
+    frames: dict[str, int] = {}
+    for kind, feed in kinds.items():
+        for _ in range(rounds):
+            for layout in (2, 3):
+                path = tmp / f"layout{layout}.mcap"
+                md = {"format": f"fairino-conformance/{layout}"}
+                t0 = time.process_time()
+                with RecordingWriter(path, metadata=md) as w:
+                    feed(w)
+                t1 = time.process_time()
+                rec = read_recording(path)
+                t2 = time.process_time()
+                frames[kind] = len(rec.frames)
+                for what, dt in (("record", t1 - t0), ("read_recording", t2 - t1)):
+                    key = (f"{what}, {kind}", layout)
+                    best[key] = min(best.get(key, float("inf")), dt)
+    out: dict[str, tuple[float, float]] = {}
+    for (label, layout), dt in best.items():
+        if layout == 3:
+            m = frames[label.split(", ")[1]]
+            out[label] = (m / dt, m / best[(label, 2)])
+    return out
+
+
 def baseline_figures(rev: str, n: int, rounds: int) -> dict[str, float]:
     """:func:`core_figures` by the code of git revision ``rev`` (exported to a temporary
     directory and run in a subprocess with it first on the path), in this run."""
@@ -384,6 +428,9 @@ def bench_record(tmp: Path, n: int, rounds: int, baseline_rev: str = "") -> None
     def template() -> None:
         _record(_TemplateSink(tmp / "tpl.mcap"), stream, specs)
 
+    def protobuf() -> None:
+        _record(_TemplateSink(tmp / "pb.mcap", 3), stream, specs)
+
     msg = b'{"conn":1,"transport":"tcp","dir":"c2s","cnt":1,"cmd_id":201,"name":"MoveJ",' + (
         b'"data":"MoveJ(\\"P1\\")","len":11,"problems":[],"offset":0,"first_ns":1,'
         b'"complete_ns":1,"raw":"L2YvYklJSTFJSUkyMDFJSUkxMUlJSU1vdmVKKCJQMSIpSUlJL2IvZg=="}'
@@ -404,7 +451,8 @@ def bench_record(tmp: Path, n: int, rounds: int, baseline_rev: str = "") -> None
     # beforehand, one per frame as layout 1 wrote them: the ceiling of that layout.
     runs: list[tuple[str, Callable[[], None]]] = [
         ("decode only (frames dropped)", lambda: _record(_DropSink(), stream, specs)),
-        ("decode + JSON template", template),
+        ("decode + JSON template (layout 2)", template),
+        ("decode + protobuf (layout 3)", protobuf),
         ("add_message, a message a frame", library),
         ("whole path to a complete file", full),
     ]
@@ -416,7 +464,7 @@ def bench_record(tmp: Path, n: int, rounds: int, baseline_rev: str = "") -> None
     base = figures["decode only (frames dropped)"]
     print(f"\nrecorder path in-process, {n} frames each way, best of {rounds} (frames/s):")
     for label, fps in figures.items():
-        print(f"  {label:32s} {fps:10.0f}   {fps / base:5.2f}x decode-only")
+        print(f"  {label:34s} {fps:10.0f}   {fps / base:5.2f}x decode-only")
     print(f"  in the file {len(rec.frames)} frames: {'NO LOSS' if ok else 'LOSS'}")
 
     pcap = tmp / "rec.pcap"
@@ -430,6 +478,13 @@ def bench_record(tmp: Path, n: int, rounds: int, baseline_rev: str = "") -> None
         f"import-pcap: {st.packets} packets, {st.frames} frames in {best_imp:.2f} s = "
         f"{imp:.0f} frames/s ({imp / whole:.2f}x the recorder path's {whole:.0f})"
     )
+    print(
+        f"\nlayout 3 (protobuf batches) vs layout 2 (JSON), this tree, CPU time, best of {rounds}"
+    )
+    print(f"interleaved (frames/s; request/reply: {n // 4} exchanges):")
+    print(f"  {'':34s} {'layout 3':>10s} {'layout 2':>10s} {'ratio':>7s}")
+    for label, (three, two) in layout_figures(tmp, n, rounds).items():
+        print(f"  {label:34s} {three:10.0f} {two:10.0f} {three / two:6.2f}x")
     ours = core_figures(tmp, n, rounds)
     theirs = baseline_figures(baseline_rev, n, rounds) if baseline_rev else {}
     print(f"\nCPU time, best of {rounds}; request/reply: {n // 4} exchanges (frames/s):")
