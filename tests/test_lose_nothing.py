@@ -55,7 +55,13 @@ def _chunks(path: Path) -> list[tuple[int, int]]:
 #: chunk cannot be decompressed), its middle (decompresses to other bytes: the CRC),
 #: its record length (the records after it are no longer where it says), and its
 #: uncompressed size.
-_HITS = {"zstd": 9 + 8 + 8 + 8 + 4 + 4 + 4 + 8, "middle": None, "length": 1, "size": 9 + 8 + 8}
+_HITS = {
+    "zstd": 9 + 8 + 8 + 8 + 4 + 4 + 4 + 8,
+    "middle": None,
+    "length": 1,
+    "size": 9 + 8 + 8,
+    "name": 9 + 8 + 8 + 8 + 4 + 4,  # the compression name's bytes
+}
 
 
 def _corrupt(good: Path, out: Path, k: int, hit: str, *, cut: int | None = None) -> int:
@@ -76,7 +82,7 @@ def test_a_corrupt_chunk_costs_only_its_frames(good: Path, tmp_path: Path, k: in
     assert len(_chunks(good)) == CHUNKS
     whole = read_recording(good)
     assert len(whole.frames) == 2 * CHUNKS * PER_CHUNK and not whole.damage
-    for hit in ("zstd", "middle", "length", "size"):
+    for hit in ("zstd", "middle", "length", "size", "name"):
         bad = tmp_path / f"bad-{hit}.mcap"
         start = _corrupt(good, bad, k, hit)
         rec = read_recording(bad)
@@ -93,6 +99,9 @@ def test_a_corrupt_chunk_costs_only_its_frames(good: Path, tmp_path: Path, k: in
     assert "CRC mismatch" in str(read_recording(tmp_path / "bad-middle.mcap").damage[0])
     # zstd would have been asked to allocate 2^64 bytes less the size (a MemoryError).
     assert "is past the bound of" in str(read_recording(tmp_path / "bad-size.mcap").damage[0])
+    # In words, not as a Python exception's name.
+    named = str(read_recording(tmp_path / "bad-name.mcap").damage[0])
+    assert "a name in its header is not UTF-8 text" in named, named
 
 
 def test_an_unfinished_file_resyncs_at_the_next_chunk_header(good: Path, tmp_path: Path) -> None:
@@ -532,7 +541,7 @@ def test_the_proxy_says_at_once_what_a_write_error_costs(
     import argparse
     from types import SimpleNamespace
 
-    from conformance.commands.capture import _write_failed
+    from conformance.commands.capture import _write_failed, failure_line
 
     recorder = SimpleNamespace(lost=0)
     proxy = SimpleNamespace(
@@ -557,6 +566,10 @@ def test_the_proxy_says_at_once_what_a_write_error_costs(
     stop = argparse.Namespace(on_write_error="stop", out="/full/r.mcap")
     assert _write_failed(proxy, stop, 0.0) is None
     assert "stopping: every connection is closed" in capsys.readouterr().err
+    # Its last line (exit 2), in words, not as a Python exception.
+    assert failure_line(OSError(27, "File too large", "/full/r.mcap")) == (
+        "proxy: the recording /full/r.mcap is incomplete: it could not be written (File too large)"
+    )
 
 
 def test_the_file_fuzzer_finds_nothing_on_a_small_seeded_corpus() -> None:

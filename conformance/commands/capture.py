@@ -359,9 +359,19 @@ def _run_proxy(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     if failure is not None:
-        print(f"proxy: failed: {type(failure).__name__}: {failure}", file=sys.stderr)
+        print(failure_line(failure), file=sys.stderr)
         return 2
     return 0
+
+
+def failure_line(failure: BaseException) -> str:
+    """The proxy's last line when it stopped on a failure (then it exits 2): a recording
+    that could not be written in plain words (it was said when it happened)."""
+    if isinstance(failure, OSError):
+        where = f" {failure.filename}" if failure.filename else ""
+        why = failure.strerror or str(failure)
+        return f"proxy: the recording{where} is incomplete: it could not be written ({why})"
+    return f"proxy: failed: {type(failure).__name__}: {failure}"
 
 
 def _write_failed(proxy: Any, args: argparse.Namespace, said: float) -> float | None:

@@ -87,6 +87,8 @@ def _why(e: BaseException) -> str:
     name = type(e).__name__
     if name == "CRCValidationError":
         return "CRC mismatch"
+    if isinstance(e, UnicodeDecodeError):  # a name field (compression, topic) of bad bytes
+        return "a name in its header is not UTF-8 text"
     if type(e) is ValueError:  # the walk's own words
         return str(e)
     text = str(e)
