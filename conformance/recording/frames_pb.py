@@ -460,19 +460,24 @@ def _parse(buf: bytes) -> tuple[int, dict[int, list[bytes]]]:
     return conn, pieces
 
 
-def _numbers(pieces: dict[int, list[bytes]], number: int, as_array: bool) -> Any:
-    """A column's values: a numpy ``uint64`` array (``as_array``) or a list of ints."""
+def _column_bytes(pieces: dict[int, list[bytes]], number: int) -> bytes | None:
+    """A column's packed values as they are (its pieces joined), checked to be whole."""
     got = pieces.get(number)
     if not got:
         return None
     buf = got[0] if len(got) == 1 else b"".join(got)
     if len(buf) % 8:
         raise ValueError(f"{_COLUMNS[number]} holds {len(buf)} bytes, not 8 a value")
+    return buf
+
+
+def _values(buf: bytes, as_array: bool) -> Any:
+    """Packed little-endian 64-bit values as a numpy ``uint64`` array or a list of ints."""
     if as_array:
         import numpy as np
 
         return np.frombuffer(buf, dtype="<u8")
-    if len(buf) == 8:  # a batch of one frame (request/reply traffic): no array
+    if len(buf) == 8:  # a batch of one frame: no array
         return [int.from_bytes(buf, "little")]
     a = array("Q")
     a.frombytes(buf)
@@ -533,30 +538,37 @@ def decode_columns(buf: bytes, *, as_arrays: bool = True) -> BatchColumns:
     if text != "c2s" and text != "s2c":
         raise ValueError(f"dir is {text[:40]!r}, not one of c2s, s2c")
     direction: DirectionText = "c2s" if text == "c2s" else "s2c"
-    cnt = _numbers(pieces, 4, as_arrays)
-    n = 0 if cnt is None else len(cnt)
-    if cnt is None:
-        cnt = _numbers({4: [b""]}, 4, as_arrays)
-    elif n and _high(cnt) > INT_MAX:
-        raise ValueError(f"cnt holds {_high(cnt)}, not a non-negative 64-bit integer")
-    cols: dict[str, Any] = {"cnt": cnt}
-    for number, name, top, optional in _CHECKS:
-        col = _numbers(pieces, number, as_arrays)
+    cnt = _column_bytes(pieces, 4) or b""
+    n = len(cnt) // 8
+    # Every column's bytes one after the other: one array, its columns views of it, and
+    # the ranges checked with one reduction (and one more for the two time columns).
+    order: list[str] = ["cnt"]
+    parts: list[bytes] = [cnt]
+    absent: list[str] = []
+    for number, name, _top, optional in _CHECKS:
+        col = _column_bytes(pieces, number)
         if col is None:
             if optional:
-                cols[name] = None
+                absent.append(name)
                 continue
             if n:
                 raise ValueError(f"the message has no {name!r}")
-            col = cnt
-        elif len(col) != n and number != 16:  # problem_frame: a value a problem
-            raise ValueError(f"{name} has {len(col)} values for {n} frames")
-        elif n and _high(col) > top:
-            what = "a time in ns from 1970 to 2106" if top == TIME_MAX else None
-            raise ValueError(
-                f"{name} holds {_high(col)}, not {what or 'a non-negative 64-bit integer'}"
-            )
-        cols[name] = col
+            col = b""
+        elif len(col) != 8 * n and number != 16:  # problem_frame: a value a problem
+            raise ValueError(f"{name} has {len(col) // 8} values for {n} frames")
+        order.append(name)
+        parts.append(col)
+    values = _values(b"".join(parts), as_arrays)
+    cols: dict[str, Any] = dict.fromkeys(absent)
+    at = 0
+    for name, part in zip(order, parts, strict=True):
+        cols[name] = values[at : at + len(part) // 8]
+        at += len(part) // 8
+    if len(values) and _high(values) > INT_MAX:
+        _name_the_misfit(cols)
+    times = [c for c in (cols["first_ns"], cols["complete_ns"]) if c is not None and len(c)]
+    if times and max(map(_high, times)) > TIME_MAX:
+        _name_the_misfit(cols)
     raw = pieces.get(15, [b""])[-1]
     data = pieces.get(8, [b""])[-1]
     for what, sizes, held in (("raw", cols["size"], raw), ("data", cols["data_size"], data)):
@@ -573,7 +585,7 @@ def decode_columns(buf: bytes, *, as_arrays: bool = True) -> BatchColumns:
         conn=conn,
         transport=transport,
         dir=direction,
-        cnt=cnt,
+        cnt=cols["cnt"],
         cmd_id=cols["cmd_id"],
         length=cols["len"],
         offset=cols["offset"],
@@ -586,6 +598,18 @@ def decode_columns(buf: bytes, *, as_arrays: bool = True) -> BatchColumns:
         raw=raw,
         problems=problems,
     )
+
+
+def _name_the_misfit(cols: dict[str, Any]) -> None:
+    """Raise the ``ValueError`` naming the first column with a value out of its range."""
+    for _number, name, top, _optional in ((4, "cnt", INT_MAX, False), *_CHECKS):
+        col = cols.get(name)
+        if col is not None and len(col) and _high(col) > top:
+            what = "a time in ns from 1970 to 2106" if top == TIME_MAX else None
+            raise ValueError(
+                f"{name} holds {_high(col)}, not {what or 'a non-negative 64-bit integer'}"
+            )
+    raise ValueError("a column holds a value out of its range")  # pragma: no cover
 
 
 def _strings(pieces: dict[int, list[bytes]], number: int, name: str) -> list[str]:
