@@ -74,9 +74,9 @@ _LINKTYPES = {ARPHRD_ETHER: DLT_EN10MB, ARPHRD_LOOPBACK: DLT_EN10MB, ARPHRD_NONE
 #: larger (a longer one is cut, and the reassembler records the rest as a gap).
 SNAPLEN = 512 * 1024
 #: Seconds a stopped capture spends, at most, taking what the kernel queued before the stop.
-STOP_DRAIN = 0.5
+STOP_DRAIN = 0.25
 #: ... and then counting, at most, the packets it leaves unread.
-STOP_COUNT = 0.25
+STOP_COUNT = 0.1
 #: Seconds one read of the socket's queue lasts at most (a packet can hold many frames).
 DRAIN_SLICE = 0.05
 RCVBUF = 32 << 20
