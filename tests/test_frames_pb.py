@@ -195,6 +195,11 @@ BAD = {
         "past the 1 frames",
     ),
     "conn as a string": (_field(1, b"1"), "conn has wire type 2"),
+    # A one-frame message read at fixed places until its DATA's length: past any buffer.
+    "a DATA length of 2^64 - 1": (
+        encode_batch(batch(1)).replace(b"\x42\x0b", b"\x42" + b"\xff" * 9 + b"\x01"),
+        "field 8 runs",
+    ),
 }
 
 

@@ -707,8 +707,8 @@ def _one_frame(buf: bytes) -> FrameBatch | None:
         if direction != b"c2s" and direction != b"s2c":
             return None
         text = data.decode("utf-8", "surrogatepass")
-    except (IndexError, struct.error, UnicodeDecodeError, ValueError):
-        return None
+    except (IndexError, OverflowError, struct.error, UnicodeDecodeError, ValueError):
+        return None  # OverflowError: a length past any buffer (unpack_from at it)
     return FrameBatch(
         conn,
         "tcp" if transport == b"tcp" else "udp",
