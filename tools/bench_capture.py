@@ -14,7 +14,10 @@ A client sends one request and waits for its reply, at ``--rate`` per second, to
   records it with a raw packet socket (not in the path; needs CAP_NET_RAW, else
   the row is skipped, saying why).
 
-- ``capture-recvmsg``: the same, the capture reading its socket with ``recvmsg`` instead of
+- ``tcpdump``: straight to the emulator while ``tcpdump -i lo -w`` writes it to a pcap
+  (not in the path: the anchor a passive recorder is held to); skipped, saying why, when
+  tcpdump is not installed or may not capture;
+- ``capture-recvmsg``: the same as ``capture``, the capture reading its socket with ``recvmsg`` instead of
   its TPACKET_V3 ring (``FAIRINO_CAPTURE_RING=0``): the baseline for the ring.
 
 For the recording rows, the CPU time the recording processes spent while the traffic ran
@@ -193,6 +196,7 @@ def main() -> int:
         "proxy": [],
         "socat": [],
         "capture": [],
+        "tcpdump": [],
         "capture-recvmsg": [],
     }
     skipped: dict[str, str] = {}
@@ -200,6 +204,8 @@ def main() -> int:
     cpu: dict[str, list[float]] = {}  # row: [CPU seconds while the traffic ran, frames]
     if shutil.which("socat") is None:
         skipped["socat"] = "socat not installed (apt-get install -y socat)"
+    if shutil.which("tcpdump") is None:
+        skipped["tcpdump"] = "tcpdump not installed (apt-get install -y tcpdump)"
     try:
         with tempfile.TemporaryDirectory(prefix="bench-capture-") as d:
             tmp = Path(d)
@@ -241,6 +247,34 @@ def main() -> int:
                     p.terminate()
                     p.wait()
 
+            def tcpdump() -> None:
+                if "tcpdump" in skipped:
+                    return
+                cmd = ["tcpdump", "-i", "lo", "-n", "-w", str(tmp / "tcpdump.pcap")]
+                p = subprocess.Popen(
+                    [*cmd, "tcp", "port", str(port)],
+                    stderr=subprocess.PIPE,
+                    stdout=subprocess.DEVNULL,
+                    text=True,
+                )
+                assert p.stderr is not None
+                line = p.stderr.readline()
+                if "listening on" not in line:
+                    p.kill()
+                    p.wait()
+                    skipped["tcpdump"] = line.strip() or "tcpdump did not start"
+                    return
+                try:
+                    c0 = cpu_seconds(p.pid)
+                    samples["tcpdump"] += rtt_run(port, n, rate)
+                    c1 = cpu_seconds(p.pid)
+                finally:
+                    p.send_signal(signal.SIGINT)
+                    p.communicate(timeout=60)
+                got = cpu.setdefault("tcpdump", [0.0, 0])
+                got[0] += c1 - c0
+                got[1] += 2 * (n + WARMUP)
+
             def capture(row: str = "capture", ring: bool = True) -> None:
                 if row in skipped:
                     return
@@ -281,7 +315,14 @@ def main() -> int:
             def capture_recvmsg() -> None:
                 capture("capture-recvmsg", ring=False)
 
-            rows: list[Callable[[], None]] = [direct, proxy, socat, capture, capture_recvmsg]
+            rows: list[Callable[[], None]] = [
+                direct,
+                proxy,
+                socat,
+                capture,
+                tcpdump,
+                capture_recvmsg,
+            ]
             for r in range(args.rounds):
                 for row in rows if r % 2 == 0 else rows[::-1]:
                     row()
@@ -317,7 +358,9 @@ def main() -> int:
             ratio = ""
             if base_cpu and row == "capture" and base_cpu[1] and base_cpu[0]:
                 ratio = f"   ({per / (base_cpu[0] / base_cpu[1] * 1e6):.2f}x capture-recvmsg)"
-            print(f"  {row:<15} {secs:7.2f} CPU-s for {frames:>7} frames: {per:6.1f} µs/frame{ratio}")
+            print(
+                f"  {row:<15} {secs:7.2f} CPU-s for {frames:>7} frames: {per:6.1f} µs/frame{ratio}"
+            )
     return 0
 
 
