@@ -172,11 +172,34 @@ def test_errors_are_one_line(fleet: tuple[Path, Path], tmp_path: Path) -> None:
     assert p.returncode == 2 and "schema version 9" in p.stderr
 
 
-@pytest.mark.parametrize("layout", [2, 3])
-def test_fast_path_gives_the_general_paths_rows(tmp_path: Path, layout: int) -> None:
+def _a_frame_a_message(path: Path) -> int:
+    """The recording written again as request/reply traffic records it: frames in the
+    order their first byte came, each its own message where the direction changes;
+    returns the frame messages written."""
+    from conformance.recording import FrameRecord, RecordingWriter, read_recording
+
+    rec = read_recording(path)
+    frames = sorted(rec.frames, key=lambda f: f.first_ns)
+    with RecordingWriter(path, metadata=rec.metadata) as w:
+        for c in rec.connections:
+            if c.event == "open":
+                w.write(c)
+        for f in frames:
+            assert isinstance(f, FrameRecord)
+            w.write_frame(f.conn, f.transport, f.dir, f.cnt, f.cmd_id, f.name, f.data,
+                          f.length or 0, f.offset, f.first_ns, f.complete_ns, f.raw)  # fmt: skip
+        for c in rec.connections:
+            if c.event == "close":
+                w.write(c)
+        return w.messages - len(rec.connections)
+
+
+@pytest.mark.parametrize("layout", [2, 3, "3, a frame a message"])
+def test_fast_path_gives_the_general_paths_rows(tmp_path: Path, layout: int | str) -> None:
     """The columnar path (conformance/fleet/fast.py) and check_recording's give the same
     rows: a wrong reply CNT (the pairing one by one), time-outs and refusals (at once);
-    of layout 2's JSON batches and of layout 3's protobuf ones."""
+    of layout 2's JSON batches and of layout 3's protobuf ones, batched or one frame a
+    message (read at fixed places)."""
     from conformance.dialects import default_dialects
     from conformance.fleet.export import export_recording, open_dataset
     from conformance.fleet.fast import _pairs_at_once, read_columns
@@ -189,8 +212,10 @@ def test_fast_path_gives_the_general_paths_rows(tmp_path: Path, layout: int) -> 
         Fault("refusal", "*", "*", 214),
     )
     a, b = tmp_path / "a.mcap", tmp_path / "b.mcap"
-    write_recording(a, "r09", "3.9.8", 600, faults, START, layout)
-    write_recording(b, "r09", "3.8.2", 600, faults[1:], START, layout)
+    write_recording(a, "r09", "3.9.8", 600, faults, START, int(str(layout)[0]))
+    write_recording(b, "r09", "3.8.2", 600, faults[1:], START, int(str(layout)[0]))
+    if layout == "3, a frame a message":
+        assert _a_frame_a_message(a) > 400 and _a_frame_a_message(b) > 400
     ca, cb = read_columns(str(a)), read_columns(str(b))
     assert ca is not None and cb is not None
     assert _pairs_at_once(ca) is None and _pairs_at_once(cb) is not None

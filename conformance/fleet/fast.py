@@ -33,8 +33,15 @@ from typing import Any
 from ..frame import Frame
 from ..judge import Judge, Verdict
 from ..judge_stream import CntSteps
-from ..recording import METADATA_NAME, TOPIC_C2S, TOPIC_CONNECTIONS, TOPIC_S2C, ConnectionRecord
-from ..recording.frames_pb import BatchColumns, decode_columns
+from ..recording import (
+    METADATA_NAME,
+    TOPIC_C2S,
+    TOPIC_CONNECTIONS,
+    TOPIC_S2C,
+    ConnectionRecord,
+    FrameBatch,
+)
+from ..recording.frames_pb import BatchColumns, decode_columns, decode_one_frame
 from ..recording.salvage import MAGIC, Walk
 
 __all__ = ["Columns", "judge_columns", "read_columns"]
@@ -106,7 +113,10 @@ def read_columns(path: str) -> Columns | None:
                     topic = topics.get(rec.channel_id)
                     if topic in (TOPIC_C2S, TOPIC_S2C):
                         if rec.channel_id in binary:
-                            if not _binary_batch(c, decode_columns(rec.data)):
+                            one = decode_one_frame(rec.data)  # request/reply: a frame each
+                            if one is not None:
+                                _one_frame(c, one)
+                            elif not _binary_batch(c, decode_columns(rec.data)):
                                 return None
                             continue
                         doc, raw_size = _message(rec.data)
@@ -224,6 +234,22 @@ def _binary_batch(c: Columns, b: BatchColumns) -> bool:
     c.name += b.names
     c.data += map(sys.intern, b.datas())
     return True
+
+
+def _one_frame(c: Columns, b: FrameBatch) -> None:
+    """Add a layout-3 batch of one frame without framing problems (read at fixed places:
+    :func:`~conformance.recording.frames_pb.decode_one_frame`)."""
+    c.conn.append(b.conn)
+    c.transport.append(b.transport)
+    c.dir.append(b.dir)
+    c.request.append(b.dir == "c2s")
+    c.cnt.append(b.cnts[0])
+    c.cmd_id.append(b.cmd_ids[0])
+    c.name.append(_intern_name(b.names[0]))
+    c.data.append(sys.intern(b.datas[0]))
+    c.length.append(b.lengths[0])
+    c.first_ns.append(b.first_ns[0])
+    c.complete_ns.append(b.complete_ns[0])
 
 
 def _pairs(c: Columns) -> tuple[list[int], list[int]]:

@@ -57,6 +57,7 @@ __all__ = [
     "BatchColumns",
     "decode_batch",
     "decode_columns",
+    "decode_one_frame",
     "encode_batch",
     "encode_one",
 ]
@@ -649,11 +650,11 @@ def _problems(pieces: dict[int, list[bytes]], frames: Any, n: int) -> list[list[
 def decode_batch(buf: bytes) -> FrameBatch:
     """A ``fairino.Frames`` message as its :class:`FrameBatch` (a ``ValueError`` for one
     that does not read or fit)."""
-    one = _one_frame(buf)
+    one = decode_one_frame(buf)
     return one if one is not None else decode_columns(buf, as_arrays=False).batch()
 
 
-def _one_frame(buf: bytes) -> FrameBatch | None:
+def decode_one_frame(buf: bytes) -> FrameBatch | None:
     """A batch of one frame laid out exactly as :func:`encode_one` lays it out, read at
     fixed places (request/reply traffic: a message a frame); None for anything else,
     which the general parser reads (or names what is wrong with)."""
