@@ -105,6 +105,9 @@ def udp_flood(k: Kit, args: argparse.Namespace, tmp: Path) -> tuple[Rows, bool]:
         m = proxy.wait_for(r"listening on 127\.0\.0\.1:(\d+).*\(udp 127\.0\.0\.1:(\d+)")
         watch = RssWatch(proxy.p.pid)
         probe = Prober(int(m.group(1)))
+        # The same query straight to the emulator: what the flood does to the machine
+        # itself, the anchor for what it does to forwarding through the proxy.
+        direct = Prober(port)
         time.sleep(1.0)
         t0 = time.monotonic()
         rate = args.flood_mb_per_s * 1e6
@@ -119,7 +122,9 @@ def udp_flood(k: Kit, args: argparse.Namespace, tmp: Path) -> tuple[Rows, bool]:
         time.sleep(10.0)
         t2 = time.monotonic()
         probe.halt.set()
+        direct.halt.set()
         probe.join(timeout=5)
+        direct.join(timeout=5)
         watch.halt.set()
         peaks = watch.peaks()
         code, took = proxy.stop()
@@ -136,7 +141,9 @@ def udp_flood(k: Kit, args: argparse.Namespace, tmp: Path) -> tuple[Rows, bool]:
         ("peak RSS MB, proxy + recorder: at the flood's end", peak_flood),
         ("  ... and 10 s after", peaks),
         ("TCP health query during the flood", probe.figures(t0, t1)),
+        ("  ... straight to the emulator, not through the proxy", direct.figures(t0, t1)),
         ("TCP health query in the 10 s after", probe.figures(t1, t2)),
+        ("  ... straight to the emulator", direct.figures(t1, t2)),
         ("TCP failing after the flood ended", failing_after),
         ("SIGINT: exit, seconds", f"{code}, {took:.1f} s"),
         ("stop line", _tail(stop, 150)),

@@ -350,7 +350,7 @@ def _run_proxy(args: argparse.Namespace) -> int:
     if st.udp_unrecorded:
         extra += (
             f"; {st.udp_unrecorded} UDP datagrams ({st.udp_unrecorded_bytes} bytes) forwarded "
-            "but not recorded, the recorder being --max-backlog behind (gaps in the recording)"
+            "but not recorded, the recorder being half --max-backlog behind (gaps in the recording)"
         )
     print(
         f"proxy: stopped; {st.connections} connections{extra}, {proxy.frames_recorded} frames "
