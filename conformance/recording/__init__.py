@@ -6,6 +6,7 @@ module             holds
 =================  ===================================================================
 ``layout``         the topics, JSON schemas and format constants (the layout described)
 ``records``        FrameRecord, FrameBatch, ProblemRecord, ConnectionRecord, StateRecord, JSON
+``pb_wire``        protobuf's wire format (varints, fields) and a FileDescriptorSet of a table
 ``frames_pb``      layout 3's frame batches in protobuf: encode, decode, the FileDescriptorSet
 ``writer``         RecordingWriter (one MCAP file), default_metadata, utc_time
 ``rotating``       RotatingWriter (segment files by size or duration), segment_path

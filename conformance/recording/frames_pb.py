@@ -48,6 +48,15 @@ from itertools import accumulate
 from typing import Any, NamedTuple
 
 from .layout import INT_MAX, TIME_MAX, DirectionText
+from .pb_wire import I32 as _I32
+from .pb_wire import I64 as _I64
+from .pb_wire import LEN as _LEN
+from .pb_wire import VARINT as _VARINT
+from .pb_wire import descriptor_set
+from .pb_wire import field as _field
+from .pb_wire import read_varint as _read_varint
+from .pb_wire import tag as _tag
+from .pb_wire import varint as _varint
 from .records import FrameBatch
 
 __all__ = [
@@ -90,64 +99,8 @@ _COLUMNS = {number: name for name, number, kind, _ in FIELDS if kind == "fixed64
 _TEXT = {_NUMBER["transport"], _NUMBER["dir"], _NUMBER["data"], _NUMBER["raw"]}
 _TEXTS = {_NUMBER["names"], _NUMBER["problem"]}
 
-# -- the wire format (protobuf encoding: varints, tags, length-delimited fields)
-
-_VARINT, _I64, _LEN, _I32 = 0, 1, 2, 5
-
-
-def _varint(v: int) -> bytes:
-    if v < 0x80:
-        return bytes((v,))
-    out = bytearray()
-    while v >= 0x80:
-        out.append((v & 0x7F) | 0x80)
-        v >>= 7
-    out.append(v)
-    return bytes(out)
-
-
-def _tag(number: int, wire: int) -> bytes:
-    return _varint(number << 3 | wire)
-
-
-def _field(number: int, payload: bytes) -> bytes:
-    """A length-delimited field: tag, length, payload."""
-    return _tag(number, _LEN) + _varint(len(payload)) + payload
-
-
-# -- the schema: a FileDescriptorSet (google/protobuf/descriptor.proto), encoded as above
-
-#: FieldDescriptorProto.Type and .Label values (descriptor.proto).
-_TYPES = {"fixed64": 6, "string": 9, "bytes": 12, "uint64": 4}
-_OPTIONAL, _REPEATED = 1, 3
-
-
-def _descriptor_set() -> bytes:
-    fields = b"".join(
-        _field(
-            2,  # DescriptorProto.field
-            _field(1, name.encode())  # name
-            + _tag(3, _VARINT)
-            + _varint(number)  # number
-            + _tag(4, _VARINT)
-            + _varint(_REPEATED if repeated else _OPTIONAL)  # label
-            + _tag(5, _VARINT)
-            + _varint(_TYPES[kind]),  # type
-        )
-        for name, number, kind, repeated in FIELDS
-    )
-    message = _field(1, b"Frames") + fields  # DescriptorProto: name, field
-    file = (
-        _field(1, b"fairino/frames.proto")  # FileDescriptorProto.name
-        + _field(2, b"fairino")  # package
-        + _field(4, message)  # message_type
-        + _field(12, b"proto3")  # syntax
-    )
-    return _field(1, file)  # FileDescriptorSet.file
-
-
 #: The MCAP schema's data for ``fairino.Frames`` (schema encoding ``protobuf``).
-FILE_DESCRIPTOR_SET = _descriptor_set()
+FILE_DESCRIPTOR_SET = descriptor_set("fairino/frames.proto", "fairino", "Frames", FIELDS)
 
 # -- encoding
 
@@ -379,26 +332,6 @@ class BatchColumns(NamedTuple):
             raw=self.raw,
             problems=self.problems,
         )
-
-
-def _read_varint(buf: bytes, i: int) -> tuple[int, int]:
-    """The varint at ``buf[i]`` and the position after it (IndexError: cut short)."""
-    b = buf[i]
-    if b < 0x80:
-        return b, i + 1
-    v = b & 0x7F
-    shift = 7
-    while True:
-        i += 1
-        b = buf[i]
-        v |= (b & 0x7F) << shift
-        if b < 0x80:
-            if v >> 64:
-                raise ValueError(f"a varint at byte {i} is past 64 bits")
-            return v, i + 1
-        shift += 7
-        if shift >= 70:
-            raise ValueError(f"a varint at byte {i} is longer than 10 bytes")
 
 
 def _parse(buf: bytes) -> tuple[int, dict[int, list[bytes]]]:
