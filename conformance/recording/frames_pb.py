@@ -6,7 +6,7 @@ A batch's columns are packed repeated ``fixed64`` fields, so a column is written
 number); DATA and the frames' bytes are one ``string`` and one ``bytes`` field each,
 cut by their ``data_size`` and ``size`` columns.  The MCAP schema is a
 ``FileDescriptorSet`` (schema encoding ``protobuf``), built from :data:`FIELDS` by the
-same few lines of wire encoding, so Foxglove and the ``mcap`` tools decode the messages
+same few lines of wire encoding (:mod:`.pb_wire`), so Foxglove and the ``mcap`` tools decode the messages
 as any protobuf recording.  In ``.proto`` terms::
 
     syntax = "proto3";
