@@ -25,6 +25,7 @@ from conformance.frame import Frame, encode_frame
 from conformance.net import capture as capture_mod
 from conformance.net.capture import CaptureStats, LiveCapture
 from conformance.net.emulator import EmulatorServer
+from conformance.net.packet_ring import RingUnavailable
 from conformance.pcap import PacketRecorder, import_pcap, read_packets
 from conformance.recording import RecordingWriter, dump_json, read_recording, recover
 from conformance.spec import default_specs
@@ -116,7 +117,7 @@ def _refuse_ring(monkeypatch: pytest.MonkeyPatch) -> None:
     """As a kernel without TPACKET_V3 would: the capture reads with recvmsg."""
 
     def refuse(*a: Any, **k: Any) -> None:
-        raise capture_mod.RingUnavailable(95, "refused by the test")
+        raise RingUnavailable(95, "refused by the test")
 
     monkeypatch.setattr(capture_mod, "PacketRing", refuse)
 

@@ -347,19 +347,19 @@ def main() -> int:
             "   (baseline)" if name == "direct" else "   {:+.0f} / {:+.0f} / {:+.0f}".format(*added)
         )
         print(f"{name:<15} {q[0]:9.0f} {q[1]:9.0f} {q[2]:9.0f}{extra}")
-    for row, c2s, s2c, sent, line in recorded:
-        print(f"{row}: {c2s} requests and {s2c} replies recorded of {sent} sent and answered")
+    for label, c2s, s2c, sent, line in recorded:
+        print(f"{label}: {c2s} requests and {s2c} replies recorded of {sent} sent and answered")
         print(f"  {line}")
     if cpu:
         print("\nCPU of the recording processes while the traffic ran (start-up left out):")
         base_cpu = cpu.get("capture-recvmsg")
-        for row, (secs, frames) in cpu.items():
+        for label, (secs, frames) in cpu.items():
             per = secs / frames * 1e6 if frames else float("nan")
             ratio = ""
-            if base_cpu and row == "capture" and base_cpu[1] and base_cpu[0]:
+            if base_cpu and label == "capture" and base_cpu[1] and base_cpu[0]:
                 ratio = f"   ({per / (base_cpu[0] / base_cpu[1] * 1e6):.2f}x capture-recvmsg)"
             print(
-                f"  {row:<15} {secs:7.2f} CPU-s for {frames:>7} frames: {per:6.1f} µs/frame{ratio}"
+                f"  {label:<15} {secs:7.2f} CPU-s for {frames:>7} frames: {per:6.1f} µs/frame{ratio}"
             )
     return 0
 
