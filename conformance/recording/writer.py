@@ -13,6 +13,7 @@ from itertools import chain
 from typing import IO, Any, cast
 
 from .._version import __version__
+from . import mcap_fast
 from .frames_pb import FILE_DESCRIPTOR_SET, encode_batch, encode_one
 from .frames_pb import SCHEMA_NAME as FRAMES_SCHEMA
 from .layout import (
@@ -221,7 +222,8 @@ class RecordingWriter:
             S2C: self._channels[TOPIC_S2C],
         }
         self._json_str = _JsonStrings()
-        self._add = self._mcap.add_message
+        # add_message's equal in one step (about 45 % of a frame's time at 1 kHz).
+        self._add = mcap_fast.adder(self._mcap)
         # Frames held (write_frames): batches of one connection and direction; or one
         # frame alone as write_frame's fields, while frames alternate between streams.
         self._one: _OneFrame | None = None
