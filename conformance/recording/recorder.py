@@ -300,6 +300,14 @@ class StreamRecorder(_CommandNames):
         """
         if not reads:
             return
+        if len(reads) == 1:
+            t_ns, data = reads[0]
+            n = len(data)
+            if n < _RUN_MIN and n <= self.slice_size and self.undecoded_reason is None:
+                # One short read (request/reply traffic: a frame a packet): what data()
+                # does with it, without the bookkeeping of reads put together.
+                self.data(conn, direction, t_ns, data)
+                return
         c = self._conns[conn]
         if c.state is not None:
             for t_ns, piece in reads:
