@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import glob
 import hashlib
+import itertools
 import json
 import multiprocessing
 import os
@@ -29,9 +30,10 @@ from ..errors import FileError, UsageError
 from ..firmware import GET_SOFTWARE_VERSION_ID, parse_software_version
 from ..judge import Judge, Verdict
 from ..recording import C2S, ConnectionRecord, FrameRecord, ProblemRecord, Recording
-from .fast import Columns, judge_columns, read_columns
+from .fast import Columns, ColumnStream, NotFast, read_columns
 from .memo import MemoJudge
 from .schema import COLUMNS, SCHEMA_VERSION, TABLES, arrow_schema, partition_value
+from .window import WINDOW, OutOfOrder, Windows
 
 __all__ = [
     "RECORDING_SUFFIXES",
@@ -48,6 +50,8 @@ __all__ = [
 RECORDING_SUFFIXES = (".mcap", ".pcap", ".pcapng", ".cap", ".pcap.gz", ".pcapng.gz")
 #: Rows per row group (and the most a table holds in memory before writing).
 ROW_GROUP = 131_072
+#: Windows read while looking for the firmware's 905 reply before it is looked for alone.
+BUFFER = 4
 
 #: The judge for a firmware version (None: the traffic names none): the front-end's choice
 #: of spec set and dialects, as ``check`` makes it.  Must pickle for ``jobs`` > 1.
@@ -269,12 +273,22 @@ class _Table:
         self._writer.write_batch(batch, row_group_size=ROW_GROUP)
         self.count += n
 
-    def close(self) -> None:
-        """Write what is left and put the file in its place (nothing for no rows)."""
+    def close(self, path: Path | None = None) -> None:
+        """Write what is left and put the file in its place, or at ``path`` (nothing for
+        no rows)."""
         self.flush()
         if self._writer is not None:
             self._writer.close()
-            os.replace(str(self.path) + ".tmp", self.path)
+            if path is not None:
+                path.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(str(self.path) + ".tmp", path or self.path)
+
+    def discard(self) -> None:
+        """Nothing written after all (a recording the fast path gave up half way)."""
+        if self._writer is not None:
+            self._writer.close()
+            os.unlink(str(self.path) + ".tmp")
+        self._writer, self.rows, self.count = None, [], 0
 
 
 def _frame_row(f: FrameRecord, v: Verdict, port: int | None, data: bool) -> tuple[object, ...]:
@@ -326,13 +340,13 @@ def export_recording(
     firmware: str | None = None,
     data: bool = False,
     fast: bool = True,
+    window: int = WINDOW,
 ) -> ExportResult:
     """One recording into the dataset at ``out`` (made by :func:`open_dataset`).
 
-    ``fast``: a clean recording is read as columns (:mod:`.fast`); False: every recording
-    through the reader's records and ``check_recording``."""
-    from ..pcap import read_capture
-
+    ``fast``: a clean recording is read as columns (:mod:`.fast`), ``window`` frames at a
+    time (:mod:`.window`); False: every recording through the reader's records and
+    ``check_recording`` (whole: the general path holds the recording)."""
     t0 = time.perf_counter()
     dataset = Path(out)
     rid = recording_id(path)
@@ -341,13 +355,144 @@ def export_recording(
     if mark.exists():
         result.skipped = True
         return result
+    how = _fast(path, dataset, result, judge_for, robot, firmware, data, window) if fast else ""
+    if how != "done":
+        _whole(path, dataset, result, judge_for, robot, firmware, data, how == "whole")
+    result.seconds = round(time.perf_counter() - t0, 3)
+    tmp = mark.with_suffix(".tmp")
+    tmp.write_text(json.dumps(result.to_json(), indent=2) + "\n", encoding="utf-8")
+    os.replace(tmp, mark)  # the commit: from here on the recording is in the dataset
+    return result
+
+
+def _tables(
+    path: str,
+    dataset: Path,
+    result: ExportResult,
+    md: Mapping[str, str],
+    fw: str | None,
+    memo: Judge,
+) -> dict[str, _Table]:
+    """The recording's tables, written beside their partition until it is known."""
+    seg = md.get("segment", "0")
+    constants: dict[str, object] = {
+        "recording": os.path.basename(path),
+        "recording_id": result.recording_id,
+        "segment": int(seg) if seg.isdigit() else 0,
+        "firmware": fw,
+        "spec_version": memo.specs.spec_version,
+    }
+    result.firmware, result.spec_version = fw, memo.specs.spec_version
+    return {t: _Table(dataset / t / f"{result.recording_id}.parquet", t, constants) for t in TABLES}
+
+
+def _finish(
+    result: ExportResult,
+    dataset: Path,
+    tables: dict[str, _Table],
+    md: Mapping[str, str],
+    conns: Sequence[ConnectionRecord],
+    robot: str | None,
+    times: Iterable[int],
+) -> None:
+    """The connections written, and each table's file put in its partition."""
+    label = partition_value(_robot_of(md, conns, robot))
+    start = int(md.get("start_ns", "0") or 0) or min(times, default=0)
+    date = time.strftime("%Y-%m-%d", time.gmtime(start // 1_000_000_000))
+    for c in conns:
+        tables["connections"].add(
+            (c.conn, c.event, c.t_ns, c.transport, c.client, c.upstream, c.reason, c.stream)
+        )
+    part = f"date={date}/robot={label}/{result.recording_id}.parquet"
+    for t, tab in tables.items():
+        tab.close(dataset / t / part)
+        result.rows[t] = tab.count
+    result.robot, result.date = label, date
+
+
+def _fast(
+    path: str,
+    dataset: Path,
+    result: ExportResult,
+    judge_for: JudgeFor,
+    robot: str | None,
+    firmware: str | None,
+    data: bool,
+    window: int,
+) -> str:
+    """A clean recording a window at a time (:mod:`.window`): "done"; else nothing is
+    written, and "general" for one the fast path does not take, "whole" for one whose
+    windows are not in the order :mod:`.window` relies on."""
+    stream = ColumnStream(path, window)
+    windows = iter(stream)
+    buffered: list[tuple[Columns, int]] = []
+    fw, known = firmware or None, bool(firmware)
+    try:
+        # The judge is the firmware's, named by the first 905 reply: the windows before
+        # it wait (a few), else it is looked for alone and the recording read again.
+        for w in windows:
+            buffered.append((w, len(stream.connections)))
+            if not known:
+                fw = firmware_in(zip(w.dir, w.cmd_id, w.data, strict=True))
+                known = fw is not None
+            if known or len(buffered) >= BUFFER:
+                break
+        if not known and len(buffered) >= BUFFER:
+            buffered = []
+            for w in windows:
+                fw = firmware_in(zip(w.dir, w.cmd_id, w.data, strict=True))
+                if fw is not None:
+                    break
+            stream = ColumnStream(path, window)
+            windows = iter(stream)
+    except NotFast:
+        return "general"
+    if not stream.metadata:
+        return "whole"
+    memo = MemoJudge.of(judge_for(fw))
+    tables = _tables(path, dataset, result, stream.metadata, fw, memo)
+    win = Windows(memo, tables, data=data, code=_code, port=_port, window=window)
+    try:
+        last: tuple[Columns, int] | None = None
+        rest = ((w, len(stream.connections)) for w in windows)
+        for item in itertools.chain(buffered, rest):
+            if last is not None:
+                win.add(last[0], stream.connections[: last[1]], final=False)
+            last = item
+        buffered = []
+        if last is not None:
+            win.add(last[0], stream.connections[: last[1]], final=True)
+    except NotFast as e:
+        for tab in tables.values():
+            tab.discard()
+        return "whole" if isinstance(e, OutOfOrder) else "general"
+    conns = stream.connections
+    times = [*(c.t_ns for c in conns), *([win.first_ns] if win.first_ns is not None else [])]
+    _finish(result, dataset, tables, stream.metadata, conns, robot, times)
+    return "done"
+
+
+def _whole(
+    path: str,
+    dataset: Path,
+    result: ExportResult,
+    judge_for: JudgeFor,
+    robot: str | None,
+    firmware: str | None,
+    data: bool,
+    fast: bool,
+) -> None:
+    """The recording read whole: as columns (``fast``) in one window, else through the
+    reader's records and ``check_recording`` (the general path)."""
+    from ..pcap import read_capture
+
     cols = read_columns(path) if fast else None
     rec: Recording | None = None
     if cols is not None:
         md: Mapping[str, str] = cols.metadata
         conns: Sequence[ConnectionRecord] = cols.connections
         fw = firmware or firmware_in(zip(cols.dir, cols.cmd_id, cols.data, strict=True))
-        times = [*cols.first_ns, *(c.t_ns for c in conns)]
+        times = [*(c.t_ns for c in conns), *([min(cols.first_ns)] if cols.first_ns else [])]
     else:
         rec = read_capture(path)
         result.damage = [str(d) for d in rec.damage]
@@ -355,40 +500,16 @@ def export_recording(
         fw = firmware or firmware_in((f.dir, f.cmd_id, f.data) for f in rec.frames)
         times = [rec.start_ns]
     memo = MemoJudge.of(judge_for(fw))
-    label = partition_value(_robot_of(md, conns, robot))
-    start = int(md.get("start_ns", "0") or 0) or min(times, default=0)
-    date = time.strftime("%Y-%m-%d", time.gmtime(start // 1_000_000_000))
-    seg = md.get("segment", "0")
-    constants: dict[str, object] = {
-        "recording": os.path.basename(path),
-        "recording_id": rid,
-        "segment": int(seg) if seg.isdigit() else 0,
-        "firmware": fw,
-        "spec_version": memo.specs.spec_version,
-    }
-    result.robot, result.date, result.firmware = label, date, fw
-    result.spec_version = memo.specs.spec_version
-    part = f"date={date}/robot={label}/{rid}.parquet"
-    tables = {t: _Table(dataset / t / part, t, constants) for t in TABLES}
-    ports = {c.conn: _port(c.upstream) for c in conns if c.event == "open"}
+    tables = _tables(path, dataset, result, md, fw, memo)
     if cols is not None:
-        _fast_rows(cols, memo, tables, ports, data)
+        win = Windows(memo, tables, data=data, code=_code, port=_port)
+        win.add(cols, conns, final=True)
     else:
         assert rec is not None
+        ports = {c.conn: _port(c.upstream) for c in conns if c.event == "open"}
         _general_rows(rec, memo, tables, ports, data)
         _state(rec, tables["state"])
-    for c in conns:
-        tables["connections"].add(
-            (c.conn, c.event, c.t_ns, c.transport, c.client, c.upstream, c.reason, c.stream)
-        )
-    for t, tab in tables.items():
-        tab.close()
-        result.rows[t] = tab.count
-    result.seconds = round(time.perf_counter() - t0, 3)
-    tmp = mark.with_suffix(".tmp")
-    tmp.write_text(json.dumps(result.to_json(), indent=2) + "\n", encoding="utf-8")
-    os.replace(tmp, mark)  # the commit: from here on the recording is in the dataset
-    return result
+    _finish(result, dataset, tables, md, conns, robot, times)
 
 
 def _general_rows(
@@ -427,115 +548,6 @@ def _general_rows(
                     v.source,
                 )
             )
-
-
-def _fast_rows(
-    c: Columns,
-    memo: MemoJudge,
-    tables: dict[str, _Table],
-    ports: dict[int, int | None],
-    data: bool,
-) -> None:
-    """Frames and exchanges of a clean recording, from its columns (:mod:`.fast`)."""
-
-    def shown(v: Verdict) -> str | None:
-        if v.command is not None:
-            return v.command.name if v.dialect is None else v.dialect.name
-        return v.name
-
-    import pyarrow as pa
-    import pyarrow.compute as pc
-
-    qs, ps, which, rows = judge_columns(c, memo, shown, _code)
-    n = len(which)
-    if n and which.min() < 0:  # every frame is in an exchange: the pairing lost none
-        raise AssertionError(f"{int((which < 0).sum())} frames without a verdict")
-    # The distinct verdicts' columns, taken per frame (C speed: a fleet repeats itself).
-    kinds = ("outcome", "rule", "source", "dialect", "refused", "refusal_form", "refusal_code")
-    types = [pa.string()] * 4 + [pa.bool_(), pa.string(), pa.int64()]
-    distinct = {
-        k: pa.array([r[j] for r in rows], type=t)
-        for j, (k, t) in enumerate(zip(kinds, types, strict=True))
-    }
-    at = pa.array(which.astype("int32"))
-
-    def per_frame(values: Any, indices: Any) -> Any:
-        # Strings stay a dictionary over the distinct verdicts' (written a row group at a
-        # time): a million frames' columns are their indices, not a million strings.
-        if pa.types.is_string(values.type):
-            return pa.DictionaryArray.from_arrays(indices, values)
-        return values.take(indices)
-
-    verdict_cols = {k: per_frame(v, at) for k, v in distinct.items()}
-    shown_names = pa.array([r[7] for r in rows], type=pa.string())
-    if shown_names.null_count == 0:
-        names = per_frame(shown_names, at)
-    else:  # a command the judge does not name: the recorded name
-        names = pc.coalesce(shown_names.take(at), pa.array(c.name, type=pa.string()))
-    tables["frames"].add_columns(
-        {
-            "transport": pa.array(c.transport, type=pa.string()).dictionary_encode(),
-            "port": _ports_of(c.np("conn"), ports),
-            "direction": pa.array(c.dir, type=pa.string()).dictionary_encode(),
-            "conn": pa.array(c.np("conn")),
-            "first_time": pa.array(c.np("first_ns")),
-            "time": pa.array(c.np("complete_ns")),
-            "cnt": pa.array(c.np("cnt")),
-            "cmd_id": pa.array(c.np("cmd_id")),
-            "name": names,
-            "len": pa.array(c.np("length")),
-            "len_ok": pa.repeat(pa.scalar(True), n),  # a LEN that does not fit: general path
-            "data": c.data if data else pa.nulls(n, pa.string()),
-            **verdict_cols,
-        },
-        n,
-    )
-    # Exchanges: the request's columns where there is one, else the reply's.
-    q = pa.array(qs, type=pa.int64())
-    p = pa.array(ps, type=pa.int64())
-    has_q = pc.greater_equal(q, 0)
-    has_p = pc.greater_equal(p, 0)
-    qn = pc.if_else(has_q, q, pa.scalar(None, pa.int64()))
-    pn = pc.if_else(has_p, p, pa.scalar(None, pa.int64()))
-    f = pc.if_else(has_q, q, p)
-    complete = pa.array(c.np("complete_ns"))
-    req_ns, rep_ns = complete.take(qn), complete.take(pn)
-    at_rep = at.take(pn)
-    refused = pc.fill_null(distinct["refused"].take(at_rep), False)
-    tables["exchanges"].add_columns(
-        {
-            "transport": pa.array(c.transport, type=pa.string()).take(f),
-            "conn": pa.array(c.np("conn")).take(f),
-            "cmd_id": pa.array(c.np("cmd_id")).take(f),
-            "name": names.take(f)
-            if not isinstance(names, pa.DictionaryArray)
-            else per_frame(names.dictionary, names.indices.take(f)),
-            "cnt": pa.array(c.np("cnt")).take(f),
-            "request_time": req_ns,
-            "reply_time": rep_ns,
-            "latency_ns": pc.subtract(rep_ns, req_ns),
-            "request_outcome": per_frame(distinct["outcome"], at.take(qn)),
-            "reply_outcome": per_frame(distinct["outcome"], at_rep),
-            "reply_rule": per_frame(distinct["rule"], at_rep),
-            "refused": refused,
-            "refusal_code": pc.if_else(
-                refused, distinct["refusal_code"].take(at_rep), pa.scalar(None, pa.int64())
-            ),
-            "missing_reply": pc.and_(has_q, pc.invert(has_p)),
-        },
-        len(qs),
-    )
-
-
-def _ports_of(conns: Any, ports: dict[int, int | None]) -> Any:
-    """Each frame's port: its connection's, looked up once per connection."""
-    import numpy as np
-    import pyarrow as pa
-
-    known, at = np.unique(conns, return_inverse=True)
-    return pa.array([ports.get(int(k)) for k in known], type=pa.int64()).take(
-        pa.array(at.reshape(-1).astype(np.int32))
-    )
 
 
 def _exchanges(rec: Recording, verdicts: dict[int, Verdict], table: _Table) -> None:

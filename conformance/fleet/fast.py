@@ -26,7 +26,7 @@ import json
 import sys
 from array import array
 from collections import defaultdict, deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -44,7 +44,7 @@ from ..recording import (
 from ..recording.frames_pb import BatchColumns, decode_columns, decode_one_frame
 from ..recording.salvage import MAGIC, Walk
 
-__all__ = ["Columns", "judge_columns", "read_columns"]
+__all__ = ["ColumnStream", "Columns", "NotFast", "VerdictRows", "judge_columns", "read_columns"]
 
 #: check's CntSteps remembers this many connections; a recording with more goes the general way.
 _CONNECTIONS = CntSteps().limit
@@ -84,70 +84,143 @@ class Columns:
 
         return np.frombuffer(getattr(self, name), dtype=np.int64)
 
+    def __len__(self) -> int:
+        return len(self.cnt)
+
+    def extend(self, other: Columns) -> None:
+        """``other``'s frames after these."""
+        for k in _FRAME_COLUMNS:
+            getattr(self, k).extend(getattr(other, k))
+
+    def take(self, at: Any) -> Columns:
+        """The frames at the indices ``at`` (numpy), in that order."""
+        import numpy as np
+
+        out = Columns()
+        idx = at.tolist()
+        for k in _FRAME_COLUMNS:
+            mine = getattr(self, k)
+            if isinstance(mine, array):
+                dtype = np.int8 if mine.typecode == "b" else np.int64
+                getattr(out, k).frombytes(np.frombuffer(mine, dtype=dtype)[at].tobytes())
+            else:
+                getattr(out, k).extend([mine[i] for i in idx])
+        return out
+
+
+#: A frame's columns in :class:`Columns`.
+_FRAME_COLUMNS = (
+    *("conn", "transport", "dir", "cnt", "cmd_id", "name", "data", "length"),
+    *("first_ns", "complete_ns", "request"),
+)
+
+
+class NotFast(Exception):
+    """The recording is not the fast path's: :func:`read_columns` returns None for it."""
+
+
+class ColumnStream:
+    """A clean recording's frames as columns a window at a time, in file order: each
+    window the frames of whole messages, ``window`` of them or a few more (the last one
+    fewer, maybe none); the metadata and the connections as they are read.  Iterating
+    raises :class:`NotFast` where :func:`read_columns` returns None (a damaged file only
+    at the end: the windows given before are then to be thrown away)."""
+
+    def __init__(self, path: str, window: int) -> None:
+        self.path, self.window = path, window
+        self.metadata: dict[str, str] = {}
+        self.connections: list[ConnectionRecord] = []
+        self.complete = True
+        self._conns: set[int] = set()
+
+    def __iter__(self) -> Iterator[Columns]:
+        from mcap.records import Channel, Message, Metadata
+
+        c = Columns()
+        topics: dict[int, str] = {}
+        binary: set[int] = set()  # frame channels in protobuf (layout 3)
+
+        def channel(r: Channel) -> None:
+            topics[r.id] = r.topic
+            if r.message_encoding == "protobuf":
+                binary.add(r.id)
+            else:
+                binary.discard(r.id)
+
+        try:
+            with open(self.path, "rb") as f:
+                if f.read(8) != MAGIC:
+                    raise NotFast
+                walk = Walk(f, self.path)
+                for r in walk.summary_records():
+                    if isinstance(r, Channel):
+                        channel(r)
+                for rec, _ in walk.records():
+                    if isinstance(rec, Message):
+                        topic = topics.get(rec.channel_id)
+                        if topic in (TOPIC_C2S, TOPIC_S2C):
+                            if rec.channel_id in binary:
+                                one = decode_one_frame(rec.data)  # request/reply: a frame each
+                                if one is not None:
+                                    _one_frame(c, one)
+                                elif not _binary_batch(c, decode_columns(rec.data)):
+                                    raise NotFast
+                            else:
+                                doc, raw_size = _message(rec.data)
+                                if not _batch(c, doc, raw_size):
+                                    raise NotFast
+                            if len(c.cnt) >= self.window:
+                                self._check(c)
+                                yield c
+                                c = Columns()
+                        elif topic == TOPIC_CONNECTIONS:
+                            x = ConnectionRecord.from_json(json.loads(rec.data))
+                            if x.stream:
+                                raise NotFast  # the state stream: the general path
+                            self.connections.append(x)
+                        elif topic is not None and topic.startswith("/fairino/"):
+                            raise NotFast  # problems, the state stream: the general path
+                    elif isinstance(rec, Channel):
+                        channel(rec)
+                    elif (
+                        isinstance(rec, Metadata)
+                        and rec.name == METADATA_NAME
+                        and not self.metadata
+                    ):
+                        self.metadata = dict(rec.metadata)
+                if walk.damage or not self.metadata:
+                    raise NotFast
+                self.complete = walk.complete
+        except (
+            ValueError,
+            KeyError,
+            TypeError,
+            AttributeError,
+            RecursionError,
+            OverflowError,
+            OSError,
+        ):
+            raise NotFast from None  # whatever is wrong, the general path says it in its words
+        self._check(c)
+        yield c
+
+    def _check(self, c: Columns) -> None:
+        self._conns.update(c.conn)
+        if len(self._conns) > _CONNECTIONS:
+            raise NotFast
+        numbers = ("conn", "cnt", "cmd_id", "length", "first_ns", "complete_ns")
+        if c.cnt and min(int(c.np(k).min()) for k in numbers) < 0:
+            raise NotFast  # the recording's numbers are non-negative: the reader names the one
+
 
 def read_columns(path: str) -> Columns | None:
     """The recording's columns, or None when the fast path cannot take it (see the module)."""
-    from mcap.records import Channel, Message, Metadata
-
-    c = Columns()
-    topics: dict[int, str] = {}
-    binary: set[int] = set()  # frame channels in protobuf (layout 3)
-
-    def channel(r: Channel) -> None:
-        topics[r.id] = r.topic
-        if r.message_encoding == "protobuf":
-            binary.add(r.id)
-        else:
-            binary.discard(r.id)
-
+    s = ColumnStream(path, sys.maxsize)
     try:
-        with open(path, "rb") as f:
-            if f.read(8) != MAGIC:
-                return None
-            walk = Walk(f, path)
-            for r in walk.summary_records():
-                if isinstance(r, Channel):
-                    channel(r)
-            for rec, _ in walk.records():
-                if isinstance(rec, Message):
-                    topic = topics.get(rec.channel_id)
-                    if topic in (TOPIC_C2S, TOPIC_S2C):
-                        if rec.channel_id in binary:
-                            one = decode_one_frame(rec.data)  # request/reply: a frame each
-                            if one is not None:
-                                _one_frame(c, one)
-                            elif not _binary_batch(c, decode_columns(rec.data)):
-                                return None
-                            continue
-                        doc, raw_size = _message(rec.data)
-                        if not _batch(c, doc, raw_size):
-                            return None
-                    elif topic == TOPIC_CONNECTIONS:
-                        c.connections.append(ConnectionRecord.from_json(json.loads(rec.data)))
-                    elif topic is not None and topic.startswith("/fairino/"):
-                        return None  # problems, the state stream: the general path
-                elif isinstance(rec, Channel):
-                    channel(rec)
-                elif isinstance(rec, Metadata) and rec.name == METADATA_NAME and not c.metadata:
-                    c.metadata = dict(rec.metadata)
-            if walk.damage or not c.metadata:
-                return None
-            c.complete = walk.complete
-    except (
-        ValueError,
-        KeyError,
-        TypeError,
-        AttributeError,
-        RecursionError,
-        OverflowError,
-        OSError,
-    ):
-        return None  # whatever is wrong, the general path says it in its words
-    if len({*c.conn}) > _CONNECTIONS or any(x.stream for x in c.connections):
+        (c,) = list(s)
+    except NotFast:
         return None
-    numbers = ("conn", "cnt", "cmd_id", "length", "first_ns", "complete_ns")
-    if c.cnt and min(int(c.np(k).min()) for k in numbers) < 0:
-        return None  # the recording's numbers are non-negative: the reader names the one
+    c.metadata, c.connections, c.complete = s.metadata, s.connections, s.complete
     return c
 
 
@@ -379,11 +452,26 @@ def _distinct(*cols: Any) -> tuple[Any, Any]:
     return key, by[new]
 
 
+class VerdictRows:
+    """The distinct verdicts' rows of a recording (numbered as they come, kept across its
+    windows): a row per distinct (outcome, rule, source, dialect, refusal, name), not per
+    frame."""
+
+    def __init__(self) -> None:
+        self.rows: list[Row] = []
+        self.number: dict[Row, int] = {}
+
+
 def judge_columns(
     c: Columns,
     judge: Judge,
     shown_name: Callable[[Verdict], str | None],
     code: Callable[[Verdict], int | None],
+    *,
+    state: VerdictRows | None = None,
+    carried: int = 0,
+    carried_rows: Any = None,
+    last_cnt: dict[int, int] | None = None,
 ) -> tuple[list[int], list[int], Any, list[Row]]:
     """The exchanges (request and reply indices), each frame's verdict (an index into the
     distinct verdicts' rows, numpy) and those rows.
@@ -393,34 +481,42 @@ def judge_columns(
     depends on more: a request whose CNT does not step by one from its connection's last
     (:meth:`Judge.request` with ``previous_cnt``, as ``check``'s CntSteps gives it), a
     reply whose CNT or ID is not its request's, or that answers none.  A reply's verdict
-    reads the request verdict's command, variant and dialect, never its CNT finding."""
+    reads the request verdict's command, variant and dialect, never its CNT finding.
+
+    A window of a recording (:mod:`.window`): ``state`` numbers the verdicts across
+    windows; the first ``carried`` frames are earlier windows' requests still waiting for
+    a reply (their verdicts ``carried_rows``, not judged again), and ``last_cnt`` is each
+    connection's last request CNT before the window (updated)."""
     import numpy as np
 
     qs, ps = _pairs(c)
     n = len(c.cnt)
     which = np.full(n, -1, dtype=np.int64)
+    state = state if state is not None else VerdictRows()
+    rows, number = state.rows, state.number
     index: dict[int, int] = {}
     kept: list[Verdict] = []  # alive, so that each id() stays its verdict's
-    rows: list[Row] = []
     cnt_l, cmd_l, data, tr, length = c.cnt, c.cmd_id, c.data, c.transport, c.length
 
     def row(v: Verdict) -> int:
         k = index.get(id(v))
         if k is None:
-            k = index[id(v)] = len(rows)
-            kept.append(v)
-            rows.append(
-                (
-                    v.outcome.value,
-                    v.rule,
-                    v.source,
-                    v.dialect.id if v.dialect is not None else None,
-                    v.refused,
-                    v.form.value if v.refused and v.form is not None else None,
-                    code(v),
-                    shown_name(v),
-                )
+            r = (
+                v.outcome.value,
+                v.rule,
+                v.source,
+                v.dialect.id if v.dialect is not None else None,
+                v.refused,
+                v.form.value if v.refused and v.form is not None else None,
+                code(v),
+                shown_name(v),
             )
+            k = number.get(r)
+            if k is None:
+                k = number[r] = len(rows)
+                rows.append(r)
+            index[id(v)] = k
+            kept.append(v)
         return k
 
     def frame(i: int) -> Frame:
@@ -441,13 +537,25 @@ def judge_columns(
     base_row = np.array([row(v) for v in base], dtype=np.int64)
     which[rq] = base_row[rkey]
     # CNT steps per connection (CntSteps): the request before on the same connection.
-    by_conn = np.argsort(conn[rq], kind="stable")
-    cs, cn = conn[rq][by_conn], cnt[rq][by_conn]
+    new = rq[rq >= carried]
+    by_conn = np.argsort(conn[new], kind="stable")
+    cs, cn = conn[new][by_conn], cnt[new][by_conn]
     step_bad = (cs[1:] == cs[:-1]) & (cn[1:] != (cn[:-1] + 1) % 0x10000)
     for k in np.flatnonzero(step_bad):
-        i = int(rq[by_conn[k + 1]])
+        i = int(new[by_conn[k + 1]])
         v = judge.request(frame(i), transport=tr[i], previous_cnt=int(cn[k]))
         which[i] = row(v)
+    if last_cnt is not None and len(cs):
+        # Each connection's first request here steps from its last in the windows before.
+        for k in np.flatnonzero(np.r_[True, cs[1:] != cs[:-1]]).tolist():
+            before = last_cnt.get(int(cs[k]))
+            if before is not None and int(cn[k]) != (before + 1) % 0x10000:
+                i = int(new[by_conn[k]])
+                which[i] = row(judge.request(frame(i), transport=tr[i], previous_cnt=before))
+        for k in np.flatnonzero(np.r_[cs[1:] != cs[:-1], True]).tolist():
+            last_cnt[int(cs[k])] = int(cn[k])
+    if carried:
+        which[:carried] = carried_rows
     # Replies echoing their request: one verdict per distinct (request, reply DATA).
     key_of_frame = np.full(n, -1, dtype=np.int64)
     key_of_frame[rq] = rkey

@@ -1,0 +1,112 @@
+"""export-parquet's fast path a window at a time (conformance/fleet/window.py): the rows of
+a recording exported in windows of a few messages are the rows of one window, and those
+of the general path (check_recording's verdicts), whatever the windows cut."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+pytest.importorskip("pyarrow")
+duckdb = pytest.importorskip("duckdb")
+
+import tools.synth_fleet  # noqa: E402
+from tests.test_fleet import START, _a_frame_a_message  # noqa: E402
+from tools.synth_fleet import Fault, write_recording  # noqa: E402
+
+FAULTS = (
+    Fault("cnt", "*", "*", 212),  # a reply CNT one more: the pairing one by one, bad_cnt
+    Fault("timeout", "*", "*", 201),  # requests waiting for ever: carried to their close
+    Fault("refusal", "*", "*", 214),
+    Fault("slow", "*", "*", 682),  # replies 250 ms late: after later bursts' requests
+)
+TABLES = ("frames", "exchanges", "connections")
+
+
+def _rows(out: Path) -> dict[str, list[tuple[object, ...]]]:
+    return {
+        t: duckdb.sql(
+            f"SELECT * FROM read_parquet('{out}/{t}/**/*.parquet', hive_partitioning = true) "
+            "ORDER BY ALL"
+        ).fetchall()
+        for t in TABLES
+    }
+
+
+@pytest.mark.parametrize("layout", [2, 3, "3, a frame a message"])
+def test_windows_give_the_rows_of_one_window(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, layout: int | str
+) -> None:
+    from conformance.dialects import default_dialects
+    from conformance.fleet import window
+    from conformance.fleet.export import export_recording, open_dataset
+    from conformance.judge import Judge
+    from conformance.spec import default_specs
+
+    monkeypatch.setattr(tools.synth_fleet, "FRAMES_PER_CONNECTION", 130)  # a few connections
+    path = tmp_path / "r.mcap"
+    write_recording(path, "r09", "3.9.8", 700, FAULTS, START, int(str(layout)[0]))
+    if layout == "3, a frame a message":
+        assert _a_frame_a_message(path) > 400
+    judge = Judge(default_specs(), default_dialects())
+    carried: list[int] = []
+    judge_window = window.Windows._judge
+
+    def spy(self: Any, c: Any, k: int, final: bool) -> None:
+        carried.append(k)
+        judge_window(self, c, k, final)
+
+    monkeypatch.setattr(window.Windows, "_judge", spy)
+    tables = {}
+    for name, kw in (("one", {}), ("small", {"window": 5}), ("general", {"fast": False})):
+        carried.clear()
+        out = open_dataset(tmp_path / name)
+        r = export_recording(str(path), out, judge_for=lambda fw: judge, **kw)  # type: ignore[arg-type]
+        assert r.firmware == "3.9.8" and r.rows["frames"] == 700
+        tables[name] = _rows(out)
+        if name == "small":
+            # Many windows, with requests whose reply came in a later one.
+            assert len(carried) > 8 and max(carried) > 0
+        if name == "one":
+            assert carried == [0]
+    assert tables["small"] == tables["one"] == tables["general"]
+    exchanges = tables["one"]["exchanges"]
+    assert any(x[-1] for x in exchanges)  # missing replies
+    assert {r[18] for r in tables["one"]["frames"]} >= {"bad_cnt"}  # the rule column
+    conns = duckdb.sql(
+        f"SELECT count(DISTINCT conn) FROM read_parquet('{tmp_path}/one/connections/**/*.parquet')"
+    ).fetchall()
+    assert conns[0][0] >= 3  # waiting requests written at their connection's close
+
+
+def test_frames_out_of_order_are_read_whole(tmp_path: Path) -> None:
+    """A recording whose later messages hold earlier frames than those already judged:
+    the windows give up and the recording is read whole, with the same rows."""
+    from conformance.dialects import default_dialects
+    from conformance.fleet.export import export_recording, open_dataset
+    from conformance.judge import Judge
+    from conformance.recording import FrameRecord, RecordingWriter, read_recording
+    from conformance.spec import default_specs
+
+    path = tmp_path / "r.mcap"
+    write_recording(path, "r09", "3.9.8", 300, FAULTS, START, 3)
+    rec = read_recording(path)
+    frames = sorted(rec.frames, key=lambda f: -f.first_ns)  # the last first
+    with RecordingWriter(path, metadata=rec.metadata) as w:
+        for c in rec.connections:
+            w.write(c)
+        for f in frames:
+            assert isinstance(f, FrameRecord)
+            w.write_frame(f.conn, f.transport, f.dir, f.cnt, f.cmd_id, f.name, f.data,
+                          f.length or 0, f.offset, f.first_ns, f.complete_ns, f.raw)  # fmt: skip
+    judge = Judge(default_specs(), default_dialects())
+    tables = {}
+    for name, kw in (("small", {"window": 5}), ("general", {"fast": False})):
+        out = open_dataset(tmp_path / name)
+        export_recording(str(path), out, judge_for=lambda fw: judge, **kw)  # type: ignore[arg-type]
+        tables[name] = _rows(out)
+        assert not list((tmp_path / name).rglob("*.tmp"))
+    assert tables["small"] == tables["general"]
+    assert len(tables["small"]["frames"]) == 300
