@@ -489,14 +489,14 @@ def test_feed_reads_long_runs_column_wise_and_gives_what_a_frame_at_a_time_gives
     import conformance.protocol.decoder as decoder
 
     column_wise: list[int] = []
-    read = decoder._canonical_run  # type: ignore[attr-defined]
+    read = decoder.run_frames  # type: ignore[attr-defined]
 
-    def spy(seg: bytes, max_size: int) -> object:
-        out = read(seg, max_size)
-        column_wise.append(out[0] if out else 0)
+    def spy(seg: bytes, offset: int, max_size: int) -> list[Frame]:
+        out: list[Frame] = read(seg, offset, max_size)
+        column_wise.append(sum(len(f.raw) for f in out))
         return out
 
-    monkeypatch.setattr(decoder, "_canonical_run", spy)
+    monkeypatch.setattr(decoder, "run_frames", spy)
     for strict in (False, True):
         whole = FrameDecoder(strict=strict)
         fast = whole.feed(stream) + whole.close()

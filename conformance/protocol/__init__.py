@@ -3,7 +3,9 @@
 * :mod:`.frame`: the frame value types and :func:`~.frame.encode_frame`;
 * :mod:`.frame_run`: :class:`~.frame_run.FrameRun` and how a run of standard frames
   is found (the fast path of :meth:`~.decoder.FrameDecoder.take_run`);
-* :mod:`.decoder`: the streaming :class:`~.decoder.FrameDecoder`;
+* :mod:`.decoder`: the streaming :class:`~.decoder.FrameDecoder`, with :mod:`.frame_columns`
+  (its fast paths: runs read column-wise, one whole frame) and :mod:`.frame_header` (the
+  careful reading of a header);
 * :mod:`.data_values`, :mod:`.data_parse`, :mod:`.data_format`, :mod:`.data_checks`
   and :mod:`.data_fast`: the DATA grammar (re-exported by :mod:`conformance.data`).
 

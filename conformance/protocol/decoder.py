@@ -33,7 +33,6 @@ explains them, in both readings.  A frame whose CMD_ID field is empty
 from __future__ import annotations
 
 import re
-from typing import NamedTuple
 
 from ..errors import Rule
 from .frame import (
@@ -47,6 +46,16 @@ from .frame import (
     Frame,
     Malformed,
 )
+from .frame_columns import FAST_END, FAST_HEAD_RE, _small_int, one_frame, run_frames
+from .frame_header import (
+    _EMPTY_ID_RE,
+    _HEADER_RE,
+    _MAX_HEADER,
+    EMPTY_CMD_ID_VALUE,
+    _Pending,
+    _prefix_overlap,
+    broken_header,
+)
 from .frame_run import (
     _RUN_FIRST_WINDOW,
     _RUN_MAX_WINDOW,
@@ -59,63 +68,16 @@ from .skipped import skipped_rule
 
 __all__ = ["FrameDecoder", "decode_all"]
 
-_MAX_SEP = 4
-# Progressive header reading: always matches; where it stops tells what broke.
-# Each field is read one byte past its bound at most, so that the match (and the
-# bytes a broken header is reported with) never depends on how the stream was cut:
-# an unbounded ``\d*`` ran to the end of whatever was buffered.
-_HEADER_RE = re.compile(
-    rb"/f/b(I{0,%d})(\d{0,%d})(I{0,%d})(\d{0,%d})(I{0,%d})(\d{0,%d})"
-    % ((_MAX_SEP + 1, _MAX_DIGITS + 1) * 3)
-)
-# The longest match: past it a header is decided whatever follows.
-_MAX_HEADER = len(HEAD) + 3 * (_MAX_SEP + 1) + 3 * (_MAX_DIGITS + 1)
 # The fast path: a standard header, read at the parse position only (an anchored
 # match: a search would rescan the rest of the buffer for every frame, which made
 # decoding quadratic on a stream of headers), then LEN says where the tail must be.
 # It accepts exactly what the careful path's standard reading accepts, and leaves
 # everything else (garbage, a deviation, an incomplete frame) to that path.
-_FAST_HEAD_RE = re.compile(rb"/f/bIII(\d{1,5})III(\d{1,10})III(\d{1,10})III")
-_FAST_END = b"III/b/f"
+_FAST_HEAD_RE = FAST_HEAD_RE
+_FAST_END = FAST_END
 #: Bytes from which feed reads runs column-wise (below, a frame or two: per frame is as fast).
 _COLUMNS_MIN = 512
 _RUN_HEAD = HEAD + SEP
-# 1.1 with the CMD_ID field empty (``/f/bIII7IIIIII0IIIIII/b/f``: frcobot_ros2's frame
-# for a name missing from its map).  Tried only where the header reading broke, at
-# the head only: it reads at most a header's bytes.
-_EMPTY_ID_RE = re.compile(rb"/f/bIII(\d{1,%d})IIIIII(\d{1,%d})(?!\d)" % (_MAX_DIGITS, _MAX_DIGITS))
-#: The CMD_ID a frame with an empty CMD_ID field is read as: what C's ``atoi`` makes
-#: of the empty field (the frame's problems say it was empty).
-EMPTY_CMD_ID_VALUE = 0
-
-
-_HEADER_FIELDS = (
-    (Rule.BAD_SEPARATOR, "separator after head"),
-    (Rule.BAD_CNT, "CNT"),
-    (Rule.BAD_SEPARATOR, "separator after CNT"),
-    (Rule.BAD_CMD_ID, "CMD_ID"),
-    (Rule.BAD_SEPARATOR, "separator after CMD_ID"),
-    (Rule.BAD_LEN, "LEN"),
-)
-
-
-class _Pending(NamedTuple):
-    """A frame whose header is read and which waits for more bytes."""
-
-    offset: int  # stream offset of its head
-    header_size: int  # head up to the end of LEN's digits
-    cnt: int
-    cmd_id: int
-    length: int
-    problems: tuple[Rule, ...]
-
-
-def _prefix_overlap(buf: bytearray, start: int) -> int:
-    """How many trailing bytes of ``buf[start:]`` could begin a frame head."""
-    for k in (3, 2, 1):
-        if len(buf) - start >= k and buf.endswith(HEAD[:k]):
-            return k
-    return 0
 
 
 class FrameDecoder:
@@ -125,6 +87,43 @@ class FrameDecoder:
     >>> [e.data for e in d.feed(b"/f/bIII4III201III11IIIMoveJ(\\"P1\\")III/b/f")]
     ['MoveJ("P1")']
     """
+
+    __slots__ = (
+        "_base",
+        "_buf",
+        "_closed",
+        "_col_resume",
+        "_col_window",
+        "_events",
+        "_frame_end",
+        "_frames_seen",
+        "_head_found",
+        "_head_scan",
+        "_need",
+        "_pending",
+        "_pos",
+        "_run",
+        "_run_detail",
+        "_run_offset",
+        "_run_resume",
+        "_run_rule",
+        "_tail_scan",
+        "_window",
+        "max_frame_size",
+        "strict",
+    )
+
+    # Set where they are first needed, not here (a decoder made for one reply is made
+    # often): the pending skipped run's stream offset and the rule a broken header fixed
+    # for it (else its content decides), set by _skip when a run starts; and how far the
+    # searches for a pending frame's tail and for the next head have got, and that head
+    # once found (stream offsets; -1: none), set by _frame_at when a frame is pending.
+    _run_offset: int
+    _run_rule: Rule | None
+    _run_detail: str
+    _tail_scan: int
+    _head_scan: int
+    _head_found: int
 
     def __init__(
         self, *, strict: bool = False, max_frame_size: int = DEFAULT_MAX_FRAME_SIZE
@@ -137,24 +136,16 @@ class FrameDecoder:
         self._pos = 0  # parse position in _buf
         self._base = 0  # stream offset of _buf[0]
         self._run = bytearray()  # pending skipped bytes
-        self._run_offset = 0
-        self._run_rule: Rule | None = None  # reason fixed by a broken header, else by content
-        self._run_detail = ""
         self._frames_seen = 0
         self._frame_end = -1  # stream offset just past the latest frame
         self._events: list[Event] = []
         self._closed = False
         # A frame waiting for more bytes, so that each feed costs what it adds and
         # not what is already buffered (a 256 KB frame fed a byte at a time was
-        # quadratic): its stream offset and header, read once ...
+        # quadratic): its stream offset and header, read once, and the stream offset
+        # below which feeding cannot decide anything (its LEN bytes and tail are not in).
         self._pending: _Pending | None = None
-        # ... the stream offset below which feeding cannot decide anything (its LEN
-        # bytes and tail are not in yet), how far the searches for its tail and for
-        # the next head have got, and that head once found (stream offsets; -1: none).
         self._need = 0
-        self._tail_scan = 0
-        self._head_scan = 0
-        self._head_found = -1
         self._window = _RUN_FIRST_WINDOW  # take_run's, see there
         self._run_resume = 0  # stream offset before which take_run does not look
         # The same for feed's column-wise reading of runs (see _columns).
@@ -177,6 +168,15 @@ class FrameDecoder:
         """Take the next bytes of the stream; return the events they complete."""
         if self._closed:
             raise RuntimeError("feed() after close()")
+        if not self._buf and type(data) is bytes and not self._run:
+            # Nothing held, and maybe exactly one standard frame (a reply read whole):
+            # read it as the per-frame path would, without the buffer.
+            frame = one_frame(data, self._base, self.max_frame_size)
+            if frame is not None:
+                self._base = end = self._base + len(data)
+                self._frames_seen += 1
+                self._frame_end = end
+                return [frame]
         if data:
             self._buf += data
             if self._base + len(self._buf) >= self._need:
@@ -313,11 +313,13 @@ class FrameDecoder:
         n = len(buf)
         append = self._events.append
         header = _FAST_HEAD_RE.match
+        small_int = _small_int
         new = tuple.__new__
         base = self._base
         pos = self._pos
         run = self._run
         max_size = self.max_frame_size
+        waiting = False
         try:
             while pos < n:
                 # Fast path: standard frames back to back, each tail where LEN says.
@@ -336,17 +338,21 @@ class FrameDecoder:
                         break
                     c, i, ln = m.groups()
                     ds = m.end()
-                    length = int(ln)
+                    length = small_int(ln) or int(ln)
                     de = ds + length
                     end = de + 7
-                    cnt = int(c)
-                    if (
-                        end > n
-                        or end - pos > max_size
-                        or cnt > CNT_MAX
-                        or not buf.startswith(_FAST_END, de)
-                    ):
-                        break  # incomplete, too large, or not where LEN says: careful path
+                    cnt = small_int(c) or int(c)
+                    if end - pos > max_size or cnt > CNT_MAX:
+                        break  # too large, or CNT too: careful path
+                    if end > n:
+                        # Incomplete: nothing can be decided before its LEN bytes and tail
+                        # are in (the careful path waits alike, remembering the header).
+                        if not (final or quiet):
+                            self._need = base + end
+                            waiting = True
+                        break
+                    if not buf.startswith(_FAST_END, de):
+                        break  # not where LEN says: careful path
                     try:
                         data = buf[ds:de].decode("utf-8")
                     except UnicodeDecodeError:
@@ -355,13 +361,24 @@ class FrameDecoder:
                         self._flush_run()
                     # Fields are checked above: skip Frame.__new__'s validation.
                     append(
-                        new(Frame, (cnt, int(i), data, length, bytes(buf[pos:end]), (), base + pos))
+                        new(
+                            Frame,
+                            (
+                                cnt,
+                                small_int(i) or int(i),
+                                data,
+                                length,
+                                bytes(buf[pos:end]),
+                                (),
+                                base + pos,
+                            ),
+                        )
                     )
                     pos = end
                 if pos != fast_from:
                     self._frames_seen += 1  # only "any frame yet?" matters
                     self._frame_end = base + pos
-                if pos >= n:
+                if pos >= n or waiting:
                     break
                 head = buf.find(HEAD, pos)
                 if head < 0:
@@ -399,25 +416,19 @@ class FrameDecoder:
             return pos
         window = self._col_window
         seg = bytes(buf[pos : pos + window])
-        size, cnts, ids, datas, lens, sizes = _canonical_run(
-            seg, self.max_frame_size
-        ) or _standard_run(seg, self.max_frame_size)
+        off = self._base + pos
+        frames = run_frames(seg, off, self.max_frame_size)
+        size = frames[-1].offset + len(frames[-1].raw) - off if frames else 0
         if size and seg.find(_TAIL_SEP, size) < 0:
             self._col_window = min(window * 2, _RUN_MAX_WINDOW)
         else:
             self._col_window = _RUN_FIRST_WINDOW
-            self._col_resume = self._base + pos + len(seg)
+            self._col_resume = off + len(seg)
         if not size:
             return pos
         if self._run:
             self._flush_run()
-        append = self._events.append
-        new = tuple.__new__
-        at = 0
-        off = self._base + pos
-        for cnt, cmd_id, data, length, n in zip(cnts, ids, datas, lens, sizes, strict=True):
-            append(new(Frame, (cnt, cmd_id, data, length, seg[at : at + n], (), off + at)))
-            at += n
+        self._events += frames
         self._frames_seen += 1
         self._frame_end = off + size
         return pos + size
@@ -617,20 +628,7 @@ class FrameDecoder:
         return None
 
     def _bad_header(self, i: int, groups: tuple[bytes, ...], hdr_end: int, at_end: bool) -> int:
-        rule, what = Rule.BAD_HEAD, "header"
-        for g, (r, name) in zip(groups, _HEADER_FIELDS, strict=True):
-            if not g or len(g) > (_MAX_SEP if r is Rule.BAD_SEPARATOR else _MAX_DIGITS):
-                rule, what = r, name
-                break
-        else:
-            rule, what = Rule.BAD_SEPARATOR, "separator after LEN"
-        if at_end:
-            detail = f"stream ended inside the header ({what})"
-            rule = Rule.TRUNCATED
-        else:
-            detail = f"{what} is missing or not a number"
-            if rule is Rule.BAD_SEPARATOR:
-                detail = f"{what} is not III"
+        rule, detail = broken_header(groups, at_end)
         end = max(hdr_end, i + len(HEAD))
         self._flush_run()
         self._skip(i, end, rule, detail)
