@@ -132,7 +132,9 @@ def test_decode_reads_stdin() -> None:
 
 
 def test_unexpected_error_is_one_line(
-    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+    request: pytest.FixtureRequest,
 ) -> None:
     """A failure nobody foresaw still gives one line and exit 2 (FAIRINO_DEBUG re-raises)."""
     import conformance.commands.specs as specs_cmd
@@ -141,6 +143,12 @@ def test_unexpected_error_is_one_line(
         raise ZeroDivisionError("boom")
 
     monkeypatch.setattr(specs_cmd, "_run_specs", boom)
+    # The parser (built once a process) holds the command's function: built again with
+    # boom in it, and again after the test without.
+    from conformance import cli
+
+    cli._parser.cache_clear()
+    request.addfinalizer(cli._parser.cache_clear)
     monkeypatch.delenv("FAIRINO_DEBUG", raising=False)
     assert main(["specs", "list"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
