@@ -7,9 +7,11 @@ over every frame's and malformed run's verdict: the rows carry exactly those) wi
 :class:`~.memo.MemoJudge`, and written as one Parquet file per table into its partition
 (:mod:`.schema`).  A recording already in the dataset (its content hash has a
 ``_recordings/<id>.json``) is skipped, and a new one only adds files: appending never
-rewrites what is there.  Memory holds one recording (a rotated recording's segment) and
-one row group per table, whatever the number of recordings; ``jobs`` processes take the
-recordings one at a time each.
+rewrites what is there.  A clean recording is read, judged and written a window at a time
+(:mod:`.window`): memory holds a window and one row group per table, whatever the
+recording's length and the number of recordings; a recording the fast path does not take
+(damage, framing problems, the state stream) goes through ``check_recording`` whole.
+``jobs`` processes take the recordings one at a time each.
 """
 
 from __future__ import annotations
