@@ -16,6 +16,11 @@ RSS from ``wait4``):
 * ``export-parquet`` of one recording and of all of them (the peak RSS of both: flat
   memory means the same figure whatever the number of recordings); ``--jobs`` processes;
 * ``query --report latency`` over the whole dataset (``--threads``, default 2).
+
+``--memory 250000,1000000,4000000``: instead, one recording of each size (one robot, one
+firmware, time-outs, slow replies and refusals on every robot), in this layout and in
+layout 2, each exported in its own process: peak RSS against frames (flat: the same
+figure whatever the size; conformance/fleet/window.py) and frames/s CPU.
 """
 
 from __future__ import annotations
@@ -112,6 +117,28 @@ def _time_sample(sample: list[str], tmp: str, label: str) -> tuple[float, float]
     return base, n / cpu
 
 
+def memory(sizes: list[int], tmp: str) -> None:
+    """Peak RSS of export-parquet against the recording's frames (see the module)."""
+    faults = (
+        Fault("timeout", "*", "*", 214),
+        Fault("slow", "*", "*", 212),
+        Fault("refusal", "*", "*", 201),
+    )
+    print(
+        f"{'layout':>6} {'frames':>10} {'MiB of MCAP':>12} {'peak RSS MiB':>13} {'frames/s CPU':>13}"
+    )
+    for layout in (None, 2):
+        for n in sizes:
+            path = Path(tmp) / f"mem-{layout}-{n}.mcap"
+            write_recording(path, "r01", "3.9.8", n, faults, START_NS, layout)
+            ds = os.path.join(tmp, "ds-mem")
+            _, cpu, rss, _ = run([*CLI, "export-parquet", str(path), "-o", ds])
+            shutil.rmtree(ds, ignore_errors=True)
+            size = path.stat().st_size / 2**20
+            path.unlink()
+            print(f"{layout or 'this':>6} {n:>10,} {size:>12.1f} {rss:>13} {n / cpu:>13,.0f}")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -130,8 +157,18 @@ def main() -> int:
         default="2",
         help="the sample also written in this recording layout, timed beside ('' for none)",
     )
+    ap.add_argument(
+        "--memory",
+        help="frames per recording, comma-separated: peak RSS against size (nothing else)",
+    )
     a = ap.parse_args()
     tmp = tempfile.mkdtemp(prefix="bench-fleet-")
+    if a.memory:
+        try:
+            memory([int(x) for x in a.memory.split(",") if x], tmp)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+        return 0
     fleet = Path(a.fleet or os.path.join(tmp, "fleet"))
     firmwares = [f for f in a.firmwares.split(",") if f]
     if not fleet.exists():

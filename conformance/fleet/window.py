@@ -129,6 +129,11 @@ class Windows:
         else:
             work = pool
         self._judge(work, k, final)
+        import pyarrow as pa
+
+        # What the window's arrays took goes back (mimalloc, Arrow's default, keeps freed
+        # pages: its peak would creep up window after window).
+        pa.default_memory_pool().release_unused()
 
     def _judge(self, c: Columns, k: int, final: bool) -> None:
         import numpy as np
