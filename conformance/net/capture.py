@@ -89,6 +89,16 @@ RING_TIMEOUT_MS = 4
 RING_SLICE = 1
 
 
+def _stamp(anc: list[tuple[int, int, bytes]]) -> int:
+    """The kernel's time stamp (``SO_TIMESTAMPNS``) of a packet read with recvmsg, in ns
+    since the epoch (0: none)."""
+    for level, kind, cdata in anc:
+        if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS:
+            sec, nsec = _TIMESPEC.unpack_from(cdata)
+            return int(sec * 1_000_000_000 + nsec)
+    return 0
+
+
 class CapturePermissionError(ConformanceError):
     """The raw packet socket could not be opened for want of ``CAP_NET_RAW``."""
 
@@ -367,13 +377,7 @@ class LiveCapture:
         ``until_ns``: a packet the kernel stamped later is not fed, and reading stops
         there (0 is returned: the capture's end has been reached)."""
         if self.ring is not None:  # a block (at most 256 KiB of packets)
-            n, late = self.ring.read(
-                self.packets.feed,
-                self.linktype,
-                skip_outgoing=self.loopback,
-                max_blocks=RING_SLICE,
-                until_ns=until_ns,
-            )
+            n, late = self._read_ring(until_ns)
             return 0 if late else n
         give_up = time.monotonic() + DRAIN_SLICE
         recvmsg = self.sock.recvmsg
@@ -393,11 +397,7 @@ class LiveCapture:
             if loopback and addr[2] == PACKET_OUTGOING:
                 self._skipped += 1  # the same packet comes again, arriving
                 continue
-            t = 0
-            for level, kind, cdata in anc:
-                if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS:
-                    sec, nsec = _TIMESPEC.unpack_from(cdata)
-                    t = sec * 1_000_000_000 + nsec
+            t = _stamp(anc)
             if until_ns is not None and t > until_ns:
                 return 0  # sent after the stop: not this capture's
             feed(t or time.time_ns(), linktype, data)
@@ -418,12 +418,21 @@ class LiveCapture:
                     return
                 if self.loopback and addr[2] == PACKET_OUTGOING:
                     continue
-                for level, kind, cdata in anc:
-                    if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS:
-                        sec, nsec = _TIMESPEC.unpack_from(cdata)
-                        if sec * 1_000_000_000 + nsec > until_ns:
-                            return
+                if _stamp(anc) > until_ns:
+                    return
                 self.unread += 1
+
+    def _read_ring(self, until_ns: int | None) -> tuple[int, bool]:
+        """RING_SLICE blocks of the ring fed to the recorder: (packets fed, whether one
+        stamped after ``until_ns`` was met)."""
+        assert self.ring is not None
+        return self.ring.read(
+            self.packets.feed,
+            self.linktype,
+            skip_outgoing=self.loopback,
+            max_blocks=RING_SLICE,
+            until_ns=until_ns,
+        )
 
     def _stop_ring(self, fd: int, stop_ns: int, give_up: float) -> None:
         """The ring's part of a stop: the block being filled at the stop is handed over
@@ -433,15 +442,8 @@ class LiveCapture:
         while time.monotonic() < give_up:
             if not self.ring.ready() and not select.select([fd], [], [], settle)[0]:
                 return  # nothing handed over within a block's timeout: all was read
-            _n, late = self.ring.read(
-                self.packets.feed,
-                self.linktype,
-                skip_outgoing=self.loopback,
-                max_blocks=RING_SLICE,
-                until_ns=stop_ns,
-            )
-            if late:
-                return
+            if self._read_ring(stop_ns)[1]:
+                return  # a packet after the stop: the capture's end
         # Said at the stop, never lost silently.
         self.unread += self.ring.count_before(stop_ns, skip_outgoing=self.loopback)
 
