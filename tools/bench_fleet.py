@@ -4,8 +4,12 @@
     python tools/bench_fleet.py --fleet /tmp/fleet --frames 100000   # reuse a generated fleet
 
 Makes the fleet with tools/synth_fleet.py (unless it is there; injected refusals, time-outs,
-slow and bad replies on a few robots), then, each in its own process (its CPU time and peak
-RSS from ``wait4``):
+slow and bad replies on a few robots), then, each in its own process (its CPU time from
+``wait4``, its own peak RSS from its ``VmHWM``):
+
+* with ``--baseline-rev REV``: ``export-parquet`` of the first recording by this tree and by
+  the code of git revision REV, ``--repeat`` times each, interleaved (best and median CPU,
+  frames/s per process, the ratio: the same run's baseline; ``--side-only``: that alone);
 
 * the baseline: the same recordings read by the kit's reader alone (``read_recording``),
   the first ``--sample`` of them;
@@ -51,17 +55,96 @@ FAULTS = (
 )
 
 
-def run(cmd: list[str]) -> tuple[float, float, int, str]:
-    """(wall s, CPU s, peak RSS MiB, stdout) of one process."""
+#: Runs ``python -m MOD ...`` or ``python -c CODE ...`` and at exit writes its own peak RSS
+#: (``VmHWM``: this process's memory since its exec) and its children's, in KiB, to the file
+#: named first.  ``wait4``'s ``ru_maxrss`` will not do: Linux carries a process's peak over
+#: fork and exec, so a child of this bench (which holds a fleet's recordings) reported the
+#: bench's own peak, whatever it used itself.
+_PEAK = """
+import atexit, resource, runpy, sys
+out = sys.argv.pop(1)
+del sys.path[0]  # the working directory: the kit is PYTHONPATH's, else the installed one
+def _peak():
+    own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    try:
+        with open("/proc/self/status") as f:
+            own = next(int(x.split()[1]) for x in f if x.startswith("VmHWM:"))
+    except (OSError, StopIteration, ValueError):
+        pass
+    kids = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    with open(out, "w") as f:
+        f.write(str(max(own, kids)))
+atexit.register(_peak)
+how, what = sys.argv[1], sys.argv[2]
+sys.argv = [what, *sys.argv[3:]]
+if how == "-m":
+    runpy.run_module(what, run_name="__main__", alter_sys=True)
+else:
+    exec(compile(what, "<bench>", "exec"), {"__name__": "__main__"})
+"""
+
+
+def run(cmd: list[str], env: dict[str, str] | None = None) -> tuple[float, float, int, str]:
+    """(wall s, CPU s, peak RSS MiB, stdout) of one process (``python -m``/``-c`` as
+    ``cmd`` says; its own peak RSS, see :data:`_PEAK`)."""
+    assert cmd[0] == PY and cmd[1] in ("-m", "-c")
+    fd, peak = tempfile.mkstemp(prefix="bench-peak-")
+    os.close(fd)
     t0 = time.perf_counter()
-    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    p = subprocess.Popen(
+        [PY, "-c", _PEAK, peak, *cmd[1:]],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+        env=env,
+    )
     out = p.stdout.read() if p.stdout else ""
     _, status, ru = os.wait4(p.pid, 0)
     p.returncode = os.waitstatus_to_exitcode(status)
     wall = time.perf_counter() - t0
+    try:
+        kib = int(Path(peak).read_text() or 0)
+    finally:
+        os.unlink(peak)
     if p.returncode not in (0, 3):
         raise SystemExit(f"{' '.join(cmd)}: exit {p.returncode}")
-    return wall, ru.ru_utime + ru.ru_stime, ru.ru_maxrss // 1024, out
+    return wall, ru.ru_utime + ru.ru_stime, kib // 1024, out
+
+
+def baseline_env(rev: str, into: str) -> dict[str, str]:
+    """The environment that runs the kit as git revision ``rev`` had it (its package and
+    specs exported into ``into``): the same run's baseline."""
+    from tools._baseline import export_revision
+
+    export_revision(rev, into)
+    return {**os.environ, "PYTHONPATH": into, "FAIRINO_SPECS_DIR": str(Path(into) / "specs")}
+
+
+def side_by_side(path: str, tmp: str, rev: str, repeat: int) -> None:
+    """export-parquet of one recording by this tree and by ``rev``, ``repeat`` times each,
+    interleaved: CPU s (best and median), frames/s CPU, peak RSS, and the ratio."""
+    base = baseline_env(rev, os.path.join(tmp, "rev"))
+    frames = 0
+    cpus: dict[str, list[float]] = {"this tree": [], rev: []}
+    rss: dict[str, int] = {}
+    for _ in range(repeat):
+        for label, env in (("this tree", None), (rev, base)):
+            ds = tempfile.mkdtemp(prefix="ds-side-", dir=tmp)
+            _, cpu, peak, out = run([*CLI, "export-parquet", path, "-o", ds, "--json"], env=env)
+            shutil.rmtree(ds, ignore_errors=True)
+            frames = json.loads(out)["rows"]["frames"]
+            cpus[label].append(cpu)
+            rss[label] = max(rss.get(label, 0), peak)
+    print(f"one recording, {frames:,} frames, export-parquet x{repeat} each, interleaved:")
+    for label, got in cpus.items():
+        best, median = min(got), sorted(got)[len(got) // 2]
+        print(
+            f"  {label:<12} CPU best {best:.2f} s, median {median:.2f} s: "
+            f"{frames / best:,.0f} frames/s CPU (median {frames / median:,.0f}), "
+            f"peak RSS {rss[label]} MiB"
+        )
+    ratio = min(cpus[rev]) / min(cpus["this tree"])
+    print(f"  this tree / {rev}: {ratio:.2f}x frames/s CPU (best of each, same run)")
 
 
 _READ = """
@@ -158,6 +241,18 @@ def main() -> int:
         help="the sample also written in this recording layout, timed beside ('' for none)",
     )
     ap.add_argument(
+        "--baseline-rev",
+        default="",
+        help="also export the first recording by this git revision's code, side by side "
+        "with this tree's (--repeat times each, interleaved)",
+    )
+    ap.add_argument("--repeat", type=int, default=3, help="runs of each for --baseline-rev")
+    ap.add_argument(
+        "--side-only",
+        action="store_true",
+        help="with --baseline-rev: only the side-by-side runs (nothing else)",
+    )
+    ap.add_argument(
         "--memory",
         help="frames per recording, comma-separated: peak RSS against size (nothing else)",
     )
@@ -187,6 +282,10 @@ def main() -> int:
     print(f"fleet {fleet}: {len(files)} recordings, {size:.0f} MiB")
     sample = files[: a.sample]
     try:
+        if a.baseline_rev:
+            side_by_side(files[0], tmp, a.baseline_rev, a.repeat)
+            if a.side_only:
+                return 0
         if a.baseline_layout:
             theirs = _sample_in_layout(sample, fleet, Path(tmp) / "base", int(a.baseline_layout))
             mine = _time_sample(sample, tmp, "this layout")
