@@ -68,3 +68,45 @@ def test_listening_on_a_taken_port_names_the_address(
     (line,) = err.splitlines()
     assert line.startswith(f"fairino-conformance {command}: error: ")
     assert f"{transport} {taken}" in line and "in use" in line
+
+
+def test_each_command_is_found_in_the_module_the_table_names() -> None:
+    """A process given a command builds only its module's parser (cli.COMMAND_MODULES): the
+    table names every command each module registers, and no other."""
+    import argparse
+
+    from conformance import cli
+
+    registered: dict[str, str] = {}
+    for module in cli.command_modules():
+        parser = cli.build_parser(module)
+        (sub,) = (a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        registered.update(dict.fromkeys(sub.choices, module))
+    assert registered == cli.COMMAND_MODULES
+    # The whole parser holds the same commands as the modules one at a time.
+    (sub,) = (a for a in cli.build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    assert sorted(sub.choices) == sorted(registered)
+
+
+def test_a_command_given_imports_only_its_module() -> None:
+    import subprocess
+    import sys
+
+    code = (
+        "import sys; from conformance.cli import main\n"
+        "try:\n    main(['decode', '--help'])\nexcept SystemExit:\n    pass\n"
+        "print(sorted(m for m in sys.modules if m.startswith('conformance.commands.')"
+        " and not m.split('.')[-1].startswith('_')))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip().splitlines()[-1] == "['conformance.commands.specs']"
+
+
+def test_an_unknown_command_still_lists_every_command(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as e:
+        main(["no-such-command"])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert "invalid choice: 'no-such-command'" in err
+    for name in ("capture", "query", "replay", "serve", "decode"):
+        assert name in err
