@@ -194,7 +194,7 @@ def _a_frame_a_message(path: Path) -> int:
         return w.messages - len(rec.connections)
 
 
-@pytest.mark.parametrize("layout", [2, 3, "3, a frame a message"])
+@pytest.mark.parametrize("layout", [2, 3, "3, a frame a message", 4])
 def test_fast_path_gives_the_general_paths_rows(tmp_path: Path, layout: int | str) -> None:
     """The columnar path (conformance/fleet/fast.py) and check_recording's give the same
     rows: a wrong reply CNT (the pairing one by one), time-outs and refusals (at once);

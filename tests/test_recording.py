@@ -23,6 +23,7 @@ from conformance.recording import (
     SCHEMAS,
     TOPIC_C2S,
     TOPIC_CONNECTIONS,
+    TOPIC_FRAMES,
     TOPIC_PROBLEMS,
     TOPIC_S2C,
     ConnectionRecord,
@@ -37,6 +38,7 @@ from conformance.recording import (
     recover,
 )
 from conformance.recording.frames_pb import decode_batch
+from conformance.recording.traffic_pb import decode_traffic
 from conformance.spec import default_specs
 
 
@@ -76,20 +78,20 @@ def test_every_message_matches_its_schema(tmp_path: Path) -> None:
     with open(out, "rb") as f:
         for schema, channel, message in make_reader(f).iter_messages():
             assert schema is not None
-            if channel.topic in (TOPIC_C2S, TOPIC_S2C):  # layout 3: protobuf batches
-                assert (schema.encoding, schema.name) == ("protobuf", "fairino.Frames")
-                assert decode_batch(message.data).cnts
+            if channel.topic == TOPIC_FRAMES:  # layout 4: protobuf batches, any streams
+                assert (schema.encoding, schema.name) == ("protobuf", "fairino.Traffic")
+                assert len(decode_traffic(message.data).cnt)
             else:
                 assert schema.encoding == "jsonschema"
                 jsonschema.validate(json.loads(message.data), json.loads(schema.data))
             topics[channel.topic] = topics.get(channel.topic, 0) + 1
     # The two frames of the one read are one batch; the problems around them keep their
     # place (noise before, NUL padding and the partial frame after).
-    assert topics == {TOPIC_CONNECTIONS: 4, TOPIC_C2S: 1, TOPIC_PROBLEMS: 3, TOPIC_S2C: 1}
+    assert topics == {TOPIC_CONNECTIONS: 4, TOPIC_FRAMES: 2, TOPIC_PROBLEMS: 3}
     assert set(SCHEMAS) == {"fairino.Frames", "fairino.Problem", "fairino.Connection"}
     back = read_recording(out)
     assert [f.cnt for f in back.frames] == [4, 5, 1]
-    assert back.metadata["format"] == "fairino-conformance/3"
+    assert back.metadata["format"] == "fairino-conformance/4"
 
 
 def test_names_times_and_offsets() -> None:
@@ -385,10 +387,11 @@ def test_write_frames_is_write_json_of_the_batch(tmp_path: Path) -> None:
     assert [f.to_json() for f in back] == [r.to_json() for r in want[1:4]]
 
 
-def test_batches_keep_record_order_and_limits(tmp_path: Path) -> None:
+@pytest.mark.parametrize("layout", [3, 4])
+def test_batches_keep_record_order_and_limits(tmp_path: Path, layout: int) -> None:
     """Another record ends the batch held (file order is arrival order), so do the limits."""
     out = tmp_path / "r.mcap"
-    with RecordingWriter(out, metadata={"format": "x"}, batch_frames=3) as w:
+    with RecordingWriter(out, layout=layout, batch_frames=3) as w:
         for k in range(7):
             w.write(dataclasses.replace(_RECS[0], cnt=k))
             if k == 1:
@@ -396,14 +399,14 @@ def test_batches_keep_record_order_and_limits(tmp_path: Path) -> None:
     counts: list[tuple[str, int]] = []
     with open(out, "rb") as f:
         for _, channel, message in make_reader(f).iter_messages(log_time_order=False):
-            frames = channel.topic in (TOPIC_C2S, TOPIC_S2C)
-            counts.append((channel.topic, len(decode_batch(message.data).cnts) if frames else 0))
-    assert counts == [
-        (TOPIC_C2S, 2),
-        (TOPIC_CONNECTIONS, 0),
-        (TOPIC_C2S, 3),
-        (TOPIC_C2S, 2),
-    ]
+            n = 0
+            if channel.topic in (TOPIC_C2S, TOPIC_S2C):
+                n = len(decode_batch(message.data).cnts)
+            elif channel.topic == TOPIC_FRAMES:
+                n = len(decode_traffic(message.data).cnt)
+            counts.append((channel.topic, n))
+    topic = TOPIC_C2S if layout == 3 else TOPIC_FRAMES
+    assert counts == [(topic, 2), (TOPIC_CONNECTIONS, 0), (topic, 3), (topic, 2)]
     assert [f.cnt for f in read_recording(out).frames] == list(range(7))
 
 

@@ -37,12 +37,14 @@ from ..recording import (
     METADATA_NAME,
     TOPIC_C2S,
     TOPIC_CONNECTIONS,
+    TOPIC_FRAMES,
     TOPIC_S2C,
     ConnectionRecord,
     FrameBatch,
 )
 from ..recording.frames_pb import BatchColumns, decode_columns, decode_one_frame
 from ..recording.salvage import MAGIC, Walk
+from ..recording.traffic_pb import TrafficColumns, decode_traffic
 
 __all__ = ["ColumnStream", "Columns", "NotFast", "VerdictRows", "judge_columns", "read_columns"]
 
@@ -158,7 +160,14 @@ class ColumnStream:
                 for rec, _ in walk.records():
                     if isinstance(rec, Message):
                         topic = topics.get(rec.channel_id)
-                        if topic in (TOPIC_C2S, TOPIC_S2C):
+                        if topic == TOPIC_FRAMES and rec.channel_id in binary:  # layout 4
+                            if not _traffic(c, decode_traffic(rec.data)):
+                                raise NotFast
+                            if len(c.cnt) >= self.window:
+                                self._check(c)
+                                yield c
+                                c = Columns()
+                        elif topic in (TOPIC_C2S, TOPIC_S2C):
                             if rec.channel_id in binary:
                                 one = decode_one_frame(rec.data)  # request/reply: a frame each
                                 if one is not None:
@@ -296,6 +305,35 @@ def _binary_batch(c: Columns, b: BatchColumns) -> bool:
     c.transport += [b.transport] * n
     c.dir += [b.dir] * n
     c.request += array("b", [b.dir == "c2s"]) * n
+    for mine, theirs in (
+        (c.cnt, b.cnt),
+        (c.cmd_id, b.cmd_id),
+        (c.length, b.length),
+        (c.first_ns, b.first_ns),
+        (c.complete_ns, b.complete_ns),
+    ):
+        mine.frombytes(memoryview(theirs).cast("B"))
+    c.name += b.names
+    c.data += map(sys.intern, b.datas())
+    return True
+
+
+def _traffic(c: Columns, b: TrafficColumns) -> bool:
+    """Add one layout-4 ``fairino.Traffic`` message's columns (as :func:`_binary_batch`
+    does; each frame's connection, transport and direction its stream table row's, taken
+    with numpy); False for one with framing problems."""
+    if b.problems is not None:
+        return False
+    import numpy as np
+
+    stream = b.stream
+    c.conn.frombytes(np.asarray(b.stream_conn, dtype="<u8")[stream].tobytes())
+    rows = stream.tolist()
+    c.transport += map(b.stream_transport.__getitem__, rows)
+    c.dir += map(b.stream_dir.__getitem__, rows)
+    c.request.frombytes(
+        np.asarray([d == "c2s" for d in b.stream_dir], dtype="i1")[stream].tobytes()
+    )
     for mine, theirs in (
         (c.cnt, b.cnt),
         (c.cmd_id, b.cmd_id),

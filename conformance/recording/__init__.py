@@ -8,6 +8,7 @@ module             holds
 ``records``        FrameRecord, FrameBatch, ProblemRecord, ConnectionRecord, StateRecord, JSON
 ``pb_wire``        protobuf's wire format (varints, fields) and a FileDescriptorSet of a table
 ``frames_pb``      layout 3's frame batches in protobuf: encode, decode, the FileDescriptorSet
+``traffic_pb``     layout 4's frame batches (any streams, in order) in protobuf: the same
 ``writer``         RecordingWriter (one MCAP file), default_metadata, utc_time
 ``rotating``       RotatingWriter (segment files by size or duration), segment_path
 ``names``          command names of frames from the specs (StreamRecorder's lookups)
@@ -36,6 +37,7 @@ from .layout import (
     SCHEMAS,
     TOPIC_C2S,
     TOPIC_CONNECTIONS,
+    TOPIC_FRAMES,
     TOPIC_PROBLEMS,
     TOPIC_S2C,
     TOPIC_STATE,
@@ -71,6 +73,7 @@ __all__ = [
     "SCHEMAS",
     "TOPIC_C2S",
     "TOPIC_CONNECTIONS",
+    "TOPIC_FRAMES",
     "TOPIC_PROBLEMS",
     "TOPIC_S2C",
     "TOPIC_STATE",

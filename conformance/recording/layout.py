@@ -1,22 +1,31 @@
 """The MCAP layout of a recording: its topics, schemas and format constants.
 
 A recording is an MCAP file that Foxglove and the ``mcap`` command-line tools open as it
-is.  Layout 3 (``format`` ``fairino-conformance/3`` in the metadata, written by default):
-the frame batches (``/fairino/c2s``, ``/fairino/s2c``) are protobuf messages (``protobuf``
-message encoding, a ``FileDescriptorSet`` schema: :mod:`~conformance.recording.frames_pb`),
-their columns packed fixed-width integers that the recorder writes and a reader reads as
-arrays (``array.tobytes``, ``numpy.frombuffer``), not JSON text: the hot path of the
-recorder and of every reader.  The other topics (problems, connections, state) are rare
-and stay JSON documents described by JSON schemas (``json`` message encoding,
-``jsonschema`` schema encoding).  Layout 2 (``fairino-conformance/2``) is the same but
-for the frame batches, which are the JSON objects of :data:`SCHEMAS`
-(``RecordingWriter(layout=2)`` still writes it).  The topics are stable:
+is.  Layout 4 (``format`` ``fairino-conformance/4`` in the metadata, written by default):
+the frames of every connection and direction go to one topic, ``/fairino/frames``, in
+the order they were recorded, as protobuf messages ``fairino.Traffic`` (``protobuf``
+message encoding, a ``FileDescriptorSet`` schema: :mod:`~conformance.recording.traffic_pb`):
+a batch holds a small table of its streams (connection, transport, direction) and a
+``stream`` column saying each frame's, so request/reply traffic, whose direction changes
+every frame, is batched like pipelined traffic: by count (:data:`BATCH_FRAMES`), bytes
+(:data:`BATCH_BYTES`) and the writer's flush (the proxy's flush interval), never by
+direction.  Layout 3 (``fairino-conformance/3``) held one stream a message, on
+``/fairino/c2s`` and ``/fairino/s2c`` (``fairino.Frames``:
+:mod:`~conformance.recording.frames_pb`), so alternating traffic made a message a frame.
+In both, the columns are packed fixed-width integers that the recorder writes and a
+reader reads as arrays (``array.tobytes``, ``numpy.frombuffer``), not JSON text: the hot
+path of the recorder and of every reader.  The other topics (problems, connections,
+state) are rare and stay JSON documents described by JSON schemas (``json`` message
+encoding, ``jsonschema`` schema encoding).  Layout 2 (``fairino-conformance/2``) is
+layout 3 but for the frame batches, which are the JSON objects of :data:`SCHEMAS`
+(``RecordingWriter(layout=2)`` and ``layout=3`` still write them).  The topics:
 
 =========================  ====================  ===========================================
 topic                      schema                one message per
 =========================  ====================  ===========================================
-``/fairino/c2s``           ``fairino.Frames``    batch of frames sent by a client to the controller
-``/fairino/s2c``           ``fairino.Frames``    batch of frames sent by the controller to a client
+``/fairino/frames``        ``fairino.Traffic``   batch of frames, any streams (layout 4)
+``/fairino/c2s``           ``fairino.Frames``    batch of frames sent by a client to the controller (layouts 1-3)
+``/fairino/s2c``           ``fairino.Frames``    batch of frames sent by the controller to a client (layouts 1-3)
 ``/fairino/problems``      ``fairino.Problem``   malformed bytes, partial frame, capture gap
 ``/fairino/connections``   ``fairino.Connection`` connection opened, closed or refused
 ``/fairino/state``         ``fairino.State``     state packet of port 8083 (decoded fields + raw)
@@ -25,17 +34,18 @@ topic                      schema                one message per
 and one metadata record, ``fairino.recording`` (kit and spec version, source,
 upstream, listen address, start time, host, segment number).
 
-A frame message is a batch, in columns: the frames of one connection and direction
-that the recorder completed from one read (so one ``complete_ns``), frame *k* being
-``cnt[k]``, ``cmd_id[k]``, ``data[k]``... and its exact bytes the next ``size[k]``
-bytes of ``raw`` (layout 3: its DATA the next ``data_size[k]`` bytes of ``data``, its
-name ``names[name[k] - 1]``).  At 1 kHz request/reply a batch holds one frame; a pipelining
-client's read of 64 KiB holds hundreds, written as one message instead of one each
+A frame message is a batch, in columns, frame *k* being ``cnt[k]``, ``cmd_id[k]``,
+``data[k]``... and its exact bytes the next ``size[k]`` bytes of ``raw`` (layouts 3 and
+4: its DATA the next ``data_size[k]`` bytes of ``data``, its name ``names[name[k] - 1]``;
+layout 4: its connection ``stream_conn[stream[k]]``, its direction
+``stream_dir[stream[k]]``).  In layouts 2 and 3 a batch is the frames of one connection
+and direction written one after the other, so at 1 kHz request/reply it holds one frame;
+in layout 4 it holds whatever came until the count, the bytes or the flush ended it
 (``mcap.Writer.add_message`` costs about 4 us a call; a column costs a copy of its
-integers in layout 3, the text of each number in layout 2: ``tools/bench_proxy.py
---section record``).  The message's
-log time is the time the batch's last byte arrived, its publish time the time the
-first byte of its earliest frame arrived (ns since the Unix epoch).
+integers in layouts 3 and 4, the text of each number in layout 2:
+``tools/bench_proxy.py --section record``).  The message's log time is the time the
+batch's last byte arrived, its publish time the time the first byte of its earliest
+frame arrived (ns since the Unix epoch).
 
 A state connection (port 8083: ``proxy --state-upstream``, ``capture``/``import-pcap
 --state-port``) is a connection like the others (its ``fairino.Connection`` records
@@ -49,9 +59,10 @@ decoder finds (checksum, CNT gap, garbage, truncated packet) goes to
 ``/fairino/problems`` with ``kind`` ``state``, its ``rule`` the decoder's kind and
 its ``detail`` the decoder's words; a garbage run's bytes are all kept.  Layout version
 1 (``format`` ``fairino-conformance/1`` in the metadata) had one ``fairino.Frame``
-object per frame; :func:`~conformance.recording.read_recording` reads all three (a frame
-channel's message encoding says which: ``protobuf`` or ``json``), and a frame message
-that does not read or fit is skipped and named, whatever its layout.
+object per frame; :func:`~conformance.recording.read_recording` reads all four (a frame
+channel's topic and message encoding say which: ``/fairino/frames``, or ``protobuf`` or
+``json`` on ``/fairino/c2s`` and ``/fairino/s2c``), and a frame message that does not
+read or fit is skipped and named, whatever its layout.
 """
 
 from __future__ import annotations
@@ -71,6 +82,7 @@ __all__ = [
     "SCHEMAS",
     "TOPIC_C2S",
     "TOPIC_CONNECTIONS",
+    "TOPIC_FRAMES",
     "TOPIC_PROBLEMS",
     "TOPIC_S2C",
     "TOPIC_STATE",
@@ -89,6 +101,8 @@ S2C: DirectionText = "s2c"
 
 TOPIC_C2S = "/fairino/c2s"
 TOPIC_S2C = "/fairino/s2c"
+#: Layout 4's frames, of every connection and direction (one ``fairino.Traffic`` a batch).
+TOPIC_FRAMES = "/fairino/frames"
 TOPIC_PROBLEMS = "/fairino/problems"
 TOPIC_CONNECTIONS = "/fairino/connections"
 #: The state port's packets (one message each; schema ``fairino.State``).
@@ -110,9 +124,12 @@ TIME_MAX = (1 << 32) * 1_000_000_000 - 1
 FORMAT_1 = "fairino-conformance/1"
 FORMAT_2 = "fairino-conformance/2"
 FORMAT_3 = "fairino-conformance/3"
+FORMAT_4 = "fairino-conformance/4"
+#: Each layout a writer writes, by its ``format``.
+FORMATS = {2: FORMAT_2, 3: FORMAT_3, 4: FORMAT_4}
 #: The layout a recording is written in unless asked otherwise; bump on incompatible changes.
-LAYOUT = 3
-FORMAT = {2: FORMAT_2, 3: FORMAT_3}[LAYOUT]
+LAYOUT = 4
+FORMAT = FORMATS[LAYOUT]
 #: Most frames, and bytes of them, in one ``fairino.Frames`` message (RecordingWriter):
 #: a reader holds one message at a time, and a frame message stays well under a chunk.
 BATCH_FRAMES = 4096

@@ -21,12 +21,14 @@ from .layout import (
     TIME_MAX,
     TOPIC_C2S,
     TOPIC_CONNECTIONS,
+    TOPIC_FRAMES,
     TOPIC_PROBLEMS,
     TOPIC_S2C,
     TOPIC_STATE,
 )
 from .records import ConnectionRecord, FrameBatch, FrameRecord, ProblemRecord, StateRecord
 from .salvage import MAGIC, Damage, Walk
+from .traffic_pb import decode_records
 
 __all__ = ["Damage", "RecordedExchange", "Recording", "read_recording"]
 
@@ -403,6 +405,8 @@ _SCHEMA_OF_TOPIC = {
 
 
 _FITS = {topic: _fits(schema) for topic, schema in _SCHEMA_OF_TOPIC.items()}
+#: Every topic the reader reads.
+_READ = frozenset((*_SCHEMA_OF_TOPIC, TOPIC_STATE, TOPIC_FRAMES))
 
 
 def _record_of(
@@ -436,21 +440,26 @@ def _record_of(
         raise ValueError(f"{type(e).__name__}: {e}") from None
 
 
-def _channel(c: Any, topics: dict[int, str], binary: set[int]) -> None:
-    """Note a channel: its topic, and whether its frame batches are protobuf (layout 3)."""
+def _channel(c: Any, topics: dict[int, str], binary: set[int], traffic: set[int]) -> None:
+    """Note a channel: its topic, and whether its frame batches are protobuf (layout 3)
+    or layout 4's ``fairino.Traffic``."""
     topics[c.id] = c.topic
-    if c.topic in (TOPIC_C2S, TOPIC_S2C) and c.message_encoding == "protobuf":
-        binary.add(c.id)
-    else:
-        binary.discard(c.id)
+    binary.discard(c.id)
+    traffic.discard(c.id)
+    if c.message_encoding == "protobuf":
+        if c.topic in (TOPIC_C2S, TOPIC_S2C):
+            binary.add(c.id)
+        elif c.topic == TOPIC_FRAMES:
+            traffic.add(c.id)
 
 
 def read_recording(path: str | os.PathLike[str]) -> Recording:
     """Read a recording, finished or not (an unfinished one reads up to its last whole
     chunk), damaged or not: a chunk that cannot be read is skipped and the reading goes
     on (:class:`~.salvage.Walk`), and a message on the recording's topics whose JSON does
-    not fit its schema (or, layout 3, whose protobuf frame batch does not read or fit:
-    :mod:`.frames_pb`) is skipped; each is in :attr:`Recording.damage`."""
+    not fit its schema (or, layouts 3 and 4, whose protobuf frame batch does not read or
+    fit: :mod:`.frames_pb`, :mod:`.traffic_pb`) is skipped; each is in
+    :attr:`Recording.damage`."""
     from mcap.records import Channel, Message, Metadata
 
     from ..errors import RecordingError
@@ -463,8 +472,9 @@ def read_recording(path: str | os.PathLike[str]) -> Recording:
     state_problems: list[ProblemRecord] = []
     metadata: dict[str, str] = {}
     topics: dict[int, str] = {}
-    # Channels whose frame batches are protobuf (layout 3), not JSON.
+    # Channels whose frame batches are protobuf (layout 3), not JSON; layout 4's.
     binary: set[int] = set()
+    traffic: set[int] = set()
     try:
         f = open(p, "rb")  # noqa: SIM115
     except FileNotFoundError:
@@ -478,18 +488,26 @@ def read_recording(path: str | os.PathLike[str]) -> Recording:
         walk = Walk(f, p)
         for r in walk.summary_records():
             if isinstance(r, Channel):
-                _channel(r, topics, binary)
+                _channel(r, topics, binary, traffic)
         damage = walk.damage
         count = 0
         for rec, where in walk.records():
             if isinstance(rec, Channel):
-                _channel(rec, topics, binary)
+                _channel(rec, topics, binary, traffic)
             elif isinstance(rec, Message):
                 count += 1
                 topic = topics.get(rec.channel_id)
-                if topic is None or (topic not in _SCHEMA_OF_TOPIC and topic != TOPIC_STATE):
+                if topic not in _READ:
                     continue  # a foreign topic: not ours to read
-                if rec.channel_id in binary:
+                if rec.channel_id in traffic:
+                    try:
+                        frames += decode_records(rec.data)
+                        continue
+                    except ValueError as e:
+                        why = f"not a fairino.Traffic message that can be read ({e})"
+                elif topic == TOPIC_FRAMES:
+                    why = f"a {topic} message not in protobuf (layout 4 writes fairino.Traffic)"
+                elif rec.channel_id in binary:
                     try:
                         frames += decode_batch(rec.data).records()
                         continue

@@ -25,6 +25,8 @@ from .layout import (
     FORMAT_1,
     FORMAT_2,
     FORMAT_3,
+    FORMAT_4,
+    FORMATS,
     LAYOUT,
     METADATA_NAME,
     S2C,
@@ -32,6 +34,7 @@ from .layout import (
     STATE_SCHEMA,
     TOPIC_C2S,
     TOPIC_CONNECTIONS,
+    TOPIC_FRAMES,
     TOPIC_PROBLEMS,
     TOPIC_S2C,
     TOPIC_STATE,
@@ -54,6 +57,9 @@ from .records import (
     _JsonStrings,
     _OneFrame,
 )
+from .traffic_pb import FILE_DESCRIPTOR_SET as TRAFFIC_DESCRIPTOR_SET
+from .traffic_pb import SCHEMA_NAME as TRAFFIC_SCHEMA
+from .traffic_pb import Part, encode_traffic
 
 __all__ = ["RecordingWriter", "default_metadata", "utc_time"]
 
@@ -97,12 +103,12 @@ def _layout_of(metadata: Mapping[str, str]) -> int:
     fmt = metadata.get("format", "")
     if fmt in (FORMAT_1, FORMAT_2):
         return 2
-    return 3 if fmt == FORMAT_3 else LAYOUT
+    return {FORMAT_3: 3, FORMAT_4: 4}.get(fmt, LAYOUT)
 
 
 def _format_of(layout: int | None) -> dict[str, str]:
     """The metadata's ``format`` for a writer asked for ``layout`` (None: the default)."""
-    return {"format": FORMAT_2 if layout == 2 else FORMAT_3} if layout is not None else {}
+    return {"format": FORMATS.get(layout, FORMAT_3)} if layout is not None else {}
 
 
 def _flush_chunk(writer: Any) -> None:
@@ -188,28 +194,38 @@ class RecordingWriter:
         self.metadata = dict(metadata if metadata is not None else default_metadata())
         if metadata is None:
             self.metadata.update(_format_of(layout))
-        #: The layout the frame batches are written in: 3 (protobuf, :mod:`.frames_pb`)
-        #: unless asked for 2 (JSON), or the metadata's ``format`` names layout 1 or 2.
+        #: The layout the frame batches are written in: 4 (protobuf, every stream in one
+        #: batch: :mod:`.traffic_pb`) unless asked for 3 (protobuf, a stream a batch:
+        #: :mod:`.frames_pb`) or 2 (JSON), or the metadata's ``format`` names one.
         self.layout = layout if layout is not None else _layout_of(self.metadata)
-        if self.layout not in (2, 3):
-            raise ValueError(f"no layout {self.layout} to write (2 or 3)")
+        if self.layout not in (2, 3, 4):
+            raise ValueError(f"no layout {self.layout} to write (2, 3 or 4)")
         binary = self.layout == 3
         schema_ids = {
             name: self._mcap.register_schema(name, "jsonschema", json.dumps(s).encode("utf-8"))
             for name, s in SCHEMAS.items()
-            if not (binary and name == FRAMES_SCHEMA)
+            if not (self.layout > 2 and name == FRAMES_SCHEMA)
         }
+        topics = dict(_TOPICS)
         if binary:
             schema_ids[FRAMES_SCHEMA] = self._mcap.register_schema(
                 FRAMES_SCHEMA, "protobuf", FILE_DESCRIPTOR_SET
             )
+        elif self.layout == 4:
+            schema_ids[TRAFFIC_SCHEMA] = self._mcap.register_schema(
+                TRAFFIC_SCHEMA, "protobuf", TRAFFIC_DESCRIPTOR_SET
+            )
+            del topics[TOPIC_C2S], topics[TOPIC_S2C]
+            topics = {TOPIC_FRAMES: TRAFFIC_SCHEMA, **topics}
         self._channels = {
             topic: self._mcap.register_channel(
                 topic,
-                "protobuf" if binary and schema == FRAMES_SCHEMA else "json",
+                "protobuf"
+                if schema in (FRAMES_SCHEMA, TRAFFIC_SCHEMA) and self.layout > 2
+                else "json",
                 schema_ids[schema],
             )
-            for topic, schema in _TOPICS.items()
+            for topic, schema in topics.items()
         }
         self._seq = dict.fromkeys(self._channels.values(), 0)
         if binary:
@@ -217,10 +233,11 @@ class RecordingWriter:
             self._write_batch = self._write_batch_pb  # type: ignore[method-assign]
         self._mcap.add_metadata(METADATA_NAME, self.metadata)
         self._dumps = json.JSONEncoder(separators=(",", ":"), ensure_ascii=False).encode
-        self._frame_channel: dict[str, int] = {
-            C2S: self._channels[TOPIC_C2S],
-            S2C: self._channels[TOPIC_S2C],
-        }
+        self._frame_channel: dict[str, int] = (
+            {C2S: self._channels[TOPIC_C2S], S2C: self._channels[TOPIC_S2C]}
+            if self.layout < 4
+            else {}
+        )
         self._json_str = _JsonStrings()
         # add_message's equal in one step (about 45 % of a frame's time at 1 kHz).
         self._add = mcap_fast.adder(self._mcap)
@@ -232,6 +249,14 @@ class RecordingWriter:
         self._held_bytes = 0
         self.batch_frames = batch_frames
         self.batch_bytes = batch_bytes
+        # Layout 4: the frames held, any streams, in order: runs of lone frames (each
+        # write_frame's fields) and batches; _rows is the run in progress.
+        self._parts: list[Part] = []
+        self._rows: list[_OneFrame] = []
+        if self.layout == 4:
+            self.write_frame = self._write_frame4  # type: ignore[method-assign]
+            self.write_frames = self._write_frames4  # type: ignore[method-assign]
+            self._write_frames_held = self._write_traffic  # type: ignore[method-assign]
         self._closed = False
         self._stream.flush()
 
@@ -284,7 +309,7 @@ class RecordingWriter:
     def write_json(
         self, topic: str, doc: Mapping[str, Any], *, log_time: int, publish_time: int
     ) -> None:
-        if self._one is not None or self._held:
+        if self._one is not None or self._held or self._rows or self._parts:
             self._write_frames_held()
         ch = self._channels[topic]
         seq = self._seq[ch] = self._seq[ch] + 1
@@ -364,6 +389,47 @@ class RecordingWriter:
                 return
             self._write_held()
         self._one = f
+
+    def _write_frame4(self, *f: Any, **problems: Any) -> None:
+        """:meth:`write_frame` in layout 4: the frame's fields held as they are."""
+        if len(f) != 13:
+            f = (*f, problems.get("problems"))
+        rows = self._rows
+        rows.append(f)  # type: ignore[arg-type]
+        self._held_bytes += len(f[11])
+        if (
+            len(rows) + self._held_frames >= self.batch_frames
+            or self._held_bytes >= self.batch_bytes
+        ):
+            self._write_traffic()
+
+    def _write_frames4(self, b: FrameBatch) -> None:
+        """:meth:`write_frames` in layout 4: the batch joins the frames held, whatever
+        their streams."""
+        if self._rows:
+            self._parts.append(self._rows)
+            self._held_frames += len(self._rows)
+            self._rows = []
+        self._parts.append(b)
+        self._held_frames += len(b.cnts)
+        self._held_bytes += len(b.raw)
+        if self._held_frames >= self.batch_frames or self._held_bytes >= self.batch_bytes:
+            self._write_traffic()
+
+    def _write_traffic(self) -> None:
+        """The frames held as one ``fairino.Traffic`` message (layout 4)."""
+        parts = self._parts
+        if self._rows:
+            parts.append(self._rows)
+            self._rows = []
+        self._parts = []
+        self._held_frames = self._held_bytes = 0
+        if not parts:
+            return
+        msg, log, publish = encode_traffic(parts)
+        ch = self._channels[TOPIC_FRAMES]
+        seq = self._seq[ch] = self._seq[ch] + 1
+        self._add(ch, log, msg, publish, seq & 0xFFFFFFFF)
 
     def _write_frames_held(self) -> None:
         if self._one is not None:
@@ -488,7 +554,7 @@ class RecordingWriter:
     def flush(self) -> None:
         """Write the frames held, end the chunk in progress and hand everything to the OS."""
         if not self._closed:
-            if self._one is not None or self._held:
+            if self._one is not None or self._held or self._rows or self._parts:
                 self._write_frames_held()
             _flush_chunk(self._mcap)
             self._stream.flush()
@@ -497,7 +563,7 @@ class RecordingWriter:
         """Write the summary and index and close the file (idempotent)."""
         if self._closed:
             return
-        if self._one is not None or self._held:
+        if self._one is not None or self._held or self._rows or self._parts:
             self._write_frames_held()
         self._closed = True
         self._mcap.finish()  # type: ignore[no-untyped-call]

@@ -1,0 +1,528 @@
+"""Layout 4's frame batches: the ``fairino.Traffic`` message in protobuf, frames of any
+connections and directions in the order they were recorded (no protobuf library at run
+time).
+
+Layout 3's ``fairino.Frames`` holds the frames of one connection and direction, so
+request/reply traffic, whose directions alternate frame by frame, made a message a frame
+(``mcap.Writer.add_message``, a message index entry and a protobuf head each).  Here a
+small table of the message's streams (a connection, its transport and a direction: the
+columns ``stream_conn``, ``stream_transport``, ``stream_dir``) and a column ``stream``
+(each frame's row in that table) let one message hold thousands of frames whatever
+their streams; the writer cuts batches by count, bytes and its flush, never by
+direction.  Every other field is layout 3's, with its number, so the two read alike.
+In ``.proto`` terms::
+
+    syntax = "proto3";
+    package fairino;
+    message Traffic {
+      repeated fixed64 stream_conn = 1;      // stream j's connection number, from 1
+      repeated string stream_transport = 2;  // stream j's transport: tcp or udp
+      repeated string stream_dir = 3;        // stream j's direction: c2s or s2c
+      repeated fixed64 cnt = 4;              // frame k's CNT ...
+      repeated fixed64 cmd_id = 5;
+      repeated string names = 6;             // the batch's distinct command names
+      repeated fixed64 name = 7;             // 1 + index into names; 0: none (absent: none at all)
+      string data = 8;                       // the frames' DATA one after the other (UTF-8)
+      repeated fixed64 data_size = 9;        // bytes of frame k's DATA in data
+      repeated fixed64 len = 10;             // LEN as sent
+      repeated fixed64 offset = 11;          // stream offset of the frame's first byte
+      repeated fixed64 first_ns = 12;        // when its first byte came (absent: complete_ns)
+      repeated fixed64 complete_ns = 13;
+      repeated fixed64 size = 14;            // bytes of frame k in raw
+      bytes raw = 15;                        // the frames' bytes one after the other
+      repeated fixed64 problem_frame = 16;   // problem[j] is frame problem_frame[j]'s
+      repeated string problem = 17;
+      repeated fixed64 stream = 18;          // frame k's row in the stream table (absent: 0)
+    }
+
+The decoder reads any valid protobuf of this message (fields in any order, a packed
+column in several pieces or unpacked, unknown fields skipped) and checks what layout 3's
+checks, and that the stream table's three columns have one length and each frame's
+``stream`` is a row of it; whatever does not read or fit is a ``ValueError`` saying what,
+never another exception (the reader skips and names the message).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from itertools import accumulate, repeat
+from typing import Any, NamedTuple
+
+from .frames_pb import (
+    _column,
+    _encode_data,
+    _encode_names,
+    _high,
+    _list,
+    _total,
+    _values,
+)
+from .layout import INT_MAX, TIME_MAX, DirectionText
+from .pb_wire import I32 as _I32
+from .pb_wire import I64 as _I64
+from .pb_wire import LEN as _LEN
+from .pb_wire import VARINT as _VARINT
+from .pb_wire import descriptor_set
+from .pb_wire import field as _field
+from .pb_wire import read_varint as _read_varint
+from .records import FrameBatch, FrameRecord, _OneFrame
+
+__all__ = [
+    "FIELDS",
+    "FILE_DESCRIPTOR_SET",
+    "SCHEMA_NAME",
+    "TrafficColumns",
+    "decode_records",
+    "decode_traffic",
+    "encode_traffic",
+]
+
+SCHEMA_NAME = "fairino.Traffic"
+
+#: The message's fields: (name, number, protobuf type, repeated).
+FIELDS: tuple[tuple[str, int, str, bool], ...] = (
+    ("stream_conn", 1, "fixed64", True),
+    ("stream_transport", 2, "string", True),
+    ("stream_dir", 3, "string", True),
+    ("cnt", 4, "fixed64", True),
+    ("cmd_id", 5, "fixed64", True),
+    ("names", 6, "string", True),
+    ("name", 7, "fixed64", True),
+    ("data", 8, "string", False),
+    ("data_size", 9, "fixed64", True),
+    ("len", 10, "fixed64", True),
+    ("offset", 11, "fixed64", True),
+    ("first_ns", 12, "fixed64", True),
+    ("complete_ns", 13, "fixed64", True),
+    ("size", 14, "fixed64", True),
+    ("raw", 15, "bytes", False),
+    ("problem_frame", 16, "fixed64", True),
+    ("problem", 17, "string", True),
+    ("stream", 18, "fixed64", True),
+)
+_COLUMNS = {number: name for name, number, kind, _ in FIELDS if kind == "fixed64"}
+_STRINGS = {number: name for name, number, kind, _ in FIELDS if kind in ("string", "bytes")}
+
+#: The MCAP schema's data for ``fairino.Traffic`` (schema encoding ``protobuf``).
+FILE_DESCRIPTOR_SET = descriptor_set("fairino/traffic.proto", "fairino", "Traffic", FIELDS)
+
+# -- encoding
+
+#: What the writer holds between two messages: a run of lone frames (write_frame's
+#: fields, request/reply traffic) or a batch of one stream (a pipelined read).
+Part = list[_OneFrame] | FrameBatch
+
+_TEXT_FIELD: dict[tuple[int, str], bytes] = {}
+
+
+def _text_field(number: int, text: str) -> bytes:
+    got = _TEXT_FIELD.get((number, text))
+    if got is None:
+        got = _field(number, text.encode("utf-8", "surrogatepass"))
+        if len(_TEXT_FIELD) < 64:
+            _TEXT_FIELD[number, text] = got
+    return got
+
+
+def encode_traffic(parts: Sequence[Part]) -> tuple[bytes, int, int]:
+    """The frames of ``parts``, in order, as one ``fairino.Traffic`` message, with its
+    MCAP log time (the latest ``complete_ns``) and publish time (the earliest
+    ``first_ns``); a ``ValueError`` for a negative number.  Nothing in ``parts`` is
+    changed."""
+    table: dict[tuple[int, str, str], int] = {}
+    stream: list[int] = []
+    cnts: list[int] = []
+    ids: list[int] = []
+    names: list[str | None] = []
+    datas: list[str] = []
+    lens: list[int] = []
+    offsets: list[int] = []
+    firsts: list[int] = []
+    completes: list[int] = []
+    sizes: list[int] = []
+    raws: list[bytes] = []
+    problems: list[Sequence[str] | None] = []
+    c: Sequence[int]
+    i: Sequence[int]
+    nm: Sequence[str | None]
+    d: Sequence[str]
+    ln: Sequence[int]
+    o: Sequence[int]
+    f: Sequence[int]
+    t: Sequence[int]
+    for p in parts:
+        if type(p) is list:
+            conns, transports, dirs, c, i, nm, d, ln, o, f, t, r, pr = zip(*p, strict=True)
+            keys = list(zip(conns, transports, dirs, strict=True))
+            for key in dict.fromkeys(keys):
+                table.setdefault(key, len(table))
+            stream += map(table.__getitem__, keys)
+            sizes += map(len, r)
+            raws += r
+            problems += pr
+        else:
+            assert isinstance(p, FrameBatch)
+            n = len(p.cnts)
+            stream += repeat(table.setdefault((p.conn, p.transport, p.dir), len(table)), n)
+            c, i, nm, d = p.cnts, p.cmd_ids, p.names, p.datas
+            ln, o, f, t = p.lengths, p.offsets, p.first_ns, p.complete_ns
+            sizes += p.sizes
+            raws.append(p.raw)
+            problems += p.problems if p.problems is not None else repeat(None, n)
+        cnts += c
+        ids += i
+        names += nm
+        datas += d
+        lens += ln
+        offsets += o
+        firsts += f
+        completes += t
+    data, data_sizes = _encode_data(datas)
+    complete = _column(13, completes)
+    streams = list(table)
+    msg = b"".join(
+        (
+            _column(1, [s[0] for s in streams]),
+            *[_text_field(2, s[1]) for s in streams],
+            *[_text_field(3, s[2]) for s in streams],
+            _column(4, cnts),
+            _column(5, ids),
+            _encode_names(names),
+            _field(8, data),
+            _column(9, data_sizes),
+            _column(10, lens),
+            _column(11, offsets),
+            b"" if firsts == completes else _column(12, firsts),
+            complete,
+            _column(14, sizes),
+            _field(15, b"".join(raws)),
+            b"" if problems.count(None) == len(problems) else _encode_problems(problems),
+            _column(18, stream) if len(streams) > 1 else b"",
+        )
+    )
+    return msg, max(completes, default=0), min(firsts, default=0)
+
+
+def _encode_problems(problems: Sequence[Sequence[str] | None]) -> bytes:
+    frames = [k for k, ps in enumerate(problems) if ps for _ in ps]
+    if not frames:
+        return b""
+    return _column(16, frames) + b"".join(
+        _field(17, p.encode("utf-8", "surrogatepass")) for ps in problems if ps for p in ps
+    )
+
+
+# -- decoding
+
+
+class TrafficColumns(NamedTuple):
+    """One ``fairino.Traffic`` message as read: the number columns as numpy ``uint64``
+    arrays or lists of ints (checked: every value at most 2^63 - 1, times before 2106),
+    the stream table and the rest as Python values.  Frame *k* is of connection
+    ``stream_conn[stream[k]]``, and so on."""
+
+    stream_conn: list[int]
+    stream_transport: list[str]
+    stream_dir: list[DirectionText]
+    #: Each frame's row in the stream table.
+    stream: Any
+    cnt: Any
+    cmd_id: Any
+    length: Any
+    offset: Any
+    first_ns: Any
+    complete_ns: Any
+    size: Any
+    data_size: Any
+    #: Each frame's command name (None: none).
+    names: list[str | None]
+    #: The frames' DATA, one after the other (UTF-8), and their bytes.
+    data: bytes
+    raw: bytes
+    #: Each frame's problems; None when no frame of the batch has any.
+    problems: list[list[str]] | None
+
+    def datas(self) -> list[str]:
+        """Each frame's DATA as text (a ``ValueError`` for DATA that is not UTF-8 where
+        ``data_size`` cuts it)."""
+        sizes = _list(self.data_size)
+        try:
+            text = self.data.decode("utf-8", "surrogatepass")
+            ends = list(accumulate(sizes))
+            starts = [0, *ends[:-1]]
+            if len(text) == len(self.data):  # ASCII: cut the text where the bytes are cut
+                return list(map(text.__getitem__, map(slice, starts, ends)))
+            d = self.data
+            return [
+                d[a:b].decode("utf-8", "surrogatepass") for a, b in zip(starts, ends, strict=True)
+            ]
+        except UnicodeDecodeError as e:
+            raise ValueError(f"data is not UTF-8 where data_size cuts it: {e}") from None
+
+    def records(self) -> list[FrameRecord]:
+        """The message's frames as records, in order."""
+        datas = self.datas()
+        stream = _list(self.stream)
+        conns, transports, dirs = self.stream_conn, self.stream_transport, self.stream_dir
+        sizes = _list(self.size)
+        ends = list(accumulate(sizes))
+        raw = self.raw
+        raws = list(map(raw.__getitem__, map(slice, [0, *ends[:-1]], ends)))
+        probs = self.problems if self.problems is not None else repeat([])
+        return [
+            FrameRecord(
+                conn=conns[s],
+                transport=transports[s],
+                dir=dirs[s],
+                cnt=cnt,
+                cmd_id=cmd_id,
+                name=name,
+                data=data,
+                length=length,
+                raw=r,
+                problems=tuple(pr),
+                offset=offset,
+                first_ns=first,
+                complete_ns=complete,
+            )
+            for s, cnt, cmd_id, name, data, length, offset, first, complete, r, pr in zip(
+                stream,
+                _list(self.cnt),
+                _list(self.cmd_id),
+                self.names,
+                datas,
+                _list(self.length),
+                _list(self.offset),
+                _list(self.first_ns),
+                _list(self.complete_ns),
+                raws,
+                probs,
+                strict=False,  # probs: repeat() when no frame has a problem
+            )
+        ]
+
+
+def _parse(buf: bytes) -> dict[int, list[bytes]]:
+    """The message's known fields' pieces by number, in order (unknown fields skipped):
+    a packed column's bytes or one fixed64's eight, a string's bytes."""
+    n = len(buf)
+    i = 0
+    pieces: dict[int, list[bytes]] = {}
+    while i < n:
+        key = buf[i]
+        i += 1
+        if key >= 0x80:
+            key, i = _read_varint(buf, i - 1)
+        number, wire = key >> 3, key & 7
+        if wire == _LEN:
+            size = buf[i]
+            i += 1
+            if size >= 0x80:
+                size, i = _read_varint(buf, i - 1)
+            end = i + size
+            if end > n:
+                raise ValueError(f"field {number} runs {end - n} bytes past the message's end")
+            piece = buf[i:end]
+            i = end
+        elif wire == _VARINT:
+            _value, i = _read_varint(buf, i)
+            piece = b""
+        elif wire == _I64:
+            end = i + 8
+            if end > n:
+                raise ValueError(f"field {number} runs past the message's end")
+            piece = buf[i:end]
+            i = end
+        elif wire == _I32:
+            i += 4
+            if i > n:
+                raise ValueError(f"field {number} runs past the message's end")
+            piece = b""
+        else:
+            raise ValueError(f"field {number} has wire type {wire}, which protobuf has not")
+        if number in _COLUMNS:
+            if wire != _LEN and wire != _I64:
+                raise ValueError(f"{_COLUMNS[number]} has wire type {wire}, not fixed64's")
+        elif number in _STRINGS:
+            if wire != _LEN:
+                raise ValueError(f"{_STRINGS[number]} has wire type {wire}, not a string's")
+        else:
+            continue  # a field this kit does not know: protobuf skips it
+        got = pieces.get(number)
+        if got is None:
+            pieces[number] = [piece]
+        else:
+            got.append(piece)
+    return pieces
+
+
+def _column_bytes(pieces: dict[int, list[bytes]], number: int) -> bytes | None:
+    got = pieces.get(number)
+    if not got:
+        return None
+    buf = got[0] if len(got) == 1 else b"".join(got)
+    if len(buf) % 8:
+        raise ValueError(f"{_COLUMNS[number]} holds {len(buf)} bytes, not 8 a value")
+    return buf
+
+
+def _strings(pieces: dict[int, list[bytes]], number: int) -> list[str]:
+    try:
+        return [p.decode("utf-8") for p in pieces.get(number, ())]
+    except UnicodeDecodeError:
+        raise ValueError(f"{_STRINGS[number]} holds text that is not UTF-8") from None
+
+
+#: The per-frame columns as the decoder checks them: (number, name, largest value, may
+#: be absent, one value a frame).
+_CHECKS = tuple(
+    (
+        number,
+        name,
+        TIME_MAX if name.endswith("_ns") else INT_MAX,
+        name in ("first_ns", "name", "problem_frame", "stream"),
+        name != "problem_frame",
+    )
+    for number, name in sorted(_COLUMNS.items())
+    if number not in (1, 4)
+)
+
+
+def decode_traffic(buf: bytes, *, as_arrays: bool = True) -> TrafficColumns:
+    """A ``fairino.Traffic`` message's columns; a ``ValueError`` saying what does not
+    read or does not fit (see the module).  ``as_arrays``: the number columns as numpy
+    ``uint64`` arrays (else lists of ints)."""
+    try:
+        pieces = _parse(buf)
+    except IndexError:
+        raise ValueError("the message ends inside a field") from None
+    conns = _values(_column_bytes(pieces, 1) or b"", False)
+    if conns and max(conns) > INT_MAX:
+        raise ValueError(f"stream_conn holds {max(conns)}, not a non-negative 64-bit integer")
+    transports = _strings(pieces, 2)
+    dir_texts = _strings(pieces, 3)
+    m = len(conns)
+    if len(transports) != m or len(dir_texts) != m:
+        raise ValueError(
+            f"the stream table has {m} connections, {len(transports)} transports "
+            f"and {len(dir_texts)} directions"
+        )
+    for t in transports:
+        if t != "tcp" and t != "udp":
+            raise ValueError(f"stream_transport holds {t[:40]!r}, not one of tcp, udp")
+    dirs: list[DirectionText] = []
+    for d in dir_texts:
+        if d != "c2s" and d != "s2c":
+            raise ValueError(f"stream_dir holds {d[:40]!r}, not one of c2s, s2c")
+        dirs.append("c2s" if d == "c2s" else "s2c")
+    cnt = _column_bytes(pieces, 4) or b""
+    n = len(cnt) // 8
+    if n and not m:
+        raise ValueError(f"{n} frames and no stream in the stream table")
+    # Every column's bytes one after the other: one array, its columns views of it, and
+    # the ranges checked with one reduction (and one more for the two time columns).
+    order: list[str] = ["cnt"]
+    parts: list[bytes] = [cnt]
+    absent: list[str] = []
+    for number, name, _top, optional, per_frame in _CHECKS:
+        col = _column_bytes(pieces, number)
+        if col is None:
+            if optional:
+                absent.append(name)
+                continue
+            if n:
+                raise ValueError(f"the message has no {name!r}")
+            col = b""
+        elif per_frame and len(col) != 8 * n:
+            raise ValueError(f"{name} has {len(col) // 8} values for {n} frames")
+        order.append(name)
+        parts.append(col)
+    values = _values(b"".join(parts), as_arrays)
+    cols: dict[str, Any] = dict.fromkeys(absent)
+    at = 0
+    for name, part in zip(order, parts, strict=True):
+        cols[name] = values[at : at + len(part) // 8]
+        at += len(part) // 8
+    if len(values) and _high(values) > INT_MAX:
+        _name_the_misfit(cols)
+    times = [c for c in (cols["first_ns"], cols["complete_ns"]) if c is not None and len(c)]
+    if times and max(map(_high, times)) > TIME_MAX:
+        _name_the_misfit(cols)
+    stream = cols["stream"]
+    if stream is None:
+        stream = _values(bytes(8 * n), as_arrays)
+    elif n and _high(stream) >= m:
+        raise ValueError(f"stream holds {_high(stream)}, past the {m} streams")
+    raw = pieces.get(15, [b""])[-1]
+    data = pieces.get(8, [b""])[-1]
+    for what, sizes, held in (("raw", cols["size"], raw), ("data", cols["data_size"], data)):
+        # Each size at most the bytes held first: the sum cannot wrap round then.
+        if n and (_high(sizes) > len(held) or _total(sizes) != len(held)):
+            raise ValueError(f"the sizes do not add up to {what} ({len(held)} bytes)")
+        if not n and held:
+            raise ValueError(f"{what} holds {len(held)} bytes for no frame")
+    if cols["first_ns"] is None:
+        cols["first_ns"] = cols["complete_ns"]
+    return TrafficColumns(
+        stream_conn=conns,
+        stream_transport=transports,
+        stream_dir=dirs,
+        stream=stream,
+        cnt=cols["cnt"],
+        cmd_id=cols["cmd_id"],
+        length=cols["len"],
+        offset=cols["offset"],
+        first_ns=cols["first_ns"],
+        complete_ns=cols["complete_ns"],
+        size=cols["size"],
+        data_size=cols["data_size"],
+        names=_names(pieces, cols["name"], n),
+        data=data,
+        raw=raw,
+        problems=_problems(pieces, cols["problem_frame"], n),
+    )
+
+
+def _name_the_misfit(cols: dict[str, Any]) -> None:
+    """Raise the ``ValueError`` naming the first column with a value out of its range."""
+    for _number, name, top, _optional, _per in ((4, "cnt", INT_MAX, False, True), *_CHECKS):
+        col = cols.get(name)
+        if col is not None and len(col) and _high(col) > top:
+            what = "a time in ns from 1970 to 2106" if top == TIME_MAX else None
+            raise ValueError(
+                f"{name} holds {_high(col)}, not {what or 'a non-negative 64-bit integer'}"
+            )
+    raise ValueError("a column holds a value out of its range")  # pragma: no cover
+
+
+def _names(pieces: dict[int, list[bytes]], index: Any, n: int) -> list[str | None]:
+    table: list[str | None] = [None, *_strings(pieces, 6)]
+    if index is None:
+        return [None] * n
+    if n and _high(index) >= len(table):
+        raise ValueError(f"name holds {_high(index)}, past the {len(table) - 1} names")
+    return list(map(table.__getitem__, _list(index)))
+
+
+def _problems(pieces: dict[int, list[bytes]], frames: Any, n: int) -> list[list[str]] | None:
+    texts = _strings(pieces, 17)
+    if frames is None:
+        if texts:
+            raise ValueError(f"{len(texts)} problems without problem_frame")
+        return None
+    if len(frames) != len(texts):
+        raise ValueError(f"problem_frame has {len(frames)} values for {len(texts)} problems")
+    if not texts:
+        return None
+    if _high(frames) >= n:
+        raise ValueError(f"problem_frame holds {_high(frames)}, past the {n} frames")
+    out: list[list[str]] = [[] for _ in range(n)]
+    for k, p in zip(_list(frames), texts, strict=True):
+        out[k].append(p)
+    return out
+
+
+def decode_records(buf: bytes) -> list[FrameRecord]:
+    """A ``fairino.Traffic`` message's frames as records (a ``ValueError`` for one that
+    does not read or fit)."""
+    return decode_traffic(buf, as_arrays=False).records()
