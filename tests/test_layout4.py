@@ -344,7 +344,7 @@ def test_the_decoder_names_what_does_not_read(message: bytes, why: str) -> None:
 
 def test_the_decoder_is_total_on_mangled_messages() -> None:
     """Any bytes give records or a ValueError saying what, never another exception (the
-    fuzzer, tools/fuzz_files.py --target traffic-pb, runs this at length)."""
+    fuzzer, tools/fuzz_files.py --targets traffic-pb, runs this at length)."""
     recs = [_rec(1 + k % 2, "c2s" if k % 3 else "s2c", k) for k in range(6)]
     good, _, _ = encode_traffic([[_row(r) for r in recs]])
     assert decode_records(good) == recs
@@ -358,3 +358,23 @@ def test_the_decoder_is_total_on_mangled_messages() -> None:
             decode_records(bytes(b))
         except ValueError as e:
             assert str(e)
+
+
+def test_the_recorders_lone_frame_path_gives_the_records_of_its_general_path(
+    files: dict[int, Path],
+) -> None:
+    """StreamRecorder.data hands a read holding exactly one frame to write_frame inline;
+    a sink without the writer's fast paths gets every frame through the general path
+    (_emit): the same records, times and offsets included."""
+
+    class Records:
+        def __init__(self) -> None:
+            self.frames: list[FrameRecord] = []
+
+        def write(self, record: object) -> None:
+            if isinstance(record, FrameRecord):
+                self.frames.append(record)
+
+    sink = Records()
+    _traffic(sink)  # type: ignore[arg-type]
+    assert list(read_recording(files[4]).frames) == sink.frames

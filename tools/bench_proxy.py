@@ -294,12 +294,19 @@ def _record(sink: object, stream: bytes, specs: object) -> None:
     rec.finish(t_ns=t + 1)
 
 
+@functools.cache
+def _exchanges(n: int) -> tuple[list[bytes], list[bytes]]:
+    """``n`` requests and their replies, made once (not the recorder's time)."""
+    req = [encode_frame(i % 65536, 201, 'MoveJ("P1")') for i in range(n)]
+    rep = [encode_frame(i % 65536, 201, "1") for i in range(n)]
+    return req, rep
+
+
 def _record_exchanges(sink: object, n: int, specs: object) -> None:
     """Request/reply traffic: a request read, then its reply read, ``n`` times."""
     from conformance.recording import StreamRecorder
 
-    req = [encode_frame(i % 65536, 201, 'MoveJ("P1")') for i in range(n)]
-    rep = [encode_frame(i % 65536, 201, "1") for i in range(n)]
+    req, rep = _exchanges(n)
     rec = StreamRecorder(sink, specs=specs)  # type: ignore[arg-type]
     rec.open(1, t_ns=1, client="127.0.0.1:40000", upstream="127.0.0.1:8080")
     t = 1_700_000_000_000_000_000

@@ -20,6 +20,13 @@ Each target mutates one valid file of its kind and reads it through the public A
   ``ValueError``;
 * ``mcap-pb``: one frame message of a layout-3 recording replaced by such a mutation;
   the recording is read, summarized and checked as for ``mcap-json``;
+* ``traffic-pb``: layout 4's ``fairino.Traffic`` batch (frames of two TCP connections
+  and a UDP one, both ways, names and none, problems, non-ASCII DATA; one stream and no
+  ``stream`` column) mutated as ``frames-pb``'s are:
+  :func:`~conformance.recording.traffic_pb.decode_records` gives records or a
+  ``ValueError``;
+* ``mcap-traffic``: one frame message of a layout-4 recording replaced by such a
+  mutation; read, summarized and checked as for ``mcap-json``;
 * ``pcap``, ``pcapng``, ``pcap.gz``: a capture's bytes mutated or cut;
   :func:`~conformance.pcap.read.read_packets` gives packets and damage, or a
   ``CaptureError``;
@@ -117,6 +124,29 @@ def _pb_messages() -> list[bytes]:
     )  # fmt: skip
     one = encode_one(1, "tcp", "c2s", 7, 201, "MoveJ", "1", 1, 0, t, t, encode_frame(7, 201, "1"))
     return [one, encode_batch(batch)]
+
+
+def _traffic_messages() -> list[bytes]:
+    """Layout 4's frame batches to mutate: lone frames of several streams and a batch in
+    one message, and a message of one stream (no ``stream`` column)."""
+    from conformance.recording import FrameBatch
+    from conformance.recording.traffic_pb import encode_traffic
+
+    t = 1_700_000_000_000_000_000
+    rows: list[Any] = []
+    for k, (conn, way, d) in enumerate(
+        [(1, "c2s", 'MoveJ("P1")'), (1, "s2c", "1"), (2, "c2s", "é"), (3, "s2c", "0")]
+    ):
+        raw = encode_frame(k, 201, d)
+        rows.append((conn, "udp" if conn == 3 else "tcp", way, k, 201, "MoveJ" if k else None,
+                     d, len(d.encode()), 40 * k, t + k, t + k + (k % 2), raw,
+                     ["non-strict-separator"] if k == 1 else None))  # fmt: skip
+    raws = [encode_frame(k, 400, "GetVersion()") for k in range(3)]
+    batch = FrameBatch(
+        2, "tcp", "s2c", [0, 1, 2], [400] * 3, ["GetVersion"] * 3, ["GetVersion()"] * 3,
+        [12] * 3, [0, 31, 62], [t] * 3, [t + 1] * 3, list(map(len, raws)), b"".join(raws),
+    )  # fmt: skip
+    return [encode_traffic([rows[:2], batch, rows[2:]])[0], encode_traffic([batch])[0]]
 
 
 #: 64-bit values a column's value is replaced with.
@@ -269,6 +299,39 @@ def _make(target: str, tmp: Path, rng: random.Random) -> Callable[[], Any]:
             return got
 
         return one
+    if target == "traffic-pb":
+        from conformance.recording.traffic_pb import decode_records
+
+        goods = _traffic_messages()
+
+        def one() -> Any:
+            try:
+                return decode_records(_mutate_pb(rng.choice(goods), rng))
+            except ValueError:
+                raise FileError("the batch does not read") from None  # said, not a crash
+
+        return one
+    if target == "mcap-traffic":
+        from conformance.capture_check import check_recording, summarize
+        from conformance.recording import RecordingWriter, read_recording
+        from conformance.spec import default_specs
+
+        specs = default_specs()
+        goods = _traffic_messages()
+
+        def one() -> Any:
+            with RecordingWriter(f, metadata={"format": "fairino-conformance/4"}) as w:
+                w.write_frame(1, "tcp", "c2s", 1, 201, "MoveJ", 'MoveJ("P1")', 11, 0, 5, 6,
+                              encode_frame(1, 201, 'MoveJ("P1")'))  # fmt: skip
+                w.flush()
+                w._mcap.add_message(w._channels["/fairino/frames"], 7,
+                                    _mutate_pb(rng.choice(goods), rng), 7, 1)  # fmt: skip
+            got = read_recording(f)
+            summarize(got, specs)
+            check_recording(got, specs)
+            return got
+
+        return one
     if target in ("pcap", "pcapng", "pcap.gz"):
         from conformance.pcap.read import read_packets
 
@@ -319,6 +382,8 @@ TARGETS = (
     "mcap-json",
     "frames-pb",
     "mcap-pb",
+    "traffic-pb",
+    "mcap-traffic",
     "pcap",
     "pcapng",
     "pcap.gz",

@@ -281,9 +281,29 @@ class StreamRecorder(_CommandNames):
         st.last_ns = t_ns
         dec = st.decoder
         tl = st.timeline
-        if n and len(tl) < _TIMELINE_MAX:
-            tl.append((dec.stream_offset, t_ns))
-        self._emit(conn, c.transport, direction, st, dec.feed(data), t_ns)
+        at = dec.stream_offset
+        noted = n and len(tl) < _TIMELINE_MAX
+        if noted:
+            tl.append((at, t_ns))
+        events = dec.feed(data)
+        one = self._write_frame
+        if len(events) == 1 and noted and one is not None and type(events[0]) is Frame:
+            cnt, cmd_id, text, length, raw, probs, offset = events[0]
+            if offset == at and not probs:
+                # One frame, all of it in this read (request/reply traffic): what _emit
+                # and _emit_frames do with it, inline.  Its first byte came now; the
+                # times noted before it are no longer needed.
+                tl.clear()
+                tl.append((at, t_ns))
+                st.frames += 1
+                self.frames += 1
+                one(conn, c.transport, direction, cnt, cmd_id, self._name_of(cmd_id, text), text,
+                    length if length is not None else len(text.encode("utf-8")),
+                    st.base + offset, t_ns, t_ns, raw, None)  # fmt: skip
+                if self.checkpoint is not None:
+                    self.checkpoint()
+                return
+        self._emit(conn, c.transport, direction, st, events, t_ns)
         if self.checkpoint is not None:
             self.checkpoint()
 
@@ -609,24 +629,11 @@ class StreamRecorder(_CommandNames):
         self.frames += k
         one = self._write_frame
         if k == 1 and one is not None:
-            # A lone frame (request/reply traffic): its fields straight to the writer,
-            # which makes a batch only if the next frame is of the same stream.
+            # A lone frame: its fields straight to the writer (no batch made here).
             cnt, cmd_id, data, length, raw, probs, offset = frames[0]
-            one(
-                conn,
-                transport,
-                direction,
-                cnt,
-                cmd_id,
-                self._name_of(cmd_id, data),
-                data,
-                length if length is not None else len(data.encode("utf-8")),
-                base + offset,
-                firsts[0],
-                t_ns,
-                raw,
-                [p.value for p in probs] if probs else None,
-            )
+            one(conn, transport, direction, cnt, cmd_id, self._name_of(cmd_id, data), data,
+                length if length is not None else len(data.encode("utf-8")), base + offset,
+                firsts[0], t_ns, raw, [p.value for p in probs] if probs else None)  # fmt: skip
             return
         cnts, cmd_ids, datas, lengths, raws, probss, offsets = zip(*frames, strict=True)
         problems = [[p.value for p in ps] for ps in probss] if any(probss) else None

@@ -45,7 +45,7 @@ never another exception (the reader skips and names the message).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from itertools import accumulate, repeat
+from itertools import accumulate, chain, repeat
 from typing import Any, NamedTuple
 
 from .frames_pb import (
@@ -152,7 +152,14 @@ def encode_traffic(parts: Sequence[Part]) -> tuple[bytes, int, int]:
     t: Sequence[int]
     for p in parts:
         if type(p) is list:
-            conns, transports, dirs, c, i, nm, d, ln, o, f, t, r, pr = zip(*p, strict=True)
+            # The rows' fields one after the other, each column a slice of them by
+            # stride: a copy of references in C (zip(*rows) steps an iterator a row).
+            flat: list[Any] = list(chain.from_iterable(p))
+            if len(flat) != 13 * len(p):
+                raise ValueError("a held frame has not the 13 fields of write_frame")
+            conns, transports, dirs, c, i, nm, d, ln, o, f, t, r, pr = (
+                flat[k::13] for k in range(13)
+            )
             keys = list(zip(conns, transports, dirs, strict=True))
             for key in dict.fromkeys(keys):
                 table.setdefault(key, len(table))
