@@ -34,7 +34,14 @@ from ..judge import Judge, Verdict
 from ..recording import C2S, ConnectionRecord, FrameRecord, ProblemRecord, Recording
 from .fast import Columns, ColumnStream, NotFast, read_columns
 from .memo import MemoJudge
-from .schema import COLUMNS, SCHEMA_VERSION, TABLES, arrow_schema, partition_value
+from .schema import (
+    COLUMNS,
+    SCHEMA_VERSION,
+    TABLES,
+    arrow_schema,
+    partition_value,
+    verdict_columns,
+)
 from .window import WINDOW, OutOfOrder, Windows
 
 __all__ = [
@@ -295,6 +302,7 @@ class _Table:
 
 def _frame_row(f: FrameRecord, v: Verdict, port: int | None, data: bool) -> tuple[object, ...]:
     length = f.length if f.length is not None else len(f.data.encode("utf-8"))
+    *verdict, name = verdict_columns(v)
     return (
         f.transport,
         port,
@@ -304,33 +312,12 @@ def _frame_row(f: FrameRecord, v: Verdict, port: int | None, data: bool) -> tupl
         f.complete_ns,
         f.cnt,
         f.cmd_id,
-        _shown_name(f, v),
+        name or f.name,
         length,
         "len_mismatch" not in f.problems and "bad_len" not in f.problems,
         f.data if data else None,
-        v.outcome.value,
-        v.rule,
-        v.source,
-        v.dialect.id if v.dialect is not None else None,
-        v.refused,
-        v.form.value if v.refused and v.form is not None else None,
-        _code(v),
+        *verdict,
     )
-
-
-def _code(v: Verdict) -> int | None:
-    """A refusal's code, where it is one a 64-bit column holds (a reply's digits are not
-    bounded)."""
-    code = v.code if v.refused else None
-    return code if code is not None and -(2**63) <= code < 2**63 else None
-
-
-def _shown_name(f: FrameRecord, v: Verdict) -> str | None:
-    """The name ``check`` shows: the dialect's or the command's, else the judge's, else the
-    recorded one."""
-    if v.command is not None:
-        return v.command.name if v.dialect is None else v.dialect.name
-    return v.name or f.name
 
 
 def export_recording(
@@ -453,7 +440,7 @@ def _fast(
         return "whole"
     memo = MemoJudge.of(judge_for(fw))
     tables = _tables(path, dataset, result, stream.metadata, fw, memo)
-    win = Windows(memo, tables, data=data, code=_code, port=_port, window=window)
+    win = Windows(memo, tables, data=data, port=_port, window=window)
     try:
         last: tuple[Columns, int] | None = None
         rest = ((w, len(stream.connections)) for w in windows)
@@ -504,7 +491,7 @@ def _whole(
     memo = MemoJudge.of(judge_for(fw))
     tables = _tables(path, dataset, result, md, fw, memo)
     if cols is not None:
-        win = Windows(memo, tables, data=data, code=_code, port=_port)
+        win = Windows(memo, tables, data=data, port=_port)
         win.add(cols, conns, final=True)
     else:
         assert rec is not None
@@ -560,21 +547,23 @@ def _exchanges(rec: Recording, verdicts: dict[int, Verdict], table: _Table) -> N
         f = req or rep
         assert f is not None
         v = rv or pv
+        name = verdict_columns(v)[7] if v is not None else None
+        reply = verdict_columns(pv) if pv is not None else None
         table.add(
             (
                 f.transport,
                 ex.conn,
                 f.cmd_id,
-                _shown_name(f, v) if v is not None else f.name,
+                name or f.name,
                 f.cnt,
                 req.complete_ns if req is not None else None,
                 rep.complete_ns if rep is not None else None,
                 ex.latency_ns,
                 rv.outcome.value if rv is not None else None,
-                pv.outcome.value if pv is not None else None,
-                pv.rule if pv is not None else None,
-                bool(pv is not None and pv.refused),
-                _code(pv) if pv is not None else None,
+                reply[0] if reply is not None else None,
+                reply[1] if reply is not None else None,
+                bool(reply is not None and reply[4]),
+                reply[6] if reply is not None else None,
                 req is not None and rep is None,
             )
         )

@@ -26,7 +26,7 @@ import json
 import sys
 from array import array
 from collections import defaultdict, deque
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -45,6 +45,7 @@ from ..recording import (
 from ..recording.frames_pb import BatchColumns, decode_columns, decode_one_frame
 from ..recording.salvage import MAGIC, Walk
 from ..recording.traffic_pb import TrafficColumns, decode_traffic
+from .schema import VerdictColumns, verdict_columns
 
 __all__ = ["ColumnStream", "Columns", "NotFast", "VerdictRows", "judge_columns", "read_columns"]
 
@@ -460,8 +461,8 @@ def _oldest(q: deque[int] | None, taken: list[bool]) -> int | None:
     return None
 
 
-#: A verdict's columns: outcome, rule, source, dialect, refused, refusal form, code, name.
-Row = tuple[str, str, str, str | None, bool, str | None, int | None, str | None]
+#: A verdict's columns (:func:`~.schema.verdict_columns`).
+Row = VerdictColumns
 
 
 def _codes(values: list[str]) -> Any:
@@ -503,8 +504,6 @@ class VerdictRows:
 def judge_columns(
     c: Columns,
     judge: Judge,
-    shown_name: Callable[[Verdict], str | None],
-    code: Callable[[Verdict], int | None],
     *,
     state: VerdictRows | None = None,
     carried: int = 0,
@@ -539,16 +538,7 @@ def judge_columns(
     def row(v: Verdict) -> int:
         k = index.get(id(v))
         if k is None:
-            r = (
-                v.outcome.value,
-                v.rule,
-                v.source,
-                v.dialect.id if v.dialect is not None else None,
-                v.refused,
-                v.form.value if v.refused and v.form is not None else None,
-                code(v),
-                shown_name(v),
-            )
+            r = verdict_columns(v)
             k = number.get(r)
             if k is None:
                 k = number[r] = len(rows)

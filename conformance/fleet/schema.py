@@ -23,15 +23,21 @@ judge's (:class:`~conformance.verdict.Outcome` values: ``PASS``, ``NON-STRICT``,
 from __future__ import annotations
 
 import re
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from ..judge import Verdict
 
 __all__ = [
     "COLUMNS",
     "PARTITIONS",
     "SCHEMA_VERSION",
     "TABLES",
+    "VERDICT_COLUMNS",
+    "VerdictColumns",
     "arrow_schema",
     "partition_value",
+    "verdict_columns",
 ]
 
 SCHEMA_VERSION = 1
@@ -128,6 +134,39 @@ COLUMNS: dict[str, tuple[tuple[str, str, str], ...]] = {
     ),
 }
 TABLES = tuple(COLUMNS)
+
+#: A verdict's columns in ``frames`` (after ``data``), then the name ``check`` shows.
+VERDICT_COLUMNS = (
+    *("outcome", "rule", "source", "dialect", "refused", "refusal_form", "refusal_code"),
+    "name",
+)
+VerdictColumns = tuple[str, str, str, str | None, bool, str | None, int | None, str | None]
+
+
+def verdict_columns(v: Verdict) -> VerdictColumns:
+    """A verdict as the dataset holds it (:data:`VERDICT_COLUMNS`), for both ways a
+    recording is exported (each frame's row; the fast path's distinct verdicts).
+
+    The name is the one ``check`` shows: the dialect's or the command's, else the
+    judge's; None where the judge names none (the frame's recorded name is then shown).
+    A refusal's code is null where a 64-bit column cannot hold it (a reply's digits are
+    not bounded)."""
+    code = v.code if v.refused else None
+    name: str | None
+    if v.command is not None:
+        name = v.command.name if v.dialect is None else v.dialect.name
+    else:
+        name = v.name
+    return (
+        v.outcome.value,
+        v.rule,
+        v.source,
+        v.dialect.id if v.dialect is not None else None,
+        v.refused,
+        v.form.value if v.refused and v.form is not None else None,
+        code if code is not None and -(2**63) <= code < 2**63 else None,
+        name,
+    )
 
 
 def arrow_schema(table: str) -> Any:

@@ -22,9 +22,10 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any, Protocol
 
-from ..judge import Judge, Verdict
+from ..judge import Judge
 from ..recording import ConnectionRecord
 from .fast import Columns, NotFast, VerdictRows, judge_columns
+from .schema import VERDICT_COLUMNS
 
 __all__ = ["WINDOW", "OutOfOrder", "Windows"]
 
@@ -56,13 +57,12 @@ class Windows:
         tables: Mapping[str, Table],
         *,
         data: bool,
-        code: Callable[[Verdict], int | None],
         port: Callable[[str], int | None],
         window: int = WINDOW,
     ) -> None:
         import numpy as np
 
-        self.judge, self.tables, self.data, self.code, self.port = judge, tables, data, code, port
+        self.judge, self.tables, self.data, self.port = judge, tables, data, port
         self.state = VerdictRows()
         self.carried = Columns()
         self.carried_rows = np.zeros(0, dtype=np.int64)
@@ -140,16 +140,9 @@ class Windows:
         import pyarrow as pa
         import pyarrow.compute as pc
 
-        def shown(v: Verdict) -> str | None:
-            if v.command is not None:
-                return v.command.name if v.dialect is None else v.dialect.name
-            return v.name
-
         qs, ps, which, rows = judge_columns(
             c,
             self.judge,
-            shown,
-            self.code,
             state=self.state,
             carried=k,
             carried_rows=self.carried_rows,
@@ -162,7 +155,7 @@ class Windows:
             self.judged_ns = max(self.judged_ns, int(c.np("first_ns")[k:].max()))
             self.used.update(c.conn[k:])
         # The distinct verdicts' columns, taken per frame (C speed: a fleet repeats itself).
-        kinds = ("outcome", "rule", "source", "dialect", "refused", "refusal_form", "refusal_code")
+        kinds = VERDICT_COLUMNS[:7]  # the name apart: the recorded one where it is null
         types = [pa.string()] * 4 + [pa.bool_(), pa.string(), pa.int64()]
         distinct = {
             kind: pa.array([r[j] for r in rows], type=t)
