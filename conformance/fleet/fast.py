@@ -45,6 +45,7 @@ from ..recording import (
 from ..recording.frames_pb import BatchColumns, decode_columns, decode_one_frame
 from ..recording.salvage import MAGIC, Walk
 from ..recording.traffic_pb import TrafficColumns, decode_traffic
+from .fast_pb import Pending
 from .schema import VerdictColumns, verdict_columns
 
 __all__ = ["ColumnStream", "Columns", "NotFast", "VerdictRows", "judge_columns", "read_columns"]
@@ -140,6 +141,7 @@ class ColumnStream:
         from mcap.records import Channel, Message, Metadata
 
         c = Columns()
+        pending = Pending()
         topics: dict[int, str] = {}
         binary: set[int] = set()  # frame channels in protobuf (layout 3)
 
@@ -162,6 +164,7 @@ class ColumnStream:
                     if isinstance(rec, Message):
                         topic = topics.get(rec.channel_id)
                         if topic == TOPIC_FRAMES and rec.channel_id in binary:  # layout 4
+                            pending.flush(c)
                             if not _traffic(c, decode_traffic(rec.data)):
                                 raise NotFast
                             if len(c.cnt) >= self.window:
@@ -170,16 +173,23 @@ class ColumnStream:
                                 c = Columns()
                         elif topic in (TOPIC_C2S, TOPIC_S2C):
                             if rec.channel_id in binary:
+                                # A layout-3 batch waits to be checked with the window's
+                                # (fast_pb); anything else is added after those before it.
                                 one = decode_one_frame(rec.data)  # request/reply: a frame each
                                 if one is not None:
+                                    pending.flush(c)
                                     _one_frame(c, one)
-                                elif not _binary_batch(c, decode_columns(rec.data)):
-                                    raise NotFast
+                                elif not pending.add(rec.data):
+                                    pending.flush(c)
+                                    if not _binary_batch(c, decode_columns(rec.data)):
+                                        raise NotFast
                             else:
+                                pending.flush(c)
                                 doc, raw_size = _message(rec.data)
                                 if not _batch(c, doc, raw_size):
                                     raise NotFast
-                            if len(c.cnt) >= self.window:
+                            if len(c.cnt) + pending.frames >= self.window:
+                                pending.flush(c)
                                 self._check(c)
                                 yield c
                                 c = Columns()
@@ -198,6 +208,7 @@ class ColumnStream:
                         and not self.metadata
                     ):
                         self.metadata = dict(rec.metadata)
+                pending.flush(c)
                 if walk.damage or not self.metadata:
                     raise NotFast
                 self.complete = walk.complete
