@@ -202,6 +202,21 @@ def _dictionary(col: Any, string: Any) -> Any:
     return pa.DictionaryArray.from_arrays(indices, values)
 
 
+def _constant(value: object, kind: Any, n: int) -> Any:
+    """A column of ``n`` times ``value``; a string as the dictionary ``dictionary_encode``
+    makes of it (not ``n`` strings hashed: the recording's name, id, firmware and spec
+    version, in every row group of every table)."""
+    import pyarrow as pa
+
+    if not pa.types.is_string(kind):
+        return pa.repeat(pa.scalar(value, type=kind), n)
+    if value is None:
+        return pa.DictionaryArray.from_arrays(pa.nulls(n, pa.int32()), pa.array([], kind))
+    return pa.DictionaryArray.from_arrays(
+        pa.repeat(pa.scalar(0, pa.int32()), n), pa.array([value], kind)
+    )
+
+
 class _Table:
     """One table's file of one recording: rows gathered, written a row group at a time."""
 
@@ -242,7 +257,7 @@ class _Table:
         for f in self.schema:
             col = cols.get(f.name)
             if col is None:
-                col = pa.repeat(pa.scalar(self.constants[f.name], type=f.type), n)
+                col = _constant(self.constants[f.name], f.type, n)
             elif not isinstance(col, (pa.Array, pa.ChunkedArray)):
                 col = pa.array(col, type=pa.int64() if pa.types.is_timestamp(f.type) else f.type)
             if pa.types.is_timestamp(f.type):

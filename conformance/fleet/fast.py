@@ -101,6 +101,14 @@ class Columns:
         import numpy as np
 
         out = Columns()
+        n = len(at)
+        if n and int(at[0]) + n - 1 == int(at[-1]) and (n == 1 or (np.diff(at) == 1).all()):
+            # A run of frames (a window's ready ones, those that wait: most often a head
+            # and a tail): sliced in C, not looked up frame by frame.
+            a, b = int(at[0]), int(at[-1]) + 1
+            for k in _FRAME_COLUMNS:
+                getattr(out, k).extend(getattr(self, k)[a:b])
+            return out
         idx = at.tolist()
         for k in _FRAME_COLUMNS:
             mine = getattr(self, k)

@@ -180,9 +180,9 @@ class Windows:
             verdict_cols = {kind: per_frame(v, at.slice(k)) for kind, v in distinct.items()}
             self.tables["frames"].add_columns(
                 {
-                    "transport": pa.array(c.transport[k:], type=pa.string()).dictionary_encode(),
+                    "transport": _text_column(c.transport[k:]),
                     "port": _ports_of(conn[k:], self.ports),
-                    "direction": pa.array(c.dir[k:], type=pa.string()).dictionary_encode(),
+                    "direction": _directions(np.frombuffer(c.request, dtype=np.int8)[k:]),
                     "conn": pa.array(conn[k:]),
                     "first_time": pa.array(c.np("first_ns")[k:]),
                     "time": pa.array(c.np("complete_ns")[k:]),
@@ -230,7 +230,7 @@ class Windows:
         refused = pc.fill_null(distinct["refused"].take(at_rep), False)
         self.tables["exchanges"].add_columns(
             {
-                "transport": pa.array(c.transport, type=pa.string()).take(f),
+                "transport": _text_column(c.transport).take(f),
                 "conn": pa.array(conn).take(f),
                 "cmd_id": pa.array(c.np("cmd_id")).take(f),
                 "name": names.take(f)
@@ -261,4 +261,32 @@ def _ports_of(conns: Any, ports: dict[int, int | None]) -> Any:
     known, at = np.unique(conns, return_inverse=True)
     return pa.array([ports.get(int(k)) for k in known], type=pa.int64()).take(
         pa.array(at.reshape(-1).astype(np.int32))
+    )
+
+
+def _text_column(values: list[str]) -> Any:
+    """A string column as ``dictionary_encode`` makes it; one value throughout (a
+    recording's transport, as a rule) without reading every string into Arrow."""
+    import pyarrow as pa
+
+    if values and values.count(values[0]) == len(values):
+        return pa.DictionaryArray.from_arrays(
+            pa.repeat(pa.scalar(0, pa.int32()), len(values)), pa.array(values[:1], pa.string())
+        )
+    return pa.array(values, type=pa.string()).dictionary_encode()
+
+
+def _directions(request: Any) -> Any:
+    """The direction column (``c2s``, ``s2c``) of frames' request flags (numpy int8, one
+    at least), as ``dictionary_encode`` makes it of their texts: values in the order they
+    come first."""
+    import numpy as np
+    import pyarrow as pa
+
+    first = int(request[0])
+    other = request != first
+    texts = ("s2c", "c2s")
+    values = [texts[first], texts[1 - first]] if other.any() else [texts[first]]
+    return pa.DictionaryArray.from_arrays(
+        pa.array(other.astype(np.int32)), pa.array(values, pa.string())
     )
