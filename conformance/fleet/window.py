@@ -165,9 +165,12 @@ class Windows:
 
         def per_frame(values: Any, indices: Any) -> Any:
             # Strings stay a dictionary over the distinct verdicts' (written a row group at
-            # a time): a window's columns are their indices, not its strings.
+            # a time): a window's columns are their indices, not its strings.  Each value
+            # once in it (an outcome is many verdicts'): Parquet's writer takes a
+            # dictionary of distinct values as it is, and hashes every row of any other.
             if pa.types.is_string(values.type):
-                return pa.DictionaryArray.from_arrays(indices, values)
+                coded = values.dictionary_encode()
+                return pa.DictionaryArray.from_arrays(coded.indices.take(indices), coded.dictionary)
             return values.take(indices)
 
         shown_names = pa.array([r[7] for r in rows], type=pa.string())
