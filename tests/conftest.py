@@ -21,6 +21,15 @@ from conformance.net.emulator import EmulatorServer  # noqa: E402
 
 pytest_plugins = ("pytester",)
 
+
+def pytest_configure(config: pytest.Config) -> None:
+    # The xdist controller, before its workers start: bytecode made once (tests/bytecode_warm.py).
+    if not hasattr(config, "workerinput") and config.getoption("numprocesses", None):
+        from tests.bytecode_warm import warm
+
+        warm(config)
+
+
 # Validated spec documents are remembered by content hash (conformance/spec.py): the
 # tests and the CLI processes they start share one cache outside the user's home.
 os.environ.setdefault(
