@@ -22,12 +22,14 @@ from conformance.recording import (
     ConnectionRecord,
     FrameBatch,
     FrameRecord,
+    ProblemRecord,
     RecordingWriter,
     StreamRecorder,
     dump_json,
     read_recording,
     recover,
 )
+from conformance.recording.lone_reads import read_together
 from conformance.recording.pb_wire import field
 from conformance.recording.traffic_pb import (
     FIELDS,
@@ -378,3 +380,93 @@ def test_the_recorders_lone_frame_path_gives_the_records_of_its_general_path(
     sink = Records()
     _traffic(sink)  # type: ignore[arg-type]
     assert list(read_recording(files[4]).frames) == sink.frames
+
+
+def _reads(seed: int, rate: float) -> list[tuple[int, str, bytes]]:
+    """Request/reply reads of three connections taking turns, among them reads the
+    recorder cannot take as one standard frame: garbage before a frame, a frame cut in
+    two reads, a CNT with leading zeros, DATA holding the separator, a lenient frame."""
+    rng = random.Random(seed)
+    out: list[tuple[int, str, bytes]] = []
+    for k in range(400):
+        conn = rng.choice((1, 2, 3))
+        way = rng.choice(("c2s", "s2c"))
+        frame = encode_frame(k % 1000, rng.choice((201, 400, 905)), rng.choice(("1", "0", "é")))
+        odd = rng.random() / rate * 0.15 if rate else 1.0
+        if odd < 0.03:
+            frame = b"junk" + frame
+        elif odd < 0.06:
+            frame = frame.replace(b"/f/bIII", b"/f/bIII00", 1)
+        elif odd < 0.09:
+            frame = encode_frame(k, 201, 'MoveJ("PIII1")')
+        elif odd < 0.12:
+            frame = frame.replace(b"III", b"II", 1)
+        elif odd < 0.15:  # cut: the rest comes in the stream's next read
+            out.append((conn, way, frame[:9]))
+            frame = frame[9:]
+        out.append((conn, way, frame))
+    return out
+
+
+@pytest.mark.parametrize(("seed", "rate"), [(1, 0.15), (2, 0.003), (3, 0.0)])
+def test_reads_held_and_read_together_give_the_records_of_each_read_alone(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, seed: int, rate: float
+) -> None:
+    """The recorder holds reads of a frame each for a RecordingWriter and reads them
+    together (lone_reads.py); a sink without the writer's fast paths gets each read
+    alone: the same frames, problems and counts, whatever the reads hold."""
+    from conformance.recording import recorder
+
+    together: list[bool] = []
+
+    def spy(*a: Any) -> Any:
+        got = read_together(*a)
+        together.append(got is not None)
+        return got
+
+    monkeypatch.setattr(recorder, "read_together", spy)
+
+    class Records:
+        def __init__(self) -> None:
+            self.records: list[object] = []
+
+        def write(self, record: object) -> None:
+            self.records.append(record)
+
+    out = tmp_path / "r.mcap"
+    sink = Records()
+    counts = []
+    with RecordingWriter(out) as w:
+        for target in (w, sink):
+            r = StreamRecorder(target, specs=default_specs())  # type: ignore[arg-type]
+            for conn in (1, 2, 3):
+                r.open(conn, t_ns=T0, client=f"127.0.0.1:{5000 + conn}")
+            for k, (conn, way, data) in enumerate(_reads(seed, rate)):
+                r.data(conn, way, T0 + 10 * k, data)  # type: ignore[arg-type]
+            r.finish(t_ns=T0 + 10**9)
+            counts.append((r.frames, r.problems))
+    rec = read_recording(out)
+    # Every batch read together when every read is a standard frame; one by one when not.
+    assert together and (all(together) if rate == 0 else not all(together))
+    assert counts[0] == counts[1] and counts[0][0] > 300 and (counts[0][1] > 0 or rate < 0.1)
+    assert list(rec.frames) == [x for x in sink.records if isinstance(x, FrameRecord)]
+    assert [p for p in rec.problems] == [x for x in sink.records if isinstance(x, ProblemRecord)]
+    assert list(rec.connections) == [x for x in sink.records if isinstance(x, ConnectionRecord)]
+
+
+def test_a_flush_from_outside_writes_the_reads_the_recorder_holds(tmp_path: Path) -> None:
+    """The flush promise with reads held by the recorder: the writer asks the recorder
+    (RecordingWriter.hold) before it flushes, so a caller's flush finds every frame."""
+    out, copy = tmp_path / "r.mcap", tmp_path / "copy.mcap"
+    w = RecordingWriter(out)
+    try:
+        r = StreamRecorder(w, specs=default_specs())
+        r.open(1, t_ns=T0)
+        for k in range(6):
+            r.data(1, "s2c" if k % 2 else "c2s", T0 + k, encode_frame(k, 201, "1"))
+        assert r._lone  # held, not yet read
+        w.flush()
+        shutil.copy(out, copy)
+        assert [f.cnt for f in read_recording(copy).frames] == list(range(6))
+    finally:
+        w.close()

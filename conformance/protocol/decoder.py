@@ -236,6 +236,15 @@ class FrameDecoder:
         self._frame_end = self._base
         return run
 
+    def skip_frames(self, count: int, size: int) -> None:
+        """Go on after ``count`` whole standard frames (``size`` bytes) the caller read
+        itself from the next bytes, as :meth:`feed` of them would.  Only when idle."""
+        if self._closed or not self.idle:
+            raise RuntimeError("skip_frames() on a decoder that holds bytes, or closed")
+        self._base += size
+        self._frames_seen += count
+        self._frame_end = self._base
+
     def resolve_pending(self) -> list[Event]:
         """The peer went quiet inside a frame: decide on it now if a tail is buffered.
 

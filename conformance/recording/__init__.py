@@ -13,6 +13,8 @@ module             holds
 ``rotating``       RotatingWriter (segment files by size or duration), segment_path
 ``names``          command names of frames from the specs (StreamRecorder's lookups)
 ``state_stream``   StateStream: a state-port connection's bytes in, state records out
+``streams``        the recorder's state per connection and direction
+``lone_reads``     reads of a frame each (request/reply), held and read together
 ``recorder``       StreamRecorder: bytes and times in, records out (sans-I/O)
 ``salvage``        Walk, Damage: an MCAP file's records, a damaged chunk skipped and named
 ``reader``         read_recording, Recording, RecordedExchange

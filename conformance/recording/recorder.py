@@ -9,11 +9,10 @@ times they were seen (STYLE.md, convention 1).
 from __future__ import annotations
 
 from bisect import bisect_right
-from collections import deque
-from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
 from functools import partial
-from itertools import accumulate
+from itertools import accumulate, repeat
+from typing import Any
 
 from ..frame import (
     DEFAULT_MAX_FRAME_SIZE,
@@ -27,9 +26,18 @@ from ..frame import (
 )
 from ..spec import SpecSet
 from .layout import C2S, PROBLEM_RAW_LIMIT, S2C, STATE_STREAM, DirectionText
+from .lone_reads import LONE_MAX, LoneRead, read_together
 from .names import _CommandNames
-from .records import ConnectionRecord, FrameBatch, FrameRecord, ProblemRecord, RecordSink
+from .records import (
+    ConnectionRecord,
+    FrameBatch,
+    FrameRecord,
+    ProblemRecord,
+    RecordSink,
+    problem_records,
+)
 from .state_stream import StateStream
+from .streams import _TIMELINE_MAX, _Conn, _Stream
 
 __all__ = ["DECODE_SLICE", "StreamRecorder"]
 
@@ -38,47 +46,10 @@ __all__ = ["DECODE_SLICE", "StreamRecorder"]
 #: slices its ``checkpoint`` runs (the proxy's recorder flushes its file and notices a
 #: stop there), so a hostile stream cannot hold the recorder in one long decode.
 DECODE_SLICE = 2048
-# Arrival times remembered per stream while no event consumes them: a peer trickling
-# an endless frame a byte at a time would otherwise grow the list for ever.  Past the
-# bound, later arrivals are not noted and a frame starting there gets the last noted
-# time (earlier than its real first byte, never later than its last).
-_TIMELINE_MAX = 4096
 _TAIL_SEP = SEP + TAIL
 # Bytes below which a read goes to FrameDecoder.feed even when the decoder is idle: a
 # run's columns cost more than the per-frame fast path for a frame or two.
 _RUN_MIN = 512
-
-
-class _Stream:
-    """One direction of one connection: decoder plus the times its bytes arrived."""
-
-    __slots__ = ("base", "bytes", "decoder", "frames", "last_ns", "raw", "timeline")
-
-    def __init__(self, max_frame_size: int) -> None:
-        self.decoder = FrameDecoder(max_frame_size=max_frame_size)
-        self.timeline: deque[tuple[int, int]] = deque()  # (decoder offset, t_ns)
-        self.base = 0  # stream offset of the decoder's first byte (grows at gaps)
-        self.bytes = 0
-        self.frames = 0
-        self.last_ns = 0
-        self.raw = False  # bytes are being recorded undecoded (see stop_decoding)
-
-    def first_ns(self, offset: int) -> int:
-        tl = self.timeline
-        while len(tl) > 1 and tl[1][0] <= offset:
-            tl.popleft()
-        return tl[0][1] if tl else self.last_ns
-
-
-@dataclass
-class _Conn:
-    transport: str
-    client: str
-    upstream: str
-    local: str
-    streams: dict[str, _Stream]
-    #: A state-port connection's packets (``open(..., stream="state")``), else None.
-    state: StateStream | None = None
 
 
 class StreamRecorder(_CommandNames):
@@ -126,6 +97,17 @@ class StreamRecorder(_CommandNames):
         self._write_frame: Callable[..., None] | None = (
             getattr(sink, "write_frame", None) if self._write_frames is not None else None
         )
+        # Reads of a frame each, held to be read together (lone_reads.py), for a sink that
+        # drains them first (RecordingWriter.hold) and with no checkpoint (see data()).
+        self._write_rows: Callable[[list[Any]], None] | None = (
+            getattr(sink, "write_rows", None) if self._write_frame is not None else None
+        )
+        hold = getattr(sink, "hold", None)
+        if hold is None:
+            self._write_rows = None
+        elif self._write_rows is not None:
+            hold(self._drain)  # the sink writes them before anything else, and at flush
+        self._lone: list[LoneRead] = []
         # Command name by ID where the ID alone decides it (one command has it), else
         # _BY_DATA: then the name in DATA picks among the commands (command_name).
         self._id_names: dict[int, object] = {}
@@ -151,6 +133,7 @@ class StreamRecorder(_CommandNames):
     ) -> None:
         """A connection opened; ``stream="state"``: a state-port (8083) connection, its
         bytes read as state packets (:class:`~.state_stream.StateStream`)."""
+        self._drain()
         self._conns[conn] = _Conn(
             transport=transport,
             client=client,
@@ -180,6 +163,7 @@ class StreamRecorder(_CommandNames):
         return conn in self._conns
 
     def close(self, conn: int, *, t_ns: int, reason: str) -> None:
+        self._drain()
         c = self._conns.pop(conn, None)
         if c is None:
             return
@@ -243,6 +227,7 @@ class StreamRecorder(_CommandNames):
             self.checkpoint()
 
     def finish(self, *, t_ns: int, reason: str = "recording ended") -> None:
+        self._drain()
         for conn in list(self._conns):
             self.close(conn, t_ns=t_ns, reason=reason)
 
@@ -255,6 +240,7 @@ class StreamRecorder(_CommandNames):
         frames before this point are kept; the bytes after it are Problem records of
         rule ``undecoded``, at their stream offsets.  Idempotent.
         """
+        self._drain()
         if self.undecoded_reason is None:
             self.undecoded_reason = reason
 
@@ -271,18 +257,68 @@ class StreamRecorder(_CommandNames):
         if n >= _RUN_MIN or n > self.slice_size or self.undecoded_reason is not None:
             self.segments(conn, direction, ((t_ns, data),))
             return
-        # A short read (request/reply traffic: one frame): straight to the decoder.
+        # A short read (request/reply traffic: one frame): held to be read with the next
+        # ones (lone_reads.py), or straight to the decoder.
         c = self._conns[conn]
+        st = c.streams[direction]
+        if (
+            self._write_rows is not None
+            and c.state is None
+            and n
+            and type(data) is bytes
+            and self.checkpoint is None
+            and st.decoder.idle
+            and len(st.timeline) < _TIMELINE_MAX
+        ):
+            st.bytes += n
+            st.last_ns = t_ns
+            lone = self._lone
+            lone.append((conn, c.transport, direction, st, t_ns, data))
+            if len(lone) >= LONE_MAX:
+                self._drain()
+            return
+        self._drain()
         if c.state is not None:
             self._state_data(c, direction, t_ns, data)
             return
-        st = c.streams[direction]
         st.bytes += n
+        self._read(conn, c.transport, direction, st, t_ns, data)
+
+    def _drain(self) -> None:
+        """The reads held (data()), read together if each is a standard frame, else one
+        by one: the same records either way."""
+        lone = self._lone
+        if not lone:
+            return
+        self._lone = []
+        got = read_together(lone, self.max_frame_size)
+        if got is None:
+            for conn, transport, direction, st, t_ns, data in lone:
+                self._read(conn, transport, direction, st, t_ns, data)  # type: ignore[arg-type]
+            return
+        cnts, ids, texts, lens, offsets = got
+        conns, transports, directions, _, times, raws = zip(*lone, strict=True)
+        names = self._names_of(ids, texts)
+        self.frames += len(cnts)
+        assert self._write_rows is not None
+        self._write_rows(list(zip(conns, transports, directions, cnts, ids, names, texts, lens,
+                                  offsets, times, times, raws, repeat(None))))  # fmt: skip
+
+    def _read(
+        self,
+        conn: int,
+        transport: str,
+        direction: DirectionText,
+        st: _Stream,
+        t_ns: int,
+        data: bytes,
+    ) -> None:
+        """One short read of a TCP stream (its bytes counted), to the decoder."""
         st.last_ns = t_ns
         dec = st.decoder
         tl = st.timeline
         at = dec.stream_offset
-        noted = n and len(tl) < _TIMELINE_MAX
+        noted = bool(data) and len(tl) < _TIMELINE_MAX
         if noted:
             tl.append((at, t_ns))
         events = dec.feed(data)
@@ -297,13 +333,13 @@ class StreamRecorder(_CommandNames):
                 tl.append((at, t_ns))
                 st.frames += 1
                 self.frames += 1
-                one(conn, c.transport, direction, cnt, cmd_id, self._name_of(cmd_id, text), text,
+                one(conn, transport, direction, cnt, cmd_id, self._name_of(cmd_id, text), text,
                     length if length is not None else len(text.encode("utf-8")),
                     st.base + offset, t_ns, t_ns, raw, None)  # fmt: skip
                 if self.checkpoint is not None:
                     self.checkpoint()
                 return
-        self._emit(conn, c.transport, direction, st, events, t_ns)
+        self._emit(conn, transport, direction, st, events, t_ns)  # type: ignore[arg-type]
         if self.checkpoint is not None:
             self.checkpoint()
 
@@ -328,6 +364,7 @@ class StreamRecorder(_CommandNames):
                 # does with it, without the bookkeeping of reads put together.
                 self.data(conn, direction, t_ns, data)
                 return
+        self._drain()
         c = self._conns[conn]
         if c.state is not None:
             for t_ns, piece in reads:
@@ -425,6 +462,7 @@ class StreamRecorder(_CommandNames):
 
     def datagram(self, conn: int, direction: DirectionText, t_ns: int, data: bytes) -> None:
         """One UDP datagram: decoded on its own (a frame never spans datagrams)."""
+        self._drain()
         c = self._conns[conn]
         st = c.streams[direction]
         st.bytes += len(data)
@@ -497,6 +535,7 @@ class StreamRecorder(_CommandNames):
         self, conn: int, direction: DirectionText, t_ns: int, missing: int, detail: str = ""
     ) -> None:
         """``missing`` bytes of the stream were never captured: record it, restart decoding."""
+        self._drain()
         c = self._conns[conn]
         if c.state is not None:
             before = c.state.packets, c.state.problems
@@ -528,6 +567,7 @@ class StreamRecorder(_CommandNames):
 
     def idle(self, now_ns: int, idle_ns: int) -> None:
         """Decide on frames whose peer went quiet mid-frame for ``idle_ns`` (LEN too large)."""
+        self._drain()
         for conn, c in self._conns.items():
             for d, st in c.streams.items():
                 if st.decoder.buffered and now_ns - st.last_ns >= idle_ns:
@@ -607,7 +647,7 @@ class StreamRecorder(_CommandNames):
             if frames:
                 self._emit_frames(conn, transport, direction, st, frames, firsts, b, t_ns)
                 frames, firsts = [], []
-            for pr in _problems(conn, transport, direction, ev, b, first, t_ns):
+            for pr in problem_records(conn, transport, direction, ev, b, first, t_ns):
                 self.problems += 1
                 write(pr)
         if frames:
@@ -657,34 +697,4 @@ class StreamRecorder(_CommandNames):
                 raw=b"".join(raws),
                 problems=problems,
             )
-        )
-
-
-def _problems(
-    conn: int,
-    transport: str,
-    direction: DirectionText,
-    ev: Malformed,
-    base: int,
-    first: int,
-    t_ns: int,
-) -> Iterator[ProblemRecord]:
-    """The Problem records of one malformed run: one per ``PROBLEM_RAW_LIMIT`` bytes, at
-    consecutive offsets, so every byte is kept (export-pcap puts them all back)."""
-    raw = ev.raw
-    parts = max(1, -(-len(raw) // PROBLEM_RAW_LIMIT))
-    for k in range(parts):
-        piece = raw[k * PROBLEM_RAW_LIMIT : (k + 1) * PROBLEM_RAW_LIMIT]
-        yield ProblemRecord(
-            conn=conn,
-            transport=transport,
-            dir=direction,
-            kind="malformed",
-            rule=ev.rule.value,
-            detail=ev.detail if parts == 1 else f"{ev.detail} (part {k + 1} of {parts})",
-            offset=base + ev.offset + k * PROBLEM_RAW_LIMIT,
-            size=len(piece),
-            raw=piece,
-            first_ns=first,
-            complete_ns=t_ns,
         )

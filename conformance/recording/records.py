@@ -7,13 +7,13 @@ from __future__ import annotations
 import base64
 import contextlib
 import json
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from itertools import accumulate, repeat
 from typing import Any, Literal, NamedTuple, Protocol
 
-from ..frame import Frame
-from .layout import DirectionText
+from ..frame import Frame, Malformed
+from .layout import PROBLEM_RAW_LIMIT, DirectionText
 
 __all__ = [
     "ConnectionRecord",
@@ -485,3 +485,33 @@ class RecordSink(Protocol):
     """Where a :class:`StreamRecorder` puts its records."""
 
     def write(self, record: Record) -> None: ...
+
+
+def problem_records(
+    conn: int,
+    transport: str,
+    direction: DirectionText,
+    ev: Malformed,
+    base: int,
+    first: int,
+    t_ns: int,
+) -> Iterator[ProblemRecord]:
+    """The Problem records of one malformed run: one per ``PROBLEM_RAW_LIMIT`` bytes, at
+    consecutive offsets, so every byte is kept (export-pcap puts them all back)."""
+    raw = ev.raw
+    parts = max(1, -(-len(raw) // PROBLEM_RAW_LIMIT))
+    for k in range(parts):
+        piece = raw[k * PROBLEM_RAW_LIMIT : (k + 1) * PROBLEM_RAW_LIMIT]
+        yield ProblemRecord(
+            conn=conn,
+            transport=transport,
+            dir=direction,
+            kind="malformed",
+            rule=ev.rule.value,
+            detail=ev.detail if parts == 1 else f"{ev.detail} (part {k + 1} of {parts})",
+            offset=base + ev.offset + k * PROBLEM_RAW_LIMIT,
+            size=len(piece),
+            raw=piece,
+            first_ns=first,
+            complete_ns=t_ns,
+        )

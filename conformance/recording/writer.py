@@ -5,10 +5,11 @@ from __future__ import annotations
 
 import binascii
 import json
+import operator
 import os
 import socket
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from itertools import chain
 from typing import IO, Any, cast
 
@@ -62,6 +63,9 @@ from .traffic_pb import SCHEMA_NAME as TRAFFIC_SCHEMA
 from .traffic_pb import Part, encode_traffic
 
 __all__ = ["RecordingWriter", "default_metadata", "utc_time"]
+
+#: A held frame's bytes (write_frame's fields: the twelfth).
+_RAW = operator.itemgetter(11)
 
 
 def utc_time(ns: int) -> str:
@@ -253,6 +257,8 @@ class RecordingWriter:
         # write_frame's fields) and batches; _rows is the run in progress.
         self._parts: list[Part] = []
         self._rows: list[_OneFrame] = []
+        # Who holds frames for this writer (hold()): asked to write them first.
+        self._holders: list[Callable[[], None]] = []
         if self.layout == 4:
             self.write_frame = self._write_frame4  # type: ignore[method-assign]
             self.write_frames = self._write_frames4  # type: ignore[method-assign]
@@ -275,7 +281,21 @@ class RecordingWriter:
         except (OSError, ValueError):
             return 0
 
+    def hold(self, drain: Callable[[], None]) -> None:
+        """``drain`` writes the frames its caller holds for this writer (the recorder's
+        reads of a frame each, read together later: :mod:`.lone_reads`); the writer calls
+        it before it writes anything else, and at :meth:`flush` and :meth:`close`, so
+        the file's order and the flush promise are the same as without."""
+        if drain not in self._holders:
+            self._holders.append(drain)
+
+    def _drain_holders(self) -> None:
+        for drain in self._holders:
+            drain()
+
     def write(self, record: Record) -> None:
+        if self._holders:
+            self._drain_holders()
         if isinstance(record, FrameRecord):
             self.write_frames(FrameBatch.of([record]))
             return
@@ -309,6 +329,8 @@ class RecordingWriter:
     def write_json(
         self, topic: str, doc: Mapping[str, Any], *, log_time: int, publish_time: int
     ) -> None:
+        if self._holders:
+            self._drain_holders()
         if self._one is not None or self._held or self._rows or self._parts:
             self._write_frames_held()
         ch = self._channels[topic]
@@ -324,6 +346,8 @@ class RecordingWriter:
         batch holds ``batch_frames`` frames or ``batch_bytes`` bytes.  Messages keep
         the order the records came in, across topics.
         """
+        if self._holders:
+            self._drain_holders()
         one = self._one
         if one is not None:
             self._one = None
@@ -403,9 +427,30 @@ class RecordingWriter:
         ):
             self._write_traffic()
 
+    def write_rows(self, rows: list[_OneFrame]) -> None:
+        """Frames, each as :meth:`write_frame`'s fields, in order: the recorder's reads of
+        a frame each, read together.  Layout 4 holds them as they are (a batch may go
+        past ``batch_bytes`` by one call's bytes); the others write each."""
+        if self.layout != 4:
+            for r in rows:
+                self.write_frame(*r)
+            return
+        while rows:
+            room = max(1, self.batch_frames - self._held_frames - len(self._rows))
+            self._rows += rows[:room]
+            self._held_bytes += sum(map(len, map(_RAW, rows[:room])))
+            rows = rows[room:]
+            if (
+                len(self._rows) + self._held_frames >= self.batch_frames
+                or self._held_bytes >= self.batch_bytes
+            ):
+                self._write_traffic()
+
     def _write_frames4(self, b: FrameBatch) -> None:
         """:meth:`write_frames` in layout 4: the batch joins the frames held, whatever
         their streams."""
+        if self._holders:
+            self._drain_holders()
         if self._rows:
             self._parts.append(self._rows)
             self._held_frames += len(self._rows)
@@ -553,6 +598,8 @@ class RecordingWriter:
 
     def flush(self) -> None:
         """Write the frames held, end the chunk in progress and hand everything to the OS."""
+        if self._holders and not self._closed:
+            self._drain_holders()
         if not self._closed:
             if self._one is not None or self._held or self._rows or self._parts:
                 self._write_frames_held()
@@ -563,6 +610,8 @@ class RecordingWriter:
         """Write the summary and index and close the file (idempotent)."""
         if self._closed:
             return
+        if self._holders:
+            self._drain_holders()
         if self._one is not None or self._held or self._rows or self._parts:
             self._write_frames_held()
         self._closed = True
