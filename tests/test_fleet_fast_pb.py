@@ -100,3 +100,25 @@ def test_cut_and_flipped_bytes_leave_or_read_alike() -> None:
         inputs.append(bytes(b))
     read = sum(same([GOOD[1], x, GOOD[2]]) is not None for x in inputs)
     assert 0 < read < len(inputs)
+
+
+@pytest.mark.parametrize(
+    "datas", [["GetDI(0,0)", "", "GetDI(0,0)", "x"], ["é", "", "ü\ufffd€x", "é"], ["x"], []]
+)
+def test_texts_cut_as_a_batch_reads_them(datas: list[str]) -> None:
+    """The layout-4 fast path's DATA (texts) is what the decoder's datas() gives."""
+    import numpy as np
+
+    from conformance.fleet.fast_pb import texts
+
+    b = decode_columns(encode_batch(batch(len(datas), datas=datas, lengths=[0] * len(datas))))
+    got = texts(b.data, np.asarray(b.data_size))
+    assert got == b.datas()
+    assert all(x is y for x, y in zip(got, texts(b.data, b.data_size), strict=True))  # interned
+
+
+def test_texts_cut_inside_a_character_do_not_read() -> None:
+    from conformance.fleet.fast_pb import texts
+
+    with pytest.raises(ValueError):
+        texts("é".encode(), [1, 1])

@@ -45,7 +45,7 @@ from ..recording import (
 from ..recording.frames_pb import BatchColumns, decode_columns, decode_one_frame
 from ..recording.salvage import MAGIC, Walk
 from ..recording.traffic_pb import TrafficColumns, decode_traffic
-from .fast_pb import Pending
+from .fast_pb import Pending, texts
 from .schema import VerdictColumns, verdict_columns
 
 __all__ = ["ColumnStream", "Columns", "NotFast", "VerdictRows", "judge_columns", "read_columns"]
@@ -363,7 +363,7 @@ def _traffic(c: Columns, b: TrafficColumns) -> bool:
     ):
         mine.frombytes(memoryview(theirs).cast("B"))
     c.name += b.names
-    c.data += map(sys.intern, b.datas())
+    c.data += texts(b.data, b.data_size)  # as b.datas() reads them, interned
     return True
 
 

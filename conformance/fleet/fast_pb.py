@@ -27,7 +27,7 @@ from typing import Any
 from ..recording.layout import INT_MAX, TIME_MAX
 from ..recording.pb_wire import read_varint
 
-__all__ = ["Pending"]
+__all__ = ["Pending", "texts"]
 
 #: The numbered fields a batch of the writer's has (``frames_pb.FIELDS``): the packed
 #: columns, ``data`` (8) and ``raw`` (15); ``names`` (6) may come several times.
@@ -128,7 +128,7 @@ class Pending:
             c.name += map(table.__getitem__, at.tolist())
         else:
             c.name += [None] * self.frames
-        c.data += self._datas(col[9])
+        c.data += texts(b"".join(self._data), col[9])
         conn = np.array([h[0] for h in self._heads], dtype=np.int64)
         c.conn.frombytes(np.repeat(conn, ns).tobytes())
         request = np.array([h[2] == "c2s" for h in self._heads], dtype=np.int8)
@@ -154,28 +154,30 @@ class Pending:
                 self._interned[raw] = got
         return got
 
-    def _datas(self, sizes: Any) -> list[str]:
-        """Each frame's DATA as text (interned), as ``BatchColumns.datas`` cuts it."""
-        import numpy as np
-        import pyarrow as pa
 
-        # Text that does not read: UnicodeDecodeError, a ValueError, as there.
-        blob = b"".join(self._data)
-        ends = np.cumsum(sizes, dtype=np.int64)
-        text = blob.decode("utf-8", "surrogatepass")
-        if len(text) != len(blob):  # not ASCII: each frame's bytes decoded alone
-            cuts = np.r_[0, ends].tolist()
-            return [
-                sys.intern(blob[a:b].decode("utf-8", "surrogatepass"))
-                for a, b in itertools.pairwise(cuts)
-            ]
-        offsets = np.r_[np.int64(0), ends]
-        strings = pa.LargeStringArray.from_buffers(
-            len(ends), pa.py_buffer(offsets.tobytes()), pa.py_buffer(blob)
-        )
-        coded = strings.dictionary_encode()
-        values = [sys.intern(s) for s in coded.dictionary.to_pylist()]
-        return list(map(values.__getitem__, coded.indices.to_numpy().tolist()))
+def texts(blob: bytes, sizes: Any) -> list[str]:
+    """Each frame's DATA as text (interned) from the frames' DATA one after the other and
+    each one's bytes (numpy, adding up to ``blob``'s), as ``BatchColumns.datas`` cuts it: a
+    ``UnicodeDecodeError`` (a ``ValueError``) for text that does not read.  ASCII (a
+    fleet's DATA, as a rule) is cut by pyarrow and its distinct strings made once."""
+    import numpy as np
+    import pyarrow as pa
+
+    ends = np.cumsum(sizes, dtype=np.int64)
+    text = blob.decode("utf-8", "surrogatepass")
+    if len(text) != len(blob):  # not ASCII: each frame's bytes decoded alone
+        cuts = np.r_[0, ends].tolist()
+        return [
+            sys.intern(blob[a:b].decode("utf-8", "surrogatepass"))
+            for a, b in itertools.pairwise(cuts)
+        ]
+    offsets = np.r_[np.int64(0), ends]
+    strings = pa.LargeStringArray.from_buffers(
+        len(ends), pa.py_buffer(offsets.tobytes()), pa.py_buffer(blob)
+    )
+    coded = strings.dictionary_encode()
+    values = [sys.intern(s) for s in coded.dictionary.to_pylist()]
+    return list(map(values.__getitem__, coded.indices.to_numpy().tolist()))
 
 
 def _fields(buf: bytes) -> tuple[int, dict[int, bytes], list[bytes]] | None:
