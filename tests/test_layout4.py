@@ -33,6 +33,7 @@ from conformance.recording.lone_reads import read_together
 from conformance.recording.pb_wire import field
 from conformance.recording.traffic_pb import (
     FIELDS,
+    Mixed,
     decode_records,
     decode_traffic,
     encode_traffic,
@@ -223,6 +224,17 @@ def test_a_mixed_batch_round_trips() -> None:
     assert len(cols.stream_conn) == 6  # (conn, transport, dir) rows, each once
     table = zip(cols.stream_conn, cols.stream_transport, cols.stream_dir, strict=True)
     assert sorted(table) == sorted({(r.conn, r.transport, r.dir) for r in recs})
+    # Frames read together by the recorder (lone_reads.py): columns and a stream index.
+    same = [dataclasses.replace(r, first_ns=r.complete_ns) for r in recs if not r.problems]
+    keys = list(dict.fromkeys((r.conn, r.transport, r.dir) for r in same))
+    mixed = Mixed(
+        keys, [keys.index((r.conn, r.transport, r.dir)) for r in same],
+        [r.cnt for r in same], [r.cmd_id for r in same], [r.name for r in same],
+        [r.data for r in same], [r.length or 0 for r in same], [r.offset for r in same],
+        [r.complete_ns for r in same], [r.raw for r in same],
+    )  # fmt: skip
+    msg, _, _ = encode_traffic([[_row(recs[1])], mixed, FrameBatch.of(recs[3:5])])
+    assert decode_records(msg) == [recs[1], *same, *recs[3:5]]
     # One stream: no stream column (every frame is row 0).
     one, _, _ = encode_traffic([FrameBatch.of(recs[3:5])])
     assert decode_records(one) == recs[3:5]

@@ -24,18 +24,16 @@ __all__ = ["LONE_MAX", "LoneRead", "read_together"]
 #: Reads held at most: a batch of them is a few dozen KiB.
 LONE_MAX = 256
 
-#: A read held: connection, transport, direction, its stream (the recorder's ``_Stream``),
-#: the time it came, its bytes.
-LoneRead = tuple[int, str, str, Any, int, bytes]
+#: A read held: its stream (the recorder's ``_Stream``), the time it came, its bytes.
+LoneRead = tuple[Any, int, bytes]
 
 
-def read_together(
-    lone: Sequence[LoneRead], max_size: int
-) -> tuple[list[int], list[int], list[str], list[int], list[int]] | None:
-    """The frames of ``lone``, a read each, as columns (CNT, CMD_ID, DATA, LEN, stream
-    offset), each stream's decoder, timeline and count moved past them; None, and nothing
-    changed, unless every read is exactly one standard frame."""
-    datas = [r[5] for r in lone]
+def read_together(lone: Sequence[LoneRead], max_size: int) -> tuple[Any, ...] | None:
+    """The frames of ``lone``, a read each, as columns: the streams' keys (connection,
+    transport, direction) and each frame's index among them, CNT, CMD_ID, DATA, LEN,
+    stream offset, time, bytes; each stream's decoder, timeline and count moved past
+    them.  None, and nothing changed, unless every read is exactly one standard frame."""
+    datas = [r[2] for r in lone]
     blob = b"".join(datas)
     cols = _canonical_run(blob, max_size)
     if cols is None:
@@ -43,21 +41,24 @@ def read_together(
     size, cnts, ids, texts, lens, sizes = cols
     if size != len(blob) or sizes != list(map(len, datas)):
         return None
-    # Each stream's next offset, frames, last frame's offset and time.
+    # Each stream's next offset, frames, last frame's offset and time, index.
     ends: dict[Any, list[int]] = {}
     offsets = []
-    for r, n in zip(lone, sizes, strict=True):
-        st = r[3]
+    index = []
+    times = []
+    for (st, t, _), n in zip(lone, sizes, strict=True):
         e = ends.get(st)
         if e is None:
-            e = ends[st] = [st.decoder.stream_offset, 0, 0, 0]
+            e = ends[st] = [st.decoder.stream_offset, 0, 0, 0, len(ends)]
         at = e[0]
         offsets.append(st.base + at)
+        index.append(e[4])
+        times.append(t)
         e[0] = at + n
         e[1] += 1
         e[2] = at
-        e[3] = r[4]
-    for st, (end, count, last, t) in ends.items():
+        e[3] = t
+    for st, (end, count, last, t, _) in ends.items():
         dec = st.decoder
         dec.skip_frames(count, end - dec.stream_offset)
         # What reading them one by one leaves: the time of the last one's first byte.
@@ -65,4 +66,4 @@ def read_together(
         tl.clear()
         tl.append((last, t))
         st.frames += count
-    return cnts, ids, texts, lens, offsets
+    return [st.key for st in ends], index, cnts, ids, texts, lens, offsets, times, datas

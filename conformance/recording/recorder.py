@@ -11,8 +11,7 @@ from __future__ import annotations
 from bisect import bisect_right
 from collections.abc import Callable, Sequence
 from functools import partial
-from itertools import accumulate, repeat
-from typing import Any
+from itertools import accumulate
 
 from ..frame import (
     DEFAULT_MAX_FRAME_SIZE,
@@ -38,6 +37,7 @@ from .records import (
 )
 from .state_stream import StateStream
 from .streams import _TIMELINE_MAX, _Conn, _Stream
+from .traffic_pb import Mixed
 
 __all__ = ["DECODE_SLICE", "StreamRecorder"]
 
@@ -99,8 +99,8 @@ class StreamRecorder(_CommandNames):
         )
         # Reads of a frame each, held to be read together (lone_reads.py), for a sink that
         # drains them first (RecordingWriter.hold) and with no checkpoint (see data()).
-        self._write_rows: Callable[[list[Any]], None] | None = (
-            getattr(sink, "write_rows", None) if self._write_frame is not None else None
+        self._write_rows: Callable[[Mixed], None] | None = (
+            getattr(sink, "write_mixed", None) if self._write_frame is not None else None
         )
         hold = getattr(sink, "hold", None)
         if hold is None:
@@ -139,7 +139,10 @@ class StreamRecorder(_CommandNames):
             client=client,
             upstream=upstream,
             local=local,
-            streams={C2S: _Stream(self.max_frame_size), S2C: _Stream(self.max_frame_size)},
+            streams={
+                C2S: _Stream(self.max_frame_size, (conn, transport, C2S)),
+                S2C: _Stream(self.max_frame_size, (conn, transport, S2C)),
+            },
             state=(
                 StateStream(self.sink, conn, transport=transport, version=self.state_version)
                 if stream == STATE_STREAM
@@ -273,7 +276,7 @@ class StreamRecorder(_CommandNames):
             st.bytes += n
             st.last_ns = t_ns
             lone = self._lone
-            lone.append((conn, c.transport, direction, st, t_ns, data))
+            lone.append((st, t_ns, data))
             if len(lone) >= LONE_MAX:
                 self._drain()
             return
@@ -285,24 +288,21 @@ class StreamRecorder(_CommandNames):
         self._read(conn, c.transport, direction, st, t_ns, data)
 
     def _drain(self) -> None:
-        """The reads held (data()), read together if each is a standard frame, else one
-        by one: the same records either way."""
+        """The reads held (data()), read together if each is a frame, else one by one."""
         lone = self._lone
         if not lone:
             return
         self._lone = []
         got = read_together(lone, self.max_frame_size)
         if got is None:
-            for conn, transport, direction, st, t_ns, data in lone:
-                self._read(conn, transport, direction, st, t_ns, data)  # type: ignore[arg-type]
+            for st, t_ns, data in lone:
+                self._read(*st.key, st, t_ns, data)  # type: ignore[call-arg]
             return
-        cnts, ids, texts, lens, offsets = got
-        conns, transports, directions, _, times, raws = zip(*lone, strict=True)
-        names = self._names_of(ids, texts)
+        table, index, cnts, ids, texts, lens, offsets, times, raws = got
         self.frames += len(cnts)
         assert self._write_rows is not None
-        self._write_rows(list(zip(conns, transports, directions, cnts, ids, names, texts, lens,
-                                  offsets, times, times, raws, repeat(None))))  # fmt: skip
+        names = self._names_of(ids, texts)
+        self._write_rows(Mixed(table, index, cnts, ids, names, texts, lens, offsets, times, raws))
 
     def _read(
         self,

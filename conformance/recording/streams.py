@@ -21,9 +21,11 @@ _TIMELINE_MAX = 4096
 class _Stream:
     """One direction of one connection: decoder plus the times its bytes arrived."""
 
-    __slots__ = ("base", "bytes", "decoder", "frames", "last_ns", "raw", "timeline")
+    __slots__ = ("base", "bytes", "decoder", "frames", "key", "last_ns", "raw", "timeline")
 
-    def __init__(self, max_frame_size: int) -> None:
+    def __init__(self, max_frame_size: int, key: tuple[int, str, str]) -> None:
+        #: (connection, transport, direction): the stream's row in a layout-4 batch.
+        self.key = key
         self.decoder = FrameDecoder(max_frame_size=max_frame_size)
         self.timeline: deque[tuple[int, int]] = deque()  # (decoder offset, t_ns)
         self.base = 0  # stream offset of the decoder's first byte (grows at gaps)

@@ -108,9 +108,27 @@ FILE_DESCRIPTOR_SET = descriptor_set("fairino/traffic.proto", "fairino", "Traffi
 
 # -- encoding
 
+
+class Mixed(NamedTuple):
+    """Frames of several streams as columns (the recorder's reads of a frame each, read
+    together): the streams' (connection, transport, direction) and each frame's index
+    among them; first and complete time are the same, no frame has problems."""
+
+    streams: Sequence[tuple[int, str, str]]
+    stream: Sequence[int]
+    cnts: Sequence[int]
+    cmd_ids: Sequence[int]
+    names: Sequence[str | None]
+    datas: Sequence[str]
+    lengths: Sequence[int]
+    offsets: Sequence[int]
+    times: Sequence[int]
+    raws: Sequence[bytes]
+
+
 #: What the writer holds between two messages: a run of lone frames (write_frame's
-#: fields, request/reply traffic) or a batch of one stream (a pipelined read).
-Part = list[_OneFrame] | FrameBatch
+#: fields), a batch of one stream (a pipelined read), or frames read together.
+Part = list[_OneFrame] | FrameBatch | Mixed
 
 _TEXT_FIELD: dict[tuple[int, str], bytes] = {}
 
@@ -167,6 +185,15 @@ def encode_traffic(parts: Sequence[Part]) -> tuple[bytes, int, int]:
             sizes += map(len, r)
             raws += r
             problems += pr
+        elif type(p) is Mixed:
+            n = len(p.cnts)
+            remap = [table.setdefault(k, len(table)) for k in p.streams]
+            stream += map(remap.__getitem__, p.stream)
+            c, i, nm, d, ln, o = p.cnts, p.cmd_ids, p.names, p.datas, p.lengths, p.offsets
+            f = t = p.times
+            sizes += map(len, p.raws)
+            raws += p.raws
+            problems += repeat(None, n)
         else:
             assert isinstance(p, FrameBatch)
             n = len(p.cnts)

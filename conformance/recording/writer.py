@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import binascii
 import json
-import operator
 import os
 import socket
 import time
@@ -60,12 +59,9 @@ from .records import (
 )
 from .traffic_pb import FILE_DESCRIPTOR_SET as TRAFFIC_DESCRIPTOR_SET
 from .traffic_pb import SCHEMA_NAME as TRAFFIC_SCHEMA
-from .traffic_pb import Part, encode_traffic
+from .traffic_pb import Mixed, Part, encode_traffic
 
 __all__ = ["RecordingWriter", "default_metadata", "utc_time"]
-
-#: A held frame's bytes (write_frame's fields: the twelfth).
-_RAW = operator.itemgetter(11)
 
 
 def utc_time(ns: int) -> str:
@@ -427,24 +423,25 @@ class RecordingWriter:
         ):
             self._write_traffic()
 
-    def write_rows(self, rows: list[_OneFrame]) -> None:
-        """Frames, each as :meth:`write_frame`'s fields, in order: the recorder's reads of
-        a frame each, read together.  Layout 4 holds them as they are (a batch may go
-        past ``batch_bytes`` by one call's bytes); the others write each."""
+    def write_mixed(self, m: Mixed) -> None:
+        """Frames of several streams as columns, in order: the recorder's reads of a frame
+        each, read together.  Layout 4 holds them as they are (a batch may go past
+        ``batch_frames`` and ``batch_bytes`` by one call's); the others write each."""
         if self.layout != 4:
-            for r in rows:
-                self.write_frame(*r)
+            for k, s in enumerate(m.stream):
+                t = m.times[k]
+                self.write_frame(*m.streams[s], m.cnts[k], m.cmd_ids[k], m.names[k],  # type: ignore[arg-type]
+                                 m.datas[k], m.lengths[k], m.offsets[k], t, t, m.raws[k])  # fmt: skip
             return
-        while rows:
-            room = max(1, self.batch_frames - self._held_frames - len(self._rows))
-            self._rows += rows[:room]
-            self._held_bytes += sum(map(len, map(_RAW, rows[:room])))
-            rows = rows[room:]
-            if (
-                len(self._rows) + self._held_frames >= self.batch_frames
-                or self._held_bytes >= self.batch_bytes
-            ):
-                self._write_traffic()
+        if self._rows:
+            self._parts.append(self._rows)
+            self._held_frames += len(self._rows)
+            self._rows = []
+        self._parts.append(m)
+        self._held_frames += len(m.cnts)
+        self._held_bytes += sum(map(len, m.raws))
+        if self._held_frames >= self.batch_frames or self._held_bytes >= self.batch_bytes:
+            self._write_traffic()
 
     def _write_frames4(self, b: FrameBatch) -> None:
         """:meth:`write_frames` in layout 4: the batch joins the frames held, whatever
