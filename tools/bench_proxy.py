@@ -34,13 +34,14 @@ that encodes each batch and drops it: layout 2's JSON template, layout 3's proto
 made beforehand, one per frame as layout 1 wrote them, and the whole path
 (StreamRecorder into RecordingWriter, to a complete file); then ``import-pcap`` of a
 pcap exported from that recording.  Then, in CPU time, the whole path and
-``read_recording`` writing layout 3 and layout 2 by this tree (interleaved rounds, the
-ratio layout 3's gain), and the whole path and
+``read_recording`` writing layouts 4, 3 and 2 by this tree (interleaved rounds, the
+ratios each layout's gain), and the whole path and
 ``import-pcap`` on pipelined traffic (64 KiB reads) and on request/reply traffic (a
-frame a read, directions alternating), and with ``--baseline-rev REV`` the same four
-figures by the code of that revision (exported with ``git archive`` and run in a
-subprocess with it first on the path), with the ratios: ``--baseline-rev a63c3dc~1``
-is the last revision that wrote layout 2 (JSON batches), so the ratios are layout 3's.
+frame a read, directions alternating; the frames made once, outside the timing), and
+with ``--baseline-rev REV`` the same four figures by the code of that revision
+(exported with ``git archive`` and run in a subprocess with it first on the path), with
+the ratios: ``--baseline-rev a63c3dc~1`` is the last revision that wrote layout 2 (JSON
+batches), ``3096dc5~1`` the last that wrote layout 3.
 
 ``--section hostile-record`` feeds the recorder path hostile streams in 64 KiB reads
 (a frame and a byte of garbage, a tail flood, repeated headers, DATA holding
@@ -354,11 +355,11 @@ def core_figures(tmp: Path, n: int, rounds: int) -> dict[str, float]:
     return out
 
 
-def layout_figures(tmp: Path, n: int, rounds: int) -> dict[str, tuple[float, float]]:
+def layout_figures(tmp: Path, n: int, rounds: int) -> dict[str, tuple[float, float, float]]:
     """The whole recorder path (to a complete file) and ``read_recording`` of its file, in
-    CPU frames/s, writing layout 2 (JSON batches) and layout 3 (protobuf) by this tree's
-    code, the two alternating round by round (a neighbour's busy spell favours neither):
-    (layout 3, layout 2) per figure."""
+    CPU frames/s, writing layout 2 (JSON batches), layout 3 (protobuf, a stream a batch)
+    and layout 4 (protobuf, any streams in a batch) by this tree's code, alternating round
+    by round (a neighbour's busy spell favours none): (layout 4, 3, 2) per figure."""
     from conformance.recording import RecordingWriter, read_recording
     from conformance.spec import default_specs
 
@@ -372,7 +373,7 @@ def layout_figures(tmp: Path, n: int, rounds: int) -> dict[str, tuple[float, flo
     frames: dict[str, int] = {}
     for kind, feed in kinds.items():
         for _ in range(rounds):
-            for layout in (2, 3):
+            for layout in (2, 3, 4):
                 path = tmp / f"layout{layout}.mcap"
                 md = {"format": f"fairino-conformance/{layout}"}
                 t0 = time.process_time()
@@ -385,11 +386,11 @@ def layout_figures(tmp: Path, n: int, rounds: int) -> dict[str, tuple[float, flo
                 for what, dt in (("record", t1 - t0), ("read_recording", t2 - t1)):
                     key = (f"{what}, {kind}", layout)
                     best[key] = min(best.get(key, float("inf")), dt)
-    out: dict[str, tuple[float, float]] = {}
+    out: dict[str, tuple[float, float, float]] = {}
     for (label, layout), dt in best.items():
-        if layout == 3:
+        if layout == 4:
             m = frames[label.split(", ")[1]]
-            out[label] = (m / dt, m / best[(label, 2)])
+            out[label] = (m / dt, m / best[(label, 3)], m / best[(label, 2)])
     return out
 
 
@@ -486,12 +487,17 @@ def bench_record(tmp: Path, n: int, rounds: int, baseline_rev: str = "") -> None
         f"{imp:.0f} frames/s ({imp / whole:.2f}x the recorder path's {whole:.0f})"
     )
     print(
-        f"\nlayout 3 (protobuf batches) vs layout 2 (JSON), this tree, CPU time, best of {rounds}"
+        "\nlayout 4 (protobuf, any streams a batch) vs 3 (protobuf, a stream a batch) vs 2 "
+        f"(JSON), this tree, CPU time, best of {rounds}"
     )
     print(f"interleaved (frames/s; request/reply: {n // 4} exchanges):")
-    print(f"  {'':34s} {'layout 3':>10s} {'layout 2':>10s} {'ratio':>7s}")
-    for label, (three, two) in layout_figures(tmp, n, rounds).items():
-        print(f"  {label:34s} {three:10.0f} {two:10.0f} {three / two:6.2f}x")
+    head = f"  {'':34s} {'layout 4':>10s} {'layout 3':>10s} {'layout 2':>10s}"
+    print(head + f" {'4/3':>6s} {'3/2':>6s}")
+    for label, (four, three, two) in layout_figures(tmp, n, rounds).items():
+        print(
+            f"  {label:34s} {four:10.0f} {three:10.0f} {two:10.0f} "
+            f"{four / three:5.2f}x {three / two:5.2f}x"
+        )
     ours = core_figures(tmp, n, rounds)
     theirs = baseline_figures(baseline_rev, n, rounds) if baseline_rev else {}
     print(f"\nCPU time, best of {rounds}; request/reply: {n // 4} exchanges (frames/s):")

@@ -204,7 +204,11 @@ class PacketRecorder:
         way = self._held
         assert way is not None
         self._held = None
-        self.rec.segments(way[0], way[1], self._reads)
+        reads = self._reads
+        if len(reads) == 1:  # request/reply: a packet a direction (data() decides as segments)
+            self.rec.data(way[0], way[1], *reads[0])
+        else:
+            self.rec.segments(way[0], way[1], reads)
 
     def _tcp(
         self, t: int, flow: bytes, payload: bytes, seq: int, flags: int, way: _TcpWay | None
