@@ -1,4 +1,5 @@
-"""The fast path's reading of layout 3's frame batches a window at a time.
+"""The fast path's reading of layout 3's frame batches a window at a time, and of a
+message's DATA (:func:`texts`, layouts 3 and 4).
 
 :func:`~conformance.recording.frames_pb.decode_columns` reads one ``fairino.Frames``
 message and checks it alone: a dozen numpy calls on columns of some 64 values, and the
