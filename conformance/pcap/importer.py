@@ -180,9 +180,7 @@ def _import(
         together=IMPORT_TOGETHER,
         state_ports=sports,
     )
-    feed = packets.feed
-    for lt, t, data in itertools.chain(() if first is None else (first,), stream):
-        feed(t, lt, data)
+    packets.feed_all(itertools.chain(() if first is None else (first,), stream))
     packets.finish()
     writer.close()
     return packets.stats()

@@ -17,7 +17,19 @@ from typing import Any
 from ..frame import HEAD
 from ..recording import C2S, S2C, DirectionText, RecordSink, StreamRecorder
 from ..spec import SpecSet
-from .packets import _ACK, _FIN, _PORTS, _RST, _SYN, _SYN_FIN_RST, _reverse, flow_ends, parse_packet
+from .packets import (
+    _ACK,
+    _FIN,
+    _IPV4_TCP,
+    _PORTS,
+    _RST,
+    _SYN,
+    _SYN_FIN_RST,
+    DLT_EN10MB,
+    _reverse,
+    flow_ends,
+    parse_packet,
+)
 from .reassembly import TcpReassembler
 
 DEFAULT_TCP_PORTS = (8080,)
@@ -198,6 +210,57 @@ class PacketRecorder:
         if self._held is not None:
             self._record_held()
         self._tcp(t, flow, payload, seq, flags, way)
+
+    def feed_all(self, packets: Iterable[tuple[int, int, bytes]]) -> None:
+        """:meth:`feed` of each ``(link type, time, bytes)`` in turn, the usual packet read
+        inline: Ethernet, IPv4 without options, TCP without SYN, FIN or RST, the next
+        bytes in order of a known connection (request/reply traffic: every packet but a
+        connection's first and last); what parse_packet and feed do with it, step by
+        step, without the calls.  Anything else goes to :meth:`feed`."""
+        feed = self.feed
+        ways = self.tcp_ways
+        together = self.together
+        inline = 0
+        for lt, t, data in packets:
+            size = len(data)
+            if lt == DLT_EN10MB and size >= 54 and data[12:14] == b"\x08\x00":
+                vihl, total, frag, proto, seq, doff, flags = _IPV4_TCP(data, 14)
+                if vihl == 0x45 and proto == 6 and not frag & 0x3FFF and not flags & _SYN_FIN_RST:
+                    end = 14 + total if total else size
+                    if end > size:
+                        end = size
+                    way = ways.get(data[26:38]) if end >= 54 else None
+                    if way is not None:
+                        payload = data[34 + (doff >> 4) * 4 : end]
+                        r = way[2]
+                        nxt = r.next
+                        if (
+                            payload
+                            and nxt is not None
+                            and seq == nxt & 0xFFFFFFFF
+                            and not r.pending
+                        ):
+                            inline += 1
+                            if t > self.last_t:
+                                self.last_t = t
+                            r.next = nxt + len(payload)
+                            if together == 1:
+                                self.rec.data(way[0], way[1], t, payload)
+                            elif (
+                                way is self._held
+                                and len(self._reads) < together
+                                and self._held_bytes < TOGETHER_BYTES
+                            ):
+                                self._reads.append((t, payload))
+                                self._held_bytes += len(payload)
+                            else:
+                                if self._held is not None:
+                                    self._record_held()
+                                self._held, self._reads = way, [(t, payload)]
+                                self._held_bytes = len(payload)
+                            continue
+            feed(t, lt, data)
+        self.packets += inline
 
     def _record_held(self) -> None:
         """The held segments to the recorder (before anything else reaches it)."""
