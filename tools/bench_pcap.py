@@ -118,9 +118,12 @@ def child(tree: str, pcap: str, tmp: str) -> dict[str, float]:
         kw = {"together": P.IMPORT_TOGETHER} if hasattr(P, "IMPORT_TOGETHER") else {}
         pr = P.PacketRecorder(None, tcp_ports=[8080], specs=specs, **kw)  # type: ignore[arg-type]
         pr.rec = DropRecorder()  # type: ignore[assignment]
-        feed = pr.feed
-        for lt, t, data in read_packets(pcap):
-            feed(t, lt, data)
+        if hasattr(pr, "feed_all"):  # import_pcap's way since it reads the usual packet inline
+            pr.feed_all(read_packets(pcap))
+        else:
+            feed = pr.feed
+            for lt, t, data in read_packets(pcap):
+                feed(t, lt, data)
         pr.finish()
         return int(pr.packets)
 
