@@ -280,8 +280,10 @@ class RecordingWriter:
     def hold(self, drain: Callable[[], None]) -> None:
         """``drain`` writes the frames its caller holds for this writer (the recorder's
         reads of a frame each, read together later: :mod:`.lone_reads`); the writer calls
-        it before it writes anything else, and at :meth:`flush` and :meth:`close`, so
-        the file's order and the flush promise are the same as without."""
+        it before it writes a record of another kind (:meth:`write`, :meth:`write_json`,
+        :meth:`write_frames`), and at :meth:`flush` and :meth:`close`, so the file's
+        order and the flush promise are the same as without (:meth:`write_frame` and
+        :meth:`write_mixed` are the holder's own ways in: it drains before it uses them)."""
         if drain not in self._holders:
             self._holders.append(drain)
 
