@@ -15,7 +15,15 @@ from dataclasses import dataclass
 from ..errors import RemoteProtocolError, Rule
 from ..spec import Command, Param, Returns, ReturnValue, Variant
 from . import data_fast
-from .data_fast import _call_tables, _fast_ok, _fast_table, _plain_ok, _values_ok
+from .data_fast import (
+    _FIRST,
+    _call_tables,
+    _fast_ok,
+    _fast_table,
+    _first_plain,
+    _plain_ok,
+    _values_ok,
+)
 from .data_parse import parse_reply
 from .data_values import (
     _PLAIN,
@@ -138,6 +146,14 @@ def match_variant(command: Command, parsed: Parsed) -> tuple[Variant | None, lis
     d = parsed.__dict__
     plain = d.get(_PLAIN) if data_fast.FAST_CHECKS else None
     values = d.get(_VALUES) if plain is not None else None
+    if values is not None:
+        # Its values read in one pass (MoveJ's 29), against the command's first call
+        # variant: each value with a domain among those certainly in it, and it
+        # conforms.  Anything else (another variant, a value the sets do not hold)
+        # goes the way below, which decides it and words it.
+        first = _FIRST.get(id(command)) or _first_plain(command)
+        if first is not None and first[1](values):
+            return first[0], []
     best: tuple[Variant | None, list[Violation]] = (None, [])
     for v, table in _call_tables(command):
         if (

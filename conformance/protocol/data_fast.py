@@ -177,6 +177,52 @@ def _call_tables(command: Command) -> tuple[tuple[Variant, _PlainChecks | None],
     return out
 
 
+#: A command's first call variant as match_variant checks a plain call's values against
+#: it: (the variant, _certain_check of its table), or None when that variant takes
+#: strings or arrays; by the command's id.  A command in it stays alive (_FIRST_OF), so
+#: that its id names no other object.
+_First = tuple[Variant, Callable[[tuple[int | float, ...]], bool]]
+_FIRST: dict[int, _First | None] = {}
+_FIRST_OF: list[Command] = []
+
+
+def _first_plain(command: Command) -> _First | None:
+    """The command's _First (cached per command, like _call_tables)."""
+    key = id(command)
+    if key in _FIRST:
+        return _FIRST[key]
+    tables = _call_tables(command)
+    out: _First | None = None
+    if tables:
+        variant, table = tables[0]
+        if table is not None:
+            out = (variant, _certain_check(table))
+    _FIRST_OF.append(command)
+    _FIRST[key] = out
+    return out
+
+
+def _certain_check(table: _PlainChecks) -> Callable[[tuple[int | float, ...]], bool]:
+    """A function of a plain call's values: True when there are as many as the table's
+    parameters and each value with a domain is among the values certainly in it
+    (_value_words), so that _values_ok is True; False says nothing (then _values_ok
+    decides).
+
+    Written out as one expression, ``len(v) == 29 and v[12] in s0 and ...``, and
+    compiled once per variant: a loop over (index, set) pairs cost twice as much a call
+    (tools/bench_codec.py, MoveJ with its arguments read).  The source holds only
+    integers and the names of the sets, made here.
+    """
+    terms = [f"len(v) == {table.arity}"]
+    terms += [f"v[{i}] in s{k}" for k, (i, _) in enumerate(table.checks)]
+    names: dict[str, object] = {"__builtins__": {}, "len": len}
+    names.update((f"s{k}", words) for k, words in enumerate(table.value_words[: len(terms) - 1]))
+    check: Callable[[tuple[int | float, ...]], bool] = eval(
+        "lambda v: " + " and ".join(terms), names
+    )
+    return check
+
+
 def _plain_ok(table: _PlainChecks, text: str) -> bool:
     """True when the plain-number list ``text`` conforms to the variant (then check_args
     finds nothing in the arguments _plain_args makes of it); False when it does not."""

@@ -50,9 +50,9 @@ from .data_values import (
 __all__ = ["parse_data", "parse_reply"]
 
 _NAME_RE = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
-# A call, its name and its argument text (what parse_data's careful reading takes
-# apart with _NAME_RE): tried first, for the plain-number fast path.
-_CALL_RE = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)\((.*)\)", re.S)
+# A call, its name and its argument text of 1 to 300 characters (what parse_data's
+# careful reading takes apart with _NAME_RE): tried first, for the plain-number fast path.
+_CALL_RE = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)\((.{1,300})\)", re.S)
 # ASCII digits only (the protocol's), and unambiguous: "\d+\.?\d*" backtracked
 # quadratically over a long run of digits followed by a non-digit.
 _NUMBER_RE = re.compile(r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?", re.ASCII)
@@ -219,9 +219,7 @@ def parse_data(data: str, *, strict: bool = False) -> Parsed:
     c = _CALL_RE.fullmatch(data) if data_fast.FAST_CHECKS and len(data) <= 400 else None
     if c is not None:
         name, inner = c.groups()
-        if 0 < len(inner) <= 300 and not inner.encode("utf-8", "replace").translate(
-            None, _PLAIN_CHARS
-        ):
+        if not inner.encode("utf-8", "replace").translate(None, _PLAIN_CHARS):
             # The common call (MoveJ's 29 plain numbers): what _ArgParser.items reads
             # on its fast path, without the parser (300 characters: under MAX_ITEMS
             # values), its arguments made when first used (Call).  In JSON's form

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 from itertools import repeat
 from typing import TYPE_CHECKING
 
@@ -144,20 +145,9 @@ class Call:
     args: tuple[Arg, ...]
     problems: tuple[Rule, ...] = ()
 
-    if not TYPE_CHECKING:  # mypy: no attribute of Call is dynamic
-
-        def __getattr__(self, attr: str) -> object:
-            # Called only when ``attr`` is not in the instance dict: ``args`` of a
-            # call made by _plain_call, not yet made.
-            if attr == "args":
-                d = self.__dict__
-                text = d.get(_PLAIN)
-                if text is not None:
-                    args = d["args"] = _plain_args(text, self.values)
-                    return args
-            raise AttributeError(f"{type(self).__name__!r} object has no attribute {attr!r}")
-
-    @property
+    # A non-data descriptor: once read (or set by _plain_call), the tuple is in the
+    # instance dict and reading it is an ordinary attribute read, not a call.
+    @cached_property
     def values(self) -> tuple[int | float, ...] | None:
         """The arguments' values in one tuple, when every argument is a number (else None).
 
@@ -166,18 +156,12 @@ class Call:
         one pass has them from the parser; any other call makes them once from
         its arguments.
         """
-        d = self.__dict__
-        if _VALUES in d:
-            return d[_VALUES]  # type: ignore[no-any-return]
-        text = d.get(_PLAIN)
+        text = self.__dict__.get(_PLAIN)
         if text is not None:
-            values: tuple[int | float, ...] | None = _plain_values(text)
-        else:
-            args = self.args
-            nums = [a.value for a in args if type(a) is Number]
-            values = tuple(nums) if len(nums) == len(args) else None
-        d[_VALUES] = values
-        return values
+            return _plain_values(text)
+        args = self.args
+        nums = [a.value for a in args if type(a) is Number]
+        return tuple(nums) if len(nums) == len(args) else None
 
     def array(self) -> NDArray[np.float64] | None:
         """:attr:`values` as a read-only float64 numpy array (None when an argument is
@@ -192,10 +176,32 @@ class Call:
         return out
 
 
+class _LazyArgs:
+    """``Call.args`` where the instance dict has none: a call made by _plain_call,
+    whose arguments are made on first use (then they are in the dict, and this is not
+    asked again).  A non-data descriptor put on the class after the dataclass is made
+    (the instance dict comes first, so ``__init__``'s ``args`` is read as any
+    attribute): Call has no ``__getattr__``, which made every attribute read of a
+    call (``values``, ``name``) go through a hook."""
+
+    def __get__(self, call: Call | None, owner: type | None = None) -> object:
+        if call is None:
+            return self
+        d = call.__dict__
+        text = d.get(_PLAIN)
+        if text is None:
+            raise AttributeError(f"{type(call).__name__!r} object has no attribute 'args'")
+        args = d["args"] = _plain_args(text, call.values)
+        return args
+
+
+if not TYPE_CHECKING:  # mypy: no attribute of Call is dynamic
+    Call.args = _LazyArgs()
+
 #: Keys of a lazily read call's argument text and of its values in its instance
 #: dict (not fields).
 _PLAIN = "_plain_args_text"
-_VALUES = "_values"
+_VALUES = "values"
 
 
 def _plain_values(text: str) -> tuple[int | float, ...]:

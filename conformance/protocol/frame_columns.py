@@ -45,6 +45,38 @@ def one_frame(data: bytes, offset: int, max_size: int) -> Frame | None:
     nothing after it); else None, and the caller's ordinary path decides.
 
     The frame's ``raw`` is ``data`` itself (bytes: no copy)."""
+    # One split on III: a frame whose DATA holds no III is six pieces, its fields and
+    # DATA among them (no regex match, no slicing; at most five splits, whatever
+    # follows).  The pieces joined again are ``data``, so when they are a standard
+    # frame's, the frame is the one the header's reading below finds; anything else (III
+    # in DATA, a LEN past 4095, another frame after it) is read that way.
+    parts = data.split(SEP, 5)
+    if len(parts) == 6:
+        head, c, i, ln, body, tail = parts
+        length = _small_int(ln)
+        cmd_id = _small_int(i)
+        cnt = _small_int(c)
+        if cnt is None and c.isdigit() and len(c) <= 5:
+            cnt = int(c)  # past 4095 (most CNTs of a long session)
+        if (
+            tail == TAIL
+            and head == HEAD
+            and length == len(body)
+            and cmd_id is not None
+            and cnt is not None
+            and cnt <= CNT_MAX
+            and len(data) <= max_size
+        ):
+            try:
+                text = body.decode()
+            except UnicodeDecodeError:
+                return None
+            return _new(Frame, (cnt, cmd_id, text, length, data, (), offset))
+    return _one_frame_read(data, offset, max_size)
+
+
+def _one_frame_read(data: bytes, offset: int, max_size: int) -> Frame | None:
+    """:func:`one_frame` by a match of the standard header (FAST_HEAD_RE) and LEN."""
     m = FAST_HEAD_RE.match(data)
     if m is None:
         return None
