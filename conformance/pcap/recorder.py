@@ -220,6 +220,7 @@ class PacketRecorder:
         feed = self.feed
         ways = self.tcp_ways
         together = self.together
+        rec_data = self.rec.data
         inline = 0
         for lt, t, data in packets:
             size = len(data)
@@ -245,7 +246,7 @@ class PacketRecorder:
                                 self.last_t = t
                             r.next = nxt + len(payload)
                             if together == 1:
-                                self.rec.data(way[0], way[1], t, payload)
+                                rec_data(way[0], way[1], t, payload)
                             elif (
                                 way is self._held
                                 and len(self._reads) < together
@@ -254,8 +255,14 @@ class PacketRecorder:
                                 self._reads.append((t, payload))
                                 self._held_bytes += len(payload)
                             else:
-                                if self._held is not None:
-                                    self._record_held()
+                                held = self._held
+                                if held is not None:  # _record_held(), inline
+                                    reads = self._reads
+                                    if len(reads) == 1:
+                                        rt, rp = reads[0]
+                                        rec_data(held[0], held[1], rt, rp)
+                                    else:
+                                        self.rec.segments(held[0], held[1], reads)
                                 self._held, self._reads = way, [(t, payload)]
                                 self._held_bytes = len(payload)
                             continue
