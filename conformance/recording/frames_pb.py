@@ -44,12 +44,11 @@ import struct
 import sys
 from array import array
 from collections.abc import Sequence
-from itertools import accumulate
 from typing import Any, NamedTuple
 
 from .layout import INT_MAX, TIME_MAX, DirectionText
-from .pb_wire import I32 as _I32
-from .pb_wire import I64 as _I64
+from .pb_frames import as_list as _list
+from .pb_frames import checks, cut_datas, parse, read_frames
 from .pb_wire import LEN as _LEN
 from .pb_wire import VARINT as _VARINT
 from .pb_wire import descriptor_set
@@ -96,8 +95,8 @@ FIELDS: tuple[tuple[str, int, str, bool], ...] = (
 _NUMBER = {name: number for name, number, _, _ in FIELDS}
 #: The packed columns, by field number.
 _COLUMNS = {number: name for name, number, kind, _ in FIELDS if kind == "fixed64"}
-_TEXT = {_NUMBER["transport"], _NUMBER["dir"], _NUMBER["data"], _NUMBER["raw"]}
-_TEXTS = {_NUMBER["names"], _NUMBER["problem"]}
+_STRINGS = {number: name for name, number, kind, _ in FIELDS if kind in ("string", "bytes")}
+_VARINTS = {number: name for name, number, kind, _ in FIELDS if kind == "uint64"}
 
 #: The MCAP schema's data for ``fairino.Frames`` (schema encoding ``protobuf``).
 FILE_DESCRIPTOR_SET = descriptor_set("fairino/frames.proto", "fairino", "Frames", FIELDS)
@@ -293,29 +292,14 @@ class BatchColumns(NamedTuple):
     problems: list[list[str]] | None
 
     def datas(self) -> list[str]:
-        """Each frame's DATA as text."""
-        n = len(self.data_size)
-        if n == 0:
-            return []
-        if n == 1:
-            return [self.data.decode("utf-8", "surrogatepass")]
-        text = self.data.decode("utf-8", "surrogatepass")
-        ends = list(accumulate(_list(self.data_size)))
-        if len(text) == len(self.data):  # ASCII: cut the text where the bytes are cut
-            return [text[a:b] for a, b in zip([0, *ends[:-1]], ends, strict=True)]
-        d = self.data
-        return [
-            d[a:b].decode("utf-8", "surrogatepass")
-            for a, b in zip([0, *ends[:-1]], ends, strict=True)
-        ]
+        """Each frame's DATA as text (a ``ValueError`` for DATA that is not UTF-8 where
+        ``data_size`` cuts it)."""
+        return cut_datas(self.data, self.data_size)
 
     def batch(self) -> FrameBatch:
         """The message as the batch it was written from (a ``ValueError`` for DATA of a
         frame that is not UTF-8 where the message's cuts fall)."""
-        try:
-            datas = self.datas()
-        except UnicodeDecodeError as e:
-            raise ValueError(f"data is not UTF-8 where data_size cuts it: {e}") from None
+        datas = self.datas()
         return FrameBatch(
             conn=self.conn,
             transport=self.transport,
@@ -334,104 +318,6 @@ class BatchColumns(NamedTuple):
         )
 
 
-def _parse(buf: bytes) -> tuple[int, dict[int, list[bytes]]]:
-    """The message's ``conn`` and its length-delimited and fixed64 fields' pieces by
-    number, in order (unknown fields skipped)."""
-    n = len(buf)
-    i = 0
-    conn = 0
-    pieces: dict[int, list[bytes]] = {}
-    while i < n:
-        key = buf[i]
-        i += 1
-        if key >= 0x80:
-            key, i = _read_varint(buf, i - 1)
-        number, wire = key >> 3, key & 7
-        if wire == _LEN:
-            size = buf[i]
-            i += 1
-            if size >= 0x80:
-                size, i = _read_varint(buf, i - 1)
-            end = i + size
-            if end > n:
-                raise ValueError(f"field {number} runs {end - n} bytes past the message's end")
-            piece = buf[i:end]
-            i = end
-        elif wire == _VARINT:
-            value, i = _read_varint(buf, i)
-            if number == 1:
-                conn = value
-                continue
-            piece = b""
-        elif wire == _I64:
-            end = i + 8
-            if end > n:
-                raise ValueError(f"field {number} runs past the message's end")
-            piece = buf[i:end]
-            i = end
-        elif wire == _I32:
-            i += 4
-            if i > n:
-                raise ValueError(f"field {number} runs past the message's end")
-            piece = b""
-        else:
-            raise ValueError(f"field {number} has wire type {wire}, which protobuf has not")
-        if number in _COLUMNS:
-            if wire not in (_LEN, _I64):
-                raise ValueError(f"{_COLUMNS[number]} has wire type {wire}, not fixed64's")
-        elif number in _TEXT or number in _TEXTS:
-            if wire != _LEN:
-                raise ValueError(f"field {number} has wire type {wire}, not a string's")
-        elif number == 1:
-            raise ValueError(f"conn has wire type {wire}, not a varint's")
-        else:
-            continue  # a field this kit does not know: protobuf skips it
-        got = pieces.get(number)
-        if got is None:
-            pieces[number] = [piece]
-        else:
-            got.append(piece)
-    return conn, pieces
-
-
-def _column_bytes(pieces: dict[int, list[bytes]], number: int) -> bytes | None:
-    """A column's packed values as they are (its pieces joined), checked to be whole."""
-    got = pieces.get(number)
-    if not got:
-        return None
-    buf = got[0] if len(got) == 1 else b"".join(got)
-    if len(buf) % 8:
-        raise ValueError(f"{_COLUMNS[number]} holds {len(buf)} bytes, not 8 a value")
-    return buf
-
-
-def _values(buf: bytes, as_array: bool) -> Any:
-    """Packed little-endian 64-bit values as a numpy ``uint64`` array or a list of ints."""
-    if as_array:
-        import numpy as np
-
-        return np.frombuffer(buf, dtype="<u8")
-    if len(buf) == 8:  # a batch of one frame: no array
-        return [int.from_bytes(buf, "little")]
-    a = array("Q")
-    a.frombytes(buf)
-    if _BIG:  # pragma: no cover - the wire is little-endian
-        a.byteswap()
-    return a.tolist()
-
-
-def _high(col: Any) -> int:
-    return max(col) if type(col) is list else int(col.max())
-
-
-def _total(col: Any) -> int:
-    return sum(col) if type(col) is list else int(col.sum())
-
-
-def _list(col: Any) -> list[int]:
-    return col if type(col) is list else col.tolist()  # type: ignore[no-any-return]
-
-
 def _text(pieces: dict[int, list[bytes]], number: int, name: str) -> str:
     got = pieces.get(number)
     if not got:
@@ -442,17 +328,7 @@ def _text(pieces: dict[int, list[bytes]], number: int, name: str) -> str:
         raise ValueError(f"{name} is not UTF-8") from None
 
 
-#: The columns as the decoder checks them: (number, name, largest value, may be absent).
-_CHECKS = tuple(
-    (
-        number,
-        name,
-        TIME_MAX if name.endswith("_ns") else INT_MAX,
-        name in ("first_ns", "name", "problem_frame"),
-    )
-    for number, name in _COLUMNS.items()
-    if number != 4
-)
+_CHECKS = checks(_COLUMNS)
 
 
 def decode_columns(buf: bytes, *, as_arrays: bool = True) -> BatchColumns:
@@ -460,9 +336,10 @@ def decode_columns(buf: bytes, *, as_arrays: bool = True) -> BatchColumns:
     or does not fit (see the module).  ``as_arrays``: the number columns as numpy
     ``uint64`` arrays (else lists of ints: cheaper for a batch of a frame or a few)."""
     try:
-        conn, pieces = _parse(buf)
+        varints, pieces = parse(buf, _COLUMNS, _STRINGS, _VARINTS)
     except IndexError:
         raise ValueError("the message ends inside a field") from None
+    conn = varints.get(1, 0)
     if conn > INT_MAX:
         raise ValueError(f"conn is {conn}, not a non-negative 64-bit integer")
     transport = _text(pieces, 2, "transport") or "tcp"
@@ -472,49 +349,8 @@ def decode_columns(buf: bytes, *, as_arrays: bool = True) -> BatchColumns:
     if text != "c2s" and text != "s2c":
         raise ValueError(f"dir is {text[:40]!r}, not one of c2s, s2c")
     direction: DirectionText = "c2s" if text == "c2s" else "s2c"
-    cnt = _column_bytes(pieces, 4) or b""
-    n = len(cnt) // 8
-    # Every column's bytes one after the other: one array, its columns views of it, and
-    # the ranges checked with one reduction (and one more for the two time columns).
-    order: list[str] = ["cnt"]
-    parts: list[bytes] = [cnt]
-    absent: list[str] = []
-    for number, name, _top, optional in _CHECKS:
-        col = _column_bytes(pieces, number)
-        if col is None:
-            if optional:
-                absent.append(name)
-                continue
-            if n:
-                raise ValueError(f"the message has no {name!r}")
-            col = b""
-        elif len(col) != 8 * n and number != 16:  # problem_frame: a value a problem
-            raise ValueError(f"{name} has {len(col) // 8} values for {n} frames")
-        order.append(name)
-        parts.append(col)
-    values = _values(b"".join(parts), as_arrays)
-    cols: dict[str, Any] = dict.fromkeys(absent)
-    at = 0
-    for name, part in zip(order, parts, strict=True):
-        cols[name] = values[at : at + len(part) // 8]
-        at += len(part) // 8
-    if len(values) and _high(values) > INT_MAX:
-        _name_the_misfit(cols)
-    times = [c for c in (cols["first_ns"], cols["complete_ns"]) if c is not None and len(c)]
-    if times and max(map(_high, times)) > TIME_MAX:
-        _name_the_misfit(cols)
-    raw = pieces.get(15, [b""])[-1]
-    data = pieces.get(8, [b""])[-1]
-    for what, sizes, held in (("raw", cols["size"], raw), ("data", cols["data_size"], data)):
-        # Each size at most the bytes held first: the sum cannot wrap round then.
-        if n and (_high(sizes) > len(held) or _total(sizes) != len(held)):
-            raise ValueError(f"the sizes do not add up to {what} ({len(held)} bytes)")
-        if not n and held:
-            raise ValueError(f"{what} holds {len(held)} bytes for no frame")
-    if cols["first_ns"] is None:
-        cols["first_ns"] = cols["complete_ns"]
-    names = _names(pieces, cols.pop("name"), n)
-    problems = _problems(pieces, cols.pop("problem_frame"), n)
+    f = read_frames(pieces, _CHECKS, as_arrays)
+    cols = f.cols
     return BatchColumns(
         conn=conn,
         transport=transport,
@@ -527,57 +363,11 @@ def decode_columns(buf: bytes, *, as_arrays: bool = True) -> BatchColumns:
         complete_ns=cols["complete_ns"],
         size=cols["size"],
         data_size=cols["data_size"],
-        names=names,
-        data=data,
-        raw=raw,
-        problems=problems,
+        names=f.names,
+        data=f.data,
+        raw=f.raw,
+        problems=f.problems,
     )
-
-
-def _name_the_misfit(cols: dict[str, Any]) -> None:
-    """Raise the ``ValueError`` naming the first column with a value out of its range."""
-    for _number, name, top, _optional in ((4, "cnt", INT_MAX, False), *_CHECKS):
-        col = cols.get(name)
-        if col is not None and len(col) and _high(col) > top:
-            what = "a time in ns from 1970 to 2106" if top == TIME_MAX else None
-            raise ValueError(
-                f"{name} holds {_high(col)}, not {what or 'a non-negative 64-bit integer'}"
-            )
-    raise ValueError("a column holds a value out of its range")  # pragma: no cover
-
-
-def _strings(pieces: dict[int, list[bytes]], number: int, name: str) -> list[str]:
-    try:
-        return [p.decode("utf-8") for p in pieces.get(number, ())]
-    except UnicodeDecodeError:
-        raise ValueError(f"{name} holds text that is not UTF-8") from None
-
-
-def _names(pieces: dict[int, list[bytes]], index: Any, n: int) -> list[str | None]:
-    table: list[str | None] = [None, *_strings(pieces, 6, "names")]
-    if index is None:
-        return [None] * n
-    if n and _high(index) >= len(table):
-        raise ValueError(f"name holds {_high(index)}, past the {len(table) - 1} names")
-    return list(map(table.__getitem__, _list(index)))
-
-
-def _problems(pieces: dict[int, list[bytes]], frames: Any, n: int) -> list[list[str]] | None:
-    texts = _strings(pieces, 17, "problem")
-    if frames is None:
-        if texts:
-            raise ValueError(f"{len(texts)} problems without problem_frame")
-        return None
-    if len(frames) != len(texts):
-        raise ValueError(f"problem_frame has {len(frames)} values for {len(texts)} problems")
-    if not texts:
-        return None
-    if _high(frames) >= n:
-        raise ValueError(f"problem_frame holds {_high(frames)}, past the {n} frames")
-    out: list[list[str]] = [[] for _ in range(n)]
-    for k, p in zip(_list(frames), texts, strict=True):
-        out[k].append(p)
-    return out
 
 
 def decode_batch(buf: bytes) -> FrameBatch:

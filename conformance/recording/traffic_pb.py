@@ -48,23 +48,12 @@ from collections.abc import Sequence
 from itertools import accumulate, chain, repeat
 from typing import Any, NamedTuple
 
-from .frames_pb import (
-    _column,
-    _encode_data,
-    _encode_names,
-    _high,
-    _list,
-    _total,
-    _values,
-)
-from .layout import INT_MAX, TIME_MAX, DirectionText
-from .pb_wire import I32 as _I32
-from .pb_wire import I64 as _I64
-from .pb_wire import LEN as _LEN
-from .pb_wire import VARINT as _VARINT
+from .frames_pb import _column, _encode_data, _encode_names
+from .layout import INT_MAX, DirectionText
+from .pb_frames import as_list as _list
+from .pb_frames import checks, column_bytes, cut_datas, high, parse, read_frames, strings, values
 from .pb_wire import descriptor_set
 from .pb_wire import field as _field
-from .pb_wire import read_varint as _read_varint
 from .records import FrameBatch, FrameRecord, _OneFrame
 
 __all__ = [
@@ -279,19 +268,7 @@ class TrafficColumns(NamedTuple):
     def datas(self) -> list[str]:
         """Each frame's DATA as text (a ``ValueError`` for DATA that is not UTF-8 where
         ``data_size`` cuts it)."""
-        sizes = _list(self.data_size)
-        try:
-            text = self.data.decode("utf-8", "surrogatepass")
-            ends = list(accumulate(sizes))
-            starts = [0, *ends[:-1]]
-            if len(text) == len(self.data):  # ASCII: cut the text where the bytes are cut
-                return list(map(text.__getitem__, map(slice, starts, ends)))
-            d = self.data
-            return [
-                d[a:b].decode("utf-8", "surrogatepass") for a, b in zip(starts, ends, strict=True)
-            ]
-        except UnicodeDecodeError as e:
-            raise ValueError(f"data is not UTF-8 where data_size cuts it: {e}") from None
+        return cut_datas(self.data, self.data_size)
 
     def records(self) -> list[FrameRecord]:
         """The message's frames as records, in order."""
@@ -336,90 +313,7 @@ class TrafficColumns(NamedTuple):
         ]
 
 
-def _parse(buf: bytes) -> dict[int, list[bytes]]:
-    """The message's known fields' pieces by number, in order (unknown fields skipped):
-    a packed column's bytes or one fixed64's eight, a string's bytes."""
-    n = len(buf)
-    i = 0
-    pieces: dict[int, list[bytes]] = {}
-    while i < n:
-        key = buf[i]
-        i += 1
-        if key >= 0x80:
-            key, i = _read_varint(buf, i - 1)
-        number, wire = key >> 3, key & 7
-        if wire == _LEN:
-            size = buf[i]
-            i += 1
-            if size >= 0x80:
-                size, i = _read_varint(buf, i - 1)
-            end = i + size
-            if end > n:
-                raise ValueError(f"field {number} runs {end - n} bytes past the message's end")
-            piece = buf[i:end]
-            i = end
-        elif wire == _VARINT:
-            _value, i = _read_varint(buf, i)
-            piece = b""
-        elif wire == _I64:
-            end = i + 8
-            if end > n:
-                raise ValueError(f"field {number} runs past the message's end")
-            piece = buf[i:end]
-            i = end
-        elif wire == _I32:
-            i += 4
-            if i > n:
-                raise ValueError(f"field {number} runs past the message's end")
-            piece = b""
-        else:
-            raise ValueError(f"field {number} has wire type {wire}, which protobuf has not")
-        if number in _COLUMNS:
-            if wire != _LEN and wire != _I64:
-                raise ValueError(f"{_COLUMNS[number]} has wire type {wire}, not fixed64's")
-        elif number in _STRINGS:
-            if wire != _LEN:
-                raise ValueError(f"{_STRINGS[number]} has wire type {wire}, not a string's")
-        else:
-            continue  # a field this kit does not know: protobuf skips it
-        got = pieces.get(number)
-        if got is None:
-            pieces[number] = [piece]
-        else:
-            got.append(piece)
-    return pieces
-
-
-def _column_bytes(pieces: dict[int, list[bytes]], number: int) -> bytes | None:
-    got = pieces.get(number)
-    if not got:
-        return None
-    buf = got[0] if len(got) == 1 else b"".join(got)
-    if len(buf) % 8:
-        raise ValueError(f"{_COLUMNS[number]} holds {len(buf)} bytes, not 8 a value")
-    return buf
-
-
-def _strings(pieces: dict[int, list[bytes]], number: int) -> list[str]:
-    try:
-        return [p.decode("utf-8") for p in pieces.get(number, ())]
-    except UnicodeDecodeError:
-        raise ValueError(f"{_STRINGS[number]} holds text that is not UTF-8") from None
-
-
-#: The per-frame columns as the decoder checks them: (number, name, largest value, may
-#: be absent, one value a frame).
-_CHECKS = tuple(
-    (
-        number,
-        name,
-        TIME_MAX if name.endswith("_ns") else INT_MAX,
-        name in ("first_ns", "name", "problem_frame", "stream"),
-        name != "problem_frame",
-    )
-    for number, name in sorted(_COLUMNS.items())
-    if number not in (1, 4)
-)
+_CHECKS = checks(_COLUMNS)
 
 
 def decode_traffic(buf: bytes, *, as_arrays: bool = True) -> TrafficColumns:
@@ -427,14 +321,14 @@ def decode_traffic(buf: bytes, *, as_arrays: bool = True) -> TrafficColumns:
     read or does not fit (see the module).  ``as_arrays``: the number columns as numpy
     ``uint64`` arrays (else lists of ints)."""
     try:
-        pieces = _parse(buf)
+        _, pieces = parse(buf, _COLUMNS, _STRINGS, {})
     except IndexError:
         raise ValueError("the message ends inside a field") from None
-    conns = _values(_column_bytes(pieces, 1) or b"", False)
+    conns = values(column_bytes(pieces, 1, "stream_conn") or b"", False)
     if conns and max(conns) > INT_MAX:
         raise ValueError(f"stream_conn holds {max(conns)}, not a non-negative 64-bit integer")
-    transports = _strings(pieces, 2)
-    dir_texts = _strings(pieces, 3)
+    transports = strings(pieces, 2, "stream_transport")
+    dir_texts = strings(pieces, 3, "stream_dir")
     m = len(conns)
     if len(transports) != m or len(dir_texts) != m:
         raise ValueError(
@@ -449,54 +343,15 @@ def decode_traffic(buf: bytes, *, as_arrays: bool = True) -> TrafficColumns:
         if d != "c2s" and d != "s2c":
             raise ValueError(f"stream_dir holds {d[:40]!r}, not one of c2s, s2c")
         dirs.append("c2s" if d == "c2s" else "s2c")
-    cnt = _column_bytes(pieces, 4) or b""
-    n = len(cnt) // 8
+    f = read_frames(pieces, _CHECKS, as_arrays)
+    n, cols = f.n, f.cols
     if n and not m:
         raise ValueError(f"{n} frames and no stream in the stream table")
-    # Every column's bytes one after the other: one array, its columns views of it, and
-    # the ranges checked with one reduction (and one more for the two time columns).
-    order: list[str] = ["cnt"]
-    parts: list[bytes] = [cnt]
-    absent: list[str] = []
-    for number, name, _top, optional, per_frame in _CHECKS:
-        col = _column_bytes(pieces, number)
-        if col is None:
-            if optional:
-                absent.append(name)
-                continue
-            if n:
-                raise ValueError(f"the message has no {name!r}")
-            col = b""
-        elif per_frame and len(col) != 8 * n:
-            raise ValueError(f"{name} has {len(col) // 8} values for {n} frames")
-        order.append(name)
-        parts.append(col)
-    values = _values(b"".join(parts), as_arrays)
-    cols: dict[str, Any] = dict.fromkeys(absent)
-    at = 0
-    for name, part in zip(order, parts, strict=True):
-        cols[name] = values[at : at + len(part) // 8]
-        at += len(part) // 8
-    if len(values) and _high(values) > INT_MAX:
-        _name_the_misfit(cols)
-    times = [c for c in (cols["first_ns"], cols["complete_ns"]) if c is not None and len(c)]
-    if times and max(map(_high, times)) > TIME_MAX:
-        _name_the_misfit(cols)
     stream = cols["stream"]
     if stream is None:
-        stream = _values(bytes(8 * n), as_arrays)
-    elif n and _high(stream) >= m:
-        raise ValueError(f"stream holds {_high(stream)}, past the {m} streams")
-    raw = pieces.get(15, [b""])[-1]
-    data = pieces.get(8, [b""])[-1]
-    for what, sizes, held in (("raw", cols["size"], raw), ("data", cols["data_size"], data)):
-        # Each size at most the bytes held first: the sum cannot wrap round then.
-        if n and (_high(sizes) > len(held) or _total(sizes) != len(held)):
-            raise ValueError(f"the sizes do not add up to {what} ({len(held)} bytes)")
-        if not n and held:
-            raise ValueError(f"{what} holds {len(held)} bytes for no frame")
-    if cols["first_ns"] is None:
-        cols["first_ns"] = cols["complete_ns"]
+        stream = values(bytes(8 * n), as_arrays)
+    elif n and high(stream) >= m:
+        raise ValueError(f"stream holds {high(stream)}, past the {m} streams")
     return TrafficColumns(
         stream_conn=conns,
         stream_transport=transports,
@@ -510,50 +365,11 @@ def decode_traffic(buf: bytes, *, as_arrays: bool = True) -> TrafficColumns:
         complete_ns=cols["complete_ns"],
         size=cols["size"],
         data_size=cols["data_size"],
-        names=_names(pieces, cols["name"], n),
-        data=data,
-        raw=raw,
-        problems=_problems(pieces, cols["problem_frame"], n),
+        names=f.names,
+        data=f.data,
+        raw=f.raw,
+        problems=f.problems,
     )
-
-
-def _name_the_misfit(cols: dict[str, Any]) -> None:
-    """Raise the ``ValueError`` naming the first column with a value out of its range."""
-    for _number, name, top, _optional, _per in ((4, "cnt", INT_MAX, False, True), *_CHECKS):
-        col = cols.get(name)
-        if col is not None and len(col) and _high(col) > top:
-            what = "a time in ns from 1970 to 2106" if top == TIME_MAX else None
-            raise ValueError(
-                f"{name} holds {_high(col)}, not {what or 'a non-negative 64-bit integer'}"
-            )
-    raise ValueError("a column holds a value out of its range")  # pragma: no cover
-
-
-def _names(pieces: dict[int, list[bytes]], index: Any, n: int) -> list[str | None]:
-    table: list[str | None] = [None, *_strings(pieces, 6)]
-    if index is None:
-        return [None] * n
-    if n and _high(index) >= len(table):
-        raise ValueError(f"name holds {_high(index)}, past the {len(table) - 1} names")
-    return list(map(table.__getitem__, _list(index)))
-
-
-def _problems(pieces: dict[int, list[bytes]], frames: Any, n: int) -> list[list[str]] | None:
-    texts = _strings(pieces, 17)
-    if frames is None:
-        if texts:
-            raise ValueError(f"{len(texts)} problems without problem_frame")
-        return None
-    if len(frames) != len(texts):
-        raise ValueError(f"problem_frame has {len(frames)} values for {len(texts)} problems")
-    if not texts:
-        return None
-    if _high(frames) >= n:
-        raise ValueError(f"problem_frame holds {_high(frames)}, past the {n} frames")
-    out: list[list[str]] = [[] for _ in range(n)]
-    for k, p in zip(_list(frames), texts, strict=True):
-        out[k].append(p)
-    return out
 
 
 def decode_records(buf: bytes) -> list[FrameRecord]:
