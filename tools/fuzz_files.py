@@ -266,65 +266,40 @@ def _make(target: str, tmp: Path, rng: random.Random) -> Callable[[], Any]:
             return got
 
         return one
-    if target == "frames-pb":
+    if target in ("frames-pb", "traffic-pb"):
+        # A protobuf frame batch alone: layout 3's fairino.Frames or layout 4's fairino.Traffic.
         from conformance.recording.frames_pb import decode_batch
-
-        goods = _pb_messages()
-
-        def one() -> Any:
-            try:
-                return decode_batch(_mutate_pb(rng.choice(goods), rng))
-            except ValueError:
-                raise FileError("the batch does not read") from None  # said, not a crash
-
-        return one
-    if target == "mcap-pb":
-        from conformance.capture_check import check_recording, summarize
-        from conformance.recording import RecordingWriter, read_recording
-        from conformance.spec import default_specs
-
-        specs = default_specs()
-        goods = _pb_messages()
-
-        def one() -> Any:
-            with RecordingWriter(f, metadata={"format": "fairino-conformance/3"}) as w:
-                w.write_frame(1, "tcp", "c2s", 1, 201, "MoveJ", 'MoveJ("P1")', 11, 0, 5, 6,
-                              encode_frame(1, 201, 'MoveJ("P1")'))  # fmt: skip
-                w.flush()
-                w._mcap.add_message(w._channels["/fairino/s2c"], 7,
-                                    _mutate_pb(rng.choice(goods), rng), 7, 1)  # fmt: skip
-            got = read_recording(f)
-            summarize(got, specs)
-            check_recording(got, specs)
-            return got
-
-        return one
-    if target == "traffic-pb":
         from conformance.recording.traffic_pb import decode_records
 
-        goods = _traffic_messages()
+        decode: Callable[[bytes], Any]
+        if target == "frames-pb":
+            decode, goods = decode_batch, _pb_messages()
+        else:
+            decode, goods = decode_records, _traffic_messages()
 
         def one() -> Any:
             try:
-                return decode_records(_mutate_pb(rng.choice(goods), rng))
+                return decode(_mutate_pb(rng.choice(goods), rng))
             except ValueError:
                 raise FileError("the batch does not read") from None  # said, not a crash
 
         return one
-    if target == "mcap-traffic":
+    if target in ("mcap-pb", "mcap-traffic"):
+        # The same batches inside a recording of their layout, read and checked whole.
         from conformance.capture_check import check_recording, summarize
         from conformance.recording import RecordingWriter, read_recording
         from conformance.spec import default_specs
 
         specs = default_specs()
-        goods = _traffic_messages()
+        layout, topic = (3, "/fairino/s2c") if target == "mcap-pb" else (4, "/fairino/frames")
+        goods = _pb_messages() if target == "mcap-pb" else _traffic_messages()
 
         def one() -> Any:
-            with RecordingWriter(f, metadata={"format": "fairino-conformance/4"}) as w:
+            with RecordingWriter(f, metadata={"format": f"fairino-conformance/{layout}"}) as w:
                 w.write_frame(1, "tcp", "c2s", 1, 201, "MoveJ", 'MoveJ("P1")', 11, 0, 5, 6,
                               encode_frame(1, 201, 'MoveJ("P1")'))  # fmt: skip
                 w.flush()
-                w._mcap.add_message(w._channels["/fairino/frames"], 7,
+                w._mcap.add_message(w._channels[topic], 7,
                                     _mutate_pb(rng.choice(goods), rng), 7, 1)  # fmt: skip
             got = read_recording(f)
             summarize(got, specs)
