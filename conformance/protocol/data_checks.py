@@ -144,16 +144,19 @@ def match_variant(command: Command, parsed: Parsed) -> tuple[Variant | None, lis
         return _match_word(command, parsed)
     # A plain-number call is checked from its values or its text first (see Call).
     d = parsed.__dict__
-    plain = d.get(_PLAIN) if data_fast.FAST_CHECKS else None
-    values = d.get(_VALUES) if plain is not None else None
+    fast = data_fast.FAST_CHECKS
+    values = d.get(_VALUES) if fast else None
     if values is not None:
-        # Its values read in one pass (MoveJ's 29), against the command's first call
-        # variant: each value with a domain among those certainly in it, and it
-        # conforms.  Anything else (another variant, a value the sets do not hold)
-        # goes the way below, which decides it and words it.
+        # Its values, read in one pass by the parser (MoveJ's 29) or asked for, against
+        # the command's first call variant: each value with a domain among those
+        # certainly in it, and it conforms (every argument is a number in its domain,
+        # which is all check_args asks of a variant without strings or arrays).
+        # Anything else (another variant, a value the sets do not hold) goes the way
+        # below, which decides it and words it.
         first = _FIRST.get(id(command)) or _first_plain(command)
         if first is not None and first[1](values):
             return first[0], []
+    plain = d.get(_PLAIN) if fast else None
     best: tuple[Variant | None, list[Violation]] = (None, [])
     for v, table in _call_tables(command):
         if (

@@ -228,7 +228,7 @@ def parse_data(data: str, *, strict: bool = False) -> Parsed:
             # plain list (.5, 5., +1, 007) is checked by the grammar and read when
             # first used.
             try:
-                values = _scan_json("[" + inner + "]", 0)[0]
+                values = _scan_json(f"[{inner}]", 0)[0]
             except (ValueError, StopIteration):
                 values = None
             if values is not None:
