@@ -98,7 +98,7 @@ class StreamRecorder(_CommandNames):
             getattr(sink, "write_frame", None) if self._write_frames is not None else None
         )
         # Reads of a frame each, held to be read together (lone_reads.py), for a sink that
-        # drains them first (RecordingWriter.hold) and with no checkpoint (see data()).
+        # drains them first (RecordingWriter.hold); checkpoint runs after each batch.
         self._write_rows: Callable[[Mixed], None] | None = (
             getattr(sink, "write_mixed", None) if self._write_frame is not None else None
         )
@@ -260,8 +260,7 @@ class StreamRecorder(_CommandNames):
         if n >= _RUN_MIN or n > self.slice_size or self.undecoded_reason is not None:
             self.segments(conn, direction, ((t_ns, data),))
             return
-        # A short read (request/reply traffic: one frame): held to be read with the next
-        # ones (lone_reads.py), or straight to the decoder.
+        # A short read (request/reply: one frame): held (lone_reads.py), or to the decoder.
         c = self._conns[conn]
         st = c.streams[direction]
         if (
@@ -269,7 +268,6 @@ class StreamRecorder(_CommandNames):
             and c.state is None
             and n
             and type(data) is bytes
-            and self.checkpoint is None
             and st.decoder.idle
             and len(st.timeline) < _TIMELINE_MAX
         ):
@@ -279,6 +277,8 @@ class StreamRecorder(_CommandNames):
             lone.append((st, t_ns, data))
             if len(lone) >= LONE_MAX:
                 self._drain()
+                if self.checkpoint is not None:  # after a batch of them, not each one
+                    self.checkpoint()
             return
         self._drain()
         if c.state is not None:
