@@ -84,7 +84,7 @@ RCVBUF = 32 << 20
 #: ring misbehaves; ``tools/bench_capture.py``'s baseline).
 RING_ENV = "FAIRINO_CAPTURE_RING"
 #: The ring's block timeout: a block is handed over when full or this old.
-RING_TIMEOUT_MS = 4
+RING_TIMEOUT_MS = 10
 #: Blocks read at most before the loop looks at the clock and the stop again.
 RING_SLICE = 1
 
@@ -427,7 +427,7 @@ class LiveCapture:
         stamped after ``until_ns`` was met)."""
         assert self.ring is not None
         return self.ring.read(
-            self.packets.feed,
+            self.packets.feed_all,
             self.linktype,
             skip_outgoing=self.loopback,
             max_blocks=RING_SLICE,

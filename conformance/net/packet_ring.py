@@ -45,8 +45,8 @@ _PKT = struct.Struct("@6IH")  # next_offset, sec, nsec, snaplen, len, status, ma
 _PKTTYPE_AT = 48 + 10  # TPACKET_ALIGN(sizeof tpacket3_hdr) + offsetof(sockaddr_ll, pkttype)
 _KERNEL = struct.pack("@I", TP_STATUS_KERNEL)
 
-#: (time in ns, link type, packet bytes) -> None: PacketRecorder.feed
-Feed = Callable[[int, int, bytes], None]
+#: A block's packets, each (link type, time in ns, bytes) -> None: PacketRecorder.feed_all
+FeedAll = Callable[[list[tuple[int, int, bytes]]], None]
 
 
 class RingUnavailable(OSError):
@@ -100,19 +100,22 @@ class PacketRing:
 
     def read(
         self,
-        feed: Feed,
+        feed_all: FeedAll,
         linktype: int,
         *,
         skip_outgoing: bool,
         max_blocks: int | None = None,
         until_ns: int | None = None,
     ) -> tuple[int, bool]:
-        """Feed the packets of the blocks handed over to us, in order, giving each block
-        back once read: (packets fed, whether a packet later than ``until_ns`` was met:
-        it and the rest of its block are not fed, and reading stops)."""
+        """Feed the packets of the blocks handed over to us, in order, a block's packets
+        in one call (the recorder reads them together: one call per packet cost more
+        than its bytes), giving each block back once read: (packets fed, whether a packet
+        later than ``until_ns`` was met: it and the rest of its block are not fed, and
+        reading stops)."""
         m = self.map
         n = 0
         blocks = 0
+        unpack = _PKT.unpack_from
         while max_blocks is None or blocks < max_blocks:
             base = self._next * self.block_size
             status, count, first = _BLOCK.unpack_from(m, base + _BLOCK_AT)
@@ -120,8 +123,9 @@ class PacketRing:
                 break
             pos = base + first
             late = False
+            got = []
             for _ in range(count):
-                nxt, sec, nsec, snaplen, _wire, _st, mac = _PKT.unpack_from(m, pos)
+                nxt, sec, nsec, snaplen, _wire, _st, mac = unpack(m, pos)
                 if skip_outgoing and m[pos + _PKTTYPE_AT] == PACKET_OUTGOING:
                     self.outgoing += 1
                 else:
@@ -129,11 +133,14 @@ class PacketRing:
                     if until_ns is not None and t > until_ns:
                         late = True
                         break
-                    feed(t, linktype, m[pos + mac : pos + mac + snaplen])
-                    n += 1
+                    at = pos + mac
+                    got.append((linktype, t, m[at : at + snaplen]))
                 if not nxt:
                     break
                 pos += nxt
+            if got:
+                n += len(got)
+                feed_all(got)
             m[base + _BLOCK_AT : base + _BLOCK_AT + 4] = _KERNEL  # the block is the kernel's
             self._next = (self._next + 1) % self.block_nr
             blocks += 1
