@@ -495,35 +495,46 @@ class _Recorder:
         stop = False
         if self.broken:
             return self.discard(buf)
+        # One copy of the lot, then a slice (one more) per payload: a bytearray's slice
+        # made bytes would be two.
+        blob = bytes(buf)
         reads: list[tuple[int, bytes]] = []
         key = (-1, -1)
+        latest = self.latest_ns
+        taken = 0
 
         def flush_reads() -> None:
             if reads:
                 try:
-                    rec.segments(key[0], _DIR_NAME[key[1]], reads)  # type: ignore[arg-type]
+                    if len(reads) == 1:  # request/reply: a read a direction
+                        rec.data(key[0], _DIR_NAME[key[1]], *reads[0])  # type: ignore[arg-type]
+                    else:
+                        rec.segments(key[0], _DIR_NAME[key[1]], reads)  # type: ignore[arg-type]
                 except Exception as e:
                     self.fail(e)
                 reads.clear()
 
         while end - pos >= size and not self.broken:
-            kind, d, conn, t_ns, n = unpack(buf, pos)
-            if end - pos - size < n:
+            kind, d, conn, t_ns, n = unpack(blob, pos)
+            at = pos + size
+            if end - at < n:
                 break
-            payload = bytes(buf[pos + size : pos + size + n])
-            pos += size + n
-            self.latest_ns = max(self.latest_ns, t_ns)
+            payload = blob[at : at + n]
+            pos = at + n
+            if t_ns > latest:
+                latest = t_ns
             if kind == DATA:
-                self.taken += n
+                taken += n
                 if (conn, d) != key:
                     flush_reads()
                     key = (conn, d)
                 reads.append((t_ns, payload))
                 continue
             flush_reads()
+            self.latest_ns = latest
             try:
                 if kind == DGRAM:
-                    self.taken += n
+                    taken += n
                     rec.datagram(conn, _DIR_NAME[d], t_ns, payload)  # type: ignore[arg-type]
                 elif kind == OPEN:
                     rec.open(conn, t_ns=t_ns, **json.loads(payload))
@@ -538,6 +549,8 @@ class _Recorder:
                     break
             except Exception as e:
                 self.fail(e)
+        self.latest_ns = latest
+        self.taken += taken
         flush_reads()
         del buf[:pos]
         if self.broken and not stop:  # it broke on the way: the rest is lost
