@@ -410,17 +410,20 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
                         writable = True
                 now = monotonic()
                 if self._rec_buf or self._rec_registered:
-                    # Hand the recorder what this turn read, in one write, but not just
-                    # after forwarding a request: its reply is due within microseconds
-                    # and should not find us in a system call.  The write follows the
-                    # reply, or the next quiet turn (at most 5 ms later), or 64 KiB.
+                    # Hand the recorder what it has not had for 5 ms, in one write (it
+                    # takes the pipe's bytes in ticks of about as long: a write a request
+                    # would be a system call a request for nothing), but not just after
+                    # forwarding a request: its reply is due within microseconds and
+                    # should not find us in a system call.  The write follows a reply or
+                    # comes in a quiet turn (the selector wakes us 5 ms on), by 10 ms
+                    # whatever comes, or at 64 KiB.
                     if not self._rec_since:
                         self._rec_since = now
+                    waited = now - self._rec_since
                     if (
                         writable
-                        or not self._reply_due
                         or len(self._rec_buf) >= 1 << 16
-                        or now - self._rec_since >= 0.005
+                        or (waited >= 0.005 and (not self._reply_due or waited >= 0.01))
                     ):
                         self._flush_rec()
                         self._rec_since = 0.0
