@@ -50,9 +50,6 @@ from .data_values import (
 __all__ = ["parse_data", "parse_reply"]
 
 _NAME_RE = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
-# A call, its name and its argument text of 1 to 300 characters (what parse_data's
-# careful reading takes apart with _NAME_RE): tried first, for the plain-number fast path.
-_CALL_RE = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)\((.{1,300})\)", re.S)
 # ASCII digits only (the protocol's), and unambiguous: "\d+\.?\d*" backtracked
 # quadratically over a long run of digits followed by a non-digit.
 _NUMBER_RE = re.compile(r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?", re.ASCII)
@@ -214,12 +211,18 @@ def parse_data(data: str, *, strict: bool = False) -> Parsed:
     A DATA that starts like a call (``Name(``) must be a well-formed call, else
     :class:`RemoteProtocolError` with ``Rule.BAD_DATA``.
     """
-    # Only a short DATA can be such a call (300 characters of arguments and a name):
-    # a long one is not looked at twice.
-    c = _CALL_RE.fullmatch(data) if data_fast.FAST_CHECKS and len(data) <= 400 else None
-    if c is not None:
-        name, inner = c.groups()
-        if not inner.encode("utf-8", "replace").translate(None, _PLAIN_CHARS):
+    # Only a short ASCII DATA can be such a call (300 characters of arguments and a
+    # name; a plain number is ASCII): a long one is not looked at twice.  Its name is
+    # what comes before the first "(" (an ASCII identifier: _NAME_RE), its argument
+    # text what comes between that and the final ")".
+    if data_fast.FAST_CHECKS and len(data) <= 400 and data.isascii():
+        name, _, rest = data.partition("(")
+        if (
+            1 < len(rest) <= 301
+            and rest[-1] == ")"
+            and name.isidentifier()
+            and not (inner := rest[:-1]).encode().translate(None, _PLAIN_CHARS)
+        ):
             # The common call (MoveJ's 29 plain numbers): what _ArgParser.items reads
             # on its fast path, without the parser (300 characters: under MAX_ITEMS
             # values), its arguments made when first used (Call).  In JSON's form
