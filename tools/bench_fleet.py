@@ -24,7 +24,9 @@ slow and bad replies on a few robots), then, each in its own process (its CPU ti
 ``--memory 250000,1000000,4000000``: instead, one recording of each size (one robot, one
 firmware, time-outs, slow replies and refusals on every robot), in this layout and in
 layout 2, each exported in its own process: peak RSS against frames (flat: the same
-figure whatever the size; conformance/fleet/window.py) and frames/s CPU.
+figure whatever the size; conformance/fleet/window.py) and frames/s CPU; with ``--pcap``,
+captures of those sizes (the same traffic as a pcap); with ``--baseline-rev REV``, each
+file exported by that revision's code too, in the same run.
 """
 
 from __future__ import annotations
@@ -42,7 +44,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from tools.synth_fleet import START_NS, Fault, write_recording  # noqa: E402
+from tools.synth_fleet import START_NS, Fault, write_capture, write_recording  # noqa: E402
 
 PY = sys.executable
 CLI = [PY, "-m", "conformance"]
@@ -200,26 +202,38 @@ def _time_sample(sample: list[str], tmp: str, label: str) -> tuple[float, float]
     return base, n / cpu
 
 
-def memory(sizes: list[int], tmp: str) -> None:
-    """Peak RSS of export-parquet against the recording's frames (see the module)."""
+def memory(sizes: list[int], tmp: str, *, pcap: bool = False, rev: str = "") -> None:
+    """Peak RSS of export-parquet against the recording's frames (see the module);
+    ``pcap``: of captures (the recording's traffic as a pcap); ``rev``: each file exported
+    by that git revision's code too, in the same run."""
     faults = (
         Fault("timeout", "*", "*", 214),
         Fault("slow", "*", "*", 212),
         Fault("refusal", "*", "*", 201),
     )
+    envs: list[tuple[str, dict[str, str] | None]] = [("this", None)]
+    if rev:
+        envs.append((rev, baseline_env(rev, os.path.join(tmp, "base-rev"))))
     print(
-        f"{'layout':>6} {'frames':>10} {'MiB of MCAP':>12} {'peak RSS MiB':>13} {'frames/s CPU':>13}"
+        f"{'code':>8} {'file':>7} {'frames':>10} {'MiB of file':>12} {'peak RSS MiB':>13} "
+        f"{'frames/s CPU':>13}"
     )
-    for layout in (None, 2):
+    for layout in (None,) if pcap else (None, 2):
         for n in sizes:
-            path = Path(tmp) / f"mem-{layout}-{n}.mcap"
-            write_recording(path, "r01", "3.9.8", n, faults, START_NS, layout)
-            ds = os.path.join(tmp, "ds-mem")
-            _, cpu, rss, _ = run([*CLI, "export-parquet", str(path), "-o", ds])
-            shutil.rmtree(ds, ignore_errors=True)
+            if pcap:
+                path = Path(tmp) / f"mem-{n}.pcap"
+                write_capture(path, "r01", "3.9.8", n, faults, START_NS)
+            else:
+                path = Path(tmp) / f"mem-{layout}-{n}.mcap"
+                write_recording(path, "r01", "3.9.8", n, faults, START_NS, layout)
             size = path.stat().st_size / 2**20
+            kind = "pcap" if pcap else f"mcap/{layout or 'this'}"
+            for code, env in envs:
+                ds = os.path.join(tmp, "ds-mem")
+                _, cpu, rss, _ = run([*CLI, "export-parquet", str(path), "-o", ds], env)
+                shutil.rmtree(ds, ignore_errors=True)
+                print(f"{code:>8} {kind:>7} {n:>10,} {size:>12.1f} {rss:>13} {n / cpu:>13,.0f}")
             path.unlink()
-            print(f"{layout or 'this':>6} {n:>10,} {size:>12.1f} {rss:>13} {n / cpu:>13,.0f}")
 
 
 def main() -> int:
@@ -256,11 +270,17 @@ def main() -> int:
         "--memory",
         help="frames per recording, comma-separated: peak RSS against size (nothing else)",
     )
+    ap.add_argument(
+        "--pcap",
+        action="store_true",
+        help="with --memory: captures (pcap) of those sizes, not MCAP recordings",
+    )
     a = ap.parse_args()
     tmp = tempfile.mkdtemp(prefix="bench-fleet-")
     if a.memory:
         try:
-            memory([int(x) for x in a.memory.split(",") if x], tmp)
+            sizes = [int(x) for x in a.memory.split(",") if x]
+            memory(sizes, tmp, pcap=a.pcap, rev=a.baseline_rev)
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
         return 0

@@ -216,6 +216,31 @@ def write_recording(
     return written
 
 
+def write_capture(
+    path: Path, robot: str, firmware: str, frames: int, faults: Sequence[Fault], start_ns: int
+) -> int:
+    """The traffic of :func:`write_recording`'s recording as a pcap capture at ``path``
+    (:func:`~conformance.pcap.export_pcap`; each frame at its place in its stream, in
+    the order its first byte came); returns the frames written."""
+    import dataclasses
+
+    from conformance.pcap import export_pcap
+    from conformance.recording import read_recording
+
+    mcap = path.with_name(path.name + ".tmp.mcap")
+    written = write_recording(mcap, robot, firmware, frames, faults, start_ns)
+    rec = read_recording(mcap)
+    mcap.unlink()
+    at: dict[tuple[int, str], int] = {}
+    placed = []
+    for f in sorted(rec.frames, key=lambda f: f.first_ns):
+        k = (f.conn, f.dir)
+        placed.append(dataclasses.replace(f, offset=at.get(k, 0)))
+        at[k] = at.get(k, 0) + len(f.raw)
+    export_pcap(dataclasses.replace(rec, frames=tuple(placed)), path)
+    return written
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter

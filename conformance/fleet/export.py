@@ -9,9 +9,12 @@ over every frame's and malformed run's verdict: the rows carry exactly those) wi
 ``_recordings/<id>.json``) is skipped, and a new one only adds files: appending never
 rewrites what is there.  A clean recording is read, judged and written a window at a time
 (:mod:`.window`): memory holds a window and one row group per table, whatever the
-recording's length and the number of recordings; a recording the fast path does not take
-(damage, framing problems, the state stream) goes through ``check_recording`` whole.
-``jobs`` processes take the recordings one at a time each.
+recording's length and the number of recordings.  A pcap/pcapng capture is imported first
+(``import-pcap``'s streaming importer, into a temporary recording in the kit's layout) and
+that recording exported so, its rows named as the capture.  A recording the fast path does
+not take (damage, a damaged capture, framing problems or malformed runs, the state
+stream) goes through ``check_recording`` whole (:mod:`.general`).  ``jobs`` processes take
+the recordings one at a time each.
 """
 
 from __future__ import annotations
@@ -24,15 +27,16 @@ import multiprocessing
 import os
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..errors import FileError, UsageError
 from ..firmware import GET_SOFTWARE_VERSION_ID, parse_software_version
-from ..judge import Judge, Verdict
-from ..recording import C2S, ConnectionRecord, FrameRecord, ProblemRecord, Recording
+from ..judge import Judge
+from ..recording import C2S, ConnectionRecord, Recording
 from .fast import Columns, ColumnStream, NotFast, read_columns
+from .general import StateGaps, general_rows, state_rows
 from .memo import MemoJudge
 from .schema import (
     COLUMNS,
@@ -40,9 +44,11 @@ from .schema import (
     TABLES,
     arrow_schema,
     partition_value,
-    verdict_columns,
 )
 from .window import WINDOW, OutOfOrder, Windows
+
+if TYPE_CHECKING:
+    from ..pcap.read import CaptureDamage
 
 __all__ = [
     "RECORDING_SUFFIXES",
@@ -325,26 +331,6 @@ class _Table:
         self._writer, self.rows, self.count = None, [], 0
 
 
-def _frame_row(f: FrameRecord, v: Verdict, port: int | None, data: bool) -> tuple[object, ...]:
-    length = f.length if f.length is not None else len(f.data.encode("utf-8"))
-    *verdict, name = verdict_columns(v)
-    return (
-        f.transport,
-        port,
-        f.dir,
-        f.conn,
-        f.first_ns or f.complete_ns,
-        f.complete_ns,
-        f.cnt,
-        f.cmd_id,
-        name or f.name,
-        length,
-        "len_mismatch" not in f.problems and "bad_len" not in f.problems,
-        f.data if data else None,
-        *verdict,
-    )
-
-
 def export_recording(
     path: str,
     out: str | os.PathLike[str],
@@ -369,9 +355,16 @@ def export_recording(
     if mark.exists():
         result.skipped = True
         return result
-    how = _fast(path, dataset, result, judge_for, robot, firmware, data, window) if fast else ""
-    if how != "done":
-        _whole(path, dataset, result, judge_for, robot, firmware, data, how == "whole")
+    if fast and _is_capture(path):
+        _capture(path, dataset, result, judge_for, robot, firmware, data, window)
+    else:
+        how = (
+            _fast(path, path, dataset, result, judge_for, robot, firmware, data, window)
+            if fast
+            else ""
+        )
+        if how != "done":
+            _whole(path, path, dataset, result, judge_for, robot, firmware, data, how == "whole")
     result.seconds = round(time.perf_counter() - t0, 3)
     tmp = mark.with_suffix(".tmp")
     tmp.write_text(json.dumps(result.to_json(), indent=2) + "\n", encoding="utf-8")
@@ -380,7 +373,7 @@ def export_recording(
 
 
 def _tables(
-    path: str,
+    name: str,
     dataset: Path,
     result: ExportResult,
     md: Mapping[str, str],
@@ -390,7 +383,7 @@ def _tables(
     """The recording's tables, written beside their partition until it is known."""
     seg = md.get("segment", "0")
     constants: dict[str, object] = {
-        "recording": os.path.basename(path),
+        "recording": os.path.basename(name),
         "recording_id": result.recording_id,
         "segment": int(seg) if seg.isdigit() else 0,
         "firmware": fw,
@@ -426,6 +419,7 @@ def _finish(
 
 def _fast(
     path: str,
+    name: str,
     dataset: Path,
     result: ExportResult,
     judge_for: JudgeFor,
@@ -434,9 +428,9 @@ def _fast(
     data: bool,
     window: int,
 ) -> str:
-    """A clean recording a window at a time (:mod:`.window`): "done"; else nothing is
-    written, and "general" for one the fast path does not take, "whole" for one whose
-    windows are not in the order :mod:`.window` relies on."""
+    """A clean recording a window at a time (:mod:`.window`), its rows named ``name``:
+    "done"; else nothing is written, and "general" for one the fast path does not take,
+    "whole" for one whose windows are not in the order :mod:`.window` relies on."""
     stream = ColumnStream(path, window)
     windows = iter(stream)
     buffered: list[tuple[Columns, int]] = []
@@ -464,7 +458,7 @@ def _fast(
     if not stream.metadata:
         return "whole"
     memo = MemoJudge.of(judge_for(fw))
-    tables = _tables(path, dataset, result, stream.metadata, fw, memo)
+    tables = _tables(name, dataset, result, stream.metadata, fw, memo)
     win = Windows(memo, tables, data=data, port=_port, window=window)
     try:
         last: tuple[Columns, int] | None = None
@@ -486,7 +480,13 @@ def _fast(
     return "done"
 
 
-def _whole(
+def _is_capture(path: str) -> bool:
+    from ..pcap import capture_format
+
+    return capture_format(path) in ("pcap", "pcapng")
+
+
+def _capture(
     path: str,
     dataset: Path,
     result: ExportResult,
@@ -494,11 +494,46 @@ def _whole(
     robot: str | None,
     firmware: str | None,
     data: bool,
+    window: int,
+) -> None:
+    """A pcap/pcapng capture imported by ``import-pcap``'s streaming importer into a
+    temporary recording (the kit's layout), exported as that recording is (the fast path
+    when it takes it), its rows named as the capture; the rows are those of the capture
+    read as ``check`` reads it (:func:`~conformance.pcap.read_capture` imports it so too)."""
+    import tempfile
+
+    from ..pcap import import_pcap
+
+    lost: list[CaptureDamage] = []
+    with tempfile.TemporaryDirectory(prefix="fairino-export-") as d:
+        mcap = os.path.join(d, "imported.mcap")
+        import_pcap(path, mcap, damage=lost)
+        how = "general"
+        if not lost:  # a damaged capture: the general path names its damage
+            how = _fast(mcap, path, dataset, result, judge_for, robot, firmware, data, window)
+        if how != "done":
+            args = (dataset, result, judge_for, robot, firmware, data, how == "whole", lost)
+            _whole(mcap, path, *args)
+
+
+def _whole(
+    path: str,
+    name: str,
+    dataset: Path,
+    result: ExportResult,
+    judge_for: JudgeFor,
+    robot: str | None,
+    firmware: str | None,
+    data: bool,
     fast: bool,
+    lost: Sequence[CaptureDamage] = (),
 ) -> None:
     """The recording read whole: as columns (``fast``) in one window, else through the
-    reader's records and ``check_recording`` (the general path)."""
+    reader's records and ``check_recording`` (the general path); its rows named ``name``
+    (a capture's, when ``path`` is the recording imported from it, with the capture's
+    damage ``lost`` as :func:`~conformance.pcap.read_capture` gives it)."""
     from ..pcap import read_capture
+    from ..pcap.importer import as_damage
 
     cols = read_columns(path) if fast else None
     rec: Recording | None = None
@@ -509,110 +544,23 @@ def _whole(
         times = [*(c.t_ns for c in conns), *([min(cols.first_ns)] if cols.first_ns else [])]
     else:
         rec = read_capture(path)
+        if name != path:
+            rec = replace(rec, path=name, damage=rec.damage + tuple(map(as_damage, lost)))
         result.damage = [str(d) for d in rec.damage]
         md, conns = rec.metadata, rec.connections
         fw = firmware or firmware_in((f.dir, f.cmd_id, f.data) for f in rec.frames)
         times = [rec.start_ns]
     memo = MemoJudge.of(judge_for(fw))
-    tables = _tables(path, dataset, result, md, fw, memo)
+    tables = _tables(name, dataset, result, md, fw, memo)
     if cols is not None:
         win = Windows(memo, tables, data=data, port=_port)
         win.add(cols, conns, final=True)
     else:
         assert rec is not None
         ports = {c.conn: _port(c.upstream) for c in conns if c.event == "open"}
-        _general_rows(rec, memo, tables, ports, data)
-        _state(rec, tables["state"])
+        general_rows(rec, memo, tables, ports, data)
+        state_rows(rec.states, StateGaps(), tables["state"])
     _finish(result, dataset, tables, md, conns, robot, times)
-
-
-def _general_rows(
-    rec: Recording,
-    memo: MemoJudge,
-    tables: dict[str, _Table],
-    ports: dict[int, int | None],
-    data: bool,
-) -> None:
-    """Frames, exchanges and problems with check_recording's verdicts."""
-    from ..capture_check import check_recording
-
-    verdicts: dict[int, Verdict] = {}
-    problems: list[tuple[ProblemRecord, Verdict]] = []
-    frames = tables["frames"]
-
-    def on_verdict(x: FrameRecord | ProblemRecord, v: Verdict) -> None:
-        if isinstance(x, FrameRecord):
-            verdicts[id(x)] = v
-            frames.add(_frame_row(x, v, ports.get(x.conn), data))
-        else:
-            problems.append((x, v))
-
-    check_recording(rec, memo.specs, judge=memo, on_verdict=on_verdict)
-    _exchanges(rec, verdicts, tables["exchanges"])
-    if problems:
-        answered = rec.answered_by()
-        for p, v in problems:
-            blamed = answered.get(id(p))
-            tables["problems"].add(
-                (
-                    *(p.transport, p.conn, p.dir, p.kind, p.rule, p.detail, p.size),
-                    p.complete_ns,
-                    blamed.cmd_id if blamed is not None else None,
-                    v.outcome.value,
-                    v.source,
-                )
-            )
-
-
-def _exchanges(rec: Recording, verdicts: dict[int, Verdict], table: _Table) -> None:
-    for ex in rec.exchanges():
-        req, rep = ex.request, ex.reply
-        rv = verdicts.get(id(req)) if req is not None else None
-        pv = verdicts.get(id(rep)) if rep is not None else None
-        f = req or rep
-        assert f is not None
-        v = rv or pv
-        name = verdict_columns(v)[7] if v is not None else None
-        reply = verdict_columns(pv) if pv is not None else None
-        table.add(
-            (
-                f.transport,
-                ex.conn,
-                f.cmd_id,
-                name or f.name,
-                f.cnt,
-                req.complete_ns if req is not None else None,
-                rep.complete_ns if rep is not None else None,
-                ex.latency_ns,
-                rv.outcome.value if rv is not None else None,
-                reply[0] if reply is not None else None,
-                reply[1] if reply is not None else None,
-                bool(reply is not None and reply[4]),
-                reply[6] if reply is not None else None,
-                req is not None and rep is None,
-            )
-        )
-
-
-def _state(rec: Recording, table: _Table) -> None:
-    last: dict[int, int] = {}
-    for s in rec.states:
-        prev = last.get(s.conn)
-        # 2.1 (2): the packet counter is one byte; the state decoder's reading of a step
-        # (conformance/protocol/state.py): 255 after a packet is a repeat, not a loss.
-        gap = 0 if prev is None else (s.cnt - prev - 1) & 0xFF
-        last[s.conn] = s.cnt
-        table.add(
-            (
-                s.conn,
-                s.complete_ns,
-                s.cnt,
-                s.length,
-                s.version,
-                s.checksum_ok,
-                0 if gap == 255 else gap,
-            )
-        )
 
 
 def _one(args: tuple[str, str, JudgeFor, str | None, str | None, bool]) -> ExportResult:

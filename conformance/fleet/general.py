@@ -1,0 +1,138 @@
+"""``export-parquet``'s general path: the rows of a recording read whole (the reader's
+records) from :func:`~conformance.capture_check.check_recording`'s verdicts; and the state
+table's rows, which the fast path writes so too (a window's packets at a time)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from typing import Protocol
+
+from ..judge import Verdict
+from ..recording import FrameRecord, ProblemRecord, Recording, StateRecord
+from .memo import MemoJudge
+from .schema import verdict_columns
+
+__all__ = ["Rows", "StateGaps", "frame_row", "general_rows", "state_rows"]
+
+
+class Rows(Protocol):
+    """A table's rows as they are written (each a tuple in the table's own columns)."""
+
+    def add(self, row: tuple[object, ...]) -> None: ...
+
+
+def frame_row(f: FrameRecord, v: Verdict, port: int | None, data: bool) -> tuple[object, ...]:
+    length = f.length if f.length is not None else len(f.data.encode("utf-8"))
+    *verdict, name = verdict_columns(v)
+    return (
+        f.transport,
+        port,
+        f.dir,
+        f.conn,
+        f.first_ns or f.complete_ns,
+        f.complete_ns,
+        f.cnt,
+        f.cmd_id,
+        name or f.name,
+        length,
+        "len_mismatch" not in f.problems and "bad_len" not in f.problems,
+        f.data if data else None,
+        *verdict,
+    )
+
+
+def general_rows(
+    rec: Recording,
+    memo: MemoJudge,
+    tables: Mapping[str, Rows],
+    ports: dict[int, int | None],
+    data: bool,
+) -> None:
+    """Frames, exchanges and problems with check_recording's verdicts."""
+    from ..capture_check import check_recording
+
+    verdicts: dict[int, Verdict] = {}
+    problems: list[tuple[ProblemRecord, Verdict]] = []
+    frames = tables["frames"]
+
+    def on_verdict(x: FrameRecord | ProblemRecord, v: Verdict) -> None:
+        if isinstance(x, FrameRecord):
+            verdicts[id(x)] = v
+            frames.add(frame_row(x, v, ports.get(x.conn), data))
+        else:
+            problems.append((x, v))
+
+    check_recording(rec, memo.specs, judge=memo, on_verdict=on_verdict)
+    _exchanges(rec, verdicts, tables["exchanges"])
+    if problems:
+        answered = rec.answered_by()
+        for p, v in problems:
+            blamed = answered.get(id(p))
+            tables["problems"].add(
+                (
+                    *(p.transport, p.conn, p.dir, p.kind, p.rule, p.detail, p.size),
+                    p.complete_ns,
+                    blamed.cmd_id if blamed is not None else None,
+                    v.outcome.value,
+                    v.source,
+                )
+            )
+
+
+def _exchanges(rec: Recording, verdicts: dict[int, Verdict], table: Rows) -> None:
+    for ex in rec.exchanges():
+        req, rep = ex.request, ex.reply
+        rv = verdicts.get(id(req)) if req is not None else None
+        pv = verdicts.get(id(rep)) if rep is not None else None
+        f = req or rep
+        assert f is not None
+        v = rv or pv
+        name = verdict_columns(v)[7] if v is not None else None
+        reply = verdict_columns(pv) if pv is not None else None
+        table.add(
+            (
+                f.transport,
+                ex.conn,
+                f.cmd_id,
+                name or f.name,
+                f.cnt,
+                req.complete_ns if req is not None else None,
+                rep.complete_ns if rep is not None else None,
+                ex.latency_ns,
+                rv.outcome.value if rv is not None else None,
+                reply[0] if reply is not None else None,
+                reply[1] if reply is not None else None,
+                bool(reply is not None and reply[4]),
+                reply[6] if reply is not None else None,
+                req is not None and rep is None,
+            )
+        )
+
+
+class StateGaps:
+    """Each state connection's last packet counter, across a recording's windows."""
+
+    def __init__(self) -> None:
+        self.last: dict[int, int] = {}
+
+
+def state_rows(states: Iterable[StateRecord], gaps: StateGaps, table: Rows) -> None:
+    """The state table's rows of these packets (in file order, after those ``gaps`` saw)."""
+    last = gaps.last
+    for s in states:
+        prev = last.get(s.conn)
+        # 2.1 (2): the packet counter is one byte; the state decoder's reading of a step
+        # (conformance/protocol/state.py): 255 after a packet is a repeat, not a loss.
+        gap = 0 if prev is None else (s.cnt - prev - 1) & 0xFF
+        last[s.conn] = s.cnt
+        table.add(
+            (
+                s.conn,
+                s.complete_ns,
+                s.cnt,
+                s.length,
+                s.version,
+                s.checksum_ok,
+                0 if gap == 255 else gap,
+            )
+        )
