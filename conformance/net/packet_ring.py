@@ -89,6 +89,7 @@ class PacketRing:
             raise RingUnavailable(getattr(e, "errno", None), f"no TPACKET_V3 ring: {e}") from None
         self.block_size = block_size
         self.block_nr = block_nr
+        self.timeout_ms = timeout_ms
         self._next = 0  # the block the kernel fills after the last one read
         #: Outgoing copies left out (lo shows each packet twice; the arriving one is kept).
         self.outgoing = 0

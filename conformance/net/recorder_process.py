@@ -434,7 +434,7 @@ class _Recorder:
             # recorder that has stopped decoding (the proxy is stopping) only copies
             # bytes to the file: it takes them as fast as it can.
             if got and self.tick and self.rec.undecoded_reason is None:
-                time.sleep(self.tick)
+                time.sleep(min(self.tick, self.flush_interval / 2))
             elif not got:
                 select.select([fd], [], [], min(0.2, self.flush_interval))
             got = False
