@@ -20,9 +20,14 @@ A client sends one request and waits for its reply, at ``--rate`` per second, to
 - ``capture-recvmsg``: the same as ``capture``, the capture reading its socket with ``recvmsg`` instead of
   its TPACKET_V3 ring (``FAIRINO_CAPTURE_RING=0``): the baseline for the ring.
 
+With ``--baseline-rev REV`` two more rows, ``proxy@base`` and ``capture@base``, run the
+``proxy`` and ``capture`` of that revision (``git archive`` of its package and specs) in
+the same rounds, and the CPU per frame of ``proxy`` and ``capture`` is printed as a ratio
+to theirs.
+
 For the recording rows, the CPU time the recording processes spent while the traffic ran
 (the process and its children, from ``/proc``; its start-up left out) is printed per
-recorded frame.
+recorded frame; socat's too, for scale: what relaying alone costs (the proxy's floor).
 
 The rows alternate ``--rounds`` times (a neighbour's busy spell does not favour one
 row) and each row's samples are pooled; p50/p99/p99.9 of each row are printed with
@@ -62,8 +67,11 @@ REQUEST = encode_frame(1, 400, "GetDI(1)")
 TAIL = b"III/b/f"
 
 
-def _env() -> dict[str, str]:
-    return dict(os.environ, PYTHONPATH=str(ROOT))
+def _env(tree: Path = ROOT) -> dict[str, str]:
+    env = dict(os.environ, PYTHONPATH=str(tree))
+    if tree != ROOT:
+        env["FAIRINO_SPECS_DIR"] = str(tree / "specs")
+    return env
 
 
 def start_emulator() -> tuple[subprocess.Popen[str], int]:
@@ -98,15 +106,17 @@ def cpu_seconds(pid: int) -> float:
 
 
 def start_cli(
-    *args: str, pattern: str, env: dict[str, str] | None = None
+    *args: str, pattern: str, env: dict[str, str] | None = None, tree: Path = ROOT
 ) -> tuple[subprocess.Popen[str], str]:
+    """``python -m conformance ARGS`` of the package in ``tree`` (its directory the working
+    one: ``-m`` puts that first on the path)."""
     p = subprocess.Popen(
         [sys.executable, "-m", "conformance", *args],
         stderr=subprocess.PIPE,
         stdout=subprocess.DEVNULL,
         text=True,
-        env={**_env(), **(env or {})},
-        cwd=ROOT,
+        env={**_env(tree), **(env or {})},
+        cwd=tree,
     )
     assert p.stderr is not None
     line = p.stderr.readline()
@@ -187,8 +197,17 @@ def main() -> int:
     ap.add_argument("--requests", type=int, default=5000, help="per row and round")
     ap.add_argument("--rounds", type=int, default=2)
     ap.add_argument("--rate", type=float, default=1000.0, help="requests per second")
+    ap.add_argument(
+        "--baseline-rev",
+        default="",
+        help="also run this revision's proxy and capture (rows proxy@base, capture@base)",
+    )
     args = ap.parse_args()
     n, rate = args.requests, args.rate
+    if args.baseline_rev:
+        from tools._baseline import export_revision
+
+        base_tree = export_revision(args.baseline_rev, tempfile.mkdtemp(prefix="bench-base-"))
 
     emu, port = start_emulator()
     samples: dict[str, list[float]] = {
@@ -199,6 +218,9 @@ def main() -> int:
         "tcpdump": [],
         "capture-recvmsg": [],
     }
+    if args.baseline_rev:
+        samples["proxy@base"] = []
+        samples["capture@base"] = []
     skipped: dict[str, str] = {}
     recorded: list[tuple[str, int, int, int, str]] = []  # (row, c2s, s2c, sent, stderr line)
     cpu: dict[str, list[float]] = {}  # row: [CPU seconds while the traffic ran, frames]
@@ -213,7 +235,7 @@ def main() -> int:
             def direct() -> None:
                 samples["direct"] += rtt_run(port, n, rate)
 
-            def proxy() -> None:
+            def proxy(row: str = "proxy", tree: Path = ROOT) -> None:
                 p, line = start_cli(
                     "proxy",
                     "--listen",
@@ -221,19 +243,20 @@ def main() -> int:
                     "--upstream",
                     f"127.0.0.1:{port}",
                     "--out",
-                    str(tmp / "proxy.mcap"),
+                    str(tmp / f"{row}.mcap"),
                     pattern="listening on",
+                    tree=tree,
                 )
                 m = re.search(r"listening on [\d.]+:(\d+)", line)
                 assert m
                 try:
                     c0 = cpu_seconds(p.pid)
-                    samples["proxy"] += rtt_run(int(m.group(1)), n, rate)
+                    samples[row] += rtt_run(int(m.group(1)), n, rate)
                     c1 = cpu_seconds(p.pid)
                 finally:
                     stop(p)
                 frames = 2 * (n + WARMUP)  # every request and its reply
-                got = cpu.setdefault("proxy", [0.0, 0])
+                got = cpu.setdefault(row, [0.0, 0])
                 got[0] += c1 - c0
                 got[1] += frames
 
@@ -242,10 +265,15 @@ def main() -> int:
                     return
                 p, sport = start_socat(port)
                 try:
+                    c0 = cpu_seconds(p.pid)
                     samples["socat"] += rtt_run(sport, n, rate)
+                    c1 = cpu_seconds(p.pid)  # with the child it forked for the connection
                 finally:
                     p.terminate()
                     p.wait()
+                got = cpu.setdefault("socat", [0.0, 0])
+                got[0] += c1 - c0
+                got[1] += 2 * (n + WARMUP)
 
             def tcpdump() -> None:
                 if "tcpdump" in skipped:
@@ -275,7 +303,7 @@ def main() -> int:
                 got[0] += c1 - c0
                 got[1] += 2 * (n + WARMUP)
 
-            def capture(row: str = "capture", ring: bool = True) -> None:
+            def capture(row: str = "capture", ring: bool = True, tree: Path = ROOT) -> None:
                 if row in skipped:
                     return
                 from conformance.recording import read_recording
@@ -294,6 +322,7 @@ def main() -> int:
                         str(out),
                         pattern="listening on",
                         env=None if ring else {"FAIRINO_CAPTURE_RING": "0"},
+                        tree=tree,
                     )
                 except RuntimeError as e:
                     skipped[row] = str(e)
@@ -323,6 +352,11 @@ def main() -> int:
                 tcpdump,
                 capture_recvmsg,
             ]
+            if args.baseline_rev:
+                rows += [
+                    lambda: proxy("proxy@base", base_tree),
+                    lambda: capture("capture@base", tree=base_tree),
+                ]
             for r in range(args.rounds):
                 for row in rows if r % 2 == 0 else rows[::-1]:
                     row()
@@ -352,12 +386,15 @@ def main() -> int:
         print(f"  {line}")
     if cpu:
         print("\nCPU of the recording processes while the traffic ran (start-up left out):")
-        base_cpu = cpu.get("capture-recvmsg")
+        anchors = {"capture": ["capture-recvmsg", "capture@base"], "proxy": ["proxy@base"]}
         for label, (secs, frames) in cpu.items():
             per = secs / frames * 1e6 if frames else float("nan")
-            ratio = ""
-            if base_cpu and label == "capture" and base_cpu[1] and base_cpu[0]:
-                ratio = f"   ({per / (base_cpu[0] / base_cpu[1] * 1e6):.2f}x capture-recvmsg)"
+            ratios = []
+            for other in anchors.get(label, []):
+                o = cpu.get(other)
+                if o and o[0] and o[1]:
+                    ratios.append(f"{per / (o[0] / o[1] * 1e6):.2f}x {other}")
+            ratio = f"   ({', '.join(ratios)})" if ratios else ""
             print(
                 f"  {label:<15} {secs:7.2f} CPU-s for {frames:>7} frames: {per:6.1f} µs/frame{ratio}"
             )
