@@ -13,7 +13,8 @@ each pcap are timed, each on top of the one before:
 
 - ``read``: :func:`~conformance.pcap.read_packets` alone (the records of the file);
 - ``+ parse``: and :func:`~conformance.pcap.parse_packet` on each (link, IP, TCP/UDP);
-- ``+ reassembly``: :class:`~conformance.pcap.PacketRecorder` fed each packet, its
+- ``+ reassembly``: :class:`~conformance.pcap.PacketRecorder` fed each packet (as
+  ``import_pcap`` feeds it: record blocks read as columns, where the tree has them), its
   StreamRecorder replaced by one that drops what it is given: the per-packet cost of
   the pcap side, everything of ``import_pcap`` but the recorder and the writer;
 - ``import_pcap``: the whole import, to a complete file (specs loaded beforehand).
@@ -118,7 +119,9 @@ def child(tree: str, pcap: str, tmp: str) -> dict[str, float]:
         kw = {"together": P.IMPORT_TOGETHER} if hasattr(P, "IMPORT_TOGETHER") else {}
         pr = P.PacketRecorder(None, tcp_ports=[8080], specs=specs, **kw)  # type: ignore[arg-type]
         pr.rec = DropRecorder()  # type: ignore[assignment]
-        if hasattr(pr, "feed_all"):  # import_pcap's way since it reads the usual packet inline
+        if hasattr(pr, "feed_blocks"):  # import_pcap's way since it reads columns of a block
+            pr.feed_blocks(P.read.read_blocks(pcap))
+        elif hasattr(pr, "feed_all"):  # import_pcap's way since it reads the usual packet inline
             pr.feed_all(read_packets(pcap))
         else:
             feed = pr.feed

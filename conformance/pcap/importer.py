@@ -25,7 +25,7 @@ from ..recording import (
 )
 from ..recording.salvage import Damage
 from ..spec import SpecSet
-from .read import CaptureDamage, read_packets
+from .read import CaptureDamage, RecordBlock, read_blocks
 from .recorder import (
     DEFAULT_TCP_PORTS,
     DEFAULT_UDP_PORTS,
@@ -127,7 +127,8 @@ def import_pcap(
     Flows to or from ``tcp_ports`` and ``udp_ports`` are taken, and with ``guess`` also
     those on other ports whose first payload is a frame head (``ImportStats.guessed``
     names them).  A damaged capture is imported as far as it reads, each damaged part
-    appended to ``damage`` (:func:`~.read.read_packets`).  ``out`` appears only once the
+    appended to ``damage`` (:func:`~.read.read_packets`; the import reads
+    :func:`~.read.read_blocks`).  ``out`` appears only once the
     import succeeded: it is written to a temporary file next to it and renamed (a failure
     removes the temporary file)."""
     tports, uports = frozenset(tcp_ports), frozenset(udp_ports)
@@ -157,12 +158,16 @@ def _import(
     damage: list[CaptureDamage] | None = None,
     metadata: Mapping[str, str] | None = None,
 ) -> ImportStats:
-    stream = read_packets(path, damage)
-    first = next(stream, None)
+    blocks = read_blocks(path, damage)
+    first = next(blocks, None)
     # The traffic started with the capture's first packet, not when it was imported
     # (``imported_time``); an empty capture has no first packet: the import time then.
+    if isinstance(first, RecordBlock):
+        start_ns: int | None = next(first.packets())[1]
+    else:
+        start_ns = None if first is None else first[1]
     md = default_metadata(
-        start_ns=None if first is None else first[1],
+        start_ns=start_ns,
         source="import-pcap",
         pcap=os.path.basename(os.fspath(path)),
         imported_time=utc_time(time.time_ns()),
@@ -180,7 +185,7 @@ def _import(
         together=IMPORT_TOGETHER,
         state_ports=sports,
     )
-    packets.feed_all(itertools.chain(() if first is None else (first,), stream))
+    packets.feed_blocks(itertools.chain(() if first is None else (first,), blocks))
     packets.finish()
     writer.close()
     return packets.stats()

@@ -16,9 +16,11 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from ..errors import CaptureError
 
-__all__ = ["CaptureDamage", "read_packets"]
+__all__ = ["CaptureDamage", "RecordBlock", "read_blocks", "read_packets"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -57,23 +59,68 @@ def read_packets(
     cannot be right, a compressed file cut short, a pcapng block past its bound) is
     appended to ``damage`` as a :class:`CaptureDamage`, never silently dropped; a
     classic pcap is read on from the next record that reads."""
-    from scapy.error import Scapy_Exception
-    from scapy.utils import RawPcapNgReader, RawPcapReader
-
     name = os.fspath(path)
+    reader, sink = _open(name), damage if damage is not None else []
+    # The generator itself is returned (not delegated to with ``yield from``: that is
+    # one more frame to resume for every packet).
+    if _is_pcapng(reader):
+        return _pcapng_blocks(reader, name, sink)
+    return _classic_records(reader, sink)
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class RecordBlock:
+    """Records of a classic pcap that are whole in ``buf``: record *k*'s 16-byte header
+    at ``offsets[k]``, its bytes after it (its length in the header); every header
+    plausible (:func:`_classic_blocks`).  ``little``: the headers' byte order; ``mult``:
+    nanoseconds per unit of their fraction of a second (1 or 1000)."""
+
+    linktype: int
+    little: bool
+    mult: int
+    buf: bytes
+    offsets: list[int]
+
+    def packets(self) -> Iterator[tuple[int, int, bytes]]:
+        """(link type, time in ns, bytes) of each record, as :func:`read_packets` gives them."""
+        head = struct.Struct(("<" if self.little else ">") + "IIII").unpack_from
+        buf, mult, lt = self.buf, self.mult, self.linktype
+        for pos in self.offsets:
+            s, frac, caplen, _ = head(buf, pos)
+            yield lt, s * 1_000_000_000 + frac * mult, buf[pos + 16 : pos + 16 + caplen]
+
+
+def read_blocks(
+    path: str | os.PathLike[str], damage: list[CaptureDamage] | None = None
+) -> Iterator[RecordBlock | tuple[int, int, bytes]]:
+    """What :func:`read_packets` reads, a classic pcap's records as :class:`RecordBlock` objects
+    (a chunk of the file, the offsets of the records whole in it: to be read column by
+    column), a pcapng's packets as :func:`read_packets` gives them.  The same packets, in
+    the same order, with the same damage."""
+    name = os.fspath(path)
+    reader, sink = _open(name), damage if damage is not None else []
+    if _is_pcapng(reader):
+        return _pcapng_blocks(reader, name, sink)
+    return _classic_blocks(reader, sink)
+
+
+def _open(name: str) -> Any:
+    from scapy.error import Scapy_Exception
+    from scapy.utils import RawPcapReader
+
     try:
-        reader = RawPcapReader(name)
+        return RawPcapReader(name)
     except FileNotFoundError:
         raise CaptureError(f"no such capture: {name}", path=name) from None
     except (Scapy_Exception, EOFError, OSError, zlib.error) as e:
         # A .gz cut inside the header, or not gzip after all: the file's fault.
         raise CaptureError(f"{name}: {e}", path=name) from None
-    sink = damage if damage is not None else []
-    # The generator itself is returned (not delegated to with ``yield from``: that is
-    # one more frame to resume for every packet).
-    if isinstance(reader, RawPcapNgReader):
-        return _pcapng_blocks(reader, name, sink)
-    return _classic_records(reader, sink)
+
+
+def _is_pcapng(reader: Any) -> bool:
+    from scapy.utils import RawPcapNgReader
+
+    return isinstance(reader, RawPcapNgReader)
 
 
 class _Bounded:
@@ -198,6 +245,8 @@ def _pcapng_end(f: _Bounded) -> str:
 _MAX_PACKET = 16 << 20
 #: A pcapng block's bytes besides its packet data (headers, options), at most.
 _BLOCK_OVERHEAD = 1 << 16
+#: A record header's bytes, for gathering the headers of a block as columns.
+_HEADER = np.arange(16)
 #: Bytes of a classic pcap read at a time; the records in them are sliced out of it.
 _CHUNK = 1 << 20
 #: A record whose seconds are further than this from the last good record's is not
@@ -207,15 +256,34 @@ _RESYNC_SECONDS = 86_400
 
 def _classic_records(reader: Any, damage: list[CaptureDamage]) -> Iterator[tuple[int, int, bytes]]:
     """(link type, time in ns, bytes) of each record of a classic pcap whose header
-    scapy's ``RawPcapReader`` read (byte order, ns or µs, link type); a record cut short
-    by the end of the file is the last one.
+    scapy's ``RawPcapReader`` read (byte order, ns or µs, link type): the records of
+    :func:`_classic_blocks`, one at a time."""
+    head = struct.Struct(reader.endian + "IIII").unpack_from
+    mult = 1 if reader.nano else 1000
+    linktype = reader.linktype
+    sec = base = 0  # base: sec in ns (most records share the second of the one before)
+    for block in _classic_blocks(reader, damage):
+        buf = block.buf
+        for pos in block.offsets:
+            s, frac, caplen, _ = head(buf, pos)
+            if s != sec:
+                sec, base = s, s * 1_000_000_000
+            yield linktype, base + frac * mult, buf[pos + 16 : pos + 16 + caplen]
+
+
+def _classic_blocks(reader: Any, damage: list[CaptureDamage]) -> Iterator[RecordBlock]:
+    """The records of a classic pcap whose header scapy's ``RawPcapReader`` read (byte
+    order, ns or µs, link type), as :class:`RecordBlock` objects; a record cut short by the
+    end of the file is the last one.
 
     scapy's own iteration cuts a record at ``size`` and at 4 x MTU whatever the size
     (scapy 2.6+ utils.py ``_read_packet``) and reads each record with two calls.  Here
-    the file is read ``_CHUNK`` bytes at a time and each record is sliced out of the
-    chunk (one ``unpack_from`` on its 16-byte header, one slice for its bytes), in about
-    half the time.  A record longer than ``_MAX_PACKET`` keeps its first ``_MAX_PACKET``
-    bytes; the rest is skipped.
+    the file is read ``_CHUNK`` bytes at a time and the records whole in a chunk are
+    found by one ``unpack_from`` of each one's length (their other fields are checked
+    column by column), in about half the time; a record longer than the chunk, or cut
+    short, is a block of its own (its header's length then says the bytes kept).  A
+    record longer than ``_MAX_PACKET`` keeps its first ``_MAX_PACKET`` bytes; the rest
+    is skipped.
 
     A record header that cannot be right (more bytes captured than the packet had on
     the wire, a fraction of a second of a second or more) is damage: it is named in
@@ -247,20 +315,44 @@ def _classic_records(reader: Any, damage: list[CaptureDamage]) -> Iterator[tuple
     pos = 0
     off = 24  # the file offset of buf[0] (after the 24-byte file header)
     n_rec = 0  # records read
-    sec = base = 0  # base: sec in ns (most records share the second of the one before)
+    sec = 0  # the last good record's seconds
+    little = reader.endian == "<"
+    caplen_at = struct.Struct(reader.endian + "I").unpack_from
+    fields = np.dtype(reader.endian + "u4")
+
+    def block(b: bytes, offsets: list[int]) -> RecordBlock:
+        return RecordBlock(linktype=linktype, little=little, mult=mult, buf=b, offsets=offsets)
+
+    def one(s: int, frac: int, data: bytes) -> RecordBlock:  # a record made whole, alone
+        n = len(data)
+        return block(struct.pack(reader.endian + "IIII", s, frac, n, n) + data, [0])
+
     with reader:
         while True:
             n = len(buf)
+            offsets: list[int] = []
+            take = offsets.append
             while pos + 16 <= n:  # the records wholly in the buffer
-                s, frac, caplen, wirelen = head(buf, pos)
+                (caplen,) = caplen_at(buf, pos + 8)
                 end = pos + 16 + caplen
-                if end > n or caplen > _MAX_PACKET or caplen > wirelen or frac >= fmax:
+                if end > n or caplen > _MAX_PACKET:
                     break
-                if s != sec:
-                    sec, base = s, s * 1_000_000_000
-                n_rec += 1
-                yield linktype, base + frac * mult, buf[pos + 16 : end]
+                take(pos)
                 pos = end
+            if offsets:
+                # The headers' other fields, column by column: a record that cannot be
+                # right ends the block (it is read below, as the damage it is).
+                at = np.array(offsets, dtype=np.int64)
+                cols = np.frombuffer(buf, np.uint8)[at[:, None] + _HEADER].view(fields)
+                bad = np.flatnonzero((cols[:, 2] > cols[:, 3]) | (cols[:, 1] >= fmax))
+                if len(bad):
+                    j = int(bad[0])
+                    pos = offsets[j]
+                    del offsets[j:]
+                if offsets:
+                    n_rec += len(offsets)
+                    sec = int(cols[len(offsets) - 1, 0])
+                    yield block(buf, offsets)
             buf = buf[pos:]
             off += pos
             pos = 0
@@ -302,7 +394,6 @@ def _classic_records(reader: Any, damage: list[CaptureDamage]) -> Iterator[tuple
                 off += skipped
                 continue
             # A record the buffer holds only the start of (or longer than the bound).
-            t = s * 1_000_000_000 + frac * mult
             want = 16 + min(caplen, _MAX_PACKET)
             while len(buf) < want:
                 more = read(max(want - len(buf), _CHUNK))
@@ -320,7 +411,7 @@ def _classic_records(reader: Any, damage: list[CaptureDamage]) -> Iterator[tuple
                         )
                     )
                     n_rec += 1
-                    yield linktype, t, buf[16:]
+                    yield one(s, frac, buf[16:])
                     return
                 buf += more
             if caplen <= _MAX_PACKET:
@@ -339,7 +430,7 @@ def _classic_records(reader: Any, damage: list[CaptureDamage]) -> Iterator[tuple
                         break
                     skip -= got
             n_rec += 1
-            yield linktype, t, data
+            yield one(s, frac, data)
 
 
 def _gunzip_rest(name: str, skip: int) -> bytes:

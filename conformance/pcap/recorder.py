@@ -9,10 +9,13 @@ capture and a proxy recording read, check and diff alike.
 
 from __future__ import annotations
 
+import itertools
 from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
+
+import numpy as np
 
 from ..frame import HEAD
 from ..recording import C2S, S2C, DirectionText, RecordSink, StreamRecorder
@@ -30,6 +33,7 @@ from .packets import (
     flow_ends,
     parse_packet,
 )
+from .read import RecordBlock
 from .reassembly import TcpReassembler
 
 DEFAULT_TCP_PORTS = (8080,)
@@ -39,6 +43,23 @@ DEFAULT_UDP_PORTS = (20007,)
 #: bytes after which it records them (see PacketRecorder; 64: bench_pcap.py's best).
 IMPORT_TOGETHER = 64
 TOGETHER_BYTES = 1 << 20
+
+#: Records of a block read one by one (feed_all) rather than as columns: fewer than this.
+_BLOCK_MIN = 32
+
+
+def _words(buf: bytes) -> tuple[Any, ...]:
+    """``buf`` as big-endian words of 8, 16, 32 and 64 bits, one starting at each byte
+    (views with a stride of one byte: word *i* is read from ``buf[i:]``)."""
+    return tuple(
+        np.ndarray(shape=(len(buf) - k + 1,), dtype=f">u{k}", buffer=buf, strides=(1,))
+        for k in (1, 2, 4, 8)
+    )
+
+
+def _words_le(buf: bytes) -> Any:
+    """``buf`` as little-endian 32-bit words, one starting at each byte."""
+    return np.ndarray(shape=(len(buf) - 3,), dtype="<u4", buffer=buf, strides=(1,))
 
 
 #: A direction of an open TCP connection: (connection id, direction, its reassembler, the
@@ -148,6 +169,7 @@ class PacketRecorder:
         self._held: _TcpWay | None = None  # the direction whose segments are held
         self._reads: list[tuple[int, bytes]] = []  # its segments: (time, bytes)
         self._held_bytes = 0
+        self._epoch = 0  # counts connections opened and closed (_feed_block's flows)
 
     def stats(self) -> ImportStats:
         if self._held is not None:
@@ -269,6 +291,124 @@ class PacketRecorder:
             feed(t, lt, data)
         self.packets += inline
 
+    def feed_blocks(self, blocks: Iterable[RecordBlock | tuple[int, int, bytes]]) -> None:
+        """:meth:`feed_all` of what :func:`~.read.read_blocks` gives: a classic pcap's
+        :class:`~.read.RecordBlock` objects, each read column by column
+        (:meth:`_feed_block`), or a pcapng's packets (to :meth:`feed_all`)."""
+        it = iter(blocks)
+        for b in it:
+            if not isinstance(b, RecordBlock):  # a pcapng: packets, every one
+                self.feed_all(itertools.chain((b,), it))  # type: ignore[arg-type]
+                return
+            self._feed_block(b)
+
+    def _feed_block(self, block: RecordBlock) -> None:
+        """The records of ``block`` in turn, as :meth:`feed_all` takes them; the usual
+        packet's headers read for the whole block at once, as numpy columns.
+
+        Usual, as in :meth:`feed_all`: Ethernet, IPv4 without options, TCP without SYN,
+        FIN or RST, with a payload.  The flows of these are looked up once each (again
+        after a connection opens or closes); each usual packet that is also the next in
+        order of a known connection goes to the recorder as :meth:`feed_all` hands it,
+        and any other record to :meth:`feed`, in the capture's order."""
+        offs = block.offsets
+        n = len(offs)
+        if n < _BLOCK_MIN or block.linktype != DLT_EN10MB:
+            self.feed_all(block.packets())
+            return
+        buf = block.buf
+        at = np.array(offs, dtype=np.int64)
+        u8, u16, u32, u64 = _words(buf)
+        rec32 = u32 if not block.little else _words_le(buf)
+        size = rec32[at + 8].astype(np.int64)
+        times = rec32[at].astype(np.uint64) * np.uint64(1_000_000_000) + rec32[at + 4].astype(
+            np.uint64
+        ) * np.uint64(block.mult)
+        p = at + 16  # each packet's first byte
+        # Ethernet, IPv4, TCP headers (no IP option) of each packet, bytes 12..48 read as
+        # words at their offsets; a packet shorter than that reads the next one's bytes
+        # (or the buffer's last ones) and is not usual.
+        q = np.minimum(p, len(buf) - 54)
+        total = u16[q + 16].astype(np.int64)
+        end = np.minimum(np.where(total != 0, 14 + total, size), size)
+        start = 34 + (u8[q + 46] >> 4).astype(np.int64) * 4
+        usual = (
+            (size >= 54)
+            & (u16[q + 12] == 0x0800)
+            & (u8[q + 14] == 0x45)
+            & (u8[q + 23] == 6)
+            & ((u16[q + 20] & 0x3FFF) == 0)
+            & ((u8[q + 47] & _SYN_FIN_RST) == 0)
+            & (end >= 54)
+            & (start < end)
+        )
+        seqs = u32[q + 38].tolist()
+        # Each usual packet's flow (addresses, ports: bytes 26..38) as an index into the
+        # block's distinct flows: the address pairs told apart first, then with the ports
+        # one 64-bit key.
+        addrs = np.where(usual, u64[q + 26], 0)
+        pairs, pair = np.unique(addrs, return_inverse=True)
+        keys = pair.astype(np.uint64) << np.uint64(32) | np.where(usual, u32[q + 34], 0)
+        flows, which = np.unique(keys, return_inverse=True)
+        flow_keys = [
+            int(pairs[k >> 32]).to_bytes(8, "big") + (k & 0xFFFFFFFF).to_bytes(4, "big")
+            for k in flows.tolist()
+        ]
+        starts = (p + np.where(usual, start, 0)).tolist()
+        ends = (p + np.where(usual, end, 0)).tolist()
+        payloads = list(map(buf.__getitem__, map(slice, starts, ends)))
+        if self.last_t < (top := int(times[usual].max(initial=0))):
+            self.last_t = top
+        tl = times.tolist()
+        feed = self.feed
+        ways = self.tcp_ways
+        together = self.together
+        rec_data = self.rec.data
+        epoch = self._epoch
+        way_of = [ways.get(k) for k in flow_keys]
+        inline = 0
+        for i, good, t, w, seq, payload in zip(
+            range(n), usual.tolist(), tl, which.tolist(), seqs, payloads, strict=True
+        ):
+            if good:
+                if self._epoch != epoch:  # a connection opened or closed
+                    epoch = self._epoch
+                    way_of = [ways.get(k) for k in flow_keys]
+                way = way_of[w]
+                if way is not None:
+                    r = way[2]
+                    nxt = r.next
+                    if nxt is not None and seq == nxt & 0xFFFFFFFF and not r.pending:
+                        # What feed_all does with it (and feed, and _record_held).
+                        inline += 1
+                        r.next = nxt + len(payload)
+                        if together == 1:
+                            rec_data(way[0], way[1], t, payload)
+                        elif (
+                            way is self._held
+                            and len(self._reads) < together
+                            and self._held_bytes < TOGETHER_BYTES
+                        ):
+                            self._reads.append((t, payload))
+                            self._held_bytes += len(payload)
+                        else:
+                            held = self._held
+                            if held is not None:
+                                reads = self._reads
+                                if len(reads) == 1:
+                                    rt, rp = reads[0]
+                                    rec_data(held[0], held[1], rt, rp)
+                                else:
+                                    self.rec.segments(held[0], held[1], reads)
+                            self._held, self._reads = way, [(t, payload)]
+                            self._held_bytes = len(payload)
+                        continue
+            pos = offs[i] + 16
+            self.packets += inline
+            inline = 0
+            feed(t, DLT_EN10MB, buf[pos : pos + int(size[i])])
+        self.packets += inline
+
     def _record_held(self) -> None:
         """The held segments to the recorder (before anything else reaches it)."""
         way = self._held
@@ -350,6 +490,7 @@ class PacketRecorder:
     def _open_tcp(self, flow: bytes, t: int, *, state: bool = False) -> _TcpWay:
         """A connection whose client sends ``flow``; returns that direction's way."""
         self.next_conn += 1
+        self._epoch += 1
         rev = _reverse(flow)
         c = _TcpConn(self.next_conn, flow, rev)
         self.conns[c.conn] = c
@@ -371,6 +512,7 @@ class PacketRecorder:
             self._deliver(c.conn, d, r.flush())
             self.retrans += r.retransmitted
         self.rec.close(c.conn, t_ns=t, reason=reason)
+        self._epoch += 1
         self.conns.pop(c.conn, None)
         for f in c.flows:
             self.tcp_ways.pop(f, None)

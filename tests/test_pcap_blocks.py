@@ -1,0 +1,209 @@
+"""import-pcap's column reading (read_blocks, PacketRecorder.feed_blocks) against the
+packet-at-a-time path (read_packets, PacketRecorder.feed): the same recording, the same
+statistics, the same damage, on captures with everything the column reading must hand
+back to the per-packet path."""
+
+from __future__ import annotations
+
+import random
+import struct
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import pytest
+from scapy.layers.inet import IP, TCP, UDP, IPOption_NOP
+from scapy.layers.inet6 import IPv6
+from scapy.layers.l2 import ARP, Dot1Q, Ether
+from scapy.packet import Raw
+
+import conformance.pcap.read as pcap_read
+from conformance.frame import encode_frame
+from conformance.pcap import PacketRecorder, import_pcap, read_packets
+from conformance.pcap.read import RecordBlock, read_blocks
+from conformance.pcap.recorder import IMPORT_TOGETHER
+from conformance.recording import RecordingWriter, dump_json, read_recording
+from conformance.spec import default_specs
+
+T0 = 1_700_000_000
+
+
+class _Conn:
+    """One TCP connection's two directions, its bytes cut into segments."""
+
+    def __init__(self, client: tuple[str, int], server: tuple[str, int], **layers: Any) -> None:
+        self.ends = (client, server)
+        self.seq = [1000, 9000]
+        self.layers = layers
+
+    def packet(self, d: int, flags: str = "PA", load: bytes = b"", seq: int | None = None) -> Any:
+        (sa, sp), (da, dp) = self.ends if d == 0 else self.ends[::-1]
+        v6 = ":" in sa
+        ip = IPv6(src=sa, dst=da) if v6 else IP(src=sa, dst=da, **self.layers.get("ip", {}))
+        eth = Ether(src="02:00:00:00:00:0c", dst="02:00:00:00:00:05")
+        if "vlan" in self.layers:
+            eth = eth / Dot1Q(vlan=self.layers["vlan"])
+        s = self.seq[d] if seq is None else seq
+        tcp = TCP(sport=sp, dport=dp, seq=s % 2**32, flags=flags, **self.layers.get("tcp", {}))
+        p = eth / ip / tcp
+        if load:
+            p = p / Raw(load=load)
+        return p
+
+    def send(self, d: int, load: bytes, flags: str = "PA") -> Any:
+        p = self.packet(d, flags, load)
+        self.seq[d] += len(load)
+        return p
+
+    def handshake(self) -> list[Any]:
+        return [
+            self.packet(0, "S", seq=self.seq[0] - 1),
+            self.packet(1, "SA", seq=self.seq[1] - 1),
+            self.packet(0, "A"),
+        ]
+
+    def close(self) -> list[Any]:
+        fins = [self.packet(0, "FA"), self.packet(1, "FA")]
+        self.seq[0] += 1
+        return [*fins, self.packet(0, "A")]
+
+
+def write_pcap(path: Path, records: list[tuple[float, bytes, int]], nano: bool = False) -> None:
+    """A classic pcap (Ethernet) of (time, bytes captured, length on the wire) records."""
+    magic = 0xA1B23C4D if nano else 0xA1B2C3D4
+    out = [struct.pack("<IHHiIII", magic, 2, 4, 0, 0, 262144, 1)]
+    for t, data, wire in records:
+        sec = int(t)
+        frac = round((t - sec) * (1e9 if nano else 1e6))
+        out.append(struct.pack("<IIII", sec, frac, len(data), wire) + data)
+    path.write_bytes(b"".join(out))
+
+
+def varied(seed: int) -> list[tuple[float, bytes, int]]:
+    """Request/reply on several connections (IPv4, IPv6, VLAN, IP and TCP options),
+    interleaved, with segments out of order, retransmitted and overlapping, pure ACKs,
+    a reset and a reused 4-tuple, UDP, ARP, a fragment, Ethernet padding, an IP total
+    length of 0, packets cut by the snap length, a flow on another port."""
+    rng = random.Random(seed)
+    conns = [
+        _Conn(("10.1.0.5", 40001), ("10.1.0.2", 8080)),
+        _Conn(("10.1.0.6", 40002), ("10.1.0.2", 8080)),
+        _Conn(("fd00::5", 40003), ("fd00::2", 8080)),
+        _Conn(("10.1.0.7", 40004), ("10.1.0.2", 8080), vlan=7),
+        _Conn(("10.1.0.8", 40005), ("10.1.0.2", 8080), ip={"options": [IPOption_NOP()] * 4}),
+        _Conn(("10.1.0.9", 40006), ("10.1.0.2", 8080), tcp={"options": [("NOP", None)] * 4}),
+        _Conn(("10.1.0.10", 40007), ("10.1.0.2", 9999)),  # guessed: its first payload is a frame
+    ]
+    pk: list[Any] = [p for c in conns for p in c.handshake()]
+    for cnt in range(1, 1501):
+        c = rng.choice(conns)
+        req = encode_frame(cnt % 65536, 201, 'MoveJ("P1")')
+        rep = encode_frame(cnt % 65536, 201, "1" * rng.randrange(1, 4))
+        r = rng.random()
+        if r < 0.05:  # a request in two segments, the second first
+            a, b = c.send(0, req[:9]), c.send(0, req[9:])
+            pk += [b, a]
+        elif r < 0.08:  # retransmitted, and overlapping
+            p = c.send(0, req)
+            pk += [p, p, c.packet(0, load=req[5:], seq=c.seq[0] - len(req) + 5)]
+        elif r < 0.10:
+            pk.append(c.packet(1, "A"))  # a pure ACK
+            pk.append(c.send(0, req))
+        elif r < 0.12:
+            pk.append(c.send(0, req[:7] + b"garbage"))
+        else:
+            pk.append(c.send(0, req))
+        pk.append(c.send(1, rep))
+        if r > 0.995:
+            pk.append(Ether() / IP(src="10.1.0.5", dst="10.1.0.2") / UDP(sport=5, dport=20007)
+                      / Raw(load=encode_frame(1, 201, "1")))  # fmt: skip
+        if 0.5 < r < 0.503:
+            pk.append(Ether() / ARP())
+            frag = c.packet(0, load=req)  # the first fragment of a segment, next in order
+            if IP in frag and not frag[IP].options:
+                frag[IP].flags = "MF"
+                pk.append(frag)
+    # A reset, then the 4-tuple reused by a new connection.
+    pk.append(conns[0].packet(0, "R"))
+    again = _Conn(("10.1.0.5", 40001), ("10.1.0.2", 8080))
+    again.seq = [50000, 70000]
+    pk += [*again.handshake(), again.send(0, REQ), again.send(1, REP)]
+    for c in conns[1:]:
+        pk += c.close()
+    records: list[tuple[float, bytes, int]] = []
+    t = float(T0)
+    for p in pk:
+        t += rng.choice((0.0001, 0.0003, 0.3))
+        data = bytes(p)
+        if rng.random() < 0.01:  # cut by the snap length
+            cut = rng.randrange(20, len(data))
+            records.append((t, data[:cut], len(data)))
+            continue
+        if rng.random() < 0.01 and IP in p and TCP in p and not p[IP].options:
+            data = data[:16] + b"\x00\x00" + data[18:]  # IP total length 0 (TSO)
+        if rng.random() < 0.01:
+            data += b"\x00" * 8  # Ethernet padding
+        records.append((t, data, len(data)))
+    return records
+
+
+REQ = encode_frame(7, 201, 'MoveJ("P1")')
+REP = encode_frame(7, 201, "1")
+
+
+def per_packet(pcap: Path, out: Path, metadata: Mapping[str, str]) -> tuple[Any, Any]:
+    """The recording and statistics of feeding each packet to PacketRecorder.feed."""
+    with RecordingWriter(out, metadata=metadata) as w:
+        pr = PacketRecorder(w, specs=default_specs(), together=IMPORT_TOGETHER)
+        for lt, t_ns, data in read_packets(pcap):
+            pr.feed(t_ns, lt, data)
+        pr.finish()
+        stats = pr.stats()
+    return stats, read_recording(out)
+
+
+@pytest.mark.parametrize("chunk", [1 << 20, 4096, 700])
+@pytest.mark.parametrize("seed", [1, 2])
+def test_blocks_give_the_recording_of_feed(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, seed: int, chunk: int
+) -> None:
+    """Each packet of a varied capture fed to PacketRecorder.feed, and import_pcap's
+    blocks read as columns: the same recording and statistics (small chunks: blocks cut
+    anywhere, records longer than a chunk, blocks of one record)."""
+    monkeypatch.setattr(pcap_read, "_CHUNK", chunk)
+    pcap = tmp_path / "v.pcap"
+    write_pcap(pcap, varied(seed), nano=seed == 2)
+    blocks = [b for b in read_blocks(pcap) if isinstance(b, RecordBlock)]
+    assert max(len(b.offsets) for b in blocks) >= (32 if chunk > 700 else 2)
+    out = tmp_path / "imported.mcap"
+    stats = import_pcap(pcap, out, specs=default_specs())
+    rec = read_recording(out)
+    assert stats.connections == 9 and stats.frames > 2900 and stats.problems
+    assert stats.retransmitted_bytes and stats.ignored and stats.guessed
+    assert stats.packets == len(list(read_packets(pcap)))
+    want_stats, want = per_packet(pcap, tmp_path / "one.mcap", rec.metadata)
+    assert stats == want_stats
+    assert dump_json(rec) == dump_json(want)
+
+
+def test_blocks_hold_the_packets_of_read_packets(tmp_path: Path) -> None:
+    """read_blocks' records are read_packets' packets, with the same damage: a record
+    whose header cannot be right in the middle, a file cut inside a record."""
+    pcap = tmp_path / "d.pcap"
+    records = varied(3)[:400]
+    write_pcap(pcap, records)
+    raw = bytearray(pcap.read_bytes())
+    at = 24 + sum(16 + len(data) for _, data, _ in records[:200])
+    raw[at + 4 : at + 8] = struct.pack("<I", 2_000_000)  # record 201's fraction: corrupt
+    pcap.write_bytes(bytes(raw[:-30]))
+    d1: list[Any] = []
+    d2: list[Any] = []
+    packets = list(read_packets(pcap, d1))
+    blocks = [b for b in read_blocks(pcap, d2) if isinstance(b, RecordBlock)]
+    assert [p for b in blocks for p in b.packets()] == packets
+    assert d1 == d2 and len(d1) == 2 and len(packets) == 399
+    out = tmp_path / "o.mcap"
+    stats = import_pcap(pcap, out, specs=default_specs())
+    rec = read_recording(out)
+    want_stats, want = per_packet(pcap, tmp_path / "one.mcap", rec.metadata)
+    assert stats == want_stats and dump_json(rec) == dump_json(want)
