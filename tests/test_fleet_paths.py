@@ -114,3 +114,70 @@ def test_a_damaged_capture_goes_the_general_path(
     path.write_bytes(data[: len(data) - 7])
     tables, whole = both_paths(path, tmp_path, monkeypatch)
     assert len(whole) == 1 and tables["frames"]
+
+
+@pytest.mark.parametrize(
+    "faults", [[], ["state_checksum:3"], ["state_cnt_gap:3"], ["state_layout"]]
+)
+def test_the_state_stream_goes_the_fast_path(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, faults: list[str]
+) -> None:
+    """The emulator's command and state ports recorded (the state decoder's problems on
+    /fairino/problems, which are no rows): the state table written window by window (5
+    packets a window), the rows those of the general path."""
+    from tests.test_state_recording import record_emulator
+
+    path = record_emulator(tmp_path, faults, packets=24)
+    tables, whole = both_paths(path, tmp_path, monkeypatch, window=5)
+    assert whole == []
+    state = tables["state"]
+    assert len(state) >= 24 and tables["frames"]
+    # state_layout: the packets are v3.9.8's, LEN matching that layout, not the spec's.
+    assert {r["layout"] for r in state} == {"3.9.8" if faults == ["state_layout"] else "3.8.2"}
+    if faults == ["state_checksum:3"]:
+        assert sum(not r["checksum_ok"] for r in state) == len(state) // 3
+    if faults == ["state_cnt_gap:3"]:
+        assert sum(r["gap"] for r in state) > 0
+
+
+def test_a_state_stream_alone_with_the_decoders_problems(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Garbage, a lost CNT, a bad checksum, a truncated tail and the client's bytes on the
+    state port: the same rows both ways (no 905 reply, more windows than are buffered
+    while looking for one: the recording read again, still a window at a time)."""
+    from tests.test_state_recording import _record, _stream
+
+    path = _record(tmp_path, _stream(), 4096, "state.mcap")
+    tables, whole = both_paths(path, tmp_path, monkeypatch, window=2)
+    assert whole == [] and len(tables["state"]) == 5 and not tables["frames"]
+    assert [r["gap"] for r in sorted(tables["state"], key=lambda r: r["time"])] == [0, 0, 1, 0, 0]
+
+
+def test_a_proxy_recording_with_the_state_stream(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``proxy --state`` in front of the emulator (every fourth state packet's checksum one
+    off): the fast path's rows are the general path's."""
+    import socket
+
+    from conformance.net.emulator import EmulatorServer
+    from conformance.net.proxy import RecordingProxy
+    from tests.test_state_recording import MOVEJ, command, read_packets
+
+    out = tmp_path / "cell.mcap"
+    with EmulatorServer(state_port=0, faults=["state_checksum:4"]) as emu:
+        assert emu.state_address is not None
+        with RecordingProxy(emu.address, out=out, state_upstream=emu.state_address) as proxy:
+            assert proxy.state_address is not None
+            with (
+                socket.create_connection(proxy.state_address, timeout=10) as state,
+                socket.create_connection(proxy.address, timeout=10) as cmd,
+            ):
+                assert command(cmd, 1, 1207, "SetStatePeriod(8083,8)").data == "1"
+                assert command(cmd, 2, 201, MOVEJ).data == "1"
+                read_packets(state, 12)
+    tables, whole = both_paths(out, tmp_path, monkeypatch, window=3)
+    assert whole == []
+    assert len(tables["state"]) >= 12 and any(not r["checksum_ok"] for r in tables["state"])
+    assert {r["stream"] for r in tables["connections"]} == {"", "state"}

@@ -11,9 +11,10 @@ rewrites what is there.  A clean recording is read, judged and written a window 
 (:mod:`.window`): memory holds a window and one row group per table, whatever the
 recording's length and the number of recordings.  A pcap/pcapng capture is imported first
 (``import-pcap``'s streaming importer, into a temporary recording in the kit's layout) and
-that recording exported so, its rows named as the capture.  A recording the fast path does
-not take (damage, a damaged capture, framing problems or malformed runs, the state
-stream) goes through ``check_recording`` whole (:mod:`.general`).  ``jobs`` processes take
+that recording exported so, its rows named as the capture.  The state stream's packets
+(``proxy --state``) are written as they are read, a window's at a time.  A recording the
+fast path does not take (damage, a damaged capture, framing problems or malformed runs on
+the command port) goes through ``check_recording`` whole (:mod:`.general`).  ``jobs`` processes take
 the recordings one at a time each.
 """
 
@@ -36,7 +37,7 @@ from ..firmware import GET_SOFTWARE_VERSION_ID, parse_software_version
 from ..judge import Judge
 from ..recording import C2S, ConnectionRecord, Recording
 from .fast import Columns, ColumnStream, NotFast, read_columns
-from .general import StateGaps, general_rows, state_rows
+from .general import StateGaps, general_rows, state_row, state_rows
 from .memo import MemoJudge
 from .schema import (
     COLUMNS,
@@ -435,6 +436,7 @@ def _fast(
     windows = iter(stream)
     buffered: list[tuple[Columns, int]] = []
     fw, known = firmware or None, bool(firmware)
+    seen: dict[str, str] = {}
     try:
         # The judge is the firmware's, named by the first 905 reply: the windows before
         # it wait (a few), else it is looked for alone and the recording read again.
@@ -448,28 +450,36 @@ def _fast(
         if not known and len(buffered) >= BUFFER:
             buffered = []
             for w in windows:
+                stream.states.clear()
                 fw = firmware_in(zip(w.dir, w.cmd_id, w.data, strict=True))
                 if fw is not None:
                     break
+            seen = stream.metadata  # the new stream's, before it is read again
             stream = ColumnStream(path, window)
             windows = iter(stream)
     except NotFast:
         return "general"
-    if not stream.metadata:
+    md = stream.metadata or seen
+    if not md:
         return "whole"
     memo = MemoJudge.of(judge_for(fw))
-    tables = _tables(name, dataset, result, stream.metadata, fw, memo)
+    tables = _tables(name, dataset, result, md, fw, memo)
     win = Windows(memo, tables, data=data, port=_port, window=window)
+    gaps = StateGaps()
     try:
         last: tuple[Columns, int] | None = None
         rest = ((w, len(stream.connections)) for w in windows)
         for item in itertools.chain(buffered, rest):
+            # The state packets read so far (with the windows read: file order).
+            state_rows(stream.states, gaps, tables["state"])
+            stream.states.clear()
             if last is not None:
                 win.add(last[0], stream.connections[: last[1]], final=False)
             last = item
         buffered = []
         if last is not None:
             win.add(last[0], stream.connections[: last[1]], final=True)
+        state_rows(stream.states, gaps, tables["state"])
     except NotFast as e:
         for tab in tables.values():
             tab.discard()
@@ -555,11 +565,12 @@ def _whole(
     if cols is not None:
         win = Windows(memo, tables, data=data, port=_port)
         win.add(cols, conns, final=True)
+        state_rows(cols.states, StateGaps(), tables["state"])
     else:
         assert rec is not None
         ports = {c.conn: _port(c.upstream) for c in conns if c.event == "open"}
         general_rows(rec, memo, tables, ports, data)
-        state_rows(rec.states, StateGaps(), tables["state"])
+        state_rows(map(state_row, rec.states), StateGaps(), tables["state"])
     _finish(result, dataset, tables, md, conns, robot, times)
 
 

@@ -2,9 +2,9 @@
 judges it, without a record object per frame.
 
 A recording the fast path takes is an MCAP file of batched frames (layout 2's JSON, or
-layout 3's protobuf, its columns read with ``numpy.frombuffer``) with no
-framing problem, no malformed run, no state stream and no damage: the bulk of a fleet's
-traffic.  Anything else (:func:`read_columns` returns None) goes the general way
+layouts 3 and 4's protobuf, its columns read with ``numpy.frombuffer``) with no
+framing problem, no malformed run and no damage: the bulk of a fleet's traffic (the
+state stream's packets are read as they come, :attr:`ColumnStream.states`).  Anything else (:func:`read_columns` returns None) goes the general way
 (:func:`~conformance.capture_check.check_recording` over the reader's records).  What the
 fast path does is the same, step by step, so the verdicts are the same (the tests compare
 them frame by frame):
@@ -38,7 +38,9 @@ from ..recording import (
     TOPIC_C2S,
     TOPIC_CONNECTIONS,
     TOPIC_FRAMES,
+    TOPIC_PROBLEMS,
     TOPIC_S2C,
+    TOPIC_STATE,
     ConnectionRecord,
     FrameBatch,
 )
@@ -46,9 +48,17 @@ from ..recording.frames_pb import BatchColumns, decode_columns, decode_one_frame
 from ..recording.salvage import MAGIC, Walk
 from ..recording.traffic_pb import TrafficColumns, decode_traffic
 from .fast_pb import Pending, texts
+from .general import StateRow, read_state, state_problem
 from .schema import VerdictColumns, verdict_columns
 
-__all__ = ["ColumnStream", "Columns", "NotFast", "VerdictRows", "judge_columns", "read_columns"]
+__all__ = [
+    "ColumnStream",
+    "Columns",
+    "NotFast",
+    "VerdictRows",
+    "judge_columns",
+    "read_columns",
+]
 
 #: check's CntSteps remembers this many connections; a recording with more goes the general way.
 _CONNECTIONS = CntSteps().limit
@@ -81,6 +91,8 @@ class Columns:
     #: 1 for a request (c2s), 0 for a reply: ``dir`` as bytes.
     request: array[int] = field(default_factory=lambda: array("b"))
     complete: bool = True
+    #: The state packets' rows (:func:`read_columns`; a window's are its stream's).
+    states: list[StateRow] = field(default_factory=list)
 
     def np(self, name: str) -> Any:
         """A number column as a numpy int64 array (a view, no copy)."""
@@ -134,7 +146,8 @@ class NotFast(Exception):
 class ColumnStream:
     """A clean recording's frames as columns a window at a time, in file order: each
     window the frames of whole messages, ``window`` of them or a few more (the last one
-    fewer, maybe none); the metadata and the connections as they are read.  Iterating
+    fewer, maybe none; fewer also where ``window`` state packets came first); the
+    metadata, the connections and the state packets as they are read.  Iterating
     raises :class:`NotFast` where :func:`read_columns` returns None (a damaged file only
     at the end: the windows given before are then to be thrown away)."""
 
@@ -143,6 +156,8 @@ class ColumnStream:
         self.metadata: dict[str, str] = {}
         self.connections: list[ConnectionRecord] = []
         self.complete = True
+        #: The state packets read since the caller last took them (:data:`StateRow`).
+        self.states: list[StateRow] = []
         self._conns: set[int] = set()
 
     def __iter__(self) -> Iterator[Columns]:
@@ -203,11 +218,19 @@ class ColumnStream:
                                 c = Columns()
                         elif topic == TOPIC_CONNECTIONS:
                             x = ConnectionRecord.from_json(json.loads(rec.data))
-                            if x.stream:
-                                raise NotFast  # the state stream: the general path
                             self.connections.append(x)
+                        elif topic == TOPIC_STATE:
+                            self.states.append(read_state(json.loads(rec.data)))
+                            if len(self.states) >= self.window:  # a state stream alone
+                                pending.flush(c)
+                                self._check(c)
+                                yield c
+                                c = Columns()
+                        elif topic == TOPIC_PROBLEMS:
+                            if not state_problem(json.loads(rec.data)):
+                                raise NotFast  # framing problems: the general path
                         elif topic is not None and topic.startswith("/fairino/"):
-                            raise NotFast  # problems, the state stream: the general path
+                            raise NotFast  # a topic of a later layout: the general path
                     elif isinstance(rec, Channel):
                         channel(rec)
                     elif (
@@ -250,6 +273,7 @@ def read_columns(path: str) -> Columns | None:
     except NotFast:
         return None
     c.metadata, c.connections, c.complete = s.metadata, s.connections, s.complete
+    c.states = s.states
     return c
 
 

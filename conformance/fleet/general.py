@@ -5,14 +5,25 @@ table's rows, which the fast path writes so too (a window's packets at a time)."
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
-from typing import Protocol
+from typing import Any, Protocol
 
 from ..judge import Verdict
 from ..recording import FrameRecord, ProblemRecord, Recording, StateRecord
+from ..recording.layout import STATE_KIND
 from .memo import MemoJudge
 from .schema import verdict_columns
 
-__all__ = ["Rows", "StateGaps", "frame_row", "general_rows", "state_rows"]
+__all__ = [
+    "Rows",
+    "StateGaps",
+    "StateRow",
+    "frame_row",
+    "general_rows",
+    "read_state",
+    "state_problem",
+    "state_row",
+    "state_rows",
+]
 
 
 class Rows(Protocol):
@@ -109,6 +120,35 @@ def _exchanges(rec: Recording, verdicts: dict[int, Verdict], table: Rows) -> Non
         )
 
 
+#: A state packet's row (conn, complete_ns, cnt, len, version, checksum_ok).
+StateRow = tuple[int, int, int, int, str | None, bool]
+
+
+def state_row(s: StateRecord) -> StateRow:
+    """A state packet's row (the general path's from the reader's records)."""
+    return (s.conn, s.complete_ns, s.cnt, s.length, s.version, s.checksum_ok)
+
+
+def read_state(doc: Any) -> StateRow:
+    """A ``/fairino/state`` message's row, read as the reader reads it (what does not read
+    raises, and the general path names it)."""
+    return state_row(StateRecord.from_json(doc))
+
+
+def state_problem(doc: Any) -> bool:
+    """A state decoder's problem (``kind`` ``state``: kept apart from the command port's
+    problems, no row of the dataset), its fields of the types the reader takes."""
+    p = ProblemRecord.from_json(doc)
+    numbers = (p.conn, p.offset, p.size, p.first_ns, p.complete_ns)
+    return (
+        p.kind == STATE_KIND
+        and all(type(x) is int and 0 <= x < 1 << 63 for x in numbers)
+        and p.dir in ("c2s", "s2c")
+        and p.transport in ("tcp", "udp")
+        and all(type(x) is str for x in (p.rule, p.detail))
+    )
+
+
 class StateGaps:
     """Each state connection's last packet counter, across a recording's windows."""
 
@@ -116,23 +156,14 @@ class StateGaps:
         self.last: dict[int, int] = {}
 
 
-def state_rows(states: Iterable[StateRecord], gaps: StateGaps, table: Rows) -> None:
-    """The state table's rows of these packets (in file order, after those ``gaps`` saw)."""
+def state_rows(states: Iterable[StateRow], gaps: StateGaps, table: Rows) -> None:
+    """The state table's rows of these packets (:func:`state_row`, in file order,
+    after those ``gaps`` saw)."""
     last = gaps.last
-    for s in states:
-        prev = last.get(s.conn)
+    for conn, t_ns, cnt, length, version, checksum_ok in states:
+        prev = last.get(conn)
         # 2.1 (2): the packet counter is one byte; the state decoder's reading of a step
         # (conformance/protocol/state.py): 255 after a packet is a repeat, not a loss.
-        gap = 0 if prev is None else (s.cnt - prev - 1) & 0xFF
-        last[s.conn] = s.cnt
-        table.add(
-            (
-                s.conn,
-                s.complete_ns,
-                s.cnt,
-                s.length,
-                s.version,
-                s.checksum_ok,
-                0 if gap == 255 else gap,
-            )
-        )
+        gap = 0 if prev is None else (cnt - prev - 1) & 0xFF
+        last[conn] = cnt
+        table.add((conn, t_ns, cnt, length, version, checksum_ok, 0 if gap == 255 else gap))
