@@ -181,3 +181,50 @@ def test_a_proxy_recording_with_the_state_stream(
     assert whole == []
     assert len(tables["state"]) >= 12 and any(not r["checksum_ok"] for r in tables["state"])
     assert {r["stream"] for r in tables["connections"]} == {"", "state"}
+
+
+def _with_problems(path: Path, controller_garbage: bool) -> Path:
+    """Two connections' request/reply traffic with the client's garbage between requests,
+    a gap each way, and (``controller_garbage``) garbage ahead of a reply."""
+    from conformance.frame import encode_frame
+    from conformance.recording import RecordingWriter, StreamRecorder, default_metadata
+
+    with RecordingWriter(path, metadata=default_metadata(START, robot="r05")) as w:
+        rec = StreamRecorder(w)
+        t = START
+        for conn in (1, 2):
+            rec.open(conn, t_ns=t, client=f"10.0.0.1:{40000 + conn}", upstream="10.0.0.2:8080")
+            for cnt in range(1, 40):
+                t += 1_000_000
+                if cnt % 7 == 0:
+                    rec.data(conn, "c2s", t, b"\x00garbage\xff")
+                if cnt == 20:
+                    rec.gap(conn, "c2s" if conn == 1 else "s2c", t, 17)
+                rec.data(conn, "c2s", t, encode_frame(cnt, 212, "GetDI(0,0)"))
+                if controller_garbage and cnt == 30:
+                    rec.data(conn, "s2c", t + 1, b"junk")
+                rec.data(conn, "s2c", t + 500_000, encode_frame(cnt, 212, "1"))
+            rec.close(conn, t_ns=t + 2_000_000, reason="client closed")
+        rec.finish(t_ns=t + 3_000_000)
+    return path
+
+
+@pytest.mark.parametrize("controller_garbage", [False, True])
+def test_problems_go_the_fast_path_unless_blamed_on_a_request(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, controller_garbage: bool
+) -> None:
+    """Gaps and the client's malformed bytes are written window by window (check's
+    verdicts, blamed on no request); the controller's malformed bytes, blamed on the
+    request they answered, keep the recording on the general path.  The rows are the
+    general path's either way."""
+    path = _with_problems(tmp_path / "p.mcap", controller_garbage)
+    tables, whole = both_paths(path, tmp_path, monkeypatch, window=8)
+    assert len(whole) == controller_garbage
+    kinds = {(r["kind"], r["direction"]) for r in tables["problems"]}
+    assert {("malformed", "c2s"), ("gap", "c2s"), ("gap", "s2c")} <= kinds
+    assert len(tables["frames"]) > 100
+    if controller_garbage:
+        blamed = [
+            r for r in tables["problems"] if r["direction"] == "s2c" and r["kind"] == "malformed"
+        ]
+        assert blamed and {r["cmd_id"] for r in blamed} == {212}

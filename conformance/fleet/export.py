@@ -12,9 +12,11 @@ rewrites what is there.  A clean recording is read, judged and written a window 
 recording's length and the number of recordings.  A pcap/pcapng capture is imported first
 (``import-pcap``'s streaming importer, into a temporary recording in the kit's layout) and
 that recording exported so, its rows named as the capture.  The state stream's packets
-(``proxy --state``) are written as they are read, a window's at a time.  A recording the
-fast path does not take (damage, a damaged capture, framing problems or malformed runs on
-the command port) goes through ``check_recording`` whole (:mod:`.general`).  ``jobs`` processes take
+(``proxy --state``), the gaps and the client's malformed bytes are written as they are
+read, a window's at a time.  A recording the fast path does not take (damage, a damaged
+capture, framing problems inside frame batches, the controller's malformed bytes, which
+are blamed on the request they answered) goes through ``check_recording`` whole
+(:mod:`.general`).  ``jobs`` processes take
 the recordings one at a time each.
 """
 
@@ -37,7 +39,7 @@ from ..firmware import GET_SOFTWARE_VERSION_ID, parse_software_version
 from ..judge import Judge
 from ..recording import C2S, ConnectionRecord, Recording
 from .fast import Columns, ColumnStream, NotFast, read_columns
-from .general import StateGaps, general_rows, state_row, state_rows
+from .general import StateGaps, general_rows, problem_rows, state_row, state_rows
 from .memo import MemoJudge
 from .schema import (
     COLUMNS,
@@ -451,6 +453,7 @@ def _fast(
             buffered = []
             for w in windows:
                 stream.states.clear()
+                stream.problems.clear()
                 fw = firmware_in(zip(w.dir, w.cmd_id, w.data, strict=True))
                 if fw is not None:
                     break
@@ -470,9 +473,11 @@ def _fast(
         last: tuple[Columns, int] | None = None
         rest = ((w, len(stream.connections)) for w in windows)
         for item in itertools.chain(buffered, rest):
-            # The state packets read so far (with the windows read: file order).
+            # The state packets and problems read so far (with the windows read).
             state_rows(stream.states, gaps, tables["state"])
+            problem_rows(stream.problems, memo, tables["problems"])
             stream.states.clear()
+            stream.problems.clear()
             if last is not None:
                 win.add(last[0], stream.connections[: last[1]], final=False)
             last = item
@@ -480,6 +485,7 @@ def _fast(
         if last is not None:
             win.add(last[0], stream.connections[: last[1]], final=True)
         state_rows(stream.states, gaps, tables["state"])
+        problem_rows(stream.problems, memo, tables["problems"])
     except NotFast as e:
         for tab in tables.values():
             tab.discard()
@@ -566,6 +572,7 @@ def _whole(
         win = Windows(memo, tables, data=data, port=_port)
         win.add(cols, conns, final=True)
         state_rows(cols.states, StateGaps(), tables["state"])
+        problem_rows(cols.problems, memo, tables["problems"])
     else:
         assert rec is not None
         ports = {c.conn: _port(c.upstream) for c in conns if c.event == "open"}

@@ -3,8 +3,9 @@ judges it, without a record object per frame.
 
 A recording the fast path takes is an MCAP file of batched frames (layout 2's JSON, or
 layouts 3 and 4's protobuf, its columns read with ``numpy.frombuffer``) with no
-framing problem, no malformed run and no damage: the bulk of a fleet's traffic (the
-state stream's packets are read as they come, :attr:`ColumnStream.states`).  Anything else (:func:`read_columns` returns None) goes the general way
+framing problem, none of the controller's malformed runs and no damage: the bulk of a
+fleet's traffic (the state stream's packets, the gaps and the client's malformed bytes
+are read as they come: :attr:`ColumnStream.states`, :attr:`ColumnStream.problems`).  Anything else (:func:`read_columns` returns None) goes the general way
 (:func:`~conformance.capture_check.check_recording` over the reader's records).  What the
 fast path does is the same, step by step, so the verdicts are the same (the tests compare
 them frame by frame):
@@ -43,12 +44,14 @@ from ..recording import (
     TOPIC_STATE,
     ConnectionRecord,
     FrameBatch,
+    ProblemRecord,
 )
 from ..recording.frames_pb import BatchColumns, decode_columns, decode_one_frame
+from ..recording.layout import C2S, STATE_KIND
 from ..recording.salvage import MAGIC, Walk
 from ..recording.traffic_pb import TrafficColumns, decode_traffic
 from .fast_pb import Pending, texts
-from .general import StateRow, read_state, state_problem
+from .general import StateRow, read_problem, read_state
 from .schema import VerdictColumns, verdict_columns
 
 __all__ = [
@@ -93,6 +96,7 @@ class Columns:
     complete: bool = True
     #: The state packets' rows (:func:`read_columns`; a window's are its stream's).
     states: list[StateRow] = field(default_factory=list)
+    problems: list[ProblemRecord] = field(default_factory=list)
 
     def np(self, name: str) -> Any:
         """A number column as a numpy int64 array (a view, no copy)."""
@@ -158,6 +162,8 @@ class ColumnStream:
         self.complete = True
         #: The state packets read since the caller last took them (:data:`StateRow`).
         self.states: list[StateRow] = []
+        #: The problems read since (gaps, the client's malformed bytes; without their bytes).
+        self.problems: list[ProblemRecord] = []
         self._conns: set[int] = set()
 
     def __iter__(self) -> Iterator[Columns]:
@@ -219,16 +225,23 @@ class ColumnStream:
                         elif topic == TOPIC_CONNECTIONS:
                             x = ConnectionRecord.from_json(json.loads(rec.data))
                             self.connections.append(x)
-                        elif topic == TOPIC_STATE:
-                            self.states.append(read_state(json.loads(rec.data)))
-                            if len(self.states) >= self.window:  # a state stream alone
-                                pending.flush(c)
+                        elif topic in (TOPIC_STATE, TOPIC_PROBLEMS):
+                            doc = json.loads(rec.data)
+                            if topic == TOPIC_STATE:
+                                self.states.append(read_state(doc))
+                            elif (p := read_problem(doc)) is None or (
+                                p.kind == "malformed" and p.dir != C2S
+                            ):
+                                # The controller's malformed run is blamed on the request
+                                # it answered (Recording.answered_by): the general path.
+                                raise NotFast
+                            elif p.kind != STATE_KIND:  # the state decoder's: no row
+                                self.problems.append(p)
+                            if len(self.states) + len(self.problems) >= self.window:
+                                pending.flush(c)  # a window's worth, frames or not
                                 self._check(c)
                                 yield c
                                 c = Columns()
-                        elif topic == TOPIC_PROBLEMS:
-                            if not state_problem(json.loads(rec.data)):
-                                raise NotFast  # framing problems: the general path
                         elif topic is not None and topic.startswith("/fairino/"):
                             raise NotFast  # a topic of a later layout: the general path
                     elif isinstance(rec, Channel):
@@ -273,7 +286,7 @@ def read_columns(path: str) -> Columns | None:
     except NotFast:
         return None
     c.metadata, c.connections, c.complete = s.metadata, s.connections, s.complete
-    c.states = s.states
+    c.states, c.problems = s.states, s.problems
     return c
 
 

@@ -1,15 +1,18 @@
 """``export-parquet``'s general path: the rows of a recording read whole (the reader's
-records) from :func:`~conformance.capture_check.check_recording`'s verdicts; and the state
-table's rows, which the fast path writes so too (a window's packets at a time)."""
+records) from :func:`~conformance.capture_check.check_recording`'s verdicts; and the rows
+the fast path writes so too, a window's at a time: the state table's, and the problems
+blamed on no request (gaps, the client's malformed bytes)."""
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
+from dataclasses import replace
 from typing import Any, Protocol
 
-from ..judge import Verdict
-from ..recording import FrameRecord, ProblemRecord, Recording, StateRecord
+from ..judge import Judge, Verdict
+from ..recording import C2S, S2C, FrameRecord, ProblemRecord, Recording, StateRecord
 from ..recording.layout import STATE_KIND
+from ..verdict import Direction
 from .memo import MemoJudge
 from .schema import verdict_columns
 
@@ -19,8 +22,10 @@ __all__ = [
     "StateRow",
     "frame_row",
     "general_rows",
+    "problem_row",
+    "problem_rows",
+    "read_problem",
     "read_state",
-    "state_problem",
     "state_row",
     "state_rows",
 ]
@@ -78,16 +83,7 @@ def general_rows(
     if problems:
         answered = rec.answered_by()
         for p, v in problems:
-            blamed = answered.get(id(p))
-            tables["problems"].add(
-                (
-                    *(p.transport, p.conn, p.dir, p.kind, p.rule, p.detail, p.size),
-                    p.complete_ns,
-                    blamed.cmd_id if blamed is not None else None,
-                    v.outcome.value,
-                    v.source,
-                )
-            )
+            tables["problems"].add(problem_row(p, v, answered.get(id(p))))
 
 
 def _exchanges(rec: Recording, verdicts: dict[int, Verdict], table: Rows) -> None:
@@ -135,18 +131,39 @@ def read_state(doc: Any) -> StateRow:
     return state_row(StateRecord.from_json(doc))
 
 
-def state_problem(doc: Any) -> bool:
-    """A state decoder's problem (``kind`` ``state``: kept apart from the command port's
-    problems, no row of the dataset), its fields of the types the reader takes."""
+def read_problem(doc: Any) -> ProblemRecord | None:
+    """A ``/fairino/problems`` message's problem without its bytes, read as the reader
+    reads it; None for one whose fields are not of the types the reader takes (the general
+    path names it)."""
     p = ProblemRecord.from_json(doc)
     numbers = (p.conn, p.offset, p.size, p.first_ns, p.complete_ns)
-    return (
-        p.kind == STATE_KIND
+    fits = (
+        p.kind in ("malformed", "gap", STATE_KIND)
         and all(type(x) is int and 0 <= x < 1 << 63 for x in numbers)
-        and p.dir in ("c2s", "s2c")
+        and p.dir in (C2S, S2C)
         and p.transport in ("tcp", "udp")
         and all(type(x) is str for x in (p.rule, p.detail))
     )
+    return replace(p, raw=b"") if fits else None
+
+
+def problem_row(p: ProblemRecord, v: Verdict, blamed: FrameRecord | None) -> tuple[object, ...]:
+    """A problem's row: its verdict and the request it is blamed on (:meth:`Recording.answered_by`)."""
+    return (
+        *(p.transport, p.conn, p.dir, p.kind, p.rule, p.detail, p.size),
+        p.complete_ns,
+        blamed.cmd_id if blamed is not None else None,
+        v.outcome.value,
+        v.source,
+    )
+
+
+def problem_rows(problems: Iterable[ProblemRecord], judge: Judge, table: Rows) -> None:
+    """The rows of problems blamed on no request: a gap, the client's malformed bytes
+    (``check_recording`` judges them so: :meth:`Judge.problem`)."""
+    for p in problems:
+        way = Direction.REQUEST if p.dir == C2S else Direction.REPLY
+        table.add(problem_row(p, judge.problem(p.rule, p.detail, way), None))
 
 
 class StateGaps:
