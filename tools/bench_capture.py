@@ -27,7 +27,8 @@ to theirs.
 
 For the recording rows, the CPU time the recording processes spent while the traffic ran
 (the process and its children, from ``/proc``; its start-up left out) is printed per
-recorded frame; socat's too, for scale: what relaying alone costs (the proxy's floor).
+recorded frame; the proxy's recorder process alone (``proxy recorder``) too, and socat's,
+for scale: what relaying alone costs (the floor of the proxy's forwarding thread).
 
 The rows alternate ``--rounds`` times (a neighbour's busy spell does not favour one
 row) and each row's samples are pooled; p50/p99/p99.9 of each row are printed with
@@ -85,6 +86,14 @@ def start_emulator() -> tuple[subprocess.Popen[str], int]:
     )
     assert p.stdout is not None
     return p, int(p.stdout.readline())
+
+
+def children(pid: int) -> list[int]:
+    """The processes ``pid`` started (the proxy's recorder process)."""
+    kids = []
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        kids += [int(c) for c in (task / "children").read_text().split()]
+    return kids
 
 
 def cpu_seconds(pid: int) -> float:
@@ -250,14 +259,23 @@ def main() -> int:
                 m = re.search(r"listening on [\d.]+:(\d+)", line)
                 assert m
                 try:
+                    kids = children(p.pid)
                     c0 = cpu_seconds(p.pid)
+                    r0 = sum(map(cpu_seconds, kids))
                     samples[row] += rtt_run(int(m.group(1)), n, rate)
                     c1 = cpu_seconds(p.pid)
+                    r1 = sum(map(cpu_seconds, kids))
                 finally:
                     stop(p)
                 frames = 2 * (n + WARMUP)  # every request and its reply
                 got = cpu.setdefault(row, [0.0, 0])
                 got[0] += c1 - c0
+                got[1] += frames
+                # Its recorder process alone (the rest is forwarding: compare socat).
+                got = cpu.setdefault(
+                    "proxy rec@base" if tree != ROOT else "proxy recorder", [0.0, 0]
+                )
+                got[0] += r1 - r0
                 got[1] += frames
 
             def socat() -> None:
@@ -386,7 +404,11 @@ def main() -> int:
         print(f"  {line}")
     if cpu:
         print("\nCPU of the recording processes while the traffic ran (start-up left out):")
-        anchors = {"capture": ["capture-recvmsg", "capture@base"], "proxy": ["proxy@base"]}
+        anchors = {
+            "capture": ["capture-recvmsg", "capture@base"],
+            "proxy": ["proxy@base"],
+            "proxy recorder": ["proxy rec@base"],
+        }
         for label, (secs, frames) in cpu.items():
             per = secs / frames * 1e6 if frames else float("nan")
             ratios = []
