@@ -490,6 +490,10 @@ class LiveCapture:
                     # old: one wake-up for all the packets in it.
                     if self.ring.ready() or select.select([fd], [], [], wait)[0]:
                         self._drain()
+                        if max_frames is not None:
+                            # Reads of a frame each are held to be read together (until
+                            # LONE_MAX or a flush): counted now, so the stop is not late.
+                            self.packets.idle(time.time_ns(), self.idle_ns)
                 elif got and self.tick:
                     # While traffic flows, take it in ticks rather than being woken for
                     # each packet: a wake-up per packet costs the CPU the traffic runs on.
