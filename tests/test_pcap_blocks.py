@@ -207,3 +207,63 @@ def test_blocks_hold_the_packets_of_read_packets(tmp_path: Path) -> None:
     rec = read_recording(out)
     want_stats, want = per_packet(pcap, tmp_path / "one.mcap", rec.metadata)
     assert stats == want_stats and dump_json(rec) == dump_json(want)
+
+
+def clean(seed: int) -> list[tuple[float, bytes, int]]:
+    """Three connections taking turns: request/reply (a packet a direction), now and then
+    a direction's run of packets (pipelined frames, one cut across two packets), and
+    rarely a request retransmitted (after a pure ACK or not) or out of order."""
+    rng = random.Random(seed)
+    conns = [_Conn((f"10.1.0.{5 + k}", 40001 + k), ("10.1.0.2", 8080)) for k in range(3)]
+    pk: list[Any] = [p for c in conns for p in c.handshake()]
+    for cnt in range(1, 3001):
+        c = conns[0] if cnt < 1000 else rng.choice(conns)
+        req = encode_frame(cnt % 65536, 201, 'MoveJ("P1")')
+        if rng.random() < 0.03:
+            run = req * rng.randrange(2, 90)
+            cuts = sorted(rng.sample(range(1, len(run)), rng.randrange(1, 80)))
+            d = rng.randrange(2)
+            for a, b in zip([0, *cuts], [*cuts, len(run)], strict=True):
+                pk.append(c.send(d, run[a:b]))
+        else:
+            pk.append(c.send(0, req))
+            pk.append(c.send(1, encode_frame(cnt % 65536, 201, "1")))
+        r = rng.random()
+        if r < 0.002:  # a pure ACK, then the request again (retransmitted)
+            pk += [c.packet(1, "A"), pk[-2]]
+        elif r < 0.004:  # the request again, among usual packets
+            pk.append(pk[-2])
+        elif r < 0.006:  # a request in two segments, the second first
+            a, b = c.send(0, req[:9]), c.send(0, req[9:])
+            pk += [b, a]
+    for c in conns:
+        pk += c.close()
+    return [(T0 + k * 0.0001, bytes(p), len(bytes(p))) for k, p in enumerate(pk)]
+
+
+@pytest.mark.parametrize("chunk", [1 << 20, 20000, 8000])
+def test_blocks_in_order_give_the_recording_of_feed(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, chunk: int
+) -> None:
+    """Blocks of packets each the next in order (PacketRecorder._feed_in_order: a
+    packet alone between other directions' packets straight to the recorder, runs held
+    together, a block's last packet held for the next block): the recording of feed."""
+    monkeypatch.setattr(pcap_read, "_CHUNK", chunk)
+    taken: list[int] = []
+    in_order = PacketRecorder._feed_in_order
+
+    def spy(self: PacketRecorder, way_of: Any, which: Any, *rest: Any) -> None:
+        taken.append(len(which))
+        in_order(self, way_of, which, *rest)
+
+    monkeypatch.setattr(PacketRecorder, "_feed_in_order", spy)
+    pcap = tmp_path / "c.pcap"
+    write_pcap(pcap, clean(chunk))
+    out = tmp_path / "imported.mcap"
+    stats = import_pcap(pcap, out, specs=default_specs())
+    rec = read_recording(out)
+    assert stats.frames > 6000 and not stats.problems and stats.retransmitted_bytes
+    assert sum(taken) > stats.packets * 0.8  # in order at once
+    want_stats, want = per_packet(pcap, tmp_path / "one.mcap", rec.metadata)
+    assert stats == want_stats
+    assert dump_json(rec) == dump_json(want)

@@ -46,6 +46,8 @@ TOGETHER_BYTES = 1 << 20
 
 #: Records of a block read one by one (feed_all) rather than as columns: fewer than this.
 _BLOCK_MIN = 32
+#: Usual packets in a row checked in order at once (PacketRecorder._in_order): at least.
+_IN_ORDER_MIN = 64
 
 
 def _words(buf: bytes) -> tuple[Any, ...]:
@@ -342,7 +344,7 @@ class PacketRecorder:
             & (end >= 54)
             & (start < end)
         )
-        seqs = u32[q + 38].tolist()
+        seq = u32[q + 38]
         # Each usual packet's flow (addresses, ports: bytes 26..38) as an index into the
         # block's distinct flows: the address pairs told apart first, then with the ports
         # one 64-bit key.
@@ -360,6 +362,57 @@ class PacketRecorder:
         if self.last_t < (top := int(times[usual].max(initial=0))):
             self.last_t = top
         tl = times.tolist()
+        ways = self.tcp_ways
+        usual_l, which_l, seq_l = usual.tolist(), which.tolist(), seq.tolist()
+        sizes = end - start
+
+        def each(a: int, b: int) -> None:  # records a..b, one at a time
+            self._feed_each(
+                flow_keys, usual_l[a:b], tl[a:b], which_l[a:b], seq_l[a:b], payloads[a:b],
+                buf, offs[a:b], size[a:b].tolist(),
+            )  # fmt: skip
+
+        # Stretches of usual packets long enough to be worth checking in order at once.
+        bad = np.flatnonzero(~usual).tolist()
+        done = 0
+        for a, b in zip([-1, *bad], [*bad, n], strict=True):
+            a += 1
+            if b - a < _IN_ORDER_MIN:
+                continue
+            if done < a:
+                each(done, a)
+            while b - a >= _IN_ORDER_MIN:
+                way_of = [ways.get(k) for k in flow_keys]
+                w = which[a:b]
+                k = self._in_order(way_of, w, seq[a:b], sizes[a:b])
+                if k:
+                    self._feed_in_order(way_of, w[:k], tl[a : a + k], payloads[a : a + k])
+                    a += k
+                # A packet out of order (or of no known connection) one at a time; if it
+                # came early, the stretch after it too (the check's cost is bounded).
+                stop = min(b, a + (1 if k else _IN_ORDER_MIN))
+                each(a, stop)
+                a = stop
+            done = a
+        if done < n:
+            each(done, n)
+
+    def _feed_each(
+        self,
+        flow_keys: list[bytes],
+        usual: list[bool],
+        times: list[int],
+        which: list[int],
+        seqs: list[int],
+        payloads: list[bytes],
+        buf: bytes,
+        offs: list[int],
+        size: list[int],
+    ) -> None:
+        """Records of a block one at a time, as :meth:`feed_all` takes them: a usual
+        packet (``usual``: its flow ``flow_keys[which]``, its sequence number, its
+        payload) that is the next in order of a known connection held or recorded, any
+        other record (at ``offs`` in ``buf``, ``size`` bytes) to :meth:`feed`."""
         feed = self.feed
         ways = self.tcp_ways
         together = self.together
@@ -367,8 +420,8 @@ class PacketRecorder:
         epoch = self._epoch
         way_of = [ways.get(k) for k in flow_keys]
         inline = 0
-        for i, good, t, w, seq, payload in zip(
-            range(n), usual.tolist(), tl, which.tolist(), seqs, payloads, strict=True
+        for i, good, t, w, sq, payload in zip(
+            range(len(times)), usual, times, which, seqs, payloads, strict=True
         ):
             if good:
                 if self._epoch != epoch:  # a connection opened or closed
@@ -378,7 +431,7 @@ class PacketRecorder:
                 if way is not None:
                     r = way[2]
                     nxt = r.next
-                    if nxt is not None and seq == nxt & 0xFFFFFFFF and not r.pending:
+                    if nxt is not None and sq == nxt & 0xFFFFFFFF and not r.pending:
                         # What feed_all does with it (and feed, and _record_held).
                         inline += 1
                         r.next = nxt + len(payload)
@@ -406,8 +459,98 @@ class PacketRecorder:
             pos = offs[i] + 16
             self.packets += inline
             inline = 0
-            feed(t, DLT_EN10MB, buf[pos : pos + int(size[i])])
+            feed(t, DLT_EN10MB, buf[pos : pos + size[i]])
         self.packets += inline
+
+    def _in_order(self, way_of: list[_TcpWay | None], which: Any, seq: Any, size: Any) -> int:
+        """How many packets, from the first, of a stretch of usual packets are each the
+        next in order of a known connection (the flows ``way_of[which]``, sequence
+        numbers ``seq``, payload sizes ``size``): the packets of each flow follow one
+        another, and its first one follows what its reassembler took last (nothing
+        held).  When at least ``_IN_ORDER_MIN``, the reassemblers are moved past those
+        packets' bytes; else 0, nothing moved."""
+        order = np.argsort(which, kind="stable")
+        flows = which[order]
+        seqs = seq[order].astype(np.int64)
+        sizes = size[order]
+        first = np.r_[True, flows[1:] != flows[:-1]]
+        ok = np.empty(len(order), dtype=bool)
+        ok[1:] = seqs[1:] == (seqs[:-1] + sizes[:-1]) & 0xFFFFFFFF
+        heads = np.flatnonzero(first)  # each flow's first packet
+        present = [way_of[f] for f in flows[heads].tolist()]
+        for h, way, sq in zip(heads.tolist(), present, seqs[heads].tolist(), strict=True):
+            r = None if way is None else way[2]
+            ok[h] = r is not None and r.next is not None and not r.pending
+            ok[h] = ok[h] and sq == r.next & 0xFFFFFFFF  # type: ignore[union-attr, operator]
+        good = np.empty_like(ok)
+        good[order] = ok
+        bad = np.flatnonzero(~good)
+        k = int(bad[0]) if len(bad) else len(good)
+        if k < _IN_ORDER_MIN:
+            return 0
+        taken = np.bincount(which[:k], weights=size[:k], minlength=len(way_of)).tolist()
+        for way, moved in zip(way_of, taken, strict=True):
+            if moved:
+                way[2].next += int(moved)  # type: ignore[index, operator]
+        return k
+
+    def _feed_in_order(
+        self, way_of: list[_TcpWay | None], which: Any, times: list[int], payloads: list[bytes]
+    ) -> None:
+        """A block of usual packets each the next in order (:meth:`_in_order`) to the
+        recorder, as :meth:`feed_all` hands them: a packet alone between packets of other
+        directions (request/reply) straight to ``data``, one after another; the others
+        (a direction's packets in a row, the block's first and last) held and recorded
+        together as :meth:`feed_all` does."""
+        n = len(times)
+        self.packets += n
+        ws = which.tolist()
+        ways = [way_of[w] for w in ws]
+        if self.together == 1:
+            edges = []
+        else:
+            # Packets alone: another direction's before and after (the first's before it:
+            # what is held), the block's last one held for the next block.
+            lone = np.ones(n, dtype=bool)
+            lone[1:] &= which[1:] != which[:-1]
+            lone[:-1] &= which[:-1] != which[1:]
+            lone[-1] = False
+            if ways[0] is self._held:
+                lone[0] = False
+            edges = np.flatnonzero(np.diff(lone.view(np.int8), prepend=0, append=0)).tolist()
+        take = self._take
+        rec_data = self.rec.data
+        at = 0
+        for start, stop in zip(edges[::2], edges[1::2], strict=True):
+            for i in range(at, start):  # held and recorded together
+                take(ways[i], times[i], payloads[i])  # type: ignore[arg-type]
+            if start < stop:  # alone: each read recorded as it is
+                if self._held is not None:
+                    self._record_held()
+                conns = [w[0] for w in ways[start:stop]]  # type: ignore[index]
+                dirs = [w[1] for w in ways[start:stop]]  # type: ignore[index]
+                for _ in map(rec_data, conns, dirs, times[start:stop], payloads[start:stop]):
+                    pass
+            at = stop
+        for i in range(at, n):
+            take(ways[i], times[i], payloads[i])  # type: ignore[arg-type]
+
+    def _take(self, way: _TcpWay, t: int, payload: bytes) -> None:
+        """The next bytes in order of ``way`` (its reassembler moved past them already),
+        held or recorded as :meth:`feed_all` does."""
+        if self.together == 1:
+            self.rec.data(way[0], way[1], t, payload)
+        elif (
+            way is self._held
+            and len(self._reads) < self.together
+            and self._held_bytes < TOGETHER_BYTES
+        ):
+            self._reads.append((t, payload))
+            self._held_bytes += len(payload)
+        else:
+            if self._held is not None:
+                self._record_held()
+            self._held, self._reads, self._held_bytes = way, [(t, payload)], len(payload)
 
     def _record_held(self) -> None:
         """The held segments to the recorder (before anything else reaches it)."""
