@@ -4,7 +4,9 @@ Captures are opened with scapy's raw readers (``RawPcapReader``, which reads the
 header, gzip included, and hands pcapng files to ``RawPcapNgReader``, whose blocks it
 also reads).  The records of a classic pcap are read here, a megabyte at a time, not by
 scapy's per-record reads: those cut records over 4 x 64 KB, and two ``read`` calls per
-record take about twice as long as slicing records out of a chunk.
+record take about twice as long as slicing records out of a chunk.  ``import-pcap`` takes
+the records whole in a chunk as one :class:`RecordBlock` (:func:`read_blocks`), whose
+headers it reads as numpy columns.
 """
 
 from __future__ import annotations

@@ -2,7 +2,10 @@
 to a recording that ``import-pcap`` and ``capture`` share (sans-I/O).
 
 Each TCP connection is reassembled (:mod:`.reassembly`); the segment that comes next in
-order -- most of them -- goes straight to the recorder.  The reassembled streams go
+order -- most of them -- goes straight to the recorder.  ``import-pcap`` reads a classic
+pcap a block of records at a time (:meth:`PacketRecorder.feed_blocks`): the headers of the
+usual packet (Ethernet, IPv4, TCP) as numpy columns, a stretch of packets each the next
+in order checked at once; anything else a packet at a time.  The reassembled streams go
 through the proxy's own :class:`~conformance.recording.StreamRecorder`, so an imported
 capture and a proxy recording read, check and diff alike.
 """
