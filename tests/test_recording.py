@@ -551,3 +551,70 @@ class _BatchSink(ListSink):
 
     def write_frames(self, batch: FrameBatch) -> None:
         self.batches.append(batch)
+
+
+def _exchanges_by_search(frames: list[FrameRecord]) -> list[tuple[int | None, int | None]]:
+    """The pairing rule written the plain way (each reply searches its connection's
+    waiting requests from the oldest): the reference for Recording.exchanges."""
+    out: list[list[int | None]] = []
+    waiting: dict[int, list[tuple[int, FrameRecord]]] = {}
+    for i, f in sorted(enumerate(frames), key=lambda p: p[1].first_ns):
+        w = waiting.setdefault(f.conn, [])
+        if f.dir == "c2s":
+            w.append((len(out), f))
+            out.append([i, None])
+            continue
+        pick = next(
+            (k for k, (_, r) in enumerate(w) if (r.cnt, r.cmd_id) == (f.cnt, f.cmd_id)), None
+        )
+        if pick is None:
+            pick = next((k for k, (_, r) in enumerate(w) if r.cmd_id == f.cmd_id), None)
+        if pick is None:
+            out.append([None, i])
+            continue
+        out[w.pop(pick)[0]][1] = i
+    return [(a, b) for a, b in out]
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            st.sampled_from(["c2s", "s2c"]),
+            st.integers(1, 2),
+            st.integers(0, 3),
+            st.sampled_from([201, 204]),
+        ),
+        max_size=60,
+    )
+)
+def test_exchanges_pair_as_the_oldest_waiting_request_rule_says(
+    spec: list[tuple[str, int, int, int]],
+) -> None:
+    """Indexed pairing (no search per reply) gives the rule's pairs: the oldest unanswered
+    request of the connection with the reply's CNT and CMD_ID, else with its CMD_ID."""
+    frames = [
+        FrameRecord(
+            conn=conn,
+            transport="tcp",
+            dir="c2s" if d == "c2s" else "s2c",
+            cnt=cnt,
+            cmd_id=cid,
+            name=None,
+            data="",
+            length=0,
+            raw=b"",
+            problems=(),
+            offset=0,
+            first_ns=t + 1,
+            complete_ns=t + 1,
+        )
+        for t, (d, conn, cnt, cid) in enumerate(spec)
+    ]
+    rec = Recording(path="x", metadata={}, frames=tuple(frames), problems=(), connections=())
+    index = {id(f): i for i, f in enumerate(frames)}
+    got = [
+        (index[id(e.request)] if e.request else None, index[id(e.reply)] if e.reply else None)
+        for e in rec.exchanges()
+    ]
+    assert got == _exchanges_by_search(frames)
