@@ -53,18 +53,10 @@ _BLOCK_MIN = 32
 _IN_ORDER_MIN = 64
 
 
-def _words(buf: bytes) -> tuple[Any, ...]:
-    """``buf`` as big-endian words of 8, 16, 32 and 64 bits, one starting at each byte
-    (views with a stride of one byte: word *i* is read from ``buf[i:]``)."""
-    return tuple(
-        np.ndarray(shape=(len(buf) - k + 1,), dtype=f">u{k}", buffer=buf, strides=(1,))
-        for k in (1, 2, 4, 8)
-    )
-
-
-def _words_le(buf: bytes) -> Any:
-    """``buf`` as little-endian 32-bit words, one starting at each byte."""
-    return np.ndarray(shape=(len(buf) - 3,), dtype="<u4", buffer=buf, strides=(1,))
+def _words(buf: bytes, order: str = ">", sizes: tuple[int, ...] = (1, 2, 4, 8)) -> Any:
+    """``buf`` as words of each of ``sizes`` bytes, one starting at each byte (views with
+    a stride of one byte: word *i* is read from ``buf[i:]``), in byte ``order``."""
+    return [np.ndarray((len(buf) - k + 1,), f"{order}u{k}", buf, strides=(1,)) for k in sizes]
 
 
 #: A direction of an open TCP connection: (connection id, direction, its reassembler, the
@@ -324,7 +316,7 @@ class PacketRecorder:
         buf = block.buf
         at = np.array(offs, dtype=np.int64)
         u8, u16, u32, u64 = _words(buf)
-        rec32 = u32 if not block.little else _words_le(buf)
+        rec32 = _words(buf, "<", (4,))[0] if block.little else u32
         size = rec32[at + 8].astype(np.int64)
         times = rec32[at].astype(np.uint64) * np.uint64(1_000_000_000) + rec32[at + 4].astype(
             np.uint64
@@ -370,10 +362,8 @@ class PacketRecorder:
         sizes = end - start
 
         def each(a: int, b: int) -> None:  # records a..b, one at a time
-            self._feed_each(
-                flow_keys, usual_l[a:b], tl[a:b], which_l[a:b], seq_l[a:b], payloads[a:b],
-                buf, offs[a:b], size[a:b].tolist(),
-            )  # fmt: skip
+            cols = usual_l[a:b], tl[a:b], which_l[a:b], seq_l[a:b], payloads[a:b], offs[a:b]
+            self._feed_each(flow_keys, (*cols, size[a:b].tolist()), buf)
 
         # Stretches of usual packets long enough to be worth checking in order at once.
         bad = np.flatnonzero(~usual).tolist()
@@ -400,22 +390,12 @@ class PacketRecorder:
         if done < n:
             each(done, n)
 
-    def _feed_each(
-        self,
-        flow_keys: list[bytes],
-        usual: list[bool],
-        times: list[int],
-        which: list[int],
-        seqs: list[int],
-        payloads: list[bytes],
-        buf: bytes,
-        offs: list[int],
-        size: list[int],
-    ) -> None:
+    def _feed_each(self, flow_keys: list[bytes], cols: tuple[list[Any], ...], buf: bytes) -> None:
         """Records of a block one at a time, as :meth:`feed_all` takes them: a usual
         packet (``usual``: its flow ``flow_keys[which]``, its sequence number, its
         payload) that is the next in order of a known connection held or recorded, any
         other record (at ``offs`` in ``buf``, ``size`` bytes) to :meth:`feed`."""
+        usual, times, which, seqs, payloads, offs, size = cols
         feed = self.feed
         ways = self.tcp_ways
         together = self.together
