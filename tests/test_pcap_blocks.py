@@ -164,8 +164,8 @@ def per_packet(pcap: Path, out: Path, metadata: Mapping[str, str]) -> tuple[Any,
     return stats, read_recording(out)
 
 
-@pytest.mark.parametrize("chunk", [1 << 20, 4096, 700])
-@pytest.mark.parametrize("seed", [1, 2])
+# Seed 2 (nanosecond times) at one read size: the read sizes cut the same records alike.
+@pytest.mark.parametrize(("seed", "chunk"), [(1, 1 << 20), (1, 4096), (1, 700), (2, 1 << 20)])
 def test_blocks_give_the_recording_of_feed(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, seed: int, chunk: int
 ) -> None:
@@ -219,8 +219,8 @@ def clean(seed: int) -> list[tuple[float, bytes, int]]:
     rng = random.Random(seed)
     conns = [_Conn((f"10.1.0.{5 + k}", 40001 + k), ("10.1.0.2", 8080)) for k in range(3)]
     pk: list[Any] = [p for c in conns for p in c.handshake()]
-    for cnt in range(1, 1201):
-        c = conns[0] if cnt < 400 else rng.choice(conns)
+    for cnt in range(1, 801):
+        c = conns[0] if cnt < 250 else rng.choice(conns)
         req = encode_frame(cnt % 65536, 201, 'MoveJ("P1")')
         if rng.random() < 0.03:
             run = req * rng.randrange(2, 90)
@@ -266,7 +266,7 @@ def test_blocks_in_order_give_the_recording_of_feed(
     out = tmp_path / "imported.mcap"
     stats = import_pcap(pcap, out, specs=default_specs())
     rec = read_recording(out)
-    assert stats.frames > 2300 and not stats.problems and stats.retransmitted_bytes
+    assert stats.frames > 1500 and not stats.problems and stats.retransmitted_bytes
     assert sum(taken) > stats.packets * 0.8  # in order at once
     want_stats, want = per_packet(pcap, tmp_path / "one.mcap", rec.metadata)
     assert stats == want_stats

@@ -576,7 +576,7 @@ def _exchanges_by_search(frames: list[FrameRecord]) -> list[tuple[int | None, in
     return [(a, b) for a, b in out]
 
 
-@settings(max_examples=150, deadline=None)
+@settings(max_examples=80, deadline=None)
 @given(
     st.lists(
         st.tuples(
