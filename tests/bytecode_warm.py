@@ -89,7 +89,10 @@ def warm(config: pytest.Config) -> int:
     jobs = _jobs(config)
     if not jobs:
         return 0
-    pid = os.fork() if len(jobs) > 8 and hasattr(os, "fork") else -1
+    pid = -1
+    if len(jobs) > 8 and hasattr(os, "fork"):
+        with contextlib.suppress(OSError):  # no fork: all of it here
+            pid = os.fork()
     if pid == 0:
         try:
             _run(config, jobs[::2])
