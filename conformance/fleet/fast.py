@@ -362,6 +362,15 @@ def _binary_batch(c: Columns, b: BatchColumns) -> bool:
     c.transport += [b.transport] * n
     c.dir += [b.dir] * n
     c.request += array("b", [b.dir == "c2s"]) * n
+    _add_numbers(c, b)
+    c.name += b.names
+    c.data += map(sys.intern, b.datas())
+    return True
+
+
+def _add_numbers(c: Columns, b: BatchColumns | TrafficColumns) -> None:
+    """A decoded message's number columns appended as their bytes (numpy ``uint64`` of
+    values up to 2^63 - 1: the same bytes as the 64-bit arrays')."""
     for mine, theirs in (
         (c.cnt, b.cnt),
         (c.cmd_id, b.cmd_id),
@@ -370,9 +379,6 @@ def _binary_batch(c: Columns, b: BatchColumns) -> bool:
         (c.complete_ns, b.complete_ns),
     ):
         mine.frombytes(memoryview(theirs).cast("B"))
-    c.name += b.names
-    c.data += map(sys.intern, b.datas())
-    return True
 
 
 def _traffic(c: Columns, b: TrafficColumns) -> bool:
@@ -391,14 +397,7 @@ def _traffic(c: Columns, b: TrafficColumns) -> bool:
     c.request.frombytes(
         np.asarray([d == "c2s" for d in b.stream_dir], dtype="i1")[stream].tobytes()
     )
-    for mine, theirs in (
-        (c.cnt, b.cnt),
-        (c.cmd_id, b.cmd_id),
-        (c.length, b.length),
-        (c.first_ns, b.first_ns),
-        (c.complete_ns, b.complete_ns),
-    ):
-        mine.frombytes(memoryview(theirs).cast("B"))
+    _add_numbers(c, b)
     c.name += b.names
     c.data += texts(b.data, b.data_size)  # as b.datas() reads them, interned
     return True
