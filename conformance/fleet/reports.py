@@ -5,7 +5,8 @@ Each report is one ``SELECT`` over the views ``frames``, ``exchanges``, ``proble
 differently is the interpolated percentile (DuckDB ``quantile_cont``, Spark
 ``percentile``: both linear between the closest ranks), filled in by :func:`report_sql`.
 Every report orders its rows completely, so two engines give the same rows in the same
-order.
+order; every key says ``NULLS LAST`` (an unknown firmware, say), where the engines' defaults
+differ (DuckDB puts NULL last, Spark first).
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ SELECT robot, firmware, cmd_id, min(name) AS name,
 FROM exchanges
 WHERE request_time IS NOT NULL
 GROUP BY robot, firmware, cmd_id
-ORDER BY robot, firmware, cmd_id
+ORDER BY robot NULLS LAST, firmware NULLS LAST, cmd_id NULLS LAST
 """
 
 _FAILURES = """
@@ -44,7 +45,8 @@ FROM (
     FROM frames WHERE outcome = 'FAIL'
 ) AS f
 GROUP BY robot, firmware, cmd_id, what, detail
-ORDER BY count DESC, robot, firmware, cmd_id, what, detail
+ORDER BY count DESC NULLS LAST, robot NULLS LAST, firmware NULLS LAST, cmd_id NULLS LAST,
+         what NULLS LAST, detail NULLS LAST
 """
 
 _DIALECTS = """
@@ -52,7 +54,7 @@ SELECT robot, firmware, direction, cmd_id, min(name) AS name, dialect, count(*) 
 FROM frames
 WHERE dialect IS NOT NULL
 GROUP BY robot, firmware, direction, cmd_id, dialect
-ORDER BY robot, firmware, direction, cmd_id, dialect
+ORDER BY robot NULLS LAST, firmware NULLS LAST, direction NULLS LAST, cmd_id NULLS LAST, dialect NULLS LAST
 """
 
 _FIRMWARE = """
@@ -64,7 +66,7 @@ SELECT firmware, count(DISTINCT robot) AS robots, count(*) AS requests,
 FROM exchanges
 WHERE request_time IS NOT NULL
 GROUP BY firmware
-ORDER BY firmware
+ORDER BY firmware NULLS LAST
 """
 
 _STATE = """
@@ -73,7 +75,7 @@ SELECT robot, firmware, count(*) AS packets, sum(gap) AS lost,
        count(DISTINCT layout) AS layouts, min(layout) AS layout
 FROM state
 GROUP BY robot, firmware
-ORDER BY robot, firmware
+ORDER BY robot NULLS LAST, firmware NULLS LAST
 """
 
 #: report name -> its SQL template ({p50}/{p99} filled per engine).
