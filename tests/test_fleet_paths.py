@@ -14,7 +14,7 @@ import pytest
 pytest.importorskip("pyarrow")
 
 from tests.test_fleet import CAPTURES, START
-from tools.synth_fleet import Fault, write_capture
+from tools.synth_fleet import Fault, write_capture, write_recording
 
 FAULTS = (
     Fault("cnt", "*", "*", 212),
@@ -67,6 +67,17 @@ def both_paths(
     return tables[True], fast_whole
 
 
+def _damage(tmp_path: Path, path: Path) -> dict[bool, list[str]]:
+    """The damage each path's export named (its ``_recordings`` entry), by ``fast``."""
+    import json
+
+    out = {}
+    for fast in (True, False):
+        (mark,) = (tmp_path / f"ds-{fast}-{path.name}" / "_recordings").glob("*.json")
+        out[fast] = json.loads(mark.read_text())["damage"]
+    return out
+
+
 def _synth_capture(path: Path, frames: int, pcapng: bool = False) -> Path:
     """A synthetic recording's traffic as a capture (pcapng: as scapy writes it)."""
     pcap = path.with_suffix(".pcap")
@@ -105,15 +116,18 @@ def test_the_field_capture_gives_the_general_paths_rows(
     assert tables["frames"] and tables["problems"]
 
 
-def test_a_damaged_capture_goes_the_general_path(
+def test_a_damaged_capture_goes_the_windowed_path(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """A capture cut inside a packet: the general path names the damage, rows the same."""
+    """A capture cut inside a packet: imported and windowed (a window of 64 frames), its
+    damage named as the general path names it, the rows the same."""
     path = _synth_capture(tmp_path / "cut.pcap", 300)
     data = path.read_bytes()
     path.write_bytes(data[: len(data) - 7])
-    tables, whole = both_paths(path, tmp_path, monkeypatch)
-    assert len(whole) == 1 and tables["frames"]
+    tables, whole = both_paths(path, tmp_path, monkeypatch, window=64)
+    assert whole == [] and len(tables["frames"]) > 200
+    damage = _damage(tmp_path, path)
+    assert damage[True] == damage[False] and damage[True]
 
 
 @pytest.mark.parametrize(
@@ -228,3 +242,30 @@ def test_problems_go_the_fast_path_unless_blamed_on_a_request(
             r for r in tables["problems"] if r["direction"] == "s2c" and r["kind"] == "malformed"
         ]
         assert blamed and {r["cmd_id"] for r in blamed} == {212}
+
+
+def _synth(path: Path, frames: int) -> Path:
+    """A small synthetic recording of many chunks (4 KiB) and messages (64 frames)."""
+    write_recording(path, "r01", "3.9.8", frames, FAULTS, START, chunk_size=4096, batch_frames=64)
+    return path
+
+
+@pytest.mark.parametrize("how", ["cut", "flipped"])
+def test_a_damaged_recording_goes_the_windowed_path(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, how: str
+) -> None:
+    """A recording cut off two thirds in (an unfinished file: no summary) or with a byte
+    flipped inside a chunk (its CRC fails: the chunk is skipped and named): windowed
+    (a window of 64 frames), the rows and the damage those of the general path."""
+    path = _synth(tmp_path / f"{how}.mcap", 2000)
+    data = bytearray(path.read_bytes())
+    if how == "cut":
+        data = data[: len(data) * 2 // 3]
+    else:
+        data[len(data) // 2] ^= 0xFF
+    path.write_bytes(bytes(data))
+    tables, whole = both_paths(path, tmp_path, monkeypatch, window=64)
+    assert whole == [] and 600 < len(tables["frames"]) < 2000
+    damage = _damage(tmp_path, path)
+    assert damage[True] == damage[False]
+    assert bool(damage[True]) == (how == "flipped")

@@ -35,6 +35,7 @@ from conformance.firmware import version_tuple  # noqa: E402
 from conformance.frame import Frame, decode_all, encode_frame  # noqa: E402
 from conformance.model import Controller  # noqa: E402
 from conformance.recording import (  # noqa: E402
+    BATCH_FRAMES,
     C2S,
     S2C,
     ConnectionRecord,
@@ -134,10 +135,14 @@ def write_recording(
     faults: Sequence[Fault],
     start_ns: int,
     layout: int | None = None,
+    *,
+    chunk_size: int = 1 << 20,
+    batch_frames: int | None = None,
 ) -> int:
     """One robot's recording on one firmware: ``frames`` frames (requests and replies);
     returns how many were written.  ``layout``: the recording layout (default: the
-    writer's)."""
+    writer's); ``chunk_size``, ``batch_frames``: the MCAP chunks' size and the frames a
+    message holds at most (small: many chunks and messages in a small file)."""
     replies = reply_data(firmware)
     mine = {(f.kind, f.cmd_id) for f in faults if f.hits(robot, firmware)}
     encoded: dict[tuple[int, int, str], bytes] = {}
@@ -160,7 +165,9 @@ def write_recording(
     seen: dict[int, int] = {}
     if layout is not None:
         md["format"] = f"fairino-conformance/{layout}"
-    with RecordingWriter(path, metadata=md) as w:
+    with RecordingWriter(
+        path, metadata=md, chunk_size=chunk_size, batch_frames=batch_frames or BATCH_FRAMES
+    ) as w:
         while written < frames:
             conn += 1
             w.write(

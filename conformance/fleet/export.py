@@ -52,6 +52,7 @@ from .window import WINDOW, OutOfOrder, Windows
 
 if TYPE_CHECKING:
     from ..pcap.read import CaptureDamage
+    from ..recording.salvage import Damage
 
 __all__ = [
     "RECORDING_SUFFIXES",
@@ -430,6 +431,7 @@ def _fast(
     firmware: str | None,
     data: bool,
     window: int,
+    lost: Sequence[CaptureDamage] = (),
 ) -> str:
     """A clean recording a window at a time (:mod:`.window`), its rows named ``name``:
     "done"; else nothing is written, and "general" for one the fast path does not take,
@@ -492,8 +494,17 @@ def _fast(
         return "whole" if isinstance(e, OutOfOrder) else "general"
     conns = stream.connections
     times = [*(c.t_ns for c in conns), *([win.first_ns] if win.first_ns is not None else [])]
+    result.damage = _damage(stream.damage, lost)
     _finish(result, dataset, tables, stream.metadata, conns, robot, times)
     return "done"
+
+
+def _damage(walk: Sequence[Damage], lost: Sequence[CaptureDamage]) -> list[str]:
+    """The damage named, as :func:`~conformance.pcap.read_capture` names it: the
+    recording's (what its walk skipped), then the capture's it was imported from."""
+    from ..pcap.importer import as_damage
+
+    return [str(d) for d in (*walk, *map(as_damage, lost))]
 
 
 def _is_capture(path: str) -> bool:
@@ -524,9 +535,8 @@ def _capture(
     with tempfile.TemporaryDirectory(prefix="fairino-export-") as d:
         mcap = os.path.join(d, "imported.mcap")
         import_pcap(path, mcap, damage=lost)
-        how = "general"
-        if not lost:  # a damaged capture: the general path names its damage
-            how = _fast(mcap, path, dataset, result, judge_for, robot, firmware, data, window)
+        # A damaged capture too: its damage is named beside the rows of what was read.
+        how = _fast(mcap, path, dataset, result, judge_for, robot, firmware, data, window, lost)
         if how != "done":
             args = (dataset, result, judge_for, robot, firmware, data, how == "whole", lost)
             _whole(mcap, path, *args)
@@ -558,6 +568,7 @@ def _whole(
         conns: Sequence[ConnectionRecord] = cols.connections
         fw = firmware or firmware_in(zip(cols.dir, cols.cmd_id, cols.data, strict=True))
         times = [*(c.t_ns for c in conns), *([min(cols.first_ns)] if cols.first_ns else [])]
+        result.damage = _damage(cols.damage, lost)
     else:
         rec = read_capture(path)
         if name != path:

@@ -48,7 +48,7 @@ from ..recording import (
 )
 from ..recording.frames_pb import BatchColumns, decode_columns, decode_one_frame
 from ..recording.layout import C2S, STATE_KIND
-from ..recording.salvage import MAGIC, Walk
+from ..recording.salvage import MAGIC, Damage, Walk
 from ..recording.traffic_pb import TrafficColumns, decode_traffic
 from .fast_pb import Pending, texts
 from .general import StateRow, read_problem, read_state
@@ -97,6 +97,8 @@ class Columns:
     #: The state packets' rows (:func:`read_columns`; a window's are its stream's).
     states: list[StateRow] = field(default_factory=list)
     problems: list[ProblemRecord] = field(default_factory=list)
+    #: The parts of the file that could not be read (:class:`~conformance.recording.salvage.Walk`).
+    damage: list[Damage] = field(default_factory=list)
 
     def np(self, name: str) -> Any:
         """A number column as a numpy int64 array (a view, no copy)."""
@@ -152,8 +154,9 @@ class ColumnStream:
     window the frames of whole messages, ``window`` of them or a few more (the last one
     fewer, maybe none; fewer also where ``window`` state packets came first); the
     metadata, the connections and the state packets as they are read.  Iterating
-    raises :class:`NotFast` where :func:`read_columns` returns None (a damaged file only
-    at the end: the windows given before are then to be thrown away)."""
+    raises :class:`NotFast` where :func:`read_columns` returns None (the windows given
+    before are then to be thrown away); the damage the walk skipped is :attr:`damage`
+    once the file is read."""
 
     def __init__(self, path: str, window: int) -> None:
         self.path, self.window = path, window
@@ -164,6 +167,8 @@ class ColumnStream:
         self.states: list[StateRow] = []
         #: The problems read since (gaps, the client's malformed bytes; without their bytes).
         self.problems: list[ProblemRecord] = []
+        #: The parts of the file the walk could not read (known once it is read).
+        self.damage: list[Damage] = []
         self._conns: set[int] = set()
 
     def __iter__(self) -> Iterator[Columns]:
@@ -253,9 +258,11 @@ class ColumnStream:
                     ):
                         self.metadata = dict(rec.metadata)
                 pending.flush(c)
-                if walk.damage or not self.metadata:
+                if not self.metadata:
                     raise NotFast
-                self.complete = walk.complete
+                # A damaged chunk or region is skipped by the walk as by the reader's: the
+                # records read are the same, and the damage named the same.
+                self.complete, self.damage = walk.complete, walk.damage
         except (
             ValueError,
             KeyError,
@@ -286,7 +293,7 @@ def read_columns(path: str) -> Columns | None:
     except NotFast:
         return None
     c.metadata, c.connections, c.complete = s.metadata, s.connections, s.complete
-    c.states, c.problems = s.states, s.problems
+    c.states, c.problems, c.damage = s.states, s.problems, s.damage
     return c
 
 
