@@ -24,8 +24,9 @@ from typing import Any, Protocol
 
 from ..judge import Judge
 from ..recording import ConnectionRecord
-from .fast import Columns, NotFast, VerdictRows, judge_columns
+from .fast import Columns, NotFast
 from .schema import VERDICT_COLUMNS
+from .verdicts import VerdictRows, judge_columns
 
 __all__ = ["WINDOW", "OutOfOrder", "Windows"]
 

@@ -1,0 +1,92 @@
+"""A recording's frames as columns (:class:`Columns`): what the fast path reads
+(:mod:`.fast`), judges (:mod:`.verdicts`) and writes a window at a time (:mod:`.window`)."""
+
+from __future__ import annotations
+
+from array import array
+from dataclasses import dataclass, field
+from typing import Any
+
+from ..recording import ConnectionRecord, ProblemRecord
+from ..recording.salvage import Damage
+from .general import StateRow
+
+__all__ = ["FRAME_COLUMNS", "Columns"]
+
+
+def _ints() -> array[int]:
+    return array("q")
+
+
+@dataclass
+class Columns:
+    """A clean recording's frames as columns (file order), its connections and metadata.
+
+    Numbers are kept as 64-bit arrays (8 bytes a value, not a Python int each), DATA
+    strings interned (a fleet sends the same few again and again): a million frames take
+    some 60 MB, not half a gigabyte."""
+
+    metadata: dict[str, str] = field(default_factory=dict)
+    connections: list[ConnectionRecord] = field(default_factory=list)
+    conn: array[int] = field(default_factory=_ints)
+    transport: list[str] = field(default_factory=list)
+    dir: list[str] = field(default_factory=list)
+    cnt: array[int] = field(default_factory=_ints)
+    cmd_id: array[int] = field(default_factory=_ints)
+    name: list[str | None] = field(default_factory=list)
+    data: list[str] = field(default_factory=list)
+    length: array[int] = field(default_factory=_ints)
+    first_ns: array[int] = field(default_factory=_ints)
+    complete_ns: array[int] = field(default_factory=_ints)
+    #: 1 for a request (c2s), 0 for a reply: ``dir`` as bytes.
+    request: array[int] = field(default_factory=lambda: array("b"))
+    complete: bool = True
+    #: The state packets' rows (:func:`read_columns`; a window's are its stream's).
+    states: list[StateRow] = field(default_factory=list)
+    problems: list[ProblemRecord] = field(default_factory=list)
+    #: The parts of the file that could not be read (:class:`~conformance.recording.salvage.Walk`).
+    damage: list[Damage] = field(default_factory=list)
+
+    def np(self, name: str) -> Any:
+        """A number column as a numpy int64 array (a view, no copy)."""
+        import numpy as np
+
+        return np.frombuffer(getattr(self, name), dtype=np.int64)
+
+    def __len__(self) -> int:
+        return len(self.cnt)
+
+    def extend(self, other: Columns) -> None:
+        """``other``'s frames after these."""
+        for k in FRAME_COLUMNS:
+            getattr(self, k).extend(getattr(other, k))
+
+    def take(self, at: Any) -> Columns:
+        """The frames at the indices ``at`` (numpy), in that order."""
+        import numpy as np
+
+        out = Columns()
+        n = len(at)
+        if n and int(at[0]) + n - 1 == int(at[-1]) and (n == 1 or (np.diff(at) == 1).all()):
+            # A run of frames (a window's ready ones, those that wait: most often a head
+            # and a tail): sliced in C, not looked up frame by frame.
+            a, b = int(at[0]), int(at[-1]) + 1
+            for k in FRAME_COLUMNS:
+                getattr(out, k).extend(getattr(self, k)[a:b])
+            return out
+        idx = at.tolist()
+        for k in FRAME_COLUMNS:
+            mine = getattr(self, k)
+            if isinstance(mine, array):
+                dtype = np.int8 if mine.typecode == "b" else np.int64
+                getattr(out, k).frombytes(np.frombuffer(mine, dtype=dtype)[at].tobytes())
+            else:
+                getattr(out, k).extend([mine[i] for i in idx])
+        return out
+
+
+#: A frame's columns in :class:`Columns`.
+FRAME_COLUMNS = (
+    *("conn", "transport", "dir", "cnt", "cmd_id", "name", "data", "length"),
+    *("first_ns", "complete_ns", "request"),
+)
