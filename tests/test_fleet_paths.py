@@ -269,3 +269,46 @@ def test_a_damaged_recording_goes_the_windowed_path(
     damage = _damage(tmp_path, path)
     assert damage[True] == damage[False]
     assert bool(damage[True]) == (how == "flipped")
+
+
+def _with_flaws(path: Path, layout: int) -> Path:
+    """Two connections' request/reply traffic, every fifth request's LEN two off
+    (``len_mismatch``), six others sent with ``II`` separators (``bad_separator``), and
+    every ninth reply's LEN off: frame batches with framing problems (the recorder writes
+    a frame it decided only once its sender went quiet after the reply that answered it)."""
+    from conformance.recording import RecordingWriter, StreamRecorder, default_metadata
+
+    def wire(cnt: int, cmd_id: int, data: str, off: bool, sep: bool = False) -> bytes:
+        n = len(data.encode()) + (2 if off else 0)
+        raw = b"/f/bIII%dIII%dIII%dIII%sIII/b/f" % (cnt, cmd_id, n, data.encode())
+        return raw.replace(b"III", b"II") if sep else raw
+
+    md = {**default_metadata(START, robot="r05"), "format": f"fairino-conformance/{layout}"}
+    with RecordingWriter(path, metadata=md, batch_frames=16) as w:
+        rec = StreamRecorder(w)
+        t = START
+        for conn in (1, 2):
+            rec.open(conn, t_ns=t, client=f"10.0.0.1:{40000 + conn}", upstream="10.0.0.2:8080")
+            for cnt in range(1, 60):
+                t += 1_000_000
+                rec.data(conn, "c2s", t, wire(cnt, 212, "GetDI(0,0)", cnt % 5 == 0, cnt % 10 == 3))
+                rec.data(conn, "s2c", t + 500_000, wire(cnt, 212, "1", cnt % 9 == 0))
+            rec.close(conn, t_ns=t + 2_000_000, reason="client closed")
+        rec.finish(t_ns=t + 3_000_000)
+    return path
+
+
+@pytest.mark.parametrize("layout", [2, 3, 4])
+def test_frame_batches_with_framing_problems_go_the_windowed_path(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, layout: int
+) -> None:
+    """Frame batches carrying framing problems (layout 2's JSON, 3's protobuf, 4's
+    traffic): windowed (8 frames a window), each such frame judged alone, ``len_ok``
+    False where its LEN does not fit; the rows those of the general path."""
+    path = _with_flaws(tmp_path / f"flaws-{layout}.mcap", layout)
+    tables, whole = both_paths(path, tmp_path, monkeypatch, window=8)
+    assert whole == []
+    frames = tables["frames"]
+    assert len(frames) == 236
+    assert sum(not r["len_ok"] for r in frames) == 2 * (11 + 6)
+    assert {"len_mismatch", "bad_separator"} <= {r["rule"] for r in frames}

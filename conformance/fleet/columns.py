@@ -20,7 +20,7 @@ def _ints() -> array[int]:
 
 @dataclass
 class Columns:
-    """A clean recording's frames as columns (file order), its connections and metadata.
+    """A recording's frames as columns (file order), its connections and metadata.
 
     Numbers are kept as 64-bit arrays (8 bytes a value, not a Python int each), DATA
     strings interned (a fleet sends the same few again and again): a million frames take
@@ -40,12 +40,26 @@ class Columns:
     complete_ns: array[int] = field(default_factory=_ints)
     #: 1 for a request (c2s), 0 for a reply: ``dir`` as bytes.
     request: array[int] = field(default_factory=lambda: array("b"))
+    #: Each frame's framing problems (the decoder's, as the recording names them; most
+    #: often none: the one empty tuple).
+    flaws: list[tuple[str, ...]] = field(default_factory=list)
+    #: Each frame's offset in its stream (connection and direction).
+    offset: array[int] = field(default_factory=_ints)
+    #: Each frame's number in the recording (file order, from 0; :mod:`.fast` numbers a
+    #: window's as it gives it).
+    seq: array[int] = field(default_factory=_ints)
     complete: bool = True
     #: The state packets' rows (:func:`read_columns`; a window's are its stream's).
     states: list[StateRow] = field(default_factory=list)
     problems: list[ProblemRecord] = field(default_factory=list)
     #: The parts of the file that could not be read (:class:`~conformance.recording.salvage.Walk`).
     damage: list[Damage] = field(default_factory=list)
+
+    def flawed(self) -> Any:
+        """Which frames have framing problems (numpy bool)."""
+        import numpy as np
+
+        return np.fromiter(map(bool, self.flaws), dtype=bool, count=len(self.flaws))
 
     def np(self, name: str) -> Any:
         """A number column as a numpy int64 array (a view, no copy)."""
@@ -80,6 +94,8 @@ class Columns:
             if isinstance(mine, array):
                 dtype = np.int8 if mine.typecode == "b" else np.int64
                 getattr(out, k).frombytes(np.frombuffer(mine, dtype=dtype)[at].tobytes())
+            elif k == "flaws" and mine.count(()) == len(mine):
+                out.flaws += [()] * n  # no framing problem (as a rule): nothing to look up
             else:
                 getattr(out, k).extend([mine[i] for i in idx])
         return out
@@ -88,5 +104,5 @@ class Columns:
 #: A frame's columns in :class:`Columns`.
 FRAME_COLUMNS = (
     *("conn", "transport", "dir", "cnt", "cmd_id", "name", "data", "length"),
-    *("first_ns", "complete_ns", "request"),
+    *("first_ns", "complete_ns", "request", "flaws", "offset", "seq"),
 )

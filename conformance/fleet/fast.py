@@ -88,6 +88,7 @@ class ColumnStream:
         #: The parts of the file the walk could not read (known once it is read).
         self.damage: list[Damage] = []
         self._conns: set[int] = set()
+        self._frames = 0  # frames given so far
 
     def __iter__(self) -> Iterator[Columns]:
         from mcap.records import Channel, Message, Metadata
@@ -117,8 +118,7 @@ class ColumnStream:
                         topic = topics.get(rec.channel_id)
                         if topic == TOPIC_FRAMES and rec.channel_id in binary:  # layout 4
                             pending.flush(c)
-                            if not _traffic(c, decode_traffic(rec.data)):
-                                raise NotFast
+                            _traffic(c, decode_traffic(rec.data), flaws=True)
                             if len(c.cnt) >= self.window:
                                 self._check(c)
                                 yield c
@@ -133,8 +133,7 @@ class ColumnStream:
                                     _one_frame(c, one)
                                 elif not pending.add(rec.data):
                                     pending.flush(c)
-                                    if not _binary_batch(c, decode_columns(rec.data)):
-                                        raise NotFast
+                                    _binary_batch(c, decode_columns(rec.data), flaws=True)
                             else:
                                 pending.flush(c)
                                 doc, raw_size = _message(rec.data)
@@ -195,10 +194,13 @@ class ColumnStream:
         yield c
 
     def _check(self, c: Columns) -> None:
+        """A window checked as the fast path needs it, and its frames numbered."""
+        c.seq.extend(range(self._frames, self._frames + len(c)))
+        self._frames += len(c)
         self._conns.update(c.conn)
         if len(self._conns) > _CONNECTIONS:
             raise NotFast
-        numbers = ("conn", "cnt", "cmd_id", "length", "first_ns", "complete_ns")
+        numbers = ("conn", "cnt", "cmd_id", "length", "offset", "first_ns", "complete_ns")
         if c.cnt and min(int(c.np(k).min()) for k in numbers) < 0:
             raise NotFast  # the recording's numbers are non-negative: the reader names the one
 
@@ -241,7 +243,7 @@ _INT = {int}
 
 def _batch(c: Columns, d: Any, raw_size: int) -> bool:
     """Add one ``fairino.Frames`` message's columns; False for one the fast path leaves."""
-    if not isinstance(d, dict) or "problems" in d or not isinstance(d.get("cnt"), list):
+    if not isinstance(d, dict) or not isinstance(d.get("cnt"), list):
         return False
     sizes = d.get("size")
     if not isinstance(sizes, list) or not {*map(type, sizes)} <= _INT or sum(sizes) != raw_size:
@@ -250,8 +252,9 @@ def _batch(c: Columns, d: Any, raw_size: int) -> bool:
     complete = d["complete_ns"]
     first: list[int] = d["first_ns"] if "first_ns" in d else complete  # noqa: SIM401
     names = d.get("name", [None] * n)
-    cols = (d["cmd_id"], d["data"], d["len"], complete, first, names, sizes)
-    if any(not isinstance(x, list) or len(x) != n for x in cols):
+    flaws = _flaws(d["problems"], n) if "problems" in d else [()] * n
+    cols = (d["cmd_id"], d["data"], d["len"], d["offset"], complete, first, names, sizes)
+    if flaws is None or any(not isinstance(x, list) or len(x) != n for x in cols):
         return False
     conn, transport, direction = d["conn"], d.get("transport", "tcp"), d["dir"]
     if type(conn) is not int or direction not in ("c2s", "s2c") or type(transport) is not str:
@@ -270,17 +273,32 @@ def _batch(c: Columns, d: Any, raw_size: int) -> bool:
     c.name += names if names.count(None) == n else map(_intern_name, names)
     c.data += map(sys.intern, d["data"])
     c.length.extend(d["len"])
+    c.offset.extend(d["offset"])
     c.first_ns.extend(first)
     c.complete_ns.extend(complete)
+    c.flaws += flaws
     return True
 
 
-def _binary_batch(c: Columns, b: BatchColumns) -> bool:
+def _flaws(problems: Any, n: int) -> list[tuple[str, ...]] | None:
+    """A JSON batch's ``problems`` (a list of strings a frame) as :attr:`Columns.flaws`;
+    None for anything else (the reader names it)."""
+    if not isinstance(problems, list) or len(problems) != n:
+        return None
+    out: list[tuple[str, ...]] = []
+    for p in problems:
+        if not isinstance(p, list) or not all(type(x) is str for x in p):
+            return None
+        out.append(tuple(p) if p else ())
+    return out
+
+
+def _binary_batch(c: Columns, b: BatchColumns, *, flaws: bool = False) -> bool:
     """Add one layout-3 ``fairino.Frames`` message's columns (read and checked by
     :func:`~conformance.recording.frames_pb.decode_columns`: numpy arrays of values up to
-    2^63 - 1, so their bytes are the 64-bit arrays' as they are); False for one with
-    framing problems, which the general path judges."""
-    if b.problems is not None:
+    2^63 - 1, so their bytes are the 64-bit arrays' as they are); with ``flaws``, each
+    frame's framing problems with them, else False for a message with any."""
+    if b.problems is not None and not flaws:
         return False
     n = len(b.cnt)
     c.conn += array("q", [b.conn]) * n
@@ -290,6 +308,7 @@ def _binary_batch(c: Columns, b: BatchColumns) -> bool:
     _add_numbers(c, b)
     c.name += b.names
     c.data += map(sys.intern, b.datas())
+    c.flaws += [()] * n if b.problems is None else map(tuple, b.problems)
     return True
 
 
@@ -300,17 +319,18 @@ def _add_numbers(c: Columns, b: BatchColumns | TrafficColumns) -> None:
         (c.cnt, b.cnt),
         (c.cmd_id, b.cmd_id),
         (c.length, b.length),
+        (c.offset, b.offset),
         (c.first_ns, b.first_ns),
         (c.complete_ns, b.complete_ns),
     ):
         mine.frombytes(memoryview(theirs).cast("B"))
 
 
-def _traffic(c: Columns, b: TrafficColumns) -> bool:
+def _traffic(c: Columns, b: TrafficColumns, *, flaws: bool = False) -> bool:
     """Add one layout-4 ``fairino.Traffic`` message's columns (as :func:`_binary_batch`
     does; each frame's connection, transport and direction its stream table row's, taken
-    with numpy); False for one with framing problems."""
-    if b.problems is not None:
+    with numpy; ``flaws`` as there)."""
+    if b.problems is not None and not flaws:
         return False
     import numpy as np
 
@@ -325,6 +345,7 @@ def _traffic(c: Columns, b: TrafficColumns) -> bool:
     _add_numbers(c, b)
     c.name += b.names
     c.data += texts(b.data, b.data_size)  # as b.datas() reads them, interned
+    c.flaws += [()] * len(rows) if b.problems is None else map(tuple, b.problems)
     return True
 
 
@@ -342,3 +363,5 @@ def _one_frame(c: Columns, b: FrameBatch) -> None:
     c.length.append(b.lengths[0])
     c.first_ns.append(b.first_ns[0])
     c.complete_ns.append(b.complete_ns[0])
+    c.offset.append(b.offsets[0])
+    c.flaws.append(())

@@ -141,10 +141,12 @@ class Pending:
             (c.cnt, 4),
             (c.cmd_id, 5),
             (c.length, 10),
+            (c.offset, 11),
             (c.first_ns, 12),
             (c.complete_ns, 13),
         ):
             mine.frombytes(col[k].tobytes())
+        c.flaws += [()] * self.frames  # framing problems: not taken (add)
         self.__init__()  # type: ignore[misc]
 
     def _name(self, raw: bytes) -> str:

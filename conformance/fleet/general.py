@@ -22,6 +22,7 @@ __all__ = [
     "StateRow",
     "frame_row",
     "general_rows",
+    "len_ok",
     "problem_row",
     "problem_rows",
     "read_problem",
@@ -51,10 +52,19 @@ def frame_row(f: FrameRecord, v: Verdict, port: int | None, data: bool) -> tuple
         f.cmd_id,
         name or f.name,
         length,
-        "len_mismatch" not in f.problems and "bad_len" not in f.problems,
+        len_ok(f.problems),
         f.data if data else None,
         *verdict,
     )
+
+
+#: The framing problems of a LEN that does not fit its DATA.
+_BAD_LEN = frozenset(("len_mismatch", "bad_len"))
+
+
+def len_ok(problems: Iterable[str]) -> bool:
+    """A frame's ``len_ok``: none of its framing problems says its LEN does not fit."""
+    return _BAD_LEN.isdisjoint(problems)
 
 
 def general_rows(

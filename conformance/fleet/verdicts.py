@@ -12,6 +12,7 @@ from typing import Any
 
 from ..frame import Frame
 from ..judge import Judge, Verdict
+from ..recording import C2S, FrameRecord
 from .columns import Columns
 from .schema import VerdictColumns, verdict_columns
 
@@ -187,7 +188,7 @@ def judge_columns(
     rows, number = state.rows, state.number
     index: dict[int, int] = {}
     kept: list[Verdict] = []  # alive, so that each id() stays its verdict's
-    cnt_l, cmd_l, data, tr, length = c.cnt, c.cmd_id, c.data, c.transport, c.length
+    cnt_l, cmd_l, data, tr, length, flaws = c.cnt, c.cmd_id, c.data, c.transport, c.length, c.flaws
 
     def row(v: Verdict) -> int:
         k = index.get(id(v))
@@ -202,12 +203,30 @@ def judge_columns(
         return k
 
     def frame(i: int) -> Frame:
+        if flaws[i]:  # the rules as the reader's records name them
+            return FrameRecord(
+                conn=0,
+                dir=C2S,
+                cnt=cnt_l[i],
+                cmd_id=cmd_l[i],
+                data=data[i],
+                raw=b"",
+                complete_ns=0,
+                length=length[i],
+                problems=flaws[i],
+            ).frame()
         return Frame(cnt=cnt_l[i], cmd_id=cmd_l[i], data=data[i], length=length[i])
 
     if n == 0:
         return qs, ps, which, rows
     cnt, cmd, conn = c.np("cnt"), c.np("cmd_id"), c.np("conn")
     dcode = _codes(data)
+    flawed = c.flawed()
+    if flawed.any():
+        # A frame with framing problems is judged alone (MemoJudge remembers none): a
+        # DATA code of its own makes it a distinct frame, and a reply to it one too.
+        at = np.flatnonzero(flawed)
+        dcode[at] = -1 - at
     # One transport a connection: the transports' codes from the connections'.
     tcode = _codes(tr) if len({*tr}) > 1 else np.zeros(n, dtype=np.int64)
     q = np.array(qs, dtype=np.int64)

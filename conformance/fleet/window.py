@@ -25,6 +25,7 @@ from typing import Any, Protocol
 from ..judge import Judge
 from ..recording import ConnectionRecord
 from .fast import Columns, NotFast
+from .general import len_ok
 from .schema import VERDICT_COLUMNS
 from .verdicts import VerdictRows, judge_columns
 
@@ -194,7 +195,7 @@ class Windows:
                     "cmd_id": pa.array(c.np("cmd_id")[k:]),
                     "name": names.slice(k),
                     "len": pa.array(c.np("length")[k:]),
-                    "len_ok": pa.repeat(pa.scalar(True), n - k),  # a LEN that does not fit: general
+                    "len_ok": _len_ok(c.flaws[k:]),
                     "data": pa.array(c.data[k:], type=pa.string())
                     if self.data
                     else pa.nulls(n - k, pa.string()),
@@ -294,3 +295,12 @@ def _directions(request: Any) -> Any:
     return pa.DictionaryArray.from_arrays(
         pa.array(other.astype(np.int32)), pa.array(values, pa.string())
     )
+
+
+def _len_ok(flaws: list[tuple[str, ...]]) -> Any:
+    """The ``len_ok`` column of frames with these framing problems."""
+    import pyarrow as pa
+
+    if flaws.count(()) == len(flaws):
+        return pa.repeat(pa.scalar(True), len(flaws))
+    return pa.array(list(map(len_ok, flaws)), type=pa.bool_())
