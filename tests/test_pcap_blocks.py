@@ -13,10 +13,6 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from scapy.layers.inet import IP, TCP, UDP, IPOption_NOP
-from scapy.layers.inet6 import IPv6
-from scapy.layers.l2 import ARP, Dot1Q, Ether
-from scapy.packet import Raw
 
 import conformance.pcap.read as pcap_read
 from conformance.frame import encode_frame
@@ -25,48 +21,82 @@ from conformance.pcap.read import RecordBlock, read_blocks
 from conformance.pcap.recorder import IMPORT_TOGETHER
 from conformance.recording import RecordingWriter, dump_json, read_recording
 from conformance.spec import default_specs
+from tests.packet_bytes import arp, tcp_packet, udp_packet
 
 T0 = 1_700_000_000
 
 
 class _Conn:
-    """One TCP connection's two directions, its bytes cut into segments."""
+    """One TCP connection's two directions, its bytes cut into segments (packets as bytes:
+    tests/packet_bytes.py, a thousand times quicker than scapy for captures this long)."""
 
-    def __init__(self, client: tuple[str, int], server: tuple[str, int], **layers: Any) -> None:
+    def __init__(
+        self,
+        client: tuple[str, int],
+        server: tuple[str, int],
+        vlan: int | None = None,
+        ip_options: bytes = b"",
+        tcp_options: bytes = b"",
+    ) -> None:
         self.ends = (client, server)
         self.seq = [1000, 9000]
-        self.layers = layers
+        self.vlan, self.ip_options, self.tcp_options = vlan, ip_options, tcp_options
 
-    def packet(self, d: int, flags: str = "PA", load: bytes = b"", seq: int | None = None) -> Any:
+    @property
+    def plain_ipv4(self) -> bool:
+        """IPv4 without options, untagged: its IP total length is at bytes 16-17."""
+        return ":" not in self.ends[0][0] and not self.ip_options and self.vlan is None
+
+    def packet(
+        self, d: int, flags: str = "PA", load: bytes = b"", seq: int | None = None, mf: bool = False
+    ) -> bytes:
         (sa, sp), (da, dp) = self.ends if d == 0 else self.ends[::-1]
-        v6 = ":" in sa
-        ip = IPv6(src=sa, dst=da) if v6 else IP(src=sa, dst=da, **self.layers.get("ip", {}))
-        eth = Ether(src="02:00:00:00:00:0c", dst="02:00:00:00:00:05")
-        if "vlan" in self.layers:
-            eth = eth / Dot1Q(vlan=self.layers["vlan"])
-        s = self.seq[d] if seq is None else seq
-        tcp = TCP(sport=sp, dport=dp, seq=s % 2**32, flags=flags, **self.layers.get("tcp", {}))
-        p = eth / ip / tcp
-        if load:
-            p = p / Raw(load=load)
-        return p
+        return tcp_packet(
+            sa, sp, da, dp, seq=self.seq[d] if seq is None else seq, flags=flags, load=load,
+            tcp_options=self.tcp_options, ip_options=self.ip_options, vlan=self.vlan, mf=mf,
+        )  # fmt: skip
 
-    def send(self, d: int, load: bytes, flags: str = "PA") -> Any:
+    def send(self, d: int, load: bytes, flags: str = "PA") -> bytes:
         p = self.packet(d, flags, load)
         self.seq[d] += len(load)
         return p
 
-    def handshake(self) -> list[Any]:
+    def handshake(self) -> list[bytes]:
         return [
             self.packet(0, "S", seq=self.seq[0] - 1),
             self.packet(1, "SA", seq=self.seq[1] - 1),
             self.packet(0, "A"),
         ]
 
-    def close(self) -> list[Any]:
+    def close(self) -> list[bytes]:
         fins = [self.packet(0, "FA"), self.packet(1, "FA")]
         self.seq[0] += 1
         return [*fins, self.packet(0, "A")]
+
+
+def test_packet_bytes_are_scapys() -> None:
+    """The builder's packets are scapy's, byte for byte (checksums included)."""
+    from scapy.layers.inet import IP, TCP, UDP, IPOption_NOP
+    from scapy.layers.inet6 import IPv6
+    from scapy.layers.l2 import Dot1Q, Ether
+    from scapy.packet import Raw
+
+    eth = Ether(src="02:00:00:00:00:0c", dst="02:00:00:00:00:05")
+    load = encode_frame(7, 201, 'MoveJ("P1")')
+    a, b = ("10.1.0.5", 40001), ("10.1.0.2", 8080)
+    cases = [
+        (_Conn(a, b).packet(0, "S", seq=5), eth / IP(src=a[0], dst=b[0]) / TCP(sport=a[1], dport=b[1], seq=5, flags="S")),
+        (_Conn(a, b).packet(1, "PA", load, seq=2**31), eth / IP(src=b[0], dst=a[0]) / TCP(sport=b[1], dport=a[1], seq=2**31, flags="PA") / Raw(load)),
+        (_Conn(("fd00::5", 1), ("fd00::2", 8080)).packet(0, load=load, seq=9), eth / IPv6(src="fd00::5", dst="fd00::2") / TCP(sport=1, dport=8080, seq=9, flags="PA") / Raw(load)),
+        (_Conn(a, b, vlan=7).packet(0, "FA", seq=3), eth / Dot1Q(vlan=7) / IP(src=a[0], dst=b[0]) / TCP(sport=a[1], dport=b[1], seq=3, flags="FA")),
+        (_Conn(a, b, ip_options=b"\x01" * 4).packet(0, load=load, seq=1, mf=True), eth / IP(src=a[0], dst=b[0], options=[IPOption_NOP()] * 4, flags="MF") / TCP(sport=a[1], dport=b[1], seq=1, flags="PA") / Raw(load)),
+        (_Conn(a, b, tcp_options=b"\x01" * 4).packet(0, "R", seq=1), eth / IP(src=a[0], dst=b[0]) / TCP(sport=a[1], dport=b[1], seq=1, flags="R", options=[("NOP", None)] * 4)),
+        (udp_packet(a[0], 5, b[0], 20007, load), Ether() / IP(src=a[0], dst=b[0]) / UDP(sport=5, dport=20007) / Raw(load)),
+    ]  # fmt: skip
+    for mine, theirs in cases[:-1]:
+        assert mine == bytes(theirs), theirs.summary()
+    mine, theirs = cases[-1]
+    assert mine[12:] == bytes(theirs)[12:]  # scapy's own MAC addresses there
 
 
 def write_pcap(path: Path, records: list[tuple[float, bytes, int]], nano: bool = False) -> None:
@@ -80,7 +110,7 @@ def write_pcap(path: Path, records: list[tuple[float, bytes, int]], nano: bool =
     path.write_bytes(b"".join(out))
 
 
-@functools.cache  # scapy builds a packet in about half a millisecond: once a process
+@functools.cache
 def varied(seed: int) -> list[tuple[float, bytes, int]]:
     """Request/reply on several connections (IPv4, IPv6, VLAN, IP and TCP options),
     interleaved, with segments out of order, retransmitted and overlapping, pure ACKs,
@@ -92,11 +122,18 @@ def varied(seed: int) -> list[tuple[float, bytes, int]]:
         _Conn(("10.1.0.6", 40002), ("10.1.0.2", 8080)),
         _Conn(("fd00::5", 40003), ("fd00::2", 8080)),
         _Conn(("10.1.0.7", 40004), ("10.1.0.2", 8080), vlan=7),
-        _Conn(("10.1.0.8", 40005), ("10.1.0.2", 8080), ip={"options": [IPOption_NOP()] * 4}),
-        _Conn(("10.1.0.9", 40006), ("10.1.0.2", 8080), tcp={"options": [("NOP", None)] * 4}),
+        _Conn(("10.1.0.8", 40005), ("10.1.0.2", 8080), ip_options=b"\x01" * 4),
+        _Conn(("10.1.0.9", 40006), ("10.1.0.2", 8080), tcp_options=b"\x01" * 4),
         _Conn(("10.1.0.10", 40007), ("10.1.0.2", 9999)),  # guessed: its first payload is a frame
     ]
-    pk: list[Any] = [p for c in conns for p in c.handshake()]
+    # Each packet with whether it is plain IPv4/TCP (no options, no tag): TSO's length 0.
+    pk: list[tuple[bytes, bool]] = []
+
+    def add(c: _Conn, *packets: bytes) -> None:
+        pk.extend((p, c.plain_ipv4) for p in packets)
+
+    for c in conns:
+        add(c, *c.handshake())
     for cnt in range(1, 501):
         c = rng.choice(conns)
         req = encode_frame(cnt % 65536, 201, 'MoveJ("P1")')
@@ -104,44 +141,41 @@ def varied(seed: int) -> list[tuple[float, bytes, int]]:
         r = rng.random()
         if r < 0.05:  # a request in two segments, the second first
             a, b = c.send(0, req[:9]), c.send(0, req[9:])
-            pk += [b, a]
+            add(c, b, a)
         elif r < 0.08:  # retransmitted, and overlapping
             p = c.send(0, req)
-            pk += [p, p, c.packet(0, load=req[5:], seq=c.seq[0] - len(req) + 5)]
+            add(c, p, p, c.packet(0, load=req[5:], seq=c.seq[0] - len(req) + 5))
         elif r < 0.10:
-            pk.append(c.packet(1, "A"))  # a pure ACK
-            pk.append(c.send(0, req))
+            add(c, c.packet(1, "A"), c.send(0, req))  # a pure ACK, then the request
         elif r < 0.12:
-            pk.append(c.send(0, req[:7] + b"garbage"))
+            add(c, c.send(0, req[:7] + b"garbage"))
         else:
-            pk.append(c.send(0, req))
-        pk.append(c.send(1, rep))
+            add(c, c.send(0, req))
+        add(c, c.send(1, rep))
         if r > 0.995:
-            pk.append(Ether() / IP(src="10.1.0.5", dst="10.1.0.2") / UDP(sport=5, dport=20007)
-                      / Raw(load=encode_frame(1, 201, "1")))  # fmt: skip
+            pk.append(
+                (udp_packet("10.1.0.5", 5, "10.1.0.2", 20007, encode_frame(1, 201, "1")), False)
+            )
         if 0.5 < r < 0.503:
-            pk.append(Ether() / ARP())
-            frag = c.packet(0, load=req)  # the first fragment of a segment, next in order
-            if IP in frag and not frag[IP].options:
-                frag[IP].flags = "MF"
-                pk.append(frag)
+            pk.append((arp(), False))
+            if ":" not in c.ends[0][0] and not c.ip_options:  # IPv4 without IP options:
+                add(c, c.packet(0, load=req, mf=True))  # a segment's first fragment, in order
     # A reset, then the 4-tuple reused by a new connection.
-    pk.append(conns[0].packet(0, "R"))
+    add(conns[0], conns[0].packet(0, "R"))
     again = _Conn(("10.1.0.5", 40001), ("10.1.0.2", 8080))
     again.seq = [50000, 70000]
-    pk += [*again.handshake(), again.send(0, REQ), again.send(1, REP)]
+    add(again, *again.handshake(), again.send(0, REQ), again.send(1, REP))
     for c in conns[1:]:
-        pk += c.close()
+        add(c, *c.close())
     records: list[tuple[float, bytes, int]] = []
     t = float(T0)
-    for p in pk:
+    for data, plain in pk:
         t += rng.choice((0.0001, 0.0003, 0.3))
-        data = bytes(p)
         if rng.random() < 0.01:  # cut by the snap length
             cut = rng.randrange(20, len(data))
             records.append((t, data[:cut], len(data)))
             continue
-        if rng.random() < 0.01 and IP in p and TCP in p and not p[IP].options:
+        if rng.random() < 0.01 and plain:
             data = data[:16] + b"\x00\x00" + data[18:]  # IP total length 0 (TSO)
         if rng.random() < 0.01:
             data += b"\x00" * 8  # Ethernet padding
@@ -218,7 +252,7 @@ def clean(seed: int) -> list[tuple[float, bytes, int]]:
     rarely a request retransmitted (after a pure ACK or not) or out of order."""
     rng = random.Random(seed)
     conns = [_Conn((f"10.1.0.{5 + k}", 40001 + k), ("10.1.0.2", 8080)) for k in range(3)]
-    pk: list[Any] = [p for c in conns for p in c.handshake()]
+    pk: list[bytes] = [p for c in conns for p in c.handshake()]
     for cnt in range(1, 801):
         c = conns[0] if cnt < 250 else rng.choice(conns)
         req = encode_frame(cnt % 65536, 201, 'MoveJ("P1")')
@@ -226,8 +260,8 @@ def clean(seed: int) -> list[tuple[float, bytes, int]]:
             run = req * rng.randrange(2, 90)
             cuts = sorted(rng.sample(range(1, len(run)), rng.randrange(1, 80)))
             d = rng.randrange(2)
-            for a, b in zip([0, *cuts], [*cuts, len(run)], strict=True):
-                pk.append(c.send(d, run[a:b]))
+            for i, j in zip([0, *cuts], [*cuts, len(run)], strict=True):
+                pk.append(c.send(d, run[i:j]))
         else:
             pk.append(c.send(0, req))
             pk.append(c.send(1, encode_frame(cnt % 65536, 201, "1")))
@@ -241,8 +275,7 @@ def clean(seed: int) -> list[tuple[float, bytes, int]]:
             pk += [b, a]
     for c in conns:
         pk += c.close()
-    rendered = map(bytes, pk)
-    return [(T0 + k * 0.0001, b, len(b)) for k, b in enumerate(rendered)]
+    return [(T0 + k * 0.0001, b, len(b)) for k, b in enumerate(pk)]
 
 
 @pytest.mark.parametrize("chunk", [1 << 20, 20000, 8000])
