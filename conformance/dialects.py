@@ -381,7 +381,8 @@ def load_dialects(
     sources: dict[str, str] = {}
     for p in _files(d):
         try:
-            doc = json.loads(p.read_text(encoding="utf-8"))
+            raw = p.read_bytes()
+            doc = json.loads(raw.decode("utf-8"))
         except json.JSONDecodeError as e:
             raise SpecError(f"not valid JSON: {e}", path=str(p)) from None
         except UnicodeDecodeError as e:
@@ -389,7 +390,7 @@ def load_dialects(
         if not isinstance(doc, dict) or doc.get("kind") != "dialects":
             raise SpecError("not a dialect file (kind must be 'dialects')", path=str(p))
         if validate:
-            validate_document(doc, path=str(p))
+            validate_document(doc, path=str(p), raw=raw)
         source = doc["source"]["name"]
         if source in sources:
             raise SpecError(f"source {source!r} is named by two files", path=str(p))

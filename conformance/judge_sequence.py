@@ -241,13 +241,14 @@ def load_sequences(
     seen: set[str] = set()
     for p in sorted(x for x in d.glob("*.json") if x.is_file()):
         try:
-            doc = json.loads(p.read_text(encoding="utf-8"))
+            raw = p.read_bytes()
+            doc = json.loads(raw.decode("utf-8"))
         except (json.JSONDecodeError, UnicodeDecodeError) as e:
             raise SpecError(f"not valid UTF-8 JSON: {e}", path=str(p)) from None
         if not isinstance(doc, dict) or doc.get("kind") != "sequences":
             raise SpecError("not a sequence file (kind must be 'sequences')", path=str(p))
         if validate:
-            validate_document(doc, path=str(p))
+            validate_document(doc, path=str(p), raw=raw)
         for raw in doc["modes"]:
             mode = _mode(raw, str(p))
             for i in (mode.id, *(r.id for r in mode.rules.values())):

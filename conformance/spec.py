@@ -385,17 +385,20 @@ def schema_path() -> Path:
     return specs_root() / "spec.schema.json"
 
 
-def _read_json(path: Path) -> dict[str, Any]:
+def _read_json(path: Path) -> tuple[dict[str, Any], bytes]:
+    """The spec file's document and its bytes (:func:`validate_document` hashes them)."""
     try:
-        with path.open(encoding="utf-8") as f:
-            doc = json.load(f)
+        raw = path.read_bytes()
+        doc = json.loads(raw.decode("utf-8"))
     except FileNotFoundError:
         raise SpecError("spec file not found", path=str(path)) from None
     except json.JSONDecodeError as e:
         raise SpecError(f"not valid JSON: {e}", path=str(path)) from None
+    except UnicodeDecodeError as e:
+        raise SpecError(f"not UTF-8: {e}", path=str(path)) from None
     if not isinstance(doc, dict):
         raise SpecError("top level must be an object", path=str(path))
-    return doc
+    return doc, raw
 
 
 CACHE_ENV = "FAIRINO_CACHE_DIR"
@@ -411,21 +414,27 @@ def _cache_dir() -> Path:
     return Path(base) / "fairino-conformance"
 
 
-def validate_document(doc: Mapping[str, Any], *, path: str = "<document>") -> None:
+def validate_document(
+    doc: Mapping[str, Any], *, path: str = "<document>", raw: bytes | None = None
+) -> None:
     """Validate one spec document against ``specs/spec.schema.json``.
 
     Validation with jsonschema costs about 0.6 s of CPU for the shipped spec set and
     dialects, in every process that loads them (each CLI call).  A document that passed
-    is remembered by the SHA-256 of the schema and of the document's canonical JSON (a
-    stamp file in :func:`_cache_dir`), so the same bytes under the same schema are not
-    checked again; anything else is validated in full.  An unwritable cache only costs
-    the time.
+    is remembered by the SHA-256 of the schema and of the document (a stamp file in
+    :func:`_cache_dir`), so the same bytes under the same schema are not checked again;
+    anything else is validated in full.  An unwritable cache only costs the time.  The
+    document is hashed as ``raw``, the file's bytes it was read from, when given (writing
+    the canonical JSON to hash it cost each CLI process about 20 ms).
     """
     import hashlib
 
     schema_bytes = schema_path().read_bytes()
     digest = hashlib.sha256(schema_bytes)
-    digest.update(json.dumps(doc, sort_keys=True, ensure_ascii=False).encode("utf-8"))
+    if raw is not None:
+        digest.update(b"file bytes:" + raw)
+    else:
+        digest.update(json.dumps(doc, sort_keys=True, ensure_ascii=False).encode("utf-8"))
     stamp = _cache_dir() / f"valid-{digest.hexdigest()[:40]}"
     if stamp.exists():
         return
@@ -564,14 +573,15 @@ _OPTIONAL_FILES = frozenset({"semantics"})
 def load_specs(directory: Path | str | None = None, *, validate: bool = True) -> SpecSet:
     """Load one spec set (default: ``specs/fairino-3.8.2``), validating it against the schema."""
     d = Path(directory) if directory is not None else specs_root() / DEFAULT_SPEC_SET
-    docs = {
+    read = {
         name: _read_json(d / f"{name}.json")
         for name in _SPEC_FILES
         if name not in _OPTIONAL_FILES or (d / f"{name}.json").is_file()
     }
+    docs = {name: doc for name, (doc, _) in read.items()}
     if validate:
-        for name, doc in docs.items():
-            validate_document(doc, path=str(d / f"{name}.json"))
+        for name, (doc, raw) in read.items():
+            validate_document(doc, path=str(d / f"{name}.json"), raw=raw)
     cdoc = docs["commands"]
     specs = SpecSet.build(
         spec_version=cdoc["spec_version"],

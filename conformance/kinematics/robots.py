@@ -173,7 +173,8 @@ def load_robots(path: Path | str | None = None, *, validate: bool = True) -> Rob
     """Load a robots file (default ``specs/fairino-robots.json``), schema-validated."""
     p = Path(path) if path is not None else specs_root() / ROBOTS_FILE
     try:
-        doc = json.loads(p.read_text(encoding="utf-8"))
+        raw = p.read_bytes()
+        doc = json.loads(raw.decode("utf-8"))
     except FileNotFoundError:
         raise SpecError("robots file not found", path=str(p)) from None
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
@@ -181,7 +182,7 @@ def load_robots(path: Path | str | None = None, *, validate: bool = True) -> Rob
     if not isinstance(doc, dict) or doc.get("kind") != "robots":
         raise SpecError("not a robots file (kind must be 'robots')", path=str(p))
     if validate:
-        validate_document(doc, path=str(p))
+        validate_document(doc, path=str(p), raw=raw)
     robots: dict[str, Robot] = {}
     for raw in doc["robots"]:
         r = _robot(raw, str(p))
