@@ -12,6 +12,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from .blame import Blame
 from .frames_pb import decode_batch
 from .layout import (
     C2S,
@@ -96,70 +97,38 @@ class Recording:
         times = [f.complete_ns for f in self.frames] + [c.t_ns for c in self.connections]
         return max(times) if times else 0
 
-    def _malformed_runs(self) -> tuple[dict[int, FrameRecord], list[ProblemRecord]]:
-        """Each malformed run (by ``id()``) with the frame its sender sent next on that
-        connection and direction; and the runs no frame follows."""
-        before: dict[int, FrameRecord] = {}
-        trailing: list[ProblemRecord] = []
-        streams: dict[tuple[int, str], list[tuple[int, int, Any]]] = {}
+    def _blame(self) -> Blame[FrameRecord]:
+        """The one rule for whose a malformed run is (:mod:`.blame`), fed everything."""
+        b: Blame[FrameRecord] = Blame()
         for f in self.frames:
-            streams.setdefault((f.conn, f.dir), []).append((f.offset, 1, f))
+            b.frame(f, f.conn, f.dir, f.offset, f.first_ns or f.complete_ns)
         for p in self.problems:
-            if p.kind == "malformed":
-                streams.setdefault((p.conn, p.dir), []).append((p.offset, 0, p))
-        for items in streams.values():
-            items.sort(key=lambda x: (x[0], x[1]))
-            run: list[ProblemRecord] = []
-            for _, is_frame, x in items:
-                if is_frame:
-                    for p in run:
-                        before[id(p)] = x
-                    run = []
-                else:
-                    run.append(x)
-            trailing.extend(run)
-        return before, trailing
+            b.run(p)
+        b.finish()
+        return b
 
     def noise_before(self) -> dict[int, int]:
         """For each frame (by ``id()``), the malformed bytes its sender sent just before it
         (since the previous frame in that direction): garbage ahead of a reply."""
         out: dict[int, int] = {}
-        before, _ = self._malformed_runs()
-        by_id = {id(p): p for p in self.problems}
-        for pid, f in before.items():
-            out[id(f)] = out.get(id(f), 0) + by_id[pid].size
+        for p, f in self._blame().before():
+            out[id(f)] = out.get(id(f), 0) + p.size
         return out
 
     def answered_by(self) -> dict[int, FrameRecord]:
-        """The one rule for whose a controller's malformed run is: for each run of the
-        controller's (by ``id()``), the request it answered.
+        """For each run of the controller's (by ``id()``), the request it answered: the
+        one rule (:mod:`.blame`, which ``export-parquet`` follows a window at a time).
 
         That is the request of the reply it came just before (the garbage ahead of a
         reply: :meth:`noise_before` gives its bytes to that reply, ``diff`` and ``replay``
         compare them per request), or the reply itself when no request is paired with it;
         a run no reply follows answered the last request its client sent before the run
         ended.  A run before any request answered none (absent)."""
-        before, trailing = self._malformed_runs()
-        request_of = {id(e.reply): e.request for e in self.exchanges() if e.reply is not None}
-        out: dict[int, FrameRecord] = {}
-        for p in self.problems:
-            if p.dir == C2S or id(p) not in before:
-                continue
-            reply = before[id(p)]
-            out[id(p)] = request_of.get(id(reply)) or reply
-        sent: dict[int, list[FrameRecord]] = {}
-        for f in self.frames:
-            if f.dir == C2S:
-                sent.setdefault(f.conn, []).append(f)
-        for p in trailing:
-            if p.dir == C2S:
-                continue
-            earlier = [
-                f for f in sent.get(p.conn, ()) if (f.first_ns or f.complete_ns) <= p.complete_ns
-            ]
-            if earlier:
-                out[id(p)] = max(earlier, key=lambda f: f.first_ns or f.complete_ns)
-        return out
+        b = self._blame()
+        for e in self.exchanges():
+            if e.reply is not None:
+                b.paired(e.reply, e.request)
+        return {id(p): f for p, f in b.settled() if f is not None}
 
     def requests(self) -> list[FrameRecord]:
         return [f for f in self.frames if f.dir == C2S]
