@@ -197,15 +197,29 @@ def test_a_proxy_recording_with_the_state_stream(
     assert {r["stream"] for r in tables["connections"]} == {"", "state"}
 
 
-def _with_problems(path: Path, controller_garbage: bool) -> Path:
-    """Two connections' request/reply traffic with the client's garbage between requests,
-    a gap each way, and (``controller_garbage``) garbage ahead of a reply."""
+def _with_problems(path: Path, garbage: str) -> Path:
+    """Two connections' request/reply traffic with the client's garbage between requests
+    and a gap each way; and the controller's garbage (``garbage``): ``before_reply``,
+    ahead of a reply (30's, 212); ``trailing``, after the last reply, which no reply
+    follows (the last request's, 214); ``first``, on two connections before them, before
+    any request: one whose client sends none (no one's), one before a reply the
+    controller sends unasked (500: that reply's), then requests never answered."""
     from conformance.frame import encode_frame
     from conformance.recording import RecordingWriter, StreamRecorder, default_metadata
 
     with RecordingWriter(path, metadata=default_metadata(START, robot="r05")) as w:
         rec = StreamRecorder(w)
         t = START
+        if garbage == "first":
+            for conn in (3, 4):
+                rec.open(conn, t_ns=t, client=f"10.0.0.1:{40000 + conn}", upstream="10.0.0.2:8080")
+                rec.data(conn, "s2c", t + 1, b"junk")
+                if conn == 4:
+                    rec.data(conn, "s2c", t + 2, encode_frame(1, 500, "0"))
+                    for cnt in range(1, 4):
+                        t += 1_000_000
+                        rec.data(conn, "c2s", t, encode_frame(cnt, 212, "GetDI(0,0)"))
+                rec.close(conn, t_ns=t + 1, reason="client closed")
         for conn in (1, 2):
             rec.open(conn, t_ns=t, client=f"10.0.0.1:{40000 + conn}", upstream="10.0.0.2:8080")
             for cnt in range(1, 40):
@@ -214,34 +228,40 @@ def _with_problems(path: Path, controller_garbage: bool) -> Path:
                     rec.data(conn, "c2s", t, b"\x00garbage\xff")
                 if cnt == 20:
                     rec.gap(conn, "c2s" if conn == 1 else "s2c", t, 17)
-                rec.data(conn, "c2s", t, encode_frame(cnt, 212, "GetDI(0,0)"))
-                if controller_garbage and cnt == 30:
+                cmd_id, data = (214, "GetAI(0,0)") if cnt == 39 else (212, "GetDI(0,0)")
+                rec.data(conn, "c2s", t, encode_frame(cnt, cmd_id, data))
+                if garbage == "before_reply" and cnt == 30:
                     rec.data(conn, "s2c", t + 1, b"junk")
-                rec.data(conn, "s2c", t + 500_000, encode_frame(cnt, 212, "1"))
+                rec.data(conn, "s2c", t + 500_000, encode_frame(cnt, cmd_id, "1"))
+            if garbage == "trailing":
+                rec.data(conn, "s2c", t + 600_000, b"junk")
             rec.close(conn, t_ns=t + 2_000_000, reason="client closed")
         rec.finish(t_ns=t + 3_000_000)
     return path
 
 
-@pytest.mark.parametrize("controller_garbage", [False, True])
-def test_problems_go_the_fast_path_unless_blamed_on_a_request(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, controller_garbage: bool
+@pytest.mark.parametrize(
+    ("garbage", "blamed"),
+    [("", set()), ("before_reply", {212}), ("trailing", {214}), ("first", {None, 500})],
+)
+def test_problems_go_the_windowed_path(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, garbage: str, blamed: set[int | None]
 ) -> None:
-    """Gaps and the client's malformed bytes are written window by window (check's
-    verdicts, blamed on no request); the controller's malformed bytes, blamed on the
-    request they answered, keep the recording on the general path.  The rows are the
-    general path's either way."""
-    path = _with_problems(tmp_path / "p.mcap", controller_garbage)
+    """Gaps and the client's malformed bytes (blamed on no request), and the controller's
+    malformed bytes, blamed on the request they answered (recording/blame.py: before a
+    reply, no reply after them, before any request), are written window by window (8
+    frames a window): check's verdicts, the rows those of the general path."""
+    path = _with_problems(tmp_path / "p.mcap", garbage)
     tables, whole = both_paths(path, tmp_path, monkeypatch, window=8)
-    assert len(whole) == controller_garbage
+    assert whole == []
     kinds = {(r["kind"], r["direction"]) for r in tables["problems"]}
     assert {("malformed", "c2s"), ("gap", "c2s"), ("gap", "s2c")} <= kinds
     assert len(tables["frames"]) > 100
-    if controller_garbage:
-        blamed = [
-            r for r in tables["problems"] if r["direction"] == "s2c" and r["kind"] == "malformed"
-        ]
-        assert blamed and {r["cmd_id"] for r in blamed} == {212}
+    controller = [
+        r for r in tables["problems"] if r["direction"] == "s2c" and r["kind"] == "malformed"
+    ]
+    assert {r["cmd_id"] for r in controller} == blamed
+    assert len(controller) == (2 if garbage else 0)
 
 
 def _synth(path: Path, frames: int) -> Path:

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ..recording import ConnectionRecord, ProblemRecord
+from ..recording.blame import Blame
 from ..recording.salvage import Damage
 from .general import StateRow
 
@@ -52,6 +53,8 @@ class Columns:
     #: The state packets' rows (:func:`read_columns`; a window's are its stream's).
     states: list[StateRow] = field(default_factory=list)
     problems: list[ProblemRecord] = field(default_factory=list)
+    #: Whose the controller's malformed runs are (:func:`~.fast.read_columns`'s).
+    blame: Blame[tuple[int, int]] | None = None
     #: The parts of the file that could not be read (:class:`~conformance.recording.salvage.Walk`).
     damage: list[Damage] = field(default_factory=list)
 

@@ -37,8 +37,9 @@ from typing import TYPE_CHECKING, Any
 from ..errors import FileError, UsageError
 from ..firmware import GET_SOFTWARE_VERSION_ID, parse_software_version
 from ..judge import Judge
-from ..recording import C2S, ConnectionRecord, Recording
-from .fast import Columns, ColumnStream, NotFast, read_columns
+from ..recording import C2S, ConnectionRecord
+from ..recording.blame import Blame, Unknown
+from .fast import Blamed, Columns, ColumnStream, FrameRef, NotFast, read_columns
 from .general import StateGaps, general_rows, problem_rows, state_row, state_rows
 from .memo import MemoJudge
 from .schema import (
@@ -362,11 +363,12 @@ def export_recording(
     if fast and _is_capture(path):
         _capture(path, dataset, result, judge_for, robot, firmware, data, window)
     else:
-        how = (
-            _fast(path, path, dataset, result, judge_for, robot, firmware, data, window)
-            if fast
-            else ""
-        )
+        how = ""
+        args = (path, path, dataset, result, judge_for, robot, firmware, data, window)
+        if fast:
+            how = _fast(*args)
+            if how == "blame":
+                how = _fast(*args, blame=True)
         if how != "done":
             _whole(path, path, dataset, result, judge_for, robot, firmware, data, how == "whole")
     result.seconds = round(time.perf_counter() - t0, 3)
@@ -432,11 +434,13 @@ def _fast(
     data: bool,
     window: int,
     lost: Sequence[CaptureDamage] = (),
+    blame: bool = False,
 ) -> str:
-    """A clean recording a window at a time (:mod:`.window`), its rows named ``name``:
-    "done"; else nothing is written, and "general" for one the fast path does not take,
-    "whole" for one whose windows are not in the order :mod:`.window` relies on."""
-    stream = ColumnStream(path, window)
+    """A recording a window at a time (:mod:`.window`), its rows named ``name``: "done";
+    else nothing is written, and "general" for one the fast path does not take, "whole"
+    for one whose windows are not in the order :mod:`.window` relies on, "blame" for one
+    to read again feeding whose the controller's runs are from the start (``blame``)."""
+    stream = ColumnStream(path, window, blame=blame)
     windows = iter(stream)
     buffered: list[tuple[Columns, int]] = []
     fw, known = firmware or None, bool(firmware)
@@ -460,10 +464,14 @@ def _fast(
                 if fw is not None:
                     break
             seen = stream.metadata  # the new stream's, before it is read again
-            stream = ColumnStream(path, window)
+            stream = ColumnStream(path, window, blame=blame or stream.blame is not None)
             windows = iter(stream)
+    except Blamed:
+        return "blame"
     except NotFast:
         return "general"
+    except Unknown:
+        return "whole"
     md = stream.metadata or seen
     if not md:
         return "whole"
@@ -481,17 +489,23 @@ def _fast(
             stream.states.clear()
             stream.problems.clear()
             if last is not None:
+                win.blame = stream.blame
                 win.add(last[0], stream.connections[: last[1]], final=False)
+                _blamed(stream.blame, memo, tables["problems"], end=False)
             last = item
         buffered = []
         if last is not None:
+            win.blame = stream.blame
             win.add(last[0], stream.connections[: last[1]], final=True)
+        _blamed(stream.blame, memo, tables["problems"], end=True)
         state_rows(stream.states, gaps, tables["state"])
         problem_rows(stream.problems, memo, tables["problems"])
-    except NotFast as e:
+    except (NotFast, Unknown) as e:
         for tab in tables.values():
             tab.discard()
-        return "whole" if isinstance(e, OutOfOrder) else "general"
+        if isinstance(e, Blamed):
+            return "blame"
+        return "whole" if isinstance(e, (OutOfOrder, Unknown)) else "general"
     conns = stream.connections
     times = [*(c.t_ns for c in conns), *([win.first_ns] if win.first_ns is not None else [])]
     result.damage = _damage(stream.damage, lost)
@@ -537,6 +551,9 @@ def _capture(
         import_pcap(path, mcap, damage=lost)
         # A damaged capture too: its damage is named beside the rows of what was read.
         how = _fast(mcap, path, dataset, result, judge_for, robot, firmware, data, window, lost)
+        if how == "blame":
+            again = (mcap, path, dataset, result, judge_for, robot, firmware, data, window, lost)
+            how = _fast(*again, blame=True)
         if how != "done":
             args = (dataset, result, judge_for, robot, firmware, data, how == "whole", lost)
             _whole(mcap, path, *args)
@@ -562,34 +579,49 @@ def _whole(
     from ..pcap.importer import as_damage
 
     cols = read_columns(path) if fast else None
-    rec: Recording | None = None
     if cols is not None:
-        md: Mapping[str, str] = cols.metadata
         conns: Sequence[ConnectionRecord] = cols.connections
         fw = firmware or firmware_in(zip(cols.dir, cols.cmd_id, cols.data, strict=True))
         times = [*(c.t_ns for c in conns), *([min(cols.first_ns)] if cols.first_ns else [])]
         result.damage = _damage(cols.damage, lost)
-    else:
-        rec = read_capture(path)
-        if name != path:
-            rec = replace(rec, path=name, damage=rec.damage + tuple(map(as_damage, lost)))
-        result.damage = [str(d) for d in rec.damage]
-        md, conns = rec.metadata, rec.connections
-        fw = firmware or firmware_in((f.dir, f.cmd_id, f.data) for f in rec.frames)
-        times = [rec.start_ns]
+        memo = MemoJudge.of(judge_for(fw))
+        tables = _tables(name, dataset, result, cols.metadata, fw, memo)
+        try:
+            win = Windows(memo, tables, data=data, port=_port, blame=cols.blame)
+            win.add(cols, conns, final=True)
+            _blamed(cols.blame, memo, tables["problems"], end=True)
+        except Unknown:  # whose a controller's run is not sure: the general path
+            for tab in tables.values():
+                tab.discard()
+        else:
+            state_rows(cols.states, StateGaps(), tables["state"])
+            problem_rows(cols.problems, memo, tables["problems"])
+            _finish(result, dataset, tables, cols.metadata, conns, robot, times)
+            return
+    rec = read_capture(path)
+    if name != path:
+        rec = replace(rec, path=name, damage=rec.damage + tuple(map(as_damage, lost)))
+    result.damage = [str(d) for d in rec.damage]
+    fw = firmware or firmware_in((f.dir, f.cmd_id, f.data) for f in rec.frames)
     memo = MemoJudge.of(judge_for(fw))
-    tables = _tables(name, dataset, result, md, fw, memo)
-    if cols is not None:
-        win = Windows(memo, tables, data=data, port=_port)
-        win.add(cols, conns, final=True)
-        state_rows(cols.states, StateGaps(), tables["state"])
-        problem_rows(cols.problems, memo, tables["problems"])
-    else:
-        assert rec is not None
-        ports = {c.conn: _port(c.upstream) for c in conns if c.event == "open"}
-        general_rows(rec, memo, tables, ports, data)
-        state_rows(map(state_row, rec.states), StateGaps(), tables["state"])
-    _finish(result, dataset, tables, md, conns, robot, times)
+    tables = _tables(name, dataset, result, rec.metadata, fw, memo)
+    ports = {c.conn: _port(c.upstream) for c in rec.connections if c.event == "open"}
+    general_rows(rec, memo, tables, ports, data)
+    state_rows(map(state_row, rec.states), StateGaps(), tables["state"])
+    _finish(result, dataset, tables, rec.metadata, rec.connections, robot, [rec.start_ns])
+
+
+def _blamed(blame: Blame[FrameRef] | None, judge: Judge, table: _Table, *, end: bool) -> None:
+    """The rows of the controller's malformed runs whose request ``blame`` knows now
+    (``end``: all read, the rest decided): each with that request's command ID."""
+    if blame is None:
+        return
+    if end:
+        blame.finish()
+    got = blame.settled()
+    if got:
+        cmd_ids = [f[1] if f is not None else None for _, f in got]
+        problem_rows([p for p, _ in got], judge, table, cmd_ids)
 
 
 def _one(args: tuple[str, str, JudgeFor, str | None, str | None, bool]) -> ExportResult:

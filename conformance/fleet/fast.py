@@ -42,6 +42,7 @@ from ..recording import (
     FrameBatch,
     ProblemRecord,
 )
+from ..recording.blame import Blame
 from ..recording.frames_pb import BatchColumns, decode_columns, decode_one_frame
 from ..recording.layout import C2S, STATE_KIND
 from ..recording.salvage import MAGIC, Damage, Walk
@@ -53,8 +54,10 @@ from .general import StateRow, read_problem, read_state
 from .verdicts import _pairs_at_once as _pairs_at_once  # tests read it here
 
 __all__ = [
+    "Blamed",
     "ColumnStream",
     "Columns",
+    "FrameRef",
     "NotFast",
     "read_columns",
 ]
@@ -67,6 +70,17 @@ class NotFast(Exception):
     """The recording is not the fast path's: :func:`read_columns` returns None for it."""
 
 
+class Blamed(NotFast):
+    """A run of the controller's met after windows were given: read the recording again
+    with :attr:`ColumnStream.blame` fed from the start (``blame=True``)."""
+
+
+#: A frame as :attr:`ColumnStream.blame` knows it: its number in the recording, its ID.
+FrameRef = tuple[int, int]
+#: The frames and requests :attr:`ColumnStream.blame` remembers per stream and connection.
+KEEP = 256
+
+
 class ColumnStream:
     """A clean recording's frames as columns a window at a time, in file order: each
     window the frames of whole messages, ``window`` of them or a few more (the last one
@@ -76,7 +90,7 @@ class ColumnStream:
     before are then to be thrown away); the damage the walk skipped is :attr:`damage`
     once the file is read."""
 
-    def __init__(self, path: str, window: int) -> None:
+    def __init__(self, path: str, window: int, *, blame: bool = False, keep: int = KEEP) -> None:
         self.path, self.window = path, window
         self.metadata: dict[str, str] = {}
         self.connections: list[ConnectionRecord] = []
@@ -89,6 +103,11 @@ class ColumnStream:
         self.damage: list[Damage] = []
         self._conns: set[int] = set()
         self._frames = 0  # frames given so far
+        self.keep = keep
+        #: Whose the controller's malformed runs are (recording/blame.py): fed every
+        #: frame, from the start, once such a run is met (or from the start: ``blame``).
+        self.blame: Blame[FrameRef] | None = Blame(keep) if blame else None
+        self._fed = 0  # the frames of the window being read fed to it
 
     def __iter__(self) -> Iterator[Columns]:
         from mcap.records import Channel, Message, Metadata
@@ -151,12 +170,13 @@ class ColumnStream:
                             doc = json.loads(rec.data)
                             if topic == TOPIC_STATE:
                                 self.states.append(read_state(doc))
-                            elif (p := read_problem(doc)) is None or (
-                                p.kind == "malformed" and p.dir != C2S
-                            ):
-                                # The controller's malformed run is blamed on the request
-                                # it answered (Recording.answered_by): the general path.
+                            elif (p := read_problem(doc)) is None:
                                 raise NotFast
+                            elif p.kind == "malformed" and p.dir != C2S:
+                                # The controller's malformed run is blamed on the request
+                                # it answered (recording/blame.py), after the frames before.
+                                pending.flush(c)
+                                self._blame(c).run(p)
                             elif p.kind != STATE_KIND:  # the state decoder's: no row
                                 self.problems.append(p)
                             if len(self.states) + len(self.problems) >= self.window:
@@ -193,8 +213,32 @@ class ColumnStream:
         self._check(c)
         yield c
 
+    def _blame(self, c: Columns) -> Blame[FrameRef]:
+        """:attr:`blame`, fed the frames read so far (from the first window on: a run of
+        the controller's first met later is :class:`Blamed`)."""
+        if self.blame is None:
+            if self._frames:
+                raise Blamed
+            self.blame = Blame(self.keep)
+        self._feed(c)
+        return self.blame
+
+    def _feed(self, c: Columns) -> None:
+        """The frames of ``c`` not fed yet to :attr:`blame` (if any), in file order."""
+        b = self.blame
+        if b is None or self._fed == len(c):
+            return
+        base, feed = self._frames, b.frame
+        cmd, conn, dirs, offset = c.cmd_id, c.conn, c.dir, c.offset
+        first, complete = c.first_ns, c.complete_ns
+        for i in range(self._fed, len(c)):
+            feed((base + i, cmd[i]), conn[i], dirs[i], offset[i], first[i] or complete[i])
+        self._fed = len(c)
+
     def _check(self, c: Columns) -> None:
         """A window checked as the fast path needs it, and its frames numbered."""
+        self._feed(c)
+        self._fed = 0
         c.seq.extend(range(self._frames, self._frames + len(c)))
         self._frames += len(c)
         self._conns.update(c.conn)
@@ -206,14 +250,15 @@ class ColumnStream:
 
 
 def read_columns(path: str) -> Columns | None:
-    """The recording's columns, or None when the fast path cannot take it (see the module)."""
-    s = ColumnStream(path, sys.maxsize)
+    """The recording's columns, or None when the fast path cannot take it (see the module);
+    its :attr:`~.columns.Columns.blame` fed every frame and run, forgetting none."""
+    s = ColumnStream(path, sys.maxsize, blame=True, keep=sys.maxsize)
     try:
         (c,) = list(s)
     except NotFast:
         return None
     c.metadata, c.connections, c.complete = s.metadata, s.connections, s.complete
-    c.states, c.problems, c.damage = s.states, s.problems, s.damage
+    c.states, c.problems, c.damage, c.blame = s.states, s.problems, s.damage, s.blame
     return c
 
 

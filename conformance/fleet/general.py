@@ -5,7 +5,7 @@ blamed on no request (gaps, the client's malformed bytes)."""
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import replace
 from typing import Any, Protocol
 
@@ -93,7 +93,8 @@ def general_rows(
     if problems:
         answered = rec.answered_by()
         for p, v in problems:
-            tables["problems"].add(problem_row(p, v, answered.get(id(p))))
+            blamed = answered.get(id(p))
+            tables["problems"].add(problem_row(p, v, blamed.cmd_id if blamed else None))
 
 
 def _exchanges(rec: Recording, verdicts: dict[int, Verdict], table: Rows) -> None:
@@ -157,23 +158,32 @@ def read_problem(doc: Any) -> ProblemRecord | None:
     return replace(p, raw=b"") if fits else None
 
 
-def problem_row(p: ProblemRecord, v: Verdict, blamed: FrameRecord | None) -> tuple[object, ...]:
-    """A problem's row: its verdict and the request it is blamed on (:meth:`Recording.answered_by`)."""
+def problem_row(p: ProblemRecord, v: Verdict, blamed: int | None) -> tuple[object, ...]:
+    """A problem's row: its verdict and the command ID of the request it is blamed on
+    (:meth:`Recording.answered_by`; None: none)."""
     return (
         *(p.transport, p.conn, p.dir, p.kind, p.rule, p.detail, p.size),
         p.complete_ns,
-        blamed.cmd_id if blamed is not None else None,
+        blamed,
         v.outcome.value,
         v.source,
     )
 
 
-def problem_rows(problems: Iterable[ProblemRecord], judge: Judge, table: Rows) -> None:
-    """The rows of problems blamed on no request: a gap, the client's malformed bytes
-    (``check_recording`` judges them so: :meth:`Judge.problem`)."""
-    for p in problems:
+def problem_rows(
+    problems: Iterable[ProblemRecord],
+    judge: Judge,
+    table: Rows,
+    blamed: Sequence[int | None] | None = None,
+) -> None:
+    """The rows of problems, judged as ``check_recording`` judges them
+    (:meth:`Judge.problem`), each with the command ID of the request it is blamed on
+    (``blamed``, one a problem; None: a gap, the client's malformed bytes, blamed on no
+    request)."""
+    for k, p in enumerate(problems):
+        cmd_id = blamed[k] if blamed is not None else None
         way = Direction.REQUEST if p.dir == C2S else Direction.REPLY
-        table.add(problem_row(p, judge.problem(p.rule, p.detail, way), None))
+        table.add(problem_row(p, judge.problem(p.rule, p.detail, way), cmd_id))
 
 
 class StateGaps:

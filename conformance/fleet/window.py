@@ -24,7 +24,8 @@ from typing import Any, Protocol
 
 from ..judge import Judge
 from ..recording import ConnectionRecord
-from .fast import Columns, NotFast
+from ..recording.blame import Blame
+from .fast import Columns, FrameRef, NotFast
 from .general import len_ok
 from .schema import VERDICT_COLUMNS
 from .verdicts import VerdictRows, judge_columns
@@ -61,10 +62,14 @@ class Windows:
         data: bool,
         port: Callable[[str], int | None],
         window: int = WINDOW,
+        blame: Blame[FrameRef] | None = None,
     ) -> None:
         import numpy as np
 
         self.judge, self.tables, self.data, self.port = judge, tables, data, port
+        #: Whose the controller's malformed runs are: told each exchange of a reply a run
+        #: came before (:meth:`~conformance.recording.blame.Blame.paired`).
+        self.blame = blame
         self.state = VerdictRows()
         self.carried = Columns()
         self.carried_rows = np.zeros(0, dtype=np.int64)
@@ -153,6 +158,8 @@ class Windows:
         n = len(which)
         if n and which.min() < 0:  # every frame is in an exchange: the pairing lost none
             raise AssertionError(f"{int((which < 0).sum())} frames without a verdict")
+        if self.blame is not None:
+            _paired(self.blame, c, qs, ps)
         if n > k:
             self.judged_ns = max(self.judged_ns, int(c.np("first_ns")[k:].max()))
             self.used.update(c.conn[k:])
@@ -256,6 +263,23 @@ class Windows:
             },
             len(q),
         )
+
+
+def _paired(blame: Blame[FrameRef], c: Columns, qs: list[int], ps: list[int]) -> None:
+    """Tell ``blame`` the exchange of each reply here a run of the controller's came
+    before (a window's replies looked up at once; the few such frames one by one)."""
+    import numpy as np
+
+    waiting = {f[0]: f for f in blame.awaited()}
+    if not waiting:
+        return
+    q, p = np.array(qs, dtype=np.int64), np.array(ps, dtype=np.int64)
+    q, p = q[p >= 0], p[p >= 0]
+    seq = c.np("seq")
+    hit = np.isin(seq[p], np.fromiter(waiting, dtype=np.int64, count=len(waiting)))
+    for i, r in zip(p[hit].tolist(), q[hit].tolist(), strict=True):
+        request = (c.seq[r], c.cmd_id[r]) if r >= 0 else None
+        blame.paired(waiting[c.seq[i]], request)
 
 
 def _ports_of(conns: Any, ports: dict[int, int | None]) -> Any:
