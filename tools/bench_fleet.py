@@ -27,6 +27,15 @@ layout 2, each exported in its own process: peak RSS against frames (flat: the s
 figure whatever the size; conformance/fleet/window.py) and frames/s CPU; with ``--pcap``,
 captures of those sizes (the same traffic as a pcap); with ``--baseline-rev REV``, each
 file exported by that revision's code too, in the same run.
+
+``--injected 1000000``: instead, one recording of that size clean and with each kind the
+windowed path took from the general one injected (tools/synth_fleet.py ``inject``): the
+controller's garbage (ahead of replies and after each connection's last), framing problems
+(every 50th request's LEN off) and damage (a byte flipped in a chunk half way, the last
+tenth cut off); each exported in its own process by this tree's windows and by its whole
+path (``fast=False``: the general path, which these kinds took before), the same run:
+frames/s CPU and peak RSS (flat: the windowed figures about the clean one's, whatever the
+kind); with ``--baseline-rev REV``, by that revision's code too.
 """
 
 from __future__ import annotations
@@ -236,6 +245,59 @@ def memory(sizes: list[int], tmp: str, *, pcap: bool = False, rev: str = "") -> 
             path.unlink()
 
 
+#: export-parquet (the CLI's) with the whole path when argv[1] is ``whole``
+#: (``export_recording(fast=False)``: the general path), else as it is.
+_EXPORT = """
+import functools, sys
+import conformance.fleet.export as export
+if sys.argv.pop(1) == "whole":
+    export.export_recording = functools.partial(export.export_recording, fast=False)
+from conformance.cli import main
+sys.exit(main(["export-parquet", *sys.argv[1:]]))
+"""
+
+
+def _inject(path: Path, n: int, kind: str) -> None:
+    """A recording of ``n`` frames with ``kind`` injected (see the module)."""
+    faults = (Fault("timeout", "*", "*", 214), Fault("slow", "*", "*", 212))
+    inject = {"garbage": ["garbage"], "flaws": ["flaws"]}.get(kind, [])
+    write_recording(path, "r01", "3.9.8", n, faults, START_NS, inject=inject)
+    if kind == "damaged":
+        data = bytearray(path.read_bytes())
+        data[len(data) // 2] ^= 0xFF
+        path.write_bytes(bytes(data[: len(data) * 9 // 10]))
+
+
+def injected(n: int, tmp: str, rev: str = "") -> None:
+    """Peak RSS and frames/s CPU of export-parquet of a clean recording and of each kind
+    injected, windowed and whole (see the module)."""
+    ways: list[tuple[str, list[str], dict[str, str] | None]] = [
+        ("windowed", [PY, "-c", _EXPORT, "windowed"], None),
+        ("whole", [PY, "-c", _EXPORT, "whole"], None),
+    ]
+    if rev:
+        ways.append((rev, CLI, baseline_env(rev, os.path.join(tmp, "base-rev"))))
+    print(
+        f"{'recording':>10} {'frames':>10} {'path':>10} {'peak RSS MiB':>13} "
+        f"{'frames/s CPU':>13} {'damage':>7}"
+    )
+    for kind in ("clean", "garbage", "flaws", "damaged"):
+        path = Path(tmp) / f"injected-{kind}.mcap"
+        _inject(path, n, kind)
+        for label, cmd, env in ways:
+            ds = os.path.join(tmp, "ds-injected")
+            head = [*CLI, "export-parquet"] if cmd is CLI else cmd
+            _, cpu, rss, out = run([*head, str(path), "-o", ds, "--json"], env)
+            shutil.rmtree(ds, ignore_errors=True)
+            got = json.loads(out)
+            frames = got["rows"]["frames"]
+            print(
+                f"{kind:>10} {frames:>10,} {label:>10} {rss:>13} {frames / cpu:>13,.0f} "
+                f"{len(got['damage']):>7}"
+            )
+        path.unlink()
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -275,8 +337,20 @@ def main() -> int:
         action="store_true",
         help="with --memory: captures (pcap) of those sizes, not MCAP recordings",
     )
+    ap.add_argument(
+        "--injected",
+        type=int,
+        help="frames: a recording clean and with each kind injected, windowed and whole "
+        "(nothing else)",
+    )
     a = ap.parse_args()
     tmp = tempfile.mkdtemp(prefix="bench-fleet-")
+    if a.injected:
+        try:
+            injected(a.injected, tmp, rev=a.baseline_rev)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+        return 0
     if a.memory:
         try:
             sizes = [int(x) for x in a.memory.split(",") if x]

@@ -17,6 +17,12 @@ that command's requests: ``--refusal`` (the reply is error code 14), ``--timeout
 reply), ``--slow`` (the reply 250 ms late instead of about 1 ms), ``--bad`` (the reply's
 DATA is ``x``, which no return value reads: a FAIL), ``--cnt`` (the reply's CNT is one more
 than the request's: ``bad_cnt``, a FAIL).
+
+``--inject garbage,flaws`` (every recording; each frame then at its offset in its stream):
+``garbage``, the controller's bytes that are no frame (a ``malformed`` problem) ahead of
+every :data:`GARBAGE_EVERY`-th burst's replies and after each connection's last reply;
+``flaws``, every :data:`FLAW_EVERY`-th request's LEN two more than its DATA's bytes
+(``len_mismatch`` in its frame batch).
 """
 
 from __future__ import annotations
@@ -40,6 +46,7 @@ from conformance.recording import (  # noqa: E402
     S2C,
     ConnectionRecord,
     FrameBatch,
+    ProblemRecord,
     RecordingWriter,
     default_metadata,
 )
@@ -106,10 +113,39 @@ def reply_data(firmware: str) -> dict[tuple[int, str], str]:
     return out
 
 
+#: What ``--inject`` may name (see the module).
+INJECT = ("garbage", "flaws")
+#: The controller's garbage (injected), and how often: every this many bursts.
+GARBAGE = b"\x00junk\xff"
+GARBAGE_EVERY = 8
+#: Every this many requests' LEN is off (injected ``flaws``).
+FLAW_EVERY = 50
+
+
+def _off(cnt: int, cmd_id: int, data: str) -> bytes:
+    """A frame whose LEN is two more than its DATA's bytes (2.1: ``len_mismatch``)."""
+    return b"/f/bIII%dIII%dIII%dIII%sIII/b/f" % (cnt, cmd_id, len(data.encode()) + 2, data.encode())
+
+
 def _batch(
-    conn: int, direction: str, rows: Sequence[tuple[int, int, str, int, bytes]]
+    conn: int,
+    direction: str,
+    rows: Sequence[tuple[int, int, str, int, bytes]],
+    at: dict[str, int] | None = None,
 ) -> FrameBatch:
-    """rows: (cnt, cmd_id, data, t_ns, raw)."""
+    """rows: (cnt, cmd_id, data, t_ns, raw).  ``at``: each direction's stream offset (the
+    frames placed there, it moved past them; else every offset 0); a frame whose raw
+    LEN is not its DATA's (:func:`_off`) has its LEN and ``len_mismatch``."""
+    sizes = [len(r[4]) for r in rows]
+    offsets = [0] * len(rows)
+    if at is not None:
+        start = at[direction]
+        offsets = [start + sum(sizes[:k]) for k in range(len(rows))]
+        at[direction] = start + sum(sizes)
+    lengths = [len(r[2].encode()) for r in rows]
+    bad = [r[4] == _off(*r[:3]) for r in rows]
+    if any(bad):
+        lengths = [n + 2 if b else n for n, b in zip(lengths, bad, strict=True)]
     return FrameBatch(
         conn=conn,
         transport="tcp",
@@ -118,12 +154,31 @@ def _batch(
         cmd_ids=[r[1] for r in rows],
         names=[None] * len(rows),
         datas=[r[2] for r in rows],
-        lengths=[len(r[2].encode()) for r in rows],
-        offsets=[0] * len(rows),
+        lengths=lengths,
+        offsets=offsets,
         first_ns=[r[3] for r in rows],
         complete_ns=[r[3] for r in rows],
-        sizes=[len(r[4]) for r in rows],
+        sizes=sizes,
         raw=b"".join(r[4] for r in rows),
+        problems=[["len_mismatch"] if b else [] for b in bad] if any(bad) else None,
+    )
+
+
+def _garbage(conn: int, at: dict[str, int], t_ns: int) -> ProblemRecord:
+    """The controller's garbage at its stream's offset (moved past it), read at ``t_ns``."""
+    offset = at[S2C]
+    at[S2C] += len(GARBAGE)
+    return ProblemRecord(
+        conn=conn,
+        dir=S2C,
+        kind="malformed",
+        rule="garbage",
+        detail=f"{len(GARBAGE)} bytes that are not a frame",
+        size=len(GARBAGE),
+        complete_ns=t_ns,
+        first_ns=t_ns,
+        offset=offset,
+        raw=GARBAGE,
     )
 
 
@@ -138,11 +193,13 @@ def write_recording(
     *,
     chunk_size: int = 1 << 20,
     batch_frames: int | None = None,
+    inject: Sequence[str] = (),
 ) -> int:
     """One robot's recording on one firmware: ``frames`` frames (requests and replies);
     returns how many were written.  ``layout``: the recording layout (default: the
     writer's); ``chunk_size``, ``batch_frames``: the MCAP chunks' size and the frames a
-    message holds at most (small: many chunks and messages in a small file)."""
+    message holds at most (small: many chunks and messages in a small file); ``inject``:
+    of :data:`INJECT` (see the module)."""
     replies = reply_data(firmware)
     mine = {(f.kind, f.cmd_id) for f in faults if f.hits(robot, firmware)}
     encoded: dict[tuple[int, int, str], bytes] = {}
@@ -182,6 +239,9 @@ def write_recording(
             per_conn = min(FRAMES_PER_CONNECTION, frames - written)
             cnt = 0
             step = 0
+            at: dict[str, int] | None = {C2S: 0, S2C: 0} if inject else None
+            bursts = 0
+            last_reply = t
             while per_conn - 0 > 0 and written < frames:
                 reqs: list[tuple[int, int, str, int, bytes]] = []
                 reps: list[tuple[int, int, str, int, bytes]] = []
@@ -195,7 +255,9 @@ def write_recording(
                     )
                     step += 1
                     t += 1_000_000  # a request a millisecond
-                    reqs.append((cnt, cid, data, t, raw(cnt, cid, data)))
+                    flawed = "flaws" in inject and (written + len(reqs)) % FLAW_EVERY == 0
+                    wire = _off(cnt, cid, data) if flawed else raw(cnt, cid, data)
+                    reqs.append((cnt, cid, data, t, wire))
                     k = seen[cid] = seen.get(cid, 0) + 1
                     hit = k % FAULT_EVERY == 0
                     if hit and ("timeout", cid) in mine:
@@ -210,14 +272,20 @@ def write_recording(
                         late = 250_000_000
                     rcnt = (cnt + 1) % 0x10000 if hit and ("cnt", cid) in mine else cnt
                     reps.append((rcnt, cid, rdata, t + late, raw(rcnt, cid, rdata)))
-                w.write_frames(_batch(conn, C2S, reqs))
+                w.write_frames(_batch(conn, C2S, reqs, at))
                 written += len(reqs)
                 per_conn -= len(reqs)
                 if reps and written < frames:
                     reps = reps[: frames - written]
-                    w.write_frames(_batch(conn, S2C, reps))
+                    bursts += 1
+                    if at is not None and "garbage" in inject and bursts % GARBAGE_EVERY == 0:
+                        w.write(_garbage(conn, at, reps[0][3] - 1))  # ahead of a reply
+                    w.write_frames(_batch(conn, S2C, reps, at))
+                    last_reply = max(last_reply, *(r[3] for r in reps))
                     written += len(reps)
                     per_conn -= len(reps)
+            if at is not None and "garbage" in inject:
+                w.write(_garbage(conn, at, last_reply + 1))  # no reply follows
             t += 2_000_000
             w.write(ConnectionRecord(conn=conn, event="close", t_ns=t, reason="client closed"))
     return written
@@ -258,7 +326,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--frames", type=int, default=100_000, help="frames per robot and firmware")
     for k in KINDS:
         ap.add_argument(f"--{k}", action="append", default=[], metavar="ROBOT/FW/CMD_ID")
+    ap.add_argument("--inject", default="", help=f"of {','.join(INJECT)} (see above)")
     a = ap.parse_args(argv)
+    inject = [x for x in a.inject.split(",") if x]
+    if set(inject) - set(INJECT):
+        raise SystemExit(f"--inject {a.inject}: give some of {','.join(INJECT)}")
     faults = [parse_fault(k, x) for k in KINDS for x in getattr(a, k)]
     firmwares = [f.strip() for f in a.firmwares.split(",") if f.strip()]
     out = Path(a.out)
@@ -270,7 +342,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             # A day per firmware: the fleet upgraded on 1 and 2 January.
             start = START_NS + j * 86_400_000_000_000 + i * 1_000_000_000
             total += write_recording(
-                out / robot / f"fw-{fw}.mcap", robot, fw, a.frames, faults, start
+                out / robot / f"fw-{fw}.mcap", robot, fw, a.frames, faults, start, inject=inject
             )
     dt = time.perf_counter() - t0
     print(

@@ -7,17 +7,19 @@ over every frame's and malformed run's verdict: the rows carry exactly those) wi
 :class:`~.memo.MemoJudge`, and written as one Parquet file per table into its partition
 (:mod:`.schema`).  A recording already in the dataset (its content hash has a
 ``_recordings/<id>.json``) is skipped, and a new one only adds files: appending never
-rewrites what is there.  A clean recording is read, judged and written a window at a time
+rewrites what is there.  A recording is read, judged and written a window at a time
 (:mod:`.window`): memory holds a window and one row group per table, whatever the
 recording's length and the number of recordings.  A pcap/pcapng capture is imported first
 (``import-pcap``'s streaming importer, into a temporary recording in the kit's layout) and
-that recording exported so, its rows named as the capture.  The state stream's packets
-(``proxy --state``), the gaps and the client's malformed bytes are written as they are
-read, a window's at a time.  A recording the fast path does not take (damage, a damaged
-capture, framing problems inside frame batches, the controller's malformed bytes, which
-are blamed on the request they answered) goes through ``check_recording`` whole
-(:mod:`.general`).  ``jobs`` processes take
-the recordings one at a time each.
+that recording exported so, its rows named as the capture (and a damaged capture's damage
+named).  The state stream's packets (``proxy --state``), the gaps, the malformed bytes
+(the controller's blamed on the request they answered: recording/blame.py), frames with
+framing problems and a damaged recording's readable part (its damage named) go so too.
+A recording whose windows are not in the order :mod:`.window` relies on, or whose
+controller's runs the windows cannot be sure of, is read whole as columns; one the fast
+path does not take at all (a message that does not read) goes through
+``check_recording`` whole (:mod:`.general`).  ``jobs`` processes take the recordings one
+at a time each.
 """
 
 from __future__ import annotations
@@ -349,9 +351,9 @@ def export_recording(
 ) -> ExportResult:
     """One recording into the dataset at ``out`` (made by :func:`open_dataset`).
 
-    ``fast``: a clean recording is read as columns (:mod:`.fast`), ``window`` frames at a
-    time (:mod:`.window`); False: every recording through the reader's records and
-    ``check_recording`` (whole: the general path holds the recording)."""
+    ``fast``: the recording is read as columns (:mod:`.fast`), ``window`` frames at a
+    time (:mod:`.window`); False: through the reader's records and ``check_recording``
+    (whole: the general path holds the recording)."""
     t0 = time.perf_counter()
     dataset = Path(out)
     rid = recording_id(path)

@@ -1,14 +1,19 @@
-"""``export-parquet``'s fast path: a clean recording read as columns, judged as ``check``
-judges it, without a record object per frame.
+"""``export-parquet``'s fast path: a recording read as columns a window at a time
+(:class:`ColumnStream`), judged as ``check`` judges it (:mod:`.verdicts`), without a
+record object per frame.
 
 A recording the fast path takes is an MCAP file of batched frames (layout 2's JSON, or
-layouts 3 and 4's protobuf, its columns read with ``numpy.frombuffer``) with no
-framing problem, none of the controller's malformed runs and no damage: the bulk of a
-fleet's traffic (the state stream's packets, the gaps and the client's malformed bytes
-are read as they come: :attr:`ColumnStream.states`, :attr:`ColumnStream.problems`).  Anything else (:func:`read_columns` returns None) goes the general way
-(:func:`~conformance.capture_check.check_recording` over the reader's records).  What the
-fast path does is the same, step by step, so the verdicts are the same (the tests compare
-them frame by frame):
+layouts 3 and 4's protobuf, its columns read with ``numpy.frombuffer``): the bulk of a
+fleet's traffic.  Read as they come, beside the frames: the state stream's packets, the
+gaps and the client's malformed bytes (:attr:`ColumnStream.states`,
+:attr:`ColumnStream.problems`); each frame's framing problems (a column: such a frame is
+judged alone); the controller's malformed runs, whose request is worked out as the windows
+are read by the one rule (:attr:`ColumnStream.blame`, recording/blame.py); and the damage
+the walk skips, named as the reader names it (:attr:`ColumnStream.damage`).  Anything
+else (a message that does not read, a topic of a later layout: :class:`NotFast`) goes the
+general way (:func:`~conformance.capture_check.check_recording` over the reader's records),
+which names what is wrong.  What the fast path does is the same, step by step, so the
+verdicts are the same (the tests compare them frame by frame):
 
 * the frames are taken in the order their first byte arrived, each reply paired with the
   oldest unanswered request of its connection with the same CNT and CMD_ID, else the same
@@ -16,8 +21,8 @@ them frame by frame):
 * each request is judged by :meth:`Judge.request` with the CNT before it on its connection
   (``check``'s :class:`~conformance.judge_stream.CntSteps`), each reply by
   :meth:`Judge.reply` with its request and the request's verdict; a verdict already made
-  for the same ID, DATA and transport (and a CNT that steps by one) is taken again, as
-  :class:`~.memo.MemoJudge` takes it.
+  for the same ID, DATA and transport (and a CNT that steps by one, and no framing
+  problem) is taken again, as :class:`~.memo.MemoJudge` takes it.
 """
 
 from __future__ import annotations
@@ -82,7 +87,7 @@ KEEP = 256
 
 
 class ColumnStream:
-    """A clean recording's frames as columns a window at a time, in file order: each
+    """A recording's frames as columns a window at a time, in file order: each
     window the frames of whole messages, ``window`` of them or a few more (the last one
     fewer, maybe none; fewer also where ``window`` state packets came first); the
     metadata, the connections and the state packets as they are read.  Iterating

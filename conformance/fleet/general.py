@@ -1,7 +1,7 @@
 """``export-parquet``'s general path: the rows of a recording read whole (the reader's
 records) from :func:`~conformance.capture_check.check_recording`'s verdicts; and the rows
-the fast path writes so too, a window's at a time: the state table's, and the problems
-blamed on no request (gaps, the client's malformed bytes)."""
+the fast path writes so too, a window's at a time: the state table's, and the problems'
+(gaps and malformed bytes, each with the request it is blamed on where there is one)."""
 
 from __future__ import annotations
 

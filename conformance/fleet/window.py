@@ -1,4 +1,4 @@
-"""``export-parquet``'s fast path a window at a time: a clean recording's frames judged and
+"""``export-parquet``'s fast path a window at a time: a recording's frames judged and
 written as they are read, so that memory holds a window, not the recording.
 
 A window is a few messages' frames (:class:`~.fast.ColumnStream`).  The frames are judged
@@ -10,7 +10,8 @@ after ``T`` wait for the next window.  Across windows are carried: the requests 
 for a reply (any later reply of their connection may take them: :meth:`Recording.exchanges`),
 each connection's last request CNT (``check``'s CntSteps), and the distinct verdicts'
 rows.  A waiting request's exchange is written when its reply comes, or as a missing reply
-when its connection's close is read (or at the end).
+when its connection's close is read (or at the end).  Whose the controller's malformed runs
+are is told each exchange of a reply a run came before (recording/blame.py).
 
 What this relies on is checked as it goes: a frame that comes before one already judged,
 a frame of a connection already closed, or a connection opened after its frames were
