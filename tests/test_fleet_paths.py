@@ -332,3 +332,60 @@ def test_frame_batches_with_framing_problems_go_the_windowed_path(
     assert len(frames) == 236
     assert sum(not r["len_ok"] for r in frames) == 2 * (11 + 6)
     assert {"len_mismatch", "bad_separator"} <= {r["rule"] for r in frames}
+
+
+def test_a_run_written_after_its_reply_was_judged_reads_the_recording_whole(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A writer that wrote the controller's garbage windows after the reply it came
+    before (the kit's writes it first): the windows cannot tell whose it is once that
+    reply is judged (recording/blame.py's Unknown), so the recording is read whole, as
+    columns, and the rows are the general path's still (blamed on that reply's request)."""
+    from conformance.frame import encode_frame
+    from conformance.recording import (
+        C2S,
+        S2C,
+        FrameBatch,
+        FrameRecord,
+        ProblemRecord,
+        RecordingWriter,
+        default_metadata,
+    )
+
+    path = tmp_path / "late.mcap"
+    with RecordingWriter(path, metadata=default_metadata(START, robot="r05")) as w:
+        at = {C2S: 0, S2C: 0}
+        for cnt in range(1, 60):
+            t = START + cnt * 1_000_000
+            cmd_id = 214 if cnt == 3 else 212
+            for way, data in ((C2S, "GetDI(0,0)"), (S2C, "1")):
+                raw = encode_frame(cnt, cmd_id, data)
+                f = FrameRecord(
+                    conn=1,
+                    dir=way,
+                    cnt=cnt,
+                    cmd_id=cmd_id,
+                    data=data,
+                    raw=raw,
+                    complete_ns=t,
+                    first_ns=t,
+                    offset=at[way],
+                )
+                w.write_frames(FrameBatch.of([f]))
+                at[way] += len(raw) + (4 if (cnt, way) == (2, S2C) else 0)
+            if cnt == 40:  # the 4 bytes ahead of reply 3 (after replies 1 and 2), written now
+                garbage = ProblemRecord(
+                    conn=1,
+                    dir=S2C,
+                    kind="malformed",
+                    rule="garbage",
+                    detail="4 bytes that are not a frame",
+                    size=4,
+                    complete_ns=START + 3_000_000,
+                    offset=2 * len(encode_frame(1, 212, "1")),
+                )
+                w.write(garbage)
+    tables, whole = both_paths(path, tmp_path, monkeypatch, window=8)
+    assert whole == [str(path)]
+    (run,) = tables["problems"]
+    assert run["cmd_id"] == 214

@@ -47,7 +47,7 @@ from ..recording import (
     FrameBatch,
     ProblemRecord,
 )
-from ..recording.blame import Blame
+from ..recording.blame import Blame, Unknown
 from ..recording.frames_pb import BatchColumns, decode_columns, decode_one_frame
 from ..recording.layout import C2S, STATE_KIND
 from ..recording.salvage import MAGIC, Damage, Walk
@@ -82,8 +82,9 @@ class Blamed(NotFast):
 
 #: A frame as :attr:`ColumnStream.blame` knows it: its number in the recording, its ID.
 FrameRef = tuple[int, int]
-#: The frames and requests :attr:`ColumnStream.blame` remembers per stream and connection.
-KEEP = 256
+#: The frames and requests :attr:`ColumnStream.blame` remembers per stream and connection
+#: (a run is written before the frames after it: these are for a writer that does not).
+KEEP = 16
 
 
 class ColumnStream:
@@ -260,7 +261,7 @@ def read_columns(path: str) -> Columns | None:
     s = ColumnStream(path, sys.maxsize, blame=True, keep=sys.maxsize)
     try:
         (c,) = list(s)
-    except NotFast:
+    except (NotFast, Unknown):  # Unknown: a stream out of order after a run was decided
         return None
     c.metadata, c.connections, c.complete = s.metadata, s.connections, s.complete
     c.states, c.problems, c.damage, c.blame = s.states, s.problems, s.damage, s.blame
