@@ -11,11 +11,6 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from scapy.layers.inet import IP, TCP, UDP, IPOption_NOP
-from scapy.layers.inet6 import IPv6, IPv6ExtHdrDestOpt
-from scapy.layers.l2 import CookedLinux, CookedLinuxV2, Dot1Q, Ether, Loopback
-from scapy.packet import Raw
-from scapy.utils import wrpcap, wrpcapng
 
 import conformance.pcap.read as pcap_read
 from conformance.errors import CaptureError
@@ -30,6 +25,7 @@ from conformance.pcap import (
     read_packets,
 )
 from conformance.recording import read_recording
+from tests import scapy_lazy as sp
 
 CAPTURES = Path(__file__).resolve().parent.parent / "captures"
 
@@ -51,12 +47,12 @@ def tcp(
 ) -> Any:
     mac = (MAC_C, MAC_S) if src == C else (MAC_S, MAC_C)
     p = (
-        Ether(src=mac[0], dst=mac[1])
-        / IP(src=src[0], dst=dst[0])
-        / TCP(sport=src[1], dport=dst[1], seq=seq % 2**32, ack=ack, flags=flags)
+        sp.Ether(src=mac[0], dst=mac[1])
+        / sp.IP(src=src[0], dst=dst[0])
+        / sp.TCP(sport=src[1], dport=dst[1], seq=seq % 2**32, ack=ack, flags=flags)
     )
     if load:
-        p = p / Raw(load=load)
+        p = p / sp.Raw(load=load)
     p.time = 1_700_000_000 + t
     return p
 
@@ -88,9 +84,11 @@ def conversation(
 def imported(tmp_path: Path, packets: list[Any], name: str = "x.pcap", **kw: Any) -> Any:
     path = tmp_path / name
     if name.endswith(".pcapng"):
-        wrpcapng(str(path), packets)
+        sp.wrpcapng(str(path), packets)
     else:
-        wrpcap(str(path), packets, **({"linktype": kw.pop("linktype")} if "linktype" in kw else {}))
+        sp.wrpcap(
+            str(path), packets, **({"linktype": kw.pop("linktype")} if "linktype" in kw else {})
+        )
     out = tmp_path / "out.mcap"
     stats = import_pcap(path, out, **kw)
     return stats, read_recording(out)
@@ -203,17 +201,17 @@ def test_link_types_and_formats(tmp_path: Path, kind: str) -> None:
     name = "x.pcap"
     out = []
     for p in pk:
-        ip = p[IP]
+        ip = p[sp.IP]
         if kind == "sll":
             q = (
-                CookedLinux(
+                sp.CookedLinux(
                     pkttype=0, lladdrtype=1, lladdrlen=6, src=b"\x02\0\0\0\0\x0c\0\0", proto=0x0800
                 )
                 / ip
             )
         elif kind == "sll2":
             q = (
-                CookedLinuxV2(
+                sp.CookedLinuxV2(
                     proto=0x0800, ifindex=1, lladdrtype=1, lladdrlen=6, src=b"\x02\0\0\0\0\x0c\0\0"
                 )
                 / ip
@@ -222,19 +220,19 @@ def test_link_types_and_formats(tmp_path: Path, kind: str) -> None:
             q = ip
             kw["linktype"] = 101
         elif kind == "null":
-            q = Loopback(type=2) / ip
+            q = sp.Loopback(type=2) / ip
         elif kind in ("ipv6", "ipv6-ext"):
             src = "fd00::5" if ip.src == C[0] else "fd00::2"
             dst = "fd00::2" if src == "fd00::5" else "fd00::5"
-            q = Ether(src=MAC_C, dst=MAC_S) / IPv6(src=src, dst=dst)
+            q = sp.Ether(src=MAC_C, dst=MAC_S) / sp.IPv6(src=src, dst=dst)
             if kind == "ipv6-ext":  # the flow's ports are not next to its addresses
-                q = q / IPv6ExtHdrDestOpt()
-            q = q / ip[TCP]
+                q = q / sp.IPv6ExtHdrDestOpt()
+            q = q / ip[sp.TCP]
         elif kind == "vlan":
-            q = Ether(src=MAC_C, dst=MAC_S) / Dot1Q(vlan=5) / ip
+            q = sp.Ether(src=MAC_C, dst=MAC_S) / sp.Dot1Q(vlan=5) / ip
         elif kind == "ip-options":
-            opts = IP(src=ip.src, dst=ip.dst, options=[IPOption_NOP()] * 4)
-            q = Ether(src=MAC_C, dst=MAC_S) / opts / ip[TCP]
+            opts = sp.IP(src=ip.src, dst=ip.dst, options=[sp.IPOption_NOP()] * 4)
+            q = sp.Ether(src=MAC_C, dst=MAC_S) / opts / ip[sp.TCP]
         else:
             q = p
             name = "x.pcapng"
@@ -260,16 +258,16 @@ def test_udp_datagrams(tmp_path: Path) -> None:
     pk = []
     for i, (rq, rp) in enumerate(zip(REQ, REP, strict=False)):
         a: Any = (
-            Ether(src=MAC_C, dst=MAC_S)
-            / IP(src=C[0], dst=S[0])
-            / UDP(sport=C[1], dport=20007)
-            / Raw(load=rq)
+            sp.Ether(src=MAC_C, dst=MAC_S)
+            / sp.IP(src=C[0], dst=S[0])
+            / sp.UDP(sport=C[1], dport=20007)
+            / sp.Raw(load=rq)
         )
         b: Any = (
-            Ether(src=MAC_S, dst=MAC_C)
-            / IP(src=S[0], dst=C[0])
-            / UDP(sport=20007, dport=C[1])
-            / Raw(load=rp)
+            sp.Ether(src=MAC_S, dst=MAC_C)
+            / sp.IP(src=S[0], dst=C[0])
+            / sp.UDP(sport=20007, dport=C[1])
+            / sp.Raw(load=rp)
         )
         a.time, b.time = 1_700_000_000 + i, 1_700_000_000 + i + 0.001
         pk += [a, b]
@@ -295,16 +293,16 @@ def test_export_then_import_round_trip(tmp_path: Path) -> None:
     from scapy.utils import rdpcap
 
     for p in rdpcap(str(out)):
-        ip = p[IP]
+        ip = p[sp.IP]
         raw_ip = bytes(ip)
-        assert IP(raw_ip).chksum == IP(bytes(IP(raw_ip)))[IP].chksum
-        assert p[Ether].src in ("02:00:00:00:00:01", "02:00:00:00:00:02")
+        assert sp.IP(raw_ip).chksum == sp.IP(bytes(sp.IP(raw_ip)))[sp.IP].chksum
+        assert p[sp.Ether].src in ("02:00:00:00:00:01", "02:00:00:00:00:02")
 
 
 def test_scapy_layer_dissects_and_builds() -> None:
     layer = bind_scapy_layer()
-    ip: Any = IP(src="10.0.0.1", dst="10.0.0.2")
-    pkt = IP(bytes(ip / TCP(dport=8080) / (REQ[0] + REP[1])))
+    ip: Any = sp.IP(src="10.0.0.1", dst="10.0.0.2")
+    pkt = sp.IP(bytes(ip / sp.TCP(dport=8080) / (REQ[0] + REP[1])))
     first = pkt[layer]
     assert (first.cnt, first.cmd_id, first.len, first.data) == (1, 201, 11, b'MoveJ("P1")')
     second = first.payload
@@ -325,18 +323,18 @@ def test_packets_longer_than_64k_are_read_whole(tmp_path: Path, name: str, ip: s
     c, s = (
         (("10.1.0.5", 40001), ("10.1.0.2", 8080)) if ip == "v4" else (("::1", 40001), ("::2", 8080))
     )
-    l3 = IP(src=c[0], dst=s[0], len=0) if ip == "v4" else IPv6(src=c[0], dst=s[0], plen=0)
-    pk = Loopback() / l3 / TCP(sport=c[1], dport=s[1], seq=1000, flags="PA", chksum=0)
-    pk = pk / Raw(load=big)
+    l3 = sp.IP(src=c[0], dst=s[0], len=0) if ip == "v4" else sp.IPv6(src=c[0], dst=s[0], plen=0)
+    pk = sp.Loopback() / l3 / sp.TCP(sport=c[1], dport=s[1], seq=1000, flags="PA", chksum=0)
+    pk = pk / sp.Raw(load=big)
     pk.time = 1_700_000_000
-    tail = Loopback() / l3 / TCP(sport=c[1], dport=s[1], seq=1000 + len(big), flags="PA")
-    tail = tail / Raw(load=REQ[0])
+    tail = sp.Loopback() / l3 / sp.TCP(sport=c[1], dport=s[1], seq=1000 + len(big), flags="PA")
+    tail = tail / sp.Raw(load=REQ[0])
     tail.time = 1_700_000_001
     path = tmp_path / name
     if name.endswith(".pcapng"):
-        wrpcapng(str(path), [pk, tail])
+        sp.wrpcapng(str(path), [pk, tail])
     else:
-        wrpcap(str(path), [pk, tail])
+        sp.wrpcap(str(path), [pk, tail])
     stats = import_pcap(path, tmp_path / "out.mcap")
     rec = read_recording(tmp_path / "out.mcap")
     assert [f.raw for f in rec.frames] == [*reqs, REQ[0]]
@@ -422,7 +420,7 @@ def test_a_pcapng_time_past_2_64_ns_is_a_usage_error(
     pk = conversation()
     pk[3].time = 10**11  # fits pcapng's 64-bit microseconds, not 64-bit nanoseconds
     path = tmp_path / "x.pcapng"
-    wrpcapng(str(path), pk)
+    sp.wrpcapng(str(path), pk)
     assert main(["import-pcap", str(path), "-o", str(tmp_path / "x.mcap")]) == 2
     err = capsys.readouterr().err
     assert "past what a recording holds" in err and "internal error" not in err
@@ -434,7 +432,9 @@ def test_corrupt_or_cut_captures_import_or_give_a_usage_error(tmp_path: Path, na
     """Any damage to a capture gives a recording or the kit's CaptureError, nothing else."""
     rng = random.Random(7)
     src = tmp_path / name
-    (wrpcapng if name.endswith("ng") else wrpcap)(str(src), conversation() + conversation(s=S2))
+    (sp.wrpcapng if name.endswith("ng") else sp.wrpcap)(
+        str(src), conversation() + conversation(s=S2)
+    )
     good = src.read_bytes()
     for i in range(150):
         b = bytearray(good)
@@ -453,15 +453,15 @@ def test_corrupt_or_cut_captures_import_or_give_a_usage_error(tmp_path: Path, na
 
 
 def test_parse_packet_flow_is_addresses_then_ports() -> None:
-    (req,) = [p for p in conversation() if p.haslayer(Raw)][:1]
+    (req,) = [p for p in conversation() if p.haslayer(sp.Raw)][:1]
     proto, flow, payload, seq, flags = parse_packet(1, bytes(req))  # type: ignore[misc]
     assert (proto, payload, seq, flags) == ("tcp", REQ[0], 1000, 0x18)
     assert flow_ends(flow) == (C, S)
-    v6 = Ether(src=MAC_C, dst=MAC_S) / IPv6(src="fd00::5", dst="fd00::2")
-    v6 = v6 / UDP(sport=5, dport=20007) / b"x"
+    v6 = sp.Ether(src=MAC_C, dst=MAC_S) / sp.IPv6(src="fd00::5", dst="fd00::2")
+    v6 = v6 / sp.UDP(sport=5, dport=20007) / b"x"
     proto, flow, payload, _, _ = parse_packet(1, bytes(v6))  # type: ignore[misc]
     assert (proto, payload, flow_ends(flow)) == ("udp", b"x", (("fd00::5", 5), ("fd00::2", 20007)))
-    assert parse_packet(1, bytes(Ether(src=MAC_C, dst=MAC_S) / IP(frag=3) / TCP())) is None
+    assert parse_packet(1, bytes(sp.Ether(src=MAC_C, dst=MAC_S) / sp.IP(frag=3) / sp.TCP())) is None
     assert parse_packet(1, bytes(req)[:40]) is None
 
 

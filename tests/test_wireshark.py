@@ -18,10 +18,6 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from scapy.layers.inet import IP, TCP, UDP
-from scapy.layers.l2 import Ether
-from scapy.packet import Raw
-from scapy.utils import wrpcap
 
 from conformance.cli import main
 from conformance.dialects import default_dialects
@@ -33,6 +29,7 @@ from conformance.recording import read_recording
 from conformance.spec import default_specs
 from conformance.validate import RefusalForm
 from conformance.wireshark import FIELDS, english_meanings, lua_dissector, reply_kind
+from tests import scapy_lazy as sp
 
 ROOT = Path(__file__).resolve().parent.parent
 CAPTURES = ROOT / "captures"
@@ -326,9 +323,13 @@ C, S = ("192.168.58.10", 51000), ("192.168.58.2", 8080)
 
 def _tcp(src: tuple[str, int], dst: tuple[str, int], seq: int, load: bytes, t: float) -> Any:
     flags = "PA" if load else "A"
-    p = Ether() / IP(src=src[0], dst=dst[0]) / TCP(sport=src[1], dport=dst[1], seq=seq, flags=flags)
+    p = (
+        sp.Ether()
+        / sp.IP(src=src[0], dst=dst[0])
+        / sp.TCP(sport=src[1], dport=dst[1], seq=seq, flags=flags)
+    )
     if load:
-        p = p / Raw(load=load)
+        p = p / sp.Raw(load=load)
     p.time = 1_700_000_000 + t
     return p
 
@@ -361,14 +362,14 @@ def hostile_pcap(path: Path) -> int:
         t += 0.01
     # UDP: one datagram with two frames.
     u: Any = (
-        Ether()
-        / IP(src=C[0], dst=S[0])
-        / UDP(sport=40000, dport=20007)
-        / Raw(load=encode_frame(10, 201, 'MoveJ("P1")') + encode_frame(11, 212, "GetDI(1,0)"))
+        sp.Ether()
+        / sp.IP(src=C[0], dst=S[0])
+        / sp.UDP(sport=40000, dport=20007)
+        / sp.Raw(load=encode_frame(10, 201, 'MoveJ("P1")') + encode_frame(11, 212, "GetDI(1,0)"))
     )
     u.time = 1_700_000_001
     pk.append(u)
-    wrpcap(str(path), pk)
+    sp.wrpcap(str(path), pk)
     return len(pk)
 
 
@@ -467,7 +468,7 @@ def test_the_dissector_is_valid_lua(lua: Path) -> None:
 def test_item_8_dissector_shows_refusals_with_code_and_meaning(lua: Path, tmp_path: Path) -> None:
     """robot errcode:14 was read as ``Call: robot``: a refusal shows its code and meaning."""
     pcap = tmp_path / "refusals.pcap"
-    wrpcap(str(pcap), refusal_packets())
+    sp.wrpcap(str(pcap), refusal_packets())
     frames = frames_pdml(pcap, lua)
     assert len(frames) == 2 * len(REFUSALS)
     for k, (_, req, rep, (refused, code)) in enumerate(REFUSALS):

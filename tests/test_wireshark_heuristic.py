@@ -13,13 +13,10 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from scapy.layers.inet import IP, UDP
-from scapy.layers.l2 import Ether
-from scapy.packet import Raw
-from scapy.utils import wrpcap
 
 from conformance.frame import encode_frame
 from conformance.wireshark import lua_dissector
+from tests import scapy_lazy as sp
 
 from .test_wireshark import (
     DIALECTS,
@@ -68,14 +65,14 @@ def heuristic_pcap(path: Path) -> None:
     (c, s) = OTHER
     pk.append(_tcp(c, s, 100, b"GET /f/bIII1III2III0IIIIII/b/f HTTP/1.1\r\n\r\n", 2.0))
     u: Any = (
-        Ether()
-        / IP(src=CLIENT[0], dst=SERVER[0])
-        / UDP(sport=40001, dport=UDP_PORT)
-        / Raw(load=encode_frame(20, 201, 'MoveJ("P1")') + encode_frame(21, 212, "GetDI(1,0)"))
+        sp.Ether()
+        / sp.IP(src=CLIENT[0], dst=SERVER[0])
+        / sp.UDP(sport=40001, dport=UDP_PORT)
+        / sp.Raw(load=encode_frame(20, 201, 'MoveJ("P1")') + encode_frame(21, 212, "GetDI(1,0)"))
     )
     u.time = 1_700_000_003
     pk.append(u)
-    wrpcap(str(path), pk)
+    sp.wrpcap(str(path), pk)
 
 
 @needs_tshark
