@@ -4,7 +4,8 @@
 from __future__ import annotations
 
 from array import array
-from dataclasses import dataclass, field
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from ..recording import ConnectionRecord, ProblemRecord
@@ -41,13 +42,14 @@ class Columns:
     complete_ns: array[int] = field(default_factory=_ints)
     #: 1 for a request (c2s), 0 for a reply: ``dir`` as bytes.
     request: array[int] = field(default_factory=lambda: array("b"))
-    #: Each frame's framing problems (the decoder's, as the recording names them; most
-    #: often none: the one empty tuple).
+    #: Each frame's framing problems (the decoder's, as the recording names them; none:
+    #: the empty tuple); absent (empty) while no frame here has any, as a rule.
     flaws: list[tuple[str, ...]] = field(default_factory=list)
-    #: Each frame's offset in its stream (connection and direction).
+    #: Each frame's offset in its stream (connection and direction), while the window is
+    #: read (:mod:`.fast` empties it as it gives the window: an empty column is absent).
     offset: array[int] = field(default_factory=_ints)
-    #: Each frame's number in the recording (file order, from 0; :mod:`.fast` numbers a
-    #: window's as it gives it).
+    #: Each frame's number in the recording (file order, from 0), where the recording's
+    #: controller's runs are blamed (:attr:`~.fast.ColumnStream.blame`); else absent.
     seq: array[int] = field(default_factory=_ints)
     complete: bool = True
     #: The state packets' rows (:func:`read_columns`; a window's are its stream's).
@@ -62,7 +64,19 @@ class Columns:
         """Which frames have framing problems (numpy bool)."""
         import numpy as np
 
+        if not self.flaws:
+            return np.zeros(len(self), dtype=bool)
         return np.fromiter(map(bool, self.flaws), dtype=bool, count=len(self.flaws))
+
+    def add_flaws(self, n: int, flaws: Iterable[Sequence[str]] | None) -> None:
+        """The framing problems of the last ``n`` frames (None: none)."""
+        if flaws is None:
+            if self.flaws:
+                self.flaws += [()] * n
+            return
+        if not self.flaws:
+            self.flaws = [()] * (len(self) - n)
+        self.flaws += (tuple(f) if f else () for f in flaws)
 
     def np(self, name: str) -> Any:
         """A number column as a numpy int64 array (a view, no copy)."""
@@ -75,6 +89,11 @@ class Columns:
 
     def extend(self, other: Columns) -> None:
         """``other``'s frames after these."""
+        if other.flaws and not self.flaws:
+            self.flaws = [()] * len(self)
+        elif self.flaws and not other.flaws:
+            self.flaws += [()] * len(other)
+            other = replace(other, flaws=self.flaws[:0])  # the rest as they are
         for k in FRAME_COLUMNS:
             getattr(self, k).extend(getattr(other, k))
 
@@ -94,6 +113,8 @@ class Columns:
         idx = at.tolist()
         for k in FRAME_COLUMNS:
             mine = getattr(self, k)
+            if len(mine) != len(self):  # absent (offset, seq, flaws)
+                continue
             if isinstance(mine, array):
                 dtype = np.int8 if mine.typecode == "b" else np.int64
                 getattr(out, k).frombytes(np.frombuffer(mine, dtype=dtype)[at].tobytes())

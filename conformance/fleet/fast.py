@@ -242,10 +242,12 @@ class ColumnStream:
         self._fed = len(c)
 
     def _check(self, c: Columns) -> None:
-        """A window checked as the fast path needs it, and its frames numbered."""
+        """A window checked as the fast path needs it; its frames fed to :attr:`blame`
+        and numbered (its offsets then dropped: nothing after needs them)."""
         self._feed(c)
         self._fed = 0
-        c.seq.extend(range(self._frames, self._frames + len(c)))
+        if self.blame is not None:
+            c.seq.extend(range(self._frames, self._frames + len(c)))
         self._frames += len(c)
         self._conns.update(c.conn)
         if len(self._conns) > _CONNECTIONS:
@@ -253,6 +255,7 @@ class ColumnStream:
         numbers = ("conn", "cnt", "cmd_id", "length", "offset", "first_ns", "complete_ns")
         if c.cnt and min(int(c.np(k).min()) for k in numbers) < 0:
             raise NotFast  # the recording's numbers are non-negative: the reader names the one
+        del c.offset[:]
 
 
 def read_columns(path: str) -> Columns | None:
@@ -303,9 +306,9 @@ def _batch(c: Columns, d: Any, raw_size: int) -> bool:
     complete = d["complete_ns"]
     first: list[int] = d["first_ns"] if "first_ns" in d else complete  # noqa: SIM401
     names = d.get("name", [None] * n)
-    flaws = _flaws(d["problems"], n) if "problems" in d else [()] * n
+    flaws = _flaws(d["problems"], n) if "problems" in d else None
     cols = (d["cmd_id"], d["data"], d["len"], d["offset"], complete, first, names, sizes)
-    if flaws is None or any(not isinstance(x, list) or len(x) != n for x in cols):
+    if flaws == [] or any(not isinstance(x, list) or len(x) != n for x in cols):
         return False
     conn, transport, direction = d["conn"], d.get("transport", "tcp"), d["dir"]
     if type(conn) is not int or direction not in ("c2s", "s2c") or type(transport) is not str:
@@ -327,19 +330,19 @@ def _batch(c: Columns, d: Any, raw_size: int) -> bool:
     c.offset.extend(d["offset"])
     c.first_ns.extend(first)
     c.complete_ns.extend(complete)
-    c.flaws += flaws
+    c.add_flaws(n, flaws)
     return True
 
 
-def _flaws(problems: Any, n: int) -> list[tuple[str, ...]] | None:
+def _flaws(problems: Any, n: int) -> list[tuple[str, ...]]:
     """A JSON batch's ``problems`` (a list of strings a frame) as :attr:`Columns.flaws`;
-    None for anything else (the reader names it)."""
-    if not isinstance(problems, list) or len(problems) != n:
-        return None
+    an empty list for anything else (the reader names it)."""
+    if not isinstance(problems, list) or len(problems) != n or not n:
+        return []
     out: list[tuple[str, ...]] = []
     for p in problems:
         if not isinstance(p, list) or not all(type(x) is str for x in p):
-            return None
+            return []
         out.append(tuple(p) if p else ())
     return out
 
@@ -359,7 +362,7 @@ def _binary_batch(c: Columns, b: BatchColumns, *, flaws: bool = False) -> bool:
     _add_numbers(c, b)
     c.name += b.names
     c.data += map(sys.intern, b.datas())
-    c.flaws += [()] * n if b.problems is None else map(tuple, b.problems)
+    c.add_flaws(n, b.problems)
     return True
 
 
@@ -396,7 +399,7 @@ def _traffic(c: Columns, b: TrafficColumns, *, flaws: bool = False) -> bool:
     _add_numbers(c, b)
     c.name += b.names
     c.data += texts(b.data, b.data_size)  # as b.datas() reads them, interned
-    c.flaws += [()] * len(rows) if b.problems is None else map(tuple, b.problems)
+    c.add_flaws(len(rows), b.problems)
     return True
 
 
@@ -415,4 +418,4 @@ def _one_frame(c: Columns, b: FrameBatch) -> None:
     c.first_ns.append(b.first_ns[0])
     c.complete_ns.append(b.complete_ns[0])
     c.offset.append(b.offsets[0])
-    c.flaws.append(())
+    c.add_flaws(1, None)

@@ -146,7 +146,7 @@ class Pending:
             (c.complete_ns, 13),
         ):
             mine.frombytes(col[k].tobytes())
-        c.flaws += [()] * self.frames  # framing problems: not taken (add)
+        c.add_flaws(self.frames, None)  # framing problems: not taken (add)
         self.__init__()  # type: ignore[misc]
 
     def _name(self, raw: bytes) -> str:

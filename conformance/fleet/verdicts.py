@@ -203,7 +203,7 @@ def judge_columns(
         return k
 
     def frame(i: int) -> Frame:
-        if flaws[i]:  # the rules as the reader's records name them
+        if flaws and flaws[i]:  # the rules as the reader's records name them
             return FrameRecord(
                 conn=0,
                 dir=C2S,

@@ -203,7 +203,7 @@ class Windows:
                     "cmd_id": pa.array(c.np("cmd_id")[k:]),
                     "name": names.slice(k),
                     "len": pa.array(c.np("length")[k:]),
-                    "len_ok": _len_ok(c.flaws[k:]),
+                    "len_ok": _len_ok(c.flaws[k:], n - k),
                     "data": pa.array(c.data[k:], type=pa.string())
                     if self.data
                     else pa.nulls(n - k, pa.string()),
@@ -322,10 +322,10 @@ def _directions(request: Any) -> Any:
     )
 
 
-def _len_ok(flaws: list[tuple[str, ...]]) -> Any:
-    """The ``len_ok`` column of frames with these framing problems."""
+def _len_ok(flaws: list[tuple[str, ...]], n: int) -> Any:
+    """The ``len_ok`` column of ``n`` frames with these framing problems (none: absent)."""
     import pyarrow as pa
 
     if flaws.count(()) == len(flaws):
-        return pa.repeat(pa.scalar(True), len(flaws))
+        return pa.repeat(pa.scalar(True), n)
     return pa.array(list(map(len_ok, flaws)), type=pa.bool_())
