@@ -130,16 +130,40 @@ def _recording(seed: int) -> tuple[Recording, list[FrameRecord | ProblemRecord]]
 
 
 def _windowed(
-    rec: Recording, order: list[FrameRecord | ProblemRecord], keep: int
+    rec: Recording, order: list[FrameRecord | ProblemRecord], keep: int, together: bool = False
 ) -> dict[int, FrameRecord]:
     """answered_by as the fleet's windows work it out: fed in file order (the
-    controller's runs only), the exchanges told after, bounded to ``keep``."""
+    controller's runs only), the exchanges told after, bounded to ``keep``; ``together``:
+    the frames between two runs fed a stream at a time (``Blame.stream``), as the fleet
+    feeds them."""
     b: Blame[FrameRecord] = Blame(keep)
-    for x in order:
+    read: list[tuple[int, FrameRecord]] = []  # (number, frame) since the last run
+
+    def feed() -> None:
+        streams: dict[tuple[int, str], list[tuple[int, FrameRecord]]] = {}
+        for number, f in read:
+            streams.setdefault((f.conn, f.dir), []).append((number, f))
+        for (conn, way), got in streams.items():
+            b.stream(
+                conn,
+                way,
+                [n for n, _ in got],
+                [f.offset for _, f in got],
+                [f.first_ns or f.complete_ns for _, f in got],
+                lambda k, got=got: got[k][1],  # type: ignore[misc]
+            )
+        read.clear()
+
+    for number, x in enumerate(order):
         if isinstance(x, FrameRecord):
-            b.frame(x, x.conn, x.dir, x.offset, x.first_ns or x.complete_ns)
+            if together:
+                read.append((number, x))
+            else:
+                b.frame(x, x.conn, x.dir, x.offset, x.first_ns or x.complete_ns, number)
         elif x.dir == S2C:
+            feed()
             b.run(x)
+    feed()
     for e in rec.exchanges():
         if e.reply is not None:
             b.paired(e.reply, e.request)
@@ -161,16 +185,18 @@ def test_the_rule_moved_gives_what_it_gave() -> None:
     assert blamed > 300  # the recordings do have runs blamed
 
 
+@pytest.mark.parametrize("together", [False, True])
 @pytest.mark.parametrize("keep", [1, 3, 1000])
-def test_a_window_at_a_time_decides_the_same_or_says_it_cannot(keep: int) -> None:
-    """Fed in file order with ``keep`` frames and requests remembered: the same requests
-    as answered_by, or Unknown (never a different one: a frame of a stream before one a
-    run was decided at, a run after frames forgotten)."""
+def test_a_window_at_a_time_decides_the_same_or_says_it_cannot(keep: int, together: bool) -> None:
+    """Fed in file order with ``keep`` frames and requests remembered (one by one, or a
+    stream's together between runs): the same requests as answered_by, or Unknown (never
+    a different one: a frame of a stream before one a run was decided at, a run after
+    frames forgotten)."""
     unknown = 0
     for seed in range(300):
         rec, order = _recording(seed)
         try:
-            got = _windowed(rec, order, keep)
+            got = _windowed(rec, order, keep, together)
         except Unknown:
             unknown += 1
             continue

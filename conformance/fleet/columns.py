@@ -6,6 +6,7 @@ from __future__ import annotations
 from array import array
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
+from operator import itemgetter
 from typing import Any
 
 from ..recording import ConnectionRecord, ProblemRecord
@@ -76,7 +77,7 @@ class Columns:
             return
         if not self.flaws:
             self.flaws = [()] * (len(self) - n)
-        self.flaws += (tuple(f) if f else () for f in flaws)
+        self.flaws += map(tuple, flaws)  # tuple([]) is the one empty tuple
 
     def np(self, name: str) -> Any:
         """A number column as a numpy int64 array (a view, no copy)."""
@@ -111,6 +112,7 @@ class Columns:
                 getattr(out, k).extend(getattr(self, k)[a:b])
             return out
         idx = at.tolist()
+        pick = itemgetter(*idx) if n > 1 else lambda x: (x[idx[0]],) if n else ()
         for k in FRAME_COLUMNS:
             mine = getattr(self, k)
             if len(mine) != len(self):  # absent (offset, seq, flaws)
@@ -121,7 +123,7 @@ class Columns:
             elif k == "flaws" and mine.count(()) == len(mine):
                 out.flaws += [()] * n  # no framing problem (as a rule): nothing to look up
             else:
-                getattr(out, k).extend([mine[i] for i in idx])
+                getattr(out, k).extend(pick(mine))  # looked up in C
         return out
 
 

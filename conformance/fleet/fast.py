@@ -230,16 +230,36 @@ class ColumnStream:
         return self.blame
 
     def _feed(self, c: Columns) -> None:
-        """The frames of ``c`` not fed yet to :attr:`blame` (if any), in file order."""
-        b = self.blame
-        if b is None or self._fed == len(c):
+        """The frames of ``c`` not fed yet to :attr:`blame` (if any): no run was read
+        among them, so each stream's are fed together (recording/blame.py ``stream``)."""
+        b, start, n = self.blame, self._fed, len(c)
+        if b is None or start == n:
             return
-        base, feed = self._frames, b.frame
-        cmd, conn, dirs, offset = c.cmd_id, c.conn, c.dir, c.offset
-        first, complete = c.first_ns, c.complete_ns
-        for i in range(self._fed, len(c)):
-            feed((base + i, cmd[i]), conn[i], dirs[i], offset[i], first[i] or complete[i])
-        self._fed = len(c)
+        import numpy as np
+
+        key = c.np("conn")[start:] * 2 + np.frombuffer(c.request, dtype=np.int8)[start:]
+        first, complete = c.np("first_ns")[start:], c.np("complete_ns")[start:]
+        times = np.where(first != 0, first, complete)  # as the reader's first_ns or complete_ns
+        offsets = c.np("offset")[start:]
+        order = np.argsort(key, kind="stable")
+        base, cmd = self._frames, c.cmd_id
+        for group in np.split(order, np.flatnonzero(np.diff(key[order])) + 1):
+            at: list[int] = (group + start).tolist()  # the stream's frames in c, in order
+
+            def ref(k: int, at: list[int] = at) -> FrameRef:
+                return base + at[k], cmd[at[k]]
+
+            numbers = (group + start + base).tolist()
+            first_at = at[0]
+            b.stream(
+                c.conn[first_at],
+                c.dir[first_at],
+                numbers,
+                offsets[group].tolist(),
+                times[group].tolist(),
+                ref,
+            )
+        self._fed = n
 
     def _check(self, c: Columns) -> None:
         """A window checked as the fast path needs it; its frames fed to :attr:`blame`

@@ -328,4 +328,5 @@ def _len_ok(flaws: list[tuple[str, ...]], n: int) -> Any:
 
     if flaws.count(()) == len(flaws):
         return pa.repeat(pa.scalar(True), n)
-    return pa.array(list(map(len_ok, flaws)), type=pa.bool_())
+    each = {f: len_ok(f) for f in set(flaws)}  # a few distinct ones, each asked once
+    return pa.array(list(map(each.__getitem__, flaws)), type=pa.bool_())

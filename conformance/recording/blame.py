@@ -29,8 +29,10 @@ decision, it raises :class:`Unknown` and the caller reads the recording whole.
 from __future__ import annotations
 
 from bisect import bisect_left, bisect_right
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Generic, TypeVar
+from functools import partial
+from typing import Any, Generic, TypeVar
 
 from .layout import C2S
 from .records import ProblemRecord
@@ -111,34 +113,96 @@ class Blame(Generic[F]):
 
     # ------------------------------------------------------------------ feeding
 
-    def frame(self, f: F, conn: int, direction: str, offset: int, t_ns: int) -> None:
-        """A frame, in file order: ``t_ns`` the time its first byte came."""
-        number = self._number
-        self._number += 1
-        s = self._stream(conn, direction)
-        if s.frames and offset < s.frames[-1][0]:
+    def frame(
+        self, f: F, conn: int, direction: str, offset: int, t_ns: int, number: int | None = None
+    ) -> None:
+        """A frame, in file order: ``t_ns`` the time its first byte came (``number``: its
+        place in the file, where the caller counts; else counted here)."""
+        if number is None:
+            number = self._number
+        self._number = number + 1
+        s = self._streams.get((conn, direction)) or self._stream(conn, direction)
+        frames = s.frames
+        if frames and offset < frames[-1][0]:
             s.sorted = False
         if offset < s.decided:
             raise Unknown(f"connection {conn} {direction}: a frame before one a run was before")
-        s.frames.append((offset, number, f))
-        for r in [r for r in s.waiting if r.problem.offset <= offset]:
-            # keep: the first frame at or after the run from here on (offsets in order).
-            r.frame, r.at = f, (offset, number)
-            self._decided(r, s)
+        frames.append((offset, number, f))
+        if s.waiting:
+            for r in [r for r in s.waiting if r.problem.offset <= offset]:
+                # keep: the first frame at or after the run from here on (offsets in order).
+                r.frame, r.at = f, (offset, number)
+                self._decided(r, s)
+        keep = self.keep
         if direction == C2S:
-            c = self._client(conn)
-            if c.requests and t_ns < c.requests[-1][0]:
+            c = self._clients.get(conn) or self._client(conn)
+            requests = c.requests
+            if requests and t_ns < requests[-1][0]:
                 c.sorted = False
-            c.requests.append((t_ns, number, f))
+            requests.append((t_ns, number, f))
             for r in c.waiting:
                 if t_ns <= r.problem.complete_ns and (
                     r.request_at is None or (t_ns, -number) > r.request_at
                 ):
                     r.request, r.request_at = f, (t_ns, -number)
-            if self.keep is not None and len(c.requests) > 2 * self.keep:
-                self._forget_requests(c, len(c.requests) - self.keep)
-        if self.keep is not None and len(s.frames) > 2 * self.keep:
-            self._forget_frames(s, len(s.frames) - self.keep)
+            if keep is not None and len(requests) > 2 * keep:
+                self._forget_requests(c, len(requests) - keep)
+        if keep is not None and len(frames) > 2 * keep:
+            self._forget_frames(s, len(frames) - keep)
+
+    def stream(
+        self,
+        conn: int,
+        direction: str,
+        numbers: Sequence[int],
+        offsets: Sequence[int],
+        times: Sequence[int],
+        ref: Callable[[int], F],
+    ) -> None:
+        """Frames of one connection and direction read together (no run read among them),
+        as :meth:`frame` each: ``numbers`` their places in the file, ``ref(k)`` the k-th.
+        With ``keep``, once no run waits on the stream or its connection, and where the
+        offsets are in order, only the last ``keep`` are looked at: the others are
+        forgotten at once, as :meth:`frame` would forget them."""
+        keep = self.keep
+        s = self._streams.get((conn, direction)) or self._stream(conn, direction)
+        c = self._clients.get(conn) if direction == C2S else None
+        k, m = 0, len(numbers)
+        while k < m and (keep is None or s.waiting or (c is not None and c.waiting)):
+            self.frame(ref(k), conn, direction, offsets[k], times[k], numbers[k])
+            k += 1
+        if k:
+            numbers, offsets, times = numbers[k:], offsets[k:], times[k:]
+            ref = partial(_shifted, ref, k)
+            m -= k
+        if keep is None or m <= 2 * keep or not _ascending(offsets, s):
+            for k in range(m):
+                self.frame(ref(k), conn, direction, offsets[k], times[k], numbers[k])
+            return
+        if offsets[0] < s.decided:
+            raise Unknown(f"connection {conn} {direction}: a frame before one a run was before")
+        cut = m - keep
+        s.forgot = max(s.forgot, offsets[cut - 1], *(x[0] for x in s.frames))
+        s.frames = [(offsets[k], numbers[k], ref(k)) for k in range(cut, m)]
+        self._number = numbers[-1] + 1
+        if direction != C2S:
+            return
+        c = c or self._client(conn)
+        # The requests forgotten (those remembered so far, and all but the last ``keep``
+        # here): of them, the latest is kept (of those at its time, the first recorded).
+        t = max(times[:cut])
+        j = list(times).index(t)  # the first at that time: numbers go up with k
+        forgotten: list[tuple[int, int, F]] = [(t, -numbers[j], ref(j))]
+        if c.requests:
+            c.requests.sort(key=_by_place)
+            old = _latest(c.requests, c.requests[-1][0])
+            assert old is not None
+            forgotten.append(old)
+        for x in forgotten:
+            if c.forgot is None or x[:2] > c.forgot[:2]:
+                c.forgot = x
+        c.requests = [(times[k], numbers[k], ref(k)) for k in range(cut, m)]
+        c.sorted = _in_order(times[cut:])
 
     def run(self, p: ProblemRecord) -> None:
         """A problem, in file order (a malformed run; any other is not blamed)."""
@@ -262,6 +326,23 @@ class Blame(Generic[F]):
         if c.forgot is None or gone[:2] > c.forgot[:2]:
             c.forgot = gone
         del c.requests[:n]
+
+
+def _in_order(xs: Sequence[int]) -> bool:
+    """Whether ``xs`` never goes down (Timsort's pass over a sorted list, in C)."""
+    xs = list(xs)
+    return sorted(xs) == xs
+
+
+def _shifted(ref: Callable[[int], F], by: int, k: int) -> F:
+    return ref(by + k)
+
+
+def _ascending(offsets: Sequence[int], s: _Stream[Any]) -> bool:
+    """Whether a stream's frames' ``offsets`` follow its frames before, in order."""
+    if s.frames and (not s.sorted or offsets[0] < s.frames[-1][0]):
+        return False
+    return _in_order(offsets)
 
 
 def _latest(requests: list[tuple[int, int, F]], end: int) -> tuple[int, int, F] | None:
