@@ -262,3 +262,24 @@ def test_baseline_counts_what_fails_under_the_run_options() -> None:
         lenient.detail
     )
     assert strict.outcome is Outcome.NON_STRICT and strict.expected
+
+
+def test_an_engine_leaves_a_hosts_frozen_objects_frozen() -> None:
+    """The engine freezes what a run keeps out of the collector's way, but not where the
+    process froze objects of its own (this pytest session did, after collecting: see
+    tests/conftest.py): its close would thaw those too."""
+    import gc
+
+    from conformance.suite.config import SuiteConfig
+    from conformance.suite.engine import Engine
+
+    frozen = gc.get_freeze_count()
+    assert frozen > 0  # tests/conftest.py froze what collection made
+    engine = Engine(SuiteConfig(commands=("201",), groups=("valid",)))
+    engine.start()
+    try:
+        engine.run_case(engine.select()[0])
+    finally:
+        engine.close()
+    # Frozen objects still die by reference counting; unfreezing would leave none.
+    assert gc.get_freeze_count() > frozen // 2
