@@ -6,6 +6,7 @@ import contextlib
 import socket
 import threading
 import time
+from typing import Any
 
 import pytest
 
@@ -661,3 +662,46 @@ def test_idle_timeout_option_is_checked(capsys: pytest.CaptureFixture[str]) -> N
 
     assert main(["emulate", "--idle-timeout", "-1", "--listen", "127.0.0.1:0"]) == 2
     assert "--idle-timeout must be 0 (never) or a number of seconds" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("kind", [socket.SOCK_STREAM, socket.SOCK_DGRAM])
+def test_close_server_ends_a_loop_that_would_wait_forever(kind: socket.SocketKind) -> None:
+    """The servers' accept and receive loops used to notice a stop at their socket's next
+    timeout (0.1-0.2 s for every close): close_server wakes them.  Here the socket has no
+    timeout at all, so only the wake can end the loop; what woke it is not handled."""
+    from conformance.net._server import Backoff, close_server, serve_forever
+
+    sock = socket.socket(socket.AF_INET, kind)
+    sock.bind(("127.0.0.1", 0))
+    address = sock.getsockname()
+    handled: list[object] = []
+    served = threading.Event()
+
+    def handle(got: object) -> None:
+        handled.append(got)
+        served.set()
+
+    if kind == socket.SOCK_STREAM:
+        sock.listen(8)
+        receive: Any = sock.accept
+    else:
+        receive = lambda: sock.recvfrom(100)  # noqa: E731
+    stop = threading.Event()
+    backoff = Backoff(lambda _: None, started=lambda e: "", ended=lambda s, n: "")
+    loop = threading.Thread(target=serve_forever, args=(receive, handle),
+                            kwargs={"stop": stop, "backoff": backoff})  # fmt: skip
+    loop.start()
+    # One piece of work served first: the loop is running, and back in its wait next.
+    with socket.socket(socket.AF_INET, kind) as peer:
+        if kind == socket.SOCK_STREAM:
+            peer.connect(address)
+        else:
+            peer.sendto(b"x", address)
+        assert served.wait(60)
+        stop.set()
+        close_server(sock)
+        loop.join(60)
+    assert not loop.is_alive()
+    assert len(handled) == 1
+    if kind == socket.SOCK_STREAM:
+        handled[0][0].close()  # type: ignore[index]

@@ -53,6 +53,7 @@ from ._server import (
     DEFAULT_MAX_CONNECTIONS,
     Backoff,
     ConnectionSet,
+    close_server,
     family,
     serve_forever,
 )
@@ -347,8 +348,7 @@ class EmulatorServer:
         """Stop every thread, close every socket, re-raise a background failure."""
         self._stop.set()
         for s in (self._tcp, self._udp):
-            if s is not None:
-                s.close()
+            close_server(s)
         if self.state is not None:
             self.state.close()
         for c in self._conns.snapshot():

@@ -27,7 +27,7 @@ from typing import Any
 from ..faults import Fault, StateFaults
 from ..protocol.state import encode_state
 from ..protocol.state_layout import StateLayout, known_layouts, layout_for
-from ._server import Backoff, ConnectionSet, family, serve_forever
+from ._server import Backoff, ConnectionSet, close_server, family, serve_forever
 from .addresses import format_sockaddr
 
 __all__ = ["StatePort", "served_layout"]
@@ -110,9 +110,7 @@ class StatePort:
         self._spawn(self._accept_loop, "emulator-state-accept")
 
     def close(self) -> None:
-        if self._sock is not None:
-            with contextlib.suppress(OSError):
-                self._sock.close()
+        close_server(self._sock)
 
     # ------------------------------------------------------------------ internals
 

@@ -12,7 +12,15 @@ from typing import Any
 
 from ..errors import UsageError
 from ..frame import DEFAULT_MAX_FRAME_SIZE, Frame, FrameDecoder, Malformed
-from ._server import BACKOFF_MAX, Backoff, ConnectionSet, family, log_stderr, serve_forever
+from ._server import (
+    BACKOFF_MAX,
+    Backoff,
+    ConnectionSet,
+    close_server,
+    family,
+    log_stderr,
+    serve_forever,
+)
 from .addresses import format_address
 
 __all__ = ["ReplayServer"]
@@ -290,9 +298,8 @@ class ReplayServer:
 
     def close(self) -> None:
         self._stop.set()
-        self._srv.close()
-        if self._udp is not None:
-            self._udp.close()
+        close_server(self._srv)
+        close_server(self._udp)
         for c in self._conns.snapshot():
             with contextlib.suppress(OSError):
                 c.shutdown(socket.SHUT_RDWR)

@@ -19,7 +19,15 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from ._server import BACKOFF_MAX, Backoff, ConnectionSet, family, log_stderr, serve_forever
+from ._server import (
+    BACKOFF_MAX,
+    Backoff,
+    ConnectionSet,
+    close_server,
+    family,
+    log_stderr,
+    serve_forever,
+)
 
 __all__ = ["StatePlayer"]
 
@@ -72,8 +80,7 @@ class StatePlayer:
 
     def close(self) -> None:
         self._stop.set()
-        with contextlib.suppress(OSError):
-            self._srv.close()
+        close_server(self._srv)
         for t in list(self._threads):
             t.join(5)
 
