@@ -283,3 +283,40 @@ def test_an_engine_leaves_a_hosts_frozen_objects_frozen() -> None:
         engine.close()
     # Frozen objects still die by reference counting; unfreezing would leave none.
     assert gc.get_freeze_count() > frozen // 2
+
+
+def test_a_swallowed_interrupt_still_ends_the_run(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Python drops a KeyboardInterrupt raised inside a finalizer, and the collection at a
+    run's start runs finalizers just as a Ctrl-C is likeliest: a loaded CI machine saw an
+    interrupted run finish every case and exit 0.  Here the first case's step swallows
+    the SIGINT's KeyboardInterrupt as a finalizer would; the run still stops after it,
+    says interrupted, lists the rest as not run and exits 130."""
+    import signal as signals
+
+    from conformance.suite.engine import Engine
+
+    step = Engine.step
+    swallowed: list[str] = []
+
+    def swallowing_step(self: Engine, case: Any, **kw: Any) -> Any:
+        finished = step(self, case, **kw)
+        if not swallowed:
+            try:
+                signals.raise_signal(signals.SIGINT)
+                for _ in range(1000):  # the handler runs between two of these
+                    pass
+            except KeyboardInterrupt:
+                swallowed.append(case.id)
+        return finished
+
+    monkeypatch.setattr(Engine, "step", swallowing_step)
+    p = cli_run("run", "--commands", "201,204", "--report-json", str(tmp_path / "r.json"))
+    assert len(swallowed) == 1, p.stderr
+    assert p.returncode == 130, p.stderr
+    assert "interrupted" in p.stderr
+    doc = json.loads((tmp_path / "r.json").read_text())
+    assert doc["stopped"].startswith("interrupted after 1 ")
+    cases = [c for cmd in doc["commands"].values() for c in cmd["cases"]]
+    assert sum(not c.get("not_run") for c in cases) == 1 and len(cases) > 1

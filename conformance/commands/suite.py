@@ -310,11 +310,13 @@ def _run(args: argparse.Namespace) -> int:
     errors: list[EngineError] = []
     try:
         try:
-            with _sigterm_interrupts():  # a CI time-out's SIGTERM ends the run as Ctrl-C does
+            with _interrupts() as interrupted:  # Ctrl-C, and a CI time-out's SIGTERM
                 for ev in engine.events(cases):
                     progress.handle(ev)
                     if isinstance(ev, RunFinished):
                         finished = ev
+                    elif interrupted.is_set():  # a KeyboardInterrupt that was swallowed
+                        raise KeyboardInterrupt
         except KeyboardInterrupt:  # between two cases, outside the engine
             finished = engine.interrupt(cases)
             progress.handle(finished)
@@ -458,7 +460,7 @@ def _serve(args: argparse.Namespace) -> int:
     validator.target = f"client of {format_address(*server.address)}"
     deadline = None if args.duration is None else time.monotonic() + args.duration
     failure: str | None = None
-    with _sigterm_interrupts():
+    with _interrupts() as interrupted:
         try:
             udp = f", UDP {format_address(*server.udp_address)}" if server.udp_address else ""
             if server.state_address is not None:
@@ -471,6 +473,8 @@ def _serve(args: argparse.Namespace) -> int:
                     break
                 time.sleep(0.05)
                 server.check()
+                if interrupted.is_set():  # a KeyboardInterrupt that was swallowed
+                    break
         except KeyboardInterrupt:
             pass
         except (
@@ -506,21 +510,29 @@ def _serve(args: argparse.Namespace) -> int:
 
 
 @contextlib.contextmanager
-def _sigterm_interrupts() -> Iterator[None]:
-    """SIGTERM ends ``run`` and ``serve`` as Ctrl-C does (the reports are still written,
-    exit code 130)."""
+def _interrupts() -> Iterator[threading.Event]:
+    """Ctrl-C and SIGTERM end ``run`` and ``serve`` (the reports are still written, exit
+    code 130): each raises KeyboardInterrupt in the main thread, and is remembered in the
+    event given, which the loops look at after each step.  So an interrupt that was
+    swallowed still ends the run, at the next case: Python drops a KeyboardInterrupt
+    raised inside a finalizer ("Exception ignored in ..."), and the garbage collection
+    at the start of a run runs finalizers just when a Ctrl-C is likeliest (a loaded CI
+    machine saw a run interrupted that way finish all its cases and exit 0)."""
+    seen = threading.Event()
     if threading.current_thread() is not threading.main_thread():
-        yield
+        yield seen
         return
 
     def interrupt(signum: int, frame: object) -> None:
+        seen.set()
         raise KeyboardInterrupt
 
-    old = signal.signal(signal.SIGTERM, interrupt)
+    old = {sig: signal.signal(sig, interrupt) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
-        yield
+        yield seen
     finally:
-        signal.signal(signal.SIGTERM, old)
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
 
 
 def register(subparsers: Any) -> None:
