@@ -12,7 +12,8 @@ alike.  Printed: each run's wall time, CPU time (user + system, every process th
 started) and tests passed, then the medians and their ratios against the baseline.
 
 As on CI, the tests that read the vendor's manuals skip (the manuals are not beside a
-fresh tree).  A run whose pytest does not exit 0 is reported and the bench exits 1.
+fresh tree).  A run whose pytest does not exit 0 is reported with its failures (its time
+still counts) and the bench exits 1.
 """
 
 from __future__ import annotations
@@ -41,8 +42,8 @@ def export_tree(rev: str, into: Path) -> Path:
     return into
 
 
-def run_tests(tree: Path, extra: list[str]) -> tuple[float, float, str]:
-    """(wall s, CPU s of the whole process tree, pytest's summary line)."""
+def run_tests(tree: Path, extra: list[str]) -> tuple[float, float, str, bool]:
+    """(wall s, CPU s of the whole process tree, pytest's summary line, passed)."""
     env = dict(os.environ, PYTHONPATH=str(tree))
     env.pop("PYTEST_ADDOPTS", None)
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -61,8 +62,9 @@ def run_tests(tree: Path, extra: list[str]) -> tuple[float, float, str]:
     lines = [x for x in p.stdout.splitlines() if re.search(r"\d+ (passed|failed)", x)]
     summary = lines[-1].strip("= ") if lines else p.stdout[-300:]
     if p.returncode != 0:
-        raise SystemExit(f"pytest exited {p.returncode} in {tree}: {summary}\n{p.stdout[-2000:]}")
-    return wall, cpu, summary
+        failed = [x for x in p.stdout.splitlines() if x.startswith(("FAILED", "ERROR"))]
+        summary += f" (exit {p.returncode}: " + "; ".join(failed or [p.stdout[-500:]]) + ")"
+    return wall, cpu, summary, p.returncode == 0
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -76,13 +78,16 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="fairino-bench-tests-") as d:
         trees = {k: export_tree(r, Path(d) / k) for k, r in revs.items()}
         figures: dict[str, list[tuple[float, float]]] = {k: [] for k in revs}
+        ok = True
         for k, tree in trees.items():
-            wall, cpu, summary = run_tests(tree, args.pytest_args)
+            wall, cpu, summary, passed = run_tests(tree, args.pytest_args)
+            ok &= passed
             print(f"{k:8} {revs[k]:>12}  first run (bytecode made): {wall:6.1f} s wall "
                   f"{cpu:6.1f} s CPU  {summary}", flush=True)  # fmt: skip
         for i in range(args.rounds):
             for k, tree in trees.items():
-                wall, cpu, summary = run_tests(tree, args.pytest_args)
+                wall, cpu, summary, passed = run_tests(tree, args.pytest_args)
+                ok &= passed
                 figures[k].append((wall, cpu))
                 print(f"{k:8} {revs[k]:>12}  round {i + 1}: {wall:6.1f} s wall "
                       f"{cpu:6.1f} s CPU  {summary}", flush=True)  # fmt: skip
@@ -91,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
     (bw, bc), (tw, tc) = med["baseline"], med["timed"]
     print(f"median wall: {tw:.1f} s vs {bw:.1f} s ({tw / bw:.2f}x); "
           f"CPU: {tc:.1f} s vs {bc:.1f} s ({tc / bc:.2f}x)")  # fmt: skip
-    return 0
+    return 0 if ok else 1
 
 
 if __name__ == "__main__":
