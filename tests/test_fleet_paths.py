@@ -6,6 +6,7 @@ every column; and the fast path is the one that wrote them."""
 from __future__ import annotations
 
 import glob
+import json
 from pathlib import Path
 from typing import Any
 
@@ -389,3 +390,100 @@ def test_a_run_written_after_its_reply_was_judged_reads_the_recording_whole(
     assert whole == [str(path)]
     (run,) = tables["problems"]
     assert run["cmd_id"] == 214
+
+
+def _with_bad_messages(path: Path, layout: int, *, flip: int = 0) -> Path:
+    """Two connections' batches of four frames (each direction a message: layout 3's wait
+    to be checked with the window's), and among them messages the reader skips and names:
+    a frame batch that does not fit (a CNT of -1 in JSON, a CMD_ID past 2^63 in
+    protobuf, a traffic message cut inside a field), a connection record and a problem
+    that do not, and a message on a later layout's topic the reader does not read.
+    ``flip``: the byte at that offset flipped too (damage the walk names in between)."""
+    from conformance.frame import encode_frame
+    from conformance.recording import (
+        C2S,
+        S2C,
+        TOPIC_C2S,
+        TOPIC_CONNECTIONS,
+        TOPIC_FRAMES,
+        TOPIC_PROBLEMS,
+        ConnectionRecord,
+        FrameBatch,
+        RecordingWriter,
+        default_metadata,
+    )
+    from conformance.recording.frames_pb import encode_batch
+
+    md = {**default_metadata(START, robot="r06"), "format": f"fairino-conformance/{layout}"}
+    with RecordingWriter(path, metadata=md, chunk_size=2048, batch_frames=4) as w:
+        mcap = w._mcap
+        frames_topic = TOPIC_FRAMES if layout == 4 else TOPIC_C2S
+        later = mcap.register_channel("/fairino/later", "json", 0)
+        offsets = {(c, d): 0 for c in (1, 2) for d in (C2S, S2C)}
+        t = START
+        for conn in (1, 2):
+            w.write(ConnectionRecord(conn=conn, event="open", t_ns=t, transport="tcp",
+                                     client=f"10.0.0.1:{4000 + conn}", upstream="10.0.0.2:8080"))  # fmt: skip
+        for k in range(24):
+            conn = 1 + k % 2
+            for way, data in ((C2S, "GetDI(0,0)"), (S2C, "1")):
+                raws = [encode_frame(4 * k + i, 212, data) for i in range(4)]
+                at = offsets[(conn, way)]
+                offs = [at + sum(map(len, raws[:i])) for i in range(4)]
+                offsets[(conn, way)] = at + sum(map(len, raws))
+                times = [t + i * 1000 + (500 if way == S2C else 0) for i in range(4)]
+                b = FrameBatch(conn, "tcp", way, [4 * k + i for i in range(4)], [212] * 4,
+                               [None] * 4, [data] * 4, [len(data)] * 4, offs, times, times,
+                               list(map(len, raws)), b"".join(raws))  # fmt: skip
+                w.write_frames(b)
+            w.flush()
+            t += 1_000_000
+            if k == 2:  # a frame batch that does not fit, near the start
+                if layout == 2:
+                    doc = b.to_json()
+                    doc["cnt"] = [-1, *doc["cnt"][1:]]
+                    bad = json.dumps(doc).encode()
+                elif layout == 3:
+                    bad = encode_batch(b).replace(b"\xd4\x00\x00\x00\x00\x00\x00\x00", b"\xff" * 8)
+                else:
+                    bad = b"\x12\x05ab"
+                mcap.add_message(w._channels[frames_topic], t, bad, t, 9)
+            elif k == 9:
+                mcap.add_message(w._channels[TOPIC_CONNECTIONS], t, b'{"conn": -1}', t, 9)
+                mcap.add_message(later, t, b'{"frames": []}', t, 1)
+            elif k == 15:
+                mcap.add_message(w._channels[TOPIC_PROBLEMS], t, b"{", t, 9)
+        for conn in (1, 2):
+            w.write(ConnectionRecord(conn=conn, event="close", t_ns=t, transport="tcp",
+                                     client=f"10.0.0.1:{4000 + conn}", upstream="10.0.0.2:8080",
+                                     reason="client closed"))  # fmt: skip
+    if flip:
+        flipped = bytearray(path.read_bytes())
+        flipped[flip] ^= 0xFF
+        path.write_bytes(bytes(flipped))
+    return path
+
+
+@pytest.mark.parametrize(
+    ("layout", "flip"), [(2, 0), (3, 0), (4, 0), (3, 4000), (3, 7000), (4, 5000)]
+)
+def test_messages_that_do_not_read_or_fit_go_the_windowed_path(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, layout: int, flip: int
+) -> None:
+    """A frame batch, a connection record and a problem that do not read or fit its schema
+    (a negative number among them), and a later layout's topic: windowed (8 frames a
+    window), each skipped and named as the reader names it, in the reader's order among
+    a damaged chunk's (read after the batch, named before the window checks it); the rows
+    those of the general path."""
+    path = _with_bad_messages(tmp_path / f"bad-{layout}-{flip}.mcap", layout, flip=flip)
+    # Flipped: 64 frames a window, so that layout 3's batches are checked after the chunk.
+    tables, whole = both_paths(path, tmp_path, monkeypatch, window=64 if flip else 8)
+    assert whole == []
+    damage = _damage(tmp_path, path)
+    assert damage[True] == damage[False]
+    named = [d for d in damage[True] if d.startswith("message ")]
+    if not flip:
+        assert len(named) == len(damage[True]) == 3
+        assert len(tables["frames"]) == 2 * 4 * 24
+    else:  # the chunk flipped named among them (it may hold one of them)
+        assert len(damage[True]) > len(named) >= 2

@@ -98,6 +98,11 @@ class Columns:
         for k in FRAME_COLUMNS:
             getattr(self, k).extend(getattr(other, k))
 
+    def truncate(self, n: int) -> None:
+        """Only the first ``n`` frames kept (a message half added, given up)."""
+        for k in FRAME_COLUMNS:
+            del getattr(self, k)[n:]
+
     def take(self, at: Any) -> Columns:
         """The frames at the indices ``at`` (numpy), in that order."""
         import numpy as np

@@ -9,10 +9,14 @@ gaps and the client's malformed bytes (:attr:`ColumnStream.states`,
 :attr:`ColumnStream.problems`); each frame's framing problems (a column: such a frame is
 judged alone); the controller's malformed runs, whose request is worked out as the windows
 are read by the one rule (:attr:`ColumnStream.blame`, recording/blame.py); and the damage
-the walk skips, named as the reader names it (:attr:`ColumnStream.damage`).  Anything
-else (a message that does not read, a topic of a later layout: :class:`NotFast`) goes the
-general way (:func:`~conformance.capture_check.check_recording` over the reader's records),
-which names what is wrong.  What the fast path does is the same, step by step, so the
+the walk skips and each message on the recording's topics that does not read or fit its
+schema (a negative number, a time past 2106), both skipped and named as the reader names
+them, in its order (:attr:`ColumnStream.damage`: the reader's own
+:func:`~conformance.recording.reader.read_message` says why); a message on a topic the
+reader does not read (a later layout's) is skipped as it skips it.  Anything else (layout
+1's frame a message, a message the reader reads and these columns do not: :class:`NotFast`)
+goes the general way (:func:`~conformance.capture_check.check_recording` over the reader's
+records).  What the fast path does is the same, step by step, so the
 verdicts are the same (the tests compare them frame by frame):
 
 * the frames are taken in the order their first byte arrived, each reply paired with the
@@ -32,29 +36,28 @@ import json
 import sys
 from array import array
 from collections.abc import Iterator
-from typing import Any
+from dataclasses import replace
+from typing import Any, NamedTuple
 
-from ..judge_stream import CntSteps
 from ..recording import (
     METADATA_NAME,
     TOPIC_C2S,
-    TOPIC_CONNECTIONS,
     TOPIC_FRAMES,
-    TOPIC_PROBLEMS,
     TOPIC_S2C,
-    TOPIC_STATE,
     ConnectionRecord,
     FrameBatch,
     ProblemRecord,
+    StateRecord,
 )
 from ..recording.blame import Blame, Unknown
 from ..recording.frames_pb import BatchColumns, decode_columns, decode_one_frame
-from ..recording.layout import C2S, STATE_KIND
+from ..recording.layout import C2S, INT_MAX, STATE_KIND, TIME_MAX
+from ..recording.reader import READ_TOPICS, message_damage, read_message
 from ..recording.salvage import MAGIC, Damage, Walk
 from ..recording.traffic_pb import TrafficColumns, decode_traffic
 from .columns import FRAME_COLUMNS, Columns
 from .fast_pb import Pending, texts
-from .general import StateRow, read_problem, read_state
+from .general import StateRow, state_row
 from .verdicts import _pairs_at_once as _pairs_at_once  # tests read it here
 
 #: Where tests/test_fleet_fast_pb.py reads it (moved to .columns).
@@ -69,8 +72,29 @@ __all__ = [
     "read_columns",
 ]
 
-#: check's CntSteps remembers this many connections; a recording with more goes the general way.
-_CONNECTIONS = CntSteps().limit
+
+class _At(NamedTuple):
+    """Where a message was read: the reader's count of messages, its topic and sequence,
+    the walk's offset, and how many damages the walk had named before it."""
+
+    number: int
+    topic: str
+    sequence: int
+    where: int
+    damage: int
+
+
+_FRAME_TOPICS = frozenset((TOPIC_C2S, TOPIC_S2C, TOPIC_FRAMES))
+#: What a message that does not read or fit raises on the way (the reader then names it).
+_UNREAD = (
+    ValueError,
+    KeyError,
+    TypeError,
+    AttributeError,
+    IndexError,
+    OverflowError,
+    RecursionError,
+)
 
 
 class NotFast(Exception):
@@ -109,13 +133,16 @@ class ColumnStream:
         self.problems: list[ProblemRecord] = []
         #: The parts of the file the walk could not read (known once it is read).
         self.damage: list[Damage] = []
-        self._conns: set[int] = set()
         self._frames = 0  # frames given so far
         self.keep = keep
         #: Whose the controller's malformed runs are (recording/blame.py): fed every
         #: frame, from the start, once such a run is met (or from the start: ``blame``).
         self.blame: Blame[FrameRef] | None = Blame(keep) if blame else None
         self._fed = 0  # the frames of the window being read fed to it
+        self._walk: Walk | None = None
+        #: Layout-3 batches waiting in the window's :class:`Pending`, as read.
+        self._held: list[tuple[bytes, _At]] = []
+        self._skipped = 0  # messages skipped (named in the damage) so far
 
     def __iter__(self) -> Iterator[Columns]:
         from mcap.records import Channel, Message, Metadata
@@ -140,60 +167,46 @@ class ColumnStream:
                 for r in walk.summary_records():
                     if isinstance(r, Channel):
                         channel(r)
-                for rec, _ in walk.records():
+                self._walk = walk
+                count = 0  # the messages read, of any topic (as the reader counts them)
+                for rec, where in walk.records():
                     if isinstance(rec, Message):
+                        count += 1
                         topic = topics.get(rec.channel_id)
-                        if topic == TOPIC_FRAMES and rec.channel_id in binary:  # layout 4
-                            pending.flush(c)
-                            _traffic(c, decode_traffic(rec.data), flaws=True)
-                            if len(c.cnt) >= self.window:
-                                self._check(c)
-                                yield c
-                                c = Columns()
-                        elif topic in (TOPIC_C2S, TOPIC_S2C):
-                            if rec.channel_id in binary:
-                                # A layout-3 batch waits to be checked with the window's
-                                # (fast_pb); anything else is added after those before it.
-                                one = decode_one_frame(rec.data)  # request/reply: a frame each
-                                if one is not None:
-                                    pending.flush(c)
-                                    _one_frame(c, one)
-                                elif not pending.add(rec.data):
-                                    pending.flush(c)
-                                    _binary_batch(c, decode_columns(rec.data), flaws=True)
-                            else:
-                                pending.flush(c)
-                                doc, raw_size = _message(rec.data)
-                                if not _batch(c, doc, raw_size):
-                                    raise NotFast
+                        if topic not in READ_TOPICS:
+                            continue  # not the reader's (a later layout's topic too): skipped
+                        at = _At(count, topic, rec.sequence, where, len(walk.damage))
+                        if topic in _FRAME_TOPICS:
+                            self._frames_message(c, pending, rec.data, rec.channel_id in binary, at)
                             if len(c.cnt) + pending.frames >= self.window:
-                                pending.flush(c)
+                                self._flush(c, pending)
                                 self._check(c)
                                 yield c
                                 c = Columns()
-                        elif topic == TOPIC_CONNECTIONS:
-                            x = ConnectionRecord.from_json(json.loads(rec.data))
-                            self.connections.append(x)
-                        elif topic in (TOPIC_STATE, TOPIC_PROBLEMS):
-                            doc = json.loads(rec.data)
-                            if topic == TOPIC_STATE:
-                                self.states.append(read_state(doc))
-                            elif (p := read_problem(doc)) is None:
-                                raise NotFast
-                            elif p.kind == "malformed" and p.dir != C2S:
+                            continue
+                        got, why = read_message(topic, rec.data, binary=False, traffic=False)
+                        if isinstance(got, ConnectionRecord):
+                            self.connections.append(got)
+                        elif isinstance(got, StateRecord):
+                            self.states.append(state_row(got))
+                        elif isinstance(got, ProblemRecord):
+                            p = replace(got, raw=b"")  # the rows need no bytes
+                            if p.kind == "malformed" and p.dir != C2S:
                                 # The controller's malformed run is blamed on the request
                                 # it answered (recording/blame.py), after the frames before.
-                                pending.flush(c)
+                                self._flush(c, pending)
                                 self._blame(c).run(p)
                             elif p.kind != STATE_KIND:  # the state decoder's: no row
                                 self.problems.append(p)
-                            if len(self.states) + len(self.problems) >= self.window:
-                                pending.flush(c)  # a window's worth, frames or not
-                                self._check(c)
-                                yield c
-                                c = Columns()
-                        elif topic is not None and topic.startswith("/fairino/"):
-                            raise NotFast  # a topic of a later layout: the general path
+                        else:  # a message the reader skips: named as it names it
+                            self._unread(at, why)
+                        if len(self.states) + len(self.problems) + len(self.connections) >= (
+                            self.window
+                        ):
+                            self._flush(c, pending)  # a window's worth, frames or not
+                            self._check(c)
+                            yield c
+                            c = Columns()
                     elif isinstance(rec, Channel):
                         channel(rec)
                     elif (
@@ -202,7 +215,7 @@ class ColumnStream:
                         and not self.metadata
                     ):
                         self.metadata = dict(rec.metadata)
-                pending.flush(c)
+                self._flush(c, pending)
                 if not self.metadata:
                     raise NotFast
                 # A damaged chunk or region is skipped by the walk as by the reader's: the
@@ -220,6 +233,71 @@ class ColumnStream:
             raise NotFast from None  # whatever is wrong, the general path says it in its words
         self._check(c)
         yield c
+
+    def _frames_message(
+        self, c: Columns, pending: Pending, data: bytes, binary: bool, at: _At
+    ) -> None:
+        """A message of frames added to ``c`` (a layout-3 batch to ``pending``, checked
+        with the window's); one that does not read or fit is skipped and named as the
+        reader names it (:meth:`_unread`)."""
+        if at.topic == TOPIC_FRAMES and not binary:
+            self._unread(at, read_message(at.topic, data, binary=False, traffic=False)[1])
+            return
+        if binary and at.topic != TOPIC_FRAMES:
+            one = decode_one_frame(data)  # request/reply: a frame each
+            if one is None and pending.add(data):
+                self._held.append((data, at))
+                return
+        else:
+            one = None
+        self._flush(c, pending)
+        n = len(c)
+        try:
+            if at.topic == TOPIC_FRAMES:  # layout 4
+                _traffic(c, decode_traffic(data), flaws=True)
+            elif one is not None:
+                _one_frame(c, one)
+            elif binary:
+                _binary_batch(c, decode_columns(data), flaws=True)
+            else:
+                doc, raw_size = _message(data)
+                if not _batch(c, doc, raw_size):
+                    raise ValueError
+        except _UNREAD:
+            c.truncate(n)
+            traffic = at.topic == TOPIC_FRAMES
+            self._unread(at, read_message(at.topic, data, binary=binary, traffic=traffic)[1])
+
+    def _flush(self, c: Columns, pending: Pending) -> None:
+        """The layout-3 batches pending added to ``c``; where one does not read or fit, each
+        is read alone, and those that do not are skipped and named (:meth:`_unread`)."""
+        held, self._held = self._held, []
+        n = len(c)
+        try:
+            pending.flush(c)
+            return
+        except _UNREAD:
+            c.truncate(n)
+            pending.clear()
+        for data, at in held:
+            n = len(c)
+            try:
+                _binary_batch(c, decode_columns(data), flaws=True)
+            except _UNREAD:
+                c.truncate(n)
+                self._unread(at, read_message(at.topic, data, binary=True, traffic=False)[1])
+
+    def _unread(self, at: _At, why: str) -> None:
+        """A message skipped, named in :attr:`damage` where the reader names it (after the
+        damage the walk met before it); one the reader reads (``why`` empty) is the
+        general path's: :class:`NotFast`."""
+        if not why:
+            raise NotFast
+        walk = self._walk
+        assert walk is not None
+        place = at.damage + self._skipped  # after the messages skipped before it
+        self._skipped += 1
+        walk.damage.insert(place, message_damage(at.number, at.topic, at.sequence, at.where, why))
 
     def _blame(self, c: Columns) -> Blame[FrameRef]:
         """:attr:`blame`, fed the frames read so far (from the first window on: a run of
@@ -271,12 +349,6 @@ class ColumnStream:
         if self.blame is not None:
             c.seq.extend(range(self._frames, self._frames + len(c)))
         self._frames += len(c)
-        self._conns.update(c.conn)
-        if len(self._conns) > _CONNECTIONS:
-            raise NotFast
-        numbers = ("conn", "cnt", "cmd_id", "length", "offset", "first_ns", "complete_ns")
-        if c.cnt and min(int(c.np(k).min()) for k in numbers) < 0:
-            raise NotFast  # the recording's numbers are non-negative: the reader names the one
         del c.offset[:]
 
 
@@ -333,13 +405,26 @@ def _batch(c: Columns, d: Any, raw_size: int) -> bool:
     if flaws == [] or any(not isinstance(x, list) or len(x) != n for x in cols):
         return False
     conn, transport, direction = d["conn"], d.get("transport", "tcp"), d["dir"]
-    if type(conn) is not int or direction not in ("c2s", "s2c") or type(transport) is not str:
+    if type(conn) is not int or direction not in ("c2s", "s2c") or transport not in _TRANSPORTS:
         return False
     # The types the schema asks for, checked as they are stored: a 64-bit array takes only
     # integers (TypeError, OverflowError), sys.intern only strings (TypeError); booleans,
-    # which an array would take as 0 and 1, keep a message off the fast path (_message),
-    # and negative numbers the recording as a whole (read_columns).  Whatever does not
-    # fit is the general path's to name.
+    # which an array would take as 0 and 1, keep a message off the fast path (_message).
+    # The ranges (layout.py: numbers non-negative, times before 2106) checked here.
+    # Whatever does not fit is skipped and named as the reader names it.
+    if not 0 <= conn <= INT_MAX or not all(
+        _within(col, top)
+        for col, top in (
+            (d["cnt"], INT_MAX),
+            (d["cmd_id"], INT_MAX),
+            (d["len"], INT_MAX),
+            (d["offset"], INT_MAX),
+            (sizes, INT_MAX),
+            (complete, TIME_MAX),
+            (first, TIME_MAX),
+        )
+    ):
+        return False
     c.conn.extend([conn] * n)
     c.transport += [transport] * n
     c.dir += [direction] * n
@@ -354,6 +439,14 @@ def _batch(c: Columns, d: Any, raw_size: int) -> bool:
     c.complete_ns.extend(complete)
     c.add_flaws(n, flaws)
     return True
+
+
+_TRANSPORTS = frozenset(("tcp", "udp"))
+
+
+def _within(col: list[int], top: int) -> bool:
+    """Whether a column's integers are from 0 to ``top`` (their types checked as stored)."""
+    return not col or (min(col) >= 0 and max(col) <= top)
 
 
 def _flaws(problems: Any, n: int) -> list[tuple[str, ...]]:

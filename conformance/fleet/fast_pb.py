@@ -147,6 +147,10 @@ class Pending:
         ):
             mine.frombytes(col[k].tobytes())
         c.add_flaws(self.frames, None)  # framing problems: not taken (add)
+        self.clear()
+
+    def clear(self) -> None:
+        """Nothing pending (the messages added or given up)."""
         self.__init__()  # type: ignore[misc]
 
     def _name(self, raw: bytes) -> str:

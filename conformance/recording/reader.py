@@ -32,7 +32,15 @@ from .records import ConnectionRecord, FrameBatch, FrameRecord, ProblemRecord, S
 from .salvage import MAGIC, Damage, Walk
 from .traffic_pb import decode_records
 
-__all__ = ["Damage", "RecordedExchange", "Recording", "read_recording"]
+__all__ = [
+    "READ_TOPICS",
+    "Damage",
+    "RecordedExchange",
+    "Recording",
+    "message_damage",
+    "read_message",
+    "read_recording",
+]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -423,6 +431,56 @@ def _record_of(
         raise ValueError(f"{type(e).__name__}: {e}") from None
 
 
+#: The records of one message (:func:`read_message`).
+Read = list[FrameRecord] | ProblemRecord | ConnectionRecord | StateRecord
+#: Every topic the reader reads (a message on any other is not the reader's: skipped, unnamed).
+READ_TOPICS = _READ
+
+
+def read_message(
+    topic: str, data: bytes, *, binary: bool, traffic: bool
+) -> tuple[Read | None, str]:
+    """One message on one of :data:`READ_TOPICS` as :func:`read_recording` reads it (its
+    channel's frame batches in protobuf: ``binary``, layout 3; ``traffic``, layout 4):
+    its records and "", or None and why it is skipped (the reason
+    :func:`message_damage` names; ``export-parquet``'s windows ask it of a message they
+    do not take)."""
+    if traffic:
+        try:
+            return decode_records(data), ""
+        except ValueError as e:
+            return None, f"not a fairino.Traffic message that can be read ({e})"
+    if topic == TOPIC_FRAMES:
+        return None, f"a {topic} message not in protobuf (layout 4 writes fairino.Traffic)"
+    if binary:
+        try:
+            return decode_batch(data).records(), ""
+        except ValueError as e:
+            return None, f"not a fairino.Frames message that can be read ({e})"
+    try:
+        doc = json.loads(data)
+    except RecursionError:
+        return None, "not JSON that can be read (nested too deep)"
+    except ValueError as e:  # JSONDecodeError, UnicodeDecodeError
+        return None, f"not JSON ({type(e).__name__}: {e})"
+    try:
+        return _record_of(topic, doc), ""
+    except ValueError as e:
+        return None, str(e)
+
+
+def message_damage(count: int, topic: str, sequence: int, offset: int, why: str) -> Damage:
+    """A message :func:`read_message` skips, as :attr:`Recording.damage` names it: the
+    ``count``-th message of the file (of any topic), its sequence, where it was read."""
+    return Damage(
+        where=f"message {count} on {topic} (sequence {sequence})",
+        offset=offset,
+        reason=why,
+        lost=1,
+        message=True,
+    )
+
+
 def _channel(c: Any, topics: dict[int, str], binary: set[int], traffic: set[int]) -> None:
     """Note a channel: its topic, and whether its frame batches are protobuf (layout 3)
     or layout 4's ``fairino.Traffic``."""
@@ -482,43 +540,14 @@ def read_recording(path: str | os.PathLike[str]) -> Recording:
                 topic = topics.get(rec.channel_id)
                 if topic not in _READ:
                     continue  # a foreign topic: not ours to read
-                if rec.channel_id in traffic:
-                    try:
-                        frames += decode_records(rec.data)
-                        continue
-                    except ValueError as e:
-                        why = f"not a fairino.Traffic message that can be read ({e})"
-                elif topic == TOPIC_FRAMES:
-                    why = f"a {topic} message not in protobuf (layout 4 writes fairino.Traffic)"
-                elif rec.channel_id in binary:
-                    try:
-                        frames += decode_batch(rec.data).records()
-                        continue
-                    except ValueError as e:
-                        why = f"not a fairino.Frames message that can be read ({e})"
-                else:
-                    try:
-                        doc = json.loads(rec.data)
-                    except RecursionError:
-                        why = "not JSON that can be read (nested too deep)"
-                    except ValueError as e:  # JSONDecodeError, UnicodeDecodeError
-                        why = f"not JSON ({type(e).__name__}: {e})"
-                    else:
-                        try:
-                            got = _record_of(topic, doc)
-                            why = ""
-                        except ValueError as e:
-                            why = str(e)
-                if why:
-                    damage.append(
-                        Damage(
-                            where=f"message {count} on {topic} (sequence {rec.sequence})",
-                            offset=where,
-                            reason=why,
-                            lost=1,
-                            message=True,
-                        )
-                    )
+                got, why = read_message(
+                    topic,
+                    rec.data,
+                    binary=rec.channel_id in binary,
+                    traffic=rec.channel_id in traffic,
+                )
+                if got is None:
+                    damage.append(message_damage(count, topic, rec.sequence, where, why))
                     continue
                 if isinstance(got, list):
                     frames += got
