@@ -105,10 +105,13 @@ def test_ctrl_c_says_interrupted(tmp_path: Path, sig: signal.Signals) -> None:
     """Ctrl-C, and a CI time-out's SIGTERM (which killed the run with no report): exit 130,
     the report written, the cases not run listed."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("FAIRINO_")}
+    # As from a terminal: a pytest started in the background by a script (``&``) ignores
+    # SIGINT, and its children would inherit that (the run then rightly ignores Ctrl-C).
     proc = subprocess.Popen(
         [sys.executable, "-m", "conformance", "run", "--emulator-fault", "slow@0.05",
          "--commands", "201,204,212", "--report-json", "r.json"],
         cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )  # fmt: skip
     assert proc.stderr is not None
     first = proc.stderr.readline()  # "running N cases ...": the run has begun
@@ -122,6 +125,24 @@ def test_ctrl_c_says_interrupted(tmp_path: Path, sig: signal.Signals) -> None:
     not_run = [c for cmd in doc["commands"].values() for c in cmd["cases"] if c.get("not_run")]
     assert not_run  # the table does not say all PASS
     assert "cases not run: interrupted" in out
+
+
+def test_a_run_started_ignoring_sigint_keeps_ignoring_it(tmp_path: Path) -> None:
+    """A job a script starts with ``&`` inherits SIGINT ignored, so that a Ctrl-C meant
+    for the script's foreground leaves it running; the run does not undo that."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("FAIRINO_")}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "conformance", "run", "--commands", "201", "--report-json", "r.json"],
+        cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN),
+    )  # fmt: skip
+    assert proc.stderr is not None
+    assert proc.stderr.readline().startswith("running ")
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0, err
+    assert "interrupted" not in err
+    assert json.loads((tmp_path / "r.json").read_text())["stopped"] is None
 
 
 def test_baseline_warns_shows_xfail_and_says_why_a_listed_case_fails(tmp_path: Path) -> None:
@@ -288,9 +309,8 @@ def test_an_engine_leaves_a_hosts_frozen_objects_frozen() -> None:
 def test_a_swallowed_interrupt_still_ends_the_run(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """Python drops a KeyboardInterrupt raised inside a finalizer, and the collection at a
-    run's start runs finalizers just as a Ctrl-C is likeliest: a loaded CI machine saw an
-    interrupted run finish every case and exit 0.  Here the first case's step swallows
+    """Python drops a KeyboardInterrupt raised inside a finalizer ("Exception ignored
+    in ..."), which may run in the middle of any case.  Here the first case's step swallows
     the SIGINT's KeyboardInterrupt as a finalizer would; the run still stops after it,
     says interrupted, lists the rest as not run and exits 130."""
     import signal as signals
@@ -312,7 +332,12 @@ def test_a_swallowed_interrupt_still_ends_the_run(
         return finished
 
     monkeypatch.setattr(Engine, "step", swallowing_step)
-    p = cli_run("run", "--commands", "201,204", "--report-json", str(tmp_path / "r.json"))
+    # As from a terminal (a pytest started by a script with ``&`` ignores SIGINT).
+    old = signals.signal(signals.SIGINT, signals.default_int_handler)
+    try:
+        p = cli_run("run", "--commands", "201,204", "--report-json", str(tmp_path / "r.json"))
+    finally:
+        signals.signal(signals.SIGINT, old)
     assert len(swallowed) == 1, p.stderr
     assert p.returncode == 130, p.stderr
     assert "interrupted" in p.stderr

@@ -513,11 +513,11 @@ def _serve(args: argparse.Namespace) -> int:
 def _interrupts() -> Iterator[threading.Event]:
     """Ctrl-C and SIGTERM end ``run`` and ``serve`` (the reports are still written, exit
     code 130): each raises KeyboardInterrupt in the main thread, and is remembered in the
-    event given, which the loops look at after each step.  So an interrupt that was
-    swallowed still ends the run, at the next case: Python drops a KeyboardInterrupt
-    raised inside a finalizer ("Exception ignored in ..."), and the garbage collection
-    at the start of a run runs finalizers just when a Ctrl-C is likeliest (a loaded CI
-    machine saw a run interrupted that way finish all its cases and exit 0)."""
+    event given, which the loops look at after each step, so that an interrupt swallowed
+    on its way (Python drops a KeyboardInterrupt raised inside a finalizer, as "Exception
+    ignored in ...") still ends the run at the next case.  A SIGINT the process was
+    started ignoring (a job a script started with ``&``) stays ignored, as Python's own
+    handling leaves it."""
     seen = threading.Event()
     if threading.current_thread() is not threading.main_thread():
         yield seen
@@ -527,7 +527,11 @@ def _interrupts() -> Iterator[threading.Event]:
         seen.set()
         raise KeyboardInterrupt
 
-    old = {sig: signal.signal(sig, interrupt) for sig in (signal.SIGINT, signal.SIGTERM)}
+    old = {
+        sig: signal.signal(sig, interrupt)
+        for sig in (signal.SIGINT, signal.SIGTERM)
+        if sig == signal.SIGTERM or signal.getsignal(sig) is not signal.SIG_IGN
+    }
     try:
         yield seen
     finally:
