@@ -230,3 +230,33 @@ def test_a_run_read_after_the_frame_it_came_before_is_still_found() -> None:
         b.frame(rep, 1, S2C, 4 * k + 4, 20 + k)
     with pytest.raises(Unknown):
         b.run(junk)
+
+
+def test_a_closed_connection_is_decided_and_forgotten() -> None:
+    """``close``: the controller's run no frame followed on a closed connection is decided
+    at once (trailing: the last request before it), what was kept for the connection is
+    dropped, and a frame or run of it fed later is Unknown; the closed numbers stay
+    bounded (``Gone``: exact above a floor, a number at or below it not kept alive gone)."""
+    from conformance.recording.blame import Gone
+
+    req = FrameRecord(conn=1, dir=C2S, cnt=1, cmd_id=212, data="x", raw=b"x", complete_ns=10)
+    junk = ProblemRecord(
+        conn=1, dir=S2C, kind="malformed", rule="garbage", detail="", size=4, complete_ns=19
+    )
+    b: Blame[FrameRecord] = Blame(4)
+    b.frame(req, 1, C2S, 0, 10)
+    b.run(junk)
+    assert b.settled() == []
+    b.close(1)
+    assert b.settled() == [(junk, req)]
+    assert b._streams == {} and b._clients == {}
+    with pytest.raises(Unknown):
+        b.frame(req, 1, C2S, 10, 30)
+    with pytest.raises(Unknown):
+        b.run(junk)
+    gone = Gone(2)
+    for conn in range(10):
+        gone.add(conn)
+    assert len(gone._ids) <= 4 and gone.floor >= 5
+    assert gone.holds(0, alive=False) and not gone.holds(0, alive=True)
+    assert gone.holds(9, alive=True) and not gone.holds(10, alive=False)

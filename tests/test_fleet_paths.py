@@ -487,3 +487,70 @@ def test_messages_that_do_not_read_or_fit_go_the_windowed_path(
         assert len(tables["frames"]) == 2 * 4 * 24
     else:  # the chunk flipped named among them (it may hold one of them)
         assert len(damage[True]) > len(named) >= 2
+
+
+def _many_connections(path: Path, short: int) -> Path:
+    """Connection 1 asks (CNT 1), then ``short`` connections open, ask, are answered (every
+    fifth reply after two bytes of garbage) and close, then connection 1 asks again with
+    CNT 5 (a step check's CntSteps finds only while it remembers connection 1)."""
+    from conformance.frame import encode_frame
+    from conformance.recording import RecordingWriter, StreamRecorder, default_metadata
+
+    with RecordingWriter(path, metadata=default_metadata(START, robot="r07")) as w:
+        rec = StreamRecorder(w)
+        t = START
+
+        def ask(conn: int, cnt: int, garbage: bool = False) -> None:
+            nonlocal t
+            t += 1_000_000
+            rec.data(conn, "c2s", t, encode_frame(cnt, 212, "GetDI(0,0)"))
+            rec.data(conn, "s2c", t + 500_000, b"zz" * garbage + encode_frame(cnt, 212, "1"))
+
+        rec.open(1, t_ns=t, client="10.0.0.1:40001", upstream="10.0.0.2:8080")
+        ask(1, 1)
+        for conn in range(2, short + 2):
+            rec.open(conn, t_ns=t, client=f"10.0.0.1:{40000 + conn}", upstream="10.0.0.2:8080")
+            ask(conn, 1, conn % 5 == 0)
+            ask(conn, 2)
+            rec.close(conn, t_ns=t + 800_000, reason="client closed")
+        ask(1, 5)
+        rec.close(1, t_ns=t + 800_000, reason="client closed")
+        rec.finish(t_ns=t + 1_000_000)
+    return path
+
+
+@pytest.mark.parametrize(("short", "found"), [(6, True), (40, False)])
+def test_more_connections_than_check_remembers_go_the_windowed_path(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, short: int, found: bool
+) -> None:
+    """More connections than check's CntSteps remembers (16 here, 4,096 as shipped): the
+    windows forget a connection's CNT when CntSteps does (connection 1's CNT jump found
+    only while it is remembered), and keep per connection only what the connections open
+    need (a closed one's dropped: its ports, streams, the blame of its garbage), so that
+    memory does not grow with their number; the rows those of the general path."""
+    from conformance.fleet import window
+    from conformance.judge_stream import CntSteps
+    from conformance.recording import blame
+
+    monkeypatch.setattr(CntSteps.__init__, "__kwdefaults__", {"limit": 16})
+    monkeypatch.setattr(blame.Gone.__init__, "__defaults__", (4,))  # its floor used
+    monkeypatch.setattr(window, "HELD", 8)
+    most: list[int] = []
+    real = window.Windows.add
+
+    def add(self: window.Windows, *a: Any, **k: Any) -> None:
+        real(self, *a, **k)
+        kept = self.blame._streams if self.blame is not None else {}
+        most.append(max(len(self.ports), len(self.last_ns), len(self.last_cnt), len(kept)))
+
+    monkeypatch.setattr(window.Windows, "add", add)
+    path = _many_connections(tmp_path / f"many-{short}.mcap", short)
+    tables, whole = both_paths(path, tmp_path, monkeypatch, window=8)
+    assert whole == []
+    assert len(tables["connections"]) == 2 * (short + 1)
+    jump = [r for r in tables["frames"] if r["conn"] == 1 and r["cnt"] == 5]
+    assert len(jump) == 2 and (jump[0]["rule"] == "cnt_step") == found, jump[0]["rule"]
+    assert len([r for r in tables["problems"] if r["cmd_id"] == 212]) == (short + 1) // 5
+    # Per connection (open, or with frames held for the next window: at most 32 frames
+    # here), not per connection there was (41, 82 streams: 16 from the CNTs' 16).
+    assert max(most) <= 24

@@ -44,13 +44,8 @@ from ..recording.blame import Blame, Unknown
 from .fast import Blamed, Columns, ColumnStream, FrameRef, NotFast, read_columns
 from .general import StateGaps, general_rows, problem_rows, state_row, state_rows
 from .memo import MemoJudge
-from .schema import (
-    COLUMNS,
-    SCHEMA_VERSION,
-    TABLES,
-    arrow_schema,
-    partition_value,
-)
+from .schema import SCHEMA_VERSION, TABLES, partition_value
+from .table import Table
 from .window import WINDOW, OutOfOrder, Windows
 
 if TYPE_CHECKING:
@@ -70,8 +65,6 @@ __all__ = [
 
 #: What a directory given as input is searched for (recursively).
 RECORDING_SUFFIXES = (".mcap", ".pcap", ".pcapng", ".cap", ".pcap.gz", ".pcapng.gz")
-#: Rows per row group (and the most a table holds in memory before writing).
-ROW_GROUP = 131_072
 #: Windows read while looking for the firmware's 905 reply before it is looked for alone.
 BUFFER = 4
 
@@ -180,16 +173,15 @@ def firmware_in(frames: Iterable[tuple[str, int, str]]) -> str | None:
     return None
 
 
-def _robot_of(
-    md: Mapping[str, str], connections: Sequence[ConnectionRecord], given: str | None
-) -> str:
-    """``--robot``, else the metadata's ``robot`` or ``cell``, else the controller's host."""
+def _robot_of(md: Mapping[str, str], upstream: str, given: str | None) -> str:
+    """``--robot``, else the metadata's ``robot`` or ``cell``, else the controller's host
+    (the metadata's, else ``upstream``: the first connection's that names one)."""
     if given:
         return given
     for key in ("robot", "cell"):
         if md.get(key):
             return md[key]
-    up = md.get("upstream") or next((c.upstream for c in connections if c.upstream), "")
+    up = md.get("upstream") or upstream
     host = up.rsplit(":", 1)[0].strip("[]") if up else ""
     return host or "unknown"
 
@@ -197,145 +189,6 @@ def _robot_of(
 def _port(address: str) -> int | None:
     tail = address.rsplit(":", 1)[-1] if ":" in address else ""
     return int(tail) if tail.isdigit() and int(tail) < 65536 else None
-
-
-def _dictionary(col: Any, string: Any) -> Any:
-    """A string column as a dictionary array with no null among its values (Arrow's
-    Parquet writer wants nulls in the indices)."""
-    import pyarrow as pa
-    import pyarrow.compute as pc
-
-    if not pa.types.is_dictionary(col.type):
-        return pc.dictionary_encode(col.cast(string)).cast(pa.dictionary(pa.int32(), string))
-    values, indices = col.dictionary.cast(string), col.indices.cast(pa.int32())
-    if values.null_count:
-        to_null = pc.fill_null(pc.is_null(values).take(indices), True)
-        indices = pc.if_else(to_null, pa.scalar(None, pa.int32()), indices)
-        values = pc.fill_null(values, "")
-    return pa.DictionaryArray.from_arrays(indices, values)
-
-
-#: Integer columns of few distinct values, dictionary-encoded as the strings are: a frames
-#: file a quarter of its size, and written faster (zstd over plain 64-bit values was most of
-#: the writing of ``conn`` and ``len``).
-_FEW_VALUES = frozenset(("segment", "port", "conn", "cmd_id", "len", "refusal_code"))
-
-
-def _constant(value: object, kind: Any, n: int) -> Any:
-    """A column of ``n`` times ``value``; a string as the dictionary ``dictionary_encode``
-    makes of it (not ``n`` strings hashed: the recording's name, id, firmware and spec
-    version, in every row group of every table)."""
-    import numpy as np
-    import pyarrow as pa
-
-    if not pa.types.is_string(kind):
-        return pa.repeat(pa.scalar(value, type=kind), n)
-    if value is None:
-        return pa.DictionaryArray.from_arrays(pa.nulls(n, pa.int32()), pa.array([], kind))
-    return pa.DictionaryArray.from_arrays(pa.array(np.zeros(n, np.int32)), pa.array([value], kind))
-
-
-class _Table:
-    """One table's file of one recording: rows gathered, written a row group at a time."""
-
-    def __init__(self, path: Path, table: str, constants: dict[str, object]) -> None:
-        self.path, self.table = path, table
-        self.schema = arrow_schema(table)
-        self.constants = constants
-        self.own = [c for c, _, _ in COLUMNS[table] if c not in constants]
-        self.rows: list[tuple[object, ...]] = []
-        self.count = 0
-        self._writer: Any = None
-
-    def add(self, row: tuple[object, ...]) -> None:
-        self.rows.append(row)
-        if len(self.rows) >= ROW_GROUP:
-            self.flush()
-
-    def flush(self) -> None:
-        n = len(self.rows)
-        if n:
-            self.write(dict(zip(self.own, zip(*self.rows, strict=True), strict=True)), n)
-            self.rows = []
-
-    def add_columns(self, cols: dict[str, Any], n: int) -> None:
-        """Rows given as columns (the fast path's), written a row group at a time."""
-        self.flush()
-        for at in range(0, n, ROW_GROUP):
-            m = min(ROW_GROUP, n - at)
-            self.write({k: v[at : at + m] for k, v in cols.items()}, m)
-
-    def write(self, cols: dict[str, Any], n: int) -> None:
-        import pyarrow as pa
-        import pyarrow.parquet as pq
-
-        dictionary = pa.dictionary(pa.int32(), pa.string())
-        arrays = []
-        fields = []
-        for f in self.schema:
-            col = cols.get(f.name)
-            if col is None:
-                col = _constant(self.constants[f.name], f.type, n)
-            elif not isinstance(col, (pa.Array, pa.ChunkedArray)):
-                col = pa.array(col, type=pa.int64() if pa.types.is_timestamp(f.type) else f.type)
-            if pa.types.is_timestamp(f.type):
-                # The recordings' times are ns since the epoch; the files hold microseconds.
-                col = col.cast(pa.timestamp("ns", tz="UTC")).cast(f.type, safe=False)
-            elif pa.types.is_string(f.type):
-                # Strings go to Parquet as the dictionaries they are (fast, and a fleet's
-                # strings repeat); the file's column is a plain UTF-8 string all the same.
-                col = _dictionary(col, f.type)
-                fields.append(pa.field(f.name, dictionary))
-                arrays.append(col)
-                continue
-            else:
-                col = col.cast(f.type)
-            fields.append(f)
-            arrays.append(col)
-        schema = pa.schema(fields, metadata=self.schema.metadata)
-        batch = pa.RecordBatch.from_arrays(arrays, schema=schema)
-        if self._writer is None:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            # Dictionaries for strings and few-valued integers (_FEW_VALUES), deltas for
-            # times and CNT: a frames file is some eightieth of zstd alone, and written
-            # faster.  No Arrow schema
-            # stored: readers see the Parquet types (a string is a string, not a dictionary).
-            self._writer = pq.ParquetWriter(
-                str(self.path) + ".tmp",
-                schema,
-                compression="zstd",
-                use_dictionary=[
-                    f.name
-                    for f in self.schema
-                    if pa.types.is_string(f.type) or f.name in _FEW_VALUES
-                ],
-                column_encoding={
-                    f.name: "DELTA_BINARY_PACKED"
-                    for f in self.schema
-                    if pa.types.is_timestamp(f.type) or f.name == "cnt"
-                },
-                write_statistics=[f.name for f in self.schema if not pa.types.is_string(f.type)],
-                store_schema=False,
-            )
-        self._writer.write_batch(batch, row_group_size=ROW_GROUP)
-        self.count += n
-
-    def close(self, path: Path | None = None) -> None:
-        """Write what is left and put the file in its place, or at ``path`` (nothing for
-        no rows)."""
-        self.flush()
-        if self._writer is not None:
-            self._writer.close()
-            if path is not None:
-                path.parent.mkdir(parents=True, exist_ok=True)
-            os.replace(str(self.path) + ".tmp", path or self.path)
-
-    def discard(self) -> None:
-        """Nothing written after all (a recording the fast path gave up half way)."""
-        if self._writer is not None:
-            self._writer.close()
-            os.unlink(str(self.path) + ".tmp")
-        self._writer, self.rows, self.count = None, [], 0
 
 
 def export_recording(
@@ -387,7 +240,7 @@ def _tables(
     md: Mapping[str, str],
     fw: str | None,
     memo: Judge,
-) -> dict[str, _Table]:
+) -> dict[str, Table]:
     """The recording's tables, written beside their partition until it is known."""
     seg = md.get("segment", "0")
     constants: dict[str, object] = {
@@ -398,26 +251,55 @@ def _tables(
         "spec_version": memo.specs.spec_version,
     }
     result.firmware, result.spec_version = fw, memo.specs.spec_version
-    return {t: _Table(dataset / t / f"{result.recording_id}.parquet", t, constants) for t in TABLES}
+    return {t: Table(dataset / t / f"{result.recording_id}.parquet", t, constants) for t in TABLES}
 
 
 def _finish(
     result: ExportResult,
     dataset: Path,
-    tables: dict[str, _Table],
+    tables: dict[str, Table],
     md: Mapping[str, str],
     conns: Sequence[ConnectionRecord],
     robot: str | None,
     times: Iterable[int],
 ) -> None:
     """The connections written, and each table's file put in its partition."""
-    label = partition_value(_robot_of(md, conns, robot))
-    start = int(md.get("start_ns", "0") or 0) or min(times, default=0)
+    seen = _Connections(tables["connections"])
+    seen.add(conns)
+    _close(result, dataset, tables, md, robot, seen.upstream, min(times, default=0))
+
+
+class _Connections:
+    """A recording's connection records written to its table as they are read, and what
+    the partition needs of them (the first upstream named, the earliest time)."""
+
+    def __init__(self, table: Table) -> None:
+        self.table = table
+        self.upstream = ""
+        self.first_ns: int | None = None
+
+    def add(self, conns: Iterable[ConnectionRecord]) -> None:
+        for c in conns:
+            self.table.add(
+                (c.conn, c.event, c.t_ns, c.transport, c.client, c.upstream, c.reason, c.stream)
+            )
+            self.upstream = self.upstream or c.upstream
+            self.first_ns = c.t_ns if self.first_ns is None else min(self.first_ns, c.t_ns)
+
+
+def _close(
+    result: ExportResult,
+    dataset: Path,
+    tables: dict[str, Table],
+    md: Mapping[str, str],
+    robot: str | None,
+    upstream: str,
+    first_ns: int,
+) -> None:
+    """Each table's file put in its partition (the date ``start_ns``'s, else ``first_ns``'s)."""
+    label = partition_value(_robot_of(md, upstream, robot))
+    start = int(md.get("start_ns", "0") or 0) or first_ns
     date = time.strftime("%Y-%m-%d", time.gmtime(start // 1_000_000_000))
-    for c in conns:
-        tables["connections"].add(
-            (c.conn, c.event, c.t_ns, c.transport, c.client, c.upstream, c.reason, c.stream)
-        )
     part = f"date={date}/robot={label}/{result.recording_id}.parquet"
     for t, tab in tables.items():
         tab.close(dataset / t / part)
@@ -444,14 +326,14 @@ def _fast(
     to read again feeding whose the controller's runs are from the start (``blame``)."""
     stream = ColumnStream(path, window, blame=blame)
     windows = iter(stream)
-    buffered: list[tuple[Columns, int]] = []
+    buffered: list[tuple[Columns, list[ConnectionRecord]]] = []
     fw, known = firmware or None, bool(firmware)
     seen: dict[str, str] = {}
     try:
         # The judge is the firmware's, named by the first 905 reply: the windows before
         # it wait (a few), else it is looked for alone and the recording read again.
         for w in windows:
-            buffered.append((w, len(stream.connections)))
+            buffered.append((w, stream.take_connections()))
             if not known:
                 fw = firmware_in(zip(w.dir, w.cmd_id, w.data, strict=True))
                 known = fw is not None
@@ -481,9 +363,10 @@ def _fast(
     tables = _tables(name, dataset, result, md, fw, memo)
     win = Windows(memo, tables, data=data, port=_port, window=window)
     gaps = StateGaps()
+    conns = _Connections(tables["connections"])
     try:
-        last: tuple[Columns, int] | None = None
-        rest = ((w, len(stream.connections)) for w in windows)
+        last: tuple[Columns, list[ConnectionRecord]] | None = None
+        rest = ((w, stream.take_connections()) for w in windows)
         for item in itertools.chain(buffered, rest):
             # The state packets and problems read so far (with the windows read).
             state_rows(stream.states, gaps, tables["state"])
@@ -492,13 +375,15 @@ def _fast(
             stream.problems.clear()
             if last is not None:
                 win.blame = stream.blame
-                win.add(last[0], stream.connections[: last[1]], final=False)
+                win.add(last[0], last[1], final=False)
+                conns.add(last[1])
                 _blamed(stream.blame, memo, tables["problems"], end=False)
             last = item
         buffered = []
         if last is not None:
             win.blame = stream.blame
-            win.add(last[0], stream.connections[: last[1]], final=True)
+            win.add(last[0], last[1], final=True)
+            conns.add(last[1])
         _blamed(stream.blame, memo, tables["problems"], end=True)
         state_rows(stream.states, gaps, tables["state"])
         problem_rows(stream.problems, memo, tables["problems"])
@@ -508,10 +393,9 @@ def _fast(
         if isinstance(e, Blamed):
             return "blame"
         return "whole" if isinstance(e, (OutOfOrder, Unknown)) else "general"
-    conns = stream.connections
-    times = [*(c.t_ns for c in conns), *([win.first_ns] if win.first_ns is not None else [])]
+    times = [t for t in (conns.first_ns, win.first_ns) if t is not None]
     result.damage = _damage(stream.damage, lost)
-    _finish(result, dataset, tables, stream.metadata, conns, robot, times)
+    _close(result, dataset, tables, stream.metadata, robot, conns.upstream, min(times, default=0))
     return "done"
 
 
@@ -613,7 +497,7 @@ def _whole(
     _finish(result, dataset, tables, rec.metadata, rec.connections, robot, [rec.start_ns])
 
 
-def _blamed(blame: Blame[FrameRef] | None, judge: Judge, table: _Table, *, end: bool) -> None:
+def _blamed(blame: Blame[FrameRef] | None, judge: Judge, table: Table, *, end: bool) -> None:
     """The rows of the controller's malformed runs whose request ``blame`` knows now
     (``end``: all read, the rest decided): each with that request's command ID."""
     if blame is None:

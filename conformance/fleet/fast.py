@@ -125,6 +125,7 @@ class ColumnStream:
     def __init__(self, path: str, window: int, *, blame: bool = False, keep: int = KEEP) -> None:
         self.path, self.window = path, window
         self.metadata: dict[str, str] = {}
+        #: The connection records read since the caller last took them (:meth:`take_connections`).
         self.connections: list[ConnectionRecord] = []
         self.complete = True
         #: The state packets read since the caller last took them (:data:`StateRow`).
@@ -233,6 +234,11 @@ class ColumnStream:
             raise NotFast from None  # whatever is wrong, the general path says it in its words
         self._check(c)
         yield c
+
+    def take_connections(self) -> list[ConnectionRecord]:
+        """The connection records read since last asked (the window given last's)."""
+        got, self.connections = self.connections, []
+        return got
 
     def _frames_message(
         self, c: Columns, pending: Pending, data: bytes, binary: bool, at: _At

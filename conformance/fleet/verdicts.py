@@ -7,16 +7,17 @@ function of it (:func:`judge_columns`; :class:`~.memo.MemoJudge` says what that 
 
 from __future__ import annotations
 
-from collections import defaultdict, deque
+from collections import OrderedDict, defaultdict, deque
 from typing import Any
 
 from ..frame import Frame
 from ..judge import Judge, Verdict
+from ..judge_stream import CntSteps
 from ..recording import C2S, FrameRecord
 from .columns import Columns
 from .schema import VerdictColumns, verdict_columns
 
-__all__ = ["VerdictRows", "judge_columns"]
+__all__ = ["CntMemory", "VerdictRows", "judge_columns"]
 
 
 def _pairs(c: Columns) -> tuple[list[int], list[int]]:
@@ -116,6 +117,58 @@ def _oldest(q: deque[int] | None, taken: list[bool]) -> int | None:
     return None
 
 
+class CntMemory(OrderedDict[int, int]):
+    """Each connection's last request CNT, as ``check``'s
+    :class:`~conformance.judge_stream.CntSteps` remembers it across a recording: at most
+    ``limit`` connections, the one whose last request is oldest forgotten first (closed
+    ones too: they count as CntSteps counts them).  Bounded, whatever the connections."""
+
+    def __init__(self, limit: int | None = None) -> None:
+        super().__init__()
+        self.limit = CntSteps().limit if limit is None else limit
+
+
+def _steps(memory: CntMemory, conns: Any, cnts: Any, at: Any) -> list[tuple[int, int]]:
+    """The requests (numpy: connections, CNTs, and their frames ``at``, in the order check
+    judges them) whose CNT does not step by one from the one before on their connection
+    as ``memory`` gives it (``memory`` updated, as CntSteps.previous each): each frame and
+    that CNT."""
+    import numpy as np
+
+    n = len(conns)
+    if not n:
+        return []
+    by_conn = np.argsort(conns, kind="stable")
+    cs, cn = conns[by_conn], cnts[by_conn]
+    firsts = np.flatnonzero(np.r_[True, cs[1:] != cs[:-1]])
+    lasts = np.r_[firsts[1:] - 1, n - 1]
+    distinct = cs[firsts].tolist()
+    if len(memory) + sum(c not in memory for c in distinct) > memory.limit:
+        # CntSteps may forget a connection here: its rule, request by request.
+        out = []
+        limit = memory.limit
+        for i, c, x in zip(at.tolist(), conns.tolist(), cnts.tolist(), strict=True):
+            before = memory.pop(c, None)
+            memory[c] = x
+            if len(memory) > limit:
+                memory.popitem(last=False)
+            if before is not None and x != (before + 1) % 0x10000:
+                out.append((i, before))
+        return out
+    prev = np.full(n, -1, dtype=np.int64)  # in connection order; -1: none
+    prev[1:] = cn[:-1]
+    prev[firsts] = [memory.get(c, -1) for c in distinct]
+    bad = np.flatnonzero((prev >= 0) & (cn != (prev + 1) % 0x10000))
+    at_sorted = at[by_conn]
+    out = list(zip(at_sorted[bad].tolist(), prev[bad].tolist(), strict=True))
+    # Each connection's last request, in the order they came: the most recent last.
+    for k in np.sort(by_conn[lasts]).tolist():
+        c = int(conns[k])
+        memory.pop(c, None)
+        memory[c] = int(cnts[k])
+    return out
+
+
 #: A verdict's columns (:func:`~.schema.verdict_columns`).
 Row = VerdictColumns
 
@@ -163,7 +216,7 @@ def judge_columns(
     state: VerdictRows | None = None,
     carried: int = 0,
     carried_rows: Any = None,
-    last_cnt: dict[int, int] | None = None,
+    last_cnt: CntMemory | None = None,
 ) -> tuple[list[int], list[int], Any, list[Row]]:
     """The exchanges (request and reply indices), each frame's verdict (an index into the
     distinct verdicts' rows, numpy) and those rows.
@@ -178,7 +231,8 @@ def judge_columns(
     A window of a recording (:mod:`.window`): ``state`` numbers the verdicts across
     windows; the first ``carried`` frames are earlier windows' requests still waiting for
     a reply (their verdicts ``carried_rows``, not judged again), and ``last_cnt`` is each
-    connection's last request CNT before the window (updated)."""
+    connection's last request CNT before the window, as ``check``'s CntSteps remembers
+    them (updated)."""
     import numpy as np
 
     qs, ps = _pairs(c)
@@ -239,22 +293,9 @@ def judge_columns(
     which[rq] = base_row[rkey]
     # CNT steps per connection (CntSteps): the request before on the same connection.
     new = rq[rq >= carried]
-    by_conn = np.argsort(conn[new], kind="stable")
-    cs, cn = conn[new][by_conn], cnt[new][by_conn]
-    step_bad = (cs[1:] == cs[:-1]) & (cn[1:] != (cn[:-1] + 1) % 0x10000)
-    for k in np.flatnonzero(step_bad):
-        i = int(new[by_conn[k + 1]])
-        v = judge.request(frame(i), transport=tr[i], previous_cnt=int(cn[k]))
-        which[i] = row(v)
-    if last_cnt is not None and len(cs):
-        # Each connection's first request here steps from its last in the windows before.
-        for k in np.flatnonzero(np.r_[True, cs[1:] != cs[:-1]]).tolist():
-            before = last_cnt.get(int(cs[k]))
-            if before is not None and int(cn[k]) != (before + 1) % 0x10000:
-                i = int(new[by_conn[k]])
-                which[i] = row(judge.request(frame(i), transport=tr[i], previous_cnt=before))
-        for k in np.flatnonzero(np.r_[cs[1:] != cs[:-1], True]).tolist():
-            last_cnt[int(cs[k])] = int(cn[k])
+    steps = last_cnt if last_cnt is not None else CntMemory()
+    for i, before in _steps(steps, conn[new], cnt[new], new):
+        which[i] = row(judge.request(frame(i), transport=tr[i], previous_cnt=before))
     if carried:
         which[:carried] = carried_rows
     # Replies echoing their request: one verdict per distinct (request, reply DATA).

@@ -25,11 +25,11 @@ from typing import Any, Protocol
 
 from ..judge import Judge
 from ..recording import ConnectionRecord
-from ..recording.blame import Blame
+from ..recording.blame import Blame, Gone
 from .fast import Columns, FrameRef, NotFast
 from .general import len_ok
 from .schema import VERDICT_COLUMNS
-from .verdicts import VerdictRows, judge_columns
+from .verdicts import CntMemory, VerdictRows, judge_columns
 
 __all__ = ["WINDOW", "OutOfOrder", "Windows"]
 
@@ -39,6 +39,9 @@ WINDOW = 131_072
 
 #: A stream's last frames that bound its next ones (see :meth:`Windows.add`).
 TAIL = 64
+#: Connections open at once (each direction's last frames kept, their ports, their requests
+#: waiting for replies) beyond which the recording is read whole: hostile input.
+OPEN = 65_536
 #: Frames that may wait for a later window (at least; else 4 windows' worth), beyond which
 #: all are judged (and the order checked as the next windows come).
 HELD = 16_384
@@ -75,34 +78,38 @@ class Windows:
         self.carried = Columns()
         self.carried_rows = np.zeros(0, dtype=np.int64)
         self.held = Columns()
-        self.last_cnt: dict[int, int] = {}
+        self.last_cnt = CntMemory()  # as check's CntSteps: at most 4,096 connections
+        # Per open connection (dropped once it has ended: closed, its frames all judged).
         self.ports: dict[int, int | None] = {}
         self.used: set[int] = set()  # connections whose frames are written
-        self.closed: set[int] = set()
-        self.ended: set[int] = set()  # closed, and their waiting requests written
-        self.connections = 0  # how many of the recording's connection records are read
+        self.closed: set[int] = set()  # closed, some of their frames still to judge
+        #: The connections ended (closed, their waiting requests written), in a bounded
+        #: memory: a frame or an open of one read later reads the recording whole.
+        self.gone = Gone()
         self.judged_ns = -1  # the latest first byte judged
         self.first_ns: int | None = None  # the earliest first byte
         self.last_ns: dict[int, int] = {}  # each stream's last first byte (conn * 2 + c2s)
         self.window = window
 
     def add(self, cols: Columns, connections: Sequence[ConnectionRecord], *, final: bool) -> None:
-        """A window's frames, with the connection records read up to its end."""
+        """A window's frames, with the connection records read since the window before
+        (up to its end)."""
         import numpy as np
 
-        for x in connections[self.connections :]:
+        for x in connections:
             if x.event == "open":
-                if x.conn in self.used:
+                if x.conn in self.used or self._gone(x.conn):
                     raise OutOfOrder  # its frames' port is already written
                 self.ports[x.conn] = self.port(x.upstream)
             elif x.event == "close":
                 self.closed.add(x.conn)
-        self.connections = len(connections)
+        if len(self.ports) > OPEN or len(self.last_ns) > 2 * OPEN:
+            raise OutOfOrder  # more connections open at once than the windows hold
         n = len(cols)
         if n:
             first = cols.np("first_ns")
             low = int(first.min())
-            if low < self.judged_ns or (self.ended and self.ended & {*cols.conn}):
+            if low < self.judged_ns or any(map(self._gone, np.unique(cols.np("conn")).tolist())):
                 raise OutOfOrder
             self.first_ns = low if self.first_ns is None else min(self.first_ns, low)
         pool = self.held
@@ -142,6 +149,11 @@ class Windows:
         # What the window's arrays took goes back (mimalloc, Arrow's default, keeps freed
         # pages: its peak would creep up window after window).
         pa.default_memory_pool().release_unused()
+
+    def _gone(self, conn: int) -> bool:
+        """Whether ``conn`` has ended (or may have: :class:`~conformance.recording.blame.Gone`)."""
+        alive = conn in self.ports or conn in self.closed or conn * 2 in self.last_ns
+        return self.gone.holds(conn, alive=alive or conn * 2 + 1 in self.last_ns)
 
     def _judge(self, c: Columns, k: int, final: bool) -> None:
         import numpy as np
@@ -216,12 +228,18 @@ class Windows:
         waiting = (q >= 0) & (p < 0)
         if not final:
             # A closed connection's waiting requests are missing replies, once none of its
-            # frames waits for the next window.
-            self.ended |= self.closed - {*self.held.conn}
-            for conn_id in self.ended:
+            # frames waits for the next window; what was kept for it is dropped then.
+            now = self.closed - {*self.held.conn}
+            self.closed -= now
+            for conn_id in now:
+                self.gone.add(conn_id)
                 self.last_ns.pop(conn_id * 2, None)
                 self.last_ns.pop(conn_id * 2 + 1, None)
-            ended = np.array(sorted(self.ended), dtype=np.int64)
+                self.ports.pop(conn_id, None)
+                self.used.discard(conn_id)
+                if self.blame is not None:
+                    self.blame.close(conn_id)
+            ended = np.array(sorted(now), dtype=np.int64)
             waiting &= ~np.isin(conn[np.maximum(q, 0)], ended)
             carry = q[waiting]
             self.carried = c.take(carry)

@@ -34,10 +34,10 @@ from dataclasses import dataclass
 from functools import partial
 from typing import Any, Generic, TypeVar
 
-from .layout import C2S
+from .layout import C2S, S2C
 from .records import ProblemRecord
 
-__all__ = ["Blame", "Unknown"]
+__all__ = ["Blame", "Gone", "Unknown"]
 
 #: A frame as the caller knows it (a :class:`~.records.FrameRecord`, or a window's number).
 F = TypeVar("F")
@@ -46,6 +46,32 @@ F = TypeVar("F")
 class Unknown(Exception):
     """What a bounded memory forgot, or a stream out of order, could change whose a run
     is: read the recording whole."""
+
+
+class Gone:
+    """Connection numbers whose state was dropped (closed, nothing more of theirs to
+    come), in a bounded memory: the latest ``limit`` to ``2 * limit`` exactly, and every
+    number up to :attr:`floor` below them that the caller does not hold alive.  A number
+    at or below the floor never seen before is taken as gone too: it reads the recording
+    whole, where a writer numbers connections as they open (the kit's) never does."""
+
+    def __init__(self, limit: int = 4096) -> None:
+        self.limit = limit
+        self.floor = -1
+        self._ids: set[int] = set()
+
+    def add(self, conn: int) -> None:
+        if conn <= self.floor:
+            return
+        self._ids.add(conn)
+        if len(self._ids) > 2 * self.limit:
+            ordered = sorted(self._ids)
+            self.floor = ordered[-self.limit - 1]
+            self._ids = set(ordered[-self.limit :])
+
+    def holds(self, conn: int, *, alive: bool) -> bool:
+        """Whether ``conn`` is gone (``alive``: the caller keeps state for it)."""
+        return conn in self._ids or (conn <= self.floor and not alive)
 
 
 @dataclass(eq=False)
@@ -98,18 +124,42 @@ class Blame(Generic[F]):
         self._runs: list[_Run[F]] = []  # keep None: every run, decided at the end
         self._awaiting: dict[int, tuple[F, list[_Run[F]]]] = {}  # by id() of the reply
         self._settled: list[tuple[ProblemRecord, F | None]] = []
+        #: The connections closed (:meth:`close`): a frame or run of one fed later is Unknown.
+        self._gone = Gone()
 
     def _stream(self, conn: int, direction: str) -> _Stream[F]:
         s = self._streams.get((conn, direction))
         if s is None:
+            self._check_open(conn)
             s = self._streams[(conn, direction)] = _Stream()
         return s
 
     def _client(self, conn: int) -> _Client[F]:
         c = self._clients.get(conn)
         if c is None:
+            self._check_open(conn)
             c = self._clients[conn] = _Client()
         return c
+
+    def _check_open(self, conn: int) -> None:
+        alive = conn in self._clients or any((conn, d) in self._streams for d in (C2S, S2C))
+        if self._gone.holds(conn, alive=alive):
+            raise Unknown(f"connection {conn}: a frame or run after it was closed")
+
+    def close(self, conn: int) -> None:
+        """``keep`` only: the connection's frames and runs are all fed (it is closed, and
+        any fed later is :class:`Unknown`): its controller's runs no frame followed are
+        decided (trailing: no frame can follow them now), and what was kept for it
+        dropped, so that memory holds the connections open, not all there were."""
+        c = self._clients.pop(conn, None)
+        if c is not None:
+            for r in c.waiting:
+                if r.unsure:
+                    raise Unknown(f"connection {r.problem.conn}: requests forgotten")
+                self._settled.append((r.problem, r.request))
+        for direction in (C2S, S2C):
+            self._streams.pop((conn, direction), None)
+        self._gone.add(conn)
 
     # ------------------------------------------------------------------ feeding
 
