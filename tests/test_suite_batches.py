@@ -10,6 +10,7 @@ and the judge giving the same verdict whichever shortcut was taken.
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 from typing import TypeVar
@@ -172,6 +173,7 @@ def test_a_keyword_batch_is_its_name() -> None:
 # --------------------------------------------------------------------------- the runner's shortcuts
 
 
+@functools.cache  # 0.8 CPU-s to draw, and two tests read them
 def _requests() -> list[Frame]:
     """Requests the judge reads in every way: minimal and generated calls of every
     variant (valid and invalid), each field dialect's example, spellings."""
