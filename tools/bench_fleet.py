@@ -32,8 +32,10 @@ file exported by that revision's code too, in the same run.
 windowed path took from the general one injected (tools/synth_fleet.py ``inject``): the
 controller's garbage (ahead of replies and after each connection's last), framing problems
 (every 50th request's LEN off) and damage (a byte flipped in a chunk half way, the last
-tenth cut off); each exported in its own process by this tree's windows and by its whole
-path (``fast=False``: the general path, which these kinds took before), the same run:
+tenth cut off), a frame batch that does not read near the start (``bad_message``: the
+reader skips and names it) and ``--connections`` short connections of 6 frames each
+(``connections``; 20,000: more than check's CntSteps remembers); each exported in its own
+process by this tree's windows and by its whole path (``fast=False``: the general path, which these kinds took before), the same run:
 frames/s CPU and peak RSS (flat: the windowed figures about the clean one's, whatever the
 kind); with ``--baseline-rev REV``, by that revision's code too.
 """
@@ -48,6 +50,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -257,18 +260,28 @@ sys.exit(main(["export-parquet", *sys.argv[1:]]))
 """
 
 
-def _inject(path: Path, n: int, kind: str) -> None:
-    """A recording of ``n`` frames with ``kind`` injected (see the module)."""
+#: The kinds ``--injected`` exports (``--kinds``).
+KINDS = ("clean", "garbage", "flaws", "damaged", "bad_message", "connections")
+
+
+def _inject(path: Path, n: int, kind: str, connections: int = 20_000) -> None:
+    """A recording of ``n`` frames with ``kind`` injected (see the module); ``connections``:
+    that many short connections (``n`` frames among them: a few each)."""
     faults = (Fault("timeout", "*", "*", 214), Fault("slow", "*", "*", 212))
-    inject = {"garbage": ["garbage"], "flaws": ["flaws"]}.get(kind, [])
-    write_recording(path, "r01", "3.9.8", n, faults, START_NS, inject=inject)
+    inject = {"garbage": ["garbage"], "flaws": ["flaws"], "bad_message": ["bad_message"]}
+    short = max(2, n // connections) if kind == "connections" else None
+    write_recording(
+        path, "r01", "3.9.8", n, faults, START_NS, inject=inject.get(kind, []), per_connection=short
+    )
     if kind == "damaged":
         data = bytearray(path.read_bytes())
         data[len(data) // 2] ^= 0xFF
         path.write_bytes(bytes(data[: len(data) * 9 // 10]))
 
 
-def injected(n: int, tmp: str, rev: str = "") -> None:
+def injected(
+    n: int, tmp: str, rev: str = "", kinds: Sequence[str] = KINDS, connections: int = 20_000
+) -> None:
     """Peak RSS and frames/s CPU of export-parquet of a clean recording and of each kind
     injected, windowed and whole (see the module)."""
     ways: list[tuple[str, list[str], dict[str, str] | None]] = [
@@ -281,9 +294,10 @@ def injected(n: int, tmp: str, rev: str = "") -> None:
         f"{'recording':>10} {'frames':>10} {'path':>10} {'peak RSS MiB':>13} "
         f"{'frames/s CPU':>13} {'damage':>7}"
     )
-    for kind in ("clean", "garbage", "flaws", "damaged"):
+    for kind in kinds:
         path = Path(tmp) / f"injected-{kind}.mcap"
-        _inject(path, n, kind)
+        count = min(n, 6 * connections) if kind == "connections" else n
+        _inject(path, count, kind, connections)
         for label, cmd, env in ways:
             ds = os.path.join(tmp, "ds-injected")
             head = [*CLI, "export-parquet"] if cmd is CLI else cmd
@@ -343,11 +357,25 @@ def main() -> int:
         help="frames: a recording clean and with each kind injected, windowed and whole "
         "(nothing else)",
     )
+    ap.add_argument(
+        "--kinds",
+        default=",".join(KINDS),
+        help=f"with --injected: which recordings, of {','.join(KINDS)}",
+    )
+    ap.add_argument(
+        "--connections",
+        type=int,
+        default=20_000,
+        help="with --injected: the short connections of kind connections (6 frames each)",
+    )
     a = ap.parse_args()
     tmp = tempfile.mkdtemp(prefix="bench-fleet-")
     if a.injected:
         try:
-            injected(a.injected, tmp, rev=a.baseline_rev)
+            kinds = [k for k in a.kinds.split(",") if k]
+            if set(kinds) - set(KINDS):
+                raise SystemExit(f"--kinds {a.kinds}: give some of {','.join(KINDS)}")
+            injected(a.injected, tmp, a.baseline_rev, kinds, a.connections)
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
         return 0

@@ -22,7 +22,8 @@ than the request's: ``bad_cnt``, a FAIL).
 ``garbage``, the controller's bytes that are no frame (a ``malformed`` problem) ahead of
 every :data:`GARBAGE_EVERY`-th burst's replies and after each connection's last reply;
 ``flaws``, every :data:`FLAW_EVERY`-th request's LEN two more than its DATA's bytes
-(``len_mismatch`` in its frame batch).
+(``len_mismatch`` in its frame batch); ``bad_message``, a frame batch that does not read
+after the first burst (the reader skips it and names it as damage).
 """
 
 from __future__ import annotations
@@ -44,6 +45,8 @@ from conformance.recording import (  # noqa: E402
     BATCH_FRAMES,
     C2S,
     S2C,
+    TOPIC_C2S,
+    TOPIC_FRAMES,
     ConnectionRecord,
     FrameBatch,
     ProblemRecord,
@@ -114,12 +117,20 @@ def reply_data(firmware: str) -> dict[tuple[int, str], str]:
 
 
 #: What ``--inject`` may name (see the module).
-INJECT = ("garbage", "flaws")
+INJECT = ("garbage", "flaws", "bad_message")
 #: The controller's garbage (injected), and how often: every this many bursts.
 GARBAGE = b"\x00junk\xff"
 GARBAGE_EVERY = 8
 #: Every this many requests' LEN is off (injected ``flaws``).
 FLAW_EVERY = 50
+
+
+def _bad_message(w: RecordingWriter, t: int) -> None:
+    """A frame batch that does not read (cut inside a field), written among the frames
+    (injected ``bad_message``: the reader skips it and names it as damage)."""
+    w.flush()
+    frames = w._channels.get(TOPIC_FRAMES) or w._channels[TOPIC_C2S]
+    w._mcap.add_message(frames, t, b"\x12\x05ab", t, 0)
 
 
 def _off(cnt: int, cmd_id: int, data: str) -> bytes:
@@ -194,12 +205,14 @@ def write_recording(
     chunk_size: int = 1 << 20,
     batch_frames: int | None = None,
     inject: Sequence[str] = (),
+    per_connection: int | None = None,
 ) -> int:
     """One robot's recording on one firmware: ``frames`` frames (requests and replies);
     returns how many were written.  ``layout``: the recording layout (default: the
     writer's); ``chunk_size``, ``batch_frames``: the MCAP chunks' size and the frames a
     message holds at most (small: many chunks and messages in a small file); ``inject``:
-    of :data:`INJECT` (see the module)."""
+    of :data:`INJECT` (see the module); ``per_connection``: the frames of a connection
+    (about: its bursts are halved to fit; default :data:`FRAMES_PER_CONNECTION`)."""
     replies = reply_data(firmware)
     mine = {(f.kind, f.cmd_id) for f in faults if f.hits(robot, firmware)}
     encoded: dict[tuple[int, int, str], bytes] = {}
@@ -236,7 +249,7 @@ def write_recording(
                     upstream=f"{host}:8080",
                 )
             )
-            per_conn = min(FRAMES_PER_CONNECTION, frames - written)
+            per_conn = min(per_connection or FRAMES_PER_CONNECTION, frames - written)
             cnt = 0
             step = 0
             at: dict[str, int] | None = {C2S: 0, S2C: 0} if inject else None
@@ -246,6 +259,8 @@ def write_recording(
                 reqs: list[tuple[int, int, str, int, bytes]] = []
                 reps: list[tuple[int, int, str, int, bytes]] = []
                 n = min(BURST, max(1, (frames - written) // 2))
+                if per_connection:
+                    n = min(n, max(1, per_conn // 2))
                 for _ in range(n):
                     cnt = (cnt + 1) % 0x10000
                     cid, data = (
@@ -281,6 +296,8 @@ def write_recording(
                     if at is not None and "garbage" in inject and bursts % GARBAGE_EVERY == 0:
                         w.write(_garbage(conn, at, reps[0][3] - 1))  # ahead of a reply
                     w.write_frames(_batch(conn, S2C, reps, at))
+                    if "bad_message" in inject and conn == 1 and bursts == 1:
+                        _bad_message(w, t)
                     last_reply = max(last_reply, *(r[3] for r in reps))
                     written += len(reps)
                     per_conn -= len(reps)
