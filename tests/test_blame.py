@@ -260,3 +260,42 @@ def test_a_closed_connection_is_decided_and_forgotten() -> None:
     assert len(gone._ids) <= 4 and gone.floor >= 5
     assert gone.holds(0, alive=False) and not gone.holds(0, alive=True)
     assert gone.holds(9, alive=True) and not gone.holds(10, alive=False)
+
+
+@pytest.mark.parametrize("shuffle", [False, True])
+def test_runs_told_ahead_decide_as_answered_by_in_any_order(shuffle: bool) -> None:
+    """Foreseen (the controller's runs told first, recording/blame_ahead.py), fed the
+    frames one at a time (a run written late anywhere, and ``shuffle``: frames swapped so
+    that a stream's offsets and times step back): always what answered_by gives, never
+    Unknown, without remembering any frame."""
+    from conformance.recording.blame_ahead import Foreseen
+
+    for seed in range(300):
+        rec, order = _recording(seed)
+        if shuffle:
+            rnd = random.Random(seed)
+            for _ in range(len(order) // 3):
+                i = rnd.randrange(len(order))
+                j = min(len(order) - 1, i + rnd.randint(1, 3))
+                order[i], order[j] = order[j], order[i]
+            rec = Recording(
+                path="r.mcap",
+                metadata={},
+                frames=tuple(x for x in order if isinstance(x, FrameRecord)),
+                problems=tuple(x for x in order if isinstance(x, ProblemRecord)),
+                connections=(),
+            )
+        b: Foreseen[FrameRecord] = Foreseen(rec.problems)
+        for number, x in enumerate(order):
+            if isinstance(x, FrameRecord):
+                b.frame(x, x.conn, x.dir, x.offset, x.first_ns or x.complete_ns, number)
+            else:
+                b.run(x)
+        for e in rec.exchanges():
+            if e.reply is not None:
+                b.paired(e.reply, e.request)
+        b.close(1)
+        b.finish()
+        got = {id(p): f for p, f in b.settled() if f is not None}
+        want = rec.answered_by()
+        assert {k: id(v) for k, v in got.items()} == {k: id(v) for k, v in want.items()}, seed

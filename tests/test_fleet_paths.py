@@ -335,13 +335,11 @@ def test_frame_batches_with_framing_problems_go_the_windowed_path(
     assert {"len_mismatch", "bad_separator"} <= {r["rule"] for r in frames}
 
 
-def test_a_run_written_after_its_reply_was_judged_reads_the_recording_whole(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    """A writer that wrote the controller's garbage windows after the reply it came
-    before (the kit's writes it first): the windows cannot tell whose it is once that
-    reply is judged (recording/blame.py's Unknown), so the recording is read whole, as
-    columns, and the rows are the general path's still (blamed on that reply's request)."""
+def _out_of_order(path: Path, case: str) -> Path:
+    """A writer that does not keep a stream's order (the kit's does): ``judged``, the
+    controller's garbage ahead of reply 3 written after frame 40 (its reply judged
+    windows before); ``swapped``, that garbage written in place but reply 4 written
+    before reply 3 (a stream's offsets stepping back after the run found a frame)."""
     from conformance.frame import encode_frame
     from conformance.recording import (
         C2S,
@@ -353,9 +351,19 @@ def test_a_run_written_after_its_reply_was_judged_reads_the_recording_whole(
         default_metadata,
     )
 
-    path = tmp_path / "late.mcap"
+    garbage = ProblemRecord(
+        conn=1,
+        dir=S2C,
+        kind="malformed",
+        rule="garbage",
+        detail="4 bytes that are not a frame",
+        size=4,
+        complete_ns=START + 3_000_000,
+        offset=2 * len(encode_frame(1, 212, "1")),
+    )
     with RecordingWriter(path, metadata=default_metadata(START, robot="r05")) as w:
         at = {C2S: 0, S2C: 0}
+        held: FrameRecord | None = None
         for cnt in range(1, 60):
             t = START + cnt * 1_000_000
             cmd_id = 214 if cnt == 3 else 212
@@ -372,22 +380,42 @@ def test_a_run_written_after_its_reply_was_judged_reads_the_recording_whole(
                     first_ns=t,
                     offset=at[way],
                 )
-                w.write_frames(FrameBatch.of([f]))
                 at[way] += len(raw) + (4 if (cnt, way) == (2, S2C) else 0)
-            if cnt == 40:  # the 4 bytes ahead of reply 3 (after replies 1 and 2), written now
-                garbage = ProblemRecord(
-                    conn=1,
-                    dir=S2C,
-                    kind="malformed",
-                    rule="garbage",
-                    detail="4 bytes that are not a frame",
-                    size=4,
-                    complete_ns=START + 3_000_000,
-                    offset=2 * len(encode_frame(1, 212, "1")),
-                )
+                if case == "swapped" and (cnt, way) == (3, S2C):
+                    w.write(garbage)
+                    held = f  # written after reply 4
+                    continue
+                w.write_frames(FrameBatch.of([f]))
+                if held is not None and way == S2C:
+                    w.write_frames(FrameBatch.of([held]))
+                    held = None
+            if case == "judged" and cnt == 40:  # the 4 bytes ahead of reply 3, written now
                 w.write(garbage)
+    return path
+
+
+@pytest.mark.parametrize("case", ["judged", "swapped"])
+def test_runs_written_out_of_order_go_the_windowed_path(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, case: str
+) -> None:
+    """The controller's garbage written after the reply it came before was judged, or a
+    stream's frames stepping back after the garbage found a frame: the windows cannot tell
+    whose it is as they read it (recording/blame.py's Unknown), so the recording is read
+    again with the controller's runs read first (recording/blame_ahead.py) and windowed;
+    the rows are the general path's (blamed on reply 3's request, 214)."""
+    from conformance.fleet import export
+
+    path = _out_of_order(tmp_path / f"{case}.mcap", case)
+    ahead: list[str] = []
+    real = export.controller_runs  # type: ignore[attr-defined]
+
+    def runs(p: str) -> Any:
+        ahead.append(p)
+        return real(p)
+
+    monkeypatch.setattr(export, "controller_runs", runs)
     tables, whole = both_paths(path, tmp_path, monkeypatch, window=8)
-    assert whole == [str(path)]
+    assert whole == [] and ahead == [str(path)]
     (run,) = tables["problems"]
     assert run["cmd_id"] == 214
 

@@ -41,6 +41,7 @@ from ..firmware import GET_SOFTWARE_VERSION_ID, parse_software_version
 from ..judge import Judge
 from ..recording import C2S, ConnectionRecord
 from ..recording.blame import Blame, Unknown
+from ..recording.blame_ahead import controller_runs
 from .fast import Blamed, Columns, ColumnStream, FrameRef, NotFast, read_columns
 from .general import StateGaps, general_rows, problem_rows, state_row, state_rows
 from .memo import MemoJudge
@@ -224,6 +225,8 @@ def export_recording(
             how = _fast(*args)
             if how == "blame":
                 how = _fast(*args, blame=True)
+            if how == "ahead":
+                how = _fast(*args, ahead=True)
         if how != "done":
             _whole(path, path, dataset, result, judge_for, robot, firmware, data, how == "whole")
     result.seconds = round(time.perf_counter() - t0, 3)
@@ -319,12 +322,16 @@ def _fast(
     window: int,
     lost: Sequence[CaptureDamage] = (),
     blame: bool = False,
+    ahead: bool = False,
 ) -> str:
     """A recording a window at a time (:mod:`.window`), its rows named ``name``: "done";
     else nothing is written, and "general" for one the fast path does not take, "whole"
     for one whose windows are not in the order :mod:`.window` relies on, "blame" for one
-    to read again feeding whose the controller's runs are from the start (``blame``)."""
-    stream = ColumnStream(path, window, blame=blame)
+    to read again feeding whose the controller's runs are from the start (``blame``),
+    "ahead" for one whose runs the windows cannot be sure of as they read them (read again
+    with the runs read first: ``ahead``, recording/blame_ahead.py)."""
+    runs = controller_runs(path) if ahead else None
+    stream = ColumnStream(path, window, blame=blame, runs=runs)
     windows = iter(stream)
     buffered: list[tuple[Columns, list[ConnectionRecord]]] = []
     fw, known = firmware or None, bool(firmware)
@@ -348,14 +355,15 @@ def _fast(
                 if fw is not None:
                     break
             seen = stream.metadata  # the new stream's, before it is read again
-            stream = ColumnStream(path, window, blame=blame or stream.blame is not None)
+            again = blame or stream.blame is not None
+            stream = ColumnStream(path, window, blame=again, runs=runs)
             windows = iter(stream)
     except Blamed:
         return "blame"
     except NotFast:
         return "general"
     except Unknown:
-        return "whole"
+        return "whole" if ahead else "ahead"
     md = stream.metadata or seen
     if not md:
         return "whole"
@@ -392,6 +400,8 @@ def _fast(
             tab.discard()
         if isinstance(e, Blamed):
             return "blame"
+        if isinstance(e, Unknown) and not ahead:
+            return "ahead"  # the runs read first, nothing to look back for
         return "whole" if isinstance(e, (OutOfOrder, Unknown)) else "general"
     times = [t for t in (conns.first_ns, win.first_ns) if t is not None]
     result.damage = _damage(stream.damage, lost)
@@ -437,9 +447,11 @@ def _capture(
         import_pcap(path, mcap, damage=lost)
         # A damaged capture too: its damage is named beside the rows of what was read.
         how = _fast(mcap, path, dataset, result, judge_for, robot, firmware, data, window, lost)
+        again = (mcap, path, dataset, result, judge_for, robot, firmware, data, window, lost)
         if how == "blame":
-            again = (mcap, path, dataset, result, judge_for, robot, firmware, data, window, lost)
             how = _fast(*again, blame=True)
+        if how == "ahead":
+            how = _fast(*again, ahead=True)
         if how != "done":
             args = (dataset, result, judge_for, robot, firmware, data, how == "whole", lost)
             _whole(mcap, path, *args)

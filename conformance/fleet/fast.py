@@ -50,6 +50,7 @@ from ..recording import (
     StateRecord,
 )
 from ..recording.blame import Blame, Unknown
+from ..recording.blame_ahead import Foreseen
 from ..recording.frames_pb import BatchColumns, decode_columns, decode_one_frame
 from ..recording.layout import C2S, INT_MAX, STATE_KIND, TIME_MAX
 from ..recording.reader import READ_TOPICS, message_damage, read_message
@@ -122,7 +123,15 @@ class ColumnStream:
     before are then to be thrown away); the damage the walk skipped is :attr:`damage`
     once the file is read."""
 
-    def __init__(self, path: str, window: int, *, blame: bool = False, keep: int = KEEP) -> None:
+    def __init__(
+        self,
+        path: str,
+        window: int,
+        *,
+        blame: bool = False,
+        keep: int = KEEP,
+        runs: list[ProblemRecord] | None = None,
+    ) -> None:
         self.path, self.window = path, window
         self.metadata: dict[str, str] = {}
         #: The connection records read since the caller last took them (:meth:`take_connections`).
@@ -138,7 +147,10 @@ class ColumnStream:
         self.keep = keep
         #: Whose the controller's malformed runs are (recording/blame.py): fed every
         #: frame, from the start, once such a run is met (or from the start: ``blame``).
-        self.blame: Blame[FrameRef] | None = Blame(keep) if blame else None
+        #: ``runs``: the controller's runs told it ahead (recording/blame_ahead.py).
+        self.blame: Blame[FrameRef] | None = (
+            Foreseen(runs) if runs is not None else Blame(keep) if blame else None
+        )
         self._fed = 0  # the frames of the window being read fed to it
         self._walk: Walk | None = None
         #: Layout-3 batches waiting in the window's :class:`Pending`, as read.
