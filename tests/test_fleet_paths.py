@@ -582,3 +582,39 @@ def test_more_connections_than_check_remembers_go_the_windowed_path(
     # Per connection (open, or with frames held for the next window: at most 32 frames
     # here), not per connection there was (41, 82 streams: 16 from the CNTs' 16).
     assert max(most) <= 24
+
+
+def test_json_batches_in_another_writers_shape_go_the_windowed_path(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Layout 2's JSON batches not in the kit's writer's shape (``raw`` first; DATA
+    holding ``true``), and one holding a boolean where a number goes (the reader skips and
+    names it): windowed, the rows and the damage those of the general path."""
+    from conformance.frame import encode_frame
+    from conformance.recording import (
+        C2S,
+        S2C,
+        TOPIC_C2S,
+        TOPIC_S2C,
+        FrameBatch,
+        RecordingWriter,
+        default_metadata,
+    )
+
+    md = {**default_metadata(START, robot="r08"), "format": "fairino-conformance/2"}
+    path = tmp_path / "shapes.mcap"
+    with RecordingWriter(path, metadata=md) as w:
+        for cnt in range(1, 30):
+            t = START + cnt * 1_000_000
+            for way, data, topic in ((C2S, "SetDO(1,true)", TOPIC_C2S), (S2C, "1", TOPIC_S2C)):
+                raw = encode_frame(cnt, 212, data)
+                doc = FrameBatch(1, "tcp", way, [cnt], [212], [None], [data], [len(data)],
+                                 [(cnt - 1) * len(raw)], [t], [t], [len(raw)], raw).to_json()  # fmt: skip
+                doc = {"raw": doc.pop("raw"), **doc}  # raw first
+                if cnt == 7 and way == S2C:
+                    doc["len"] = [True]
+                w.write_json(topic, doc, log_time=t, publish_time=t)
+    tables, whole = both_paths(path, tmp_path, monkeypatch, window=8)
+    assert whole == [] and len(tables["frames"]) == 57
+    damage = _damage(tmp_path, path)
+    assert damage[True] == damage[False] and len(damage[True]) == 1

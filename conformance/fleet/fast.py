@@ -278,8 +278,8 @@ class ColumnStream:
             elif binary:
                 _binary_batch(c, decode_columns(data), flaws=True)
             else:
-                doc, raw_size = _message(data)
-                if not _batch(c, doc, raw_size):
+                doc, raw_size, booleans = _message(data)
+                if not _batch(c, doc, raw_size, booleans):
                     raise ValueError
         except _UNREAD:
             c.truncate(n)
@@ -388,16 +388,21 @@ def read_columns(path: str) -> Columns | None:
 _RAW = b',"raw":"'
 
 
-def _message(m: bytes) -> tuple[Any, int]:
-    """A frames message's JSON without ``raw``, and how many bytes ``raw`` holds (a
-    ``ValueError`` for base64 that does not read); None for one the fast path leaves (no
-    ``raw`` last, or a boolean, which no number column may hold, anywhere in it)."""
+def _message(m: bytes) -> tuple[Any, int, bool]:
+    """A frames message's JSON without ``raw``, how many bytes ``raw`` holds (a
+    ``ValueError`` for base64 that does not read), and whether a number column may hold a
+    boolean (for :func:`_batch` to look: the writer's messages hold none).  The writer's
+    shape (``raw`` last, no ``true`` or ``false`` anywhere) is parsed without ``raw``;
+    any other JSON whole."""
     i = m.rfind(_RAW)
-    if i < 0 or not m.endswith(b'"}') or b"true" in m or b"false" in m:
-        return None, -1
     # Read as the reader reads it (base64.b64decode: characters outside the alphabet
     # skipped), so the two paths take the same messages.
-    return json.loads(m[:i] + b"}"), len(binascii.a2b_base64(m[i + len(_RAW) : -2]))
+    if i >= 0 and m.endswith(b'"}') and b"true" not in m and b"false" not in m:
+        return json.loads(m[:i] + b"}"), len(binascii.a2b_base64(m[i + len(_RAW) : -2])), False
+    doc = json.loads(m)
+    if not isinstance(doc, dict) or type(doc.get("raw")) is not str:
+        return None, -1, True
+    return doc, len(binascii.a2b_base64(doc.pop("raw"))), True
 
 
 def _intern_name(x: str | None) -> str | None:
@@ -407,8 +412,9 @@ def _intern_name(x: str | None) -> str | None:
 _INT = {int}
 
 
-def _batch(c: Columns, d: Any, raw_size: int) -> bool:
-    """Add one ``fairino.Frames`` message's columns; False for one the fast path leaves."""
+def _batch(c: Columns, d: Any, raw_size: int, booleans: bool = False) -> bool:
+    """Add one ``fairino.Frames`` message's columns; False for one the fast path leaves
+    (``booleans``: its number columns looked at for one)."""
     if not isinstance(d, dict) or not isinstance(d.get("cnt"), list):
         return False
     sizes = d.get("size")
@@ -422,12 +428,15 @@ def _batch(c: Columns, d: Any, raw_size: int) -> bool:
     cols = (d["cmd_id"], d["data"], d["len"], d["offset"], complete, first, names, sizes)
     if flaws == [] or any(not isinstance(x, list) or len(x) != n for x in cols):
         return False
+    numbers = (d["cnt"], d["cmd_id"], d["len"], d["offset"], complete, first)
+    if booleans and not all({*map(type, x)} <= _INT for x in numbers):
+        return False  # a boolean (True is 1 to an array): the reader names it
     conn, transport, direction = d["conn"], d.get("transport", "tcp"), d["dir"]
     if type(conn) is not int or direction not in ("c2s", "s2c") or transport not in _TRANSPORTS:
         return False
     # The types the schema asks for, checked as they are stored: a 64-bit array takes only
     # integers (TypeError, OverflowError), sys.intern only strings (TypeError); booleans,
-    # which an array would take as 0 and 1, keep a message off the fast path (_message).
+    # which an array would take as 0 and 1, looked for where the message may hold one.
     # The ranges (layout.py: numbers non-negative, times before 2106) checked here.
     # Whatever does not fit is skipped and named as the reader names it.
     if not 0 <= conn <= INT_MAX or not all(
