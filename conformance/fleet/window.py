@@ -122,12 +122,16 @@ class Windows:
             # Each stream's (connection and direction) frames come in order: none of an
             # open connection's comes before its streams' last ones.
             stream = cols.np("conn") * 2 + np.frombuffer(cols.request, dtype=np.int8)
-            for key in np.unique(stream).tolist():
-                mine = first[stream == key]
+            order = np.argsort(stream, kind="stable")  # each stream's frames, in file order
+            keys, starts = np.unique(stream[order], return_index=True)
+            ends = np.r_[starts[1:], len(order)]
+            for key, a, b in zip(keys.tolist(), starts.tolist(), ends.tolist(), strict=True):
+                mine = first[order[max(a, b - TAIL) : b]]
                 # Its last frames' earliest (a late frame is at times written with a
                 # burst's: those after it in the stream come before it).
-                self.last_ns[key] = int(mine[-TAIL:].min())
-                self.last_ns.setdefault(key ^ 1, int(mine[0]))  # the other way: from here on
+                self.last_ns[key] = int(mine.min())
+                # The other way: from here on.
+                self.last_ns.setdefault(key ^ 1, int(first[order[a]]))
         if not final:
             open_ = [t for key, t in self.last_ns.items() if key >> 1 not in self.closed]
             # No connection open: the next one's frames may come before those here.
