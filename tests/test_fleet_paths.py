@@ -618,3 +618,17 @@ def test_json_batches_in_another_writers_shape_go_the_windowed_path(
     assert whole == [] and len(tables["frames"]) == 57
     damage = _damage(tmp_path, path)
     assert damage[True] == damage[False] and len(damage[True]) == 1
+
+
+def test_more_connections_open_at_once_than_the_bound_read_the_recording_whole(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """More connections open at once than window.OPEN (65,536 as shipped; 1 here: a
+    connection stays open while the others come and go): the recording is read whole, as
+    columns (hostile input), the rows still the general path's."""
+    from conformance.fleet import window
+
+    monkeypatch.setattr(window, "OPEN", 1)
+    path = _many_connections(tmp_path / "open.mcap", 6)
+    tables, whole = both_paths(path, tmp_path, monkeypatch, window=8)
+    assert whole == [str(path)] and len(tables["connections"]) == 14

@@ -191,7 +191,10 @@ class ColumnStream:
                         at = _At(count, topic, rec.sequence, where, len(walk.damage))
                         if topic in _FRAME_TOPICS:
                             self._frames_message(c, pending, rec.data, rec.channel_id in binary, at)
-                            if len(c.cnt) + pending.frames >= self.window:
+                            # A connection record weighs some eight frames (a window ends
+                            # among frames: a connection open, for window.py to judge by).
+                            weight = 8 * len(self.connections)
+                            if len(c.cnt) + pending.frames + weight >= self.window:
                                 self._flush(c, pending)
                                 self._check(c)
                                 yield c
@@ -213,9 +216,8 @@ class ColumnStream:
                                 self.problems.append(p)
                         else:  # a message the reader skips: named as it names it
                             self._unread(at, why)
-                        if len(self.states) + len(self.problems) + len(self.connections) >= (
-                            self.window
-                        ):
+                        held = len(self.states) + len(self.problems) + len(self.connections)
+                        if held >= self.window:
                             self._flush(c, pending)  # a window's worth, frames or not
                             self._check(c)
                             yield c
