@@ -14,12 +14,14 @@ recording's length and the number of recordings.  A pcap/pcapng capture is impor
 that recording exported so, its rows named as the capture (and a damaged capture's damage
 named).  The state stream's packets (``proxy --state``), the gaps, the malformed bytes
 (the controller's blamed on the request they answered: recording/blame.py), frames with
-framing problems and a damaged recording's readable part (its damage named) go so too.
-A recording whose windows are not in the order :mod:`.window` relies on, or whose
-controller's runs the windows cannot be sure of, is read whole as columns; one the fast
-path does not take at all (a message that does not read) goes through
-``check_recording`` whole (:mod:`.general`).  ``jobs`` processes take the recordings one
-at a time each.
+framing problems, a damaged recording's readable part (its damage named), a message that
+does not read or fit its schema (skipped and named as the reader names it), and any number
+of connections (memory after those open at once) go so too.  One whose controller's runs
+the windows cannot be sure of as they read them is read again with the runs read first
+(recording/blame_ahead.py).  A recording whose windows are not in the order
+:mod:`.window` relies on is read whole as columns; one the fast path does not take at all
+(layout 1's frame a message) goes through ``check_recording`` whole (:mod:`.general`).
+``jobs`` processes take the recordings one at a time each.
 """
 
 from __future__ import annotations

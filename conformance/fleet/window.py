@@ -15,7 +15,12 @@ are is told each exchange of a reply a run came before (recording/blame.py).
 
 What this relies on is checked as it goes: a frame that comes before one already judged,
 a frame of a connection already closed, or a connection opened after its frames were
-written raise :class:`OutOfOrder`, and the recording is read again whole.
+written raise :class:`OutOfOrder`, and the recording is read again whole.  So does more
+than :data:`OPEN` connections open at once (hostile input).  Per connection only those
+open (or with frames still to judge) are kept: a closed one's port, last frames and blame
+are dropped once its frames are judged (a bounded memory of the closed,
+:class:`~conformance.recording.blame.Gone`, tells a frame of one that comes later); each
+connection's last CNT is kept as ``check``'s CntSteps keeps it (:class:`~.verdicts.CntMemory`).
 """
 
 from __future__ import annotations
