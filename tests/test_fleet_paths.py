@@ -632,3 +632,29 @@ def test_more_connections_open_at_once_than_the_bound_read_the_recording_whole(
     path = _many_connections(tmp_path / "open.mcap", 6)
     tables, whole = both_paths(path, tmp_path, monkeypatch, window=8)
     assert whole == [str(path)] and len(tables["connections"]) == 14
+
+
+def test_a_recording_read_whole_as_columns_takes_runs_out_of_order(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Read whole as columns (more connections open at once than window.OPEN, 0 here), a
+    stream's offsets stepping back after the controller's garbage found a frame: the runs
+    read first there too (recording/blame_ahead.py), not the general path; the rows those
+    of the general path."""
+    from conformance.fleet import export, window
+
+    monkeypatch.setattr(window, "OPEN", 0)
+    columns: list[bool] = []
+    real = export.read_columns  # type: ignore[attr-defined]
+
+    def read(p: str) -> Any:
+        got = real(p)
+        columns.append(got is not None)
+        return got
+
+    monkeypatch.setattr(export, "read_columns", read)
+    path = _out_of_order(tmp_path / "swapped.mcap", "swapped")
+    tables, whole = both_paths(path, tmp_path, monkeypatch, window=8)
+    assert whole == [str(path)] and columns == [True]
+    (run,) = tables["problems"]
+    assert run["cmd_id"] == 214

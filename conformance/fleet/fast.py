@@ -374,11 +374,18 @@ class ColumnStream:
 
 def read_columns(path: str) -> Columns | None:
     """The recording's columns, or None when the fast path cannot take it (see the module);
-    its :attr:`~.columns.Columns.blame` fed every frame and run, forgetting none."""
-    s = ColumnStream(path, sys.maxsize, blame=True, keep=sys.maxsize)
+    its :attr:`~.columns.Columns.blame` told the controller's runs first and fed every
+    frame (recording/blame_ahead.py: whatever the order they come in)."""
+    from ..recording.blame_ahead import controller_runs
+
+    try:
+        runs = controller_runs(path)
+    except (OSError, *_UNREAD):
+        return None  # the general path says what is wrong
+    s = ColumnStream(path, sys.maxsize, runs=runs)
     try:
         (c,) = list(s)
-    except (NotFast, Unknown):  # Unknown: a stream out of order after a run was decided
+    except (NotFast, Unknown):
         return None
     c.metadata, c.connections, c.complete = s.metadata, s.connections, s.complete
     c.states, c.problems, c.damage, c.blame = s.states, s.problems, s.damage, s.blame

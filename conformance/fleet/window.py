@@ -108,8 +108,6 @@ class Windows:
                 self.ports[x.conn] = self.port(x.upstream)
             elif x.event == "close":
                 self.closed.add(x.conn)
-        if not final and max(len(self.ports), len(self.last_ns) // 2) - len(self.closed) > OPEN:
-            raise OutOfOrder  # more connections open at once than the windows hold
         n = len(cols)
         if n:
             first = cols.np("first_ns")
@@ -137,6 +135,8 @@ class Windows:
                 self.last_ns[key] = int(mine.min())
                 # The other way: from here on.
                 self.last_ns.setdefault(key ^ 1, int(first[order[a]]))
+        if not final and max(len(self.ports), len(self.last_ns) // 2) - len(self.closed) > OPEN:
+            raise OutOfOrder  # more connections open at once than the windows hold
         if not final:
             open_ = [t for key, t in self.last_ns.items() if key >> 1 not in self.closed]
             # No connection open: the next one's frames may come before those here.
