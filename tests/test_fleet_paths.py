@@ -658,3 +658,41 @@ def test_a_recording_read_whole_as_columns_takes_runs_out_of_order(
     assert whole == [str(path)] and columns == [True]
     (run,) = tables["problems"]
     assert run["cmd_id"] == 214
+
+
+def test_layout_1_goes_the_windowed_path(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Layout 1 (a fairino.Frame object a message), a frame with framing problems among
+    them and one whose CNT is negative (skipped and named): windowed, the rows and the
+    damage those of the general path."""
+    from conformance.frame import encode_frame
+    from conformance.recording import (
+        C2S,
+        S2C,
+        TOPIC_C2S,
+        TOPIC_S2C,
+        FrameRecord,
+        RecordingWriter,
+        default_metadata,
+    )
+
+    md = {**default_metadata(START, robot="r09"), "format": "fairino-conformance/1"}
+    path = tmp_path / "v1.mcap"
+    with RecordingWriter(path, metadata=md) as w:
+        at = {C2S: 0, S2C: 0}
+        for cnt in range(1, 25):
+            t = START + cnt * 1_000_000
+            for way, data, topic in ((C2S, "GetDI(0,0)", TOPIC_C2S), (S2C, "1", TOPIC_S2C)):
+                raw = encode_frame(cnt, 212, data)
+                problems = ("len_mismatch",) if (cnt, way) == (5, C2S) else ()
+                f = FrameRecord(conn=1, dir=way, cnt=cnt, cmd_id=212, data=data, raw=raw,
+                                complete_ns=t, first_ns=t, offset=at[way], problems=problems)  # fmt: skip
+                at[way] += len(raw)
+                doc = dict(f.to_json())
+                if (cnt, way) == (9, S2C):
+                    doc["cnt"] = -1
+                w.write_json(topic, doc, log_time=t, publish_time=t)
+    tables, whole = both_paths(path, tmp_path, monkeypatch, window=8)
+    assert whole == [] and len(tables["frames"]) == 47
+    assert sum(not r["len_ok"] for r in tables["frames"]) == 1
+    damage = _damage(tmp_path, path)
+    assert damage[True] == damage[False] and len(damage[True]) == 1

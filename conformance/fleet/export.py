@@ -20,7 +20,7 @@ of connections (memory after those open at once) go so too.  One whose controlle
 the windows cannot be sure of as they read them is read again with the runs read first
 (recording/blame_ahead.py).  A recording whose windows are not in the order
 :mod:`.window` relies on is read whole as columns; one the fast path does not take at all
-(layout 1's frame a message) goes through ``check_recording`` whole (:mod:`.general`).
+(a layout-1 frame without LEN) goes through ``check_recording`` whole (:mod:`.general`).
 ``jobs`` processes take the recordings one at a time each.
 """
 

@@ -13,9 +13,9 @@ the walk skips and each message on the recording's topics that does not read or 
 schema (a negative number, a time past 2106), both skipped and named as the reader names
 them, in its order (:attr:`ColumnStream.damage`: the reader's own
 :func:`~conformance.recording.reader.read_message` says why); a message on a topic the
-reader does not read (a later layout's) is skipped as it skips it.  Anything else (layout
-1's frame a message, a message the reader reads and these columns do not: :class:`NotFast`)
-goes the general way (:func:`~conformance.capture_check.check_recording` over the reader's
+reader does not read (a later layout's) is skipped as it skips it.  Anything else (a
+layout-1 frame without LEN, a message the reader reads and these columns do not:
+:class:`NotFast`) goes the general way (:func:`~conformance.capture_check.check_recording` over the reader's
 records).  What the fast path does is the same, step by step, so the
 verdicts are the same (the tests compare them frame by frame):
 
@@ -281,6 +281,8 @@ class ColumnStream:
                 _binary_batch(c, decode_columns(data), flaws=True)
             else:
                 doc, raw_size, booleans = _message(data)
+                if isinstance(doc, dict) and "cnt" in doc and not isinstance(doc["cnt"], list):
+                    doc = _layout1(doc, raw_size)  # a frame a message
                 if not _batch(c, doc, raw_size, booleans):
                     raise ValueError
         except _UNREAD:
@@ -475,6 +477,25 @@ def _batch(c: Columns, d: Any, raw_size: int, booleans: bool = False) -> bool:
     c.complete_ns.extend(complete)
     c.add_flaws(n, flaws)
     return True
+
+
+#: Layout 1's ``fairino.Frame`` fields that are a batch's columns (one value each).
+_ONE = ("cnt", "cmd_id", "name", "data", "len", "offset", "first_ns", "complete_ns")
+
+
+def _layout1(d: dict[str, Any], raw_size: int) -> dict[str, Any] | None:
+    """Layout 1's frame a message as a batch of one (as ``FrameRecord.from_json`` reads
+    it: offset 0 where absent); None for one without ``len`` (the reader takes the DATA's
+    length then: the general path's)."""
+    if "len" not in d or isinstance(d.get("problems", []), str):
+        return None
+    out = {k: v for k, v in d.items() if k not in _ONE and k != "problems"}
+    out.update({k: [d[k]] for k in _ONE if k in d})
+    out.setdefault("offset", [0])
+    out["size"] = [raw_size]
+    if "problems" in d:
+        out["problems"] = [d["problems"]]
+    return out
 
 
 _TRANSPORTS = frozenset(("tcp", "udp"))
