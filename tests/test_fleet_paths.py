@@ -466,7 +466,9 @@ def _with_bad_messages(path: Path, layout: int, *, flip: int = 0) -> Path:
                 w.write_frames(b)
             w.flush()
             t += 1_000_000
-            if k == 2:  # a frame batch that does not fit, near the start
+            if k == 1:  # skipped at once, before a batch that waits for its window
+                mcap.add_message(w._channels[TOPIC_CONNECTIONS], t, b'{"conn": -2}', t, 8)
+            elif k == 2:  # a frame batch that does not fit, near the start
                 if layout == 2:
                     doc = b.to_json()
                     doc["cnt"] = [-1, *doc["cnt"][1:]]
@@ -511,7 +513,7 @@ def test_messages_that_do_not_read_or_fit_go_the_windowed_path(
     assert damage[True] == damage[False]
     named = [d for d in damage[True] if d.startswith("message ")]
     if not flip:
-        assert len(named) == len(damage[True]) == 3
+        assert len(named) == len(damage[True]) == 4
         assert len(tables["frames"]) == 2 * 4 * 24
     else:  # the chunk flipped named among them (it may hold one of them)
         assert len(damage[True]) > len(named) >= 2

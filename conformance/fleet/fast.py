@@ -155,7 +155,6 @@ class ColumnStream:
         self._walk: Walk | None = None
         #: Layout-3 batches waiting in the window's :class:`Pending`, as read.
         self._held: list[tuple[bytes, _At]] = []
-        self._skipped = 0  # messages skipped (named in the damage) so far
 
     def __iter__(self) -> Iterator[Columns]:
         from mcap.records import Channel, Message, Metadata
@@ -301,24 +300,27 @@ class ColumnStream:
         except _UNREAD:
             c.truncate(n)
             pending.clear()
+        skipped = 0
         for data, at in held:
             n = len(c)
             try:
                 _binary_batch(c, decode_columns(data), flaws=True)
             except _UNREAD:
                 c.truncate(n)
-                self._unread(at, read_message(at.topic, data, binary=True, traffic=False)[1])
+                why = read_message(at.topic, data, binary=True, traffic=False)[1]
+                self._unread(at, why, skipped)
+                skipped += 1
 
-    def _unread(self, at: _At, why: str) -> None:
-        """A message skipped, named in :attr:`damage` where the reader names it (after the
-        damage the walk met before it); one the reader reads (``why`` empty) is the
-        general path's: :class:`NotFast`."""
+    def _unread(self, at: _At, why: str, before: int = 0) -> None:
+        """A message skipped, named in :attr:`damage` where the reader names it: after the
+        damage named before it was read, and ``before`` messages skipped since that were
+        read before it (layout 3's, checked with the window's); one the reader reads
+        (``why`` empty) is the general path's: :class:`NotFast`."""
         if not why:
             raise NotFast
         walk = self._walk
         assert walk is not None
-        place = at.damage + self._skipped  # after the messages skipped before it
-        self._skipped += 1
+        place = at.damage + before
         walk.damage.insert(place, message_damage(at.number, at.topic, at.sequence, at.where, why))
 
     def _blame(self, c: Columns) -> Blame[FrameRef]:
