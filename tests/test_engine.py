@@ -306,6 +306,34 @@ def test_an_engine_leaves_a_hosts_frozen_objects_frozen() -> None:
     assert gc.get_freeze_count() > frozen // 2
 
 
+
+def test_the_freeze_is_one_engines_at_a_time_and_the_host_is_asked_once(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Where nothing is frozen, the first engine freezes and a second one running beside
+    it does not; once the host is seen to freeze objects of its own, the walk over
+    them (``gc.get_freeze_count``) is not made again."""
+    import gc
+
+    from conformance.suite import engine as eng
+
+    calls: list[str] = []
+    frozen = {"count": 0}
+    monkeypatch.setattr(eng._Freezer, "held", False)
+    monkeypatch.setattr(eng._Freezer, "host", False)
+    monkeypatch.setattr(gc, "get_freeze_count", lambda: calls.append("count") or frozen["count"])
+    monkeypatch.setattr(gc, "collect", lambda: calls.append("collect") or 0)
+    monkeypatch.setattr(gc, "freeze", lambda: calls.append("freeze"))
+    monkeypatch.setattr(gc, "unfreeze", lambda: calls.append("unfreeze"))
+
+    assert eng._freeze() is True and eng._freeze() is False  # the second engine leaves it
+    eng._thaw()
+    assert calls == ["count", "collect", "freeze", "unfreeze"]
+    calls.clear()
+    frozen["count"] = 1000  # the host froze objects of its own
+    assert eng._freeze() is False and eng._freeze() is False
+    assert calls == ["count"]
+
 def test_a_swallowed_interrupt_still_ends_the_run(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

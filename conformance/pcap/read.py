@@ -18,8 +18,6 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
-
 from ..errors import CaptureError
 
 __all__ = ["CaptureDamage", "RecordBlock", "read_blocks", "read_packets"]
@@ -247,8 +245,6 @@ def _pcapng_end(f: _Bounded) -> str:
 _MAX_PACKET = 16 << 20
 #: A pcapng block's bytes besides its packet data (headers, options), at most.
 _BLOCK_OVERHEAD = 1 << 16
-#: A record header's bytes, for gathering the headers of a block as columns.
-_HEADER = np.arange(16)
 #: Bytes of a classic pcap read at a time; the records in them are sliced out of it.
 _CHUNK = 1 << 20
 #: A record whose seconds are further than this from the last good record's is not
@@ -320,7 +316,10 @@ def _classic_blocks(reader: Any, damage: list[CaptureDamage]) -> Iterator[Record
     sec = 0  # the last good record's seconds
     little = reader.endian == "<"
     caplen_at = struct.Struct(reader.endian + "I").unpack_from
+    import numpy as np  # here, not at the top: `replay`, `check` and `info` start without it
+
     fields = np.dtype(reader.endian + "u4")
+    header = np.arange(16)  # a record header's bytes, to gather a block's headers as columns
 
     def block(b: bytes, offsets: list[int]) -> RecordBlock:
         return RecordBlock(linktype=linktype, little=little, mult=mult, buf=b, offsets=offsets)
@@ -345,7 +344,7 @@ def _classic_blocks(reader: Any, damage: list[CaptureDamage]) -> Iterator[Record
                 # The headers' other fields, column by column: a record that cannot be
                 # right ends the block (it is read below, as the damage it is).
                 at = np.array(offsets, dtype=np.int64)
-                cols = np.frombuffer(buf, np.uint8)[at[:, None] + _HEADER].view(fields)
+                cols = np.frombuffer(buf, np.uint8)[at[:, None] + header].view(fields)
                 bad = np.flatnonzero((cols[:, 2] > cols[:, 3]) | (cols[:, 1] >= fmax))
                 if len(bad):
                     j = int(bad[0])

@@ -18,8 +18,6 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
-
 from ..frame import HEAD
 from ..recording import C2S, S2C, DirectionText, RecordSink, StreamRecorder
 from ..spec import SpecSet
@@ -56,6 +54,8 @@ _IN_ORDER_MIN = 64
 def _words(buf: bytes, order: str = ">", sizes: tuple[int, ...] = (1, 2, 4, 8)) -> Any:
     """``buf`` as words of each of ``sizes`` bytes, one starting at each byte (views with
     a stride of one byte: word *i* is read from ``buf[i:]``), in byte ``order``."""
+    import numpy as np
+
     return [np.ndarray((len(buf) - k + 1,), f"{order}u{k}", buf, strides=(1,)) for k in sizes]
 
 
@@ -313,6 +313,8 @@ class PacketRecorder:
         if n < _BLOCK_MIN or block.linktype != DLT_EN10MB:
             self.feed_all(block.packets())
             return
+        import numpy as np  # on first use: the commands that never read a capture start without it
+
         buf = block.buf
         at = np.array(offs, dtype=np.int64)
         u8, u16, u32, u64 = _words(buf)
@@ -452,6 +454,8 @@ class PacketRecorder:
         another, and its first one follows what its reassembler took last (nothing
         held).  When at least ``_IN_ORDER_MIN``, the reassemblers are moved past those
         packets' bytes; else 0, nothing moved."""
+        import numpy as np
+
         order = np.argsort(which, kind="stable")
         flows = which[order]
         seqs = seq[order].astype(np.int64)
@@ -485,6 +489,8 @@ class PacketRecorder:
         directions (request/reply) straight to ``data``, one after another; the others
         (a direction's packets in a row, the block's first and last) held and recorded
         together as :meth:`feed_all` does."""
+        import numpy as np
+
         n = len(times)
         self.packets += n
         ws = which.tolist()

@@ -17,6 +17,7 @@ that match no selected case are a :class:`RunWarning`.
 from __future__ import annotations
 
 import gc
+import threading
 import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
@@ -152,18 +153,11 @@ class Engine:
         What exists by then (the specs, the cases, the emulator) lives for the
         whole run, so it is frozen out of the garbage collector's full
         collections (``gc.freeze``), which would otherwise walk all of it again and
-        again, until :meth:`close`.  Not where the process has frozen objects of its
-        own already (a pytest session whose conftest froze what it collected, say):
-        :meth:`close`'s ``gc.unfreeze`` would thaw those too, and the full collection
-        before the freeze walks the host's whole heap each time an engine starts
-        (0.24 s of CPU each, 48 times, in this project's own tests).
+        again, until :meth:`close` (see :func:`_freeze`).
         """
         if not self._started and not self.config.dry_run:
             self.runner.start()
-            if gc.get_freeze_count() == 0:
-                gc.collect()
-                gc.freeze()
-                self._frozen = True
+            self._frozen = _freeze()
         self._started = True
 
     def run_case(self, case: Case) -> CaseResult:
@@ -276,7 +270,44 @@ class Engine:
         self.runner.close()
         if self._frozen:
             self._frozen = False
-            gc.unfreeze()
+            _thaw()
+
+
+class _Freezer:
+    """Whose frozen objects the process holds: at most one engine's at a time, or the
+    host's (a program that called ``gc.freeze`` itself, as this project's test session
+    does after collecting).  An engine freezes only where nothing is frozen: its
+    ``gc.unfreeze`` would thaw the host's objects too, and the full collection before
+    the freeze would walk the host's whole heap each time an engine starts.
+
+    ``gc.get_freeze_count()`` walks every frozen object (22 ms in a pytest session of
+    this project), so it is asked only while no engine holds its freeze, and no more
+    once the host is seen to freeze: a program that froze objects keeps them frozen.
+    """
+
+    lock = threading.Lock()
+    held = False  # an engine's objects are frozen
+    host = False  # the host froze objects of its own
+
+
+def _freeze() -> bool:
+    """Freeze the heap for an engine starting; whether it did (then :func:`_thaw`)."""
+    with _Freezer.lock:
+        if _Freezer.held or _Freezer.host:
+            return False
+        if gc.get_freeze_count():
+            _Freezer.host = True
+            return False
+        gc.collect()
+        gc.freeze()
+        _Freezer.held = True
+        return True
+
+
+def _thaw() -> None:
+    with _Freezer.lock:
+        _Freezer.held = False
+        gc.unfreeze()
 
 
 def stop_report(report: Report, cases: Sequence[Case], *, interrupted: bool = False) -> str | None:
