@@ -29,6 +29,7 @@ from conformance.errors import LocalProtocolError, RemoteProtocolError, Rule
 from conformance.frame import Frame, decode_all, encode_frame
 from conformance.spec import Command, Variant, default_specs
 from conformance.strategies import invalid_calls, minimal_args, valid_args
+from tests.examples import examples
 
 SPECS = default_specs()
 CALL_VARIANTS: list[tuple[Command, Variant]] = [
@@ -177,7 +178,8 @@ def test_format_call_quotes_per_spec() -> None:
 
 
 @settings(
-    max_examples=200, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large]
+    max_examples=examples(200),
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
 )
 @given(data=st.data())
 def test_roundtrip_generated_calls_for_every_command(data: st.DataObject) -> None:
@@ -204,7 +206,7 @@ def test_every_call_variant_round_trips_once() -> None:
         assert v is not None
 
 
-@settings(max_examples=200, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=examples(200), suppress_health_check=[HealthCheck.too_slow])
 @given(data=st.data())
 def test_invalid_calls_are_caught(data: st.DataObject) -> None:
     command, variant = data.draw(CALL_VARIANT)

@@ -29,6 +29,7 @@ from conformance.data import (
 from conformance.errors import RemoteProtocolError
 from conformance.spec import TYPE_BOUNDS, Command, Param, default_specs
 from conformance.strategies import minimal_args, valid_args
+from tests.examples import examples
 
 SPECS = default_specs()
 
@@ -222,14 +223,14 @@ def call_texts(draw: st.DrawFn) -> tuple[str, Command]:
 
 # 200 examples: about 9 per call variant, each shape of call_texts drawn a dozen times
 # or more; the domain edges are swept exhaustively below.
-@settings(max_examples=200, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=examples(200), suppress_health_check=[HealthCheck.too_slow])
 @given(case=call_texts())
 def test_fast_and_careful_paths_agree_on_spec_calls(case: tuple[str, Command]) -> None:
     text, command = case
     assert_agree(text, command)
 
 
-@settings(max_examples=500, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=examples(500), suppress_health_check=[HealthCheck.too_slow])
 @given(
     command=COMMAND,
     body=st.text(alphabet=st.sampled_from('0123456789.,-+e{}"( )x\t'), max_size=60),
@@ -238,7 +239,7 @@ def test_fast_and_careful_paths_agree_on_any_arguments(command: Command, body: s
     assert_agree(f"{command.name}({body})", command)
 
 
-@settings(max_examples=300)
+@settings(max_examples=examples(300))
 @given(command=COMMAND, text=st.text(max_size=40))
 def test_fast_and_careful_paths_agree_on_any_text(command: Command, text: str) -> None:
     assert_agree(text, command)

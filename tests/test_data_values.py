@@ -24,6 +24,7 @@ from conformance import data as data_mod
 from conformance.data import Call, Number, Text, match_variant, parse_data
 from conformance.errors import RemoteProtocolError
 from conformance.spec import default_specs
+from tests.examples import examples
 
 SPECS = default_specs()
 MOVEJ_CMD = SPECS.by_name("MoveJ")[0]
@@ -195,7 +196,7 @@ def assert_values_agree(text: str) -> None:
 
 # 150 examples (about 1.5 s): each is read six ways (fast and careful, strict and
 # lenient, values or args first) and matched against two commands.
-@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=examples(150), deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(text=call_text())
 def test_values_equal_the_careful_path(text: str) -> None:
     assert_values_agree(text)

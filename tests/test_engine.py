@@ -306,7 +306,6 @@ def test_an_engine_leaves_a_hosts_frozen_objects_frozen() -> None:
     assert gc.get_freeze_count() > frozen // 2
 
 
-
 def test_the_freeze_is_one_engines_at_a_time_and_the_host_is_asked_once(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
@@ -333,6 +332,7 @@ def test_the_freeze_is_one_engines_at_a_time_and_the_host_is_asked_once(
     frozen["count"] = 1000  # the host froze objects of its own
     assert eng._freeze() is False and eng._freeze() is False
     assert calls == ["count"]
+
 
 def test_a_swallowed_interrupt_still_ends_the_run(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch

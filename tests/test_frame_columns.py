@@ -9,6 +9,7 @@ from hypothesis import strategies as st
 
 from conformance.frame import Frame, FrameDecoder, Malformed, encode_frame
 from conformance.protocol.frame_columns import one_frame, run_frames
+from tests.examples import examples
 
 from .test_frame import feed_bytewise, feed_chunks
 
@@ -60,7 +61,7 @@ def near_frames(draw: st.DrawFn) -> bytes:
 _PREFIXES = st.sampled_from([b"", encode_frame(9, 201, "STOP"), b"garbage", b"/f/bIII1"])
 
 
-@settings(max_examples=150)
+@settings(max_examples=examples(150))
 @given(prefix=_PREFIXES, frame=near_frames(), strict=st.booleans(), cut=st.integers(0, 6000))
 def test_a_frame_fed_whole_or_cut_in_two_reads_as_byte_at_a_time(
     prefix: bytes, frame: bytes, strict: bool, cut: int

@@ -22,6 +22,7 @@ from conformance.recording.frames_pb import (
     encode_batch,
     encode_one,
 )
+from tests.examples import examples
 
 T0 = 1_700_000_000_000_000_000
 
@@ -244,7 +245,7 @@ def test_every_cut_and_flipped_byte_reads_or_is_a_value_error() -> None:
     assert decode_batch(wire) == CASES["problems"]
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=examples(200), deadline=None)
 @given(st.binary(max_size=200))
 def test_any_bytes_read_or_are_a_value_error(data: bytes) -> None:
     with contextlib.suppress(ValueError):

@@ -25,6 +25,7 @@ from conformance.frame import Frame, FrameDecoder, Malformed, decode_all, encode
 from conformance.model import Controller
 from conformance.spec import default_specs
 from conformance.validate import classify_reply, validate_request
+from tests.examples import examples
 
 ROOT = Path(__file__).resolve().parent.parent
 SPECS = default_specs()
@@ -149,7 +150,7 @@ def test_seeded_corpus_through_every_api() -> None:
 # ------------------------------------------------------------------- Hypothesis
 
 _FUZZ_SETTINGS = settings(
-    max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow]
+    max_examples=examples(300), deadline=None, suppress_health_check=[HealthCheck.too_slow]
 )
 _pieces = st.sampled_from(
     ["{", "}", "(", ")", ",", '"', " ", "1e999", "-1", ".5", "9" * 330, "MoveJ(", "SetDO(", "III"]

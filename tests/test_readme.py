@@ -77,3 +77,15 @@ def test_ci_runs_the_readme_test_command() -> None:
     assert "fairino-conformance run" in commands[0]
     ci = (ROOT / ".ci" / "run").read_text(encoding="utf-8")
     assert commands[1] in ci.splitlines()
+
+
+def test_property_tests_draw_half_their_count_unless_thorough(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from tests import examples as ex
+
+    monkeypatch.setattr(ex, "THOROUGH", False)
+    assert [ex.examples(n) for n in (60, 100, 150, 300, 500)] == [60, 100, 100, 150, 250]
+    monkeypatch.setattr(ex, "THOROUGH", True)
+    assert [ex.examples(n) for n in (60, 150, 500)] == [60, 150, 500]
+    assert "FAIRINO_THOROUGH=1" in (ROOT / "README.md").read_text(encoding="utf-8")

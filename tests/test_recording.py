@@ -40,6 +40,7 @@ from conformance.recording import (
 from conformance.recording.frames_pb import decode_batch
 from conformance.recording.traffic_pb import decode_traffic
 from conformance.spec import default_specs
+from tests.examples import examples
 
 
 class ListSink:
@@ -502,7 +503,7 @@ _PIECES = [
 ]
 
 
-@settings(max_examples=150, deadline=None)
+@settings(max_examples=examples(150), deadline=None)
 @given(
     stream=st.lists(st.sampled_from(_PIECES), max_size=40).map(b"".join),
     cuts=st.lists(st.integers(0, 6000), max_size=12),

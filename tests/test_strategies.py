@@ -12,6 +12,7 @@ from conformance.frame import Frame, decode_all
 from conformance.spec import Param, default_specs
 from conformance.strategies import cnts, invalid_kinds, param_values, request_frames
 from conformance.validate import validate_request
+from tests.examples import examples
 
 SPECS = default_specs()
 PARAMS: list[Param] = [p for c in SPECS for v in c.variants for p in v.params]
@@ -21,7 +22,7 @@ PARAMS: list[Param] = [p for c in SPECS for v in c.variants for p in v.params]
 PARAM = st.sampled_from(PARAMS)
 
 
-@settings(max_examples=300, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=examples(300), suppress_health_check=[HealthCheck.too_slow])
 @given(raw=request_frames(SPECS))
 def test_request_frames_are_valid_requests(raw: bytes) -> None:
     (f,) = decode_all(raw, strict=True)
@@ -30,7 +31,7 @@ def test_request_frames_are_valid_requests(raw: bytes) -> None:
     assert check.ok, [v.detail for v in check.violations]
 
 
-@settings(max_examples=300)
+@settings(max_examples=examples(300))
 @given(data=st.data())
 def test_param_values_stay_in_their_domain(data: st.DataObject) -> None:
     p = data.draw(PARAM)
