@@ -200,22 +200,6 @@ def test_every_option_is_an_environment_variable(
     assert ids and all(x.startswith("204::") and "/framing/" in x for x in ids)
 
 
-def test_report_stays_whole_under_xdist(pytester: pytest.Pytester) -> None:
-    args = ("-p", "no:cacheprovider", "--conformance", "--commands", "201,204,212",
-            "--profile", "quick")  # fmt: skip
-    one = pytester.runpytest(*args, "--report-json", "one.json")
-    two = pytester.runpytest(*args, "-n", "2", "--report-json", "two.json")
-    assert one.ret == 0 and two.ret == 0
-    a = json.loads((pytester.path / "one.json").read_text())
-    b = json.loads((pytester.path / "two.json").read_text())
-
-    def ids(doc: dict[str, Any]) -> set[str]:
-        return {c["id"] for cmd in doc["commands"].values() for c in cmd["cases"]}
-
-    assert ids(a) == ids(b) and len(ids(b)) > 30
-    assert a["seed"] is not None and b["spec_version"] == "3.8.2"
-
-
 def test_fixtures_for_a_projects_own_tests(pytester: pytest.Pytester) -> None:
     pytester.makepyfile(
         """

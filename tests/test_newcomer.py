@@ -5,11 +5,13 @@ from __future__ import annotations
 import json
 import xml.etree.ElementTree as ET
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 from conformance.cli import main
 from conformance.report import CaseResult, Report, junit_xml, render_html
+from conformance.suite.config import GROUPS
 from conformance.suite.runner import Case, SuiteRunner, Verdict
 from conformance.verdict import Outcome
 
@@ -167,7 +169,11 @@ def test_item_2_parallel_workers_never_share_the_arm_of_one_target(
 ) -> None:
     """`pytest -n 2 --target … --groups stateful`: two workers moved the same arm and read each
     other's positions (3, then 11 NON-STRICT commands).  Now refused with one line; the other
-    groups still run in parallel."""
+    groups still run in parallel.
+
+    The parallel run is also the one xdist session of the project's tests (a session of two
+    workers costs some 3 s of CPU): its report stays whole, every case of the same selection
+    run in one process is in it, once."""
     from conformance.net.emulator import EmulatorServer
 
     with EmulatorServer() as emu:
@@ -177,15 +183,28 @@ def test_item_2_parallel_workers_never_share_the_arm_of_one_target(
         )  # fmt: skip
         assert refused.ret == pytest.ExitCode.USAGE_ERROR
         assert "must not share one --target: run it with -n 0" in refused.stderr.str()
+        groups = ",".join(g for g in GROUPS if g != "stateful")
+        args = ("-p", "no:cacheprovider", "--target", target, "--groups", groups,
+                "--commands", "201,204,212,229", "--profile", "quick")  # fmt: skip
+        one = pytester.runpytest(*args, "--report-json", "one.json")
         parallel = pytester.runpytest(
-            "-p", "no:cacheprovider", "-n", "2", "--target", target, "--groups", "framing",
-            "--commands", "229", "--report-json", "r.json", "--report-html", "r.html",
-        )  # fmt: skip
+            *args, "-n", "2", "--report-json", "r.json", "--report-html", "r.html"
+        )
+        assert one.ret == 0, one.stdout.str()
         assert parallel.ret == 0, parallel.stdout.str()
     # The report says how it ran.
     doc = json.loads((pytester.path / "r.json").read_text(encoding="utf-8"))
     assert doc["meta"]["ran"] == "pytest -n 2 (xdist workers)"
     assert "ran as pytest -n 2 (xdist workers)" in (pytester.path / "r.html").read_text()
+    # And it is whole: the cases the workers ran are those one process runs, each once.
+    alone = json.loads((pytester.path / "one.json").read_text(encoding="utf-8"))
+
+    def ids(doc: dict[str, Any]) -> list[str]:
+        return sorted(c["id"] for cmd in doc["commands"].values() for c in cmd["cases"])
+
+    assert ids(doc) == ids(alone) and len(ids(doc)) > 30
+    assert len(set(ids(doc))) == len(ids(doc))
+    assert doc["seed"] is not None and doc["spec_version"] == "3.8.2"
 
 
 def test_item_7_check_never_passes_an_empty_recording_and_says_unfinished(
