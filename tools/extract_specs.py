@@ -482,25 +482,95 @@ def _boundary_options(a: str, b: str) -> list[tuple[str, int, str]]:
     return opts
 
 
+@functools.lru_cache(maxsize=1 << 14)
+def _tail_options(tail: str, b: str) -> tuple[tuple[str, int, str], ...]:
+    """:func:`_boundary_options` of a text by its last 40 characters (all it looks at)."""
+    return tuple(_boundary_options(tail, b))
+
+
 #: A reading of a cut frame: text, number of repairs, the repairs made.
 Reading = tuple[str, int, tuple[str, ...]]
+
+#: The repairs of a joined text, kept as a chain (earlier chain, repair of this join) and
+#: spelt out (:func:`_chain_tags`) only for the reading chosen.
+_Chain = tuple[Any, str] | None
+
+#: Joined texts kept after each cell (the first ones, in the order they are made).
+MAX_TEXTS = 512
+_JOINED = "the frame's cells, cut apart in the text, joined"
+_OVERLAP = "an overlapping cut copy of a cell dropped"
+_SPACED = "spaces left by the cell cuts removed"
 
 
 def _tag(tags: tuple[str, ...], *new: str) -> tuple[str, ...]:
     return tags + tuple(t for t in new if t and t not in tags)
 
 
-def frame_candidates(parts: list[str], *, request: bool) -> list[tuple[FrameText, int]]:
-    """All readings of a frame cut into cells, with the number of repairs each needs.
+def _chain_tags(tags: tuple[str, ...], chain: _Chain) -> tuple[str, ...]:
+    whys: list[str] = []
+    while chain is not None:
+        chain, why = chain
+        whys.append(why)
+    for why in reversed(whys):
+        tags = _tag(tags, _JOINED, why)
+    return tags
 
-    Each reading's ``repairs`` lists what was done to the printed text to get it.
-    """
+
+def _overlap_at(t: str, nxt: str) -> int:
+    """Where ``nxt`` restarts inside ``t`` (a cut copy of its head), else -1: the last
+    occurrence of the longest head of ``nxt`` (3 characters or more) whose last occurrence
+    is strictly inside ``t``."""
+    if len(nxt) < 3 or nxt[:3] not in t:
+        return -1
+    # the longest head of nxt found in t (a head found means its shorter heads are too)
+    lo, hi = 3, len(nxt)
+    while lo < hi:
+        mid = (lo + hi + 1) // 2
+        if nxt[:mid] in t:
+            lo = mid
+        else:
+            hi = mid - 1
+    for k in range(lo, 2, -1):
+        pos = t.rfind(nxt[:k])
+        if pos > 0 and pos + k < len(t):
+            return pos
+    return -1
+
+
+def _joined_texts(ps: list[str]) -> list[tuple[str, int, _Chain]]:
+    """The ways to join a frame's cut cells: (text, repairs needed, chain of repairs)."""
+    texts: list[tuple[str, int, _Chain]] = [(ps[0], 0, None)]
+    for nxt in ps[1:]:
+        new: list[tuple[str, int, _Chain]] = []
+        for t, cost, chain in texts:
+            if len(new) >= MAX_TEXTS:
+                break  # what follows would be cut off below
+            for add, c, why in _tail_options(t[-40:], nxt):
+                link = (chain, why)
+                new.append((t + add, cost + c, link))
+                new.append((t + " " + add, cost + c, link))
+            # overlapping cells: b restarts inside the text of a (a cut copy of its head)
+            pos = _overlap_at(t, nxt)
+            if pos > 0:
+                new.append((t[:pos] + nxt, cost + 1, (chain, _OVERLAP)))
+        texts = new[:MAX_TEXTS]
+    return texts
+
+
+#: One reading of a frame's cells: (repairs needed, tags before the joins, chain of the
+#: joins' repairs, repair of the reading or '', whether the cuts' spaces were removed,
+#: text, FRAME_RE's groups).
+_Cand = tuple[int, tuple[str, ...], _Chain, str, bool, str, tuple[str, ...]]
+
+
+def _frame_readings(parts: list[str], *, request: bool) -> list[_Cand]:
+    """All readings of a frame cut into cells, in order (see :func:`frame_candidates`)."""
     printed = [p.strip() for p in parts if p.strip()]
     # the English manual prints the quotes of a string argument as curly quotes; its LEN
     # counts the ASCII ones (MoveJ("P1"), LEN 11, table 2-3)
     raw = [p.translate(CURLY_QUOTES) for p in printed]
     curly = ("curly quotes read as the ASCII quotes the LEN counts",) if raw != printed else ()
-    ps = [re.sub(r"(?<=I)[\]|l](?=$)", "I", p) for p in raw]
+    ps = [_SEP_TAIL_RE.sub("I", p) for p in raw]
     if not ps:
         return []
     base: tuple[str, ...] = curly + (
@@ -508,67 +578,75 @@ def frame_candidates(parts: list[str], *, request: bool) -> list[tuple[FrameText
     )
     # OCR forms of the separator and the tail: "]]]"/"ПП" for III, "[" debris, "/b/1"
     ocr = [
-        re.sub(r"\[(?=\d)", "", p.replace("ПП", "III").replace("]", "I").replace("|", "I"))
+        _BRACKET_DIGIT_RE.sub("", p.replace("ПП", "III").replace("]", "I").replace("|", "I"))
         for p in ps
     ]
     ocr_tags = _tag(base, "OCR forms of the separator III repaired") if ocr != ps else base
     if ocr[-1].endswith(("/b/1", "/b/", "III/b")):
-        ocr[-1] = re.sub(r"/b(?:/1?)?$", "/b/f", ocr[-1])
+        ocr[-1] = _TAIL_RE.sub("/b/f", ocr[-1])
         ocr_tags = _tag(ocr_tags, "OCR-damaged frame tail repaired")
-    if request and re.search(r"III[A-Za-z_]\w*\(.*\)$", ocr[-1]):
+    if request and _LOST_TAIL_RE.search(ocr[-1]):
         ocr[-1] += "III/b/f"  # frame tail lost after a complete DATA
         ocr_tags = _tag(ocr_tags, "lost frame tail III/b/f restored")
     dots = [p.replace("·", "").strip() for p in ocr]
     if dots != ocr:
         ocr_tags = _tag(ocr_tags, "stray OCR dots dropped")
+    out = _exact_readings(ps, request, base, 0)
     if dots != ps:
-        return frame_candidates_exact(ps, request=request, tags=base) + [
-            (f, c + 1) for f, c in frame_candidates_exact(dots, request=request, tags=ocr_tags)
-        ]
-    return frame_candidates_exact(ps, request=request, tags=base)
+        out += _exact_readings(dots, request, ocr_tags, 1)
+    return out
+
+
+def _exact_readings(ps: list[str], request: bool, tags: tuple[str, ...], plus: int) -> list[_Cand]:
+    return [
+        (cost + extra + plus, tags, chain, why, spaced, squeezed, g)
+        for t, cost, chain in _joined_texts(ps)
+        for extra, why, spaced, squeezed, g in _readings_of(t, request)
+    ]
+
+
+def _cand_frame(cand: _Cand) -> FrameText:
+    _cost, tags, chain, why, spaced, squeezed, g = cand
+    tags = _chain_tags(tags, chain)
+    if why:
+        tags = _tag(tags, why)
+    if spaced:
+        tags = _tag(tags, _SPACED)
+    f = FrameText(
+        printed=squeezed,
+        cnt=g[1],
+        cmd_id=g[3],
+        length=g[5],
+        data=g[7],
+        separators=(g[0], g[2], g[4], g[6], g[8]),
+    )
+    f.repairs = tags
+    return f
+
+
+def frame_candidates(parts: list[str], *, request: bool) -> list[tuple[FrameText, int]]:
+    """All readings of a frame cut into cells, with the number of repairs each needs.
+
+    Each reading's ``repairs`` lists what was done to the printed text to get it.
+    """
+    return [(_cand_frame(c), c[0]) for c in _frame_readings(parts, request=request)]
 
 
 def frame_candidates_exact(
     ps: list[str], *, request: bool, tags: tuple[str, ...] = ()
 ) -> list[tuple[FrameText, int]]:
-    texts: list[Reading] = [(ps[0], 0, tags)]
-    joined = "the frame's cells, cut apart in the text, joined"
-    for nxt in ps[1:]:
-        new: list[Reading] = []
-        for t, cost, tg in texts:
-            for add, c, why in _boundary_options(t, nxt):
-                new.append((t + add, cost + c, _tag(tg, joined, why)))
-                new.append((t + " " + add, cost + c, _tag(tg, joined, why)))
-            # overlapping cells: b restarts inside the text of a (a cut copy of its head)
-            for k in range(len(nxt), 2, -1):
-                pos = t.rfind(nxt[:k])
-                if pos > 0 and pos + k < len(t):
-                    new.append(
-                        (
-                            t[:pos] + nxt,
-                            cost + 1,
-                            _tag(tg, joined, "an overlapping cut copy of a cell dropped"),
-                        )
-                    )
-                    break
-        texts = new[:512]
-    out: list[tuple[FrameText, int]] = []
-    for t, cost, tg in texts:
-        for extra, why, spaced, squeezed, g in _readings_of(t, request):
-            tags = _tag(tg, why) if why else tg
-            if spaced:
-                tags = _tag(tags, "spaces left by the cell cuts removed")
-            f = FrameText(
-                printed=squeezed,
-                cnt=g[1],
-                cmd_id=g[3],
-                length=g[5],
-                data=g[7],
-                separators=(g[0], g[2], g[4], g[6], g[8]),
-            )
-            f.repairs = tags
-            out.append((f, cost + extra))
-    return out
+    return [(_cand_frame(c), c[0]) for c in _exact_readings(ps, request, tags, 0)]
+
+
+_SEP_TAIL_RE = re.compile(r"(?<=I)[\]|l](?=$)")
+_BRACKET_DIGIT_RE = re.compile(r"\[(?=\d)")
+_TAIL_RE = re.compile(r"/b(?:/1?)?$")
+_LOST_TAIL_RE = re.compile(r"III[A-Za-z_]\w*\(.*\)$")
+_COMMA_RE = re.compile(r"\s*,\s*")
+_NUMBER_CUT_RE = re.compile(r"(?<=[\d.])\s+(?=[\d.])")
+_LOST_ERRCODE_RE = re.compile(r"(III\d+III)I{3,4}/b/f$")
+_SQUEEZE_RE = re.compile(r"\s*(I{2,4})\s*")
+_SPACE_RE = re.compile(r"\s")
 
 
 @functools.lru_cache(maxsize=1 << 16)
@@ -580,22 +658,24 @@ def _readings_of(t: str, request: bool) -> tuple[tuple[int, str, bool, str, tupl
     if request:
         variants.append((strip_spaces_outside_quotes(t), 0, ""))
     else:
-        variants.append((re.sub(r"\s*,\s*", ",", t), 0, ""))
+        variants.append((_COMMA_RE.sub(",", t), 0, ""))
         # a cut inside a number ("-89 .816387", "0.00000 0") in a comma-separated reply
-        variants.append((re.sub(r"\s*,\s*", ",", re.sub(r"(?<=[\d.])\s+(?=[\d.])", "", t)), 1, ""))
+        variants.append((_COMMA_RE.sub(",", _NUMBER_CUT_RE.sub("", t)), 1, ""))
         # "1III1III/b/f" printed as "1IIIIIII/b/f": the errcode digit lost in the cut
         variants += [
             (
-                re.sub(r"(III\d+III)I{3,4}/b/f$", r"\g<1>1III/b/f", v),
+                _LOST_ERRCODE_RE.sub(r"\g<1>1III/b/f", v),
                 c + 1,
                 "the errcode digit lost in the cut restored as 1",
             )
             for v, c, _ in list(variants)
-            if re.search(r"(III\d+III)I{3,4}/b/f$", v)
+            if _LOST_ERRCODE_RE.search(v)
         ]
     out = []
     for v, c, why in variants:
-        squeezed = re.sub(r"\s*(I{2,4})\s*", r"\1", v.strip())
+        squeezed = v.strip()
+        if _SPACE_RE.search(squeezed):  # (no space around the separators: nothing to do)
+            squeezed = _SQUEEZE_RE.sub(r"\1", squeezed)
         m = FRAME_RE.fullmatch(squeezed)
         if m is not None:
             out.append((c, why, squeezed != t, squeezed, m.groups()))
@@ -603,35 +683,40 @@ def _readings_of(t: str, request: bool) -> tuple[tuple[int, str, bool, str, tupl
 
 
 def strip_spaces_outside_quotes(s: str) -> str:
-    out: list[str] = []
-    quote = False
-    for ch in s:
-        if ch == '"':
-            quote = not quote
-        if ch.isspace() and not quote:
-            continue
-        out.append(ch)
-    return "".join(out)
+    # between quotes (the odd pieces) the spaces stay; str.split() splits at the
+    # characters str.isspace() knows
+    pieces = s.split('"')
+    return '"'.join(p if i % 2 else "".join(p.split()) for i, p in enumerate(pieces))
+
+
+def _frame_score(g: tuple[str, ...], name: str, cmd_id: int, request: bool) -> int:
+    """How well a reading (FRAME_RE's groups) fits its table, before its repairs count."""
+    data = g[7]
+    form, dname = _shape_head(data)
+    return (
+        4 * (g[0] == g[2] == g[4] == g[6] == g[8] == "III")
+        + 4 * (int(g[3]) == cmd_id)
+        + 2 * (utf8len(data) == int(g[5]))
+        + 2 * (not request or dname == name or (form == "keyword" and data == name))
+    )
 
 
 def choose_frame(parts: list[str], *, name: str, cmd_id: int, request: bool) -> FrameText | None:
-    best: tuple[tuple[int, ...], FrameText] | None = None
-    for f, cost in frame_candidates(parts, request=request):
-        assert f.data is not None and f.cmd_id is not None
-        form, dname = _shape_head(f.data)
-        score = (
-            4 * all(s == "III" for s in f.separators)
-            + 4 * (int(f.cmd_id) == cmd_id)
-            + 2 * frame_ok(f)
-            + 2 * (not request or dname == name or (form == "keyword" and f.data == name)),
-            -cost,
-            -len(f.data),
-        )
-        if best is None or score > best[0]:
-            best = (score, f)
+    """The reading of a frame's cells that fits best (the first of the best)."""
+    best: _Cand | None = None
+    best_key: tuple[int, int, int] = (0, 0, 0)
+    scores: dict[str, int] = {}
+    for cand in _frame_readings(parts, request=request):
+        squeezed, g = cand[5], cand[6]
+        s = scores.get(squeezed)
+        if s is None:
+            s = scores[squeezed] = _frame_score(g, name, cmd_id, request)
+        key = (s, -cand[0], -len(g[7]))
+        if best is None or key > best_key:
+            best, best_key = cand, key
     if best is None:
         return None
-    f = best[1]
+    f = _cand_frame(best)
     f.printed = " ".join(p.strip() for p in parts if p.strip())
     return f
 
@@ -1083,31 +1168,35 @@ def split_args(s: str) -> list[str]:
     out: list[str] = []
     depth = 0
     quote = False
-    cur = ""
-    for ch in s:
+    start = 0
+    for i, ch in enumerate(s):
         if ch == '"':
             quote = not quote
-        elif not quote and ch in "{[(":
+        elif quote:
+            continue
+        elif ch in "{[(":
             depth += 1
-        elif not quote and ch in "}])":
+        elif ch in "}])":
             depth -= 1
-        if ch == "," and depth == 0 and not quote:
-            out.append(cur)
-            cur = ""
-        else:
-            cur += ch
-    if cur or out:
-        out.append(cur)
+        elif ch == "," and depth == 0:
+            out.append(s[start:i])
+            start = i + 1
+    if start < len(s) or out:
+        out.append(s[start:])
     return out
+
+
+CALL_RE = re.compile(r"\s*([A-Za-z_][A-Za-z0-9_ ]*?)\s*\((.*)\)\s*", re.S)
+KEYWORD_RE = re.compile(r"[A-Z]+")
 
 
 def data_shape(data: str) -> tuple[str, str, list[str] | None]:
     """(form, name, args) of a request DATA."""
-    m = re.fullmatch(r"\s*([A-Za-z_][A-Za-z0-9_ ]*?)\s*\((.*)\)\s*", data, re.S)
+    m = CALL_RE.fullmatch(data)
     if m:
         args = split_args(m.group(2)) if m.group(2).strip() else []
         return "call", m.group(1), args
-    if re.fullmatch(r"[A-Z]+", data):
+    if KEYWORD_RE.fullmatch(data):
         return "keyword", data, None
     return "raw", "", None
 
@@ -1116,8 +1205,10 @@ def data_shape(data: str) -> tuple[str, str, list[str] | None]:
 def _shape_head(data: str) -> tuple[str, str]:
     """(form, name) of a request DATA: :func:`data_shape` without the arguments, once per
     text (the readings of one frame repeat their DATA)."""
-    form, name, _args = data_shape(data)
-    return form, name
+    m = CALL_RE.fullmatch(data)
+    if m:
+        return "call", m.group(1)
+    return ("keyword", data) if KEYWORD_RE.fullmatch(data) else ("raw", "")
 
 
 def build_frame(cnt: str, cmd_id: int, data: str) -> str:
@@ -1129,7 +1220,8 @@ def build_frame(cnt: str, cmd_id: int, data: str) -> str:
 
 def load_corrections(path: Path) -> dict[str, Any]:
     with path.open(encoding="utf-8") as f:
-        doc = yaml.safe_load(f) or {}
+        # libyaml's parser where PyYAML has it (the same documents, ten times faster)
+        doc = yaml.load(f, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader)) or {}
     if not isinstance(doc, dict):
         raise SystemExit(f"{path}: top level must be a mapping")
     return doc
