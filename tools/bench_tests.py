@@ -11,6 +11,10 @@ revisions take turns, ``--rounds`` each, so that load from other processes hits 
 alike.  Printed: each run's wall time, CPU time (user + system, every process the run
 started) and tests passed, then the medians and their ratios against the baseline.
 
+The machine's speed changes from hour to hour (the same revision took 54 s at one hour and
+80 s at another on the same 2-core machine), so a fixed Python workload is timed before
+and after (``calibrate``): a figure from another run compares only divided by it.
+
 As on CI, the tests that read the vendor's manuals skip (the manuals are not beside a
 fresh tree).  A run whose pytest does not exit 0 is reported with its failures (its time
 still counts) and the bench exits 1.
@@ -40,6 +44,18 @@ def export_tree(rev: str, into: Path) -> Path:
     ).stdout
     subprocess.run(["tar", "-x", "-C", str(into)], input=archive, check=True)
     return into
+
+
+def calibrate() -> float:
+    """CPU seconds of a fixed pure-Python workload (about half a second on a quick core):
+    how fast the machine is now, for comparing figures taken at other times."""
+    t0 = time.process_time()
+    acc = 0
+    for i in range(3_000_000):
+        acc = (acc * 31 + i) & 0xFFFFFFFF
+    text = "III".join(str(i) for i in range(200_000))
+    acc += len(text.split("III"))
+    return time.process_time() - t0
 
 
 def run_tests(tree: Path, extra: list[str]) -> tuple[float, float, str, bool]:
@@ -75,6 +91,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("pytest_args", nargs="*", help="more pytest arguments (after --)")
     args = ap.parse_args(argv)
     revs = {"baseline": args.baseline_rev, "timed": args.rev}
+    before = calibrate()
     with tempfile.TemporaryDirectory(prefix="fairino-bench-tests-") as d:
         trees = {k: export_tree(r, Path(d) / k) for k, r in revs.items()}
         figures: dict[str, list[tuple[float, float]]] = {k: [] for k in revs}
@@ -96,6 +113,10 @@ def main(argv: list[str] | None = None) -> int:
     (bw, bc), (tw, tc) = med["baseline"], med["timed"]
     print(f"median wall: {tw:.1f} s vs {bw:.1f} s ({tw / bw:.2f}x); "
           f"CPU: {tc:.1f} s vs {bc:.1f} s ({tc / bc:.2f}x)")  # fmt: skip
+    print(
+        f"machine: the calibration workload took {before:.3f} s CPU before the runs and "
+        f"{calibrate():.3f} s after (tools/bench_tests.py calibrate)"
+    )
     return 0 if ok else 1
 
 
