@@ -23,6 +23,7 @@ import argparse
 import dataclasses
 import difflib
 import functools
+import hashlib
 import json
 import re
 import sys
@@ -565,6 +566,16 @@ _Cand = tuple[int, tuple[str, ...], _Chain, str, bool, str, tuple[str, ...]]
 
 def _frame_readings(parts: list[str], *, request: bool) -> list[_Cand]:
     """All readings of a frame cut into cells, in order (see :func:`frame_candidates`)."""
+    return [
+        cand
+        for ps, tags, plus in _cell_forms(parts, request=request)
+        for cand in _exact_readings(ps, request, tags, plus)
+    ]
+
+
+def _cell_forms(parts: list[str], *, request: bool) -> list[tuple[list[str], tuple[str, ...], int]]:
+    """A frame's cells as printed and with their OCR damage repaired (if any): (cells,
+    repairs made, their number)."""
     printed = [p.strip() for p in parts if p.strip()]
     # the English manual prints the quotes of a string argument as curly quotes; its LEN
     # counts the ASCII ones (MoveJ("P1"), LEN 11, table 2-3)
@@ -591,10 +602,7 @@ def _frame_readings(parts: list[str], *, request: bool) -> list[_Cand]:
     dots = [p.replace("·", "").strip() for p in ocr]
     if dots != ocr:
         ocr_tags = _tag(ocr_tags, "stray OCR dots dropped")
-    out = _exact_readings(ps, request, base, 0)
-    if dots != ps:
-        out += _exact_readings(dots, request, ocr_tags, 1)
-    return out
+    return [(ps, base, 0), (dots, ocr_tags, 1)] if dots != ps else [(ps, base, 0)]
 
 
 def _exact_readings(ps: list[str], request: bool, tags: tuple[str, ...], plus: int) -> list[_Cand]:
@@ -654,13 +662,16 @@ def _readings_of(t: str, request: bool) -> tuple[tuple[int, str, bool, str, tupl
     """The frames one joined text of cells reads as, each (extra repairs, the repair that
     made it or '', whether the cuts' spaces were removed, its text, FRAME_RE's groups).
     The joins of a frame's cells give the same text many times over: read once."""
+    # (the repairs below only take spaces out: a text without any is its own repair)
+    spaced = _SPACE_RE.search(t) is not None
     variants: list[tuple[str, int, str]] = [(t, 0, "")]
     if request:
-        variants.append((strip_spaces_outside_quotes(t), 0, ""))
+        variants.append((strip_spaces_outside_quotes(t) if spaced else t, 0, ""))
     else:
-        variants.append((_COMMA_RE.sub(",", t), 0, ""))
+        variants.append((_COMMA_RE.sub(",", t) if spaced else t, 0, ""))
         # a cut inside a number ("-89 .816387", "0.00000 0") in a comma-separated reply
-        variants.append((_COMMA_RE.sub(",", _NUMBER_CUT_RE.sub("", t)), 1, ""))
+        uncut = _COMMA_RE.sub(",", _NUMBER_CUT_RE.sub("", t)) if spaced else t
+        variants.append((uncut, 1, ""))
         # "1III1III/b/f" printed as "1IIIIIII/b/f": the errcode digit lost in the cut
         variants += [
             (
@@ -673,13 +684,24 @@ def _readings_of(t: str, request: bool) -> tuple[tuple[int, str, bool, str, tupl
         ]
     out = []
     for v, c, why in variants:
-        squeezed = v.strip()
-        if _SPACE_RE.search(squeezed):  # (no space around the separators: nothing to do)
-            squeezed = _SQUEEZE_RE.sub(r"\1", squeezed)
-        m = FRAME_RE.fullmatch(squeezed)
-        if m is not None:
-            out.append((c, why, squeezed != t, squeezed, m.groups()))
+        read = _read_frame(v)
+        if read is not None:
+            out.append((c, why, read[0] != t, *read))
     return tuple(out)
+
+
+@functools.lru_cache(maxsize=1 << 14)
+def _read_frame(v: str) -> tuple[str, tuple[str, ...]] | None:
+    """A repaired text as one frame: (its text with the spaces around its separators
+    removed, FRAME_RE's groups), else None.  The repairs of a frame's joined texts give
+    the same text many times over: read once."""
+    squeezed = v.strip()
+    if _SPACE_RE.search(squeezed):  # (no space around the separators: nothing to do)
+        # each separator with the spaces around it -> the separator (re.sub(r"\1")
+        # without a call per match)
+        squeezed = "".join(_SQUEEZE_RE.split(squeezed))
+    m = FRAME_RE.fullmatch(squeezed)
+    return None if m is None else (squeezed, m.groups())
 
 
 def strip_spaces_outside_quotes(s: str) -> str:
@@ -689,8 +711,13 @@ def strip_spaces_outside_quotes(s: str) -> str:
     return '"'.join(p if i % 2 else "".join(p.split()) for i, p in enumerate(pieces))
 
 
+#: the score of a reading that fits its table in every way (:func:`_frame_score`)
+BEST_SCORE = 12
+
+
 def _frame_score(g: tuple[str, ...], name: str, cmd_id: int, request: bool) -> int:
-    """How well a reading (FRAME_RE's groups) fits its table, before its repairs count."""
+    """How well a reading (FRAME_RE's groups) fits its table, before its repairs count:
+    III separators 4, the table's command ID 4, LEN right 2, the command's name 2."""
     data = g[7]
     form, dname = _shape_head(data)
     return (
@@ -706,14 +733,18 @@ def choose_frame(parts: list[str], *, name: str, cmd_id: int, request: bool) -> 
     best: _Cand | None = None
     best_key: tuple[int, int, int] = (0, 0, 0)
     scores: dict[str, int] = {}
-    for cand in _frame_readings(parts, request=request):
-        squeezed, g = cand[5], cand[6]
-        s = scores.get(squeezed)
-        if s is None:
-            s = scores[squeezed] = _frame_score(g, name, cmd_id, request)
-        key = (s, -cand[0], -len(g[7]))
-        if best is None or key > best_key:
-            best, best_key = cand, key
+    for ps, tags, plus in _cell_forms(parts, request=request):
+        for t, cost, chain in _joined_texts(ps):
+            cost += plus
+            if best_key[0] == BEST_SCORE and cost > -best_key[1]:
+                continue  # its readings fit no better and need more repairs: not read
+            for extra, why, spaced, squeezed, g in _readings_of(t, request):
+                s = scores.get(squeezed)
+                if s is None:
+                    s = scores[squeezed] = _frame_score(g, name, cmd_id, request)
+                key = (s, -(cost + extra), -len(g[7]))
+                if best is None or key > best_key:
+                    best, best_key = (cost + extra, tags, chain, why, spaced, squeezed, g), key
     if best is None:
         return None
     f = _cand_frame(best)
@@ -2151,6 +2182,32 @@ def audit_tables(
     return audits
 
 
+#: extract()'s results by (manual's name, digests of the two files, edition)
+_EXTRACTED: dict[tuple[str, bytes, bytes, Edition], tuple[dict[str, str], list[TableAudit]]] = {}
+
+
+def extract(
+    manual: Path, corrections: Path, edition: Edition
+) -> tuple[dict[str, str], list[TableAudit]]:
+    """The spec files' texts (name -> JSON) and the index audit of every table.
+
+    A pure function of the manual's text, the corrections file's text and the edition, so
+    worked out once per process for the same contents (``--check`` after a write).
+    """
+    key = (
+        manual.name,
+        hashlib.sha256(manual.read_bytes()).digest(),
+        hashlib.sha256(corrections.read_bytes()).digest(),
+        edition,
+    )
+    if key not in _EXTRACTED:
+        audits: list[TableAudit] = []
+        docs = build(manual, load_corrections(corrections), audits, edition)
+        _EXTRACTED[key] = ({name: dump(doc) for name, doc in docs.items()}, audits)
+    texts, audits = _EXTRACTED[key]
+    return dict(texts), list(audits)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument(
@@ -2178,8 +2235,7 @@ def main(argv: list[str] | None = None) -> int:
     args.manual = args.manual or ed.manual
     args.corrections = args.corrections or ed.corrections
     args.out = args.out or ed.out
-    audits: list[TableAudit] = []
-    docs = build(args.manual, load_corrections(args.corrections), audits, ed)
+    texts, audits = extract(args.manual, args.corrections, ed)
     rc = 0
     bad = [a for a in audits if not a.ok]
     if ed.language == "en" and bad and not args.audit:
@@ -2194,9 +2250,9 @@ def main(argv: list[str] | None = None) -> int:
         # a table whose rows do not match its printed 序号 column: a lost or shifted row
         # (the English dump's are recorded as ocr_damage errata instead)
         rc = 1
-    for name, doc in docs.items():
+    for name, text in texts.items():
         path = args.out / f"{name}.json"
-        if not write_or_check(path, dump(doc), check=args.check):
+        if not write_or_check(path, text, check=args.check):
             rc = 1
     if args.audit:
         for a in audits:
