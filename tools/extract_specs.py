@@ -24,7 +24,6 @@ import dataclasses
 import difflib
 import functools
 import hashlib
-import json
 import re
 import sys
 import unicodedata
@@ -39,6 +38,7 @@ if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
 from tools._regenerate import write_or_check  # noqa: E402
+from tools.json_indent import dumps_indent2  # noqa: E402
 from tools.manual_model import FrameText, RawSection, RawVariant, Row  # noqa: E402
 
 DEFAULT_MANUAL = REPO.parent / "shared" / "manual" / "fairino-command-protocol-v3.8.2.zh.txt"
@@ -2170,7 +2170,7 @@ def audit_variant(
 
 
 def dump(doc: dict[str, Any]) -> str:
-    return json.dumps(doc, indent=2, ensure_ascii=False) + "\n"
+    return dumps_indent2(doc) + "\n"  # json.dumps(doc, indent=2, ensure_ascii=False)
 
 
 def audit_tables(
