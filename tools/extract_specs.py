@@ -127,6 +127,7 @@ CJK = r"\u3000-\u303f\u4e00-\u9fff\uff00-\uffef"
 CURLY_QUOTES = str.maketrans({"\u201c": '"', "\u201d": '"'})
 
 
+@functools.lru_cache(maxsize=1 << 16)
 def clean_text(s: str) -> str:
     """Whitespace-normalise a piece of manual text and drop LaTeX/HTML debris."""
     s = s.replace("\\_", "_").replace("\\,", " ")
@@ -137,6 +138,7 @@ def clean_text(s: str) -> str:
     return s
 
 
+@functools.lru_cache(maxsize=1 << 16)
 def ident(s: str) -> str:
     """An identifier as printed, with look-alikes mapped and wrap spaces removed."""
     s = s.translate(LOOKALIKES).replace("\\_", "_").replace("$", "")
@@ -149,6 +151,7 @@ def utf8len(s: str) -> int:
     return len(s.encode("utf-8"))
 
 
+@functools.lru_cache(maxsize=1 << 16)
 def norm_name_key(s: str) -> str:
     """Fold the usual OCR confusions so names can be compared (SetD0 ~ SetDO ~ SetDo)."""
     s = ident(s).lower()
@@ -178,6 +181,7 @@ def find_body(lines: list[str]) -> tuple[int, int]:
     return start, end
 
 
+@functools.lru_cache(maxsize=1 << 16)
 def parse_heading(line: str) -> tuple[str, str] | None:
     if "指令协议" in line:
         return None
@@ -191,6 +195,7 @@ def parse_heading(line: str) -> tuple[str, str] | None:
     return key, name
 
 
+@functools.lru_cache(maxsize=1 << 16)
 def latex_clean(s: str) -> str:
     """Drop the LaTeX the PDF converter wrapped some headings in ($8.\\,75\\,\\hbox{X()}$)."""
     s = re.sub(r"\\hbox\{([^}]*)\}", r"\1", s)
@@ -198,6 +203,7 @@ def latex_clean(s: str) -> str:
     return re.sub(r"\s+", " ", s)
 
 
+@functools.lru_cache(maxsize=1 << 16)
 def parse_caption(line: str) -> tuple[str, str] | None:
     s = line.strip()
     m = CAPTION_RE.match(s)
@@ -307,13 +313,16 @@ def _has_content(lines: list[tuple[int, str]]) -> bool:
 TYPE_WORD = r"(?:u?int(?:8|16|32|64)?(?:_t)?|float|double|char|string|table)"
 
 
+_MERGED_CELL_RE = re.compile(
+    rf"(\d{{1,2}})\s+({TYPE_WORD}(?:\[\d+\])?)(?:\s+([A-Za-z_]\S*))?(?:\s+(.+))?"
+)
+
+
 def _split_cells(cs: list[str]) -> list[str]:
     """Split cells where the PDF merged 'index type name' into one ("2 int avera")."""
     out: list[str] = []
     for j, c in enumerate(cs):
-        m = re.fullmatch(
-            rf"(\d{{1,2}})\s+({TYPE_WORD}(?:\[\d+\])?)(?:\s+([A-Za-z_]\S*))?(?:\s+(.+))?", c
-        )
+        m = _MERGED_CELL_RE.fullmatch(c)
         if m:
             out += [m.group(1), m.group(2)]
             nxt = next((x for x in cs[j + 1 :] if x), "")
@@ -327,6 +336,8 @@ def _split_cells(cs: list[str]) -> list[str]:
 
 
 MERGED_ROW = rf"(\d{{1,2}})\s+({TYPE_WORD}(?:\[\d+\])?)\s+([A-Za-z_]\w*)"
+_MERGED_ROW_RE = re.compile(MERGED_ROW)
+_MERGED_ROWS_RE = re.compile(rf"(?:{MERGED_ROW}\s*){{2,}}")
 
 
 def expand_merged_rows(cs: list[str]) -> list[list[str]]:
@@ -338,9 +349,9 @@ def expand_merged_rows(cs: list[str]) -> list[list[str]]:
     last row.
     """
     for j, c in enumerate(cs):
-        if not re.fullmatch(rf"(?:{MERGED_ROW}\s*){{2,}}", c):
+        if not _MERGED_ROWS_RE.fullmatch(c):
             continue
-        groups = [g.groups() for g in re.finditer(MERGED_ROW, c)]
+        groups = [g.groups() for g in _MERGED_ROW_RE.finditer(c)]
         names = {g[2] for g in groups}
         tail = [x for x in cs[j + 1 :] if x and x not in names]
         rows = [["", *g] for g in groups]
