@@ -977,6 +977,12 @@ SCALAR_MAP = {
 
 def normalise_type(printed_type: str, name: str) -> dict[str, Any]:
     """Printed type + name -> schema fields (type, length, max_length, clean name)."""
+    return dict(_normalise_type(printed_type, name))
+
+
+@functools.lru_cache(maxsize=1 << 14)
+def _normalise_type(printed_type: str, name: str) -> tuple[tuple[str, Any], ...]:
+    """:func:`normalise_type`'s fields, once per (type, name) (the callers get a copy)."""
     pt = ident(printed_type)
     nm = ident(name)
     size: int | None = None
@@ -1006,7 +1012,7 @@ def normalise_type(printed_type: str, name: str) -> dict[str, Any]:
         out["max_length"] = size
     else:
         out["length"] = size
-    return out
+    return tuple(out.items())
 
 
 NUM = r"-?\d+(?:\.\d+)?"
