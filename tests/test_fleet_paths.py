@@ -5,7 +5,6 @@ every column; and the fast path is the one that wrote them."""
 
 from __future__ import annotations
 
-import glob
 import json
 from pathlib import Path
 from typing import Any
@@ -14,6 +13,7 @@ import pytest
 
 pytest.importorskip("pyarrow")
 
+from tests.fleet_both import both_paths, named_damage
 from tests.test_fleet import CAPTURES, START
 from tools.synth_fleet import Fault, write_capture, write_recording
 
@@ -25,69 +25,23 @@ FAULTS = (
 )
 
 
-def _table(out: Path, table: str) -> list[dict[str, Any]]:
-    import pyarrow.dataset as ds
-
-    files = glob.glob(f"{out}/{table}/**/*.parquet", recursive=True)
-    if not files:
-        return []
-    rows = ds.dataset(files, format="parquet", partitioning="hive").to_table().to_pylist()
-    return sorted(rows, key=repr)
-
-
-def both_paths(
-    path: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, **kw: Any
-) -> tuple[dict[str, list[dict[str, Any]]], list[str]]:
-    """The dataset's tables by the fast path, checked equal to the general path's (all
-    tables, sorted rows, all columns); and what the fast path read whole (none: windowed)."""
-    from conformance.dialects import default_dialects
-    from conformance.fleet import export
-    from conformance.fleet.export import export_recording, open_dataset
-    from conformance.fleet.schema import TABLES
-    from conformance.judge import Judge
-    from conformance.spec import default_specs
-
-    judge = Judge(default_specs(), default_dialects())
-    whole: list[str] = []
-    real = export._whole
-
-    def spy(*a: Any, **k: Any) -> None:
-        whole.append(a[0])
-        real(*a, **k)
-
-    monkeypatch.setattr(export, "_whole", spy)
-    tables = {}
-    for fast in (True, False):
-        out = open_dataset(tmp_path / f"ds-{fast}-{path.name}")
-        export_recording(str(path), out, judge_for=lambda fw: judge, fast=fast, **kw)
-        tables[fast] = {t: _table(out, t) for t in TABLES}
-        if fast:
-            fast_whole = list(whole)
-    for t in tables[True]:
-        assert tables[True][t] == tables[False][t], t
-    return tables[True], fast_whole
-
-
-def _damage(tmp_path: Path, path: Path) -> dict[bool, list[str]]:
-    """The damage each path's export named (its ``_recordings`` entry), by ``fast``."""
-    import json
-
-    out = {}
-    for fast in (True, False):
-        (mark,) = (tmp_path / f"ds-{fast}-{path.name}" / "_recordings").glob("*.json")
-        out[fast] = json.loads(mark.read_text())["damage"]
-    return out
-
-
 def _synth_capture(path: Path, frames: int, pcapng: bool = False) -> Path:
     """A synthetic recording's traffic as a capture (pcapng: as scapy writes it)."""
     pcap = path.with_suffix(".pcap")
     write_capture(pcap, "r09", "3.9.8", frames, FAULTS, START)
     if not pcapng:
         return pcap
+    import logging
+
     from scapy.utils import rdpcap, wrpcapng
 
-    wrpcapng(str(path), rdpcap(str(pcap)))
+    log = logging.getLogger("scapy.runtime")  # its warnings walk the stack, each one
+    level = log.level
+    log.setLevel(logging.ERROR)
+    try:
+        wrpcapng(str(path), rdpcap(str(pcap)))
+    finally:
+        log.setLevel(level)
     pcap.unlink()
     return path
 
@@ -127,7 +81,7 @@ def test_a_damaged_capture_goes_the_windowed_path(
     path.write_bytes(data[: len(data) - 7])
     tables, whole = both_paths(path, tmp_path, monkeypatch, window=64)
     assert whole == [] and len(tables["frames"]) > 200
-    damage = _damage(tmp_path, path)
+    damage = named_damage(tmp_path, path)
     assert damage[True] == damage[False] and damage[True]
 
 
@@ -287,7 +241,7 @@ def test_a_damaged_recording_goes_the_windowed_path(
     path.write_bytes(bytes(data))
     tables, whole = both_paths(path, tmp_path, monkeypatch, window=64)
     assert whole == [] and 600 < len(tables["frames"]) < 2000
-    damage = _damage(tmp_path, path)
+    damage = named_damage(tmp_path, path)
     assert damage[True] == damage[False]
     assert bool(damage[True]) == (how == "flipped")
 
@@ -509,7 +463,7 @@ def test_messages_that_do_not_read_or_fit_go_the_windowed_path(
     # Flipped: 64 frames a window, so that layout 3's batches are checked after the chunk.
     tables, whole = both_paths(path, tmp_path, monkeypatch, window=64 if flip else 8)
     assert whole == []
-    damage = _damage(tmp_path, path)
+    damage = named_damage(tmp_path, path)
     assert damage[True] == damage[False]
     named = [d for d in damage[True] if d.startswith("message ")]
     if not flip:
@@ -618,7 +572,7 @@ def test_json_batches_in_another_writers_shape_go_the_windowed_path(
                 w.write_json(topic, doc, log_time=t, publish_time=t)
     tables, whole = both_paths(path, tmp_path, monkeypatch, window=8)
     assert whole == [] and len(tables["frames"]) == 57
-    damage = _damage(tmp_path, path)
+    damage = named_damage(tmp_path, path)
     assert damage[True] == damage[False] and len(damage[True]) == 1
 
 
@@ -696,5 +650,5 @@ def test_layout_1_goes_the_windowed_path(tmp_path: Path, monkeypatch: pytest.Mon
     tables, whole = both_paths(path, tmp_path, monkeypatch, window=8)
     assert whole == [] and len(tables["frames"]) == 47
     assert sum(not r["len_ok"] for r in tables["frames"]) == 1
-    damage = _damage(tmp_path, path)
+    damage = named_damage(tmp_path, path)
     assert damage[True] == damage[False] and len(damage[True]) == 1
