@@ -218,6 +218,9 @@ def parse_caption(line: str) -> tuple[str, str] | None:
     return re.sub(r"\s+", "", m.group(1)), clean_text(s.lstrip("#").strip())
 
 
+GROUP_HEADING_RE = re.compile(r"^#+\s")
+
+
 def segment(lines: list[str], start: int, end: int) -> list[RawSection]:
     sections: list[RawSection] = []
     cur: RawSection | None = None
@@ -233,7 +236,7 @@ def segment(lines: list[str], start: int, end: int) -> list[RawSection]:
             )
             sections.append(cur)
             continue
-        if re.match(r"^#+\s", ln) and "指令协议" not in ln:
+        if GROUP_HEADING_RE.match(ln) and "指令协议" not in ln:
             # a group heading (3.1 数字 IO): ends the current command section
             cur = None
             continue
@@ -407,9 +410,13 @@ def parse_row(cs: list[str]) -> Row | None:
     return None
 
 
+ROW_INDEX_RE = re.compile(r"(?:[^\x00-\x7f]+\s*)?(\d{1,2})")
+ROW_TYPE_RE = re.compile(r"^(u?int(?:8|16|32|64)?(?:_t)?|float|double|char|string|table)\b\s*(.*)$")
+
+
 def _parse_row_at(cs2: list[str]) -> Row | None:
     for i in range(len(cs2) - 1):
-        m_idx = re.fullmatch(r"(?:[^\x00-\x7f]+\s*)?(\d{1,2})", cs2[i])
+        m_idx = ROW_INDEX_RE.fullmatch(cs2[i])
         if not m_idx:
             continue
         c = m_idx.group(1)
@@ -420,7 +427,7 @@ def _parse_row_at(cs2: list[str]) -> Row | None:
             continue
         t = rest[0]
         name = rest[1] if len(rest) > 1 else ""
-        tm = re.match(r"^(u?int(?:8|16|32|64)?(?:_t)?|float|double|char|string|table)\b\s*(.*)$", t)
+        tm = ROW_TYPE_RE.match(t)
         if not tm:
             continue
         typ = tm.group(1)
@@ -661,7 +668,8 @@ _SEP_TAIL_RE = re.compile(r"(?<=I)[\]|l](?=$)")
 _BRACKET_DIGIT_RE = re.compile(r"\[(?=\d)")
 _TAIL_RE = re.compile(r"/b(?:/1?)?$")
 _LOST_TAIL_RE = re.compile(r"III[A-Za-z_]\w*\(.*\)$")
-_COMMA_RE = re.compile(r"\s*,\s*")
+#: the spaces around a comma (re.sub(r"\s*,\s*", ",") without replacing the bare commas)
+_COMMA_RE = re.compile(r"\s+,\s*|,\s+")
 _NUMBER_CUT_RE = re.compile(r"(?<=[\d.])\s+(?=[\d.])")
 _LOST_ERRCODE_RE = re.compile(r"(III\d+III)I{3,4}/b/f$")
 _SQUEEZE_RE = re.compile(r"\s*(I{2,4})\s*")
@@ -679,10 +687,11 @@ def _readings_of(t: str, request: bool) -> tuple[tuple[int, str, bool, str, tupl
     if request:
         variants.append((strip_spaces_outside_quotes(t) if spaced else t, 0, ""))
     else:
-        variants.append((_COMMA_RE.sub(",", t) if spaced else t, 0, ""))
+        commas = _COMMA_RE.sub(",", t) if spaced else t
+        variants.append((commas, 0, ""))
         # a cut inside a number ("-89 .816387", "0.00000 0") in a comma-separated reply
-        uncut = _COMMA_RE.sub(",", _NUMBER_CUT_RE.sub("", t)) if spaced else t
-        variants.append((uncut, 1, ""))
+        uncut = _NUMBER_CUT_RE.sub("", t) if spaced else t
+        variants.append((commas if uncut == t else _COMMA_RE.sub(",", uncut), 1, ""))
         # "1III1III/b/f" printed as "1IIIIIII/b/f": the errcode digit lost in the cut
         variants += [
             (
@@ -805,6 +814,8 @@ def assemble_frames(tokens: list[str]) -> list[FrameText]:
     return out
 
 
+CMD_ID_RE = re.compile(r"指[令今]号\s*(\d+)(?:\s*[/、,，]\s*(\d+))?")
+PAGE_FOOTER_RE = re.compile(r"用户手册|^\d+\s*/\s*\d+")
 LABEL_JUNK = re.compile(rf"^[^/A-Za-z0-9]*$|^[{CJK}\s.<>/=a-zA-Z]*(?:示例|帧)[{CJK}\s]*$")
 
 
@@ -838,7 +849,7 @@ def parse_variant(table: str, caption: str, line: int, body: list[tuple[int, str
     for _n, cs in lines:
         joined = " ".join(c for c in cs if c)
         if state in ("params", "returns"):
-            m = re.search(r"指[令今]号\s*(\d+)(?:\s*[/、,，]\s*(\d+))?", joined)
+            m = CMD_ID_RE.search(joined)
             if m:
                 flush_pending()
                 v.printed_cmd_id = clean_text(joined[: m.end()])
@@ -906,7 +917,7 @@ def parse_variant(table: str, caption: str, line: int, body: list[tuple[int, str
             if "发送帧" in joined or "接收帧" in joined:
                 flush_pending()
                 state = "ids"
-            elif last is not None and not re.search(r"用户手册|^\d+\s*/\s*\d+", joined):
+            elif last is not None and not PAGE_FOOTER_RE.search(joined):
                 extra = clean_text(" ".join(c for c in cs if c and c not in ("参数", "返回值")))
                 if extra and not LABEL_JUNK.match(extra):
                     last.description = clean_text(last.description + " " + extra)
