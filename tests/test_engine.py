@@ -304,8 +304,17 @@ def test_the_freeze_is_one_engines_at_a_time_and_the_host_is_asked_once(
     frozen = {"count": 0}
     monkeypatch.setattr(eng._Freezer, "held", False)
     monkeypatch.setattr(eng._Freezer, "host", False)
-    monkeypatch.setattr(gc, "get_freeze_count", lambda: calls.append("count") or frozen["count"])
-    monkeypatch.setattr(gc, "collect", lambda: calls.append("collect") or 0)
+
+    def count() -> int:
+        calls.append("count")
+        return frozen["count"]
+
+    def collect() -> int:
+        calls.append("collect")
+        return 0
+
+    monkeypatch.setattr(gc, "get_freeze_count", count)
+    monkeypatch.setattr(gc, "collect", collect)
     monkeypatch.setattr(gc, "freeze", lambda: calls.append("freeze"))
     monkeypatch.setattr(gc, "unfreeze", lambda: calls.append("unfreeze"))
 
