@@ -22,8 +22,11 @@ def _dictionary(col: Any, string: Any) -> Any:
     import pyarrow as pa
     import pyarrow.compute as pc
 
+    kind = pa.dictionary(pa.int32(), string)
+    if col.type == kind and not col.dictionary.null_count:
+        return col  # as it would be made again (the window's columns, as a rule)
     if not pa.types.is_dictionary(col.type):
-        return pc.dictionary_encode(col.cast(string)).cast(pa.dictionary(pa.int32(), string))
+        return pc.dictionary_encode(col.cast(string)).cast(kind)
     values, indices = col.dictionary.cast(string), col.indices.cast(pa.int32())
     if values.null_count:
         to_null = pc.fill_null(pc.is_null(values).take(indices), True)
@@ -105,7 +108,7 @@ class Table:
                 fields.append(pa.field(f.name, dictionary))
                 arrays.append(col)
                 continue
-            else:
+            elif col.type != f.type:
                 col = col.cast(f.type)
             fields.append(f)
             arrays.append(col)
