@@ -51,6 +51,15 @@ os.environ.setdefault(
     "FAIRINO_CACHE_DIR", os.path.join(tempfile.gettempdir(), f"fairino-conformance-{os.getuid()}")
 )
 
+# Hypothesis keeps the constants it reads out of the kit's source (1.4 s of CPU a process
+# to parse it all) in its storage directory, ``.hypothesis`` in the working directory by
+# default: the pytest sessions and commands the tests start in a temporary directory each
+# read the kit again.  They share the project's, as the example database is shared.
+os.environ.setdefault(
+    "HYPOTHESIS_STORAGE_DIRECTORY",
+    os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), ".hypothesis"),
+)
+
 
 @pytest.fixture
 def emulator() -> Iterator[EmulatorServer]:
