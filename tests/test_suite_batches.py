@@ -57,18 +57,20 @@ def _draw(strategy: st.SearchStrategy[T], examples: int = 3) -> list[T]:
     """The values of ``examples`` Hypothesis examples (the first is the simplest)."""
     out: list[T] = []
 
-    @settings(
+    def run(x: T) -> None:
+        out.append(x)
+
+    test = given(strategy)(run)
+    # No database, so no key: as the kit's own cases (conformance/suite/cases/shared.py),
+    # Hypothesis is spared deriving one from the test's source (tokenize, each draw).
+    test._hypothesis_internal_database_key = None  # type: ignore[attr-defined]
+    test = settings(
         max_examples=examples,
         database=None,
         phases=[Phase.generate],
         suppress_health_check=list(HealthCheck),
-    )
-    @hypothesis.seed(7)
-    @given(strategy)
-    def run(x: T) -> None:
-        out.append(x)
-
-    run()
+    )(test)
+    hypothesis.seed(7)(test)()
     return out
 
 
