@@ -9,7 +9,6 @@ import json
 from pathlib import Path
 from typing import Any
 
-import pyarrow as pa
 import pytest
 
 
@@ -17,6 +16,7 @@ def _table(out: Path, table: str) -> Any:
     """A table's rows read back (one thread: its CPU is the test's), with its partition's
     columns (``date``, ``robot``) from the file's path, sorted by every column; None for no
     file (a recording's table is at most one file)."""
+    import pyarrow as pa
     import pyarrow.parquet as pq
 
     files = glob.glob(f"{out}/{table}/**/*.parquet", recursive=True)

@@ -10,18 +10,18 @@ from typing import Any
 
 import pytest
 
-pytest.importorskip("pyarrow")
-duckdb = pytest.importorskip("duckdb")
+from tests.optional import duck, missing
 
-from tests.cli_run import cli_run  # noqa: E402
-from tools.synth_fleet import Fault, write_recording  # noqa: E402
+if gone := missing("pyarrow", "duckdb"):
+    pytest.skip(f"{gone} not installed", allow_module_level=True)
+
+from tests.cli_run import cli_run
+from tools.synth_fleet import Fault, write_recording
 
 ROOT = Path(__file__).resolve().parent.parent
 CAPTURES = ROOT / "captures"
 START = 1_767_225_600_000_000_000  # 2026-01-01T00:00:00Z
 DAY = 86_400_000_000_000
-#: One thread: the reading's CPU is the test's.
-DUCK = duckdb.connect(config={"threads": 1})
 
 FAULTS = (
     Fault("refusal", "r01", "3.9.8", 201),
@@ -228,10 +228,12 @@ def test_fast_path_gives_the_general_paths_rows(tmp_path: Path, layout: int | st
         for path in (a, b):
             export_recording(str(path), out, judge_for=lambda fw: judge, fast=fast)
         tables[fast] = {
-            t: DUCK.sql(
+            t: duck()
+            .sql(
                 f"SELECT * FROM read_parquet('{out}/{t}/**/*.parquet', hive_partitioning = true) "
                 "ORDER BY ALL"
-            ).to_arrow_table()
+            )
+            .to_arrow_table()
             for t in ("frames", "exchanges", "connections")
         }
     for t, rows in tables[True].items():

@@ -11,7 +11,10 @@ from typing import Any
 
 import pytest
 
-pytest.importorskip("pyarrow")
+from tests.optional import missing
+
+if gone := missing("pyarrow"):
+    pytest.skip(f"{gone} not installed", allow_module_level=True)
 
 from tests.fleet_both import both_paths, named_damage
 from tests.test_fleet import CAPTURES, START

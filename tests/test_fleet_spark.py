@@ -14,13 +14,16 @@ from pathlib import Path
 
 import pytest
 
-pytest.importorskip("pyarrow")
-pytest.importorskip("duckdb")
+from tests.optional import missing
+
+if gone := missing("pyarrow", "duckdb"):
+    pytest.skip(f"{gone} not installed", allow_module_level=True)
 if os.environ.get("FAIRINO_REQUIRE_SPARK"):  # .ci/run: the test must run, not skip
     import pyspark  # noqa: F401
 
     assert shutil.which("java"), "FAIRINO_REQUIRE_SPARK is set but no java is on PATH"
-pytest.importorskip("pyspark", reason="pyspark not installed: the Spark example is not tested")
+if gone := missing("pyspark"):
+    pytest.skip(f"{gone} not installed: the Spark example is not tested", allow_module_level=True)
 if shutil.which("java") is None:
     pytest.skip("no Java runtime: the Spark example is not tested", allow_module_level=True)
 

@@ -9,12 +9,14 @@ from typing import Any
 
 import pytest
 
-pytest.importorskip("pyarrow")
-duckdb = pytest.importorskip("duckdb")
+from tests.optional import duck, missing
 
-import tools.synth_fleet  # noqa: E402
-from tests.test_fleet import START, _a_frame_a_message  # noqa: E402
-from tools.synth_fleet import Fault, write_recording  # noqa: E402
+if gone := missing("pyarrow", "duckdb"):
+    pytest.skip(f"{gone} not installed", allow_module_level=True)
+
+import tools.synth_fleet
+from tests.test_fleet import START, _a_frame_a_message
+from tools.synth_fleet import Fault, write_recording
 
 FAULTS = (
     Fault("cnt", "*", "*", 212),  # a reply CNT one more: the pairing one by one, bad_cnt
@@ -25,17 +27,15 @@ FAULTS = (
 TABLES = ("frames", "exchanges", "connections")
 
 
-#: One thread: the reading's CPU is the test's.
-DUCK = duckdb.connect(config={"threads": 1})
-
-
 def _rows(out: Path) -> dict[str, Any]:
     """Each table as DuckDB reads it (partition columns last), its rows in order, as Arrow."""
     return {
-        t: DUCK.sql(
+        t: duck()
+        .sql(
             f"SELECT * FROM read_parquet('{out}/{t}/**/*.parquet', hive_partitioning = true) "
             "ORDER BY ALL"
-        ).to_arrow_table()
+        )
+        .to_arrow_table()
         for t in TABLES
     }
 
@@ -84,9 +84,13 @@ def test_windows_give_the_rows_of_one_window(
     assert _same(tables["small"], tables["one"]) and _same(tables["one"], tables["general"])
     assert any(tables["one"]["exchanges"]["missing_reply"].to_pylist())
     assert "bad_cnt" in tables["one"]["frames"]["rule"].to_pylist()
-    conns = DUCK.sql(
-        f"SELECT count(DISTINCT conn) FROM read_parquet('{tmp_path}/one/connections/**/*.parquet')"
-    ).fetchall()
+    conns = (
+        duck()
+        .sql(
+            f"SELECT count(DISTINCT conn) FROM read_parquet('{tmp_path}/one/connections/**/*.parquet')"
+        )
+        .fetchall()
+    )
     assert conns[0][0] >= 3  # waiting requests written at their connection's close
 
 

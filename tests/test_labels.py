@@ -13,9 +13,10 @@ from conformance.commands.capture import labels_of
 from conformance.errors import UsageError
 from conformance.recording import read_recording
 from tests.cli_run import cli_run
+from tests.optional import missing
 
-pytest.importorskip("pyarrow")
-pytest.importorskip("duckdb")
+if gone := missing("pyarrow", "duckdb"):
+    pytest.skip(f"{gone} not installed", allow_module_level=True)
 
 PCAP = Path(__file__).resolve().parent.parent / "captures" / "field_segments.pcap"
 
