@@ -174,6 +174,31 @@ def test_errors_are_one_line(fleet: tuple[Path, Path], tmp_path: Path) -> None:
     assert p.returncode == 2 and "schema version 9" in p.stderr
 
 
+#: The tables two exports are compared by.
+TABLES = ("frames", "exchanges", "connections")
+
+
+def duck_tables(out: Path) -> dict[str, Any]:
+    """Each of :data:`TABLES` of the dataset ``out`` as DuckDB reads it (partition columns
+    last), its rows in order, as an Arrow table."""
+    return {
+        t: duck()
+        .sql(
+            f"SELECT * FROM read_parquet('{out}/{t}/**/*.parquet', hive_partitioning = true) "
+            "ORDER BY ALL"
+        )
+        .to_arrow_table()
+        for t in TABLES
+    }
+
+
+def assert_same_tables(a: dict[str, Any], b: dict[str, Any]) -> None:
+    """The same tables, each equal (rows, columns and their types), named where not."""
+    assert a.keys() == b.keys()
+    for t, rows in a.items():
+        assert rows.equals(b[t]), t
+
+
 def _a_frame_a_message(path: Path) -> int:
     """The recording written again as request/reply traffic records it: frames in the
     order their first byte came, each its own message where the direction changes;
@@ -227,17 +252,8 @@ def test_fast_path_gives_the_general_paths_rows(tmp_path: Path, layout: int | st
         out = open_dataset(tmp_path / f"ds-{fast}")
         for path in (a, b):
             export_recording(str(path), out, judge_for=lambda fw: judge, fast=fast)
-        tables[fast] = {
-            t: duck()
-            .sql(
-                f"SELECT * FROM read_parquet('{out}/{t}/**/*.parquet', hive_partitioning = true) "
-                "ORDER BY ALL"
-            )
-            .to_arrow_table()
-            for t in ("frames", "exchanges", "connections")
-        }
-    for t, rows in tables[True].items():
-        assert rows.equals(tables[False][t]), t
+        tables[fast] = duck_tables(out)
+    assert_same_tables(tables[True], tables[False])
     assert "bad_cnt" in tables[True]["frames"]["rule"].to_pylist()
 
 

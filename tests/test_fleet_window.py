@@ -15,7 +15,7 @@ if gone := missing("pyarrow", "duckdb"):
     pytest.skip(f"{gone} not installed", allow_module_level=True)
 
 import tools.synth_fleet
-from tests.test_fleet import START, _a_frame_a_message
+from tests.test_fleet import START, _a_frame_a_message, assert_same_tables, duck_tables
 from tools.synth_fleet import Fault, write_recording
 
 FAULTS = (
@@ -24,24 +24,6 @@ FAULTS = (
     Fault("refusal", "*", "*", 214),
     Fault("slow", "*", "*", 682),  # replies 250 ms late: after later bursts' requests
 )
-TABLES = ("frames", "exchanges", "connections")
-
-
-def _rows(out: Path) -> dict[str, Any]:
-    """Each table as DuckDB reads it (partition columns last), its rows in order, as Arrow."""
-    return {
-        t: duck()
-        .sql(
-            f"SELECT * FROM read_parquet('{out}/{t}/**/*.parquet', hive_partitioning = true) "
-            "ORDER BY ALL"
-        )
-        .to_arrow_table()
-        for t in TABLES
-    }
-
-
-def _same(a: dict[str, Any], b: dict[str, Any]) -> bool:
-    return a.keys() == b.keys() and all(a[t].equals(b[t]) for t in a)
 
 
 @pytest.mark.parametrize("layout", [2, 3, "3, a frame a message", 4])
@@ -74,14 +56,15 @@ def test_windows_give_the_rows_of_one_window(
         out = open_dataset(tmp_path / name)
         r = export_recording(str(path), out, judge_for=lambda fw: judge, **kw)  # type: ignore[arg-type]
         assert r.firmware == "3.9.8" and r.rows["frames"] == 700
-        tables[name] = _rows(out)
+        tables[name] = duck_tables(out)
         if name == "small":
             # Many windows, with requests whose reply came in a later one (layout 4: a
             # message holds a connection's frames, both ways: a window each).
             assert len(carried) > (3 if layout == 4 else 8) and max(carried) > 0
         if name == "one":
             assert carried == [0]
-    assert _same(tables["small"], tables["one"]) and _same(tables["one"], tables["general"])
+    assert_same_tables(tables["small"], tables["one"])
+    assert_same_tables(tables["one"], tables["general"])
     assert any(tables["one"]["exchanges"]["missing_reply"].to_pylist())
     assert "bad_cnt" in tables["one"]["frames"]["rule"].to_pylist()
     conns = (
@@ -119,7 +102,7 @@ def test_frames_out_of_order_are_read_whole(tmp_path: Path) -> None:
     for name, kw in (("small", {"window": 5}), ("general", {"fast": False})):
         out = open_dataset(tmp_path / name)
         export_recording(str(path), out, judge_for=lambda fw: judge, **kw)  # type: ignore[arg-type]
-        tables[name] = _rows(out)
+        tables[name] = duck_tables(out)
         assert not list((tmp_path / name).rglob("*.tmp"))
-    assert _same(tables["small"], tables["general"])
+    assert_same_tables(tables["small"], tables["general"])
     assert tables["small"]["frames"].num_rows == 300
