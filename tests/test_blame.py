@@ -119,14 +119,18 @@ def _recording(seed: int) -> tuple[Recording, list[FrameRecord | ProblemRecord]]
                 order.append(p)
         late = [(n, p) for n, p in late if n >= 0]
     order += [p for _, p in late]
-    rec = Recording(
+    return _in_order(order), order
+
+
+def _in_order(order: list[FrameRecord | ProblemRecord]) -> Recording:
+    """A recording of these frames and problems, each kind in the order given."""
+    return Recording(
         path="r.mcap",
         metadata={},
         frames=tuple(x for x in order if isinstance(x, FrameRecord)),
         problems=tuple(x for x in order if isinstance(x, ProblemRecord)),
         connections=(),
     )
-    return rec, order
 
 
 def _windowed(
@@ -278,13 +282,7 @@ def test_runs_told_ahead_decide_as_answered_by_in_any_order(shuffle: bool) -> No
                 i = rnd.randrange(len(order))
                 j = min(len(order) - 1, i + rnd.randint(1, 3))
                 order[i], order[j] = order[j], order[i]
-            rec = Recording(
-                path="r.mcap",
-                metadata={},
-                frames=tuple(x for x in order if isinstance(x, FrameRecord)),
-                problems=tuple(x for x in order if isinstance(x, ProblemRecord)),
-                connections=(),
-            )
+            rec = _in_order(order)
         b: Foreseen[FrameRecord] = Foreseen(rec.problems)
         for number, x in enumerate(order):
             if isinstance(x, FrameRecord):
