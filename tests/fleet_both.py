@@ -33,7 +33,9 @@ def _table(out: Path, table: str) -> Any:
 class Rows(dict):  # type: ignore[type-arg]
     """Each table's rows as dicts sorted by their repr, made when first asked for."""
 
-    arrow: dict[str, Any]
+    def __init__(self, arrow: dict[str, Any]) -> None:
+        super().__init__()
+        self.arrow = arrow
 
     def __missing__(self, t: str) -> list[dict[str, Any]]:
         got = self.arrow[t]
@@ -73,9 +75,7 @@ def both_paths(
     for t, a in tables[True].items():
         b = tables[False][t]
         assert a is b if None in (a, b) else a.equals(b), t
-    rows = Rows()
-    rows.arrow = tables[True]
-    return rows, fast_whole
+    return Rows(tables[True]), fast_whole
 
 
 def named_damage(tmp_path: Path, path: Path) -> dict[bool, list[str]]:
