@@ -91,20 +91,51 @@ def test_each_command_is_found_in_the_module_the_table_names() -> None:
 def test_a_command_given_imports_only_its_module() -> None:
     import subprocess
     import sys
+    from pathlib import Path
 
+    session = Path(__file__).resolve().parent.parent / "captures" / "session.mcap"
     code = (
-        "import sys; from conformance.cli import main\n"
+        "import contextlib, io, sys; from conformance.cli import main\n"
         "try:\n    main(['decode', '--help'])\nexcept SystemExit:\n    pass\n"
         "print('commands:', sorted(m for m in sys.modules if m.startswith('conformance.commands.')"
         " and not m.split('.')[-1].startswith('_')))\n"
         # numpy (70 ms) only where a capture is read or a robot moves
         "for cmd in ('replay', 'check', 'info'):\n"
         "    try:\n        main([cmd, '--help'])\n    except SystemExit:\n        pass\n"
-        "print('numpy:', 'numpy' in sys.modules)"
+        "print('numpy:', 'numpy' in sys.modules)\n"
+        # check and info of a recording: no suite engine and Hypothesis (200 ms), no pcap
+        # import or MCAP writer, no HTML or JUnit writer
+        "with contextlib.redirect_stdout(io.StringIO()):\n"
+        f"    main(['check', {str(session)!r}]); main(['info', {str(session)!r}])\n"
+        "heavy = ('hypothesis', 'conformance.suite.engine', 'conformance.pcap.recorder', "
+        "'mcap.writer', 'conformance.report.html', 'conformance.report.junit')\n"
+        "print('heavy:', [m for m in heavy if m in sys.modules])\n"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    said = [line for line in out.stdout.splitlines() if line.startswith(("commands:", "numpy:"))]
-    assert said == ["commands: ['conformance.commands.specs']", "numpy: False"]
+    # The proxy's recorder process records: it loads no reader, repair or dump.
+    recorder = (
+        "import sys; import conformance.net.recorder_process\n"
+        "lean = ('reader', 'repair', 'dump', 'salvage')\n"
+        "print('recorder:', [m for m in lean if 'conformance.recording.' + m in sys.modules])"
+    )
+    procs = [
+        subprocess.Popen([sys.executable, "-c", c], stdout=subprocess.PIPE, text=True)
+        for c in (code, recorder)
+    ]
+    said = []
+    for p in procs:
+        out, _ = p.communicate()
+        assert p.returncode == 0
+        said += [
+            line
+            for line in out.splitlines()
+            if line.split(":")[0] in {"commands", "numpy", "heavy", "recorder"}
+        ]
+    assert said == [
+        "commands: ['conformance.commands.specs']",
+        "numpy: False",
+        "heavy: []",
+        "recorder: []",
+    ]
 
 
 def test_an_unknown_command_still_lists_every_command(capsys: pytest.CaptureFixture[str]) -> None:

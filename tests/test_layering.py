@@ -19,8 +19,10 @@ PKG = ROOT / "conformance"
 
 #: Top-level module or package of ``conformance`` -> its floor (0 = ground).
 FLOORS: dict[str, int] = {
-    # 0: what everything may use: the error tree and exit codes, the verdict rule, the version.
+    # 0: what everything may use: the error tree and exit codes, the verdict rule, the version,
+    # and the lazy names of a package.
     "_version": 0,
+    "_lazy": 0,
     "errors": 0,
     "verdict": 0,
     # 1: the spec set as data.

@@ -17,7 +17,7 @@ from ..errors import UsageError
 from ..frame import DEFAULT_MAX_FRAME_SIZE
 from ..net.addresses import Address, format_address, parse_address
 from ..recording import C2S, FrameRecord
-from ..recording.rotating import MIN_SPLIT_SIZE
+from ..recording.layout import MIN_SPLIT_SIZE
 from ._specs_option import add_specs_dir, specs_of
 
 __all__ = ["format_frame_line", "parse_duration", "parse_size", "register"]

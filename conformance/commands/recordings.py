@@ -287,8 +287,7 @@ def _run_info(args: argparse.Namespace) -> int:
 
 def _run_check(args: argparse.Namespace) -> int:
     from ..capture_check import check_recording, failing_ids_by_side, judgeable
-    from ..report import write_reports
-    from ..suite.present import failure_lines
+    from ..report import failure_lines, write_reports
 
     rec = read_capture(args.capture)
     specs, choice = spec_choice_of(args, traffic=_reported(rec))

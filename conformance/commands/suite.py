@@ -277,10 +277,10 @@ def _run(args: argparse.Namespace) -> int:
     """``run``: the engine's events drawn on stderr; reports written, each to its own path."""
     from pathlib import Path
 
-    from ..report import write_reports
+    from ..report import failure_lines, write_reports
     from ..suite.engine import Engine, EngineError, Interrupted, RunFinished
     from ..suite.options import OPTIONS, resolve, suite_config
-    from ..suite.present import Progress, dry_run_lines, failure_lines
+    from ..suite.present import Progress, dry_run_lines
     from ..suite.spec_choice import choice_line, with_spec
 
     values = resolve({o.name: getattr(args, o.name, None) for o in OPTIONS if o.run})
@@ -403,8 +403,7 @@ def _add_serve(sub: Any) -> None:
 def _serve(args: argparse.Namespace) -> int:
     from ..client_mode import ClientValidator
     from ..net.emulator import EmulatorServer
-    from ..report import write_reports
-    from ..suite.present import failure_lines
+    from ..report import failure_lines, write_reports
     from ..suite.spec_choice import note_spec
 
     host, port, udp_port = _listen_addresses(args)

@@ -30,29 +30,67 @@ the layer is asked for.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING
 
-from . import scapy_layer as _scapy_layer
-from .export import _PcapWriter as _PcapWriter
-from .export import export_pcap
-from .importer import capture_format, import_pcap, read_capture
-from .packets import DLT_EN10MB as DLT_EN10MB
-from .packets import DLT_IPV4 as DLT_IPV4
-from .packets import DLT_IPV6 as DLT_IPV6
-from .packets import DLT_LINUX_SLL as DLT_LINUX_SLL
-from .packets import DLT_LINUX_SLL2 as DLT_LINUX_SLL2
-from .packets import DLT_LOOP as DLT_LOOP
-from .packets import DLT_NULL as DLT_NULL
-from .packets import DLT_RAW as DLT_RAW
-from .packets import DLT_RAW_ALT as DLT_RAW_ALT
-from .packets import Packet, flow_ends, parse_packet
-from .read import read_packets
-from .reassembly import MAX_PENDING as MAX_PENDING
-from .reassembly import TcpReassembler
-from .recorder import DEFAULT_TCP_PORTS, DEFAULT_UDP_PORTS, ImportStats, PacketRecorder
-from .recorder import IMPORT_TOGETHER as IMPORT_TOGETHER
-from .recorder import TOGETHER_BYTES as TOGETHER_BYTES
-from .scapy_layer import bind_scapy_layer
+from .._lazy import lazy_names
+
+if TYPE_CHECKING:
+    from .export import _PcapWriter as _PcapWriter
+    from .export import export_pcap
+    from .importer import capture_format, import_pcap, read_capture
+    from .packets import DEFAULT_TCP_PORTS, DEFAULT_UDP_PORTS, Packet, flow_ends, parse_packet
+    from .packets import DLT_EN10MB as DLT_EN10MB
+    from .packets import DLT_IPV4 as DLT_IPV4
+    from .packets import DLT_IPV6 as DLT_IPV6
+    from .packets import DLT_LINUX_SLL as DLT_LINUX_SLL
+    from .packets import DLT_LINUX_SLL2 as DLT_LINUX_SLL2
+    from .packets import DLT_LOOP as DLT_LOOP
+    from .packets import DLT_NULL as DLT_NULL
+    from .packets import DLT_RAW as DLT_RAW
+    from .packets import DLT_RAW_ALT as DLT_RAW_ALT
+    from .read import read_packets
+    from .reassembly import MAX_PENDING as MAX_PENDING
+    from .reassembly import TcpReassembler
+    from .recorder import IMPORT_TOGETHER as IMPORT_TOGETHER
+    from .recorder import TOGETHER_BYTES as TOGETHER_BYTES
+    from .recorder import ImportStats, PacketRecorder
+    from .scapy_layer import FairinoFrame as FairinoFrame
+    from .scapy_layer import bind_scapy_layer
+
+#: The module of this package that holds each name importable from here (imported when
+#: first asked for, ``conformance/_lazy.py``: ``check`` of a recording loads none of them).
+_WHERE: dict[str, str] = {
+    "_PcapWriter": "export",
+    "export_pcap": "export",
+    "capture_format": "importer",
+    "import_pcap": "importer",
+    "read_capture": "importer",
+    "DEFAULT_TCP_PORTS": "packets",
+    "DEFAULT_UDP_PORTS": "packets",
+    "DLT_EN10MB": "packets",
+    "DLT_IPV4": "packets",
+    "DLT_IPV6": "packets",
+    "DLT_LINUX_SLL": "packets",
+    "DLT_LINUX_SLL2": "packets",
+    "DLT_LOOP": "packets",
+    "DLT_NULL": "packets",
+    "DLT_RAW": "packets",
+    "DLT_RAW_ALT": "packets",
+    "Packet": "packets",
+    "flow_ends": "packets",
+    "parse_packet": "packets",
+    "read_packets": "read",
+    "MAX_PENDING": "reassembly",
+    "TcpReassembler": "reassembly",
+    "IMPORT_TOGETHER": "recorder",
+    "TOGETHER_BYTES": "recorder",
+    "ImportStats": "recorder",
+    "PacketRecorder": "recorder",
+    "FairinoFrame": "scapy_layer",
+    "bind_scapy_layer": "scapy_layer",
+}
+
+__getattr__, __dir__ = lazy_names(__name__, _WHERE)
 
 __all__ = [
     "DEFAULT_TCP_PORTS",
@@ -70,9 +108,3 @@ __all__ = [
     "read_capture",
     "read_packets",
 ]
-
-
-def __getattr__(name: str) -> Any:
-    if name == "FairinoFrame":
-        return _scapy_layer.FairinoFrame
-    raise AttributeError(name)

@@ -13,26 +13,18 @@ import itertools
 import os
 import time
 from collections.abc import Iterable, Mapping
+from typing import TYPE_CHECKING
 
 from ..errors import CaptureError
-from ..recording import (
-    Recording,
-    RecordingWriter,
-    atomic_output,
-    default_metadata,
-    read_recording,
-    utc_time,
-)
+from ..recording.reader import read_recording
 from ..recording.salvage import Damage
-from ..spec import SpecSet
+from .packets import DEFAULT_TCP_PORTS, DEFAULT_UDP_PORTS
 from .read import CaptureDamage, RecordBlock, read_blocks
-from .recorder import (
-    DEFAULT_TCP_PORTS,
-    DEFAULT_UDP_PORTS,
-    IMPORT_TOGETHER,
-    ImportStats,
-    PacketRecorder,
-)
+
+if TYPE_CHECKING:
+    from ..recording import Recording
+    from ..spec import SpecSet
+    from .recorder import ImportStats
 
 # The first bytes of each kind of file (pcap: both byte orders, micro- and nanosecond).
 _MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -131,6 +123,8 @@ def import_pcap(
     :func:`~.read.read_blocks`).  ``out`` appears only once the
     import succeeded: it is written to a temporary file next to it and renamed (a failure
     removes the temporary file)."""
+    from ..recording.repair import atomic_output
+
     tports, uports = frozenset(tcp_ports), frozenset(udp_ports)
     sports = frozenset(state_ports)
     bad = sorted(p for p in tports | uports | sports if not 0 < p < 65536)
@@ -158,6 +152,10 @@ def _import(
     damage: list[CaptureDamage] | None = None,
     metadata: Mapping[str, str] | None = None,
 ) -> ImportStats:
+    # Here, not at the top: reading a recording (``check``, ``info``) needs none of them.
+    from ..recording.writer import RecordingWriter, default_metadata, utc_time
+    from .recorder import IMPORT_TOGETHER, PacketRecorder
+
     blocks = read_blocks(path, damage)
     first = next(blocks, None)
     # The traffic started with the capture's first packet, not when it was imported

@@ -29,6 +29,8 @@ from .packets import (
     _RST,
     _SYN,
     _SYN_FIN_RST,
+    DEFAULT_TCP_PORTS,
+    DEFAULT_UDP_PORTS,
     DLT_EN10MB,
     _reverse,
     flow_ends,
@@ -36,9 +38,6 @@ from .packets import (
 )
 from .read import RecordBlock
 from .reassembly import TcpReassembler
-
-DEFAULT_TCP_PORTS = (8080,)
-DEFAULT_UDP_PORTS = (20007,)
 
 #: In-order segments of one direction in a row that import-pcap records together, and the
 #: bytes after which it records them (see PacketRecorder; 64: bench_pcap.py's best).

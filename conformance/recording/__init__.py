@@ -23,45 +23,102 @@ module             holds
 =================  ===================================================================
 
 Each module imports only those above it in this table; everything public is
-importable from here.
+importable from here.  A name is imported from its module when first asked for
+(:data:`_WHERE`, ``conformance/_lazy.py``): importing the package imports none of
+them, so a process loads only the modules it uses (the proxy's recorder process and ``decode`` no longer load
+the reader, the repair and the dump, nor ``decode`` the writer and MCAP's).
 """
 
-from .dump import dump_json
-from .layout import _TOPICS as _TOPICS  # the topic table, for tests
-from .layout import (
-    BATCH_BYTES,
-    BATCH_FRAMES,
-    C2S,
-    FORMAT,
-    METADATA_NAME,
-    PROBLEM_RAW_LIMIT,
-    S2C,
-    SCHEMAS,
-    TOPIC_C2S,
-    TOPIC_CONNECTIONS,
-    TOPIC_FRAMES,
-    TOPIC_PROBLEMS,
-    TOPIC_S2C,
-    TOPIC_STATE,
-    DirectionText,
-    state_schema,
-)
-from .reader import RecordedExchange, Recording, read_recording
-from .recorder import DECODE_SLICE, StreamRecorder
-from .records import (
-    ConnectionRecord,
-    FrameBatch,
-    FrameRecord,
-    ProblemRecord,
-    Record,
-    RecordSink,
-    StateRecord,
-)
-from .repair import RecoverResult, atomic_output, recover
-from .rotating import RotatingWriter, segment_path
-from .salvage import Damage
-from .state_stream import StateStream
-from .writer import RecordingWriter, default_metadata, utc_time
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from .._lazy import lazy_names
+
+if TYPE_CHECKING:
+    from .dump import dump_json
+    from .layout import _TOPICS as _TOPICS
+    from .layout import (
+        BATCH_BYTES,
+        BATCH_FRAMES,
+        C2S,
+        FORMAT,
+        METADATA_NAME,
+        PROBLEM_RAW_LIMIT,
+        S2C,
+        SCHEMAS,
+        TOPIC_C2S,
+        TOPIC_CONNECTIONS,
+        TOPIC_FRAMES,
+        TOPIC_PROBLEMS,
+        TOPIC_S2C,
+        TOPIC_STATE,
+        DirectionText,
+        state_schema,
+    )
+    from .reader import RecordedExchange, Recording, read_recording
+    from .recorder import DECODE_SLICE, StreamRecorder
+    from .records import (
+        ConnectionRecord,
+        FrameBatch,
+        FrameRecord,
+        ProblemRecord,
+        Record,
+        RecordSink,
+        StateRecord,
+    )
+    from .repair import RecoverResult, atomic_output, recover
+    from .rotating import RotatingWriter, segment_path
+    from .salvage import Damage
+    from .state_stream import StateStream
+    from .writer import RecordingWriter, default_metadata, utc_time
+
+#: The module of this package that holds each name importable from here.
+_WHERE: dict[str, str] = {
+    "BATCH_BYTES": "layout",
+    "BATCH_FRAMES": "layout",
+    "C2S": "layout",
+    "ConnectionRecord": "records",
+    "DECODE_SLICE": "recorder",
+    "Damage": "salvage",
+    "DirectionText": "layout",
+    "FORMAT": "layout",
+    "FrameBatch": "records",
+    "FrameRecord": "records",
+    "METADATA_NAME": "layout",
+    "PROBLEM_RAW_LIMIT": "layout",
+    "ProblemRecord": "records",
+    "Record": "records",
+    "RecordSink": "records",
+    "RecordedExchange": "reader",
+    "Recording": "reader",
+    "RecordingWriter": "writer",
+    "RecoverResult": "repair",
+    "RotatingWriter": "rotating",
+    "S2C": "layout",
+    "SCHEMAS": "layout",
+    "StateRecord": "records",
+    "StateStream": "state_stream",
+    "StreamRecorder": "recorder",
+    "TOPIC_C2S": "layout",
+    "TOPIC_CONNECTIONS": "layout",
+    "TOPIC_FRAMES": "layout",
+    "TOPIC_PROBLEMS": "layout",
+    "TOPIC_S2C": "layout",
+    "TOPIC_STATE": "layout",
+    "_TOPICS": "layout",
+    "atomic_output": "repair",
+    "default_metadata": "writer",
+    "dump_json": "dump",
+    "read_recording": "reader",
+    "recover": "repair",
+    "segment_path": "rotating",
+    "state_schema": "layout",
+    "utc_time": "writer",
+}
+
+
+__getattr__, __dir__ = lazy_names(__name__, _WHERE)
 
 __all__ = [
     "BATCH_BYTES",

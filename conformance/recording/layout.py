@@ -77,6 +77,7 @@ __all__ = [
     "C2S",
     "FORMAT",
     "METADATA_NAME",
+    "MIN_SPLIT_SIZE",
     "PROBLEM_RAW_LIMIT",
     "S2C",
     "SCHEMAS",
@@ -134,6 +135,10 @@ FORMAT = FORMATS[LAYOUT]
 #: a reader holds one message at a time, and a frame message stays well under a chunk.
 BATCH_FRAMES = 4096
 BATCH_BYTES = 256 * 1024
+#: The smallest ``--split-size`` the commands take: a file holds its header and the index
+#: MCAP ends it with (schemas, statistics: about 5 KB) and still some frames.  (Below it a
+#: file ends after every chunk, and may pass the size by its index.)
+MIN_SPLIT_SIZE = 16 * 1024
 #: Raw bytes in one Problem record: a longer malformed run is recorded as several
 #: records with consecutive offsets, each with its share of the bytes (its ``size``
 #: is ``len(raw)``), so no byte is lost and each record stays small.

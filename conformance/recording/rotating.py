@@ -13,7 +13,7 @@ from .records import FrameBatch, Record
 from .traffic_pb import Mixed
 from .writer import RecordingWriter
 
-__all__ = ["MIN_SPLIT_SIZE", "RotatingWriter", "segment_path"]
+__all__ = ["RotatingWriter", "segment_path"]
 
 
 def segment_path(path: str | os.PathLike[str], index: int) -> str:
@@ -22,10 +22,6 @@ def segment_path(path: str | os.PathLike[str], index: int) -> str:
     return str(p.with_name(f"{p.stem}-{index:04d}{p.suffix or '.mcap'}"))
 
 
-#: The smallest ``--split-size`` the commands take: a file holds its header and the index
-#: MCAP ends it with (schemas, statistics: about 5 KB) and still some frames.  (Below it a
-#: file ends after every chunk, and may pass the size by its index.)
-MIN_SPLIT_SIZE = 16 * 1024
 #: A chunk of a file split by size is ``split_size / CHUNKS_PER_SPLIT`` before compression
 #: (at most the writer's usual 1 MiB): how far past a check a file can grow.
 CHUNKS_PER_SPLIT = 4

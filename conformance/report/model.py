@@ -1,4 +1,5 @@
-"""Results model, reported per command ID: the cases, the terminal table and JSON.
+"""Results model, reported per command ID: the cases, the terminal table and JSON, and
+the failing cases as ``run``, ``serve`` and ``check`` print them (:func:`failure_lines`).
 
 A :class:`Report` collects :class:`CaseResult` rows; the per-command outcome is
 derived from the cases (never stored twice).  The JSON document has the shape
@@ -37,6 +38,7 @@ __all__ = [
     "Outcome",
     "Report",
     "aggregate",
+    "failure_lines",
     "load_report",
     "spec_label",
 ]
@@ -494,3 +496,18 @@ def load_report(path: str) -> Report:
         raise ReportFileError(
             f"{path} is not a JSON conformance report ({type(e).__name__}: {e})", path=path
         ) from None
+
+
+def failure_lines(report: Report, *, limit: int = 50) -> list[str]:
+    """Each failing case (not baselined): its ID, outcome, reason, frames and reproduction."""
+    bad = report.failing_cases()
+    out: list[str] = []
+    for c in bad[:limit]:
+        out.append(f"{c.outcome.value} {c.id}: {c.detail}")
+        out += [f"    {f}" for f in c.frames[:6]]
+        if c.reproduce:
+            out.append(f"    reproduce: {c.reproduce}")
+    if len(bad) > limit:
+        more = plural(len(bad) - limit, "more failing case")
+        out.append(f"(+{more}; the JSON report lists them all)")
+    return out

@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from .html import render_html
-from .junit import write_junit
-from .model import Report
+if TYPE_CHECKING:
+    from .model import Report
 
 __all__ = ["write_reports"]
 
@@ -19,7 +19,8 @@ def write_reports(
     junit_path: str | None = None,
 ) -> list[str]:
     """Write ``report`` as JSON (``-``: standard output), HTML and JUnit XML where a path is
-    given; the paths written, in that order."""
+    given; the paths written, in that order.  The HTML and JUnit writers are imported only
+    when asked for (most ``check`` and ``serve`` runs write neither)."""
     written = []
     if json_path == "-":
         import sys
@@ -29,9 +30,13 @@ def write_reports(
         Path(json_path).write_text(report.dumps(), encoding="utf-8")
         written.append(json_path)
     if html_path:
+        from .html import render_html
+
         Path(html_path).write_text(render_html([report]), encoding="utf-8")
         written.append(html_path)
     if junit_path:
+        from .junit import write_junit
+
         write_junit(report, junit_path)
         written.append(junit_path)
     return written

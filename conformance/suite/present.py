@@ -18,7 +18,7 @@ from ..report.text import plural
 from ..verdict import Reference, fails
 from .engine import WOULD_RUN, CaseFinished, Event, RunFinished, RunStarted, RunWarning
 
-__all__ = ["Estimate", "Progress", "dry_run_lines", "failure_lines", "junit_xml", "write_junit"]
+__all__ = ["Estimate", "Progress", "dry_run_lines", "junit_xml", "write_junit"]
 
 
 def _clock(seconds: float) -> str:
@@ -170,21 +170,6 @@ class Progress:
         if self.tty and self._drawn:
             self.stream.write("\n")
             self._drawn = 0
-
-
-def failure_lines(report: Report, *, limit: int = 50) -> list[str]:
-    """Each failing case (not baselined): its ID, outcome, reason, frames and reproduction."""
-    bad = report.failing_cases()
-    out: list[str] = []
-    for c in bad[:limit]:
-        out.append(f"{c.outcome.value} {c.id}: {c.detail}")
-        out += [f"    {f}" for f in c.frames[:6]]
-        if c.reproduce:
-            out.append(f"    reproduce: {c.reproduce}")
-    if len(bad) > limit:
-        more = plural(len(bad) - limit, "more failing case")
-        out.append(f"(+{more}; the JSON report lists them all)")
-    return out
 
 
 def dry_run_lines(report: Report, *, verbose: bool = False) -> list[str]:
