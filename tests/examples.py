@@ -1,4 +1,5 @@
-"""How many examples a property test draws: ``max_examples=examples(300)``.
+"""How many examples a property test draws: ``max_examples=examples(300)`` (and a seeded
+corpus its inputs: ``fz.inputs(examples(600))`` in ``test_fuzz.py``).
 
 The number written in a test is its thorough count, the one it was tuned to find rare
 inputs with.  The everyday run (the README's test command, CI) draws half of it, but

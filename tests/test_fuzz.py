@@ -137,8 +137,9 @@ def test_seeded_corpus_through_every_api() -> None:
     fz = FUZZ.Fuzzer(SPECS, 20_240)
     rng = random.Random(1)
     controller = Controller(SPECS)
-    # 600 inputs: every mutation kind dozens of times (tools/fuzz.py runs 10^6).
-    for k, (text, command, variant) in enumerate(fz.inputs(600)):
+    # 600 inputs when thorough, the first 300 otherwise (tests/examples.py): every mutation
+    # kind dozens of times (tools/fuzz.py runs 10^6).
+    for k, (text, command, variant) in enumerate(fz.inputs(examples(600))):
         stream = fz.stream(text, command)
         FUZZ.check_parser(text)
         FUZZ.check_judge(text, SPECS, command, variant, k)
