@@ -11,12 +11,12 @@ from __future__ import annotations
 import ipaddress
 import struct
 
-# Link types (https://www.tcpdump.org/linktypes.html)
 #: The ports the command protocol's frames travel on (TCP 8080, UDP 20007): where an
 #: import or a capture takes flows from unless told other ports.
 DEFAULT_TCP_PORTS = (8080,)
 DEFAULT_UDP_PORTS = (20007,)
 
+# Link types (https://www.tcpdump.org/linktypes.html)
 DLT_NULL = 0
 DLT_EN10MB = 1
 DLT_RAW = 101

@@ -25,8 +25,9 @@ module             holds
 Each module imports only those above it in this table; everything public is
 importable from here.  A name is imported from its module when first asked for
 (:data:`_WHERE`, ``conformance/_lazy.py``): importing the package imports none of
-them, so a process loads only the modules it uses (the proxy's recorder process and ``decode`` no longer load
-the reader, the repair and the dump, nor ``decode`` the writer and MCAP's).
+them, so a process loads only the modules it uses (the proxy's recorder process no
+longer loads the reader, the repair and the dump; ``decode`` none of them, nor the
+writer and MCAP's).
 """
 
 from __future__ import annotations

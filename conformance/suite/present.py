@@ -1,5 +1,7 @@
-"""How ``fairino-conformance run`` presents the engine's events: progress and failures
-(JUnit XML is the report package's: ``junit_xml`` and ``write_junit`` are re-exported here).
+"""How ``fairino-conformance run`` presents the engine's events: progress and the dry run
+(the failing cases are the report's, ``failure_lines``, as ``serve`` and ``check`` print
+them; JUnit XML is the report package's: ``junit_xml`` and ``write_junit`` are
+re-exported here).
 
 The progress line goes to stderr: redrawn in place (``\\r``) on a terminal, and
 on anything else (a CI log) one plain line at the start, about every 10 % or 30
