@@ -175,3 +175,30 @@ def test_the_floor_plan_is_in_the_docs() -> None:
     doc = (ROOT / "docs" / "ARCHITECTURE.md").read_text(encoding="utf-8")
     missing = [name for name in FLOORS if name and f"`{name}" not in doc]
     assert not missing, f"docs/ARCHITECTURE.md does not place: {missing}"
+
+
+def test_each_lazy_package_names_what_it_imports_for_type_checkers() -> None:
+    """A package whose names are imported on first use (``conformance/_lazy.py``) lists
+    them three times: ``if TYPE_CHECKING`` imports (for mypy), ``_WHERE`` (at run time)
+    and ``__all__``.  They agree: each name imported for type checkers is in ``_WHERE``
+    from the same module, and each name of ``__all__`` comes from its module."""
+    import importlib
+
+    for package in ("recording", "report", "pcap"):
+        path = PKG / package / "__init__.py"
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        (block,) = (
+            n for n in tree.body if isinstance(n, ast.If) and "TYPE_CHECKING" in ast.unparse(n.test)
+        )
+        typed = {
+            (a.asname or a.name): node.module
+            for node in block.body
+            if isinstance(node, ast.ImportFrom)
+            for a in node.names
+        }
+        mod = importlib.import_module(f"conformance.{package}")
+        assert typed == mod._WHERE, package
+        for name in mod.__all__:
+            assert name in mod._WHERE, (package, name)
+            home = importlib.import_module(f"conformance.{package}.{mod._WHERE[name]}")
+            assert getattr(mod, name) is getattr(home, name), (package, name)
