@@ -12,7 +12,8 @@ from .errors import (
     SpecError,
     UsageError,
 )
-from .frame import Event, Frame, FrameDecoder, Malformed, decode_all, encode_frame
+from .protocol.decoder import FrameDecoder, decode_all
+from .protocol.frame import Event, Frame, Malformed, encode_frame
 
 __all__ = [
     "ConformanceError",

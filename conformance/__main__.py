@@ -2,7 +2,7 @@
 
 import sys
 
-from .cli import main
+from .cli.main import main
 
 if __name__ == "__main__":  # not when a multiprocessing child re-imports the main module
     sys.exit(main())

@@ -48,14 +48,14 @@ from typing import TYPE_CHECKING, Any
 import pytest
 
 from .errors import EXIT_ERROR, EXIT_FAIL, EXIT_OK, ConformanceError, EmulatorError
+from .judge.verdict import Outcome, fails
 from .net.addresses import format_address, parse_address
 from .suite.options import OPTIONS, option, resolve
-from .verdict import Outcome, fails
 
 if TYPE_CHECKING:
     from .net.client import Client
     from .net.emulator import EmulatorServer
-    from .report import CaseResult, Report
+    from .report.model import CaseResult, Report
     from .suite.config import SuiteConfig
     from .suite.engine import Engine
     from .suite.runner import Case
@@ -146,7 +146,7 @@ def _suite_config(config: pytest.Config) -> SuiteConfig:
         sc = replace(sc, hypothesis_profile=hyp_profile)
     chosen = workerinput.get("fairino_spec") if workerinput is not None else None
     if chosen is not None:  # the controller asked the target once; its workers do not
-        from .firmware import choice_from_json
+        from .spec.firmware import choice_from_json
 
         return replace(sc, spec=choice_from_json(chosen))
     return with_spec(sc)
@@ -158,7 +158,7 @@ def pytest_configure(config: pytest.Config) -> None:
     )
     if not _enabled(config):
         return
-    from .report import Report
+    from .report.model import Report
 
     try:
         sc = _suite_config(config)
@@ -325,7 +325,7 @@ def _result_json(r: CaseResult) -> dict[str, Any]:
 
 
 def _result_from(doc: dict[str, Any]) -> CaseResult:
-    from .report import CaseResult
+    from .report.model import CaseResult
 
     return CaseResult.from_json(doc, cmd_id=doc["cmd_id"], name=doc["name"])
 
@@ -454,7 +454,7 @@ def _finish_report(
 ) -> None:
     """Spec version, the emulator's address, and the cases a stopped or interrupted session
     never ran (the engine's :func:`~conformance.suite.engine.stop_report`, as for ``run``)."""
-    from .dialects import dialects_from
+    from .spec.dialects import dialects_from
     from .suite.engine import stop_report
     from .suite.spec_choice import load_chosen, note_spec
 
@@ -474,7 +474,7 @@ def _finish_report(
 
 
 def _write_reports(config: pytest.Config, report: Report) -> None:
-    from .report import write_reports
+    from .report.write import write_reports
 
     values = _values(config)
     config.stash[_WRITTEN_KEY] = write_reports(
@@ -526,8 +526,9 @@ def fairino_emulator_factory() -> Iterator[EmulatorFactory]:
         udp: bool = True,
         spec_version: str | None = None,
     ) -> EmulatorServer:
-        from .dialects import dialects_from
-        from .judge import Judge, Reference
+        from .judge.judge import Judge
+        from .judge.verdict import Reference
+        from .spec.dialects import dialects_from
         from .suite.spec_choice import choose
 
         choice = choose(spec_version, option="spec_version")

@@ -18,7 +18,7 @@ import sys
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 
-from conformance.cli import main
+from conformance.cli.main import main
 
 
 class _Stream(io.TextIOWrapper):

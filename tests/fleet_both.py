@@ -49,12 +49,12 @@ def both_paths(
     """The dataset's tables by the fast path, checked equal to the general path's (all
     tables, all rows in any order, all columns and their types); and what the fast path
     read whole (none: windowed)."""
-    from conformance.dialects import default_dialects
     from conformance.fleet import export
     from conformance.fleet.export import export_recording, open_dataset
     from conformance.fleet.schema import TABLES
-    from conformance.judge import Judge
-    from conformance.spec import default_specs
+    from conformance.judge.judge import Judge
+    from conformance.spec.commands import default_specs
+    from conformance.spec.dialects import default_dialects
 
     judge = Judge(default_specs(), default_dialects())
     whole: list[str] = []

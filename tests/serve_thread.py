@@ -24,7 +24,7 @@ import subprocess
 import sys
 import threading
 
-from conformance.cli import main
+from conformance.cli.main import main
 
 __all__ = ["ServeThread", "start_serve"]
 

@@ -21,7 +21,7 @@ from typing import Any
 
 import pytest
 
-from conformance.cli import main
+from conformance.cli.main import main
 from conformance.errors import AddressError, ConformanceError
 from conformance.net.addresses import Address, format_address, parse_address
 
@@ -263,11 +263,11 @@ COMMANDS = [
 def seen(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Iterator[dict[str, Any]]:
     """Stand-ins for everything a command would start with its addresses: each notes
     what it got here and stops the command (exit code 2, "intercepted")."""
-    import conformance.commands.send
+    import conformance.cli.send
     import conformance.net.emulator
     import conformance.net.proxy
     import conformance.net.replay_server
-    import conformance.replay
+    import conformance.offline.replay
     import conformance.suite.engine
 
     got: dict[str, Any] = {}
@@ -295,8 +295,8 @@ def seen(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Iterator[dict[str, 
         note("emulator", kw)
 
     monkeypatch.setattr(conformance.suite.engine, "Engine", engine)
-    monkeypatch.setattr(conformance.commands.send, "Client", client)
-    monkeypatch.setattr(conformance.replay, "replay_to_target", replay_to_target)
+    monkeypatch.setattr(conformance.cli.send, "Client", client)
+    monkeypatch.setattr(conformance.offline.replay, "replay_to_target", replay_to_target)
     monkeypatch.setattr(conformance.net.replay_server, "ReplayServer", replay_server)
     monkeypatch.setattr(conformance.net.proxy, "RecordingProxy", proxy)
     monkeypatch.setattr(conformance.net.emulator, "EmulatorServer", emulator)

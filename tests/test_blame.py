@@ -11,8 +11,10 @@ from typing import Any
 
 import pytest
 
-from conformance.recording import C2S, S2C, FrameRecord, ProblemRecord, Recording
 from conformance.recording.blame import Blame, Unknown
+from conformance.recording.layout import C2S, S2C
+from conformance.recording.reader import Recording
+from conformance.recording.records import FrameRecord, ProblemRecord
 
 
 def _reference(rec: Recording) -> tuple[dict[int, int], dict[int, FrameRecord]]:

@@ -8,11 +8,14 @@ from pathlib import Path
 
 import pytest
 
-from conformance.frame import Frame, FrameDecoder, encode_frame
-from conformance.net.proxy import ReplayServer
-from conformance.recording import RecordingWriter, StreamRecorder, read_recording
-from conformance.replay import NOT_RECORDED, ReplyBook
-from conformance.spec import default_specs
+from conformance.net.replay_server import ReplayServer
+from conformance.offline.replay import NOT_RECORDED, ReplyBook
+from conformance.protocol.decoder import FrameDecoder
+from conformance.protocol.frame import Frame, encode_frame
+from conformance.recording.reader import read_recording
+from conformance.recording.recorder import StreamRecorder
+from conformance.recording.writer import RecordingWriter
+from conformance.spec.commands import default_specs
 
 # --------------------------------------------------------------------------- 1. replay --serve
 
@@ -86,8 +89,8 @@ def _recording(path: Path, calls: list[tuple[int, str]]) -> str:
 def test_diff_ignore_missing_and_extra_hide_requests_in_one_recording_only(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from conformance.cli import main
-    from conformance.diff import Ignore, diff_recordings
+    from conformance.cli.main import main
+    from conformance.offline.diff import Ignore, diff_recordings
 
     a = _recording(tmp_path / "a.mcap", [(400, "GetVersion()"), (203, 'MoveL("P2")')])
     b = _recording(tmp_path / "b.mcap", [(400, "GetVersion()"), (212, "GetDI(0,0)")])
@@ -122,8 +125,8 @@ def test_diff_ignore_missing_and_extra_hide_requests_in_one_recording_only(
 def test_an_unknown_ignore_rule_is_a_usage_error_listing_the_rules(
     argv: list[str], capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from conformance.cli import main
-    from conformance.diff import IGNORE_RULES
+    from conformance.cli.main import main
+    from conformance.offline.diff import IGNORE_RULES
 
     assert main(argv) == 2
     err = capsys.readouterr().err
@@ -132,7 +135,7 @@ def test_an_unknown_ignore_rule_is_a_usage_error_listing_the_rules(
 
 
 def test_ignore_accepts_every_rule_a_command_and_a_value() -> None:
-    from conformance.diff import IGNORE_RULES, KINDS, Ignore
+    from conformance.offline.diff import IGNORE_RULES, KINDS, Ignore
 
     assert set(KINDS) <= set(IGNORE_RULES)
     ig = Ignore.parse([",".join(IGNORE_RULES), "212", "GetDI", "movej", "212.0", "9999"])
@@ -145,8 +148,8 @@ def test_ignore_accepts_every_rule_a_command_and_a_value() -> None:
 def test_help_lists_every_ignore_rule(command: str, capsys: pytest.CaptureFixture[str]) -> None:
     import re
 
-    from conformance.cli import main
-    from conformance.diff import IGNORE_RULES
+    from conformance.cli.main import main
+    from conformance.offline.diff import IGNORE_RULES
 
     with pytest.raises(SystemExit):
         main([command, "--help"])
@@ -160,7 +163,7 @@ def test_help_lists_every_ignore_rule(command: str, capsys: pytest.CaptureFixtur
 def test_readme_lists_exactly_the_ignore_rules() -> None:
     import re
 
-    from conformance.diff import IGNORE_RULES
+    from conformance.offline.diff import IGNORE_RULES
 
     readme = " ".join((ROOT / "README.md").read_text(encoding="utf-8").split())
     m = re.search(r"`--ignore` takes (.*?), a command", readme)
@@ -187,7 +190,7 @@ def test_check_says_which_side_fails_and_side_judges_one_side_only(
 ) -> None:
     import json
 
-    from conformance.cli import main
+    from conformance.cli.main import main
 
     rj = tmp_path / "both.json"
     assert main(["check", FAULTS, "--report-json", str(rj)]) == 1
@@ -225,8 +228,8 @@ def test_info_and_check_read_a_pcap_as_they_read_its_recording(
 
     from scapy.utils import rdpcap, wrpcapng
 
-    from conformance.cli import main
-    from conformance.pcap import export_pcap
+    from conformance.cli.main import main
+    from conformance.pcap.export import export_pcap
 
     pcap = tmp_path / "s.pcap"
     export_pcap(read_recording(FAULTS), pcap)
@@ -260,7 +263,7 @@ def test_info_and_check_read_a_pcap_as_they_read_its_recording(
 def test_a_capture_neither_mcap_nor_pcap_is_a_usage_error_naming_it(
     tmp_path: Path, command: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from conformance.cli import main
+    from conformance.cli.main import main
 
     bad = tmp_path / "notes.txt"
     bad.write_text("hello, not a capture\n")
@@ -281,8 +284,10 @@ def test_failed_import_pcap_leaves_no_file(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
     import conformance.pcap.recorder as pcap_recorder
-    from conformance.cli import main
-    from conformance.pcap import export_pcap, import_pcap, parse_packet
+    from conformance.cli.main import main
+    from conformance.pcap.export import export_pcap
+    from conformance.pcap.importer import import_pcap
+    from conformance.pcap.packets import parse_packet
 
     src = tmp_path / "in"
     src.mkdir()
@@ -315,7 +320,7 @@ def test_failed_import_pcap_leaves_no_file(
 
 
 def test_failed_recover_leaves_no_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from conformance.cli import main
+    from conformance.cli.main import main
 
     out = tmp_path / "out"
     out.mkdir()
@@ -342,8 +347,8 @@ def test_failed_recover_leaves_no_file(tmp_path: Path, capsys: pytest.CaptureFix
 def test_import_pcap_ports_must_be_1_to_65535(
     tmp_path: Path, flag: str, value: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from conformance.cli import main
-    from conformance.pcap import export_pcap
+    from conformance.cli.main import main
+    from conformance.pcap.export import export_pcap
 
     pcap = tmp_path / "s.pcap"
     export_pcap(read_recording(FAULTS), pcap)
@@ -359,7 +364,7 @@ def test_import_pcap_ports_must_be_1_to_65535(
 def test_proxy_out_that_cannot_be_written_is_named(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from conformance.cli import main
+    from conformance.cli.main import main
 
     out = tmp_path / "no" / "such" / "dir" / "x.mcap"
     argv = ["proxy", "--listen", "127.0.0.1:0", "--upstream", "127.0.0.1:9", "--out", str(out)]
@@ -417,7 +422,7 @@ def test_a_request_decided_after_its_reply_still_pairs_with_it(tmp_path: Path) -
     """The suite's broken frames (``II`` separators, LEN 0) are decided only when the
     client goes quiet, after the controller has replied: the reply is first in the file,
     yet it answers that request (not a missing reply and an unsolicited one)."""
-    from conformance.capture_check import check_recording, failing_ids_by_side
+    from conformance.offline.check import check_recording, failing_ids_by_side
 
     path = tmp_path / "late.mcap"
     with RecordingWriter(path) as w:
@@ -456,8 +461,8 @@ def test_serve_answers_a_request_it_can_decide_only_once_the_client_is_quiet(
 
 
 def test_failed_export_pcap_leaves_no_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    import conformance.pcap as pcap_mod
-    from conformance.pcap import export_pcap
+    import conformance.pcap.export as pcap_mod
+    from conformance.pcap.export import export_pcap
 
     rec = read_recording(FAULTS)
     real = pcap_mod._PcapWriter.ip_packet

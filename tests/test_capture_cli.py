@@ -12,10 +12,11 @@ from pathlib import Path
 
 import pytest
 
-from conformance.cli import main
-from conformance.frame import Frame, FrameDecoder, encode_frame
+from conformance.cli.main import main
 from conformance.net.emulator import EmulatorServer
-from conformance.recording import read_recording
+from conformance.protocol.decoder import FrameDecoder
+from conformance.protocol.frame import Frame, encode_frame
+from conformance.recording.reader import read_recording
 
 ROOT = Path(__file__).resolve().parent.parent
 CAPTURES = ROOT / "captures"

@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from conformance.cli import main
-from conformance.frame import encode_frame
-from conformance.spec import default_specs
+from conformance.cli.main import main
+from conformance.protocol.frame import encode_frame
+from conformance.spec.commands import default_specs
 from tests.cli_run import cli_run, cli_run_bytes
 
 SPECS = default_specs()
@@ -137,7 +137,7 @@ def test_unexpected_error_is_one_line(
     request: pytest.FixtureRequest,
 ) -> None:
     """A failure nobody foresaw still gives one line and exit 2 (FAIRINO_DEBUG re-raises)."""
-    import conformance.commands.specs as specs_cmd
+    import conformance.cli.specs as specs_cmd
 
     def boom(*_: object, **__: object) -> None:
         raise ZeroDivisionError("boom")
@@ -145,7 +145,7 @@ def test_unexpected_error_is_one_line(
     monkeypatch.setattr(specs_cmd, "_run_specs", boom)
     # The parser (built once a process) holds the command's function: built again with
     # boom in it, and again after the test without.
-    from conformance import cli
+    from conformance.cli import main as cli
 
     cli._parser.cache_clear()
     request.addfinalizer(cli._parser.cache_clear)

@@ -9,10 +9,10 @@ from collections.abc import Callable, Iterator
 import pytest
 
 from conformance.errors import UsageError
-from conformance.frame import encode_frame
-from conformance.net import format_address, parse_address
+from conformance.net.addresses import format_address, parse_address
 from conformance.net.client import Client, Exchange, TargetUnreachable
 from conformance.net.emulator import EmulatorServer
+from conformance.protocol.frame import encode_frame
 from tests.hostile_targets import HostileTarget
 
 

@@ -9,11 +9,12 @@ import subprocess
 import sys
 from pathlib import Path
 
-from conformance.client_mode import ClientValidator
-from conformance.frame import Frame, decode_all, encode_frame
-from conformance.model import Dropped
-from conformance.report import Outcome
-from conformance.spec import default_specs
+from conformance.judge.verdict import Outcome
+from conformance.offline.client_mode import ClientValidator
+from conformance.protocol.decoder import decode_all
+from conformance.protocol.frame import Frame, encode_frame
+from conformance.spec.commands import default_specs
+from conformance.twin.actions import Dropped
 
 SPECS = default_specs()
 
@@ -173,14 +174,15 @@ def test_dropped_connection_is_blamed_on_its_command() -> None:
 # ``serve`` with that seeded, then the CLI.
 _SEEDED_SERVE = """
 import sys
-from conformance import model
-from conformance.cli import main
-answer = model.Controller.answer
+from conformance.twin import controller
+from conformance.protocol.frame import Frame
+from conformance.cli.main import main
+answer = controller.Controller.answer
 def failing(self, event, transport=None):
-    if isinstance(event, model.Frame) and event.cmd_id == 204 and "7777" in event.data:
+    if isinstance(event, Frame) and event.cmd_id == 204 and "7777" in event.data:
         raise ValueError("seeded kit failure")
     return answer(self, event, transport)
-model.Controller.answer = failing
+controller.Controller.answer = failing
 sys.exit(main(sys.argv[1:]))
 """
 

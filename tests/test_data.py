@@ -6,7 +6,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from conformance.data import (
+from conformance.errors import LocalProtocolError, RemoteProtocolError, Rule
+from conformance.protocol.data_format import format_call, format_number, to_python
+from conformance.protocol.data_parse import parse_data, parse_reply
+from conformance.protocol.data_values import (
     MAX_DEPTH,
     MAX_ITEMS,
     MAX_NUMBER_DIGITS,
@@ -16,19 +19,12 @@ from conformance.data import (
     Number,
     RawData,
     Text,
-    check_args,
-    check_reply,
-    format_call,
-    format_number,
-    match_variant,
-    parse_data,
-    parse_reply,
-    to_python,
 )
-from conformance.errors import LocalProtocolError, RemoteProtocolError, Rule
-from conformance.frame import Frame, decode_all, encode_frame
-from conformance.spec import Command, Variant, default_specs
-from conformance.strategies import invalid_calls, minimal_args, valid_args
+from conformance.protocol.decoder import decode_all
+from conformance.protocol.frame import Frame, encode_frame
+from conformance.spec.checks import check_args, check_reply, match_variant
+from conformance.spec.commands import Command, Variant, default_specs
+from conformance.suite.strategies import invalid_calls, minimal_args, valid_args
 from tests.examples import examples
 
 SPECS = default_specs()

@@ -17,18 +17,14 @@ from contextlib import contextmanager
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from conformance import data as data_mod
-from conformance.data import (
-    Call,
-    Number,
-    check_args,
-    format_call,
-    match_variant,
-    parse_data,
-)
 from conformance.errors import RemoteProtocolError
-from conformance.spec import TYPE_BOUNDS, Command, Param, default_specs
-from conformance.strategies import minimal_args, valid_args
+from conformance.protocol import data_values as data_mod
+from conformance.protocol.data_format import format_call
+from conformance.protocol.data_parse import parse_data
+from conformance.protocol.data_values import Call, Number
+from conformance.spec.checks import check_args, match_variant
+from conformance.spec.commands import TYPE_BOUNDS, Command, Param, default_specs
+from conformance.suite.strategies import minimal_args, valid_args
 from tests.examples import examples
 
 SPECS = default_specs()

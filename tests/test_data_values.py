@@ -20,10 +20,12 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from conformance import data as data_mod
-from conformance.data import Call, Number, Text, match_variant, parse_data
 from conformance.errors import RemoteProtocolError
-from conformance.spec import default_specs
+from conformance.protocol import data_values as data_mod
+from conformance.protocol.data_parse import parse_data
+from conformance.protocol.data_values import Call, Number, Text
+from conformance.spec.checks import match_variant
+from conformance.spec.commands import default_specs
 from tests.examples import examples
 
 SPECS = default_specs()

@@ -5,10 +5,11 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from conformance.diff import Ignore, compare_replies, diff_recordings
-from conformance.frame import encode_frame
-from conformance.recording import FrameRecord, read_recording
-from conformance.spec import default_specs
+from conformance.offline.diff import Ignore, compare_replies, diff_recordings
+from conformance.protocol.frame import encode_frame
+from conformance.recording.reader import read_recording
+from conformance.recording.records import FrameRecord
+from conformance.spec.commands import default_specs
 
 CAPTURES = Path(__file__).resolve().parent.parent / "captures"
 
@@ -63,7 +64,7 @@ def test_commands_only_in_one_recording() -> None:
     if b is None:
         import tempfile
 
-        from conformance.pcap import import_pcap
+        from conformance.pcap.importer import import_pcap
 
         with tempfile.TemporaryDirectory() as d:
             out = Path(d) / "f.mcap"

@@ -10,11 +10,14 @@ from typing import Any
 
 import pytest
 
-from conformance.data import format_call, format_number
 from conformance.errors import EmulatorError, UsageError
-from conformance.faults import Fault, FaultKind, parse_fault
-from conformance.frame import Frame, Malformed, decode_all, encode_frame
-from conformance.knowledge import (
+from conformance.judge.requests import classify_reply
+from conformance.net.emulator import EmulatorServer
+from conformance.protocol.data_format import format_call, format_number
+from conformance.protocol.decoder import decode_all
+from conformance.protocol.frame import Frame, Malformed, encode_frame
+from conformance.spec.commands import Command, Safety, Variant, default_specs
+from conformance.spec.knowledge import (
     default_args,
     default_data,
     derive_pairs,
@@ -22,10 +25,9 @@ from conformance.knowledge import (
     motion_targets,
     position_query,
 )
-from conformance.model import Action, Controller, Dropped
-from conformance.net.emulator import EmulatorServer
-from conformance.spec import Command, Safety, Variant, default_specs
-from conformance.validate import classify_reply
+from conformance.twin.actions import Action, Dropped
+from conformance.twin.controller import Controller
+from conformance.twin.faults import Fault, FaultKind, parse_fault
 
 SPECS = default_specs()
 
@@ -588,7 +590,7 @@ def test_emulate_survives_descriptor_exhaustion() -> None:
 
 
 def test_decoder_failure_closes_only_that_connection(monkeypatch: pytest.MonkeyPatch) -> None:
-    from conformance.frame import FrameDecoder
+    from conformance.protocol.decoder import FrameDecoder
 
     feed = FrameDecoder.feed
 
@@ -658,7 +660,7 @@ def test_an_idle_client_is_closed_after_idle_timeout() -> None:
 
 
 def test_idle_timeout_option_is_checked(capsys: pytest.CaptureFixture[str]) -> None:
-    from conformance.cli import main
+    from conformance.cli.main import main
 
     assert main(["emulate", "--idle-timeout", "-1", "--listen", "127.0.0.1:0"]) == 2
     assert "--idle-timeout must be 0 (never) or a number of seconds" in capsys.readouterr().err
@@ -669,7 +671,7 @@ def test_close_server_ends_a_loop_that_would_wait_forever(kind: socket.SocketKin
     """The servers' accept and receive loops used to notice a stop at their socket's next
     timeout (0.1-0.2 s for every close): close_server wakes them.  Here the socket has no
     timeout at all, so only the wake can end the loop; what woke it is not handled."""
-    from conformance.net._server import Backoff, close_server, serve_forever
+    from conformance.net.server import Backoff, close_server, serve_forever
 
     sock = socket.socket(socket.AF_INET, kind)
     sock.bind(("127.0.0.1", 0))

@@ -14,7 +14,7 @@ from typing import Any
 
 import pytest
 
-from conformance.spec import CACHE_ENV, default_specs
+from conformance.spec.commands import CACHE_ENV, default_specs
 from tests.cli_run import cli_run
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -34,11 +34,11 @@ def run(
 
 def test_run_does_not_call_pytest() -> None:
     """``run`` drives the engine itself; it neither imports pytest nor builds a command line."""
-    tree = ast.parse((ROOT / "conformance" / "commands" / "suite.py").read_text(encoding="utf-8"))
+    tree = ast.parse((ROOT / "conformance" / "cli" / "suite.py").read_text(encoding="utf-8"))
     imported = {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
     imported |= {n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
     assert not {m for m in imported if m.split(".")[0] == "pytest"}
-    assert "..suite.engine" in (ROOT / "conformance" / "commands" / "suite.py").read_text() or any(
+    assert "..suite.engine" in (ROOT / "conformance" / "cli" / "suite.py").read_text() or any(
         m.endswith("suite.engine") for m in imported
     )
 
@@ -203,7 +203,7 @@ def test_every_option_is_an_environment_variable(
 def test_fixtures_for_a_projects_own_tests(pytester: pytest.Pytester) -> None:
     pytester.makepyfile(
         """
-        from conformance.frame import encode_frame
+        from conformance.protocol.frame import encode_frame
 
         def test_emulator_answers(fairino_emulator):
             from conformance.net.client import Client
@@ -239,7 +239,7 @@ def test_readme_option_table_is_the_one_definition() -> None:
 
 
 def test_emulate_takes_specs_dir_like_every_other_command(tmp_path: Path) -> None:
-    from conformance.cli import build_parser
+    from conformance.cli.main import build_parser
 
     specs_dir = str(ROOT / "specs" / "fairino-3.8.2")
     for flag in ("--specs-dir", "--specs"):
@@ -253,7 +253,8 @@ def test_baseline_counts_what_fails_under_the_run_options() -> None:
     """Under --strict a listed NON-STRICT case is an expected failure, not 'listed but passed'."""
     from dataclasses import replace as dc_replace
 
-    from conformance.report import CaseResult, Outcome
+    from conformance.judge.verdict import Outcome
+    from conformance.report.model import CaseResult
     from conformance.suite.config import SuiteConfig
     from conformance.suite.engine import Engine
 

@@ -15,10 +15,11 @@ from __future__ import annotations
 
 import re
 
-from conformance.data import check_reply
-from conformance.frame import Frame, decode_all
-from conformance.spec import Command, Example, Variant, default_specs
-from conformance.validate import classify_reply, validate_request
+from conformance.judge.requests import classify_reply, validate_request
+from conformance.protocol.decoder import decode_all
+from conformance.protocol.frame import Frame
+from conformance.spec.checks import check_reply
+from conformance.spec.commands import Command, Example, Variant, default_specs
 
 SPECS = default_specs()
 EXAMPLES: list[tuple[Command, Variant, int, Example]] = [

@@ -23,14 +23,15 @@ from typing import Any
 
 import pytest
 
-from conformance.cli import main
-from conformance.dialects import default_dialects
-from conformance.frame import Frame, decode_all, encode_frame
-from conformance.judge import Judge, Reference
+from conformance.cli.main import main
+from conformance.judge.judge import Judge
+from conformance.judge.verdict import Outcome, Reference
 from conformance.net.client import Client
 from conformance.net.emulator import EmulatorServer
-from conformance.report import Outcome
-from conformance.spec import default_specs
+from conformance.protocol.decoder import decode_all
+from conformance.protocol.frame import Frame, encode_frame
+from conformance.spec.commands import default_specs
+from conformance.spec.dialects import default_dialects
 from tests.cli_run import cli_run
 from tests.serve_thread import ServeThread, start_serve
 

@@ -20,16 +20,17 @@ from pathlib import Path
 
 import pytest
 
-from conformance.dialects import DialectSet, default_dialects, load_dialects
 from conformance.errors import Rule, SpecError
-from conformance.frame import Frame, FrameDecoder, Malformed, decode_all, encode_frame
-from conformance.judge import Direction, Judge, Reference
-from conformance.judge_stream import Pairing
-from conformance.model import Controller
+from conformance.judge.judge import Judge
+from conformance.judge.stream import Pairing
+from conformance.judge.verdict import Direction, Outcome, Reference
 from conformance.net.client import Client
 from conformance.net.emulator import EmulatorServer
-from conformance.report import Outcome
-from conformance.spec import default_specs
+from conformance.protocol.decoder import FrameDecoder, decode_all
+from conformance.protocol.frame import Frame, Malformed, encode_frame
+from conformance.spec.commands import default_specs
+from conformance.spec.dialects import DialectSet, default_dialects, load_dialects
+from conformance.twin.controller import Controller
 
 SPECS = default_specs()
 DIALECTS = default_dialects()

@@ -15,6 +15,7 @@ from tests.optional import duck, missing
 if gone := missing("pyarrow", "duckdb"):
     pytest.skip(f"{gone} not installed", allow_module_level=True)
 
+from conformance.spec.state import layout_for
 from tests.cli_run import cli_run
 from tools.synth_fleet import Fault, write_recording
 
@@ -203,7 +204,9 @@ def _a_frame_a_message(path: Path) -> int:
     """The recording written again as request/reply traffic records it: frames in the
     order their first byte came, each its own message where the direction changes;
     returns the frame messages written."""
-    from conformance.recording import FrameRecord, RecordingWriter, read_recording
+    from conformance.recording.reader import read_recording
+    from conformance.recording.records import FrameRecord
+    from conformance.recording.writer import RecordingWriter
 
     rec = read_recording(path)
     frames = sorted(rec.frames, key=lambda f: f.first_ns)
@@ -227,11 +230,12 @@ def test_fast_path_gives_the_general_paths_rows(tmp_path: Path, layout: int | st
     rows: a wrong reply CNT (the pairing one by one), time-outs and refusals (at once);
     of layout 2's JSON batches and of layout 3's protobuf ones, batched or one frame a
     message (read at fixed places)."""
-    from conformance.dialects import default_dialects
     from conformance.fleet.export import export_recording, open_dataset
-    from conformance.fleet.fast import _pairs_at_once, read_columns
-    from conformance.judge import Judge
-    from conformance.spec import default_specs
+    from conformance.fleet.fast import read_columns
+    from conformance.fleet.verdicts import _pairs_at_once
+    from conformance.judge.judge import Judge
+    from conformance.spec.commands import default_specs
+    from conformance.spec.dialects import default_dialects
 
     faults = (
         Fault("cnt", "*", "*", 212),
@@ -268,13 +272,10 @@ def test_a_message_that_does_not_fit_goes_the_general_way(
     as check does (the reader names the message as damage, exit 3; the windows name it
     alike), never an internal error."""
     from conformance.fleet.fast import read_columns
-    from conformance.recording import (
-        TOPIC_C2S,
-        FrameBatch,
-        RecordingWriter,
-        default_metadata,
-        read_recording,
-    )
+    from conformance.recording.layout import TOPIC_C2S
+    from conformance.recording.reader import read_recording
+    from conformance.recording.records import FrameBatch
+    from conformance.recording.writer import RecordingWriter, default_metadata
 
     path = tmp_path / "odd.mcap"
     md = default_metadata(START, robot="r01", format="fairino-conformance/2")  # JSON batches
@@ -322,14 +323,11 @@ def test_a_protobuf_batch_that_does_not_fit_goes_the_general_way(
     """Layout 3: a frame batch that does not read or fit is skipped and named as damage
     (exit 3), the windows naming it as the reader does, never an internal error."""
     from conformance.fleet.fast import read_columns
-    from conformance.recording import (
-        TOPIC_C2S,
-        FrameBatch,
-        RecordingWriter,
-        default_metadata,
-        read_recording,
-    )
     from conformance.recording.frames_pb import encode_batch
+    from conformance.recording.layout import TOPIC_C2S
+    from conformance.recording.reader import read_recording
+    from conformance.recording.records import FrameBatch
+    from conformance.recording.writer import RecordingWriter, default_metadata
 
     path = tmp_path / "odd.mcap"
     md = default_metadata(START, robot="r01", format="fairino-conformance/3")
@@ -354,10 +352,13 @@ def test_state_packets_make_the_state_table(tmp_path: Path) -> None:
     """A recorded state stream (8083): one row per packet, the CNT gap and the checksum
     failure the state decoder finds show up in the state report."""
     from conformance.protocol.state import encode_state
-    from conformance.recording import RecordingWriter, StreamRecorder, default_metadata
+    from conformance.recording.recorder import StreamRecorder
+    from conformance.recording.writer import RecordingWriter, default_metadata
 
     packets = [
-        encode_state("3.8.2", {"jt_cur_pos": [i, 0, 0, 0, 0, 0]}, cnt=i, bad_checksum=i == 3)
+        encode_state(
+            layout_for("3.8.2"), {"jt_cur_pos": [i, 0, 0, 0, 0, 0]}, cnt=i, bad_checksum=i == 3
+        )
         for i in range(6)
         if i != 2
     ]

@@ -9,7 +9,8 @@ import struct
 
 import pytest
 
-from conformance.fleet.fast import _FRAME_COLUMNS, Columns, _binary_batch
+from conformance.fleet.columns import Columns
+from conformance.fleet.fast import _FRAME_COLUMNS, _binary_batch
 from conformance.fleet.fast_pb import Pending
 from conformance.recording.frames_pb import decode_columns, encode_batch
 from tests.test_frames_pb import BAD, CASES, batch

@@ -162,8 +162,9 @@ def _with_problems(path: Path, garbage: str) -> Path:
     follows (the last request's, 214); ``first``, on two connections before them, before
     any request: one whose client sends none (no one's), one before a reply the
     controller sends unasked (500: that reply's), then requests never answered."""
-    from conformance.frame import encode_frame
-    from conformance.recording import RecordingWriter, StreamRecorder, default_metadata
+    from conformance.protocol.frame import encode_frame
+    from conformance.recording.recorder import StreamRecorder
+    from conformance.recording.writer import RecordingWriter, default_metadata
 
     with RecordingWriter(path, metadata=default_metadata(START, robot="r05")) as w:
         rec = StreamRecorder(w)
@@ -254,7 +255,8 @@ def _with_flaws(path: Path, layout: int) -> Path:
     (``len_mismatch``), six others sent with ``II`` separators (``bad_separator``), and
     every ninth reply's LEN off: frame batches with framing problems (the recorder writes
     a frame it decided only once its sender went quiet after the reply that answered it)."""
-    from conformance.recording import RecordingWriter, StreamRecorder, default_metadata
+    from conformance.recording.recorder import StreamRecorder
+    from conformance.recording.writer import RecordingWriter, default_metadata
 
     def wire(cnt: int, cmd_id: int, data: str, off: bool, sep: bool = False) -> bytes:
         n = len(data.encode()) + (2 if off else 0)
@@ -297,16 +299,10 @@ def _out_of_order(path: Path, case: str) -> Path:
     controller's garbage ahead of reply 3 written after frame 40 (its reply judged
     windows before); ``swapped``, that garbage written in place but reply 4 written
     before reply 3 (a stream's offsets stepping back after the run found a frame)."""
-    from conformance.frame import encode_frame
-    from conformance.recording import (
-        C2S,
-        S2C,
-        FrameBatch,
-        FrameRecord,
-        ProblemRecord,
-        RecordingWriter,
-        default_metadata,
-    )
+    from conformance.protocol.frame import encode_frame
+    from conformance.recording.layout import C2S, S2C
+    from conformance.recording.records import FrameBatch, FrameRecord, ProblemRecord
+    from conformance.recording.writer import RecordingWriter, default_metadata
 
     garbage = ProblemRecord(
         conn=1,
@@ -384,20 +380,18 @@ def _with_bad_messages(path: Path, layout: int, *, flip: int = 0) -> Path:
     protobuf, a traffic message cut inside a field), a connection record and a problem
     that do not, and a message on a later layout's topic the reader does not read.
     ``flip``: the byte at that offset flipped too (damage the walk names in between)."""
-    from conformance.frame import encode_frame
-    from conformance.recording import (
+    from conformance.protocol.frame import encode_frame
+    from conformance.recording.frames_pb import encode_batch
+    from conformance.recording.layout import (
         C2S,
         S2C,
         TOPIC_C2S,
         TOPIC_CONNECTIONS,
         TOPIC_FRAMES,
         TOPIC_PROBLEMS,
-        ConnectionRecord,
-        FrameBatch,
-        RecordingWriter,
-        default_metadata,
     )
-    from conformance.recording.frames_pb import encode_batch
+    from conformance.recording.records import ConnectionRecord, FrameBatch
+    from conformance.recording.writer import RecordingWriter, default_metadata
 
     md = {**default_metadata(START, robot="r06"), "format": f"fairino-conformance/{layout}"}
     with RecordingWriter(path, metadata=md, chunk_size=2048, batch_frames=4) as w:
@@ -480,8 +474,9 @@ def _many_connections(path: Path, short: int) -> Path:
     """Connection 1 asks (CNT 1), then ``short`` connections open, ask, are answered (every
     fifth reply after two bytes of garbage) and close, then connection 1 asks again with
     CNT 5 (a step check's CntSteps finds only while it remembers connection 1)."""
-    from conformance.frame import encode_frame
-    from conformance.recording import RecordingWriter, StreamRecorder, default_metadata
+    from conformance.protocol.frame import encode_frame
+    from conformance.recording.recorder import StreamRecorder
+    from conformance.recording.writer import RecordingWriter, default_metadata
 
     with RecordingWriter(path, metadata=default_metadata(START, robot="r07")) as w:
         rec = StreamRecorder(w)
@@ -516,7 +511,7 @@ def test_more_connections_than_check_remembers_go_the_windowed_path(
     need (a closed one's dropped: its ports, streams, the blame of its garbage), so that
     memory does not grow with their number; the rows those of the general path."""
     from conformance.fleet import window
-    from conformance.judge_stream import CntSteps
+    from conformance.judge.stream import CntSteps
     from conformance.recording import blame
 
     monkeypatch.setattr(CntSteps.__init__, "__kwdefaults__", {"limit": 16})
@@ -549,16 +544,10 @@ def test_json_batches_in_another_writers_shape_go_the_windowed_path(
     """Layout 2's JSON batches not in the kit's writer's shape (``raw`` first; DATA
     holding ``true``), and one holding a boolean where a number goes (the reader skips and
     names it): windowed, the rows and the damage those of the general path."""
-    from conformance.frame import encode_frame
-    from conformance.recording import (
-        C2S,
-        S2C,
-        TOPIC_C2S,
-        TOPIC_S2C,
-        FrameBatch,
-        RecordingWriter,
-        default_metadata,
-    )
+    from conformance.protocol.frame import encode_frame
+    from conformance.recording.layout import C2S, S2C, TOPIC_C2S, TOPIC_S2C
+    from conformance.recording.records import FrameBatch
+    from conformance.recording.writer import RecordingWriter, default_metadata
 
     md = {**default_metadata(START, robot="r08"), "format": "fairino-conformance/2"}
     path = tmp_path / "shapes.mcap"
@@ -623,16 +612,10 @@ def test_layout_1_goes_the_windowed_path(tmp_path: Path, monkeypatch: pytest.Mon
     """Layout 1 (a fairino.Frame object a message), a frame with framing problems among
     them and one whose CNT is negative (skipped and named): windowed, the rows and the
     damage those of the general path."""
-    from conformance.frame import encode_frame
-    from conformance.recording import (
-        C2S,
-        S2C,
-        TOPIC_C2S,
-        TOPIC_S2C,
-        FrameRecord,
-        RecordingWriter,
-        default_metadata,
-    )
+    from conformance.protocol.frame import encode_frame
+    from conformance.recording.layout import C2S, S2C, TOPIC_C2S, TOPIC_S2C
+    from conformance.recording.records import FrameRecord
+    from conformance.recording.writer import RecordingWriter, default_metadata
 
     md = {**default_metadata(START, robot="r09"), "format": "fairino-conformance/1"}
     path = tmp_path / "v1.mcap"

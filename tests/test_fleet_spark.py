@@ -29,6 +29,7 @@ if shutil.which("java") is None:
 
 from conformance.fleet.query import connect, run_report
 from conformance.fleet.reports import REPORTS
+from conformance.spec.state import layout_for
 from tests.cli_run import cli_run
 from tools.fleet_spark import register_views, session, spark_report
 from tools.synth_fleet import Fault, write_recording
@@ -72,13 +73,16 @@ def test_spark_reports_equal_duckdb(tmp_path: Path) -> None:
 def _state_and_dialect_recording(path: Path) -> None:
     """A state stream (8083) of five packets (a CNT gap and a checksum failure) beside a
     command port where a client names 377 GetActualTCPPose (a dialect, drivers-001)."""
-    from conformance.frame import encode_frame
+    from conformance.protocol.frame import encode_frame
     from conformance.protocol.state import encode_state
-    from conformance.recording import RecordingWriter, StreamRecorder, default_metadata
+    from conformance.recording.recorder import StreamRecorder
+    from conformance.recording.writer import RecordingWriter, default_metadata
 
     path.parent.mkdir(parents=True)
     packets = [
-        encode_state("3.8.2", {"jt_cur_pos": [i, 0, 0, 0, 0, 0]}, cnt=i, bad_checksum=i == 3)
+        encode_state(
+            layout_for("3.8.2"), {"jt_cur_pos": [i, 0, 0, 0, 0, 0]}, cnt=i, bad_checksum=i == 3
+        )
         for i in range(6)
         if i != 2
     ]

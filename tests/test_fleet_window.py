@@ -30,11 +30,11 @@ FAULTS = (
 def test_windows_give_the_rows_of_one_window(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, layout: int | str
 ) -> None:
-    from conformance.dialects import default_dialects
     from conformance.fleet import window
     from conformance.fleet.export import export_recording, open_dataset
-    from conformance.judge import Judge
-    from conformance.spec import default_specs
+    from conformance.judge.judge import Judge
+    from conformance.spec.commands import default_specs
+    from conformance.spec.dialects import default_dialects
 
     monkeypatch.setattr(tools.synth_fleet, "FRAMES_PER_CONNECTION", 130)  # a few connections
     path = tmp_path / "r.mcap"
@@ -80,11 +80,13 @@ def test_windows_give_the_rows_of_one_window(
 def test_frames_out_of_order_are_read_whole(tmp_path: Path) -> None:
     """A recording whose later messages hold earlier frames than those already judged:
     the windows give up and the recording is read whole, with the same rows."""
-    from conformance.dialects import default_dialects
     from conformance.fleet.export import export_recording, open_dataset
-    from conformance.judge import Judge
-    from conformance.recording import FrameRecord, RecordingWriter, read_recording
-    from conformance.spec import default_specs
+    from conformance.judge.judge import Judge
+    from conformance.recording.reader import read_recording
+    from conformance.recording.records import FrameRecord
+    from conformance.recording.writer import RecordingWriter
+    from conformance.spec.commands import default_specs
+    from conformance.spec.dialects import default_dialects
 
     path = tmp_path / "r.mcap"
     write_recording(path, "r09", "3.9.8", 300, FAULTS, START, 3)

@@ -9,15 +9,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from conformance.errors import LocalProtocolError, Rule
-from conformance.frame import (
-    DEFAULT_MAX_FRAME_SIZE,
-    Frame,
-    FrameDecoder,
-    Malformed,
-    decode_all,
-    encode_frame,
-)
-from conformance.strategies import garbage
+from conformance.protocol.decoder import FrameDecoder, decode_all
+from conformance.protocol.frame import DEFAULT_MAX_FRAME_SIZE, Frame, Malformed, encode_frame
+from conformance.suite.strategies import garbage
 
 from .frame_cases import FRAME_CASES, LENIENT_CASES, MALFORMED_CASES
 

@@ -7,7 +7,8 @@ from __future__ import annotations
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from conformance.frame import Frame, FrameDecoder, Malformed, encode_frame
+from conformance.protocol.decoder import FrameDecoder
+from conformance.protocol.frame import Frame, Malformed, encode_frame
 from conformance.protocol.frame_columns import one_frame, run_frames
 from tests.examples import examples
 

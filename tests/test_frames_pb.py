@@ -13,7 +13,6 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from conformance.recording import FrameBatch
 from conformance.recording.frames_pb import (
     FILE_DESCRIPTOR_SET,
     SCHEMA_NAME,
@@ -22,6 +21,7 @@ from conformance.recording.frames_pb import (
     encode_batch,
     encode_one,
 )
+from conformance.recording.records import FrameBatch
 from tests.examples import examples
 
 T0 = 1_700_000_000_000_000_000

@@ -19,12 +19,14 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from conformance.data import MAX_DEPTH, MAX_NUMBER_DIGITS, parse_data, parse_reply
 from conformance.errors import ProtocolError, Rule
-from conformance.frame import Frame, FrameDecoder, Malformed, decode_all, encode_frame
-from conformance.model import Controller
-from conformance.spec import default_specs
-from conformance.validate import classify_reply, validate_request
+from conformance.judge.requests import classify_reply, validate_request
+from conformance.protocol.data_parse import parse_data, parse_reply
+from conformance.protocol.data_values import MAX_DEPTH, MAX_NUMBER_DIGITS
+from conformance.protocol.decoder import FrameDecoder, decode_all
+from conformance.protocol.frame import Frame, Malformed, encode_frame
+from conformance.spec.commands import default_specs
+from conformance.twin.controller import Controller
 from tests.examples import examples
 
 ROOT = Path(__file__).resolve().parent.parent

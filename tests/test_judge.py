@@ -8,13 +8,15 @@ from pathlib import Path
 
 import pytest
 
-from conformance.dialects import DialectSet, default_dialects, load_dialects
 from conformance.errors import SpecError, UsageError
-from conformance.frame import Frame, Malformed, decode_all, encode_frame
-from conformance.judge import Direction, Judge, Reference, reference_from
-from conformance.judge_stream import Pairing
-from conformance.report import CaseResult, Outcome, Report
-from conformance.spec import default_specs
+from conformance.judge.judge import Judge
+from conformance.judge.stream import Pairing
+from conformance.judge.verdict import Direction, Outcome, Reference, reference_from
+from conformance.protocol.decoder import decode_all
+from conformance.protocol.frame import Frame, Malformed, encode_frame
+from conformance.report.model import CaseResult, Report
+from conformance.spec.commands import default_specs
+from conformance.spec.dialects import DialectSet, default_dialects, load_dialects
 
 SPECS = default_specs()
 FIELD = Judge(SPECS, default_dialects())

@@ -22,20 +22,18 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from numpy.typing import NDArray
 
-from conformance import kinematics
 from conformance.errors import SpecError, UsageError
-from conformance.kinematics import (
-    HOME,
-    IKStatus,
-    Robot,
+from conformance.spec.commands import validate_document
+from conformance.twin import kinematics
+from conformance.twin.kinematics.ik import IKStatus, branches
+from conformance.twin.kinematics.pose import (
     angle_between,
-    load_robots,
+    matrix_to_pose,
     pose_to_matrix,
-    robot,
+    rotation_rpy,
+    rpy_of,
 )
-from conformance.kinematics.ik import branches
-from conformance.kinematics.pose import matrix_to_pose, rotation_rpy, rpy_of
-from conformance.spec import validate_document
+from conformance.twin.kinematics.robots import HOME, Robot, load_robots, robot
 
 REPO = Path(__file__).resolve().parent.parent
 DATA = REPO / "specs" / "fairino-robots.json"

@@ -1,4 +1,4 @@
-"""conformance.knowledge: per-command meaning comes from ``semantics.json``, not from code.
+"""conformance.spec.knowledge: per-command meaning comes from ``semantics.json``, not from code.
 
 (1) the semantics file validates and malformed ones are refused with the path
 named; (2) the accessors read the data (a spec set with other semantics gives
@@ -17,10 +17,13 @@ from typing import Any
 
 import pytest
 
-from conformance.data import format_call
 from conformance.errors import SpecError
-from conformance.frame import Frame, decode_all, encode_frame
-from conformance.knowledge import (
+from conformance.protocol.data_format import format_call
+from conformance.protocol.decoder import decode_all
+from conformance.protocol.frame import Frame, encode_frame
+from conformance.spec.commands import ExplicitPair, Semantics, SpecSet, default_specs, load_specs
+from conformance.spec.commands import validate_document as validate
+from conformance.spec.knowledge import (
     default_args,
     default_data,
     derive_pairs,
@@ -28,9 +31,7 @@ from conformance.knowledge import (
     position_query,
     unsolicited_ids,
 )
-from conformance.model import Controller
-from conformance.spec import ExplicitPair, Semantics, SpecSet, default_specs, load_specs
-from conformance.spec import validate_document as validate
+from conformance.twin.controller import Controller
 
 REPO = Path(__file__).resolve().parent.parent
 SPEC_DIR = REPO / "specs" / "fairino-3.8.2"
@@ -212,28 +213,29 @@ _ALLOWED_MODEL_IMPORTS: set[tuple[str, str]] = set()
 
 
 def _model_imports(path: Path, package: str = "conformance.suite") -> set[tuple[str, str]]:
-    """(file, name) of every import of conformance.model in ``path`` (``*``: the module)."""
+    """(file, name) of every import of conformance.twin.controller in ``path`` (``*``: the module)."""
     tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
     parts = package.split(".")
     out: set[tuple[str, str]] = set()
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
-            out |= {(path.name, "*") for a in node.names if a.name == "conformance.model"}
+            out |= {(path.name, "*") for a in node.names if a.name == "conformance.twin.controller"}
         elif isinstance(node, ast.ImportFrom):
             base = parts[: len(parts) - node.level + 1] if node.level else []
             module = ".".join([*base, *([node.module] if node.module else [])])
-            if module == "conformance.model":
+            if module == "conformance.twin.controller":
                 out |= {(path.name, a.name) for a in node.names}
-            elif module == "conformance":
-                out |= {(path.name, "*") for a in node.names if a.name == "model"}
+            elif module == "conformance.twin":
+                out |= {(path.name, "*") for a in node.names if a.name == "controller"}
     return out
 
 
 def test_model_imports_are_seen(tmp_path: Path) -> None:
     probe = tmp_path / "probe.py"
     probe.write_text(
-        "import conformance.model\nfrom ..model import A\nfrom .. import model\n"
-        "from conformance.model import B\nfrom ..knowledge import C\n",
+        "import conformance.twin.controller\nfrom ..twin.controller import A\n"
+        "from ..twin import controller\n"
+        "from conformance.twin.controller import B\nfrom ..knowledge import C\n",
         encoding="utf-8",
     )
     assert _model_imports(probe) == {("probe.py", "*"), ("probe.py", "A"), ("probe.py", "B")}

@@ -8,10 +8,10 @@ from pathlib import Path
 
 import pytest
 
-from conformance.cli import build_parser
-from conformance.commands.capture import labels_of
+from conformance.cli.capture import labels_of
+from conformance.cli.main import build_parser
 from conformance.errors import UsageError
-from conformance.recording import read_recording
+from conformance.recording.reader import read_recording
 from tests.cli_run import cli_run
 from tests.optional import missing
 

@@ -9,18 +9,15 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 
-from conformance.frame import encode_frame
-from conformance.recording import (
-    TOPIC_C2S,
-    TOPIC_S2C,
-    RecordingWriter,
-    StreamRecorder,
-    dump_json,
-    read_recording,
-    recover,
-)
+from conformance.protocol.frame import encode_frame
+from conformance.recording.dump import dump_json
 from conformance.recording.frames_pb import decode_batch
-from conformance.spec import default_specs
+from conformance.recording.layout import TOPIC_C2S, TOPIC_S2C
+from conformance.recording.reader import read_recording
+from conformance.recording.recorder import StreamRecorder
+from conformance.recording.repair import recover
+from conformance.recording.writer import RecordingWriter
+from conformance.spec.commands import default_specs
 
 T0 = 1_700_000_000_000_000_000
 

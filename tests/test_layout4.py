@@ -13,24 +13,15 @@ from typing import Any
 import pytest
 from mcap.reader import make_reader
 
-from conformance.frame import encode_frame
-from conformance.recording import (
-    TOPIC_C2S,
-    TOPIC_FRAMES,
-    TOPIC_S2C,
-    TOPIC_STATE,
-    ConnectionRecord,
-    FrameBatch,
-    FrameRecord,
-    ProblemRecord,
-    RecordingWriter,
-    StreamRecorder,
-    dump_json,
-    read_recording,
-    recover,
-)
+from conformance.protocol.frame import encode_frame
+from conformance.recording.dump import dump_json
+from conformance.recording.layout import TOPIC_C2S, TOPIC_FRAMES, TOPIC_S2C, TOPIC_STATE
 from conformance.recording.lone_reads import read_together
 from conformance.recording.pb_wire import field
+from conformance.recording.reader import read_recording
+from conformance.recording.recorder import StreamRecorder
+from conformance.recording.records import ConnectionRecord, FrameBatch, FrameRecord, ProblemRecord
+from conformance.recording.repair import recover
 from conformance.recording.traffic_pb import (
     FIELDS,
     Mixed,
@@ -38,7 +29,8 @@ from conformance.recording.traffic_pb import (
     decode_traffic,
     encode_traffic,
 )
-from conformance.spec import default_specs
+from conformance.recording.writer import RecordingWriter
+from conformance.spec.commands import default_specs
 
 T0 = 1_700_000_000_000_000_000
 

@@ -20,15 +20,20 @@ from typing import Any
 
 import pytest
 
-from conformance import cli
-from conformance.frame import Frame, encode_frame
+from conformance.cli import main as cli
 from conformance.net import capture as capture_mod
 from conformance.net.capture import CaptureStats, LiveCapture
 from conformance.net.emulator import EmulatorServer
 from conformance.net.packet_ring import RingUnavailable
-from conformance.pcap import PacketRecorder, import_pcap, read_packets
-from conformance.recording import RecordingWriter, dump_json, read_recording, recover
-from conformance.spec import default_specs
+from conformance.pcap.importer import import_pcap
+from conformance.pcap.read import read_packets
+from conformance.pcap.recorder import PacketRecorder
+from conformance.protocol.frame import Frame, encode_frame
+from conformance.recording.dump import dump_json
+from conformance.recording.reader import read_recording
+from conformance.recording.repair import recover
+from conformance.recording.writer import RecordingWriter
+from conformance.spec.commands import default_specs
 
 from .test_proxy import recv_frames, wait_for
 

@@ -16,8 +16,11 @@ import pytest
 from mcap.reader import make_reader
 
 from conformance.errors import EXIT_DAMAGED
-from conformance.frame import encode_frame
-from conformance.recording import RecordingWriter, StreamRecorder, dump_json, read_recording
+from conformance.protocol.frame import encode_frame
+from conformance.recording.dump import dump_json
+from conformance.recording.reader import read_recording
+from conformance.recording.recorder import StreamRecorder
+from conformance.recording.writer import RecordingWriter
 from tests.cli_run import cli_run
 
 #: 5 chunks of 28 requests and 28 replies each (one frame a message): 280 frames.
@@ -298,7 +301,7 @@ def test_a_pcapng_simple_packet_block_has_the_time_before_it(tmp_path: Path) -> 
 def _recording_with(path: Path, topic: str, doc: object) -> None:
     """A small recording (one exchange) with ``doc`` as one more message on ``topic``
     (any JSON value, or bytes as they are)."""
-    from conformance.recording import FrameBatch, FrameRecord
+    from conformance.recording.records import FrameBatch, FrameRecord
 
     req, rep = encode_frame(1, 201, 'MoveJ("P1")'), encode_frame(1, 201, "1")
     with RecordingWriter(path, metadata={"format": "fairino-conformance/2"}) as w:
@@ -333,7 +336,7 @@ def _recording_with(path: Path, topic: str, doc: object) -> None:
 
 
 def _batch(**change: object) -> dict[str, object]:
-    from conformance.recording import FrameBatch, FrameRecord
+    from conformance.recording.records import FrameBatch, FrameRecord
 
     raw = encode_frame(2, 201, "1")
     r = FrameRecord(conn=1, dir="s2c", cnt=2, cmd_id=201, data="1", raw=raw, complete_ns=30)
@@ -541,7 +544,7 @@ def test_the_proxy_says_at_once_what_a_write_error_costs(
     import argparse
     from types import SimpleNamespace
 
-    from conformance.commands.capture import _write_failed, failure_line
+    from conformance.cli.capture import _write_failed, failure_line
 
     recorder = SimpleNamespace(lost=0)
     proxy = SimpleNamespace(

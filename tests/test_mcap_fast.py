@@ -11,7 +11,9 @@ import pytest
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
-from conformance.recording import RecordingWriter, mcap_fast, read_recording
+from conformance.recording import mcap_fast
+from conformance.recording.reader import read_recording
+from conformance.recording.writer import RecordingWriter
 
 META = {"format": "fairino-conformance/3", "start_ns": "1", "host": "test"}
 

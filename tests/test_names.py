@@ -13,17 +13,18 @@ from pathlib import Path
 
 import pytest
 
-from conformance.dialects import default_dialects
-from conformance.frame import encode_frame
-from conformance.judge import Judge, display_name
-from conformance.judge_stream import FrameNames
+from conformance.judge.judge import Judge, display_name
+from conformance.judge.stream import FrameNames
 from conformance.net.client import Client
 from conformance.net.emulator import EmulatorServer
 from conformance.net.proxy import RecordingProxy
-from conformance.recording import C2S, read_recording
-from conformance.replay import replay_to_target
-from conformance.safety import SafetyPolicy
-from conformance.spec import default_specs
+from conformance.offline.replay import replay_to_target
+from conformance.protocol.frame import encode_frame
+from conformance.recording.layout import C2S
+from conformance.recording.reader import read_recording
+from conformance.spec.commands import default_specs
+from conformance.spec.dialects import default_dialects
+from conformance.spec.safety import SafetyPolicy
 from tests.cli_run import cli_run
 from tests.test_proxy import _start_proxy_cli, recv_frames
 
@@ -66,7 +67,8 @@ def test_the_judge_names_the_dispatched_call() -> None:
 
 
 def read_recording_frames(raw: bytes):  # type: ignore[no-untyped-def]
-    from conformance.frame import Frame, decode_all
+    from conformance.protocol.decoder import decode_all
+    from conformance.protocol.frame import Frame
 
     return [e for e in decode_all(raw) if isinstance(e, Frame)]
 

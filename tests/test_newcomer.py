@@ -9,11 +9,13 @@ from typing import Any
 
 import pytest
 
-from conformance.cli import main
-from conformance.report import CaseResult, Report, junit_xml, render_html
+from conformance.cli.main import main
+from conformance.judge.verdict import Outcome
+from conformance.report.html import render_html
+from conformance.report.junit import junit_xml
+from conformance.report.model import CaseResult, Report
 from conformance.suite.config import GROUPS
 from conformance.suite.runner import Case, SuiteRunner, Verdict
-from conformance.verdict import Outcome
 
 EVERY_BYTE = bytes(range(256)).decode("utf-8", "surrogateescape")
 
@@ -94,9 +96,9 @@ def test_item_5_the_reproduction_waits_for_the_emulator_it_starts() -> None:
     listen.  The printed line says `send --wait 10`, and send then waits for the target."""
     import threading
 
-    from conformance.frame import encode_frame
     from conformance.net.client import Client, TargetUnreachable
     from conformance.net.emulator import EmulatorServer
+    from conformance.protocol.frame import encode_frame
     from conformance.suite.config import SuiteConfig
     from conformance.suite.evidence import reproduction
     from tests.hostile_targets import refusing_port
@@ -138,8 +140,8 @@ def test_item_4_serve_prints_each_failure_with_its_frame_numbers_and_reproductio
     tmp_path: Path,
 ) -> None:
     """The details were only in --report-json; the README says serve prints them."""
-    from conformance.frame import encode_frame
     from conformance.net.client import Client
+    from conformance.protocol.frame import encode_frame
     from tests.serve_thread import start_serve
 
     bad = b"/f/bIII1III1149III25IIIConveyorComDetectTrigger()III/b/f"  # LEN 25 for 26 bytes
@@ -212,7 +214,7 @@ def test_item_7_check_never_passes_an_empty_recording_and_says_unfinished(
 ) -> None:
     """`check` printed an empty table and exited 0 on a recording with nothing in it, and
     said nothing of an unfinished one (as `info` does)."""
-    from conformance.recording import RecordingWriter
+    from conformance.recording.writer import RecordingWriter
 
     empty = tmp_path / "empty.mcap"
     with RecordingWriter(empty):

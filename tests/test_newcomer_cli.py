@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from conformance.cli import main
+from conformance.cli.main import main
 from conformance.net.emulator import EmulatorServer
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -55,8 +55,9 @@ def test_item_8_split_size_files_end_within_the_size(
 ) -> None:
     """`--split-size 20K` produced a 56 KB first file: the size was looked at only when the
     recorder flushed (once a second), and then without the chunk in progress."""
-    from conformance.frame import encode_frame
-    from conformance.recording import RotatingWriter, read_recording
+    from conformance.protocol.frame import encode_frame
+    from conformance.recording.reader import read_recording
+    from conformance.recording.rotating import RotatingWriter
 
     split = 20 * 1024
     w = RotatingWriter(tmp_path / "r.mcap", metadata={"source": "test"}, split_size=split)
@@ -91,8 +92,9 @@ def _recording(path: Path, *, garbage: bytes) -> None:
     """SetSpeed (206) then GetGripperConfig (229) on one connection, the controller's
     ``garbage`` (the emulator's garbage fault) before the 206 reply; on a second one a
     206 answered with garbage only."""
-    from conformance.frame import encode_frame
-    from conformance.recording import RecordingWriter, StreamRecorder
+    from conformance.protocol.frame import encode_frame
+    from conformance.recording.recorder import StreamRecorder
+    from conformance.recording.writer import RecordingWriter
 
     with RecordingWriter(path) as w:
         r = StreamRecorder(w)
@@ -112,7 +114,7 @@ def test_item_8_check_blames_a_controllers_garbage_on_the_request_it_answered(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """`check` blamed the controller's garbage on ID 0, where `diff` and `replay` blamed 206."""
-    from conformance.faults import GARBAGE_BYTES
+    from conformance.twin.faults import GARBAGE_BYTES
 
     faulty, clean = tmp_path / "faulty.mcap", tmp_path / "clean.mcap"
     _recording(faulty, garbage=GARBAGE_BYTES)
@@ -143,10 +145,12 @@ def test_item_8_an_unmatched_replay_request_gets_a_refusal_that_is_no_success(
     import subprocess
     import sys
 
-    from conformance.frame import encode_frame
     from conformance.net.replay_server import ReplayServer
-    from conformance.recording import RecordingWriter, StreamRecorder, read_recording
-    from conformance.replay import ReplyBook
+    from conformance.offline.replay import ReplyBook
+    from conformance.protocol.frame import encode_frame
+    from conformance.recording.reader import read_recording
+    from conformance.recording.recorder import StreamRecorder
+    from conformance.recording.writer import RecordingWriter
 
     proc = subprocess.Popen(
         [sys.executable, "-m", "conformance", "replay", str(ROOT / "captures" / "session.mcap"),
@@ -220,7 +224,7 @@ def test_rough_edge_import_pcap_names_the_flows_it_took_on_other_ports(
     """`import-pcap` silently decoded flows on other ports whose data looks like frames."""
     from scapy.utils import wrpcap
 
-    from conformance.recording import read_recording
+    from conformance.recording.reader import read_recording
     from tests.test_pcap import C, S, conversation
 
     pcap = tmp_path / "site.pcap"

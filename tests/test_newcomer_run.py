@@ -14,12 +14,13 @@ from pathlib import Path
 
 import pytest
 
-from conformance.cli import build_parser, main
-from conformance.report import CaseResult, Report, render_html, render_html_sections
+from conformance.cli.main import build_parser, main
+from conformance.judge.verdict import Outcome
+from conformance.report.html import render_html, render_html_sections
+from conformance.report.model import CaseResult, Report
 from conformance.suite.engine import CaseFinished, RunFinished, RunStarted, stop_report
 from conformance.suite.present import Progress
 from conformance.suite.runner import Case, SuiteRunner, Verdict
-from conformance.verdict import Outcome
 
 
 def _never(runner: SuiteRunner, case: Case) -> Verdict:

@@ -14,17 +14,14 @@ import pytest
 
 import conformance.pcap.read as pcap_read
 from conformance.errors import CaptureError
-from conformance.frame import encode_frame
-from conformance.pcap import (
-    TcpReassembler,
-    bind_scapy_layer,
-    export_pcap,
-    flow_ends,
-    import_pcap,
-    parse_packet,
-    read_packets,
-)
-from conformance.recording import read_recording
+from conformance.pcap.export import export_pcap
+from conformance.pcap.importer import import_pcap
+from conformance.pcap.packets import flow_ends, parse_packet
+from conformance.pcap.read import read_packets
+from conformance.pcap.reassembly import TcpReassembler
+from conformance.pcap.scapy_layer import bind_scapy_layer
+from conformance.protocol.frame import encode_frame
+from conformance.recording.reader import read_recording
 from tests import scapy_lazy as sp
 
 CAPTURES = Path(__file__).resolve().parent.parent / "captures"
@@ -415,7 +412,7 @@ def test_a_pcapng_time_past_2_64_ns_is_a_usage_error(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """A corrupt resolution or timestamp cannot become an internal error in the writer."""
-    from conformance.cli import main
+    from conformance.cli.main import main
 
     pk = conversation()
     pk[3].time = 10**11  # fits pcapng's 64-bit microseconds, not 64-bit nanoseconds
@@ -518,9 +515,10 @@ def test_segments_recorded_together_give_the_records_of_one_at_a_time(tmp_path: 
     """import-pcap hands runs of in-order segments of one direction to the recorder
     together (StreamRecorder.segments); what it records is what recording each segment
     as it comes (``capture``'s way) records, frames cut across packets included."""
-    from conformance.pcap import PacketRecorder
-    from conformance.recording import RecordingWriter, dump_json
-    from conformance.spec import default_specs
+    from conformance.pcap.recorder import PacketRecorder
+    from conformance.recording.dump import dump_json
+    from conformance.recording.writer import RecordingWriter
+    from conformance.spec.commands import default_specs
 
     rng = random.Random(5)
     stream = b"".join(encode_frame(i, 201, "x" * rng.randrange(0, 90)) for i in range(400))
@@ -549,10 +547,11 @@ def test_packets_read_inline_give_the_records_of_feed(tmp_path: Path) -> None:
     """import-pcap reads the usual packet inline (PacketRecorder.feed_all: IPv4, TCP, the
     next bytes of a known connection); feeding each packet to PacketRecorder.feed gives
     the same recording: request/reply of two connections, a pipelined run, garbage."""
-    from conformance.pcap import PacketRecorder
-    from conformance.pcap.recorder import IMPORT_TOGETHER
-    from conformance.recording import RecordingWriter, StreamRecorder, dump_json
-    from conformance.spec import default_specs
+    from conformance.pcap.recorder import IMPORT_TOGETHER, PacketRecorder
+    from conformance.recording.dump import dump_json
+    from conformance.recording.recorder import StreamRecorder
+    from conformance.recording.writer import RecordingWriter
+    from conformance.spec.commands import default_specs
 
     src = tmp_path / "src.mcap"
     t0 = 1_700_000_000_000_000_000

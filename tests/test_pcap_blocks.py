@@ -15,12 +15,14 @@ from typing import Any
 import pytest
 
 import conformance.pcap.read as pcap_read
-from conformance.frame import encode_frame
-from conformance.pcap import PacketRecorder, import_pcap, read_packets
-from conformance.pcap.read import RecordBlock, read_blocks
-from conformance.pcap.recorder import IMPORT_TOGETHER
-from conformance.recording import RecordingWriter, dump_json, read_recording
-from conformance.spec import default_specs
+from conformance.pcap.importer import import_pcap
+from conformance.pcap.read import RecordBlock, read_blocks, read_packets
+from conformance.pcap.recorder import IMPORT_TOGETHER, PacketRecorder
+from conformance.protocol.frame import encode_frame
+from conformance.recording.dump import dump_json
+from conformance.recording.reader import read_recording
+from conformance.recording.writer import RecordingWriter
+from conformance.spec.commands import default_specs
 from tests.packet_bytes import arp, tcp_packet, udp_packet
 
 T0 = 1_700_000_000

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from conformance.cli import main
-from conformance.spec import default_specs
+from conformance.cli.main import main
+from conformance.spec.commands import default_specs
 from tests.hostile_targets import HostileTarget, refusing_port
 
 SPECS = default_specs()

@@ -19,17 +19,13 @@ import pytest
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 
-from conformance.frame import Frame, FrameDecoder, encode_frame
-from conformance.net import parse_address
+from conformance.net.addresses import parse_address
 from conformance.net.proxy import RecordingProxy
-from conformance.recording import (
-    TOPIC_C2S,
-    TOPIC_CONNECTIONS,
-    TOPIC_FRAMES,
-    TOPIC_S2C,
-    read_recording,
-    recover,
-)
+from conformance.protocol.decoder import FrameDecoder
+from conformance.protocol.frame import Frame, encode_frame
+from conformance.recording.layout import TOPIC_C2S, TOPIC_CONNECTIONS, TOPIC_FRAMES, TOPIC_S2C
+from conformance.recording.reader import read_recording
+from conformance.recording.repair import recover
 from conformance.recording.traffic_pb import decode_traffic
 
 from .test_recording import ENDLESS, FLOOD, FLOOD_STREAM, sent_bytes
@@ -701,7 +697,7 @@ def test_a_failed_io_loop_is_said_and_the_cli_exits_non_zero_with_a_finished_fil
         "def boom(self):\n"
         "    raise RuntimeError('loop bug')\n"
         "proxy.RecordingProxy._accept = boom\n"
-        "from conformance.cli import main\n"
+        "from conformance.cli.main import main\n"
         "sys.exit(main(sys.argv[1:]))\n"
     )
     out = tmp_path / "r.mcap"

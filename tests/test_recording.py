@@ -13,10 +13,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from mcap.reader import make_reader
 
-from conformance import __version__
-from conformance.frame import encode_frame
-from conformance.pcap import export_pcap, import_pcap
-from conformance.recording import (
+from conformance._version import __version__
+from conformance.pcap.export import export_pcap
+from conformance.pcap.importer import import_pcap
+from conformance.protocol.frame import encode_frame
+from conformance.recording.frames_pb import decode_batch
+from conformance.recording.layout import (
     _TOPICS,
     METADATA_NAME,
     PROBLEM_RAW_LIMIT,
@@ -26,20 +28,15 @@ from conformance.recording import (
     TOPIC_FRAMES,
     TOPIC_PROBLEMS,
     TOPIC_S2C,
-    ConnectionRecord,
-    FrameBatch,
-    FrameRecord,
-    ProblemRecord,
-    Recording,
-    RecordingWriter,
-    RotatingWriter,
-    StreamRecorder,
-    read_recording,
-    recover,
 )
-from conformance.recording.frames_pb import decode_batch
+from conformance.recording.reader import Recording, read_recording
+from conformance.recording.recorder import StreamRecorder
+from conformance.recording.records import ConnectionRecord, FrameBatch, FrameRecord, ProblemRecord
+from conformance.recording.repair import recover
+from conformance.recording.rotating import RotatingWriter
 from conformance.recording.traffic_pb import decode_traffic
-from conformance.spec import default_specs
+from conformance.recording.writer import RecordingWriter
+from conformance.spec.commands import default_specs
 from tests.examples import examples
 
 

@@ -7,14 +7,15 @@ from pathlib import Path
 
 import pytest
 
-from conformance.diff import Ignore
-from conformance.frame import Frame, FrameDecoder, encode_frame
 from conformance.net.emulator import EmulatorServer
-from conformance.net.proxy import ReplayServer
-from conformance.recording import read_recording
-from conformance.replay import NOT_RECORDED, ReplyBook, replay_to_target
-from conformance.safety import SafetyPolicy
-from conformance.spec import default_specs
+from conformance.net.replay_server import ReplayServer
+from conformance.offline.diff import Ignore
+from conformance.offline.replay import NOT_RECORDED, ReplyBook, replay_to_target
+from conformance.protocol.decoder import FrameDecoder
+from conformance.protocol.frame import Frame, encode_frame
+from conformance.recording.reader import read_recording
+from conformance.spec.commands import default_specs
+from conformance.spec.safety import SafetyPolicy
 
 CAPTURES = Path(__file__).resolve().parent.parent / "captures"
 LOOPBACK = SafetyPolicy.for_target("127.0.0.1")

@@ -16,14 +16,15 @@ from pathlib import Path
 
 import pytest
 
-from conformance.cli import main
-from conformance.frame import Frame, FrameDecoder, encode_frame
+from conformance.cli.main import main
 from conformance.net.client import Client
 from conformance.net.emulator import EmulatorServer
 from conformance.net.proxy import RecordingProxy
 from conformance.net.replay_server import ReplayServer
-from conformance.recording import Recording, read_recording
-from conformance.replay import NOT_RECORDED, ReplyBook
+from conformance.offline.replay import NOT_RECORDED, ReplyBook
+from conformance.protocol.decoder import FrameDecoder
+from conformance.protocol.frame import Frame, encode_frame
+from conformance.recording.reader import Recording, read_recording
 
 ROOT = Path(__file__).resolve().parent.parent
 WAIT = 30.0

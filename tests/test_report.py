@@ -7,7 +7,9 @@ import os
 import re
 from pathlib import Path
 
-from conformance.report import CaseResult, Outcome, Report, load_report, render_html
+from conformance.judge.verdict import Outcome
+from conformance.report.html import render_html
+from conformance.report.model import CaseResult, Report, load_report
 from tests.cli_run import cli_run
 
 
@@ -65,7 +67,7 @@ def test_report_merge_cli(tmp_path: Path) -> None:
 
 
 def test_case_text_is_bounded_on_construction() -> None:
-    from conformance.report import MAX_DETAIL, MAX_FRAME_LINE, MAX_FRAME_LINES
+    from conformance.report.model import MAX_DETAIL, MAX_FRAME_LINE, MAX_FRAME_LINES
 
     c = CaseResult(
         id="1/x/framing/y",
@@ -178,7 +180,7 @@ def _case(cmd_id: int, name: str, group: str, outcome: Outcome, n: int = 1) -> C
 
 
 def test_terminal_table_prints_the_longest_spec_name_whole() -> None:
-    from conformance.spec import default_specs
+    from conformance.spec.commands import default_specs
 
     longest = max((c for c in default_specs()), key=lambda c: len(c.name))
     assert len(longest.name) > 34  # the old column cut it

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from conformance.report import load_report
 from conformance.report.matrix import ABSENT, build_matrix
+from conformance.report.model import load_report
 from tests.cli_run import cli_run
 
 #: 1074 CNCGetStatus is new in v3.9.8 (table 1-2-1); the others are in both manuals.

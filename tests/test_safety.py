@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from conformance.safety import SafetyPolicy, is_loopback
-from conformance.spec import Command, Safety, default_specs
+from conformance.spec.commands import Command, Safety, default_specs
+from conformance.spec.safety import SafetyPolicy, is_loopback
 
 SPECS = default_specs()
 

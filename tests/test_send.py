@@ -16,11 +16,11 @@ from pathlib import Path
 
 import pytest
 
-from conformance.cli import main
-from conformance.frame import encode_frame
+from conformance.cli.main import main
 from conformance.net.client import Client, TargetUnreachable
 from conformance.net.emulator import EmulatorServer
-from conformance.spec import default_specs
+from conformance.protocol.frame import encode_frame
+from conformance.spec.commands import default_specs
 from tests.cli_run import cli_run
 from tests.hostile_targets import HostileTarget, refusing_port
 

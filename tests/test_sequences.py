@@ -13,22 +13,19 @@ from typing import Any
 
 import pytest
 
-from conformance.capture_check import check_recording
-from conformance.client_mode import ClientValidator
-from conformance.dialects import default_dialects
 from conformance.errors import SpecError
-from conformance.frame import Frame, decode_all, encode_frame
-from conformance.judge import Judge
-from conformance.judge_sequence import (
-    Sequences,
-    Thread,
-    default_sequences,
-    load_sequences,
-)
+from conformance.judge.judge import Judge
+from conformance.judge.sequence import Sequences, Thread, default_sequences, load_sequences
+from conformance.judge.verdict import Outcome
 from conformance.net.addresses import client_host
-from conformance.recording import read_recording
-from conformance.report import Outcome, Report
-from conformance.spec import default_specs, specs_root
+from conformance.offline.check import check_recording
+from conformance.offline.client_mode import ClientValidator
+from conformance.protocol.decoder import decode_all
+from conformance.protocol.frame import Frame, encode_frame
+from conformance.recording.reader import read_recording
+from conformance.report.model import Report
+from conformance.spec.commands import default_specs, specs_root
+from conformance.spec.dialects import default_dialects
 from tests.serve_thread import start_serve
 from tools.field_agreement import record, send, traffic
 

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from conformance.frame import encode_frame
 from conformance.net.client import Client
+from conformance.protocol.frame import encode_frame
 from tests.serve_thread import start_serve
 
 WAIT = 30.0

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from conformance.cli import main
-from conformance.spec import (
+from conformance.cli.main import main
+from conformance.spec.commands import (
     Command,
     ErrorCode,
     Interval,
@@ -26,7 +26,7 @@ from conformance.spec import (
     available_spec_versions,
     load_spec_version,
 )
-from conformance.spec_diff import KINDS, diff_specs
+from conformance.spec.diff import KINDS, diff_specs
 
 ROOT = Path(__file__).resolve().parent.parent
 DOC = ROOT / "docs" / "specs-diff-3.8.2-3.9.8.md"

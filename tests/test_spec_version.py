@@ -14,8 +14,16 @@ from typing import Any
 
 import pytest
 
-from conformance.dialects import default_dialects
-from conformance.firmware import (
+from conformance.judge.judge import Judge
+from conformance.judge.verdict import Outcome
+from conformance.net.client import Client
+from conformance.net.emulator import EmulatorServer
+from conformance.net.proxy import RecordingProxy
+from conformance.protocol.decoder import decode_all
+from conformance.protocol.frame import Frame, encode_frame
+from conformance.spec.commands import default_specs, load_spec_version
+from conformance.spec.dialects import default_dialects
+from conformance.spec.firmware import (
     SpecChoice,
     VersionRange,
     choice_from_json,
@@ -23,13 +31,6 @@ from conformance.firmware import (
     evidence_range,
     parse_software_version,
 )
-from conformance.frame import Frame, decode_all, encode_frame
-from conformance.judge import Judge
-from conformance.net.client import Client
-from conformance.net.emulator import EmulatorServer
-from conformance.net.proxy import RecordingProxy
-from conformance.spec import default_specs, load_spec_version
-from conformance.verdict import Outcome
 from tests.cli_run import cli_run
 
 WAIT = 10.0  # replies the tests expect: no load on the machine outlasts it

@@ -18,7 +18,7 @@ from typing import Any
 
 import pytest
 
-from conformance.spec import SpecSet, default_specs, load_specs, validate_document
+from conformance.spec.commands import SpecSet, default_specs, load_specs, validate_document
 
 REPO = Path(__file__).resolve().parent.parent
 SPEC_DIR = REPO / "specs" / "fairino-3.8.2"
@@ -360,8 +360,8 @@ def test_a_validated_document_is_remembered_and_a_changed_one_is_checked_again(
     import copy
     import json
 
-    from conformance import spec as spec_mod
     from conformance.errors import SpecError
+    from conformance.spec import commands as spec_mod
 
     monkeypatch.setenv("FAIRINO_CACHE_DIR", str(tmp_path / "cache"))
     calls: list[str] = []

@@ -18,7 +18,7 @@ from types import ModuleType
 import pytest
 
 from conformance.errors import SpecError
-from conformance.spec import (
+from conformance.spec.commands import (
     SpecSet,
     english_error_code,
     error_code_text,
@@ -150,7 +150,7 @@ def specs_398() -> SpecSet:
 
 
 def test_specs_show_prints_the_english_title(capsys: pytest.CaptureFixture[str]) -> None:
-    from conformance.cli import main
+    from conformance.cli.main import main
 
     assert main(["specs", "show", "MoveJ"]) == 0
     out = capsys.readouterr().out

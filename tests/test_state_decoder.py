@@ -15,21 +15,22 @@ import pytest
 
 from conformance.errors import LocalProtocolError
 from conformance.protocol.state import (
-    StateDecoder,
     StateEvent,
     StatePacket,
     StateProblem,
     StateProblemKind,
     checksum,
-    decode_state,
     encode_state,
 )
+from conformance.spec.state import decode_stream, layout_for, state_decoder
 
 J = [10.0, -20.5, 30.25, -40.0, 50.0, 90.0]
 
 
 def pkt(cnt: int, version: str = "3.8.2", *, bad: bool = False, joints: list[float] = J) -> bytes:
-    return encode_state(version, {"jt_cur_pos": joints, "robot_mode": 1}, cnt=cnt, bad_checksum=bad)
+    return encode_state(
+        layout_for(version), {"jt_cur_pos": joints, "robot_mode": 1}, cnt=cnt, bad_checksum=bad
+    )
 
 
 def summary(events: list[StateEvent]) -> list[str]:
@@ -45,7 +46,7 @@ def summary(events: list[StateEvent]) -> list[str]:
 def feed_in(
     data: bytes, cut: Callable[[int], list[int]], version: str | None = "3.8.2"
 ) -> list[str]:
-    dec = StateDecoder(version)
+    dec = state_decoder(version)
     events: list[StateEvent] = []
     at = 0
     for n in cut(len(data)):
@@ -146,7 +147,7 @@ def test_stream_decodes_to_its_events(
 
 
 def test_packet_values_and_json() -> None:
-    (p,) = decode_state(pkt(3, joints=[1.0, 2.0, 3.0, 4.0, 5.0, float("nan")]))
+    (p,) = decode_stream(pkt(3, joints=[1.0, 2.0, 3.0, 4.0, 5.0, float("nan")]))
     assert isinstance(p, StatePacket)
     assert p.fields["jt_cur_pos"][:5] == [1.0, 2.0, 3.0, 4.0, 5.0]
     assert p.fields["robot_mode"] == 1 and p.fields["program_name"] == ""
@@ -155,7 +156,7 @@ def test_packet_values_and_json() -> None:
 
 
 def test_any_version_when_none_is_expected() -> None:
-    assert summary(decode_state(pkt(1) + pkt(2, "3.9.8"), None)) == [
+    assert summary(decode_stream(pkt(1) + pkt(2, "3.9.8"), None)) == [
         "packet 1 v3.8.2",
         "packet 2 v3.9.8",
     ]
@@ -165,7 +166,7 @@ def test_unknown_len_with_a_good_checksum_is_a_packet_of_no_layout() -> None:
     data = b"\x01\x02\x03"
     head = b"\x5a\x5a\x05" + len(data).to_bytes(2, "little")
     raw = head + data + checksum(head + data).to_bytes(2, "little")
-    events = decode_state(raw)
+    events = decode_stream(raw)
     assert summary(events) == [
         "layout: LEN 3 matches no known layout (v3.8.2: 422, v3.9.8: 650)",
         "packet 5 vNone",
@@ -174,7 +175,7 @@ def test_unknown_len_with_a_good_checksum_is_a_packet_of_no_layout() -> None:
 
 
 def test_period_problems_need_times() -> None:
-    dec = StateDecoder("3.8.2", period_ms=100)
+    dec = state_decoder("3.8.2", period_ms=100)
     out = dec.feed(pkt(0), time=10.0) + dec.feed(pkt(1), time=10.1)
     dec.set_period(8)  # SetStatePeriod(8083, 8) on the command port
     out += dec.feed(pkt(2), time=10.11) + dec.feed(pkt(3), time=10.322)
@@ -185,7 +186,7 @@ def test_period_problems_need_times() -> None:
 
 
 def test_memory_is_bounded_on_garbage() -> None:
-    dec = StateDecoder("3.8.2")
+    dec = state_decoder("3.8.2")
     events: list[StateEvent] = []
     for _ in range(40):
         events += dec.feed(b"\x5a" + bytes(range(1, 256)) * 40)
@@ -200,10 +201,10 @@ def test_memory_is_bounded_on_garbage() -> None:
 
 def test_encoder_refuses_what_the_c_types_cannot_hold() -> None:
     with pytest.raises(LocalProtocolError, match="robot_mode"):
-        encode_state("3.8.2", {"robot_mode": 300})
+        encode_state(layout_for("3.8.2"), {"robot_mode": 300})
     with pytest.raises(LocalProtocolError, match="no field nope"):
-        encode_state("3.8.2", {"nope": 1})
+        encode_state(layout_for("3.8.2"), {"nope": 1})
     with pytest.raises(LocalProtocolError, match="program_name"):
-        encode_state("3.8.2", {"program_name": "x" * 21})
+        encode_state(layout_for("3.8.2"), {"program_name": "x" * 21})
     with pytest.raises(LocalProtocolError, match="CNT 256"):
-        encode_state("3.8.2", {}, cnt=256)
+        encode_state(layout_for("3.8.2"), {}, cnt=256)

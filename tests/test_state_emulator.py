@@ -11,12 +11,14 @@ from collections.abc import Iterator
 
 import pytest
 
-from conformance.cli import main
+from conformance.cli.main import main
 from conformance.errors import UsageError
-from conformance.faults import StateFaultKind, StateFaults, parse_fault
-from conformance.frame import Frame, decode_all, encode_frame
 from conformance.net.emulator import EmulatorServer
-from conformance.protocol.state import StateDecoder, StateEvent, StatePacket, StateProblem
+from conformance.protocol.decoder import decode_all
+from conformance.protocol.frame import Frame, encode_frame
+from conformance.protocol.state import StateEvent, StatePacket, StateProblem
+from conformance.spec.state import state_decoder
+from conformance.twin.faults import StateFaultKind, StateFaults, parse_fault
 
 TARGET = [10.0, -20.0, 30.0, -40.0, 50.0, 60.0]
 MOVEJ = "MoveJ({},0,0,0,0,0,0,0,0,100,100,100,0,0,0,0,-1,0,0,0,0,0,0,0)".format(
@@ -39,7 +41,7 @@ class StateClient:
 
     def __init__(self, address: tuple[str, int], version: str | None = "3.8.2") -> None:
         self.sock = socket.create_connection(address, timeout=10)
-        self.decoder = StateDecoder(version, period_ms=8)
+        self.decoder = state_decoder(version, period_ms=8)
         self.events: list[StateEvent] = []
 
     def until(self, limit: int = 400) -> Iterator[StatePacket]:

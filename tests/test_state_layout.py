@@ -19,8 +19,8 @@ from typing import Any
 import jsonschema
 import pytest
 
-from conformance.protocol.state import StatePacket, decode_state
-from conformance.protocol.state_layout import known_layouts, layout_for
+from conformance.protocol.state import StatePacket
+from conformance.spec.state import decode_stream, known_layouts, layout_for
 
 REPO = Path(__file__).resolve().parent.parent
 SCHEMA = json.loads((REPO / "specs" / "state.schema.json").read_text(encoding="utf-8"))
@@ -151,7 +151,7 @@ def test_a_packet_built_by_hand_decodes_to_the_values_put_in(version: str, table
             want[name] = vals if count > 1 else vals[0]
     head = b"\x5a\x5a" + bytes([42]) + len(data).to_bytes(2, "little")
     packet = head + data + (sum(head + data) % 65536).to_bytes(2, "little")
-    (pkt,) = decode_state(packet, version)
+    (pkt,) = decode_stream(packet, version)
     assert isinstance(pkt, StatePacket) and pkt.checksum_ok
     assert (pkt.cnt, pkt.length, pkt.version) == (42, len(data), version)
     assert pkt.fields == want

@@ -20,19 +20,18 @@ import jsonschema
 import pytest
 from mcap.reader import make_reader
 
-from conformance.frame import Frame, decode_all, encode_frame
 from conformance.net.emulator import EmulatorServer
 from conformance.net.proxy import RecordingProxy
-from conformance.pcap import export_pcap, import_pcap
-from conformance.protocol.state import StateDecoder, StatePacket, encode_state
-from conformance.recording import (
-    TOPIC_STATE,
-    Recording,
-    RecordingWriter,
-    StreamRecorder,
-    read_recording,
-    state_schema,
-)
+from conformance.pcap.export import export_pcap
+from conformance.pcap.importer import import_pcap
+from conformance.protocol.decoder import decode_all
+from conformance.protocol.frame import Frame, encode_frame
+from conformance.protocol.state import StatePacket, encode_state
+from conformance.recording.layout import TOPIC_STATE, state_schema
+from conformance.recording.reader import Recording, read_recording
+from conformance.recording.recorder import StreamRecorder
+from conformance.recording.writer import RecordingWriter
+from conformance.spec.state import layout_for, state_decoder
 
 from .cli_run import cli_run
 
@@ -56,7 +55,7 @@ def command(sock: socket.socket, cnt: int, cmd_id: int, data: str) -> Frame:
 
 def read_packets(sock: socket.socket, n: int) -> list[StatePacket]:
     """The next ``n`` packets on a state connection (each recv bounded by the timeout)."""
-    dec = StateDecoder()
+    dec = state_decoder()
     out: list[StatePacket] = []
     while len(out) < n:
         data = sock.recv(65536)
@@ -151,7 +150,9 @@ def test_state_schema_types_each_field_of_both_layouts() -> None:
 def _stream() -> bytes:
     """Garbage, packets (one with a bad checksum, one CNT lost), a truncated tail."""
     packets = [
-        encode_state("3.8.2", {"jt_cur_pos": [i, 0, 0, 0, 0, 0]}, cnt=i, bad_checksum=i == 3)
+        encode_state(
+            layout_for("3.8.2"), {"jt_cur_pos": [i, 0, 0, 0, 0, 0]}, cnt=i, bad_checksum=i == 3
+        )
         for i in range(6)
         if i != 2
     ]
@@ -298,7 +299,7 @@ def record_emulator(tmp_path: Path, faults: list[str], packets: int = 24) -> Pat
             assert command(cmd, 1, 1207, "SetStatePeriod(8083,8)").data == "1"
             rec.data(1, "s2c", time.time_ns(), encode_frame(1, 1207, "1"))
         with socket.create_connection(emu.state_address, timeout=10) as state:
-            dec = StateDecoder()
+            dec = state_decoder()
             seen = 0
             while seen < packets:
                 data = state.recv(65536)
@@ -321,8 +322,8 @@ def record_emulator(tmp_path: Path, faults: list[str], packets: int = 24) -> Pat
 def test_check_reports_each_state_fault_in_the_decoders_words(
     tmp_path: Path, fault: str, message: str
 ) -> None:
-    from conformance.capture_check import check_recording
-    from conformance.spec import default_specs
+    from conformance.offline.check import check_recording
+    from conformance.spec.commands import default_specs
 
     rec = read_recording(record_emulator(tmp_path, [fault]))
     report = check_recording(rec, default_specs(), side="controller")
@@ -359,8 +360,8 @@ def test_check_and_info_cli_on_a_clean_and_a_faulty_state_stream(tmp_path: Path)
 
 
 def test_diff_compares_the_state_streams_by_shape(tmp_path: Path) -> None:
-    from conformance.diff import Ignore, diff_recordings
-    from conformance.spec import default_specs
+    from conformance.offline.diff import Ignore, diff_recordings
+    from conformance.spec.commands import default_specs
 
     (tmp_path / "a").mkdir()
     (tmp_path / "b").mkdir()
@@ -415,7 +416,7 @@ def _read_until_closed(addr: tuple[str, int], deadline: float = 20.0) -> bytes:
 
 def test_replay_serves_the_recorded_state_stream_at_its_pace(tmp_path: Path) -> None:
     from conformance.net.replay_state import StatePlayer
-    from conformance.state_check import recorded_state_stream
+    from conformance.offline.state_check import recorded_state_stream
 
     rec = read_recording(record_emulator(tmp_path, ["state_checksum:3"], packets=10))
     pieces = recorded_state_stream(rec)
@@ -429,7 +430,7 @@ def test_replay_serves_the_recorded_state_stream_at_its_pace(tmp_path: Path) -> 
         took = time.monotonic() - t0
     assert got == b"".join(p for _, p in pieces)
     assert took >= span * 0.8  # the recorded pace, not all at once
-    dec = StateDecoder()
+    dec = state_decoder()
     events = dec.feed(got)
     assert sum(isinstance(e, StatePacket) for e in events) == len(rec.states)
     assert dec.checksum_failures == sum(not s.checksum_ok for s in rec.states) > 0
@@ -485,7 +486,7 @@ def test_serve_also_serves_the_state_port(tmp_path: Path) -> None:
         with state, socket.create_connection(("127.0.0.1", cmd_port), timeout=10) as cmd:
             assert command(cmd, 1, 1207, "SetStatePeriod(8083,8)").data == "1"
             assert command(cmd, 2, 201, MOVEJ).data == "1"
-            dec = StateDecoder()
+            dec = state_decoder()
             while len(seen) < 200 and (not seen or seen[-1] != TARGET):
                 data = state.recv(65536)
                 assert data, "the state port closed"
@@ -512,13 +513,15 @@ def test_serve_also_serves_the_state_port(tmp_path: Path) -> None:
 
 
 def test_each_segment_of_a_split_recording_carries_the_state_schema(tmp_path: Path) -> None:
-    from conformance.recording import RotatingWriter
+    from conformance.recording.rotating import RotatingWriter
 
     w = RotatingWriter(tmp_path / "r.mcap", metadata={"format": "x"}, split_size=32 * 1024)
     rec = StreamRecorder(w)
     rec.open(1, t_ns=1, stream="state")
     for i in range(300):
-        rec.data(1, "s2c", 10 + i, encode_state("3.9.8", {"load": float(i)}, cnt=i % 256))
+        rec.data(
+            1, "s2c", 10 + i, encode_state(layout_for("3.9.8"), {"load": float(i)}, cnt=i % 256)
+        )
     rec.finish(t_ns=10**6)
     w.close()
     assert len(w.paths) > 2

@@ -7,11 +7,13 @@ import re
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from conformance.data import Array, Call, Number, parse_data
-from conformance.frame import Frame, decode_all
-from conformance.spec import Param, default_specs
-from conformance.strategies import cnts, invalid_kinds, param_values, request_frames
-from conformance.validate import validate_request
+from conformance.judge.requests import validate_request
+from conformance.protocol.data_parse import parse_data
+from conformance.protocol.data_values import Array, Call, Number
+from conformance.protocol.decoder import decode_all
+from conformance.protocol.frame import Frame
+from conformance.spec.commands import Param, default_specs
+from conformance.suite.strategies import cnts, invalid_kinds, param_values, request_frames
 from tests.examples import examples
 
 SPECS = default_specs()

@@ -17,14 +17,18 @@ from collections.abc import Callable
 
 import pytest
 
-from conformance.faults import FaultKind
-from conformance.frame import encode_frame
+from conformance.judge.verdict import Outcome
 from conformance.net.emulator import EmulatorServer
-from conformance.report import CaseResult, Outcome, Report
-from conformance.spec import Command, default_specs
-from conformance.suite.cases import PROTOCOL_ID, build_cases
+from conformance.protocol.frame import encode_frame
+from conformance.report.model import CaseResult, Report
+from conformance.report.text import shell_printf
+from conformance.spec.commands import Command, default_specs
+from conformance.suite.cases.build import build_cases
+from conformance.suite.cases.shared import PROTOCOL_ID
 from conformance.suite.config import GROUPS, PROFILES, SuiteConfig
-from conformance.suite.runner import Case, SuiteRunner, Verdict, describe_exchange, shell_printf
+from conformance.suite.evidence import describe_exchange
+from conformance.suite.runner import Case, SuiteRunner, Verdict
+from conformance.twin.faults import FaultKind
 from tests.hostile_targets import HostileTarget, refusing_port
 
 SPECS = default_specs()
@@ -173,7 +177,7 @@ def test_case_ids_are_stable_and_unique() -> None:
 
 
 def test_non_loopback_policy_skips_motion_without_connecting() -> None:
-    from conformance.safety import SafetyPolicy
+    from conformance.spec.safety import SafetyPolicy
 
     motion = next(c for c in SPECS if c.safety.value == "motion")
     query = next(c for c in SPECS if c.safety.value == "query")
@@ -206,7 +210,7 @@ def test_hypothesis_profile_passes_through() -> None:
     import hypothesis
     from hypothesis import Phase
 
-    from conformance.suite.cases import _settings
+    from conformance.suite.cases.shared import _settings
     from conformance.suite.config import PROFILES
 
     hypothesis.settings.register_profile(

@@ -20,16 +20,25 @@ import pytest
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
-from conformance.data import Call, check_args, format_call, parse_data
-from conformance.dialects import default_dialects, dialects_from
 from conformance.errors import Rule
-from conformance.frame import Frame, decode_all, encode_frame
-from conformance.judge import Judge
+from conformance.judge.judge import Judge
+from conformance.judge.verdict import Outcome
 from conformance.net.client import Client, Exchange
 from conformance.net.emulator import EmulatorServer
-from conformance.report import Outcome
-from conformance.spec import TYPE_BOUNDS, Command, Variant, default_specs
-from conformance.strategies import (
+from conformance.protocol.data_format import format_call
+from conformance.protocol.data_parse import parse_data
+from conformance.protocol.data_values import Call
+from conformance.protocol.decoder import decode_all
+from conformance.protocol.frame import Frame, encode_frame
+from conformance.spec.checks import check_args
+from conformance.spec.commands import TYPE_BOUNDS, Command, Variant, default_specs
+from conformance.spec.dialects import default_dialects, dialects_from
+from conformance.suite.cases.build import build_cases
+from conformance.suite.cases.shared import BATCH
+from conformance.suite.config import PROFILES, SuiteConfig
+from conformance.suite.judging import transport_free
+from conformance.suite.runner import SuiteRunner
+from conformance.suite.strategies import (
     BOUNDS,
     INVALID_KINDS,
     Batch,
@@ -41,9 +50,6 @@ from conformance.strategies import (
     minimal_args,
     valid_call_batches,
 )
-from conformance.suite.cases import BATCH, build_cases
-from conformance.suite.config import PROFILES, SuiteConfig
-from conformance.suite.runner import SuiteRunner, transport_free
 
 T = TypeVar("T")
 SPECS = default_specs()

@@ -19,12 +19,12 @@ from pathlib import Path
 
 import pytest
 
-from conformance.frame import encode_frame
+from conformance.judge.verdict import SEVERITY, Outcome, Reference, aggregate, fails, worst
 from conformance.net.client import Client
 from conformance.net.emulator import EmulatorServer
 from conformance.net.proxy import RecordingProxy
-from conformance.report import CaseResult, Report
-from conformance.verdict import SEVERITY, Outcome, Reference, aggregate, fails, worst
+from conformance.protocol.frame import encode_frame
+from conformance.report.model import CaseResult, Report
 from tests.cli_run import cli_run
 from tests.serve_thread import start_serve
 

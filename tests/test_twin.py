@@ -5,9 +5,10 @@ from __future__ import annotations
 
 import pytest
 
-from conformance.frame import Frame, decode_all, encode_frame
-from conformance.kinematics import robot
-from conformance.model import Controller, ControllerConnection
+from conformance.protocol.decoder import decode_all
+from conformance.protocol.frame import Frame, encode_frame
+from conformance.twin.controller import Controller, ControllerConnection
+from conformance.twin.kinematics.robots import robot
 
 FR5 = robot("FR5")
 

@@ -5,9 +5,10 @@ from __future__ import annotations
 import pytest
 
 from conformance.errors import Rule
-from conformance.frame import Frame, decode_all, encode_frame
-from conformance.spec import Returns, default_specs
-from conformance.validate import RefusalForm, classify_reply, validate_reply, validate_request
+from conformance.judge.requests import RefusalForm, classify_reply, validate_reply, validate_request
+from conformance.protocol.decoder import decode_all
+from conformance.protocol.frame import Frame, encode_frame
+from conformance.spec.commands import Returns, default_specs
 
 SPECS = default_specs()
 

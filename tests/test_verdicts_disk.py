@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from conformance.frame import encode_frame
 from conformance.net.client import Client
+from conformance.protocol.frame import encode_frame
 from tests.cli_run import cli_run
 from tests.serve_thread import start_serve
 

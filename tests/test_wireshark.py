@@ -20,15 +20,17 @@ from typing import Any
 
 import pytest
 
-from conformance.cli import main
-from conformance.dialects import default_dialects
-from conformance.frame import Frame, encode_frame
-from conformance.judge import Direction, Judge
-from conformance.judge_stream import Pairing
-from conformance.pcap import export_pcap, import_pcap
-from conformance.recording import read_recording
-from conformance.spec import default_specs
-from conformance.validate import RefusalForm
+from conformance.cli.main import main
+from conformance.judge.judge import Judge
+from conformance.judge.requests import RefusalForm
+from conformance.judge.stream import Pairing
+from conformance.judge.verdict import Direction
+from conformance.pcap.export import export_pcap
+from conformance.pcap.importer import import_pcap
+from conformance.protocol.frame import Frame, encode_frame
+from conformance.recording.reader import read_recording
+from conformance.spec.commands import default_specs
+from conformance.spec.dialects import default_dialects
 from conformance.wireshark import FIELDS, english_meanings, lua_dissector, reply_kind
 from tests import scapy_lazy as sp
 

@@ -14,7 +14,7 @@ from typing import Any
 
 import pytest
 
-from conformance.frame import encode_frame
+from conformance.protocol.frame import encode_frame
 from conformance.wireshark import lua_dissector
 from tests import scapy_lazy as sp
 

@@ -14,8 +14,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from conformance.frame import FrameDecoder, encode_frame  # noqa: E402
-from conformance.spec import Command, Variant, default_specs  # noqa: E402
+from conformance.protocol.decoder import FrameDecoder  # noqa: E402
+from conformance.protocol.frame import encode_frame  # noqa: E402
+from conformance.spec.commands import Command, Variant, default_specs  # noqa: E402
 
 LOOPBACK = "127.0.0.1"
 SERVER_NOFILE = 1024  # the issue's `ulimit -n 1024`

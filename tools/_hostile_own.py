@@ -46,9 +46,11 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 import tools._hostile_common as common  # noqa: E402
-from conformance.frame import encode_frame  # noqa: E402
-from conformance.model import Controller  # noqa: E402
-from conformance.recording import RecordingWriter, StreamRecorder, read_recording  # noqa: E402
+from conformance.protocol.frame import encode_frame  # noqa: E402
+from conformance.recording.reader import read_recording  # noqa: E402
+from conformance.recording.recorder import StreamRecorder  # noqa: E402
+from conformance.recording.writer import RecordingWriter  # noqa: E402
+from conformance.twin.controller import Controller  # noqa: E402
 from tools._hostile_common import HEALTH_CMD, ask_health, table  # noqa: E402
 from tools._hostile_procs import (  # noqa: E402
     FLOOD,

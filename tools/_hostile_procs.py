@@ -21,7 +21,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 import tools._hostile_common as common  # noqa: E402
-from conformance.frame import FrameDecoder, encode_frame  # noqa: E402
+from conformance.protocol.decoder import FrameDecoder  # noqa: E402
+from conformance.protocol.frame import encode_frame  # noqa: E402
 from tools._hostile_common import HEALTH_CMD, children, vm_kb  # noqa: E402
 
 LOOPBACK = "127.0.0.1"

@@ -20,8 +20,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from conformance.frame import FrameDecoder, encode_frame  # noqa: E402
-from conformance.model import Controller  # noqa: E402
+from conformance.protocol.decoder import FrameDecoder  # noqa: E402
+from conformance.protocol.frame import encode_frame  # noqa: E402
+from conformance.twin.controller import Controller  # noqa: E402
 
 LOOPBACK = "127.0.0.1"
 SERVER_NOFILE = 1024  # the issue's `ulimit -n 1024`

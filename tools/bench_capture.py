@@ -54,7 +54,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from conformance.frame import encode_frame  # noqa: E402
+from conformance.protocol.frame import encode_frame  # noqa: E402
 
 EMULATOR = r"""
 import sys
@@ -324,7 +324,7 @@ def main() -> int:
             def capture(row: str = "capture", ring: bool = True, tree: Path = ROOT) -> None:
                 if row in skipped:
                     return
-                from conformance.recording import read_recording
+                from conformance.recording.reader import read_recording
 
                 out = tmp / f"{row}.mcap"
                 try:

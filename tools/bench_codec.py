@@ -42,11 +42,14 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-import conformance.data as data_mod
-from conformance.data import Call, match_variant, parse_data
+import conformance.protocol.data_values as data_mod
 from conformance.errors import ProtocolError
-from conformance.frame import DEFAULT_MAX_FRAME_SIZE, Frame, FrameDecoder, encode_frame
-from conformance.spec import default_specs
+from conformance.protocol.data_parse import parse_data
+from conformance.protocol.data_values import Call
+from conformance.protocol.decoder import FrameDecoder
+from conformance.protocol.frame import DEFAULT_MAX_FRAME_SIZE, Frame, encode_frame
+from conformance.spec.checks import match_variant
+from conformance.spec.commands import default_specs
 
 NAIVE = re.compile(rb"/f/bIII(\d*?)III(\d*?)III(\d*)III(.*?)III/b/f", re.S)
 
@@ -267,9 +270,10 @@ def careful_movej(reps: int) -> int:
 
 _BASELINE = """
 import sys, time
-from conformance.data import match_variant, parse_data
-from conformance.frame import Frame, FrameDecoder, encode_frame
-from conformance.spec import default_specs
+from conformance.spec.checks import match_variant
+from conformance.protocol.data_parse import parse_data
+from conformance.protocol.frame import Frame, FrameDecoder, encode_frame
+from conformance.spec.commands import default_specs
 MOVEJ, reps = sys.argv[1], int(sys.argv[2])
 (movej,) = default_specs().by_id(201)[:1]
 frame_bytes = encode_frame(4, 201, MOVEJ)

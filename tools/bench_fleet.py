@@ -172,7 +172,7 @@ print(n)
 
 
 def _format(path: str) -> str:
-    from conformance.recording import read_recording
+    from conformance.recording.reader import read_recording
 
     return read_recording(path).metadata.get("format", "?")
 
@@ -180,7 +180,7 @@ def _format(path: str) -> str:
 def _sample_in_layout(sample: list[str], fleet: Path, into: Path, layout: int) -> list[str]:
     """The sample's recordings written again in ``layout`` (same robot, firmware, frames,
     faults and start: the fleet's ``ROBOT/fw-FIRMWARE.mcap`` names say which)."""
-    from conformance.recording import read_recording
+    from conformance.recording.reader import read_recording
 
     out = []
     for f in sample:
@@ -255,7 +255,7 @@ import functools, sys
 import conformance.fleet.export as export
 if sys.argv.pop(1) == "whole":
     export.export_recording = functools.partial(export.export_recording, fast=False)
-from conformance.cli import main
+from conformance.cli.main import main
 sys.exit(main(["export-parquet", *sys.argv[1:]]))
 """
 

@@ -85,11 +85,29 @@ def child(tree: str, pcap: str, tmp: str) -> dict[str, float]:
     """Time each stage once with the ``conformance`` package of ``tree``; CPU seconds."""
     sys.path.insert(0, tree)
     import inspect
+    import types
 
     import scapy.utils  # noqa: F401 (imported by the first read_packets: not timed)
 
-    import conformance.pcap as P
-    from conformance.spec import default_specs
+    # By module, as every revision since the split of pcap/ has them.
+    from conformance.pcap import importer, packets, recorder
+    from conformance.pcap import read as read_mod
+    from conformance.pcap import reassembly as reassembly_mod
+
+    try:
+        from conformance.spec.commands import default_specs
+    except ImportError:  # a revision before spec/ was a package
+        from conformance.spec import default_specs  # type: ignore[attr-defined,no-redef]
+
+    P = types.SimpleNamespace(
+        read=read_mod,
+        read_packets=read_mod.read_packets,
+        parse_packet=packets.parse_packet,
+        PacketRecorder=recorder.PacketRecorder,
+        import_pcap=importer.import_pcap,
+        TcpReassembler=reassembly_mod.TcpReassembler,
+        **{k: getattr(recorder, k) for k in ("IMPORT_TOGETHER",) if hasattr(recorder, k)},
+    )
 
     specs = default_specs()
     read_packets = P.read_packets
@@ -177,10 +195,12 @@ def make_pcap(tmp: Path, n: int, traffic: str) -> Path:
     frames come in runs of about 1,600 packets), or ``request/reply`` (a request, its
     reply, and again: the directions alternate every packet)."""
     sys.path.insert(0, str(ROOT))
-    from conformance.frame import encode_frame
-    from conformance.pcap import export_pcap
-    from conformance.recording import RecordingWriter, StreamRecorder, read_recording
-    from conformance.spec import default_specs
+    from conformance.pcap.export import export_pcap
+    from conformance.protocol.frame import encode_frame
+    from conformance.recording.reader import read_recording
+    from conformance.recording.recorder import StreamRecorder
+    from conformance.recording.writer import RecordingWriter
+    from conformance.spec.commands import default_specs
 
     frames = [encode_frame(i % 65536, 201, 'MoveJ("P1")') for i in range(n)]
     stream = b"".join(frames)

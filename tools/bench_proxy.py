@@ -72,7 +72,7 @@ ROOT = Path(__file__).resolve().parent.parent
 # --baseline-rev runs this script again with another revision's package first on the path.
 sys.path.insert(0, os.environ.get("BENCH_PROXY_TREE") or str(ROOT))
 
-from conformance.frame import encode_frame  # noqa: E402
+from conformance.protocol.frame import encode_frame  # noqa: E402
 
 T = TypeVar("T")
 
@@ -211,11 +211,12 @@ def bench_replay_serve(tmp: Path, n: int, capture: Path | None = None) -> None:
     instead of making one of ``n`` exchanges."""
     from conformance.net.client import Client
     from conformance.net.emulator import EmulatorServer
-    from conformance.net.proxy import RecordingProxy, ReplayServer
-    from conformance.recording import read_recording
-    from conformance.replay import ReplyBook, replay_to_target
-    from conformance.safety import SafetyPolicy
-    from conformance.spec import default_specs
+    from conformance.net.proxy import RecordingProxy
+    from conformance.net.replay_server import ReplayServer
+    from conformance.offline.replay import ReplyBook, replay_to_target
+    from conformance.recording.reader import read_recording
+    from conformance.spec.commands import default_specs
+    from conformance.spec.safety import SafetyPolicy
 
     specs = default_specs()
     loopback = SafetyPolicy.for_target("127.0.0.1")
@@ -275,7 +276,7 @@ class _TemplateSink(_DropSink):
     template; 3: protobuf), then drops it."""
 
     def __init__(self, out: Path, layout: int = 2) -> None:
-        from conformance.recording import RecordingWriter
+        from conformance.recording.writer import RecordingWriter
 
         self._w = RecordingWriter(out, metadata={"format": f"fairino-conformance/{layout}"})
         self._w._add = lambda *a: None  # type: ignore[method-assign]
@@ -283,7 +284,7 @@ class _TemplateSink(_DropSink):
 
 
 def _record(sink: object, stream: bytes, specs: object) -> None:
-    from conformance.recording import StreamRecorder
+    from conformance.recording.recorder import StreamRecorder
 
     rec = StreamRecorder(sink, specs=specs)  # type: ignore[arg-type]
     rec.open(1, t_ns=1, client="127.0.0.1:40000", upstream="127.0.0.1:8080")
@@ -305,7 +306,7 @@ def _exchanges(n: int) -> tuple[list[bytes], list[bytes]]:
 
 def _record_exchanges(sink: object, n: int, specs: object) -> None:
     """Request/reply traffic: a request read, then its reply read, ``n`` times."""
-    from conformance.recording import StreamRecorder
+    from conformance.recording.recorder import StreamRecorder
 
     req, rep = _exchanges(n)
     rec = StreamRecorder(sink, specs=specs)  # type: ignore[arg-type]
@@ -323,9 +324,11 @@ def core_figures(tmp: Path, n: int, rounds: int) -> dict[str, float]:
     """Frames/s of the whole recorder path (to a complete file) and of import-pcap, on
     pipelined traffic (64 KiB reads) and on request/reply traffic (a frame a read);
     only the API every revision since layout 1 has, so a baseline runs it too."""
-    from conformance.pcap import export_pcap, import_pcap
-    from conformance.recording import RecordingWriter, read_recording
-    from conformance.spec import default_specs
+    from conformance.pcap.export import export_pcap
+    from conformance.pcap.importer import import_pcap
+    from conformance.recording.reader import read_recording
+    from conformance.recording.writer import RecordingWriter
+    from conformance.spec.commands import default_specs
 
     specs = default_specs()
     stream = b"".join(encode_frame(i % 65536, 201, 'MoveJ("P1")') for i in range(n))
@@ -360,8 +363,9 @@ def layout_figures(tmp: Path, n: int, rounds: int) -> dict[str, tuple[float, flo
     CPU frames/s, writing layout 2 (JSON batches), layout 3 (protobuf, a stream a batch)
     and layout 4 (protobuf, any streams in a batch) by this tree's code, alternating round
     by round (a neighbour's busy spell favours none): (layout 4, 3, 2) per figure."""
-    from conformance.recording import RecordingWriter, read_recording
-    from conformance.spec import default_specs
+    from conformance.recording.reader import read_recording
+    from conformance.recording.writer import RecordingWriter
+    from conformance.spec.commands import default_specs
 
     specs = default_specs()
     stream = b"".join(encode_frame(i % 65536, 201, 'MoveJ("P1")') for i in range(n))
@@ -421,9 +425,11 @@ def bench_record(tmp: Path, n: int, rounds: int, baseline_rev: str = "") -> None
     """In-process recorder path and import-pcap, each against same-run baselines."""
     from mcap.writer import Writer
 
-    from conformance.pcap import export_pcap, import_pcap
-    from conformance.recording import RecordingWriter, read_recording
-    from conformance.spec import default_specs
+    from conformance.pcap.export import export_pcap
+    from conformance.pcap.importer import import_pcap
+    from conformance.recording.reader import read_recording
+    from conformance.recording.writer import RecordingWriter
+    from conformance.spec.commands import default_specs
 
     specs = default_specs()
     stream = b"".join(encode_frame(i % 65536, 201, 'MoveJ("P1")') for i in range(n))
@@ -529,7 +535,7 @@ def _hostile_streams(size: int) -> list[tuple[str, bytes]]:
 def bench_hostile_record(n_bytes: int) -> None:
     """The recorder path (runs and careful decoding together) on hostile streams in
     64 KiB reads: s/MB at two sizes; the ratio near 2 when the work is linear."""
-    from conformance.recording import StreamRecorder
+    from conformance.recording.recorder import StreamRecorder
 
     print(
         f"\nrecorder path on hostile streams (64 KiB reads), {n_bytes >> 20} and "
@@ -600,9 +606,10 @@ def main() -> int:
                 p.unlink()
             tmp.rmdir()
         return 0
-    from conformance.pcap import export_pcap, import_pcap
-    from conformance.recording import read_recording
-    from conformance.spec import default_specs
+    from conformance.pcap.export import export_pcap
+    from conformance.pcap.importer import import_pcap
+    from conformance.recording.reader import read_recording
+    from conformance.spec.commands import default_specs
 
     echo, eport = start_echo()
     tmp = Path(tempfile.mkdtemp(prefix="bench_proxy_"))

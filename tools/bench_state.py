@@ -32,8 +32,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from conformance.protocol.state import StateDecoder, StatePacket, encode_state
-from conformance.protocol.state_layout import StateLayout, layout_for
+from conformance.protocol.state import StatePacket, encode_state
+from conformance.protocol.state_layout import StateLayout
+from conformance.spec.state import layout_for, state_decoder
 
 TARGET_MB_S = 50.0
 Unpack = Callable[[bytes, int], tuple[object, ...]]
@@ -91,15 +92,15 @@ def main(argv: list[str] | None = None) -> int:
                 sum(data[o : o + n - 2])
 
         def whole(data: bytes = data, version: str = version) -> list[object]:
-            return list(StateDecoder(version).feed(data))
+            return list(state_decoder(version).feed(data))
 
         def chunked(data: bytes = data, version: str = version) -> None:
-            dec = StateDecoder(version)
+            dec = state_decoder(version)
             for at in range(0, len(data), 65536):
                 dec.feed(data[at : at + 65536])
 
         def with_fields(data: bytes = data, version: str = version) -> None:
-            for e in StateDecoder(version).feed(data):
+            for e in state_decoder(version).feed(data):
                 if isinstance(e, StatePacket):
                     e.fields  # noqa: B018  (built on first use: that is what is timed)
 

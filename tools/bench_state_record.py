@@ -39,10 +39,13 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from conformance.frame import Frame, FrameDecoder, encode_frame  # noqa: E402
-from conformance.protocol.state import StateDecoder, StatePacket  # noqa: E402
-from conformance.recording import TOPIC_STATE, read_recording  # noqa: E402
-from conformance.state_check import state_figures  # noqa: E402
+from conformance.offline.state_check import state_figures  # noqa: E402
+from conformance.protocol.decoder import FrameDecoder  # noqa: E402
+from conformance.protocol.frame import Frame, encode_frame  # noqa: E402
+from conformance.protocol.state import StatePacket  # noqa: E402
+from conformance.recording.layout import TOPIC_STATE  # noqa: E402
+from conformance.recording.reader import read_recording  # noqa: E402
+from conformance.spec.state import state_decoder  # noqa: E402
 
 PY = sys.executable
 _ADDR = re.compile(r"(\d+\.\d+\.\d+\.\d+):(\d+)")
@@ -90,7 +93,7 @@ class StateReader(threading.Thread):
     def __init__(self, addr: tuple[str, int]) -> None:
         super().__init__(daemon=True)
         self.sock = socket.create_connection(addr, timeout=10)
-        self.decoder = StateDecoder()
+        self.decoder = state_decoder()
         self.packets = 0
         self.stop = threading.Event()
 

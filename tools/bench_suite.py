@@ -151,7 +151,7 @@ def compare_runs(rev: str, rounds: int) -> None:
 # group sends to the built-in emulator, and the distinct DATA among them.
 _COUNT_REQUESTS = """
 import collections, json, sys
-from conformance.frame import Frame, decode_all
+from conformance.protocol.frame import Frame, decode_all
 from conformance.net import client
 from conformance.suite.config import SuiteConfig
 from conformance.suite.engine import Engine
@@ -206,12 +206,12 @@ def count_requests(rev: str) -> None:
 
 def faults() -> None:
     sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
-    from conformance.faults import FaultKind
-    from conformance.report import Outcome
-    from conformance.spec import default_specs
-    from conformance.suite.cases import build_cases
+    from conformance.judge.verdict import Outcome
+    from conformance.spec.commands import default_specs
+    from conformance.suite.cases.build import build_cases
     from conformance.suite.config import PROFILES, SuiteConfig
     from conformance.suite.runner import SuiteRunner
+    from conformance.twin.faults import FaultKind
 
     specs = default_specs()
     sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests"))

@@ -42,12 +42,14 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from conformance.cli import main as cli_main  # noqa: E402
-from conformance.frame import Frame, decode_all, encode_frame  # noqa: E402
+from conformance.cli.main import main as cli_main  # noqa: E402
 from conformance.net.client import Client  # noqa: E402
 from conformance.net.emulator import EmulatorServer  # noqa: E402
 from conformance.net.proxy import RecordingProxy  # noqa: E402
-from conformance.recording import C2S, read_recording  # noqa: E402
+from conformance.protocol.decoder import decode_all  # noqa: E402
+from conformance.protocol.frame import Frame, encode_frame  # noqa: E402
+from conformance.recording.layout import C2S  # noqa: E402
+from conformance.recording.reader import read_recording  # noqa: E402
 
 SESSIONS = ROOT / "tests" / "data" / "sdk_sessions"
 DRIVERS = ROOT / "specs" / "fairino-field" / "drivers.json"

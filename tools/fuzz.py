@@ -9,18 +9,18 @@ rest hostile constructions (thousands of digits, deep braces, ``1e999``, NUL
 floods, lone surrogates, repeated headers, huge LEN, ...).  Every input goes
 through the public API of
 
-* the **decoder** (:mod:`conformance.frame`): the input framed, then mutated at
+* the **decoder** (:mod:`conformance.protocol.frame`): the input framed, then mutated at
   the byte level; only ``Frame``/``Malformed`` events, no byte lost or added, and
   the same events whole, byte at a time (short inputs) or in random chunks, and
   taken as runs where the decoder is idle (``take_run``, the recorder's way) on
   the input twice over;
 * the **DATA parser** (:mod:`conformance.data`): ``parse_data`` and
   ``parse_reply`` give a value or a ``ProtocolError``, never another exception;
-* the **judge** (:mod:`conformance.validate`): ``validate_request``,
+* the **judge** (:mod:`conformance.judge.requests`): ``validate_request``,
   ``classify_reply`` and ``validate_reply`` against the real specs never raise;
 
 and (by default every input; one in ``--model-every`` N) the **emulator's model**
-(:class:`conformance.model.Controller`): any bytes give actions, and every
+(:class:`conformance.twin.controller.Controller`): any bytes give actions, and every
 reply it sends decodes, strictly, to well-formed frames.
 
 Prints inputs per API, unexpected exceptions by API and type with the first
@@ -44,13 +44,16 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from conformance.data import MAX_DEPTH, MAX_ITEMS, format_call, parse_data, parse_reply
 from conformance.errors import ProtocolError, Rule
-from conformance.frame import CNT_MAX, Frame, FrameDecoder, Malformed, decode_all, encode_frame
-from conformance.model import Controller
-from conformance.spec import Command, SpecSet, Variant, default_specs
-from conformance.strategies import minimal_args
-from conformance.validate import classify_reply, validate_reply, validate_request
+from conformance.judge.requests import classify_reply, validate_reply, validate_request
+from conformance.protocol.data_format import format_call
+from conformance.protocol.data_parse import parse_data, parse_reply
+from conformance.protocol.data_values import MAX_DEPTH, MAX_ITEMS
+from conformance.protocol.decoder import FrameDecoder, decode_all
+from conformance.protocol.frame import CNT_MAX, Frame, Malformed, encode_frame
+from conformance.spec.commands import Command, SpecSet, Variant, default_specs
+from conformance.suite.strategies import minimal_args
+from conformance.twin.controller import Controller
 
 __all__ = [
     "APIS",

@@ -12,7 +12,7 @@ Each target mutates one valid file of its kind and reads it through the public A
 * ``mcap-json``: one field of one message (frames, problem, connection) replaced
   by a hostile JSON value (wrong type, out of range, deep, huge, a lone surrogate);
   the recording is read, summarized and checked (``info`` and ``check``:
-  :func:`~conformance.capture_check.summarize`, ``check_recording``);
+  :func:`~conformance.offline.check.summarize`, ``check_recording``);
 * ``frames-pb``: layout 3's protobuf frame batch (one frame, a batch with names,
   problems and non-ASCII DATA) mutated (bytes flipped, overwritten, cut or repeated; a
   column's value replaced by a hostile 64-bit one; a varint or a length made huge):
@@ -61,7 +61,7 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from conformance.errors import ConformanceError, FileError
-from conformance.frame import encode_frame
+from conformance.protocol.frame import encode_frame
 
 __all__ = ["TARGETS", "main", "run_target"]
 
@@ -94,7 +94,8 @@ def _mutate(data: bytes, rng: random.Random) -> bytes:
 
 
 def _recording(path: Path, layout: int = 3) -> None:
-    from conformance.recording import RecordingWriter, StreamRecorder
+    from conformance.recording.recorder import StreamRecorder
+    from conformance.recording.writer import RecordingWriter
 
     md = {"format": f"fairino-conformance/{layout}", "source": "fuzz"}
     w = RecordingWriter(path, metadata=md)
@@ -112,8 +113,8 @@ def _recording(path: Path, layout: int = 3) -> None:
 def _pb_messages() -> list[bytes]:
     """Layout 3's frame batches to mutate: one frame, and a batch with names, problems,
     non-ASCII DATA and first_ns apart from complete_ns."""
-    from conformance.recording import FrameBatch
     from conformance.recording.frames_pb import encode_batch, encode_one
+    from conformance.recording.records import FrameBatch
 
     t = 1_700_000_000_000_000_000
     raws = [encode_frame(k, 201, d) for k, d in enumerate(['MoveJ("P1")', "é", "1"])]
@@ -129,7 +130,7 @@ def _pb_messages() -> list[bytes]:
 def _traffic_messages() -> list[bytes]:
     """Layout 4's frame batches to mutate: lone frames of several streams and a batch in
     one message, and a message of one stream (no ``stream`` column)."""
-    from conformance.recording import FrameBatch
+    from conformance.recording.records import FrameBatch
     from conformance.recording.traffic_pb import encode_traffic
 
     t = 1_700_000_000_000_000_000
@@ -222,7 +223,8 @@ def _replace(doc: Any, path: tuple[Any, ...], value: Any) -> Any:
 
 def _make(target: str, tmp: Path, rng: random.Random) -> Callable[[], Any]:
     """One input's check for ``target``: a function that reads the next input."""
-    from conformance.recording import read_recording, recover
+    from conformance.recording.reader import read_recording
+    from conformance.recording.repair import recover
 
     f = tmp / "input"
     if target == "mcap":
@@ -237,9 +239,10 @@ def _make(target: str, tmp: Path, rng: random.Random) -> Callable[[], Any]:
 
         return one
     if target == "mcap-json":
-        from conformance.capture_check import check_recording, summarize
-        from conformance.recording import RecordingWriter, read_recording
-        from conformance.spec import default_specs
+        from conformance.offline.check import check_recording, summarize
+        from conformance.recording.reader import read_recording
+        from conformance.recording.writer import RecordingWriter
+        from conformance.spec.commands import default_specs
 
         specs = default_specs()
 
@@ -247,7 +250,7 @@ def _make(target: str, tmp: Path, rng: random.Random) -> Callable[[], Any]:
         rec = read_recording(tmp / "good.mcap")
         docs = [("/fairino/connections", c.to_json()) for c in rec.connections]
         docs += [("/fairino/problems", p.to_json()) for p in rec.problems]
-        from conformance.recording import FrameBatch
+        from conformance.recording.records import FrameBatch
 
         docs += [(f"/fairino/{f.dir}", FrameBatch.of([f]).to_json()) for f in rec.frames[:6]]
 
@@ -286,9 +289,10 @@ def _make(target: str, tmp: Path, rng: random.Random) -> Callable[[], Any]:
         return one
     if target in ("mcap-pb", "mcap-traffic"):
         # The same batches inside a recording of their layout, read and checked whole.
-        from conformance.capture_check import check_recording, summarize
-        from conformance.recording import RecordingWriter, read_recording
-        from conformance.spec import default_specs
+        from conformance.offline.check import check_recording, summarize
+        from conformance.recording.reader import read_recording
+        from conformance.recording.writer import RecordingWriter
+        from conformance.spec.commands import default_specs
 
         specs = default_specs()
         layout, topic = (3, "/fairino/s2c") if target == "mcap-pb" else (4, "/fairino/frames")
@@ -324,7 +328,7 @@ def _make(target: str, tmp: Path, rng: random.Random) -> Callable[[], Any]:
 
         return one
     if target == "report":
-        from conformance.report import load_report
+        from conformance.report.model import load_report
 
         doc = _report_doc()
         paths = _paths(doc)

@@ -42,14 +42,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from conformance.protocol.state import (
     DEFAULT_MAX_LENGTH,
-    StateDecoder,
     StateEvent,
     StatePacket,
     StateProblem,
     StateProblemKind,
     encode_state,
 )
-from conformance.protocol.state_layout import StateLayout, known_layouts
+from conformance.protocol.state_layout import StateLayout
+from conformance.spec.state import known_layouts, state_decoder
 
 __all__ = ["check", "make_input", "summary"]
 
@@ -120,7 +120,7 @@ def summary(events: list[StateEvent]) -> list[tuple[object, ...]]:
 
 
 def _decode(data: bytes, cuts: list[int]) -> list[StateEvent]:
-    dec = StateDecoder()
+    dec = state_decoder()
     dec.raise_bugs = True
     events: list[StateEvent] = []
     at = 0
@@ -187,7 +187,7 @@ def linear_time() -> list[str]:
         times = []
         for size in (1 << 18, 1 << 19, 1 << 20):
             data = stream[:size]
-            dec = StateDecoder()
+            dec = state_decoder()
             t0 = time.perf_counter()
             for at in range(0, len(data), chunk):
                 dec.feed(data[at : at + chunk])

@@ -53,7 +53,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from conformance.frame import encode_frame  # noqa: E402
+from conformance.protocol.frame import encode_frame  # noqa: E402
 
 LOOPBACK = "127.0.0.1"
 SERVER_NOFILE = 1024  # the issue's `ulimit -n 1024`
@@ -396,7 +396,7 @@ def finish_servers(servers: list[Server], upstream: Server, mcap: Path, tmp: Pat
 
 
 def check_recording(mcap: Path, proxy: Server) -> bool:
-    from conformance.recording import read_recording
+    from conformance.recording.reader import read_recording
 
     paths = sorted(mcap.parent.glob(mcap.stem + "*.mcap"))
     c2s = 0

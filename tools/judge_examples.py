@@ -21,10 +21,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from conformance.frame import Frame, decode_all  # noqa: E402
-from conformance.judge import Judge  # noqa: E402
-from conformance.spec import SpecSet, load_spec_version  # noqa: E402
-from conformance.verdict import Outcome  # noqa: E402
+from conformance.judge.judge import Judge  # noqa: E402
+from conformance.judge.verdict import Outcome  # noqa: E402
+from conformance.protocol.decoder import decode_all  # noqa: E402
+from conformance.protocol.frame import Frame  # noqa: E402
+from conformance.spec.commands import SpecSet, load_spec_version  # noqa: E402
 
 
 @dataclass

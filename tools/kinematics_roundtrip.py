@@ -32,7 +32,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from conformance.kinematics import Robot, angle_between, default_robots, pose_to_matrix
+from conformance.twin.kinematics.pose import angle_between, pose_to_matrix
+from conformance.twin.kinematics.robots import Robot, default_robots
 
 
 def roundtrip(r: Robot, poses: int, seed: int, jitter: float, ref_kind: str) -> dict[str, float]:

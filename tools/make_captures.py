@@ -32,8 +32,9 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from conformance.frame import encode_frame  # noqa: E402
-from conformance.recording import dump_json, read_recording  # noqa: E402
+from conformance.protocol.frame import encode_frame  # noqa: E402
+from conformance.recording.dump import dump_json  # noqa: E402
+from conformance.recording.reader import read_recording  # noqa: E402
 
 CAPTURES = ROOT / "captures"
 
@@ -169,7 +170,7 @@ def field_pcap(path: Path) -> None:
 def golden(path: Path) -> dict[str, Any]:
     """The decoded JSON a capture must produce (the golden runner's output)."""
     if path.suffix in (".pcap", ".pcapng"):
-        from conformance.pcap import import_pcap
+        from conformance.pcap.importer import import_pcap
 
         with tempfile.TemporaryDirectory() as d:
             out = Path(d) / "imported.mcap"

@@ -9,7 +9,7 @@ One recording per robot and firmware (``OUT/<robot>/fw-<firmware>.mcap``, metada
 layout: each connection asks ``GetSoftwareVersion()`` (905) first, whose reply names the
 firmware, then cycles through the requests of :data:`SESSION` in pipelined bursts (a
 burst's requests, then their replies, as a pipelining client's traffic is batched).  The
-replies are the emulator's (:class:`~conformance.model.Controller` answering each request
+replies are the emulator's (:class:`~conformance.twin.controller.Controller` answering each request
 once; the CNT is then the request's), so the traffic has the emulator's shapes.
 
 Faults (``ROBOT/FIRMWARE/CMD_ID``; ``*`` for any robot or firmware), each on a fifth of
@@ -38,22 +38,14 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from conformance.firmware import version_tuple  # noqa: E402
-from conformance.frame import Frame, decode_all, encode_frame  # noqa: E402
-from conformance.model import Controller  # noqa: E402
-from conformance.recording import (  # noqa: E402
-    BATCH_FRAMES,
-    C2S,
-    S2C,
-    TOPIC_C2S,
-    TOPIC_FRAMES,
-    ConnectionRecord,
-    FrameBatch,
-    ProblemRecord,
-    RecordingWriter,
-    default_metadata,
-)
-from conformance.spec import available_spec_versions, load_spec_version  # noqa: E402
+from conformance.protocol.decoder import decode_all  # noqa: E402
+from conformance.protocol.frame import Frame, encode_frame  # noqa: E402
+from conformance.recording.layout import BATCH_FRAMES, C2S, S2C, TOPIC_C2S, TOPIC_FRAMES  # noqa: E402
+from conformance.recording.records import ConnectionRecord, FrameBatch, ProblemRecord  # noqa: E402
+from conformance.recording.writer import RecordingWriter, default_metadata  # noqa: E402
+from conformance.spec.commands import available_spec_versions, load_spec_version  # noqa: E402
+from conformance.spec.firmware import version_tuple  # noqa: E402
+from conformance.twin.controller import Controller  # noqa: E402
 
 #: The requests each connection cycles through after its 905 (CMD_ID, DATA).
 SESSION: tuple[tuple[int, str], ...] = (
@@ -316,8 +308,8 @@ def write_capture(
     the order its first byte came); returns the frames written."""
     import dataclasses
 
-    from conformance.pcap import export_pcap
-    from conformance.recording import read_recording
+    from conformance.pcap.export import export_pcap
+    from conformance.recording.reader import read_recording
 
     mcap = path.with_name(path.name + ".tmp.mcap")
     written = write_recording(mcap, robot, firmware, frames, faults, start_ns)

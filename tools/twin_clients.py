@@ -29,16 +29,17 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from conformance.data import Call, Number  # noqa: E402
-from conformance.dialects import ERRCODE_RETURNS, default_dialects  # noqa: E402
-from conformance.frame import Frame, decode_all, encode_frame  # noqa: E402
-from conformance.judge import Judge  # noqa: E402
-from conformance.kinematics import robot as robot_named  # noqa: E402
-from conformance.knowledge import motion_targets, target_args  # noqa: E402
+from conformance.judge.judge import Judge  # noqa: E402
+from conformance.judge.requests import classify_reply  # noqa: E402
 from conformance.net.client import Client  # noqa: E402
 from conformance.net.emulator import EmulatorServer  # noqa: E402
-from conformance.spec import default_specs  # noqa: E402
-from conformance.validate import classify_reply  # noqa: E402
+from conformance.protocol.data_values import Call, Number  # noqa: E402
+from conformance.protocol.decoder import decode_all  # noqa: E402
+from conformance.protocol.frame import Frame, encode_frame  # noqa: E402
+from conformance.spec.commands import default_specs  # noqa: E402
+from conformance.spec.dialects import ERRCODE_RETURNS, default_dialects  # noqa: E402
+from conformance.spec.knowledge import motion_targets, target_args  # noqa: E402
+from conformance.twin.kinematics.robots import robot as robot_named  # noqa: E402
 
 SESSIONS = ROOT / "tests" / "data" / "sdk_sessions"
 DRIVERS = ROOT / "specs" / "fairino-field" / "drivers.json"

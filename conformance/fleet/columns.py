@@ -9,8 +9,8 @@ from dataclasses import dataclass, field, replace
 from operator import itemgetter
 from typing import Any
 
-from ..recording import ConnectionRecord, ProblemRecord
 from ..recording.blame import Blame
+from ..recording.records import ConnectionRecord, ProblemRecord
 from ..recording.salvage import Damage
 from .general import StateRow
 

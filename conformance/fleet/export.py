@@ -2,7 +2,7 @@
 verdict the one ``check`` gives it, the rows written in row groups as they come.
 
 Each recording is read (MCAP, or a pcap/pcapng capture imported as ``check`` imports it),
-judged by :func:`~conformance.capture_check.check_recording` (its ``on_verdict`` hands
+judged by :func:`~conformance.offline.check.check_recording` (its ``on_verdict`` hands
 over every frame's and malformed run's verdict: the rows carry exactly those) with a
 :class:`~.memo.MemoJudge`, and written as one Parquet file per table into its partition
 (:mod:`.schema`).  A recording already in the dataset (its content hash has a
@@ -39,12 +39,14 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ..errors import FileError, UsageError
-from ..firmware import GET_SOFTWARE_VERSION_ID, parse_software_version
-from ..judge import Judge
-from ..recording import C2S, ConnectionRecord
+from ..judge.judge import Judge
 from ..recording.blame import Blame, Unknown
 from ..recording.blame_ahead import controller_runs
-from .fast import Blamed, Columns, ColumnStream, FrameRef, NotFast, read_columns
+from ..recording.layout import C2S
+from ..recording.records import ConnectionRecord
+from ..spec.firmware import GET_SOFTWARE_VERSION_ID, parse_software_version
+from .columns import Columns
+from .fast import Blamed, ColumnStream, FrameRef, NotFast, read_columns
 from .general import StateGaps, general_rows, problem_rows, state_row, state_rows
 from .memo import MemoJudge
 from .schema import SCHEMA_VERSION, TABLES, partition_value
@@ -420,7 +422,7 @@ def _damage(walk: Sequence[Damage], lost: Sequence[CaptureDamage]) -> list[str]:
 
 
 def _is_capture(path: str) -> bool:
-    from ..pcap import capture_format
+    from ..pcap.importer import capture_format
 
     return capture_format(path) in ("pcap", "pcapng")
 
@@ -441,7 +443,7 @@ def _capture(
     read as ``check`` reads it (:func:`~conformance.pcap.read_capture` imports it so too)."""
     import tempfile
 
-    from ..pcap import import_pcap
+    from ..pcap.importer import import_pcap
 
     lost: list[CaptureDamage] = []
     with tempfile.TemporaryDirectory(prefix="fairino-export-") as d:
@@ -475,8 +477,7 @@ def _whole(
     reader's records and ``check_recording`` (the general path); its rows named ``name``
     (a capture's, when ``path`` is the recording imported from it, with the capture's
     damage ``lost`` as :func:`~conformance.pcap.read_capture` gives it)."""
-    from ..pcap import read_capture
-    from ..pcap.importer import as_damage
+    from ..pcap.importer import as_damage, read_capture
 
     cols = read_columns(path) if fast else None
     if cols is not None:

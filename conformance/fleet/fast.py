@@ -15,7 +15,7 @@ them, in its order (:attr:`ColumnStream.damage`: the reader's own
 :func:`~conformance.recording.reader.read_message` says why); a message on a topic the
 reader does not read (a later layout's) is skipped as it skips it.  Anything else (a
 layout-1 frame without LEN, a message the reader reads and these columns do not:
-:class:`NotFast`) goes the general way (:func:`~conformance.capture_check.check_recording` over the reader's
+:class:`NotFast`) goes the general way (:func:`~conformance.offline.check.check_recording` over the reader's
 records).  What the fast path does is the same, step by step, so the
 verdicts are the same (the tests compare them frame by frame):
 
@@ -23,7 +23,7 @@ verdicts are the same (the tests compare them frame by frame):
   oldest unanswered request of its connection with the same CNT and CMD_ID, else the same
   CMD_ID (:meth:`Recording.exchanges`; here with an index per key, not a scan);
 * each request is judged by :meth:`Judge.request` with the CNT before it on its connection
-  (``check``'s :class:`~conformance.judge_stream.CntSteps`), each reply by
+  (``check``'s :class:`~conformance.judge.stream.CntSteps`), each reply by
   :meth:`Judge.reply` with its request and the request's verdict; a verdict already made
   for the same ID, DATA and transport (and a CNT that steps by one, and no framing
   problem) is taken again, as :class:`~.memo.MemoJudge` takes it.
@@ -39,21 +39,21 @@ from collections.abc import Iterator
 from dataclasses import replace
 from typing import Any, NamedTuple
 
-from ..recording import (
-    METADATA_NAME,
-    TOPIC_C2S,
-    TOPIC_FRAMES,
-    TOPIC_S2C,
-    ConnectionRecord,
-    FrameBatch,
-    ProblemRecord,
-    StateRecord,
-)
 from ..recording.blame import Blame, Unknown
 from ..recording.blame_ahead import Foreseen
 from ..recording.frames_pb import BatchColumns, decode_columns, decode_one_frame
-from ..recording.layout import C2S, INT_MAX, STATE_KIND, TIME_MAX
+from ..recording.layout import (
+    C2S,
+    INT_MAX,
+    METADATA_NAME,
+    STATE_KIND,
+    TIME_MAX,
+    TOPIC_C2S,
+    TOPIC_FRAMES,
+    TOPIC_S2C,
+)
 from ..recording.reader import READ_TOPICS, message_damage, read_message
+from ..recording.records import ConnectionRecord, FrameBatch, ProblemRecord, StateRecord
 from ..recording.salvage import MAGIC, Damage, Walk
 from ..recording.traffic_pb import TrafficColumns, decode_traffic
 from .columns import FRAME_COLUMNS, Columns

@@ -1,5 +1,5 @@
 """``export-parquet``'s general path: the rows of a recording read whole (the reader's
-records) from :func:`~conformance.capture_check.check_recording`'s verdicts; and the rows
+records) from :func:`~conformance.offline.check.check_recording`'s verdicts; and the rows
 the fast path writes so too, a window's at a time: the state table's, and the problems'
 (gaps and malformed bytes, each with the request it is blamed on where there is one)."""
 
@@ -9,10 +9,11 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import replace
 from typing import Any, Protocol
 
-from ..judge import Judge, Verdict
-from ..recording import C2S, S2C, FrameRecord, ProblemRecord, Recording, StateRecord
-from ..recording.layout import STATE_KIND
-from ..verdict import Direction
+from ..judge.judge import Judge, Verdict
+from ..judge.verdict import Direction
+from ..recording.layout import C2S, S2C, STATE_KIND
+from ..recording.reader import Recording
+from ..recording.records import FrameRecord, ProblemRecord, StateRecord
 from .memo import MemoJudge
 from .schema import verdict_columns
 
@@ -75,7 +76,7 @@ def general_rows(
     data: bool,
 ) -> None:
     """Frames, exchanges and problems with check_recording's verdicts."""
-    from ..capture_check import check_recording
+    from ..offline.check import check_recording
 
     verdicts: dict[int, Verdict] = {}
     problems: list[tuple[ProblemRecord, Verdict]] = []

@@ -1,7 +1,7 @@
 """The one judge, remembering its verdicts per distinct frame (``export-parquet``'s speed).
 
 A fleet's traffic repeats: the same requests with a new CNT each time, and the same
-replies to them.  :class:`MemoJudge` is :class:`~conformance.judge.Judge` itself; it only
+replies to them.  :class:`MemoJudge` is :class:`~conformance.judge.judge.Judge` itself; it only
 remembers what a verdict is a pure function of, and asks the judge for anything else:
 
 * a request without framing problems: its ID, DATA and transport (as the suite's
@@ -17,9 +17,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from ..frame import Frame
-from ..judge import Judge, Verdict
-from ..spec import Variant
+from ..judge.judge import Judge, Verdict
+from ..protocol.frame import Frame
+from ..spec.commands import Variant
 
 __all__ = ["MemoJudge"]
 

@@ -16,7 +16,7 @@ retypes a column raises :data:`SCHEMA_VERSION`; new columns at the end do not.
 
 Times are ``timestamp[us, UTC]`` (microseconds: what Spark reads; Parquet's nanosecond
 timestamps it refuses); latencies are ``int64`` nanoseconds, the recordings' own precision.  Outcomes are the
-judge's (:class:`~conformance.verdict.Outcome` values: ``PASS``, ``NON-STRICT``,
+judge's (:class:`~conformance.judge.verdict.Outcome` values: ``PASS``, ``NON-STRICT``,
 ``DIALECT``, ``FAIL``), the same verdicts ``check`` gives.
 """
 
@@ -26,7 +26,7 @@ import re
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from ..judge import Verdict
+    from ..judge.judge import Verdict
 
 __all__ = [
     "COLUMNS",

@@ -10,10 +10,11 @@ from __future__ import annotations
 from collections import OrderedDict, defaultdict, deque
 from typing import Any
 
-from ..frame import Frame
-from ..judge import Judge, Verdict
-from ..judge_stream import CntSteps
-from ..recording import C2S, FrameRecord
+from ..judge.judge import Judge, Verdict
+from ..judge.stream import CntSteps
+from ..protocol.frame import Frame
+from ..recording.layout import C2S
+from ..recording.records import FrameRecord
 from .columns import Columns
 from .schema import VerdictColumns, verdict_columns
 

@@ -28,10 +28,11 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any, Protocol
 
-from ..judge import Judge
-from ..recording import ConnectionRecord
+from ..judge.judge import Judge
 from ..recording.blame import Blame, Gone
-from .fast import Columns, FrameRef, NotFast
+from ..recording.records import ConnectionRecord
+from .columns import Columns
+from .fast import FrameRef, NotFast
 from .general import len_ok
 from .schema import VERDICT_COLUMNS
 from .verdicts import CntMemory, VerdictRows, judge_columns

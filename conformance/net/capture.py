@@ -44,9 +44,11 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 
 from ..errors import CaptureError, ConformanceError, UsageError
-from ..pcap import DLT_EN10MB, DLT_RAW, PacketRecorder
-from ..recording import RotatingWriter, default_metadata
-from ..spec import SpecSet
+from ..pcap.packets import DLT_EN10MB, DLT_RAW
+from ..pcap.recorder import PacketRecorder
+from ..recording.rotating import RotatingWriter
+from ..recording.writer import default_metadata
+from ..spec.commands import SpecSet
 from .packet_ring import PacketRing, RingUnavailable
 
 __all__ = [

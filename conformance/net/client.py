@@ -4,7 +4,7 @@ Real controllers are noisy peers: a reply is paired with its request by CNT and
 CMD_ID, never by arrival order, and frames nobody asked for (such as the
 command-ID 500 frames a controller sends when a Lua program fails) are kept as
 ``unsolicited`` rather than taken for a reply.  Bytes that are not frames come back
-as :class:`~conformance.frame.Malformed` events attributed to the wait in which
+as :class:`~conformance.protocol.frame.Malformed` events attributed to the wait in which
 they arrived.  TCP or UDP; an optional rate limit (frames per second).
 
 A hostile target must not outlast or outgrow the kit: every wait ends at its
@@ -24,15 +24,8 @@ from dataclasses import dataclass, field
 from types import TracebackType
 
 from ..errors import ConformanceError
-from ..frame import (
-    CNT_MAX,
-    DEFAULT_MAX_FRAME_SIZE,
-    Frame,
-    FrameDecoder,
-    Malformed,
-    decode_all,
-    encode_frame,
-)
+from ..protocol.decoder import FrameDecoder, decode_all
+from ..protocol.frame import CNT_MAX, DEFAULT_MAX_FRAME_SIZE, Frame, Malformed, encode_frame
 from .addresses import format_address
 
 __all__ = ["DEFAULT_MAX_EVENTS", "DEFAULT_MAX_INBOX", "Client", "Exchange", "TargetUnreachable"]

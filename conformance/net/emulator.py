@@ -1,7 +1,7 @@
 """The emulated controller on real sockets (TCP, optionally UDP), in background threads.
 
-The protocol logic is sans-I/O in :mod:`conformance.model`; this module only moves
-bytes and performs the :class:`~conformance.model.Action` objects (delays,
+The protocol logic is sans-I/O in :mod:`conformance.twin.controller`; this module only moves
+bytes and performs the :class:`~conformance.twin.controller.Action` objects (delays,
 closes, crashes).  Loopback by default; port 0 binds an ephemeral port, and
 :attr:`EmulatorServer.address` tells which.
 
@@ -40,14 +40,16 @@ from dataclasses import dataclass
 from types import TracebackType
 from typing import Any
 
-from ..actions import Action, Dropped
 from ..errors import EmulatorError, RemoteProtocolError, UsageError
-from ..faults import Fault, FaultKind, parse_fault, parse_faults
-from ..frame import DEFAULT_MAX_FRAME_SIZE, Frame, Malformed
-from ..judge import Judge
-from ..model import STATE_VERSION, Controller, ControllerConnection
-from ..spec import SpecSet
-from ._server import (
+from ..judge.judge import Judge
+from ..protocol.frame import DEFAULT_MAX_FRAME_SIZE, Frame, Malformed
+from ..spec.commands import SpecSet
+from ..twin.actions import Action, Dropped
+from ..twin.controller import STATE_VERSION, Controller, ControllerConnection
+from ..twin.faults import Fault, FaultKind, parse_fault, parse_faults
+from .addresses import format_address, format_sockaddr
+from .emulator_state import StatePort
+from .server import (
     BACKOFF_MAX,
     DEFAULT_IDLE_TIMEOUT,
     DEFAULT_MAX_CONNECTIONS,
@@ -57,8 +59,6 @@ from ._server import (
     family,
     serve_forever,
 )
-from .addresses import format_address, format_sockaddr
-from .emulator_state import StatePort
 
 __all__ = [
     "DEFAULT_MAX_CONNECTIONS",
@@ -150,7 +150,7 @@ class EmulatorServer:
     """A simulated controller answering every command of ``specs`` (default: the bundled specs).
 
     ``judge`` and ``dispatch``: what the controller accepts (default: the shipped
-    field dialects; see :class:`~conformance.model.Controller`).
+    field dialects; see :class:`~conformance.twin.controller.Controller`).
     ``max_connections`` (default :data:`DEFAULT_MAX_CONNECTIONS`): TCP
     connections served at once; more are accepted and closed at once, counted in
     :attr:`connections_refused`.  ``max_frame_size`` (default the decoder's 256

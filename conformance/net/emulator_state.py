@@ -4,11 +4,11 @@ The vendor's 8083 state manual (section 1): once a client connects, the controll
 sends it a state packet every period (default 100 ms, 8..100 ms), unasked; the
 client sends nothing.  :class:`StatePort` accepts on its own TCP socket and gives
 each client a thread that reads the emulator's model (joints, TCP pose, DO, mode:
-:meth:`conformance.model.RobotModel.state_fields`), encodes it in the served
+:meth:`conformance.twin.controller.RobotModel.state_fields`), encodes it in the served
 version's layout (:func:`conformance.protocol.state.encode_state`) and sends it,
 then waits the period the model holds (``SetStatePeriod(8083, period)``).
 
-The state faults (:class:`conformance.faults.StateFaults`) make it send a wrong
+The state faults (:class:`conformance.twin.faults.StateFaults`) make it send a wrong
 checksum every Nth packet, another version's layout, a CNT gap every Nth packet,
 or nothing for a while after every Nth packet.  A client that does not read is
 dropped once a send has waited ``send_timeout`` seconds; the connection limit and
@@ -24,11 +24,12 @@ import time
 from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
-from ..faults import Fault, StateFaults
 from ..protocol.state import encode_state
-from ..protocol.state_layout import StateLayout, known_layouts, layout_for
-from ._server import Backoff, ConnectionSet, close_server, family, serve_forever
+from ..protocol.state_layout import StateLayout
+from ..spec.state import known_layouts, layout_for
+from ..twin.faults import Fault, StateFaults
 from .addresses import format_sockaddr
+from .server import Backoff, ConnectionSet, close_server, family, serve_forever
 
 __all__ = ["StatePort", "served_layout"]
 

@@ -63,22 +63,18 @@ import time
 from collections.abc import Callable, Mapping
 from typing import Any
 
-from ..frame import DEFAULT_MAX_FRAME_SIZE
-from ..recording import FrameRecord, default_metadata, segment_path
-from ..spec import SpecSet
-from ._proxy_base import ProxyStats, open_payload
-from ._server import BACKOFF_MAX, RESOURCE_ERRNOS, Backoff, family, log_stderr
+from ..protocol.frame import DEFAULT_MAX_FRAME_SIZE
+from ..recording.records import FrameRecord
+from ..recording.rotating import segment_path
+from ..recording.writer import default_metadata
+from ..spec.commands import SpecSet
 from .addresses import format_sockaddr
+from .proxy_base import ProxyStats, open_payload
 from .proxy_tcp import TcpForwarding, _Pair
 from .proxy_udp import UdpForwarding, _UdpSession
-from .recorder_process import (
-    CLOSE,
-    OPEN,
-    STOP,
-    RecorderCounters,
-    RecorderProcess,
-)
+from .recorder_process import CLOSE, OPEN, STOP, RecorderCounters, RecorderProcess
 from .replay_server import ReplayServer
+from .server import BACKOFF_MAX, RESOURCE_ERRNOS, Backoff, family, log_stderr
 
 __all__ = [
     "ProxyStats",
@@ -130,7 +126,7 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
         if max_frame_size < 64:
             raise ValueError("max_frame_size must be at least 64 bytes")
         if specs is None:
-            from ..spec import default_specs
+            from ..spec.commands import default_specs
 
             specs = default_specs()
         self.upstream = upstream

@@ -17,9 +17,9 @@ import socket
 import time
 from dataclasses import dataclass, field
 
-from ..recording import C2S, S2C
-from ._proxy_base import ProxyBase
+from ..recording.layout import C2S, S2C
 from .addresses import format_address
+from .proxy_base import ProxyBase
 from .recorder_process import CLOSE, DATA
 
 __all__ = ["TcpForwarding"]

@@ -26,10 +26,10 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..recording import C2S, S2C
-from ._proxy_base import ProxyBase, open_payload
-from ._server import RESOURCE_ERRNOS, family
+from ..recording.layout import C2S, S2C
+from .proxy_base import ProxyBase, open_payload
 from .recorder_process import CLOSE, DGRAM, GAP, OPEN
+from .server import RESOURCE_ERRNOS, family
 
 __all__ = ["UdpForwarding"]
 

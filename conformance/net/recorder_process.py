@@ -38,7 +38,10 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
-from ..recording import C2S, S2C, FrameRecord, RotatingWriter, StreamRecorder
+from ..recording.layout import C2S, S2C
+from ..recording.recorder import StreamRecorder
+from ..recording.records import FrameRecord
+from ..recording.rotating import RotatingWriter
 
 __all__ = ["CLOSE", "DATA", "DGRAM", "OPEN", "STOP", "RecorderCounters", "RecorderProcess"]
 
@@ -561,7 +564,7 @@ class _Recorder:
         """Frames, problems and state packets the files hold, read back (after a failed
         write the counts at the last flush are a lower bound: chunks written since count
         too, the one being written when the disk filled does not)."""
-        from ..recording import read_recording
+        from ..recording.reader import read_recording
 
         counts = [0, 0, 0]
         try:

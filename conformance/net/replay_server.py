@@ -11,8 +11,10 @@ from collections.abc import Callable, Iterable
 from typing import Any
 
 from ..errors import UsageError
-from ..frame import DEFAULT_MAX_FRAME_SIZE, Frame, FrameDecoder, Malformed
-from ._server import (
+from ..protocol.decoder import FrameDecoder
+from ..protocol.frame import DEFAULT_MAX_FRAME_SIZE, Frame, Malformed
+from .addresses import format_address
+from .server import (
     BACKOFF_MAX,
     Backoff,
     ConnectionSet,
@@ -21,7 +23,6 @@ from ._server import (
     log_stderr,
     serve_forever,
 )
-from .addresses import format_address
 
 __all__ = ["ReplayServer"]
 
@@ -33,7 +34,7 @@ _UDP_MAX = 65535  # the largest datagram
 class ReplayServer:
     """Plays a recording's controller side: answers each request with the recorded reply.
 
-    ``book`` is a :class:`~conformance.replay.ReplyBook`; one thread per client.  A
+    ``book`` is a :class:`~conformance.offline.replay.ReplyBook`; one thread per client.  A
     client's bytes can only end its own connection: whatever goes wrong while serving
     it closes it, counted in :attr:`close_reasons`.  Each connection holds at most a
     ``max_frame_size`` frame (longer runs are malformed and skipped, as the decoder

@@ -1,7 +1,7 @@
 """The state port played from a recording (``replay --serve ... --state-serve HOST:PORT``).
 
 Each client that connects gets the recorded state stream (the controller's bytes of the
-recording's first state connection, :func:`~conformance.state_check.recorded_state_stream`:
+recording's first state connection, :func:`~conformance.offline.state_check.recorded_state_stream`:
 the packets and the bytes that were no packet, in stream order) at the recorded pace,
 each piece sent when its recorded time since the first comes, then the connection is
 closed: the recording ends there.  With ``loop`` it starts again from the first piece
@@ -19,7 +19,7 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from ._server import (
+from .server import (
     BACKOFF_MAX,
     Backoff,
     ConnectionSet,

@@ -13,7 +13,9 @@ import os
 import struct
 from typing import Any
 
-from ..recording import C2S, S2C, Recording, atomic_output
+from ..recording.layout import C2S, S2C
+from ..recording.reader import Recording
+from ..recording.repair import atomic_output
 from .packets import _ACK, _FIN, _SYN, DLT_EN10MB
 
 _MAC_CLIENT = bytes.fromhex("020000000001")

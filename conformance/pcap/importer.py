@@ -22,8 +22,8 @@ from .packets import DEFAULT_TCP_PORTS, DEFAULT_UDP_PORTS
 from .read import CaptureDamage, RecordBlock, read_blocks
 
 if TYPE_CHECKING:
-    from ..recording import Recording
-    from ..spec import SpecSet
+    from ..recording.reader import Recording
+    from ..spec.commands import SpecSet
     from .recorder import ImportStats
 
 # The first bytes of each kind of file (pcap: both byte orders, micro- and nanosecond).
@@ -131,7 +131,7 @@ def import_pcap(
     if bad:
         raise ValueError(f"ports must be 1..65535, not {bad[0]}")
     if specs is None:
-        from ..spec import default_specs
+        from ..spec.commands import default_specs
 
         specs = default_specs()
     with atomic_output(out) as tmp:

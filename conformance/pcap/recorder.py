@@ -18,9 +18,11 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..frame import HEAD
-from ..recording import C2S, S2C, DirectionText, RecordSink, StreamRecorder
-from ..spec import SpecSet
+from ..protocol.frame import HEAD
+from ..recording.layout import C2S, S2C, DirectionText
+from ..recording.recorder import StreamRecorder
+from ..recording.records import RecordSink
+from ..spec.commands import SpecSet
 from .packets import (
     _ACK,
     _FIN,

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from ..frame import HEAD
+from ..protocol.frame import HEAD
 
 
 def _scapy_layer() -> Any:

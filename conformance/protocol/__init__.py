@@ -9,6 +9,6 @@
 * :mod:`.data_values`, :mod:`.data_parse`, :mod:`.data_format`, :mod:`.data_checks`
   and :mod:`.data_fast`: the DATA grammar (re-exported by :mod:`conformance.data`).
 
-:mod:`conformance.frame` and :mod:`conformance.data` re-export what the rest of the
+:mod:`conformance.protocol.frame` and :mod:`conformance.data` re-export what the rest of the
 kit imports; nothing here imports a higher floor.
 """

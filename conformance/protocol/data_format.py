@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Protocol
 
 from ..errors import LocalProtocolError, Rule
-from ..spec import Param
 from .data_parse import _BARE_STOP
 from .data_values import Arg, Number, Text
 
@@ -37,6 +37,14 @@ def format_number(x: int | float) -> str:
 Value = int | float | str | Sequence["Value"]
 
 
+class Quoting(Protocol):
+    """What :func:`format_call` reads of a parameter (a spec's ``Param``): whether its
+    strings are written in double quotes."""
+
+    @property
+    def quoted(self) -> bool: ...
+
+
 def format_value(value: Value, *, quoted: bool = True) -> str:
     """Format one Python value as an argument (lists become brace arrays)."""
     if isinstance(value, str):
@@ -54,7 +62,7 @@ def format_value(value: Value, *, quoted: bool = True) -> str:
     return "{" + ",".join(format_value(v, quoted=quoted) for v in value) + "}"
 
 
-def format_call(name: str, args: Sequence[Value], params: Sequence[Param] | None = None) -> str:
+def format_call(name: str, args: Sequence[Value], params: Sequence[Quoting] | None = None) -> str:
     """Build ``Name(a,b,...)``; with ``params``, strings are quoted as the spec says."""
     parts = []
     for i, a in enumerate(args):

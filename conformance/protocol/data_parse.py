@@ -29,7 +29,7 @@ from collections.abc import Callable
 from typing import Any
 
 from ..errors import RemoteProtocolError, Rule
-from . import data_fast
+from . import data_values
 from .data_values import (
     MAX_DEPTH,
     MAX_ITEMS,
@@ -109,7 +109,7 @@ class _ArgParser:
         if (
             close is None
             and self.i == 0
-            and data_fast.FAST_CHECKS
+            and data_values.FAST_CHECKS
             and _PLAIN_LIST_RE.fullmatch(self.s)
         ):
             # Faster path: plain numbers only.  A token of at most 300 characters
@@ -126,7 +126,7 @@ class _ArgParser:
             ]
             self.i = len(self.s)
             return out_
-        if close is None and data_fast.FAST_CHECKS and _SIMPLE_LIST_RE.fullmatch(self.s, self.i):
+        if close is None and data_values.FAST_CHECKS and _SIMPLE_LIST_RE.fullmatch(self.s, self.i):
             # Fast path: a flat list of numbers and bare words, no spaces or nesting.
             tokens = self.s[self.i :].split(",")
             self.counted(len(tokens))
@@ -215,7 +215,7 @@ def parse_data(data: str, *, strict: bool = False) -> Parsed:
     # name; a plain number is ASCII): a long one is not looked at twice.  Its name is
     # what comes before the first "(" (an ASCII identifier: _NAME_RE), its argument
     # text what comes between that and the final ")".
-    if data_fast.FAST_CHECKS and len(data) <= 400 and data.isascii():
+    if data_values.FAST_CHECKS and len(data) <= 400 and data.isascii():
         name, _, rest = data.partition("(")
         if (
             1 < len(rest) <= 301

@@ -52,6 +52,11 @@ MAX_DEPTH = 16
 #: manual's longest list is 75 values (specs/); this bounds the memory one DATA
 #: can cost (a 256 KB frame of ``1,1,1,...`` would otherwise be 128 K objects).
 MAX_ITEMS = 10_000
+#: The fast paths: plain-number calls read lazily and checked from their text, flat
+#: argument lists read without the parser, conforming arguments recognised by
+#: compiled per-variant checks.  Off: every call goes the careful way (the argument
+#: parser, then parameter by parameter), with the same results (tests/test_data_fast.py).
+FAST_CHECKS = True
 #: Characters of an offending DATA a message shows (it says how long the DATA was).
 SHOWN_CHARS = 80
 

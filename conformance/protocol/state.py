@@ -29,7 +29,7 @@ from typing import Any
 from zlib import adler32
 
 from ..errors import LocalProtocolError, Rule
-from .state_layout import StateLayout, known_layouts, layout_for
+from .state_layout import StateLayout
 
 __all__ = [
     "HEADER",
@@ -39,7 +39,6 @@ __all__ = [
     "StateProblem",
     "StateProblemKind",
     "checksum",
-    "decode_state",
     "encode_state",
 ]
 
@@ -225,7 +224,7 @@ def _sum16(data: bytes, stop: int) -> int:
 
 
 def encode_state(
-    layout: StateLayout | str,
+    lay: StateLayout,
     fields: Mapping[str, Any] | None = None,
     *,
     cnt: int = 0,
@@ -233,10 +232,9 @@ def encode_state(
 ) -> bytes:
     """One packet's bytes: header, ``cnt`` (0..255), LEN, ``fields`` in ``layout``, checksum.
 
-    ``layout`` is a :class:`StateLayout` or a version (``"3.8.2"``); fields not given
-    are zero.  ``bad_checksum`` sends a checksum one off (the emulator's fault).
+    Fields not given are zero.  ``bad_checksum`` sends a checksum one off (the
+    emulator's fault).
     """
-    lay = layout_for(layout) if isinstance(layout, str) else layout
     if not 0 <= cnt <= 255:
         raise LocalProtocolError(f"CNT {cnt} is not a uint8_t", rule=Rule.BAD_CNT)
     data = lay.pack(fields or {})
@@ -250,8 +248,9 @@ def encode_state(
 class StateDecoder:
     """Bytes of one 8083 connection in, :class:`StatePacket`/:class:`StateProblem` out.
 
-    ``version``: the layout the peer should send (``None``: any known one, no
-    problem); ``layouts``: the layouts known (default every ``specs/*/state.json``).
+    ``layouts``: the layouts known (the spec sets': :func:`conformance.spec.state.state_decoder`
+    makes a decoder of them); ``expected``: the layout the peer should send (``None``:
+    any known one, no problem).
     ``period_ms``: the period asked (``SetStatePeriod``); with times given to
     :meth:`feed`, two packets further apart than ``period_factor`` periods make a
     ``period`` problem.  ``max_length``: the longest LEN of an unknown layout the
@@ -260,21 +259,20 @@ class StateDecoder:
 
     def __init__(
         self,
-        version: str | None = None,
+        layouts: Iterable[StateLayout],
         *,
-        layouts: Iterable[StateLayout] | None = None,
+        expected: StateLayout | None = None,
         period_ms: float | None = None,
         period_factor: float = 2.0,
         max_length: int = DEFAULT_MAX_LENGTH,
     ) -> None:
-        self.layouts = tuple(layouts) if layouts is not None else known_layouts()
+        self.layouts = tuple(layouts)
         self.by_length: dict[int, StateLayout] = {}
         for lay in self.layouts:  # the oldest version wins a LEN two layouts share
             self.by_length.setdefault(lay.data_length, lay)
-        self.expected = next((lay for lay in self.layouts if lay.version == version), None)
-        if version is not None and self.expected is None:
-            self.expected = layout_for(version)
-            self.by_length.setdefault(self.expected.data_length, self.expected)
+        self.expected = expected
+        if expected is not None:
+            self.by_length.setdefault(expected.data_length, expected)
         self.max_length = max(max_length, *(lay.data_length for lay in self.layouts), 0)
         self.period_ms = period_ms
         self._period_asked = False
@@ -585,9 +583,3 @@ class StateDecoder:
         )
         self._garbage = 0
         self._garbage_raw.clear()
-
-
-def decode_state(data: bytes, version: str | None = None) -> list[StateEvent]:
-    """Every event of a whole stream (a convenience for tests and tools)."""
-    dec = StateDecoder(version)
-    return dec.feed(data) + dec.close()

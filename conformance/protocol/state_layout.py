@@ -1,4 +1,4 @@
-"""The port-8083 state packet layouts, as data: ``specs/fairino-<version>/state.json``.
+"""The port-8083 state packet layouts: ``specs/fairino-<version>/state.json`` compiled.
 
 Each layout is the DATA of one controller version's state packet (the 8083 state
 manual's table 2-2, written by ``tools/extract_state.py``): named C fields at byte
@@ -10,24 +10,18 @@ S1 say why).  :class:`StateLayout` compiles one into a single precompiled
 
 from __future__ import annotations
 
-import functools
-import json
 import math
 import struct
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 from ..errors import LocalProtocolError, Rule, SpecError
-from ..spec import specs_root
 
 __all__ = [
     "StateField",
     "StateLayout",
-    "known_layouts",
-    "layout_for",
-    "load_layout",
+    "layout_from_doc",
 ]
 
 #: C type -> struct format character (state.json's ``ctype``).
@@ -258,34 +252,9 @@ def _field(raw: Mapping[str, Any], structs: Mapping[str, Any]) -> StateField:
     )
 
 
-def load_layout(path: Path | str) -> StateLayout:
-    """The layout in one ``state.json`` (written by ``tools/extract_state.py``)."""
-    p = Path(path)
-    try:
-        doc = json.loads(p.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as e:
-        raise SpecError(f"cannot read the state layout: {e}", path=str(p)) from None
-    try:
-        structs = doc["structs"]
-        fields = [_field(f, structs) for f in doc["fields"]]
-        return StateLayout(str(doc["spec_version"]), fields, doc=doc)
-    except (KeyError, TypeError) as e:
-        raise SpecError(f"not a state layout (missing {e})", path=str(p)) from None
-
-
-@functools.lru_cache(maxsize=1)
-def known_layouts() -> tuple[StateLayout, ...]:
-    """Every ``specs/*/state.json``, oldest version first."""
-    root = specs_root()
-    found = [load_layout(p) for p in sorted(root.glob("*/state.json"))]
-    return tuple(sorted(found, key=lambda lay: tuple(int(x) for x in lay.version.split("."))))
-
-
-def layout_for(version: str) -> StateLayout:
-    """The layout of ``version`` (``3.8.2``); a :class:`SpecError` names the known ones."""
-    v = version.removeprefix("v")
-    for lay in known_layouts():
-        if lay.version == v:
-            return lay
-    have = ", ".join(lay.version for lay in known_layouts()) or "none"
-    raise SpecError(f"no state layout for version {version} (known: {have})")
+def layout_from_doc(doc: Mapping[str, Any]) -> StateLayout:
+    """The layout one ``state.json`` document describes (``tools/extract_state.py`` writes
+    them); a :class:`KeyError` or :class:`TypeError` for a document that is none."""
+    structs = doc["structs"]
+    fields = [_field(f, structs) for f in doc["fields"]]
+    return StateLayout(str(doc["spec_version"]), fields, doc=doc)

@@ -92,7 +92,7 @@ __all__ = [
 ]
 
 #: A recorded frame's direction as its text on disk: the values of
-#: :class:`conformance.verdict.Direction` (``c2s`` = REQUEST, ``s2c`` = REPLY), kept as plain
+#: :class:`conformance.judge.verdict.Direction` (``c2s`` = REQUEST, ``s2c`` = REPLY), kept as plain
 #: strings in the recorder's hot path and the MCAP columns.
 DirectionText = Literal["c2s", "s2c"]
 #: Client to controller (requests).
@@ -297,7 +297,7 @@ def state_schema() -> Mapping[str, Any]:
     the union; a field whose type differs between versions takes either), typed as the
     decoder gives it: integers, numbers (a non-finite float as null), fixed-length
     arrays, text, and objects for the structures."""
-    from ..protocol.state_layout import known_layouts
+    from ..spec.state import known_layouts
 
     props: dict[str, dict[str, Any]] = {}
     seen: dict[str, list[str]] = {}

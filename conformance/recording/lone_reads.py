@@ -5,10 +5,10 @@ turns; reading each one alone (a regex match, a frame object, a call to the writ
 more than everything else the recorder does for it.  :class:`~.recorder.StreamRecorder`
 holds such reads (up to ``LONE_MAX``, while its decoders hold nothing, and never past a
 read, a record or a call of another kind) and :func:`read_together` reads them as one
-run of frames (the split :meth:`~conformance.frame.FrameDecoder.take_run` uses, in C).
+run of frames (the split :meth:`~conformance.protocol.decoder.FrameDecoder.take_run` uses, in C).
 Where every read is exactly one standard frame, the frames are those each read alone
 gives (the split prints them back and compares), and each stream's decoder goes on after
-its frames (:meth:`~conformance.frame.FrameDecoder.skip_frames`); anything else (a cut
+its frames (:meth:`~conformance.protocol.decoder.FrameDecoder.skip_frames`); anything else (a cut
 frame, a deviation, garbage) and the recorder reads each read alone, in order, as before.
 """
 

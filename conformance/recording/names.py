@@ -8,7 +8,7 @@ from collections.abc import Sequence
 from itertools import repeat
 from typing import Any
 
-from ..spec import SpecSet
+from ..spec.commands import SpecSet
 
 _NAME_RE = re.compile(r"\s*([A-Za-z_][A-Za-z0-9_]*)")
 # StreamRecorder._id_names: not looked up yet / the ID alone does not decide the name.

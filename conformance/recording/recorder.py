@@ -13,17 +13,10 @@ from collections.abc import Callable, Sequence
 from functools import partial
 from itertools import accumulate
 
-from ..frame import (
-    DEFAULT_MAX_FRAME_SIZE,
-    SEP,
-    TAIL,
-    Event,
-    Frame,
-    FrameDecoder,
-    FrameRun,
-    Malformed,
-)
-from ..spec import SpecSet
+from ..protocol.decoder import FrameDecoder
+from ..protocol.frame import DEFAULT_MAX_FRAME_SIZE, SEP, TAIL, Event, Frame, Malformed
+from ..protocol.frame_run import FrameRun
+from ..spec.commands import SpecSet
 from .layout import C2S, PROBLEM_RAW_LIMIT, S2C, STATE_STREAM, DirectionText
 from .lone_reads import LONE_MAX, LoneRead, read_together
 from .names import _CommandNames
@@ -251,7 +244,7 @@ class StreamRecorder(_CommandNames):
         """Bytes of a TCP stream, in order, as they arrived at ``t_ns``.
 
         Where the decoder holds nothing, standard frames back to back are taken as a
-        :class:`~conformance.frame.FrameRun` and written as one batch (the columns
+        :class:`~conformance.protocol.frame_run.FrameRun` and written as one batch (the columns
         straight from the split, no tuple per frame); anything else goes through
         :meth:`FrameDecoder.feed` a slice at a time.  Either way ``checkpoint`` runs
         after each piece, and the records are the same.

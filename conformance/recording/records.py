@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from itertools import accumulate, repeat
 from typing import Any, Literal, NamedTuple, Protocol
 
-from ..frame import Frame, Malformed
+from ..protocol.frame import Frame, Malformed
 from .layout import PROBLEM_RAW_LIMIT, DirectionText
 
 __all__ = [
@@ -101,7 +101,7 @@ class FrameRecord:
         )
 
     def frame(self) -> Frame:
-        """The frame as the codec's :class:`~conformance.frame.Frame` (for validation)."""
+        """The frame as the codec's :class:`~conformance.protocol.frame.Frame` (for validation)."""
         from ..errors import Rule
 
         probs = []

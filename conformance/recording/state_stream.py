@@ -18,8 +18,8 @@ from __future__ import annotations
 
 from collections import deque
 
-from ..protocol.state import StateDecoder as _Decoder
 from ..protocol.state import StatePacket, StateProblem, StateProblemKind
+from ..spec.state import state_decoder as _Decoder
 from .layout import C2S, PROBLEM_RAW_LIMIT, S2C, STATE_KIND, DirectionText
 from .records import ProblemRecord, RecordSink, StateRecord
 

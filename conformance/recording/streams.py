@@ -6,7 +6,7 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass
 
-from ..frame import FrameDecoder
+from ..protocol.decoder import FrameDecoder
 from .state_stream import StateStream
 
 __all__ = ["_TIMELINE_MAX", "_Conn", "_Stream"]

@@ -77,7 +77,7 @@ def default_metadata(start_ns: int | None = None, **extra: str) -> dict[str, str
 
     ``start_ns``: when the traffic started (``start_ns``, ``start_time``), now unless
     given; an import gives its capture's first packet time."""
-    from ..spec import default_specs
+    from ..spec.commands import default_specs
 
     try:
         spec_version = default_specs().spec_version

@@ -6,7 +6,7 @@ from __future__ import annotations
 import re
 from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 
-from ..verdict import SEVERITY, Outcome, aggregate, worst
+from ..judge.verdict import SEVERITY, Outcome, aggregate, worst
 from .model import NOT_RUN, CaseResult, CommandSummary, Report, spec_label
 from .text import plural
 

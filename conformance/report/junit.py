@@ -7,7 +7,7 @@ import xml.etree.ElementTree as ET
 from collections.abc import Sequence
 from pathlib import Path
 
-from ..verdict import Outcome
+from ..judge.verdict import Outcome
 from .model import CaseResult, Report, spec_label
 
 __all__ = ["junit_xml", "write_junit"]

@@ -20,7 +20,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from ..errors import SpecError
-from ..verdict import SEVERITY, Outcome, worst
+from ..judge.verdict import SEVERITY, Outcome, worst
 from .html import render_html
 from .model import NOT_RUN, CommandSummary, Report, spec_label
 
@@ -36,7 +36,7 @@ NONE = "-"
 def spec_cmd_ids(version: str) -> frozenset[int] | None:
     """The command IDs of a shipped spec set (its alternative IDs too), or None when no
     spec set of that version is shipped (then nothing is called absent)."""
-    from ..spec import load_spec_version
+    from ..spec.commands import load_spec_version
 
     try:
         return frozenset(load_spec_version(version).cmd_ids)

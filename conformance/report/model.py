@@ -16,15 +16,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from .._version import __version__
-from ..errors import (
-    EXIT_DAMAGED,
-    EXIT_ERROR,
-    EXIT_FAIL,
-    EXIT_INTERRUPTED,
-    EXIT_OK,
-    ReportFileError,
-)
-from ..verdict import SEVERITY, Outcome, aggregate, fails
+from ..errors import EXIT_DAMAGED, EXIT_ERROR, EXIT_FAIL, EXIT_INTERRUPTED, EXIT_OK, ReportFileError
+from ..judge.verdict import SEVERITY, Outcome, aggregate, fails
 from .text import plural, printable
 
 __all__ = [

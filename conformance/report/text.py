@@ -3,9 +3,9 @@ reproduces them byte for byte (the reproduction lines of ``run`` and ``serve``).
 
 from __future__ import annotations
 
-from ..judge import Verdict
-from ..spec import SpecSet, error_code_text
-from ..validate import RefusalForm
+from ..judge.judge import Verdict
+from ..judge.requests import RefusalForm
+from ..spec.commands import SpecSet, error_code_text
 
 __all__ = ["plural", "printable", "refusal_text", "shell_printf", "show"]
 

@@ -7,11 +7,11 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
 from ..errors import UsageError
-from ..firmware import SpecChoice
-from ..frame import DEFAULT_MAX_FRAME_SIZE
-from ..net import format_address
-from ..safety import SafetyPolicy
-from ..spec import Command, SpecSet
+from ..net.addresses import format_address
+from ..protocol.frame import DEFAULT_MAX_FRAME_SIZE
+from ..spec.commands import Command, SpecSet
+from ..spec.firmware import SpecChoice
+from ..spec.safety import SafetyPolicy
 
 __all__ = ["DEFAULT_BUDGET", "GROUPS", "PROFILES", "Profile", "SuiteConfig", "select_commands"]
 

@@ -1,7 +1,7 @@
 """The suite's engine: select cases, run them, emit typed events, keep the report.
 
 Two front-ends sit on it and nothing else runs cases (schemathesis' shape):
-``fairino-conformance run`` (:mod:`conformance.commands.suite`) consumes
+``fairino-conformance run`` (:mod:`conformance.cli.suite`) consumes
 :meth:`Engine.events` and draws a progress line; the pytest plugin
 (:mod:`conformance.pytest_plugin`) makes one test item per case and calls
 :meth:`Engine.run_case`.  Both read the options from one definition
@@ -23,12 +23,12 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
 
 from ..errors import EmulatorError, UsageError
+from ..judge.verdict import Outcome, fails
 from ..net.addresses import format_address
-from ..report import CaseResult, Report
+from ..report.model import CaseResult, Report
 from ..report.text import plural
-from ..spec import SpecSet, default_specs
-from ..verdict import Outcome, fails
-from .cases import build_cases
+from ..spec.commands import SpecSet, default_specs
+from .cases.build import build_cases
 from .config import SuiteConfig
 from .runner import Case, SuiteRunner, not_run_result
 from .spec_choice import load_chosen, note_spec

@@ -11,14 +11,16 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-from ..data import Call, Violation
 from ..errors import Rule
-from ..frame import Frame, decode_all
-from ..judge import Judge
-from ..judge import Verdict as FrameVerdict
+from ..judge.judge import Judge
+from ..judge.judge import Verdict as FrameVerdict
+from ..judge.requests import ReplyVerdict
+from ..judge.verdict import Outcome, Reference, fails
 from ..net.client import Exchange
-from ..validate import ReplyVerdict
-from ..verdict import Outcome, Reference, fails
+from ..protocol.data_values import Call
+from ..protocol.decoder import decode_all
+from ..protocol.frame import Frame
+from ..spec.checks import Violation
 
 __all__ = [
     "RequestMemo",

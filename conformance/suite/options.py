@@ -374,7 +374,7 @@ def load_expected_failures(path: str) -> frozenset[str]:
             path=path,
         ) from None
     if text.lstrip().startswith("{"):
-        from ..report import load_report
+        from ..report.model import load_report
 
         try:
             rep = load_report(path)
@@ -389,9 +389,9 @@ def suite_config(values: Mapping[str, Any], *, seed: int | None = None) -> Suite
     """A :class:`SuiteConfig` from :func:`resolve`'s values (``seed``: when not among them)."""
     import random
 
-    from ..faults import parse_fault
-    from ..net import parse_address
-    from ..safety import SafetyPolicy
+    from ..net.addresses import parse_address
+    from ..spec.safety import SafetyPolicy
+    from ..twin.faults import parse_fault
 
     target_text = values["target"]
     target = (

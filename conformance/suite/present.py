@@ -15,9 +15,10 @@ from __future__ import annotations
 import math
 from typing import TextIO
 
-from ..report import Report, junit_xml, write_junit
+from ..judge.verdict import Reference, fails
+from ..report.junit import junit_xml, write_junit
+from ..report.model import Report
 from ..report.text import plural
-from ..verdict import Reference, fails
 from .engine import WOULD_RUN, CaseFinished, Event, RunFinished, RunStarted, RunWarning
 
 __all__ = ["Estimate", "Progress", "dry_run_lines", "junit_xml", "write_junit"]

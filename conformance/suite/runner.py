@@ -24,19 +24,19 @@ from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-from ..dialects import dialects_from
 from ..errors import ConformanceError, Rule
-from ..frame import Frame, Malformed, encode_frame
-from ..judge import Reference
-from ..judge import Verdict as FrameVerdict
-from ..knowledge import default_data, health_query, unsolicited_ids
+from ..judge.judge import Verdict as FrameVerdict
+from ..judge.requests import ReplyVerdict
+from ..judge.verdict import Outcome, Reference, fails
 from ..net.client import Client, Exchange, TargetUnreachable
-from ..report import CaseResult, Report
-from ..spec import Command, SpecSet, Variant
-from ..validate import ReplyVerdict
-from ..verdict import Outcome, fails
+from ..protocol.frame import Frame, Malformed, encode_frame
+from ..report.model import CaseResult, Report
+from ..report.text import shell_printf
+from ..spec.commands import Command, SpecSet, Variant
+from ..spec.dialects import dialects_from
+from ..spec.knowledge import default_data, health_query, unsolicited_ids
 from .config import SuiteConfig
-from .evidence import describe_exchange, reproduction, shell_printf
+from .evidence import describe_exchange, reproduction
 from .judging import RequestMemo, reply_classification, request_frame, transport_free
 from .liveness import AstrayWatch
 

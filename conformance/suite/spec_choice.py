@@ -2,7 +2,7 @@
 
 A version (or a spec-set directory) is taken as given; ``auto`` asks the target
 ``GetSoftwareVersion()`` (ID 905) once, on a connection of its own, and picks the newest
-spec set not newer than the firmware it reports (:func:`conformance.firmware.choose_spec`);
+spec set not newer than the firmware it reports (:func:`conformance.spec.firmware.choose_spec`);
 an offline reading (``check``, ``info``, ``replay``, ``diff``) reads the first 905 reply of
 its traffic instead (:func:`reported_in`).  A target that does not answer, or a reading
 with no such reply, leaves the default spec set with one warning line.  Without the option
@@ -16,21 +16,11 @@ from collections.abc import Iterable
 from dataclasses import replace
 from pathlib import Path
 
-from ..dialects import DialectSet
 from ..errors import SpecError, UsageError
-from ..firmware import (
-    AUTO,
-    GET_SOFTWARE_VERSION,
-    GET_SOFTWARE_VERSION_ID,
-    SoftwareVersion,
-    SpecChoice,
-    choose_spec,
-    parse_software_version,
-)
 from ..net.addresses import format_address
 from ..net.client import Client, TargetUnreachable
-from ..report import Report
-from ..spec import (
+from ..report.model import Report
+from ..spec.commands import (
     DEFAULT_SPEC_SET,
     SPEC_SET_PREFIX,
     SpecSet,
@@ -38,6 +28,16 @@ from ..spec import (
     default_specs,
     load_spec_version,
     spec_set_dir,
+)
+from ..spec.dialects import DialectSet
+from ..spec.firmware import (
+    AUTO,
+    GET_SOFTWARE_VERSION,
+    GET_SOFTWARE_VERSION_ID,
+    SoftwareVersion,
+    SpecChoice,
+    choose_spec,
+    parse_software_version,
 )
 from .config import SuiteConfig
 

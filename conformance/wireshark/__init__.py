@@ -1,25 +1,25 @@
 """A Wireshark Lua dissector generated from the specs (``specs export --wireshark``).
 
-The dissector is the kit's frame reading (:mod:`conformance.frame`) ported to
+The dissector is the kit's frame reading (:mod:`conformance.protocol.frame`) ported to
 Lua: LEN-driven (DATA may contain ``III`` or ``/b/f``), the same lenient
 readings of a broken frame (``II``/``IIII`` separators, a LEN that disagrees
 with DATA: the earliest ``/b/f`` after two ``I`` and before the next head ends
 the frame), and skipped bytes (garbage, NUL padding) up to the next ``/f/b``.
 Its command table is the spec set's (1.1, table 1-1-1: CMD_ID names the
 command; an ID the manual gives two commands lists both, and a frame is named as
-:meth:`conformance.spec.SpecSet.resolve` names it: by the call name in DATA,
+:meth:`conformance.spec.commands.SpecSet.resolve` names it: by the call name in DATA,
 else by the command whose adopted ID it is), plus the field dialects' IDs,
 labelled as such.  Nothing is decided per command: the table is data.
 
 A reply that refuses is shown as a refusal, read as
-:func:`conformance.validate.classify_reply` reads it: ``robot errcode:N`` from
+:func:`conformance.judge.requests.classify_reply` reads it: ``robot errcode:N`` from
 any command; a lone ``0`` or code where an ID's commands all reply an error code
 only (``1`` is success); a lone ``0`` or chapter 9 code where they all reply
 several values.  Without the request (the dissector does not pair), an ID whose
 commands reply in both shapes is read only for the text form.  The code is shown
 with its meaning from chapter 9 (``error_codes.json``), in Chinese, and in
 English where the v3.9.8 English manual's error table gives the code
-(:func:`conformance.spec.english_error_code`).
+(:func:`conformance.spec.commands.english_error_code`).
 
 Besides the configured ports, a heuristic dissector takes any TCP or UDP payload
 that starts with ``/f/bIII`` (on by default; the protocol preference
@@ -32,9 +32,9 @@ from __future__ import annotations
 import re
 from collections.abc import Iterable, Mapping
 
-from ..dialects import ERRCODE_RETURNS, Dialect, DialectSet, manual_command
-from ..frame import DEFAULT_MAX_FRAME_SIZE
-from ..spec import Returns, SpecSet, english_error_code
+from ..protocol.frame import DEFAULT_MAX_FRAME_SIZE
+from ..spec.commands import Returns, SpecSet, english_error_code
+from ..spec.dialects import ERRCODE_RETURNS, Dialect, DialectSet, manual_command
 from .lua import LUA
 
 __all__ = ["FIELDS", "english_meanings", "lua_dissector", "reply_kind"]
@@ -138,7 +138,7 @@ def _reply_table(specs: SpecSet, dialects: DialectSet) -> Iterable[str]:
 
 def english_meanings(specs: SpecSet) -> dict[int, str]:
     """Code -> English meaning for ``specs``' error codes, where the v3.9.8 English
-    manual's table has the code (:func:`conformance.spec.english_error_code`) and
+    manual's table has the code (:func:`conformance.spec.commands.english_error_code`) and
     ``specs`` does not already say the same (the v3.9.8 set itself)."""
     return {
         e.code: en.meaning

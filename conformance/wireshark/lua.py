@@ -4,7 +4,7 @@
 (command names, field dialects, how a lone integer reply reads, chapter 9's codes);
 ``@TCP_PORT@``, ``@UDP_PORT@``, ``@MAX_FRAME@`` and ``@VERSION@`` the settings.  The
 reading (``read_frame``) is :mod:`conformance.protocol.frame`'s, the refusal
-(``refusal_of``) :func:`conformance.validate.classify_reply`'s, ported to Lua.
+(``refusal_of``) :func:`conformance.judge.requests.classify_reply`'s, ported to Lua.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The cases, by group, built from the specs (no per-command logic: see conformance.knowledge).
+"""The cases, by group, built from the specs (no per-command logic: see conformance.spec.knowledge).
 
 Case IDs are derived from content, never position:
 ``{cmd_id}/{name}/{group}/{what}`` (``what`` names the variant table, the

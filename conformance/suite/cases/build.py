@@ -5,8 +5,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from ...knowledge import derive_pairs, motion_targets
-from ...spec import Command, SpecSet, Variant
+from ...spec.commands import Command, SpecSet, Variant
+from ...spec.knowledge import derive_pairs, motion_targets
 from ..config import GROUPS, SuiteConfig, select_commands
 from ..runner import Case, SuiteRunner, Verdict
 from .examples import _run_example

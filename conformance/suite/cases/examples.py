@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
-from ...frame import Frame, decode_all, encode_frame
-from ...report import Outcome
+from ...judge.verdict import Outcome
+from ...protocol.decoder import decode_all
+from ...protocol.frame import Frame, encode_frame
 from ..runner import Case, SuiteRunner, Verdict
 from .shared import _judge_success
 

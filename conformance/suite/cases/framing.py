@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
-from ...frame import encode_frame
-from ...knowledge import default_data
-from ...report import Outcome
-from ..runner import Case, CaseFailure, SuiteRunner, Verdict, describe_exchange
+from ...judge.verdict import Outcome
+from ...protocol.frame import encode_frame
+from ...spec.knowledge import default_data
+from ..evidence import describe_exchange
+from ..runner import Case, CaseFailure, SuiteRunner, Verdict
 
 
 def _run_framing(runner: SuiteRunner, case: Case) -> Verdict:

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+from ...judge.requests import ERR_ARG_COUNT, ERR_ARG_VALUE
+from ...judge.verdict import Outcome
 from ...net.client import Exchange
-from ...report import Outcome
-from ...spec import Command, Variant
-from ...strategies import BOUNDS, bounds_applies, invalid_call_batches, invalid_kinds
-from ...validate import ERR_ARG_COUNT, ERR_ARG_VALUE
-from ..runner import Case, CaseFailure, SuiteRunner, Verdict, describe_exchange
+from ...spec.commands import Command, Variant
+from ..evidence import describe_exchange
+from ..runner import Case, CaseFailure, SuiteRunner, Verdict
+from ..strategies import BOUNDS, bounds_applies, invalid_call_batches, invalid_kinds
 from .shared import _batched, _notes
 
 _EXPECTED_CODE = {

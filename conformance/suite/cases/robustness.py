@@ -4,11 +4,12 @@ command ID and garbage must not be executed, and must leave the target answering
 
 from __future__ import annotations
 
-from ...frame import encode_frame
-from ...knowledge import default_data
-from ...report import Outcome
-from ...strategies import garbage
-from ..runner import Case, CaseFailure, SuiteRunner, Verdict, describe_exchange
+from ...judge.verdict import Outcome
+from ...protocol.frame import encode_frame
+from ...spec.knowledge import default_data
+from ..evidence import describe_exchange
+from ..runner import Case, CaseFailure, SuiteRunner, Verdict
+from ..strategies import garbage
 from .shared import _hypothesis
 
 

@@ -18,12 +18,13 @@ from hypothesis import HealthCheck, Phase
 from hypothesis import strategies as st
 from hypothesis.errors import Unsatisfiable
 
+from ...judge.requests import ERR_ARG_COUNT, ERR_ARG_VALUE
+from ...judge.verdict import Outcome
 from ...net.client import Exchange
-from ...report import Outcome
-from ...spec import Variant
-from ...strategies import Batch
-from ...validate import ERR_ARG_COUNT, ERR_ARG_VALUE
-from ..runner import Case, CaseFailure, SuiteRunner, Verdict, describe_exchange
+from ...spec.commands import Variant
+from ..evidence import describe_exchange
+from ..runner import Case, CaseFailure, SuiteRunner, Verdict
+from ..strategies import Batch
 
 PROTOCOL_ID = 0
 PROTOCOL = "protocol"

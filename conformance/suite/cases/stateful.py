@@ -8,8 +8,11 @@ import math
 from collections.abc import Callable
 from typing import Any, Protocol
 
-from ...data import Value, format_call, format_number, parse_reply, to_python
-from ...knowledge import (
+from ...judge.verdict import Outcome
+from ...protocol.data_format import Value, format_call, format_number, to_python
+from ...protocol.data_parse import parse_reply
+from ...spec.commands import Command, SpecSet, Variant
+from ...spec.knowledge import (
     MotionTargets,
     StatePair,
     default_args,
@@ -18,10 +21,9 @@ from ...knowledge import (
     motion_targets,
     position_query,
 )
-from ...report import Outcome
-from ...spec import Command, SpecSet, Variant
-from ...strategies import Batch, Step, step_programs
-from ..runner import Case, CaseFailure, SuiteRunner, Verdict, describe_exchange
+from ..evidence import describe_exchange
+from ..runner import Case, CaseFailure, SuiteRunner, Verdict
+from ..strategies import Batch, Step, step_programs
 from .shared import _hypothesis, _judge_success
 
 

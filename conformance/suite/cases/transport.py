@@ -6,12 +6,13 @@ from __future__ import annotations
 
 import threading
 
-from ...frame import encode_frame
-from ...knowledge import default_data
+from ...judge.verdict import Outcome
 from ...net.client import Exchange
-from ...report import Outcome
-from ...spec import Variant
-from ..runner import Case, CaseFailure, SuiteRunner, Verdict, describe_exchange
+from ...protocol.frame import encode_frame
+from ...spec.commands import Variant
+from ...spec.knowledge import default_data
+from ..evidence import describe_exchange
+from ..runner import Case, CaseFailure, SuiteRunner, Verdict
 
 
 def _run_pipelined(runner: SuiteRunner, case: Case) -> Verdict:

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 from ...net.client import Exchange
-from ...strategies import valid_call_batches
 from ..runner import Case, SuiteRunner, Verdict
+from ..strategies import valid_call_batches
 from .shared import _batched, _judge_success, _notes
 
 

@@ -1,0 +1,516 @@
+"""Recording live traffic: ``proxy`` (in the path) and ``capture`` (a passive tap).
+
+What reads a recording afterwards (``info``, ``check``, ``diff``, ``replay``, ``recover``,
+``import-pcap``, ``export-pcap``) is in :mod:`conformance.cli.recordings`."""
+
+from __future__ import annotations
+
+import argparse
+import re
+import signal
+import sys
+import threading
+import time
+from typing import Any
+
+from ..errors import UsageError
+from ..net.addresses import Address, format_address, parse_address
+from ..protocol.frame import DEFAULT_MAX_FRAME_SIZE
+from ..recording.layout import C2S, MIN_SPLIT_SIZE
+from ..recording.records import FrameRecord
+from .specs_option import add_specs_dir, specs_of
+
+__all__ = ["format_frame_line", "parse_duration", "parse_size", "register"]
+
+
+def parse_size(text: str) -> int:
+    """``1048576``, ``100k``, ``64M``, ``2G`` → bytes."""
+    m = re.fullmatch(r"\s*(\d+(?:\.\d+)?)\s*([kKmMgG]?)[bB]?\s*", text)
+    if not m:
+        raise argparse.ArgumentTypeError(f"bad size {text!r} (e.g. 100M)")
+    mult = {"": 1, "k": 1 << 10, "m": 1 << 20, "g": 1 << 30}[m.group(2).lower()]
+    return int(float(m.group(1)) * mult)
+
+
+_SPLIT_SIZE_HELP = (
+    "start a new file before this one would pass SIZE (e.g. 100M; at least 16K): each file "
+    "ends within SIZE, its index included, unless one batch of frames is larger than a "
+    "chunk (SIZE/4, at most 1M)"
+)
+
+
+def _split_size(text: str) -> int:
+    size = parse_size(text)
+    if size < MIN_SPLIT_SIZE:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is below {MIN_SPLIT_SIZE // 1024}K: a file holds its own index (about 5K)"
+        )
+    return size
+
+
+def parse_duration(text: str) -> float:
+    """``30``, ``30s``, ``15m``, ``2h`` → seconds."""
+    m = re.fullmatch(r"\s*(\d+(?:\.\d+)?)\s*(ms|s|m|h)?\s*", text)
+    if not m:
+        raise argparse.ArgumentTypeError(f"bad duration {text!r} (e.g. 15m)")
+    mult = {None: 1.0, "ms": 1e-3, "s": 1.0, "m": 60.0, "h": 3600.0}[m.group(2)]
+    return float(m.group(1)) * mult
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    p = sub.add_parser(
+        "proxy",
+        help="record traffic between a client and a controller to MCAP",
+        description="Forward TCP (and with --udp, UDP) traffic and record every frame to MCAP.",
+    )
+    p.add_argument(
+        "--listen", default="127.0.0.1:18080", help="address to listen on (default 127.0.0.1:18080)"
+    )
+    p.add_argument(
+        "--upstream",
+        required=True,
+        help="controller address HOST:PORT (port 8080 on a real controller)",
+    )
+    p.add_argument("--out", "-o", required=True, help="MCAP file to write")
+    p.add_argument("--udp", action="store_true", help="proxy the UDP transport too")
+    p.add_argument(
+        "--udp-listen", help="UDP listen address (default: the --listen host, port 20007)"
+    )
+    p.add_argument(
+        "--udp-upstream", help="controller UDP address (default: the --upstream host, port 20007)"
+    )
+    p.add_argument(
+        "--state-upstream",
+        metavar="HOST:PORT",
+        help="also proxy the controller's state port (8083 status feedback) and record its "
+        "packets on /fairino/state (default port 8083)",
+    )
+    p.add_argument(
+        "--state-listen",
+        metavar="HOST:PORT",
+        help="where clients connect for the state port (default: the --listen host, port "
+        "18083); given alone, the state upstream is the --upstream host, port 8083",
+    )
+    p.add_argument("--split-size", type=_split_size, metavar="SIZE", help=_SPLIT_SIZE_HELP)
+    p.add_argument(
+        "--split-duration", type=parse_duration, help="start a new file after this time (e.g. 15m)"
+    )
+    p.add_argument(
+        "--print", dest="print_frames", action="store_true", help="print one line per frame"
+    )
+    p.add_argument(
+        "--connect-timeout",
+        type=float,
+        default=5.0,
+        metavar="SECONDS",
+        help="how long to wait for the upstream to accept each connection (default 5)",
+    )
+    p.add_argument(
+        "--max-connections",
+        type=int,
+        metavar="N",
+        help="TCP connections forwarded at once; beyond, a new client is accepted, closed "
+        "and recorded as refused (default 512, fewer if the descriptor limit is lower)",
+    )
+    p.add_argument(
+        "--max-frame-size",
+        type=parse_size,
+        default=DEFAULT_MAX_FRAME_SIZE,
+        metavar="SIZE",
+        help="largest frame the recorder decodes; longer runs are recorded as problems "
+        "(default 256K; with the recorder's other buffers, memory per connection is a "
+        "few times this)",
+    )
+    p.add_argument(
+        "--max-pending",
+        type=parse_size,
+        default=1 << 20,
+        metavar="SIZE",
+        help="unsent bytes buffered per direction of a connection; beyond, the proxy stops "
+        "reading from the sender until the receiver catches up (default 1M)",
+    )
+    p.add_argument(
+        "--max-backlog",
+        type=parse_size,
+        default=64 << 20,
+        metavar="SIZE",
+        help="bytes read but not yet taken by the recorder, all connections together; "
+        "beyond, the proxy stops reading until the recorder catches up, so nothing is "
+        "dropped (default 64M; the proxy's memory peaks at about twice this)",
+    )
+    p.add_argument(
+        "--stop-timeout",
+        type=float,
+        default=1.0,
+        metavar="SECONDS",
+        help="on SIGINT/SIGTERM, decode what the recorder is behind on for this long, then "
+        "write the rest to the file undecoded (default 1)",
+    )
+    p.add_argument(
+        "--on-write-error",
+        choices=("forward", "stop"),
+        default="forward",
+        help="when the recording cannot be written (disk full, file too large, I/O error), "
+        "said at once either way: forward keeps forwarding, unrecorded, and says every "
+        "second how many bytes are not recorded (the default: the proxy never stops a "
+        "cell); stop closes every connection and stops, so nothing passes unrecorded",
+    )
+    add_specs_dir(p)
+    add_label_options(p)
+    p.set_defaults(func=_run_proxy)
+
+    cp = sub.add_parser(
+        "capture",
+        help="record an interface's traffic passively to MCAP (raw packet socket; root)",
+        description="Tap an interface with a raw packet socket (needs CAP_NET_RAW) and record "
+        "the traffic to and from the given ports, as import-pcap would, without sitting in "
+        "its path. SIGINT/SIGTERM finish the file.",
+    )
+    cp.add_argument("--iface", "-i", required=True, help="interface to tap (e.g. eth0, lo)")
+    cp.add_argument(
+        "--port",
+        type=int,
+        action="append",
+        default=[],
+        help="controller TCP port (default 8080; repeatable)",
+    )
+    cp.add_argument(
+        "--udp-port",
+        type=int,
+        action="append",
+        default=[],
+        help="controller UDP port (default 20007; repeatable)",
+    )
+    cp.add_argument(
+        "--state-port",
+        type=int,
+        action="append",
+        default=[],
+        help="controller state port (8083 status feedback): its packets recorded on "
+        "/fairino/state (repeatable; default none)",
+    )
+    cp.add_argument("--out", "-o", required=True, help="MCAP file to write")
+    cp.add_argument("--split-size", type=_split_size, metavar="SIZE", help=_SPLIT_SIZE_HELP)
+    cp.add_argument(
+        "--split-duration", type=parse_duration, help="start a new file after this time (e.g. 15m)"
+    )
+    cp.add_argument("--duration", type=parse_duration, help="stop after this long (e.g. 30s)")
+    cp.add_argument("--max-frames", type=int, metavar="N", help="stop once N frames are recorded")
+    add_specs_dir(cp)
+    add_label_options(cp)
+    cp.set_defaults(func=_run_capture)
+
+
+# --------------------------------------------------------------------------- proxy
+
+
+def format_frame_line(f: FrameRecord, name: str | None = None) -> str:
+    """One tcpdump-like line: time, connection, direction, CNT, ID, name, short DATA.
+
+    ``name``: the judge's name of the frame (a dispatched call's), else the recorded one."""
+    t = f.complete_ns
+    stamp = time.strftime("%H:%M:%S", time.localtime(t / 1e9)) + f".{t % 1_000_000_000 // 1000:06d}"
+    arrow = ">" if f.dir == C2S else "<"
+    data = f.data if len(f.data) <= 60 else f.data[:57] + "..."
+    extra = f"  !{','.join(f.problems)}" if f.problems else ""
+    shown = name or f.name or "?"
+    return f"{stamp} #{f.conn} {arrow} CNT={f.cnt} ID={f.cmd_id} {shown} {data}{extra}"
+
+
+def _side_ports(
+    upstream: Address,
+    listen: Address,
+    up: tuple[str | None, int, str],
+    local: tuple[str | None, int, str],
+) -> tuple[Address, Address]:
+    """The upstream and listen addresses of a port beside the command port (UDP, state):
+    each given as (option text or None, default port, option name); an option not given
+    takes the command port's host with the default port."""
+    text, port, option = up
+    up_addr = (
+        Address(upstream.host, port)
+        if text is None
+        else parse_address(text, default_port=port, option=option)
+    )
+    text, port, option = local
+    local_addr = (
+        Address(listen.host, port)
+        if text is None
+        else parse_address(text, default_port=port, listen=True, option=option)
+    )
+    return up_addr, local_addr
+
+
+def _run_proxy(args: argparse.Namespace) -> int:
+    from ..net.proxy import RecordingProxy
+
+    listen = parse_address(args.listen, default_port=18080, listen=True, option="--listen")
+    upstream = parse_address(args.upstream, default_port=8080, option="--upstream")
+    udp_upstream = udp_listen = None
+    if args.udp or args.udp_upstream is not None or args.udp_listen is not None:
+        udp_upstream, udp_listen = _side_ports(
+            upstream, listen, (args.udp_upstream, 20007, "--udp-upstream"),
+            (args.udp_listen, 20007, "--udp-listen"),
+        )  # fmt: skip
+    state_upstream = state_listen = None
+    if args.state_upstream is not None or args.state_listen is not None:
+        state_upstream, state_listen = _side_ports(
+            upstream, listen, (args.state_upstream, 8083, "--state-upstream"),
+            (args.state_listen, 18083, "--state-listen"),
+        )  # fmt: skip
+    specs = specs_of(args)
+    on_frame = None
+    if args.print_frames:
+        from ..judge.judge import Judge
+        from ..judge.stream import FrameNames
+        from ..spec.dialects import default_dialects
+
+        names = FrameNames(Judge(specs, default_dialects()))
+
+        def on_frame(f: FrameRecord) -> None:
+            frame = f.frame()
+            name = (
+                names.request(f.conn, frame, f.transport)
+                if f.dir == C2S
+                else names.reply(f.conn, frame)
+            )
+            print(format_frame_line(f, name), flush=True)
+
+    stop = threading.Event()
+
+    def _stop(signum: int, frame: object) -> None:
+        stop.set()
+
+    try:
+        proxy = RecordingProxy(
+            upstream,
+            out=args.out,
+            metadata=labels_of(args),
+            listen=listen,
+            udp_upstream=udp_upstream,
+            udp_listen=udp_listen,
+            state_upstream=state_upstream,
+            state_listen=state_listen,
+            specs=specs,
+            split_size=args.split_size,
+            split_duration=args.split_duration,
+            connect_timeout=args.connect_timeout,
+            on_frame=on_frame,
+            max_connections=args.max_connections,
+            max_frame_size=args.max_frame_size,
+            stop_timeout=args.stop_timeout,
+            max_pending=args.max_pending,
+            max_backlog=args.max_backlog,
+        )
+    except OSError as e:
+        if e.filename is not None:  # the output file, not a socket
+            raise UsageError(
+                f"cannot write the recording {e.filename}: {e.strerror or e}"
+            ) from None
+        raise UsageError(f"cannot listen on {listen}: {e.strerror or e}") from None
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    old = {s: signal.signal(s, _stop) for s in (signal.SIGINT, signal.SIGTERM)}
+    # Hand the GIL over sooner (default 5 ms): the forwarding thread must not wait
+    # long for the recorder thread when a frame arrives.
+    sys.setswitchinterval(min(sys.getswitchinterval(), 0.0002))
+    proxy.start()
+    msg = f"proxy: listening on {format_address(*proxy.address)} -> {upstream}"
+    if proxy.udp_address and udp_upstream:
+        msg += f" (udp {format_address(*proxy.udp_address)} -> {udp_upstream})"
+    if proxy.state_address and state_upstream:
+        msg += f" (state {format_address(*proxy.state_address)} -> {state_upstream})"
+    print(msg + f", recording to {args.out}", file=sys.stderr, flush=True)
+    failure: BaseException | None = None
+    try:
+        # A failed I/O thread (a bug) ends the run: the file is finished below, and
+        # the exit code says it failed, rather than a live process forwarding nothing.
+        said: float | None = 0.0
+        while not stop.wait(0.2) and proxy.running:
+            if proxy.error is not None:
+                said = _write_failed(proxy, args, said or 0.0)
+                if said is None:
+                    break  # --on-write-error stop
+    finally:
+        for s, h_ in old.items():
+            signal.signal(s, h_)
+        try:
+            proxy.close()
+        except Exception as e:
+            failure = e
+    st = proxy.stats
+    extra = ""
+    if st.rejected or st.accept_errors or st.errors:
+        extra = (
+            f" ({st.rejected} refused for --max-connections, {st.accept_errors} accept "
+            f"errors, {st.errors} closed by an error)"
+        )
+    if proxy.recorder.lost:
+        extra += f"; {proxy.recorder.lost} bytes not recorded (the recording could not be written)"
+    if st.udp_unrecorded:
+        extra += (
+            f"; {st.udp_unrecorded} UDP datagrams ({st.udp_unrecorded_bytes} bytes) forwarded "
+            "but not recorded, the recorder being half --max-backlog behind (gaps in the recording)"
+        )
+    print(
+        f"proxy: stopped; {st.connections} connections{extra}, {proxy.frames_recorded} frames "
+        + (f"and {proxy.recorder.state_packets} state packets " if state_upstream else "")
+        + f"recorded to {', '.join(proxy.paths)}",
+        file=sys.stderr,
+    )
+    if failure is not None:
+        print(failure_line(failure), file=sys.stderr)
+        return 2
+    return 0
+
+
+def failure_line(failure: BaseException) -> str:
+    """The proxy's last line when it stopped on a failure (then it exits 2): a recording
+    that could not be written in plain words (it was said when it happened)."""
+    if isinstance(failure, OSError):
+        where = f" {failure.filename}" if failure.filename else ""
+        why = failure.strerror or str(failure)
+        return f"proxy: the recording{where} is incomplete: it could not be written ({why})"
+    return f"proxy: failed: {type(failure).__name__}: {failure}"
+
+
+def _write_failed(proxy: Any, args: argparse.Namespace, said: float) -> float | None:
+    """The recording cannot be written: said at once (and, forwarding on, how much is not
+    recorded, once a second).  The time it was last said; None: stop the proxy."""
+    now = time.monotonic()
+    if not said:
+        where = proxy.paths[-1] if proxy.paths else args.out
+        e = proxy.error
+        why = e.strerror if isinstance(e, OSError) and e.strerror else str(e)
+        then = (
+            "stopping: every connection is closed (--on-write-error stop)"
+            if args.on_write_error == "stop"
+            else "forwarding on, NOT recording (--on-write-error forward; stop says how much "
+            "was lost)"
+        )
+        print(
+            f"proxy: cannot write the recording {where}: {why}; at least "
+            f"{proxy.frames_recorded} frames are in the file; {then}",
+            file=sys.stderr,
+            flush=True,
+        )
+        if args.on_write_error == "stop":
+            return None
+        return now
+    if now - said >= 1.0:
+        print(
+            f"proxy: NOT recording: {proxy.recorder.lost} bytes not recorded so far",
+            file=sys.stderr,
+            flush=True,
+        )
+        return now
+    return said
+
+
+# --------------------------------------------------------------------------- capture
+
+
+#: What a label may hold: the fleet table partitions by it (``export-parquet``).
+_LABEL = re.compile(r"[^\x00-\x1f\x7f]{1,128}")
+
+
+def add_label_options(p: argparse.ArgumentParser) -> None:
+    """``--robot`` and ``--cell`` of ``proxy``, ``capture`` and ``import-pcap``: written to the
+    recording's metadata, where ``export-parquet`` finds the robot a recording is of."""
+    p.add_argument(
+        "--robot",
+        metavar="NAME",
+        help="the robot this traffic is of, kept in the recording's metadata "
+        "(export-parquet's robot column and partition)",
+    )
+    p.add_argument(
+        "--cell", metavar="NAME", help="the cell the robot works in, kept in the metadata"
+    )
+
+
+def labels_of(args: argparse.Namespace) -> dict[str, str]:
+    """The recording metadata ``--robot``/``--cell`` give (a bad one: a UsageError)."""
+    out = {}
+    for key in ("robot", "cell"):
+        value = getattr(args, key, None)
+        if value is None:
+            continue
+        if not _LABEL.fullmatch(value.strip()):
+            raise UsageError(
+                f"--{key} {value!r}: 1 to 128 printable characters (no control characters)"
+            )
+        out[key] = value.strip()
+    return out
+
+
+def check_ports(args: argparse.Namespace) -> None:
+    """``--port``, ``--udp-port`` and ``--state-port`` of ``capture`` and ``import-pcap``."""
+    for flag, ports in (
+        ("--port", args.port),
+        ("--udp-port", args.udp_port),
+        ("--state-port", args.state_port),
+    ):
+        for port in ports:
+            if not 0 < port < 65536:
+                raise UsageError(f"{flag} {port}: a port is 1..65535")
+
+
+def _run_capture(args: argparse.Namespace) -> int:
+    from ..net.capture import LiveCapture
+    from ..pcap.packets import DEFAULT_TCP_PORTS, DEFAULT_UDP_PORTS
+
+    check_ports(args)
+    if args.max_frames is not None and args.max_frames < 1:
+        raise UsageError(f"--max-frames {args.max_frames}: at least 1")
+    tports = tuple(args.port) or DEFAULT_TCP_PORTS
+    uports = tuple(args.udp_port) or DEFAULT_UDP_PORTS
+    cap = LiveCapture(
+        args.iface,
+        args.out,
+        tcp_ports=tports,
+        udp_ports=uports,
+        specs=specs_of(args),
+        split_size=args.split_size,
+        split_duration=args.split_duration,
+        state_ports=tuple(args.state_port),
+        metadata=labels_of(args),
+    )
+    stop = threading.Event()
+    old = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
+
+    def ready() -> None:
+        ports = ", ".join(
+            [f"tcp {p}" for p in tports]
+            + [f"udp {p}" for p in uports]
+            + [f"state {p}" for p in args.state_port]
+        )
+        print(
+            f"capture: listening on {args.iface} ({ports}), recording to {args.out}",
+            file=sys.stderr,
+            flush=True,
+        )
+
+    try:
+        st = cap.run(stop, duration=args.duration, max_frames=args.max_frames, ready=ready)
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+    drops = (
+        f"; the kernel dropped {st.kernel_drops} packets (recorded as gaps)"
+        if st.kernel_drops
+        else ""
+    )
+    if st.unread:
+        drops += (
+            f"; {st.unread} packets queued before the stop were not read (it stops within "
+            "a second under load)"
+        )
+    print(
+        f"capture: stopped; {st.packets} packets ({st.ignored} not ours), {st.connections} "
+        f"connections, {st.frames} frames, "
+        + (f"{st.state_packets} state packets, " if args.state_port else "")
+        + f"{st.problems} problems recorded to "
+        f"{', '.join(st.paths)}{drops}",
+        file=sys.stderr,
+    )
+    return 0

@@ -1,0 +1,546 @@
+"""Sub-commands of the conformance suite: ``run``, ``emulate``, ``serve``."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import os
+import signal
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from typing import Any
+
+from ..errors import EXIT_ERROR, EXIT_INTERRUPTED, EXIT_OK, EmulatorError, UsageError
+from ..net.addresses import format_address, parse_address
+from ..twin.faults import parse_fault
+from .specs_option import add_specs_dir, spec_choice_of
+
+__all__ = ["register"]
+
+
+def _add_emulate(sub: Any) -> None:
+    p = sub.add_parser(
+        "emulate",
+        help="run the simulated controller (generic over the specs)",
+        description="Run the simulated controller until interrupted. A client cannot stop "
+        "it: a connection whose bytes make the kit fail is closed and the reason printed on "
+        "stderr; --max-connections and --max-frame-size bound what clients cost.",
+    )
+    p.add_argument(
+        "--listen", default="127.0.0.1:8080", help="TCP HOST:PORT (default 127.0.0.1:8080)"
+    )
+    p.add_argument("--udp", default=None, metavar="HOST:PORT", help="also answer UDP here")
+    p.add_argument(
+        "--state-listen",
+        default=None,
+        metavar="HOST:PORT",
+        help="serve the state port (8083 status feedback) here; default: --listen's host, "
+        "port 8083 when --listen's port is 8080, else off; 'off': never",
+    )
+    p.add_argument(
+        "--state-version",
+        default="3.8.2",
+        metavar="VERSION",
+        help="the state packet layout served: 3.8.2 (default) or 3.9.8 (specs/*/state.json)",
+    )
+    p.add_argument(
+        "--fault",
+        action="append",
+        default=[],
+        metavar="KIND[:CMD_IDS][@SECONDS]",
+        help="inject a fault (repeatable), e.g. wrong_cnt:201,203; on the state port: "
+        "state_checksum[:N], state_cnt_gap[:N], state_stall[:N][@SECONDS], "
+        "state_layout[:VERSION] (every Nth packet, default 10)",
+    )
+    add_specs_dir(p, "--specs")  # --specs: the old spelling, kept working
+    p.add_argument("--duration", type=float, default=None, help="stop after SECONDS")
+    _add_limits(p)
+    _add_emulation(p)
+    p.set_defaults(func=_emulate)
+
+
+def _add_limits(p: Any) -> None:
+    """What one client may cost the emulator (``emulate`` and ``serve``)."""
+    from ..net.server import DEFAULT_IDLE_TIMEOUT, DEFAULT_MAX_CONNECTIONS
+    from ..protocol.frame import DEFAULT_MAX_FRAME_SIZE
+
+    p.add_argument(
+        "--idle-timeout",
+        type=float,
+        default=DEFAULT_IDLE_TIMEOUT,
+        metavar="SECONDS",
+        help="close a TCP client that sends nothing for this long, so idle connections "
+        f"cannot lock new clients out (default {DEFAULT_IDLE_TIMEOUT:g}; 0: never)",
+    )
+    p.add_argument(
+        "--max-connections",
+        type=int,
+        default=DEFAULT_MAX_CONNECTIONS,
+        metavar="N",
+        help="TCP connections served at once; more are accepted and closed at once "
+        f"(default {DEFAULT_MAX_CONNECTIONS})",
+    )
+    p.add_argument(
+        "--max-frame-size",
+        type=int,
+        default=DEFAULT_MAX_FRAME_SIZE,
+        metavar="BYTES",
+        help="largest frame a connection buffers; larger ones are malformed (oversize), "
+        f"which bounds each connection's memory (default {DEFAULT_MAX_FRAME_SIZE})",
+    )
+
+
+def _add_emulation(p: Any) -> None:
+    """What the emulator accepts (``emulate`` and ``serve``): reference, dialects, dispatch."""
+    from ..twin.actions import DISPATCH_MODES
+    from .judging import add_judge_options
+
+    add_judge_options(p)
+    p.add_argument(
+        "--dispatch",
+        choices=DISPATCH_MODES,
+        default="recorded",
+        help="answer a call naming another command than its ID's by the name: for the "
+        "ID/name pairs the field dialects record (default; e.g. GetActualTCPPose() on 377, "
+        "as real controllers do), for any known name, or never",
+    )
+    p.add_argument(
+        "--robot",
+        default=None,
+        metavar="MODEL",
+        help="the arm whose kinematics and joint limits the emulator follows: FR3, FR5 "
+        "(default), FR10, FR16, FR20, FR30 (specs/fairino-robots.json)",
+    )
+
+
+def _emulation(args: argparse.Namespace, specs: Any, *, strict: bool = False) -> dict[str, Any]:
+    """EmulatorServer keywords from ``--reference``, ``--dialects-dir``, ``--dispatch``, ``--robot``."""
+    from ..twin.kinematics.robots import robot
+    from .judging import judge_from
+
+    name = robot(args.robot).name if args.robot else None  # an unknown model: one line, exit 2
+    return {
+        "judge": judge_from(args, specs, strict=strict),
+        "dispatch": args.dispatch,
+        "robot": name,
+    }
+
+
+def _limits(args: argparse.Namespace) -> dict[str, Any]:
+    """EmulatorServer keywords from ``--max-connections`` / ``--max-frame-size``.
+
+    A peer never ends the process (``reraise_kit_errors=False``): the connection
+    it broke is closed and the reason logged on stderr.
+    """
+    if args.max_connections < 1:
+        raise UsageError("--max-connections must be at least 1")
+    if args.max_frame_size < 64:
+        raise UsageError("--max-frame-size must be at least 64 bytes")
+    if not args.idle_timeout >= 0:
+        raise UsageError("--idle-timeout must be 0 (never) or a number of seconds")
+    return {
+        "max_connections": args.max_connections,
+        "max_frame_size": args.max_frame_size,
+        "idle_timeout": args.idle_timeout or None,
+        "reraise_kit_errors": False,
+    }
+
+
+def _drop_summary(server: Any) -> str | None:
+    """One line on what the server had to close itself, or None."""
+    if not server.dropped_total:
+        return None
+    from ..report.text import plural
+
+    kinds: dict[str, int] = {}
+    for d in server.dropped:
+        kinds[d.kind] = kinds.get(d.kind, 0) + 1
+    last = ", ".join(f"{k} {n}" for k, n in sorted(kinds.items()))
+    return (
+        f"{plural(server.dropped_total, 'connection')} closed by the server "
+        f"({server.connections_refused} refused at --max-connections; "
+        f"last {len(server.dropped)}: {last})"
+    )
+
+
+def _listen_addresses(args: argparse.Namespace) -> tuple[str, int, int | None]:
+    """``--listen`` and ``--udp`` (which must share the host): (host, tcp port, udp port)."""
+    host, port = parse_address(args.listen, default_port=8080, listen=True, option="--listen")
+    udp_port: int | None = None
+    if args.udp is not None:
+        uhost, udp_port = parse_address(args.udp, default_port=20007, listen=True, option="--udp")
+        if uhost != host:
+            raise UsageError("--udp must use the same host as --listen")
+    return host, port, udp_port
+
+
+def _state_port(args: argparse.Namespace, host: str, port: int) -> int | None:
+    """``--state-listen``: the state port to serve (on ``--listen``'s host), or None."""
+    if args.state_listen is None:
+        return 8083 if port == 8080 else None
+    if args.state_listen.strip().lower() == "off":
+        return None
+    shost, sport = parse_address(
+        args.state_listen, default_port=8083, listen=True, option="--state-listen"
+    )
+    if shost != host:
+        raise UsageError("--state-listen must use the same host as --listen")
+    return sport
+
+
+def _emulate(args: argparse.Namespace) -> int:
+    from ..errors import SpecError
+    from ..net.emulator import EmulatorServer
+    from ..spec.state import layout_for
+
+    host, port, udp_port = _listen_addresses(args)
+    state_port = _state_port(args, host, port)
+    try:
+        layout_for(args.state_version)
+    except SpecError as e:
+        raise UsageError(f"--state-version: {e}") from None
+    if args.duration is not None and args.duration < 0:
+        raise UsageError("--duration must not be negative")
+    specs, _ = spec_choice_of(args, allow_auto=False)  # the firmware it plays, 905 included
+    emulation = _emulation(args, specs)
+    # A fault's IDs are checked against what this emulator knows: its specs and dialects.
+    known = {*specs.cmd_ids, *emulation["judge"].dialects.cmd_ids}
+    faults = [parse_fault(f, known=known) for f in args.fault]
+    server = EmulatorServer(
+        specs,
+        host=host,
+        port=port,
+        udp_port=udp_port,
+        faults=faults,
+        state_port=state_port,
+        state_version=args.state_version,
+        **_limits(args),
+        **emulation,
+    )
+    server.start()
+    try:
+        where = format_address(*server.address)
+        udp = f", UDP {format_address(*server.udp_address)}" if server.udp_address else ""
+        if server.state_address is not None:
+            v = server.controller.state_version
+            udp += f", state port {format_address(*server.state_address)} (v{v} layout)"
+        flts = ", ".join(str(f) for f in faults) or "none"
+        n = len(server.controller.specs)
+        judge = server.controller.judge
+        dialects = (
+            f"{len(judge.dialects)} field dialects accepted"
+            if judge.reference.value == "field"
+            else "manual only"
+        )
+        arm = server.controller.model.robot.name
+        print(
+            f"emulating {n} commands of spec {specs.spec_version} on TCP {where}{udp}; "
+            f"{dialects}; faults: {flts}; robot {arm}",
+            flush=True,
+        )
+        deadline = None if args.duration is None else time.monotonic() + args.duration
+        while deadline is None or time.monotonic() < deadline:
+            time.sleep(0.2)
+            server.check()
+    except KeyboardInterrupt:
+        print("stopped", file=sys.stderr)
+    finally:
+        server.close()
+        summary = _drop_summary(server)
+        if summary:
+            print(f"emulator: {summary}", file=sys.stderr)
+    return 0
+
+
+# --------------------------------------------------------------------------- run
+
+
+def _add_run(sub: Any) -> None:
+    from ..suite.options import add_to_argparse
+
+    p = sub.add_parser(
+        "run",
+        help="run the conformance suite against an endpoint (default: the built-in emulator)",
+        description="Run the packaged conformance suite with a progress line, then print each "
+        "failure with its reproduction and the per-command table. Every option is also an "
+        "ini key (fairino_*, in pytest.ini) for pytest and a FAIRINO_* environment variable. "
+        "Exit code: 0 conformant, 1 conformance failures, 2 kit or connection error, "
+        "130 interrupted (Ctrl-C or SIGTERM; the reports are still written).",
+    )
+    add_to_argparse(p)
+    p.set_defaults(func=_run)
+
+
+def _run(args: argparse.Namespace) -> int:
+    """``run``: the engine's events drawn on stderr; reports written, each to its own path."""
+    from pathlib import Path
+
+    from ..report.model import failure_lines
+    from ..report.write import write_reports
+    from ..suite.engine import Engine, EngineError, Interrupted, RunFinished
+    from ..suite.options import OPTIONS, resolve, suite_config
+    from ..suite.present import Progress, dry_run_lines
+    from ..suite.spec_choice import choice_line, with_spec
+
+    values = resolve({o.name: getattr(args, o.name, None) for o in OPTIONS if o.run})
+    if values["emulator_fault"] and values["target"]:
+        raise UsageError("--emulator-fault applies only to the built-in emulator (no --target)")
+    outputs = [values[k] for k in ("report_json", "report_html", "junitxml") if values[k]]
+    if len(set(map(os.path.abspath, outputs))) != len(outputs):
+        raise UsageError("--report-json, --report-html and --junitxml must be different files")
+    for path in outputs:
+        parent = Path(path).resolve().parent
+        if not parent.is_dir():
+            raise UsageError(f"cannot write {path}: no directory {parent}")
+    config = with_spec(suite_config(values))  # auto: the target's 905 reply, asked once
+    assert config.spec is not None
+    line = choice_line(config.spec)
+    if line is not None:
+        print(f"fairino-conformance run: {line}", file=sys.stderr)
+    engine = Engine(config)  # judged against config.spec's set, which every report names
+    engine.report.meta["ran"] = "fairino-conformance run, one process"
+    cases = engine.select(values["case"])
+    if not cases:  # empty is never success (a selection that leaves nothing to run)
+        raise UsageError(
+            "no case selected: --commands, --exclude, --groups and --case leave nothing to run"
+        )
+    progress = Progress(sys.stderr, quiet=values["quiet"])
+    finished: RunFinished | None = None
+    errors: list[EngineError] = []
+    try:
+        try:
+            with _interrupts() as interrupted:  # Ctrl-C, and a CI time-out's SIGTERM
+                for ev in engine.events(cases):
+                    progress.handle(ev)
+                    if isinstance(ev, RunFinished):
+                        finished = ev
+                    elif interrupted.is_set():  # a KeyboardInterrupt that was swallowed
+                        raise KeyboardInterrupt
+        except KeyboardInterrupt:  # between two cases, outside the engine
+            finished = engine.interrupt(cases)
+            progress.handle(finished)
+    finally:
+        errors = engine.finish()
+    report = engine.report
+    written = write_reports(
+        report,
+        json_path=values["report_json"],
+        html_path=values["report_html"],
+        junit_path=values["junitxml"],
+    )
+    lines = failure_lines(report)
+    if lines:
+        print("\n".join(lines))
+        print()
+    if values["dry_run"]:
+        print("\n".join(dry_run_lines(report, verbose=values["verbose"])))
+    else:  # quiet by default: the rows that are not PASS; -v lists every command
+        verbose = values["verbose"]
+        print(report.render_terminal(only_failures=not verbose, hidden_note="-v lists them"))
+    if written:
+        print(f"reports written: {', '.join(written)}")
+    if report.stopped:
+        # The one line that says why the run stopped early (unreachable, dead, budget, Ctrl-C).
+        print(f"fairino-conformance run: {report.stopped}", file=sys.stderr)
+    for err in errors:
+        print(f"fairino-conformance run: error: {err.message}", file=sys.stderr)
+    if errors:
+        return EXIT_ERROR
+    if isinstance(finished, Interrupted):
+        return EXIT_INTERRUPTED  # as for any interrupted command (conformance/cli.py)
+    return EXIT_OK if not report.cases else report.exit_code()
+
+
+# --------------------------------------------------------------------------- serve
+
+
+def _add_serve(sub: Any) -> None:
+    p = sub.add_parser(
+        "serve",
+        help="client mode: play the controller and validate every frame a client sends",
+        description="Play the controller (the emulator) and report, per command ID, how the "
+        "connecting client departs from the protocol. Stops on Ctrl-C, --duration or "
+        "--max-frames (SIGTERM too); the report is written in every case. A client "
+        "cannot stop it: a connection the kit fails on is closed and blamed on the command "
+        "ID of the frame that caused it. Exit code 0 conformant, 1 departures, 2 error.",
+    )
+    p.add_argument("--listen", default="127.0.0.1:8080", help="TCP HOST:PORT")
+    p.add_argument("--udp", default=None, metavar="HOST:PORT", help="also listen on UDP")
+    p.add_argument(
+        "--state-listen",
+        default=None,
+        metavar="HOST:PORT",
+        help="also serve the state port (8083 status feedback), as emulate does: default "
+        "--listen's host, port 8083 when --listen's port is 8080, else off; 'off': never",
+    )
+    p.add_argument(
+        "--state-version",
+        default="3.8.2",
+        metavar="VERSION",
+        help="the state packet layout served: 3.8.2 (default) or 3.9.8",
+    )
+    p.add_argument(
+        "--duration", type=float, default=None, metavar="SECONDS", help="stop after SECONDS"
+    )
+    p.add_argument(
+        "--max-frames", type=int, default=None, metavar="N", help="stop after N client frames"
+    )
+    p.add_argument("--report-json", metavar="PATH", help="write the JSON report here")
+    p.add_argument("--report-html", metavar="PATH", help="write the HTML report here")
+    p.add_argument("--strict", action="store_true", help="NON-STRICT departures fail")
+    p.add_argument(
+        "--verdicts",
+        metavar="PATH",
+        help="write every frame's verdict, one JSON line each (- for stdout)",
+    )
+    add_specs_dir(p)  # --spec-version: the firmware served (GetSoftwareVersion answers it)
+    _add_limits(p)
+    _add_emulation(p)
+    p.set_defaults(func=_serve)
+
+
+def _serve(args: argparse.Namespace) -> int:
+    from ..net.emulator import EmulatorServer
+    from ..offline.client_mode import ClientValidator
+    from ..report.model import failure_lines
+    from ..report.write import write_reports
+    from ..suite.spec_choice import note_spec
+
+    host, port, udp_port = _listen_addresses(args)
+    state_port = _state_port(args, host, port)  # the state port too, as emulate serves it
+    from ..errors import SpecError
+    from ..spec.state import layout_for
+
+    try:
+        layout_for(args.state_version)
+    except SpecError as e:
+        raise UsageError(f"--state-version: {e}") from None
+    if args.duration is not None and args.duration <= 0:
+        raise UsageError("--duration must be positive")
+    if args.max_frames is not None and args.max_frames <= 0:
+        raise UsageError("--max-frames must be positive")
+    # serve is the controller: auto has no target to ask, so the default firmware is played.
+    specs, choice = spec_choice_of(args, no_target="serve plays the controller, no target to ask")
+    limits = _limits(args)
+    emulation = _emulation(args, specs, strict=args.strict)
+    sink = contextlib.ExitStack()
+    on_verdict = None
+    verdicts = None
+    if args.verdicts:
+        from .judging import verdict_line, verdict_sink
+
+        # A write that fails (a full disk) is said at once; serving goes on.
+        write = verdicts = sink.enter_context(verdict_sink(args.verdicts, "serve"))
+
+        def on_verdict(peer: str, frame: Any, verdict: Any) -> None:
+            transport = "udp" if peer.startswith("udp:") else "tcp"
+            write(verdict_line(frame, verdict, transport=transport))
+
+    validator = ClientValidator(
+        specs,
+        target=f"client of {args.listen}",
+        strict=args.strict,
+        judge=emulation["judge"],
+        on_verdict=on_verdict,
+    )
+    server = EmulatorServer(
+        specs,
+        host=host,
+        port=port,
+        udp_port=udp_port,
+        observer=validator.observe,
+        on_close=validator.connection_closed,
+        state_port=state_port,
+        state_version=args.state_version,
+        **limits,
+        **emulation,
+    )
+    server.start()
+    validator.target = f"client of {format_address(*server.address)}"
+    deadline = None if args.duration is None else time.monotonic() + args.duration
+    failure: str | None = None
+    with _interrupts() as interrupted:
+        try:
+            udp = f", UDP {format_address(*server.udp_address)}" if server.udp_address else ""
+            if server.state_address is not None:
+                v = server.controller.state_version
+                udp += f", state port {format_address(*server.state_address)} (v{v} layout)"
+            where = format_address(*server.address)
+            print(f"playing the controller on {where}{udp}; Ctrl-C to stop", flush=True)
+            while deadline is None or time.monotonic() < deadline:
+                if args.max_frames is not None and validator.frames >= args.max_frames:
+                    break
+                time.sleep(0.05)
+                server.check()
+                if interrupted.is_set():  # a KeyboardInterrupt that was swallowed
+                    break
+        except KeyboardInterrupt:
+            pass
+        except (
+            EmulatorError,
+            RuntimeError,
+        ) as e:  # the server's own machinery failed: still report
+            failure = str(e)
+        finally:
+            try:
+                server.close()
+            except (EmulatorError, RuntimeError) as e:
+                failure = failure or str(e)
+            sink.close()
+    report = validator.report()
+    note_spec(report, choice, validator.judge.dialects)
+    if server.connections_refused:
+        report.meta["connections_refused"] = server.connections_refused
+    summary = _drop_summary(server)
+    if summary:
+        print(f"serve: {summary}", file=sys.stderr)
+    if verdicts is not None and (lost := verdicts.summary()) is not None:
+        print(lost, file=sys.stderr)
+    lines = failure_lines(report)  # as run prints them: the frames, the numbers, a reproduction
+    if lines:
+        print("\n".join(lines))
+        print()
+    print(report.render_terminal())
+    write_reports(report, json_path=args.report_json, html_path=args.report_html)
+    if failure is not None:
+        print(f"fairino-conformance serve: error: {failure}", file=sys.stderr)
+        return 2
+    return report.exit_code()
+
+
+@contextlib.contextmanager
+def _interrupts() -> Iterator[threading.Event]:
+    """Ctrl-C and SIGTERM end ``run`` and ``serve`` (the reports are still written, exit
+    code 130): each raises KeyboardInterrupt in the main thread, and is remembered in the
+    event given, which the loops look at after each step, so that an interrupt swallowed
+    on its way (Python drops a KeyboardInterrupt raised inside a finalizer, as "Exception
+    ignored in ...") still ends the run at the next case.  A SIGINT the process was
+    started ignoring (a job a script started with ``&``) stays ignored, as Python's own
+    handling leaves it."""
+    seen = threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        yield seen
+        return
+
+    def interrupt(signum: int, frame: object) -> None:
+        seen.set()
+        raise KeyboardInterrupt
+
+    old = {
+        sig: signal.signal(sig, interrupt)
+        for sig in (signal.SIGINT, signal.SIGTERM)
+        if sig == signal.SIGTERM or signal.getsignal(sig) is not signal.SIG_IGN
+    }
+    try:
+        yield seen
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+
+
+def register(subparsers: Any) -> None:
+    _add_emulate(subparsers)
+    _add_run(subparsers)
+    _add_serve(subparsers)

@@ -1,1 +1,0 @@
-"""Sub-commands of the CLI: every public module here has ``register(subparsers)``."""

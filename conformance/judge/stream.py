@@ -1,0 +1,116 @@
+"""The judge over a stream: each connection's CNT steps, and telling requests from replies.
+
+:class:`CntSteps` gives :meth:`~conformance.judge.judge.Judge.request` the CNT before a
+request on its connection, for every front-end that reads a stream (``serve``,
+``check``, ``info``, ``decode``); :class:`Pairing` pairs replies with their
+requests in one stream (``decode --dir auto``).  The rules over a client's sequence
+of requests (``ServoJ`` before ``ServoMoveStart``) are :mod:`conformance.judge.sequence`'s.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+
+from ..protocol.frame import Frame
+from .judge import Judge, Verdict, display_name
+from .verdict import Direction
+
+__all__ = ["CntSteps", "FrameNames", "Pairing"]
+
+
+class CntSteps:
+    """Each connection's last request CNT, for :meth:`Judge.request`'s ``previous_cnt``.
+
+    Every front-end that reads a stream (``serve``, ``check``, ``info``, ``decode``)
+    keeps one, so that the CNT rule is judged alike everywhere.  At most ``limit``
+    connections are remembered (the oldest is forgotten first).
+    """
+
+    def __init__(self, *, limit: int = 4096) -> None:
+        self.limit = limit
+        self._last: OrderedDict[object, tuple[int, bytes]] = OrderedDict()
+
+    def previous(self, conn: object, cnt: int, raw: bytes = b"") -> int | None:
+        """Remember ``cnt`` (and the frame's ``raw`` bytes, for a reproduction) as ``conn``'s
+        latest request; return the CNT before."""
+        last = self._last.pop(conn, None)
+        self._last[conn] = (cnt, raw)
+        if len(self._last) > self.limit:
+            self._last.popitem(last=False)
+        return None if last is None else last[0]
+
+    def last_raw(self, conn: object) -> bytes:
+        """The bytes of ``conn``'s latest request, as given to :meth:`previous` (else empty)."""
+        last = self._last.get(conn)
+        return b"" if last is None else last[1]
+
+    def forget(self, conn: object) -> None:
+        self._last.pop(conn, None)
+
+
+class Pairing:
+    """Tells requests from replies in one stream (``decode --dir auto``).
+
+    A frame echoing the CNT and CMD_ID of an earlier request still unanswered is
+    its reply; otherwise the frame's shape decides (:meth:`Judge.looks_like_reply`).
+    At most ``limit`` requests wait for a reply (a stream of requests never answered
+    stays bounded).
+    """
+
+    def __init__(self, judge: Judge, *, limit: int = 4096) -> None:
+        self.judge = judge
+        self.limit = limit
+        self._waiting: dict[tuple[int, int], tuple[Frame, Verdict]] = {}
+        self._cnt = CntSteps(limit=1)
+
+    def judge_frame(
+        self, frame: Frame, direction: Direction | None = None, *, transport: str | None = None
+    ) -> Verdict:
+        key = (frame.cnt, frame.cmd_id)
+        if direction is None:
+            direction = (
+                Direction.REPLY
+                if key in self._waiting or self.judge.looks_like_reply(frame)
+                else Direction.REQUEST
+            )
+        if direction is Direction.REPLY:
+            req = self._waiting.pop(key, None)
+            if req is None:
+                return self.judge.reply(frame, None, transport=transport, paired=False)
+            return self.judge.reply(frame, req[0], req[1], transport=transport)
+        previous = self._cnt.previous(None, frame.cnt)
+        v = self.judge.request(frame, transport=transport, previous_cnt=previous)
+        self._waiting.pop(key, None)
+        self._waiting[key] = (frame, v)
+        if len(self._waiting) > self.limit:
+            self._waiting.pop(next(iter(self._waiting)))
+        return v
+
+
+class FrameNames:
+    """The judge's name of each frame of a recording as it streams by (``proxy --print``,
+    ``info``, ``replay``): a request's from its verdict (:func:`~conformance.judge.judge.display_name`),
+    a reply's from the request it echoes (CNT and ID on its connection).  At most ``limit``
+    requests are remembered."""
+
+    def __init__(self, judge: Judge, *, limit: int = 4096) -> None:
+        self.judge = judge
+        self.limit = limit
+        self._asked: OrderedDict[tuple[object, int, int], str | None] = OrderedDict()
+
+    def request(self, conn: object, frame: Frame, transport: str | None = None) -> str | None:
+        name = display_name(self.judge.request(frame, transport=transport))
+        key = (conn, frame.cnt, frame.cmd_id)
+        self._asked.pop(key, None)
+        self._asked[key] = name
+        if len(self._asked) > self.limit:
+            self._asked.popitem(last=False)
+        return name
+
+    def reply(self, conn: object, frame: Frame) -> str | None:
+        """The name of the request this reply echoes, else the manual's for its ID."""
+        key = (conn, frame.cnt, frame.cmd_id)
+        if key in self._asked:
+            return self._asked[key]
+        cmd = self.judge.specs.resolve(frame.cmd_id)
+        return cmd.name if cmd is not None else None

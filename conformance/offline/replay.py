@@ -1,0 +1,428 @@
+"""Replay a recording: resend the client's side to a target, or serve the controller's side.
+
+``replay --target``: the client's frames (and the malformed bytes it sent) are
+resent in order, one recorded connection after another, through
+:class:`~conformance.net.client.Client`; each new reply is paired with the
+recorded one by CNT and CMD_ID and compared with
+:func:`~conformance.offline.diff.compare_replies` (volatile values by shape).  The
+safety profile (:mod:`conformance.spec.safety`) decides what may be sent to a
+non-loopback target; what it holds back is reported as SKIPPED.
+
+``replay --serve``: :class:`ReplyBook` answers requests with the recorded
+replies, matched by command ID and DATA, each echoing the request's CNT and
+CMD_ID (the recorded request's CNT is irrelevant); a request the recording never saw is
+answered by the ``unmatched`` policy: ``error`` (the refusal ``robot errcode:-1``, see
+:data:`NOT_RECORDED`), ``nearest`` (the recorded reply of the same command ID whose
+request DATA is most alike) or ``drop`` (no reply).  A book may hold one transport's
+sessions only (``transport``): ``replay --serve --udp-port`` answers UDP from the
+UDP sessions and TCP from the TCP ones.  The socket side is
+:class:`~conformance.net.replay_server.ReplayServer`.
+"""
+
+from __future__ import annotations
+
+import difflib
+import re
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from ..errors import ConformanceError
+from ..judge.judge import Judge, display_name
+from ..judge.verdict import Outcome
+from ..protocol.frame import Frame, encode_frame
+from ..recording.layout import C2S, S2C
+from ..recording.reader import Recording
+from ..recording.records import FrameRecord, ProblemRecord
+from ..report.model import CaseResult, Report
+from ..spec.commands import SpecSet
+from ..spec.safety import SafetyPolicy
+from .diff import Difference, Ignore, compare_replies
+
+__all__ = ["NOT_RECORDED", "NOT_RECORDED_CODE", "ReplayResult", "ReplyBook", "replay_to_target"]
+
+# ``nearest``: DATA compared on this many characters, against this many distinct
+# recorded requests of the same command ID at most.
+_NEAREST_CHARS = 256
+_NEAREST_CANDIDATES = 64
+_NEAREST_CACHE = 4096  # nearest choices remembered
+
+
+_UNKNOWN = "command ID not in the specs: not sent to a non-loopback target"
+
+#: ``replay --serve --unmatched error``: the answer to a request the recording has no reply
+#: for.  The text refusal any command may get (``robot errcode:N``, manual chapter 9), with
+#: a code no chapter 9 table has (they run from 0, success, up): a client reads an error, not
+#: success and not made-up data (``0`` was both: "success" as a code, a plausible value of a
+#: query), and the judge shows a refusal whose code it does not know.
+NOT_RECORDED_CODE = -1
+NOT_RECORDED = f"robot errcode:{NOT_RECORDED_CODE}"
+
+
+# --------------------------------------------------------------------------- serve
+
+
+# The header of a recorded reply, separators as recorded (a lenient reading may have
+# accepted ``II`` or ``IIII``, manual 1.1): the CNT and CMD_ID fields are replaced.
+_HEADER = re.compile(rb"/f/b(I{2,4})(\d+)(I{2,4})(\d+)(I{2,4})")
+
+
+def _echoing(raw: bytes, data: str, cnt: int, cmd_id: int) -> bytes:
+    """The recorded reply's bytes answering request ``cnt``/``cmd_id``.
+
+    A reply always echoes its request's CNT and CMD_ID (manual 1.1), whatever CNT
+    the recorded request had: a client matches replies by them, and one that waits
+    for its own CNT would otherwise time out on every reply.  Everything after the
+    header (LEN, DATA, framing deviations) is as recorded.
+    """
+    m = _HEADER.match(raw)
+    if m is None:
+        return encode_frame(cnt, cmd_id, data)
+    s1, _, s2, _, s3 = m.groups()
+    return b"/f/b%s%d%s%d%s" % (s1, cnt, s2, cmd_id, s3) + raw[m.end() :]
+
+
+class ReplyBook:
+    """The controller's side of a recording, as answers to requests (sans-I/O).
+
+    Every answer echoes the request's CNT and CMD_ID.  Lookups are dictionary
+    lookups; ``nearest`` compares against at most ``_NEAREST_CANDIDATES`` distinct
+    recorded requests of the command ID (chosen once, when the book is built) and
+    remembers its last ``_NEAREST_CACHE`` choices, so a long recording answers as fast
+    as a short one.  ``transport`` (``tcp``, ``udp``): only the exchanges recorded on
+    it; None (the default): every exchange.
+    """
+
+    def __init__(
+        self,
+        rec: Recording,
+        *,
+        unmatched: str = "error",
+        transport: str | None = None,
+        on_unmatched: Callable[[Frame, bytes | None], None] | None = None,
+    ) -> None:
+        if unmatched not in ("error", "nearest", "drop"):
+            raise ValueError(f"unmatched policy must be error, nearest or drop, not {unmatched!r}")
+        if transport not in (None, "tcp", "udp"):
+            raise ValueError(f"transport must be tcp, udp or None, not {transport!r}")
+        self.unmatched = unmatched
+        self.transport = transport
+        #: Called with each request the recording has no reply for, and what it was sent.
+        self.on_unmatched = on_unmatched
+        self._book: dict[tuple[int, str], deque[FrameRecord]] = {}
+        self._last: dict[tuple[int, str], FrameRecord] = {}
+        self._by_id: dict[int, dict[str, FrameRecord]] = {}
+        self._nearest: dict[tuple[int, str], FrameRecord] = {}
+        for ex in rec.exchanges():
+            if ex.request is None or ex.reply is None:
+                continue
+            if transport is not None and ex.request.transport != transport:
+                continue
+            key = (ex.request.cmd_id, ex.request.data)
+            self._book.setdefault(key, deque()).append(ex.reply)
+            cands = self._by_id.setdefault(ex.request.cmd_id, {})
+            if len(cands) < _NEAREST_CANDIDATES:
+                cands.setdefault(ex.request.data, ex.reply)
+        self.answered = 0
+        self.unmatched_count = 0
+
+    def answer(self, frame: Frame) -> bytes | None:
+        """The bytes to send back for ``frame`` (None: send nothing)."""
+        key = (frame.cmd_id, frame.data)
+        q = self._book.get(key)
+        rep: FrameRecord | None = None
+        if q:
+            rep = q.popleft()  # recorded replies in order, then the last one again
+            self._last[key] = rep
+        else:
+            rep = self._last.get(key)
+        if rep is not None:
+            self.answered += 1
+            return _echoing(rep.raw, rep.data, frame.cnt, frame.cmd_id)
+        self.unmatched_count += 1
+        out = self._unmatched(frame)
+        if self.on_unmatched is not None:
+            self.on_unmatched(frame, out)
+        return out
+
+    def _unmatched(self, frame: Frame) -> bytes | None:
+        if self.unmatched == "drop":
+            return None
+        if self.unmatched == "nearest":
+            near = self._nearest_reply(frame)
+            if near is not None:
+                return encode_frame(frame.cnt, frame.cmd_id, near.data)
+        return encode_frame(frame.cnt, frame.cmd_id, NOT_RECORDED)
+
+    def _nearest_reply(self, frame: Frame) -> FrameRecord | None:
+        cands = self._by_id.get(frame.cmd_id)
+        if not cands:
+            return None
+        probe = frame.data[:_NEAREST_CHARS]
+        key = (frame.cmd_id, probe)
+        got = self._nearest.get(key)
+        if got is None:
+            # Bounded work whatever the peer sends: a similarity over the first
+            # characters only (SequenceMatcher is quadratic in the worst case).
+            matcher = difflib.SequenceMatcher(None, "", probe)  # b is cached: set it once
+            best_ratio = -1.0
+            for data, reply in cands.items():
+                matcher.set_seq1(data[:_NEAREST_CHARS])
+                r = matcher.ratio()
+                if r > best_ratio:
+                    best_ratio, got = r, reply
+            assert got is not None
+            if len(self._nearest) >= _NEAREST_CACHE:
+                self._nearest.clear()
+            self._nearest[key] = got
+        return got
+
+
+# --------------------------------------------------------------------------- target
+
+
+@dataclass
+class _CmdResult:
+    cmd_id: int
+    name: str
+    sent: int = 0
+    matched: int = 0
+    differing: int = 0
+    differences: list[Difference] = field(default_factory=list)
+    skipped: dict[str, int] = field(default_factory=dict)
+
+
+@dataclass
+class ReplayResult:
+    target: str
+    commands: dict[int, _CmdResult] = field(default_factory=dict)
+    connections: int = 0
+    elapsed: float = 0.0
+
+    def cmd(self, cmd_id: int, name: str | None) -> _CmdResult:
+        c = self.commands.get(cmd_id)
+        if c is None:
+            c = self.commands[cmd_id] = _CmdResult(cmd_id=cmd_id, name=name or "?")
+        return c
+
+    @property
+    def differing_ids(self) -> set[int]:
+        return {k for k, c in self.commands.items() if c.differing}
+
+    def to_report(self, spec_version: str) -> Report:
+        r = Report(target=self.target, spec_version=spec_version, meta={"mode": "replay"})
+        for k, c in sorted(self.commands.items()):
+            if c.matched:
+                r.add(
+                    CaseResult(
+                        id=f"{k}/replay/match",
+                        cmd_id=k,
+                        name=c.name,
+                        group="replay",
+                        outcome=Outcome.PASS,
+                        detail=f"{c.matched} replies match the recording",
+                    )
+                )
+            kinds: dict[str, list[Difference]] = {}
+            for d in c.differences:
+                kinds.setdefault(d.kind, []).append(d)
+            for kind, ds in sorted(kinds.items()):
+                r.add(
+                    CaseResult(
+                        id=f"{k}/replay/{kind}",
+                        cmd_id=k,
+                        name=c.name,
+                        group="replay",
+                        outcome=Outcome.FAIL,
+                        detail=f"{len(ds)}x {ds[0].detail}",
+                        frames=(ds[0].recorded, ds[0].new),
+                    )
+                )
+            for reason, n in c.skipped.items():
+                r.add(
+                    CaseResult(
+                        id=f"{k}/replay/skipped",
+                        cmd_id=k,
+                        name=c.name,
+                        group="replay",
+                        outcome=Outcome.SKIPPED,
+                        detail=f"{n}x {reason}",
+                    )
+                )
+        return r
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "target": self.target,
+            "connections": self.connections,
+            "elapsed_s": round(self.elapsed, 3),
+            "differing_ids": sorted(self.differing_ids),
+            "commands": {
+                str(k): {
+                    "name": c.name,
+                    "sent": c.sent,
+                    "matched": c.matched,
+                    "differing": c.differing,
+                    "skipped": dict(c.skipped),
+                    "differences": [d.to_json() for d in c.differences[:20]],
+                }
+                for k, c in sorted(self.commands.items())
+            },
+        }
+
+
+def _record(f: Frame, direction: str, t_ns: int, name: str | None, conn: int) -> FrameRecord:
+    return FrameRecord(
+        conn=conn,
+        dir=C2S if direction == C2S else S2C,
+        cnt=f.cnt,
+        cmd_id=f.cmd_id,
+        data=f.data,
+        raw=f.raw or f.encode(),
+        name=name,
+        length=f.length,
+        problems=tuple(p.value for p in f.problems),
+        complete_ns=t_ns,
+        first_ns=t_ns,
+    )
+
+
+def replay_to_target(
+    rec: Recording,
+    host: str,
+    port: int,
+    *,
+    specs: SpecSet,
+    safety: SafetyPolicy,
+    timing: str = "fast",
+    timeout: float = 2.0,
+    quiet_timeout: float = 0.2,
+    ignore: Ignore = Ignore(),  # noqa: B008 (frozen)
+    udp_port: int | None = None,
+    judge: Judge | None = None,
+) -> ReplayResult:
+    """Resend the recording's client side to ``host:port`` and compare the replies."""
+    from ..net.addresses import format_address
+    from ..net.client import Client
+
+    result = ReplayResult(target=format_address(host, port))
+    start = time.monotonic()
+    # What each recorded request got, by connection and request index.
+    replies: dict[int, FrameRecord | None] = {}
+    noise = rec.noise_before()
+    for rx in rec.exchanges():
+        if rx.request is not None:
+            replies[id(rx.request)] = rx.reply
+    per_conn: dict[int, list[tuple[int, FrameRecord | ProblemRecord]]] = {}
+    transports: dict[int, str] = {c.conn: c.transport for c in rec.connections if c.event == "open"}
+    for f in rec.frames:
+        if f.dir == C2S:
+            per_conn.setdefault(f.conn, []).append((f.offset, f))
+    for p in rec.problems:
+        if p.dir == C2S and p.kind == "malformed" and p.raw:
+            per_conn.setdefault(p.conn, []).append((p.offset, p))
+    t0_rec = rec.start_ns
+    t0 = time.monotonic()
+    for conn in sorted(per_conn):
+        items = [x for _, x in sorted(per_conn[conn], key=lambda it: it[0])]
+        transport = transports.get(conn, items[0].transport)
+        if transport == "udp" and udp_port is None:
+            continue
+        target_port = udp_port if transport == "udp" and udp_port is not None else port
+        client = Client(host, target_port, transport=transport, timeout=timeout)
+        result.connections += 1
+
+        def ensure(client: Client = client) -> bool:
+            if client.connected:
+                return True
+            try:
+                client.reconnect()
+            except ConformanceError:
+                return False
+            return True
+
+        try:
+            for item in items:
+                if timing == "recorded":
+                    due = t0 + (item.complete_ns - t0_rec) / 1e9
+                    delay = due - time.monotonic()
+                    if delay > 0:
+                        time.sleep(delay)
+                if isinstance(item, ProblemRecord):
+                    if ensure():
+                        client.send_raw(item.raw)
+                    continue
+                cmd = specs.resolve(item.cmd_id, item.name)
+                named = (
+                    display_name(judge.request(item.frame(), transport=item.transport))
+                    if judge is not None
+                    else None
+                )
+                c = result.cmd(item.cmd_id, named or item.name or (cmd.name if cmd else None))
+                ok, why = (safety.loopback, _UNKNOWN) if cmd is None else safety.permits(cmd, specs)
+                if not ok:
+                    c.skipped[why] = c.skipped.get(why, 0) + 1
+                    continue
+                recorded = replies.get(id(item))
+                if not ensure():
+                    c.differing += 1
+                    c.differences.append(
+                        Difference(
+                            kind="closed",
+                            cmd_id=item.cmd_id,
+                            detail="the target refused the connection",
+                            recorded=recorded.raw.decode("utf-8", "replace") if recorded else "",
+                        )
+                    )
+                    continue
+                client.send_raw(item.raw)
+                c.sent += 1
+                ex = client.await_reply(
+                    item.cnt,
+                    item.cmd_id,
+                    request=item.raw,
+                    timeout=timeout if recorded is not None else quiet_timeout,
+                )
+                got = ex.reply
+                if got is None:
+                    near = ex.near_misses()
+                    got = near[0] if near else None
+                new = None if got is None else _record(got, S2C, time.time_ns(), item.name, conn)
+                got_noise = sum(len(m.raw) for m in ex.malformed)
+                rec_noise = noise.get(id(recorded), 0) if recorded is not None else 0
+                diffs = compare_replies(
+                    recorded,
+                    new,
+                    request=item,
+                    noise=(rec_noise, got_noise),
+                    specs=specs,
+                    ignore=ignore,
+                    judge=judge,
+                )
+                if (
+                    ex.closed
+                    and recorded is not None
+                    and "closed" not in ignore.kinds
+                    and got is None
+                ):
+                    diffs = [
+                        Difference(
+                            kind="closed",
+                            cmd_id=item.cmd_id,
+                            detail="the target closed the connection instead of replying",
+                            recorded=recorded.raw.decode("utf-8", "replace"),
+                        )
+                    ]
+                if ex.closed:
+                    client.close()
+                if diffs:
+                    c.differing += 1
+                    c.differences.extend(diffs)
+                else:
+                    c.matched += 1
+        finally:
+            client.close()
+    result.elapsed = time.monotonic() - start
+    return result
