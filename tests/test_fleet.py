@@ -205,7 +205,7 @@ def _a_frame_a_message(path: Path) -> int:
     order their first byte came, each its own message where the direction changes;
     returns the frame messages written."""
     from conformance.recording.reader import read_recording
-    from conformance.recording.records import FrameRecord
+    from conformance.recording.records import FrameRecord, Frames
     from conformance.recording.writer import RecordingWriter
 
     rec = read_recording(path)
@@ -216,16 +216,15 @@ def _a_frame_a_message(path: Path) -> int:
                 w.write(c)
         for f in frames:
             assert isinstance(f, FrameRecord)
-            w.write_frame(f.conn, f.transport, f.dir, f.cnt, f.cmd_id, f.name, f.data,
-                          f.length or 0, f.offset, f.first_ns, f.complete_ns, f.raw)  # fmt: skip
+            w.write_frames(Frames.of([f]))
         for c in rec.connections:
             if c.event == "close":
                 w.write(c)
         return w.messages - len(rec.connections)
 
 
-@pytest.mark.parametrize("layout", [2, 3, "3, a frame a message", 4])
-def test_fast_path_gives_the_general_paths_rows(tmp_path: Path, layout: int | str) -> None:
+@pytest.mark.parametrize("layout", ["batches", "a frame a message"])
+def test_fast_path_gives_the_general_paths_rows(tmp_path: Path, layout: str) -> None:
     """The columnar path (conformance/fleet/fast.py) and check_recording's give the same
     rows: a wrong reply CNT (the pairing one by one), time-outs and refusals (at once);
     of layout 2's JSON batches and of layout 3's protobuf ones, batched or one frame a
@@ -243,9 +242,9 @@ def test_fast_path_gives_the_general_paths_rows(tmp_path: Path, layout: int | st
         Fault("refusal", "*", "*", 214),
     )
     a, b = tmp_path / "a.mcap", tmp_path / "b.mcap"
-    write_recording(a, "r09", "3.9.8", 600, faults, START, int(str(layout)[0]))
-    write_recording(b, "r09", "3.8.2", 600, faults[1:], START, int(str(layout)[0]))
-    if layout == "3, a frame a message":
+    write_recording(a, "r09", "3.9.8", 600, faults, START)
+    write_recording(b, "r09", "3.8.2", 600, faults[1:], START)
+    if layout == "a frame a message":
         assert _a_frame_a_message(a) > 400 and _a_frame_a_message(b) > 400
     ca, cb = read_columns(str(a)), read_columns(str(b))
     assert ca is not None and cb is not None
@@ -262,54 +261,6 @@ def test_fast_path_gives_the_general_paths_rows(tmp_path: Path, layout: int | st
 
 
 @pytest.mark.parametrize(
-    ("column", "value"),
-    [("cnt", True), ("cnt", -1), ("cmd_id", "201"), ("data", 7), ("cnt", 2**64)],
-)
-def test_a_message_that_does_not_fit_goes_the_general_way(
-    tmp_path: Path, column: str, value: object
-) -> None:
-    """A batch whose column holds what the schema does not allow: export-parquet skips it
-    as check does (the reader names the message as damage, exit 3; the windows name it
-    alike), never an internal error."""
-    from conformance.fleet.fast import read_columns
-    from conformance.recording.layout import TOPIC_C2S
-    from conformance.recording.reader import read_recording
-    from conformance.recording.records import FrameBatch
-    from conformance.recording.writer import RecordingWriter, default_metadata
-
-    path = tmp_path / "odd.mcap"
-    md = default_metadata(START, robot="r01", format="fairino-conformance/2")  # JSON batches
-    with RecordingWriter(path, metadata=md) as w:
-        good = FrameBatch(
-            1,
-            "tcp",
-            "c2s",
-            [1, 2],
-            [212, 212],
-            [None, None],
-            ["GetDI(0,0)"] * 2,
-            [10, 10],
-            [0, 1],
-            [START, START + 1],
-            [START, START + 1],
-            [1, 1],
-            b"ab",
-        )
-        w.write_frames(good)
-        w.flush()
-        doc = good.to_json()
-        doc[column] = [value, doc[column][1]]
-        w.write_json(TOPIC_C2S, doc, log_time=START + 2, publish_time=START + 2)
-    # The windows skip it and name it as the reader does (issue 19), the rest read.
-    cols = read_columns(str(path))
-    assert cols is not None and len(cols) == 2
-    assert [str(d) for d in cols.damage] == [str(d) for d in read_recording(path).damage]
-    p = cli_run("export-parquet", str(path), "-o", str(tmp_path / "ds"))
-    assert p.returncode == 3, p.stderr
-    assert "damaged:" in p.stderr and "internal error" not in p.stderr
-
-
-@pytest.mark.parametrize(
     ("old", "new"),
     [
         (b"\x22\x10", b"\x22\x11"),  # cnt one byte longer: a column cut inside a value
@@ -320,25 +271,26 @@ def test_a_message_that_does_not_fit_goes_the_general_way(
 def test_a_protobuf_batch_that_does_not_fit_goes_the_general_way(
     tmp_path: Path, old: bytes, new: bytes
 ) -> None:
-    """Layout 3: a frame batch that does not read or fit is skipped and named as damage
-    (exit 3), the windows naming it as the reader does, never an internal error."""
+    """A frame batch that does not read or fit is skipped and named as damage (exit 3),
+    the windows naming it as the reader does, never an internal error."""
     from conformance.fleet.fast import read_columns
-    from conformance.recording.frames_pb import encode_batch
-    from conformance.recording.layout import TOPIC_C2S
+    from conformance.recording.layout import TOPIC_FRAMES
     from conformance.recording.reader import read_recording
-    from conformance.recording.records import FrameBatch
+    from conformance.recording.records import Frames
+    from conformance.recording.traffic_pb import encode_traffic
     from conformance.recording.writer import RecordingWriter, default_metadata
 
     path = tmp_path / "odd.mcap"
-    md = default_metadata(START, robot="r01", format="fairino-conformance/3")
-    good = FrameBatch(1, "tcp", "c2s", [1, 2], [212, 212], [None, None], ["GetDI(0,0)"] * 2,
-                      [10, 10], [0, 1], [START, START + 1], [START, START + 1], [1, 1], b"ab")  # fmt: skip
-    wire = encode_batch(good)
+    md = default_metadata(START, robot="r01")
+    good = Frames([(1, "tcp", "c2s")], [0, 0], [1, 2], [212, 212], [None, None],
+                  ["GetDI(0,0)"] * 2, [10, 10], [0, 1], [START, START + 1], [START, START + 2],
+                  [1, 1], b"ab")  # fmt: skip
+    wire = encode_traffic(good)[0]
     assert old in wire
     with RecordingWriter(path, metadata=md) as w:
         w.write_frames(good)
         w.flush()
-        w._mcap.add_message(w._channels[TOPIC_C2S], START + 2, wire.replace(old, new), START, 9)
+        w._mcap.add_message(w._channels[TOPIC_FRAMES], START + 2, wire.replace(old, new), START, 9)
     # The windows skip it and name it as the reader does (issue 19), the rest read.
     cols = read_columns(str(path))
     assert cols is not None and len(cols) == 2

@@ -5,7 +5,6 @@ every column; and the fast path is the one that wrote them."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -250,7 +249,7 @@ def test_a_damaged_recording_goes_the_windowed_path(
     assert bool(damage[True]) == (how == "flipped")
 
 
-def _with_flaws(path: Path, layout: int) -> Path:
+def _with_flaws(path: Path) -> Path:
     """Two connections' request/reply traffic, every fifth request's LEN two off
     (``len_mismatch``), six others sent with ``II`` separators (``bad_separator``), and
     every ninth reply's LEN off: frame batches with framing problems (the recorder writes
@@ -263,9 +262,9 @@ def _with_flaws(path: Path, layout: int) -> Path:
         raw = b"/f/bIII%dIII%dIII%dIII%sIII/b/f" % (cnt, cmd_id, n, data.encode())
         return raw.replace(b"III", b"II") if sep else raw
 
-    md = {**default_metadata(START, robot="r05"), "format": f"fairino-conformance/{layout}"}
-    with RecordingWriter(path, metadata=md, batch_frames=16) as w:
-        rec = StreamRecorder(w)
+    md = default_metadata(START, robot="r05")
+    with RecordingWriter(path, metadata=md) as w:
+        rec = StreamRecorder(w, batch_frames=16)
         t = START
         for conn in (1, 2):
             rec.open(conn, t_ns=t, client=f"10.0.0.1:{40000 + conn}", upstream="10.0.0.2:8080")
@@ -278,14 +277,13 @@ def _with_flaws(path: Path, layout: int) -> Path:
     return path
 
 
-@pytest.mark.parametrize("layout", [2, 3, 4])
 def test_frame_batches_with_framing_problems_go_the_windowed_path(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, layout: int
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """Frame batches carrying framing problems (layout 2's JSON, 3's protobuf, 4's
-    traffic): windowed (8 frames a window), each such frame judged alone, ``len_ok``
-    False where its LEN does not fit; the rows those of the general path."""
-    path = _with_flaws(tmp_path / f"flaws-{layout}.mcap", layout)
+    """Frame batches carrying framing problems: windowed (8 frames a window), each such
+    frame judged alone, ``len_ok`` False where its LEN does not fit; the rows those of the
+    general path."""
+    path = _with_flaws(tmp_path / "flaws.mcap")
     tables, whole = both_paths(path, tmp_path, monkeypatch, window=8)
     assert whole == []
     frames = tables["frames"]
@@ -301,7 +299,7 @@ def _out_of_order(path: Path, case: str) -> Path:
     before reply 3 (a stream's offsets stepping back after the run found a frame)."""
     from conformance.protocol.frame import encode_frame
     from conformance.recording.layout import C2S, S2C
-    from conformance.recording.records import FrameBatch, FrameRecord, ProblemRecord
+    from conformance.recording.records import FrameRecord, Frames, ProblemRecord
     from conformance.recording.writer import RecordingWriter, default_metadata
 
     garbage = ProblemRecord(
@@ -338,9 +336,9 @@ def _out_of_order(path: Path, case: str) -> Path:
                     w.write(garbage)
                     held = f  # written after reply 4
                     continue
-                w.write_frames(FrameBatch.of([f]))
+                w.write_frames(Frames.of([f]))
                 if held is not None and way == S2C:
-                    w.write_frames(FrameBatch.of([held]))
+                    w.write_frames(Frames.of([held]))
                     held = None
             if case == "judged" and cnt == 40:  # the 4 bytes ahead of reply 3, written now
                 w.write(garbage)
@@ -373,30 +371,26 @@ def test_runs_written_out_of_order_go_the_windowed_path(
     assert run["cmd_id"] == 214
 
 
-def _with_bad_messages(path: Path, layout: int, *, flip: int = 0) -> Path:
-    """Two connections' batches of four frames (each direction a message: layout 3's wait
-    to be checked with the window's), and among them messages the reader skips and names:
-    a frame batch that does not fit (a CNT of -1 in JSON, a CMD_ID past 2^63 in
-    protobuf, a traffic message cut inside a field), a connection record and a problem
-    that do not, and a message on a later layout's topic the reader does not read.
-    ``flip``: the byte at that offset flipped too (damage the walk names in between)."""
+def _with_bad_messages(path: Path, *, flip: int = 0) -> Path:
+    """Two connections' batches of four frames (each direction a message), and among them
+    messages the reader skips and names: a frame batch that does not fit (a message cut
+    inside a field), a connection record and a problem that do not, and a message on a
+    later layout's topic the reader does not read.  ``flip``: the byte at that offset
+    flipped too (damage the walk names in between)."""
     from conformance.protocol.frame import encode_frame
-    from conformance.recording.frames_pb import encode_batch
     from conformance.recording.layout import (
         C2S,
         S2C,
-        TOPIC_C2S,
         TOPIC_CONNECTIONS,
         TOPIC_FRAMES,
         TOPIC_PROBLEMS,
     )
-    from conformance.recording.records import ConnectionRecord, FrameBatch
+    from conformance.recording.records import ConnectionRecord, Frames
     from conformance.recording.writer import RecordingWriter, default_metadata
 
-    md = {**default_metadata(START, robot="r06"), "format": f"fairino-conformance/{layout}"}
-    with RecordingWriter(path, metadata=md, chunk_size=2048, batch_frames=4) as w:
+    md = default_metadata(START, robot="r06")
+    with RecordingWriter(path, metadata=md, chunk_size=2048) as w:
         mcap = w._mcap
-        frames_topic = TOPIC_FRAMES if layout == 4 else TOPIC_C2S
         later = mcap.register_channel("/fairino/later", "json", 0)
         offsets = {(c, d): 0 for c in (1, 2) for d in (C2S, S2C)}
         t = START
@@ -411,24 +405,16 @@ def _with_bad_messages(path: Path, layout: int, *, flip: int = 0) -> Path:
                 offs = [at + sum(map(len, raws[:i])) for i in range(4)]
                 offsets[(conn, way)] = at + sum(map(len, raws))
                 times = [t + i * 1000 + (500 if way == S2C else 0) for i in range(4)]
-                b = FrameBatch(conn, "tcp", way, [4 * k + i for i in range(4)], [212] * 4,
-                               [None] * 4, [data] * 4, [len(data)] * 4, offs, times, times,
-                               list(map(len, raws)), b"".join(raws))  # fmt: skip
+                b = Frames([(conn, "tcp", way)], [0] * 4, [4 * k + i for i in range(4)],
+                           [212] * 4, [None] * 4, [data] * 4, [len(data)] * 4, offs, times,
+                           times, list(map(len, raws)), b"".join(raws))  # fmt: skip
                 w.write_frames(b)
             w.flush()
             t += 1_000_000
             if k == 1:  # skipped at once, before a batch that waits for its window
                 mcap.add_message(w._channels[TOPIC_CONNECTIONS], t, b'{"conn": -2}', t, 8)
             elif k == 2:  # a frame batch that does not fit, near the start
-                if layout == 2:
-                    doc = b.to_json()
-                    doc["cnt"] = [-1, *doc["cnt"][1:]]
-                    bad = json.dumps(doc).encode()
-                elif layout == 3:
-                    bad = encode_batch(b).replace(b"\xd4\x00\x00\x00\x00\x00\x00\x00", b"\xff" * 8)
-                else:
-                    bad = b"\x12\x05ab"
-                mcap.add_message(w._channels[frames_topic], t, bad, t, 9)
+                mcap.add_message(w._channels[TOPIC_FRAMES], t, b"\x12\x05ab", t, 9)
             elif k == 9:
                 mcap.add_message(w._channels[TOPIC_CONNECTIONS], t, b'{"conn": -1}', t, 9)
                 mcap.add_message(later, t, b'{"frames": []}', t, 1)
@@ -445,19 +431,16 @@ def _with_bad_messages(path: Path, layout: int, *, flip: int = 0) -> Path:
     return path
 
 
-@pytest.mark.parametrize(
-    ("layout", "flip"), [(2, 0), (3, 0), (4, 0), (3, 4000), (3, 7000), (4, 5000)]
-)
+@pytest.mark.parametrize("flip", [0, 4000, 5000, 7000])
 def test_messages_that_do_not_read_or_fit_go_the_windowed_path(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, layout: int, flip: int
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, flip: int
 ) -> None:
     """A frame batch, a connection record and a problem that do not read or fit its schema
     (a negative number among them), and a later layout's topic: windowed (8 frames a
     window), each skipped and named as the reader names it, in the reader's order among
     a damaged chunk's (read after the batch, named before the window checks it); the rows
     those of the general path."""
-    path = _with_bad_messages(tmp_path / f"bad-{layout}-{flip}.mcap", layout, flip=flip)
-    # Flipped: 64 frames a window, so that layout 3's batches are checked after the chunk.
+    path = _with_bad_messages(tmp_path / f"bad-{flip}.mcap", flip=flip)
     tables, whole = both_paths(path, tmp_path, monkeypatch, window=64 if flip else 8)
     assert whole == []
     damage = named_damage(tmp_path, path)
@@ -538,36 +521,6 @@ def test_more_connections_than_check_remembers_go_the_windowed_path(
     assert max(most) <= 24
 
 
-def test_json_batches_in_another_writers_shape_go_the_windowed_path(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    """Layout 2's JSON batches not in the kit's writer's shape (``raw`` first; DATA
-    holding ``true``), and one holding a boolean where a number goes (the reader skips and
-    names it): windowed, the rows and the damage those of the general path."""
-    from conformance.protocol.frame import encode_frame
-    from conformance.recording.layout import C2S, S2C, TOPIC_C2S, TOPIC_S2C
-    from conformance.recording.records import FrameBatch
-    from conformance.recording.writer import RecordingWriter, default_metadata
-
-    md = {**default_metadata(START, robot="r08"), "format": "fairino-conformance/2"}
-    path = tmp_path / "shapes.mcap"
-    with RecordingWriter(path, metadata=md) as w:
-        for cnt in range(1, 30):
-            t = START + cnt * 1_000_000
-            for way, data, topic in ((C2S, "SetDO(1,true)", TOPIC_C2S), (S2C, "1", TOPIC_S2C)):
-                raw = encode_frame(cnt, 212, data)
-                doc = FrameBatch(1, "tcp", way, [cnt], [212], [None], [data], [len(data)],
-                                 [(cnt - 1) * len(raw)], [t], [t], [len(raw)], raw).to_json()  # fmt: skip
-                doc = {"raw": doc.pop("raw"), **doc}  # raw first
-                if cnt == 7 and way == S2C:
-                    doc["len"] = [True]
-                w.write_json(topic, doc, log_time=t, publish_time=t)
-    tables, whole = both_paths(path, tmp_path, monkeypatch, window=8)
-    assert whole == [] and len(tables["frames"]) == 57
-    damage = named_damage(tmp_path, path)
-    assert damage[True] == damage[False] and len(damage[True]) == 1
-
-
 def test_more_connections_open_at_once_than_the_bound_read_the_recording_whole(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -606,35 +559,3 @@ def test_a_recording_read_whole_as_columns_takes_runs_out_of_order(
     assert whole == [str(path)] and columns == [True]
     (run,) = tables["problems"]
     assert run["cmd_id"] == 214
-
-
-def test_layout_1_goes_the_windowed_path(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """Layout 1 (a fairino.Frame object a message), a frame with framing problems among
-    them and one whose CNT is negative (skipped and named): windowed, the rows and the
-    damage those of the general path."""
-    from conformance.protocol.frame import encode_frame
-    from conformance.recording.layout import C2S, S2C, TOPIC_C2S, TOPIC_S2C
-    from conformance.recording.records import FrameRecord
-    from conformance.recording.writer import RecordingWriter, default_metadata
-
-    md = {**default_metadata(START, robot="r09"), "format": "fairino-conformance/1"}
-    path = tmp_path / "v1.mcap"
-    with RecordingWriter(path, metadata=md) as w:
-        at = {C2S: 0, S2C: 0}
-        for cnt in range(1, 25):
-            t = START + cnt * 1_000_000
-            for way, data, topic in ((C2S, "GetDI(0,0)", TOPIC_C2S), (S2C, "1", TOPIC_S2C)):
-                raw = encode_frame(cnt, 212, data)
-                problems = ("len_mismatch",) if (cnt, way) == (5, C2S) else ()
-                f = FrameRecord(conn=1, dir=way, cnt=cnt, cmd_id=212, data=data, raw=raw,
-                                complete_ns=t, first_ns=t, offset=at[way], problems=problems)  # fmt: skip
-                at[way] += len(raw)
-                doc = dict(f.to_json())
-                if (cnt, way) == (9, S2C):
-                    doc["cnt"] = -1
-                w.write_json(topic, doc, log_time=t, publish_time=t)
-    tables, whole = both_paths(path, tmp_path, monkeypatch, window=8)
-    assert whole == [] and len(tables["frames"]) == 47
-    assert sum(not r["len_ok"] for r in tables["frames"]) == 1
-    damage = named_damage(tmp_path, path)
-    assert damage[True] == damage[False] and len(damage[True]) == 1

@@ -26,9 +26,9 @@ FAULTS = (
 )
 
 
-@pytest.mark.parametrize("layout", [2, 3, "3, a frame a message", 4])
+@pytest.mark.parametrize("layout", ["batches", "a frame a message"])
 def test_windows_give_the_rows_of_one_window(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, layout: int | str
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, layout: str
 ) -> None:
     from conformance.fleet import window
     from conformance.fleet.export import export_recording, open_dataset
@@ -38,8 +38,8 @@ def test_windows_give_the_rows_of_one_window(
 
     monkeypatch.setattr(tools.synth_fleet, "FRAMES_PER_CONNECTION", 130)  # a few connections
     path = tmp_path / "r.mcap"
-    write_recording(path, "r09", "3.9.8", 700, FAULTS, START, int(str(layout)[0]))
-    if layout == "3, a frame a message":
+    write_recording(path, "r09", "3.9.8", 700, FAULTS, START)
+    if layout == "a frame a message":
         assert _a_frame_a_message(path) > 400
     judge = Judge(default_specs(), default_dialects())
     carried: list[int] = []
@@ -60,7 +60,7 @@ def test_windows_give_the_rows_of_one_window(
         if name == "small":
             # Many windows, with requests whose reply came in a later one (layout 4: a
             # message holds a connection's frames, both ways: a window each).
-            assert len(carried) > (3 if layout == 4 else 8) and max(carried) > 0
+            assert len(carried) > (3 if layout == "batches" else 8) and max(carried) > 0
         if name == "one":
             assert carried == [0]
     assert_same_tables(tables["small"], tables["one"])
@@ -83,22 +83,20 @@ def test_frames_out_of_order_are_read_whole(tmp_path: Path) -> None:
     from conformance.fleet.export import export_recording, open_dataset
     from conformance.judge.judge import Judge
     from conformance.recording.reader import read_recording
-    from conformance.recording.records import FrameRecord
+    from conformance.recording.records import Frames
     from conformance.recording.writer import RecordingWriter
     from conformance.spec.commands import default_specs
     from conformance.spec.dialects import default_dialects
 
     path = tmp_path / "r.mcap"
-    write_recording(path, "r09", "3.9.8", 300, FAULTS, START, 3)
+    write_recording(path, "r09", "3.9.8", 300, FAULTS, START)
     rec = read_recording(path)
     frames = sorted(rec.frames, key=lambda f: -f.first_ns)  # the last first
     with RecordingWriter(path, metadata=rec.metadata) as w:
         for c in rec.connections:
             w.write(c)
-        for f in frames:
-            assert isinstance(f, FrameRecord)
-            w.write_frame(f.conn, f.transport, f.dir, f.cnt, f.cmd_id, f.name, f.data,
-                          f.length or 0, f.offset, f.first_ns, f.complete_ns, f.raw)  # fmt: skip
+        for k in range(0, len(frames), 16):
+            w.write_frames(Frames.of(frames[k : k + 16]))
     judge = Judge(default_specs(), default_dialects())
     tables = {}
     for name, kw in (("small", {"window": 5}), ("general", {"fast": False})):

@@ -57,14 +57,18 @@ def test_item_8_split_size_files_end_within_the_size(
     recorder flushed (once a second), and then without the chunk in progress."""
     from conformance.protocol.frame import encode_frame
     from conformance.recording.reader import read_recording
+    from conformance.recording.recorder import StreamRecorder
     from conformance.recording.rotating import RotatingWriter
 
     split = 20 * 1024
     w = RotatingWriter(tmp_path / "r.mcap", metadata={"source": "test"}, split_size=split)
-    sent = 3000  # about 300 KB of JSON, never flushed: the size alone rotates
+    r = StreamRecorder(w)
+    r.open(1, t_ns=1)
+    sent = 3000  # about 150 KB of frames, never flushed: the size alone rotates
     for i in range(sent):
-        for d, raw in (("c2s", encode_frame(i, 201, f'MoveJ("P{i}")')), ("s2c", b"1")):
-            w.write_frame(1, "tcp", d, i, 201, "MoveJ", str(i), len(raw), 0, i, i, raw, None)
+        r.data(1, "c2s", 2 + 2 * i, encode_frame(i, 201, f'MoveJ("P{i}")'))
+        r.data(1, "s2c", 3 + 2 * i, encode_frame(i, 201, "1"))
+    r.finish(t_ns=10 * sent)
     w.close()
     sizes = [(tmp_path / p).stat().st_size for p in w.paths]
     assert len(sizes) >= 3

@@ -17,32 +17,36 @@ from conformance._version import __version__
 from conformance.pcap.export import export_pcap
 from conformance.pcap.importer import import_pcap
 from conformance.protocol.frame import encode_frame
-from conformance.recording.frames_pb import decode_batch
 from conformance.recording.layout import (
-    _TOPICS,
     METADATA_NAME,
     PROBLEM_RAW_LIMIT,
     SCHEMAS,
-    TOPIC_C2S,
     TOPIC_CONNECTIONS,
     TOPIC_FRAMES,
     TOPIC_PROBLEMS,
-    TOPIC_S2C,
+    TOPICS,
 )
 from conformance.recording.reader import Recording, read_recording
 from conformance.recording.recorder import StreamRecorder
-from conformance.recording.records import ConnectionRecord, FrameBatch, FrameRecord, ProblemRecord
+from conformance.recording.records import ConnectionRecord, FrameRecord, Frames, ProblemRecord
 from conformance.recording.repair import recover
 from conformance.recording.rotating import RotatingWriter
-from conformance.recording.traffic_pb import decode_traffic
+from conformance.recording.traffic_pb import FILE_DESCRIPTOR_SET, SCHEMA_NAME, decode_traffic
 from conformance.recording.writer import RecordingWriter
 from conformance.spec.commands import default_specs
 from tests.examples import examples
 
 
 class ListSink:
+    """A sink that keeps the records a recorder writes, a frame batch as its records."""
+
+    batch_bytes = 256 * 1024
+
     def __init__(self) -> None:
         self.records: list[object] = []
+
+    def write_frames(self, frames: Frames) -> None:
+        self.records += frames.records()
 
     def write(self, record: object) -> None:
         self.records.append(record)
@@ -86,7 +90,7 @@ def test_every_message_matches_its_schema(tmp_path: Path) -> None:
     # The two frames of the one read are one batch; the problems around them keep their
     # place (noise before, NUL padding and the partial frame after).
     assert topics == {TOPIC_CONNECTIONS: 4, TOPIC_FRAMES: 2, TOPIC_PROBLEMS: 3}
-    assert set(SCHEMAS) == {"fairino.Frames", "fairino.Problem", "fairino.Connection"}
+    assert set(SCHEMAS) == {"fairino.Problem", "fairino.Connection"}
     back = read_recording(out)
     assert [f.cnt for f in back.frames] == [4, 5, 1]
     assert back.metadata["format"] == "fairino-conformance/4"
@@ -144,7 +148,8 @@ def test_recover_a_file_cut_anywhere(tmp_path: Path) -> None:
     r.open(1, t_ns=1)
     for i in range(200):
         r.data(1, "c2s", 10 + i, encode_frame(i, 201, 'MoveJ("P1")'))
-        if i % 50 == 49:
+        if i % 50 == 49:  # the proxy's recorder every flush interval: the frames held, a flush
+            r.write_held()
             w.flush()
     w.flush()
     size = out.stat().st_size
@@ -332,118 +337,42 @@ _RECS = [
 ]
 
 
-def _write_frame(w: RecordingWriter, r: FrameRecord) -> None:
-    """``r`` through the writer's one-frame path (write_frame's fields)."""
-    w.write_frame(
-        r.conn,
-        r.transport,
-        r.dir,
-        r.cnt,
-        r.cmd_id,
-        r.name,
-        r.data,
-        r.length if r.length is not None else len(r.data.encode("utf-8")),
-        r.offset,
-        r.first_ns or r.complete_ns,
-        r.complete_ns,
-        r.raw,
-        list(r.problems) or None,
-    )
-
-
-def test_write_frames_is_write_json_of_the_batch(tmp_path: Path) -> None:
-    """The template path and the dict path give byte-identical files (layout 2's JSON),
-    and records written one by one are batched exactly as the batch of them is."""
-    metadata = {"format": "fairino-conformance/2"}
-    a, b, c = tmp_path / "a.mcap", tmp_path / "b.mcap", tmp_path / "c.mcap"
-    groups = [_RECS[:1], _RECS[1:4], _RECS[4:]]
-    with RecordingWriter(a, metadata=metadata) as w:
-        for g in groups:
-            doc = FrameBatch.of(g).to_json()
-            topic = TOPIC_C2S if g[0].dir == "c2s" else TOPIC_S2C
-            w.write_json(
-                topic,
-                doc,
-                log_time=max(r.complete_ns for r in g),
-                publish_time=min(r.first_ns or r.complete_ns for r in g),
-            )
-    with RecordingWriter(b, metadata=metadata) as w:
-        for g in groups:
-            w.write_frames(FrameBatch.of(g))
-    with RecordingWriter(c, metadata=metadata) as w:
+def test_a_batch_and_its_records_one_by_one_read_back_alike(tmp_path: Path) -> None:
+    """The writer's two ways in: a batch of frames (write_frames) and the same frames as
+    records one by one (write: a batch each) read back to the same records; a first_ns of
+    0 (not known) reads back as complete_ns."""
+    a, b = tmp_path / "a.mcap", tmp_path / "b.mcap"
+    with RecordingWriter(a) as w:
+        w.write_frames(Frames.of(_RECS))
+    with RecordingWriter(b) as w:
         for r in _RECS:
             w.write(r)
-    d = tmp_path / "d.mcap"
-    with RecordingWriter(d, metadata=metadata) as w:
-        for r in _RECS:  # the one-frame path (request/reply traffic)
-            _write_frame(w, r)
-    assert a.read_bytes() == b.read_bytes() == c.read_bytes() == d.read_bytes()
-    # A first_ns of 0 (not known) reads back as complete_ns, as layout 1 read it.
     want = [dataclasses.replace(r, first_ns=r.first_ns or r.complete_ns) for r in _RECS]
+    assert [f.to_json() for f in read_recording(a).frames] == [r.to_json() for r in want]
     assert [f.to_json() for f in read_recording(b).frames] == [r.to_json() for r in want]
-    back = FrameBatch.of(_RECS[1:4]).records()
-    assert [f.to_json() for f in back] == [r.to_json() for r in want[1:4]]
+    assert [f.to_json() for f in Frames.of(_RECS[1:4]).records()] == [
+        r.to_json() for r in want[1:4]
+    ]
 
 
-@pytest.mark.parametrize("layout", [3, 4])
-def test_batches_keep_record_order_and_limits(tmp_path: Path, layout: int) -> None:
-    """Another record ends the batch held (file order is arrival order), so do the limits."""
-    out = tmp_path / "r.mcap"
-    with RecordingWriter(out, layout=layout, batch_frames=3) as w:
-        for k in range(7):
-            w.write(dataclasses.replace(_RECS[0], cnt=k))
-            if k == 1:
-                w.write(ConnectionRecord(conn=9, event="open", t_ns=6))
-    counts: list[tuple[str, int]] = []
-    with open(out, "rb") as f:
-        for _, channel, message in make_reader(f).iter_messages(log_time_order=False):
-            n = 0
-            if channel.topic in (TOPIC_C2S, TOPIC_S2C):
-                n = len(decode_batch(message.data).cnts)
-            elif channel.topic == TOPIC_FRAMES:
-                n = len(decode_traffic(message.data).cnt)
-            counts.append((channel.topic, n))
-    topic = TOPIC_C2S if layout == 3 else TOPIC_FRAMES
-    assert counts == [(topic, 2), (TOPIC_CONNECTIONS, 0), (topic, 3), (topic, 2)]
-    assert [f.cnt for f in read_recording(out).frames] == list(range(7))
-
-
-def test_one_frame_path_and_batches_mix_in_order(tmp_path: Path) -> None:
-    """write_frame and write_frames of the same and of other streams, any order: every
-    frame reads back once, in the order written."""
+def test_records_keep_the_order_they_are_written_in(tmp_path: Path) -> None:
+    """Frames, batches and other records, any order: every record reads back once, in the
+    order written (a connection record between two batches stays between them)."""
     out = tmp_path / "r.mcap"
     recs = [dataclasses.replace(_RECS[k // 3 % 2], cnt=k, first_ns=1) for k in range(12)]
-    with RecordingWriter(out, metadata={"format": "x"}) as w:
-        for k, r in enumerate(recs):
-            if k % 3 == 0:
-                w.write_frames(FrameBatch.of([r]))
-            else:
-                _write_frame(w, r)
-            if k == 7:
-                w.write(ConnectionRecord(conn=9, event="open", t_ns=6))
+    with RecordingWriter(out) as w:
+        w.write_frames(Frames.of(recs[:7]))
+        w.write(ConnectionRecord(conn=9, event="open", t_ns=6))
+        for r in recs[7:]:
+            w.write(r)
+    topics = []
+    with open(out, "rb") as f:
+        for _, channel, _ in make_reader(f).iter_messages(log_time_order=False):
+            topics.append(channel.topic)
+    assert topics == [TOPIC_FRAMES, TOPIC_CONNECTIONS, *[TOPIC_FRAMES] * 5]
     back = read_recording(out)
     assert [f.to_json() for f in back.frames] == [r.to_json() for r in recs]
     assert len(back.connections) == 1
-
-
-def test_batch_messages_that_do_not_add_up_are_skipped(tmp_path: Path) -> None:
-    out = tmp_path / "r.mcap"
-    good = FrameBatch.of(_RECS[1:4]).to_json()
-    with RecordingWriter(out, metadata={"format": "x"}, layout=2) as w:  # JSON batches
-        w.write_json(TOPIC_S2C, dict(good, size=[1, 2, 3]), log_time=1, publish_time=1)
-        w.write_json(TOPIC_S2C, dict(good, cnt=[1]), log_time=1, publish_time=1)
-        w.write_json(TOPIC_S2C, good, log_time=1, publish_time=1)
-    want = [dataclasses.replace(r, first_ns=r.first_ns or r.complete_ns) for r in _RECS[1:4]]
-    assert [f.to_json() for f in read_recording(out).frames] == [r.to_json() for r in want]
-
-
-def test_reads_layout_1(tmp_path: Path) -> None:
-    """A recording of layout 1 (one fairino.Frame object a message) still reads."""
-    out = tmp_path / "v1.mcap"
-    doc = dict(_RECS[1].to_json())
-    with RecordingWriter(out, metadata={"format": "fairino-conformance/1"}) as w:
-        w.write_json(TOPIC_S2C, doc, log_time=9, publish_time=9)
-    assert [f.to_json() for f in read_recording(out).frames] == [_RECS[1].to_json()]
 
 
 @pytest.mark.parametrize("compression", ["zstd", "lz4", "none"])
@@ -453,33 +382,42 @@ def test_same_bytes_as_the_mcap_library_writer(tmp_path: Path, compression: str)
     CRCs, and ``flush`` ends the chunk in progress as ``Writer.flush`` does."""
     from mcap.writer import CompressionType, Writer
 
-    metadata = {"format": "fairino-conformance/2", "host": "h"}  # JSON on every topic
-    topics = [TOPIC_CONNECTIONS, TOPIC_C2S, TOPIC_S2C, TOPIC_PROBLEMS]
-    docs = [
-        (topics[i % 7 % 4], 1000 - i if i % 5 == 0 else 1000 + i, {"i": i, "pad": "x" * (i % 90)})
-        for i in range(600)
-    ]
+    metadata = {"format": "fairino-conformance/4", "host": "h"}
+    records: list[ConnectionRecord | ProblemRecord] = []
+    for i in range(600):
+        t = 1000 - i if i % 5 == 0 else 1000 + i
+        if i % 3:
+            records.append(ConnectionRecord(conn=i, event="open", t_ns=t, client="x" * (i % 90)))
+        else:
+            records.append(
+                ProblemRecord(conn=i, dir="c2s", kind="malformed", rule="garbage",
+                              detail="y" * (i % 90), size=1, complete_ns=t, first_ns=t - 1)
+            )  # fmt: skip
     ours = tmp_path / "ours.mcap"
     with RecordingWriter(ours, metadata=metadata, compression=compression, chunk_size=4096) as w:
-        for k, (topic, t, doc) in enumerate(docs):
-            w.write_json(topic, doc, log_time=t, publish_time=t - 1)
+        for k, r in enumerate(records):
+            w.write(r)
             if k == 300:
                 w.flush()
     theirs = tmp_path / "theirs.mcap"
     with open(theirs, "wb") as f:
         lib = Writer(f, chunk_size=4096, compression=CompressionType[compression.upper()])
         lib.start(profile="", library=f"fairino-conformance/{__version__}")
-        ids = {
-            n: lib.register_schema(n, "jsonschema", json.dumps(s).encode("utf-8"))
-            for n, s in SCHEMAS.items()
-        }
-        chans = {t: lib.register_channel(t, "json", ids[s]) for t, s in _TOPICS.items()}
+        traffic = lib.register_schema(SCHEMA_NAME, "protobuf", FILE_DESCRIPTOR_SET)
+        chans = {TOPIC_FRAMES: lib.register_channel(TOPIC_FRAMES, "protobuf", traffic)}
+        for topic, name in TOPICS.items():
+            sid = lib.register_schema(name, "jsonschema", json.dumps(SCHEMAS[name]).encode("utf-8"))
+            chans[topic] = lib.register_channel(topic, "json", sid)
         lib.add_metadata(METADATA_NAME, metadata)
         seq = dict.fromkeys(chans, 0)
-        for k, (topic, t, doc) in enumerate(docs):
+        for k, r in enumerate(records):
+            topic = TOPIC_CONNECTIONS if isinstance(r, ConnectionRecord) else TOPIC_PROBLEMS
             seq[topic] += 1
-            data = json.dumps(doc, separators=(",", ":"), ensure_ascii=False).encode("utf-8")
-            lib.add_message(chans[topic], t, data, t - 1, seq[topic])
+            data = json.dumps(r.to_json(), separators=(",", ":"), ensure_ascii=False).encode()
+            if isinstance(r, ConnectionRecord):
+                lib.add_message(chans[topic], r.t_ns, data, r.t_ns, seq[topic])
+            else:
+                lib.add_message(chans[topic], r.complete_ns, data, r.first_ns, seq[topic])
             if k == 300:
                 lib.flush()  # type: ignore[no-untyped-call]
         lib.finish()  # type: ignore[no-untyped-call]
@@ -521,7 +459,7 @@ def test_segments_record_what_data_of_each_read_records(
             for t, b in reads:
                 r.data(1, "c2s", t, b)
         else:
-            r.segments(1, "c2s", reads)
+            r.reads([(1, "c2s", t, b) for t, b in reads])
         r.close(1, t_ns=10_000, reason="end")
     assert together.records == one.records
 
@@ -533,7 +471,8 @@ def test_segments_take_runs_across_reads() -> None:
     sink = _BatchSink()
     r = StreamRecorder(sink, specs=default_specs())
     r.open(1, t_ns=1)
-    r.segments(1, "c2s", reads)
+    r.reads([(1, "c2s", t, b) for t, b in reads])
+    r.write_held()
     frames_out = [f for b in sink.batches for f in b.records()]
     assert [f.cnt for f in frames_out] == list(range(2000))
     assert len(sink.batches) < 20  # runs, not a batch a frame
@@ -545,10 +484,10 @@ def test_segments_take_runs_across_reads() -> None:
 class _BatchSink(ListSink):
     def __init__(self) -> None:
         super().__init__()
-        self.batches: list[FrameBatch] = []
+        self.batches: list[Frames] = []
 
-    def write_frames(self, batch: FrameBatch) -> None:
-        self.batches.append(batch)
+    def write_frames(self, frames: Frames) -> None:
+        self.batches.append(frames)
 
 
 def _exchanges_by_search(frames: list[FrameRecord]) -> list[tuple[int | None, int | None]]:

@@ -13,17 +13,14 @@ slow and bad replies on a few robots), then, each in its own process (its CPU ti
 
 * the baseline: the same recordings read by the kit's reader alone (``read_recording``),
   the first ``--sample`` of them;
-* ``export-parquet`` of those same recordings, one process (frames/s per process); and
-  with ``--baseline-layout 2`` (the default; ``''``: none) the reader and the export of
-  the same recordings written in that layout (layout 2: frame batches in JSON), in the
-  same run, with the ratios (layout 3's protobuf columns against layout 2's JSON);
+* ``export-parquet`` of those same recordings, one process (frames/s per process);
 * ``export-parquet`` of one recording and of all of them (the peak RSS of both: flat
   memory means the same figure whatever the number of recordings); ``--jobs`` processes;
 * ``query --report latency`` over the whole dataset (``--threads``, default 2).
 
 ``--memory 250000,1000000,4000000``: instead, one recording of each size (one robot, one
-firmware, time-outs, slow replies and refusals on every robot), in this layout and in
-layout 2, each exported in its own process: peak RSS against frames (flat: the same
+firmware, time-outs, slow replies and refusals on every robot), each exported in its own
+process: peak RSS against frames (flat: the same
 figure whatever the size; conformance/fleet/window.py) and frames/s CPU; with ``--pcap``,
 captures of those sizes (the same traffic as a pcap); with ``--baseline-rev REV``, each
 file exported by that revision's code too, in the same run.
@@ -177,23 +174,6 @@ def _format(path: str) -> str:
     return read_recording(path).metadata.get("format", "?")
 
 
-def _sample_in_layout(sample: list[str], fleet: Path, into: Path, layout: int) -> list[str]:
-    """The sample's recordings written again in ``layout`` (same robot, firmware, frames,
-    faults and start: the fleet's ``ROBOT/fw-FIRMWARE.mcap`` names say which)."""
-    from conformance.recording.reader import read_recording
-
-    out = []
-    for f in sample:
-        p = Path(f)
-        robot, fw = p.parent.name, p.stem.removeprefix("fw-")
-        rec = read_recording(f)
-        start = int(rec.metadata["start_ns"])
-        dest = into / robot / p.name
-        write_recording(dest, robot, fw, len(rec.frames), FAULTS, start, layout)
-        out.append(str(dest))
-    return out
-
-
 def _time_sample(sample: list[str], tmp: str, label: str) -> tuple[float, float]:
     """The reader alone and export-parquet (one process each) on ``sample``: frames/s CPU."""
     wall, cpu, rss, out = run([PY, "-c", _READ, *sample])
@@ -230,22 +210,21 @@ def memory(sizes: list[int], tmp: str, *, pcap: bool = False, rev: str = "") -> 
         f"{'code':>8} {'file':>7} {'frames':>10} {'MiB of file':>12} {'peak RSS MiB':>13} "
         f"{'frames/s CPU':>13}"
     )
-    for layout in (None,) if pcap else (None, 2):
-        for n in sizes:
-            if pcap:
-                path = Path(tmp) / f"mem-{n}.pcap"
-                write_capture(path, "r01", "3.9.8", n, faults, START_NS)
-            else:
-                path = Path(tmp) / f"mem-{layout}-{n}.mcap"
-                write_recording(path, "r01", "3.9.8", n, faults, START_NS, layout)
-            size = path.stat().st_size / 2**20
-            kind = "pcap" if pcap else f"mcap/{layout or 'this'}"
-            for code, env in envs:
-                ds = os.path.join(tmp, "ds-mem")
-                _, cpu, rss, _ = run([*CLI, "export-parquet", str(path), "-o", ds], env)
-                shutil.rmtree(ds, ignore_errors=True)
-                print(f"{code:>8} {kind:>7} {n:>10,} {size:>12.1f} {rss:>13} {n / cpu:>13,.0f}")
-            path.unlink()
+    for n in sizes:
+        if pcap:
+            path = Path(tmp) / f"mem-{n}.pcap"
+            write_capture(path, "r01", "3.9.8", n, faults, START_NS)
+        else:
+            path = Path(tmp) / f"mem-{n}.mcap"
+            write_recording(path, "r01", "3.9.8", n, faults, START_NS)
+        size = path.stat().st_size / 2**20
+        kind = "pcap" if pcap else "mcap"
+        for code, env in envs:
+            ds = os.path.join(tmp, "ds-mem")
+            _, cpu, rss, _ = run([*CLI, "export-parquet", str(path), "-o", ds], env)
+            shutil.rmtree(ds, ignore_errors=True)
+            print(f"{code:>8} {kind:>7} {n:>10,} {size:>12.1f} {rss:>13} {n / cpu:>13,.0f}")
+        path.unlink()
 
 
 #: export-parquet (the CLI's) with the whole path when argv[1] is ``whole``
@@ -326,11 +305,6 @@ def main() -> int:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument(
-        "--baseline-layout",
-        default="2",
-        help="the sample also written in this recording layout, timed beside ('' for none)",
-    )
-    ap.add_argument(
         "--baseline-rev",
         default="",
         help="also export the first recording by this git revision's code, side by side "
@@ -408,17 +382,7 @@ def main() -> int:
             side_by_side(files[0], tmp, a.baseline_rev, a.repeat)
             if a.side_only:
                 return 0
-        if a.baseline_layout:
-            theirs = _sample_in_layout(sample, fleet, Path(tmp) / "base", int(a.baseline_layout))
-            mine = _time_sample(sample, tmp, "this layout")
-            old = _time_sample(theirs, tmp, f"layout {a.baseline_layout}")
-            print(
-                f"layout of the sample: {_format(sample[0])}; ratios to layout "
-                f"{a.baseline_layout}: reader {mine[0] / old[0]:.2f}x, "
-                f"export-parquet {mine[1] / old[1]:.2f}x (frames/s CPU, same run)"
-            )
-        else:
-            _time_sample(sample, tmp, "this layout")
+        _time_sample(sample, tmp, f"layout {_format(sample[0])}")
         one = os.path.join(tmp, "ds-one")
         _, _, rss1, _ = run([*CLI, "export-parquet", files[0], "-o", one])
         shutil.rmtree(one, ignore_errors=True)

@@ -29,19 +29,13 @@
 ``--frames`` frames each way: the pieces of the same run side by side, so the ratios
 say where the time goes (the proxy's recorder process runs this same path):
 decoding only (a sink that drops the frames), decoding and the batch encoding (a sink
-that encodes each batch and drops it: layout 2's JSON template, layout 3's protobuf),
-``mcap.Writer.add_message`` alone on messages
-made beforehand, one per frame as layout 1 wrote them, and the whole path
-(StreamRecorder into RecordingWriter, to a complete file); then ``import-pcap`` of a
-pcap exported from that recording.  Then, in CPU time, the whole path and
-``read_recording`` writing layouts 4, 3 and 2 by this tree (interleaved rounds, the
-ratios each layout's gain), and the whole path and
-``import-pcap`` on pipelined traffic (64 KiB reads) and on request/reply traffic (a
-frame a read, directions alternating; the frames made once, outside the timing), and
-with ``--baseline-rev REV`` the same four figures by the code of that revision
-(exported with ``git archive`` and run in a subprocess with it first on the path), with
-the ratios: ``--baseline-rev a63c3dc~1`` is the last revision that wrote layout 2 (JSON
-batches), ``3096dc5~1`` the last that wrote layout 3.
+that encodes each batch and drops it), and the whole path (StreamRecorder into
+RecordingWriter, to a complete file); then ``import-pcap`` of a pcap exported from that
+recording.  Then, in CPU time, the whole path and ``import-pcap`` on pipelined traffic
+(64 KiB reads) and on request/reply traffic (a frame a read, directions alternating; the
+frames made once, outside the timing), and with ``--baseline-rev REV`` the same four
+figures by the code of that revision (exported with ``git archive`` and run in a
+subprocess with it first on the path), with the ratios.
 
 ``--section hostile-record`` feeds the recorder path hostile streams in 64 KiB reads
 (a frame and a byte of garbage, a tail flood, repeated headers, DATA holding
@@ -66,7 +60,7 @@ import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import TypeVar
+from typing import Any, TypeVar
 
 ROOT = Path(__file__).resolve().parent.parent
 # --baseline-rev runs this script again with another revision's package first on the path.
@@ -262,7 +256,9 @@ def bench_replay_serve(tmp: Path, n: int, capture: Path | None = None) -> None:
 
 
 class _DropSink:
-    """A recorder sink that takes frames by the fast path and drops them."""
+    """A recorder sink that takes the frames' batches and drops them."""
+
+    batch_bytes = 256 * 1024
 
     def write(self, record: object) -> None:
         pass
@@ -271,16 +267,14 @@ class _DropSink:
         pass
 
 
-class _TemplateSink(_DropSink):
-    """A sink that encodes each batch as RecordingWriter does (``layout`` 2: its JSON
-    template; 3: protobuf), then drops it."""
+class _EncodeSink(_DropSink):
+    """A sink that encodes each batch as RecordingWriter does (``fairino.Traffic``), then
+    drops it."""
 
-    def __init__(self, out: Path, layout: int = 2) -> None:
-        from conformance.recording.writer import RecordingWriter
+    def write_frames(self, batch: object) -> None:
+        from conformance.recording.traffic_pb import encode_traffic
 
-        self._w = RecordingWriter(out, metadata={"format": f"fairino-conformance/{layout}"})
-        self._w._add = lambda *a: None  # type: ignore[method-assign]
-        self.write_frames = self._w.write_frames  # type: ignore[method-assign,assignment]
+        encode_traffic(batch)  # type: ignore[arg-type]
 
 
 def _record(sink: object, stream: bytes, specs: object) -> None:
@@ -305,30 +299,44 @@ def _exchanges(n: int) -> tuple[list[bytes], list[bytes]]:
 
 
 def _record_exchanges(sink: object, n: int, specs: object) -> None:
-    """Request/reply traffic: a request read, then its reply read, ``n`` times."""
+    """Request/reply traffic: a request read, then its reply read, ``n`` times; handed to
+    the recorder as the proxy's recorder process takes them from its pipe, 64 reads at a
+    time (``StreamRecorder.reads``), or a read at a time where the code has no such call
+    (a baseline before it: its recorder held such reads itself)."""
     from conformance.recording.recorder import StreamRecorder
 
     req, rep = _exchanges(n)
     rec = StreamRecorder(sink, specs=specs)  # type: ignore[arg-type]
     rec.open(1, t_ns=1, client="127.0.0.1:40000", upstream="127.0.0.1:8080")
     t = 1_700_000_000_000_000_000
-    data = rec.data
+    reads: list[tuple[int, Any, int, bytes]] = []
     for a, b in zip(req, rep, strict=True):
         t += 1_000_000
-        data(1, "c2s", t, a)
-        data(1, "s2c", t + 130_000, b)
+        reads += [(1, "c2s", t, a), (1, "s2c", t + 130_000, b)]
+    many = getattr(rec, "reads", None)
+    if many is not None:
+        for k in range(0, len(reads), 64):
+            many(reads[k : k + 64])
+    else:
+        data = rec.data
+        for conn, way, at, raw in reads:
+            data(conn, way, at, raw)
     rec.finish(t_ns=t + 1)
 
 
 def core_figures(tmp: Path, n: int, rounds: int) -> dict[str, float]:
     """Frames/s of the whole recorder path (to a complete file) and of import-pcap, on
     pipelined traffic (64 KiB reads) and on request/reply traffic (a frame a read);
-    only the API every revision since layout 1 has, so a baseline runs it too."""
+    only the API every revision has, so a baseline runs it too."""
     from conformance.pcap.export import export_pcap
     from conformance.pcap.importer import import_pcap
     from conformance.recording.reader import read_recording
     from conformance.recording.writer import RecordingWriter
-    from conformance.spec.commands import default_specs
+
+    try:
+        from conformance.spec.commands import default_specs
+    except ImportError:  # a baseline from before spec/ was a package
+        from conformance.spec import default_specs  # type: ignore[attr-defined,no-redef]
 
     specs = default_specs()
     stream = b"".join(encode_frame(i % 65536, 201, 'MoveJ("P1")') for i in range(n))
@@ -358,46 +366,6 @@ def core_figures(tmp: Path, n: int, rounds: int) -> dict[str, float]:
     return out
 
 
-def layout_figures(tmp: Path, n: int, rounds: int) -> dict[str, tuple[float, float, float]]:
-    """The whole recorder path (to a complete file) and ``read_recording`` of its file, in
-    CPU frames/s, writing layout 2 (JSON batches), layout 3 (protobuf, a stream a batch)
-    and layout 4 (protobuf, any streams in a batch) by this tree's code, alternating round
-    by round (a neighbour's busy spell favours none): (layout 4, 3, 2) per figure."""
-    from conformance.recording.reader import read_recording
-    from conformance.recording.writer import RecordingWriter
-    from conformance.spec.commands import default_specs
-
-    specs = default_specs()
-    stream = b"".join(encode_frame(i % 65536, 201, 'MoveJ("P1")') for i in range(n))
-    kinds: dict[str, Callable[[object], None]] = {
-        "pipelined": lambda w: _record(w, stream, specs),
-        "request/reply": lambda w: _record_exchanges(w, n // 4, specs),
-    }
-    best: dict[tuple[str, int], float] = {}
-    frames: dict[str, int] = {}
-    for kind, feed in kinds.items():
-        for _ in range(rounds):
-            for layout in (2, 3, 4):
-                path = tmp / f"layout{layout}.mcap"
-                md = {"format": f"fairino-conformance/{layout}"}
-                t0 = time.process_time()
-                with RecordingWriter(path, metadata=md) as w:
-                    feed(w)
-                t1 = time.process_time()
-                rec = read_recording(path)
-                t2 = time.process_time()
-                frames[kind] = len(rec.frames)
-                for what, dt in (("record", t1 - t0), ("read_recording", t2 - t1)):
-                    key = (f"{what}, {kind}", layout)
-                    best[key] = min(best.get(key, float("inf")), dt)
-    out: dict[str, tuple[float, float, float]] = {}
-    for (label, layout), dt in best.items():
-        if layout == 4:
-            m = frames[label.split(", ")[1]]
-            out[label] = (m / dt, m / best[(label, 3)], m / best[(label, 2)])
-    return out
-
-
 def baseline_figures(rev: str, n: int, rounds: int) -> dict[str, float]:
     """:func:`core_figures` by the code of git revision ``rev`` (exported to a temporary
     directory and run in a subprocess with it first on the path), in this run."""
@@ -423,8 +391,6 @@ def baseline_figures(rev: str, n: int, rounds: int) -> dict[str, float]:
 
 def bench_record(tmp: Path, n: int, rounds: int, baseline_rev: str = "") -> None:
     """In-process recorder path and import-pcap, each against same-run baselines."""
-    from mcap.writer import Writer
-
     from conformance.pcap.export import export_pcap
     from conformance.pcap.importer import import_pcap
     from conformance.recording.reader import read_recording
@@ -439,35 +405,10 @@ def bench_record(tmp: Path, n: int, rounds: int, baseline_rev: str = "") -> None
         with RecordingWriter(out, metadata={"format": "bench"}) as w:
             _record(w, stream, specs)
 
-    def template() -> None:
-        _record(_TemplateSink(tmp / "tpl.mcap"), stream, specs)
-
-    def protobuf() -> None:
-        _record(_TemplateSink(tmp / "pb.mcap", 3), stream, specs)
-
-    msg = b'{"conn":1,"transport":"tcp","dir":"c2s","cnt":1,"cmd_id":201,"name":"MoveJ",' + (
-        b'"data":"MoveJ(\\"P1\\")","len":11,"problems":[],"offset":0,"first_ns":1,'
-        b'"complete_ns":1,"raw":"L2YvYklJSTFJSUkyMDFJSUkxMUlJSU1vdmVKKCJQMSIpSUlJL2IvZg=="}'
-    )
-
-    def library() -> None:
-        with open(tmp / "lib.mcap", "wb") as f:
-            w = Writer(f)
-            w.start()
-            ch = w.register_channel("/fairino/c2s", "json", 0)
-            add = w.add_message
-            for i in range(2 * n):
-                add(ch, i, msg, i, i)
-            w.finish()  # type: ignore[no-untyped-call]
-
     figures: dict[str, float] = {}
-    # "add_message, a message a frame": mcap.Writer.add_message alone on messages made
-    # beforehand, one per frame as layout 1 wrote them: the ceiling of that layout.
     runs: list[tuple[str, Callable[[], None]]] = [
         ("decode only (frames dropped)", lambda: _record(_DropSink(), stream, specs)),
-        ("decode + JSON template (layout 2)", template),
-        ("decode + protobuf (layout 3)", protobuf),
-        ("add_message, a message a frame", library),
+        ("decode + protobuf batches", lambda: _record(_EncodeSink(), stream, specs)),
         ("whole path to a complete file", full),
     ]
     for label, fn in runs:
@@ -492,18 +433,6 @@ def bench_record(tmp: Path, n: int, rounds: int, baseline_rev: str = "") -> None
         f"import-pcap: {st.packets} packets, {st.frames} frames in {best_imp:.2f} s = "
         f"{imp:.0f} frames/s ({imp / whole:.2f}x the recorder path's {whole:.0f})"
     )
-    print(
-        "\nlayout 4 (protobuf, any streams a batch) vs 3 (protobuf, a stream a batch) vs 2 "
-        f"(JSON), this tree, CPU time, best of {rounds}"
-    )
-    print(f"interleaved (frames/s; request/reply: {n // 4} exchanges):")
-    head = f"  {'':34s} {'layout 4':>10s} {'layout 3':>10s} {'layout 2':>10s}"
-    print(head + f" {'4/3':>6s} {'3/2':>6s}")
-    for label, (four, three, two) in layout_figures(tmp, n, rounds).items():
-        print(
-            f"  {label:34s} {four:10.0f} {three:10.0f} {two:10.0f} "
-            f"{four / three:5.2f}x {three / two:5.2f}x"
-        )
     ours = core_figures(tmp, n, rounds)
     theirs = baseline_figures(baseline_rev, n, rounds) if baseline_rev else {}
     print(f"\nCPU time, best of {rounds}; request/reply: {n // 4} exchanges (frames/s):")

@@ -6,27 +6,21 @@ fault, never the kit's).
 
 Each target mutates one valid file of its kind and reads it through the public API:
 
-* ``mcap``: a recording of 5 chunks (layout 3), bytes flipped, overwritten or cut;
+* ``mcap``: a recording of 5 chunks, bytes flipped, overwritten or cut;
   :func:`~conformance.recording.read_recording` and
   :func:`~conformance.recording.recover` give a recording or a ``RecordingError``;
-* ``mcap-json``: one field of one message (frames, problem, connection) replaced
+* ``mcap-json``: one field of one JSON message (a problem, a connection) replaced
   by a hostile JSON value (wrong type, out of range, deep, huge, a lone surrogate);
   the recording is read, summarized and checked (``info`` and ``check``:
   :func:`~conformance.offline.check.summarize`, ``check_recording``);
-* ``frames-pb``: layout 3's protobuf frame batch (one frame, a batch with names,
-  problems and non-ASCII DATA) mutated (bytes flipped, overwritten, cut or repeated; a
-  column's value replaced by a hostile 64-bit one; a varint or a length made huge):
-  :func:`~conformance.recording.frames_pb.decode_batch` gives a batch or a
-  ``ValueError``;
-* ``mcap-pb``: one frame message of a layout-3 recording replaced by such a mutation;
-  the recording is read, summarized and checked as for ``mcap-json``;
-* ``traffic-pb``: layout 4's ``fairino.Traffic`` batch (frames of two TCP connections
+* ``traffic-pb``: the ``fairino.Traffic`` frame batch (frames of two TCP connections
   and a UDP one, both ways, names and none, problems, non-ASCII DATA; one stream and no
-  ``stream`` column) mutated as ``frames-pb``'s are:
-  :func:`~conformance.recording.traffic_pb.decode_records` gives records or a
+  ``stream`` column) mutated (bytes flipped, overwritten, cut or repeated; a column's
+  value replaced by a hostile 64-bit one; a varint or a length made huge):
+  :func:`~conformance.recording.traffic_pb.decode_traffic` gives frames or a
   ``ValueError``;
-* ``mcap-traffic``: one frame message of a layout-4 recording replaced by such a
-  mutation; read, summarized and checked as for ``mcap-json``;
+* ``mcap-traffic``: one frame message of a recording replaced by such a mutation; read,
+  summarized and checked as for ``mcap-json``;
 * ``pcap``, ``pcapng``, ``pcap.gz``: a capture's bytes mutated or cut;
   :func:`~conformance.pcap.read.read_packets` gives packets and damage, or a
   ``CaptureError``;
@@ -93,61 +87,46 @@ def _mutate(data: bytes, rng: random.Random) -> bytes:
     return bytes(b)
 
 
-def _recording(path: Path, layout: int = 3) -> None:
+def _recording(path: Path) -> None:
     from conformance.recording.recorder import StreamRecorder
     from conformance.recording.writer import RecordingWriter
 
-    md = {"format": f"fairino-conformance/{layout}", "source": "fuzz"}
-    w = RecordingWriter(path, metadata=md)
+    w = RecordingWriter(path, metadata={"source": "fuzz"})
     r = StreamRecorder(w)
     r.open(1, t_ns=1, client="127.0.0.1:5000", upstream="127.0.0.1:8080")
     for i in range(60):
         r.data(1, "c2s", 10 + 2 * i, encode_frame(i, 201, f'MoveJ({i},"P1")'))
         r.data(1, "s2c", 11 + 2 * i, b"junk" * (i % 3) + encode_frame(i, 201, "1"))
         if i % 12 == 11:
+            r.write_held()
             w.flush()
     r.close(1, t_ns=10**6, reason="client closed")
     w.close()
 
 
-def _pb_messages() -> list[bytes]:
-    """Layout 3's frame batches to mutate: one frame, and a batch with names, problems,
-    non-ASCII DATA and first_ns apart from complete_ns."""
-    from conformance.recording.frames_pb import encode_batch, encode_one
-    from conformance.recording.records import FrameBatch
-
-    t = 1_700_000_000_000_000_000
-    raws = [encode_frame(k, 201, d) for k, d in enumerate(['MoveJ("P1")', "é", "1"])]
-    batch = FrameBatch(
-        2, "udp", "s2c", [0, 1, 2], [201, 201, 201], ["MoveJ", None, "MoveJ"],
-        ['MoveJ("P1")', "é", "1"], [11, 2, 1], [0, 40, 80], [t, t + 1, t + 2], [t + 3] * 3,
-        list(map(len, raws)), b"".join(raws), [["non-strict-separator"], [], ["x", "y"]],
-    )  # fmt: skip
-    one = encode_one(1, "tcp", "c2s", 7, 201, "MoveJ", "1", 1, 0, t, t, encode_frame(7, 201, "1"))
-    return [one, encode_batch(batch)]
-
-
 def _traffic_messages() -> list[bytes]:
-    """Layout 4's frame batches to mutate: lone frames of several streams and a batch in
-    one message, and a message of one stream (no ``stream`` column)."""
-    from conformance.recording.records import FrameBatch
+    """Frame batches to mutate: frames of several streams in one message, and a message of
+    one stream (no ``stream`` column)."""
+    from conformance.recording.records import Frames
     from conformance.recording.traffic_pb import encode_traffic
 
     t = 1_700_000_000_000_000_000
-    rows: list[Any] = []
-    for k, (conn, way, d) in enumerate(
-        [(1, "c2s", 'MoveJ("P1")'), (1, "s2c", "1"), (2, "c2s", "é"), (3, "s2c", "0")]
-    ):
-        raw = encode_frame(k, 201, d)
-        rows.append((conn, "udp" if conn == 3 else "tcp", way, k, 201, "MoveJ" if k else None,
-                     d, len(d.encode()), 40 * k, t + k, t + k + (k % 2), raw,
-                     ["non-strict-separator"] if k == 1 else None))  # fmt: skip
-    raws = [encode_frame(k, 400, "GetVersion()") for k in range(3)]
-    batch = FrameBatch(
-        2, "tcp", "s2c", [0, 1, 2], [400] * 3, ["GetVersion"] * 3, ["GetVersion()"] * 3,
-        [12] * 3, [0, 31, 62], [t] * 3, [t + 1] * 3, list(map(len, raws)), b"".join(raws),
+    datas = ['MoveJ("P1")', "1", "é", "0"]
+    raws = [encode_frame(k, 201, d) for k, d in enumerate(datas)]
+    mixed = Frames(
+        [(1, "tcp", "c2s"), (1, "tcp", "s2c"), (2, "tcp", "c2s"), (3, "udp", "s2c")],
+        [0, 1, 2, 3], [0, 1, 2, 3], [201] * 4, [None, "MoveJ", "MoveJ", "MoveJ"], datas,
+        [len(d.encode()) for d in datas], [40 * k for k in range(4)],
+        [t + k for k in range(4)], [t + k + (k % 2) for k in range(4)],
+        list(map(len, raws)), b"".join(raws), [(), ("non-strict-separator",), (), ()],
     )  # fmt: skip
-    return [encode_traffic([rows[:2], batch, rows[2:]])[0], encode_traffic([batch])[0]]
+    raws = [encode_frame(k, 400, "GetVersion()") for k in range(3)]
+    one = Frames(
+        [(2, "tcp", "s2c")], [0] * 3, [0, 1, 2], [400] * 3, ["GetVersion"] * 3,
+        ["GetVersion()"] * 3, [12] * 3, [0, 31, 62], [t] * 3, [t + 1] * 3,
+        list(map(len, raws)), b"".join(raws),
+    )  # fmt: skip
+    return [encode_traffic(mixed)[0], encode_traffic(one)[0]]
 
 
 #: 64-bit values a column's value is replaced with.
@@ -246,19 +225,19 @@ def _make(target: str, tmp: Path, rng: random.Random) -> Callable[[], Any]:
 
         specs = default_specs()
 
-        _recording(tmp / "good.mcap", layout=2)
+        from conformance.recording.records import Frames
+
+        _recording(tmp / "good.mcap")
         rec = read_recording(tmp / "good.mcap")
         docs = [("/fairino/connections", c.to_json()) for c in rec.connections]
         docs += [("/fairino/problems", p.to_json()) for p in rec.problems]
-        from conformance.recording.records import FrameBatch
-
-        docs += [(f"/fairino/{f.dir}", FrameBatch.of([f]).to_json()) for f in rec.frames[:6]]
 
         def one() -> Any:
             k = rng.randrange(len(docs))
             doc = docs[k][1]
             bad = _replace(doc, (rng.choice(list(doc)),), rng.choice(HOSTILE))
-            with RecordingWriter(f, metadata={"format": "fairino-conformance/2"}) as w:
+            with RecordingWriter(f) as w:
+                w.write_frames(Frames.of(rec.frames[:6]))
                 for j, (t, d) in enumerate(docs):
                     # As bytes, ASCII-escaped: a lone surrogate is valid JSON text too.
                     data = json.dumps(bad if j == k else d).encode()
@@ -269,41 +248,38 @@ def _make(target: str, tmp: Path, rng: random.Random) -> Callable[[], Any]:
             return got
 
         return one
-    if target in ("frames-pb", "traffic-pb"):
-        # A protobuf frame batch alone: layout 3's fairino.Frames or layout 4's fairino.Traffic.
-        from conformance.recording.frames_pb import decode_batch
-        from conformance.recording.traffic_pb import decode_records
+    if target == "traffic-pb":
+        # A frame batch alone.
+        from conformance.recording.traffic_pb import decode_traffic
 
-        decode: Callable[[bytes], Any]
-        if target == "frames-pb":
-            decode, goods = decode_batch, _pb_messages()
-        else:
-            decode, goods = decode_records, _traffic_messages()
+        goods = _traffic_messages()
 
         def one() -> Any:
             try:
-                return decode(_mutate_pb(rng.choice(goods), rng))
+                return decode_traffic(_mutate_pb(rng.choice(goods), rng)).records()
             except ValueError:
                 raise FileError("the batch does not read") from None  # said, not a crash
 
         return one
-    if target in ("mcap-pb", "mcap-traffic"):
-        # The same batches inside a recording of their layout, read and checked whole.
+    if target == "mcap-traffic":
+        # The same batches inside a recording, read and checked whole.
         from conformance.offline.check import check_recording, summarize
         from conformance.recording.reader import read_recording
+        from conformance.recording.records import FrameRecord, Frames
         from conformance.recording.writer import RecordingWriter
         from conformance.spec.commands import default_specs
 
         specs = default_specs()
-        layout, topic = (3, "/fairino/s2c") if target == "mcap-pb" else (4, "/fairino/frames")
-        goods = _pb_messages() if target == "mcap-pb" else _traffic_messages()
+        goods = _traffic_messages()
+        first = FrameRecord(conn=1, dir="c2s", cnt=1, cmd_id=201, name="MoveJ",
+                            data='MoveJ("P1")', length=11, first_ns=5, complete_ns=6,
+                            raw=encode_frame(1, 201, 'MoveJ("P1")'))  # fmt: skip
 
         def one() -> Any:
-            with RecordingWriter(f, metadata={"format": f"fairino-conformance/{layout}"}) as w:
-                w.write_frame(1, "tcp", "c2s", 1, 201, "MoveJ", 'MoveJ("P1")', 11, 0, 5, 6,
-                              encode_frame(1, 201, 'MoveJ("P1")'))  # fmt: skip
+            with RecordingWriter(f) as w:
+                w.write_frames(Frames.of([first]))
                 w.flush()
-                w._mcap.add_message(w._channels[topic], 7,
+                w._mcap.add_message(w._channels["/fairino/frames"], 7,
                                     _mutate_pb(rng.choice(goods), rng), 7, 1)  # fmt: skip
             got = read_recording(f)
             summarize(got, specs)
@@ -359,8 +335,6 @@ def _make(target: str, tmp: Path, rng: random.Random) -> Callable[[], Any]:
 TARGETS = (
     "mcap",
     "mcap-json",
-    "frames-pb",
-    "mcap-pb",
     "traffic-pb",
     "mcap-traffic",
     "pcap",

@@ -40,8 +40,9 @@ sys.path.insert(0, str(ROOT))
 
 from conformance.protocol.decoder import decode_all  # noqa: E402
 from conformance.protocol.frame import Frame, encode_frame  # noqa: E402
-from conformance.recording.layout import BATCH_FRAMES, C2S, S2C, TOPIC_C2S, TOPIC_FRAMES  # noqa: E402
-from conformance.recording.records import ConnectionRecord, FrameBatch, ProblemRecord  # noqa: E402
+from conformance.recording.batch import FrameBatcher  # noqa: E402
+from conformance.recording.layout import BATCH_FRAMES, C2S, S2C, TOPIC_FRAMES  # noqa: E402
+from conformance.recording.records import ConnectionRecord, Frames, ProblemRecord  # noqa: E402
 from conformance.recording.writer import RecordingWriter, default_metadata  # noqa: E402
 from conformance.spec.commands import available_spec_versions, load_spec_version  # noqa: E402
 from conformance.spec.firmware import version_tuple  # noqa: E402
@@ -121,8 +122,7 @@ def _bad_message(w: RecordingWriter, t: int) -> None:
     """A frame batch that does not read (cut inside a field), written among the frames
     (injected ``bad_message``: the reader skips it and names it as damage)."""
     w.flush()
-    frames = w._channels.get(TOPIC_FRAMES) or w._channels[TOPIC_C2S]
-    w._mcap.add_message(frames, t, b"\x12\x05ab", t, 0)
+    w._mcap.add_message(w._channels[TOPIC_FRAMES], t, b"\x12\x05ab", t, 0)
 
 
 def _off(cnt: int, cmd_id: int, data: str) -> bytes:
@@ -131,14 +131,15 @@ def _off(cnt: int, cmd_id: int, data: str) -> bytes:
 
 
 def _batch(
+    held: FrameBatcher,
     conn: int,
     direction: str,
     rows: Sequence[tuple[int, int, str, int, bytes]],
     at: dict[str, int] | None = None,
-) -> FrameBatch:
-    """rows: (cnt, cmd_id, data, t_ns, raw).  ``at``: each direction's stream offset (the
-    frames placed there, it moved past them; else every offset 0); a frame whose raw
-    LEN is not its DATA's (:func:`_off`) has its LEN and ``len_mismatch``."""
+) -> None:
+    """rows: (cnt, cmd_id, data, t_ns, raw), added to ``held``.  ``at``: each direction's
+    stream offset (the frames placed there, it moved past them; else every offset 0); a
+    frame whose raw LEN is not its DATA's (:func:`_off`) has its LEN and ``len_mismatch``."""
     sizes = [len(r[4]) for r in rows]
     offsets = [0] * len(rows)
     if at is not None:
@@ -149,21 +150,22 @@ def _batch(
     bad = [r[4] == _off(*r[:3]) for r in rows]
     if any(bad):
         lengths = [n + 2 if b else n for n, b in zip(lengths, bad, strict=True)]
-    return FrameBatch(
-        conn=conn,
-        transport="tcp",
-        dir=direction,  # type: ignore[arg-type]
-        cnts=[r[0] for r in rows],
-        cmd_ids=[r[1] for r in rows],
-        names=[None] * len(rows),
-        datas=[r[2] for r in rows],
-        lengths=lengths,
-        offsets=offsets,
-        first_ns=[r[3] for r in rows],
-        complete_ns=[r[3] for r in rows],
-        sizes=sizes,
-        raw=b"".join(r[4] for r in rows),
-        problems=[["len_mismatch"] if b else [] for b in bad] if any(bad) else None,
+    held.extend(
+        Frames(
+            streams=[(conn, "tcp", direction)],  # type: ignore[list-item]
+            stream=[0] * len(rows),
+            cnt=[r[0] for r in rows],
+            cmd_id=[r[1] for r in rows],
+            name=[None] * len(rows),
+            data=[r[2] for r in rows],
+            length=lengths,
+            offset=offsets,
+            first_ns=[r[3] for r in rows],
+            complete_ns=[r[3] for r in rows],
+            size=sizes,
+            raw=b"".join(r[4] for r in rows),
+            problems=[("len_mismatch",) if b else () for b in bad] if any(bad) else None,
+        )
     )
 
 
@@ -192,7 +194,6 @@ def write_recording(
     frames: int,
     faults: Sequence[Fault],
     start_ns: int,
-    layout: int | None = None,
     *,
     chunk_size: int = 1 << 20,
     batch_frames: int | None = None,
@@ -200,9 +201,8 @@ def write_recording(
     per_connection: int | None = None,
 ) -> int:
     """One robot's recording on one firmware: ``frames`` frames (requests and replies);
-    returns how many were written.  ``layout``: the recording layout (default: the
-    writer's); ``chunk_size``, ``batch_frames``: the MCAP chunks' size and the frames a
-    message holds at most (small: many chunks and messages in a small file); ``inject``:
+    returns how many were written.  ``chunk_size``, ``batch_frames``: the MCAP chunks' size
+    and the frames a message holds at most (small: many chunks and messages in a small file); ``inject``:
     of :data:`INJECT` (see the module); ``per_connection``: the frames of a connection
     (about: its bursts are halved to fit; default :data:`FRAMES_PER_CONNECTION`)."""
     replies = reply_data(firmware)
@@ -225,14 +225,20 @@ def write_recording(
     t = start_ns
     conn = 0
     seen: dict[int, int] = {}
-    if layout is not None:
-        md["format"] = f"fairino-conformance/{layout}"
-    with RecordingWriter(
-        path, metadata=md, chunk_size=chunk_size, batch_frames=batch_frames or BATCH_FRAMES
-    ) as w:
+    held = FrameBatcher()
+    most = batch_frames or BATCH_FRAMES
+
+    with RecordingWriter(path, metadata=md, chunk_size=chunk_size) as w:
+
+        def write(record: ConnectionRecord | ProblemRecord) -> None:
+            """A record after the frames held (as the recorder writes them)."""
+            if len(held):
+                w.write_frames(held.take())
+            w.write(record)
+
         while written < frames:
             conn += 1
-            w.write(
+            write(
                 ConnectionRecord(
                     conn=conn,
                     event="open",
@@ -279,24 +285,27 @@ def write_recording(
                         late = 250_000_000
                     rcnt = (cnt + 1) % 0x10000 if hit and ("cnt", cid) in mine else cnt
                     reps.append((rcnt, cid, rdata, t + late, raw(rcnt, cid, rdata)))
-                w.write_frames(_batch(conn, C2S, reqs, at))
+                _batch(held, conn, C2S, reqs, at)
                 written += len(reqs)
                 per_conn -= len(reqs)
                 if reps and written < frames:
                     reps = reps[: frames - written]
                     bursts += 1
                     if at is not None and "garbage" in inject and bursts % GARBAGE_EVERY == 0:
-                        w.write(_garbage(conn, at, reps[0][3] - 1))  # ahead of a reply
-                    w.write_frames(_batch(conn, S2C, reps, at))
+                        write(_garbage(conn, at, reps[0][3] - 1))  # ahead of a reply
+                    _batch(held, conn, S2C, reps, at)
                     if "bad_message" in inject and conn == 1 and bursts == 1:
+                        w.write_frames(held.take())
                         _bad_message(w, t)
                     last_reply = max(last_reply, *(r[3] for r in reps))
                     written += len(reps)
                     per_conn -= len(reps)
+                if len(held) >= most:
+                    w.write_frames(held.take())
             if at is not None and "garbage" in inject:
-                w.write(_garbage(conn, at, last_reply + 1))  # no reply follows
+                write(_garbage(conn, at, last_reply + 1))  # no reply follows
             t += 2_000_000
-            w.write(ConnectionRecord(conn=conn, event="close", t_ns=t, reason="client closed"))
+            write(ConnectionRecord(conn=conn, event="close", t_ns=t, reason="client closed"))
     return written
 
 

@@ -2,9 +2,8 @@
 (:class:`ColumnStream`), judged as ``check`` judges it (:mod:`.verdicts`), without a
 record object per frame.
 
-A recording the fast path takes is an MCAP file of batched frames (layout 2's JSON, or
-layouts 3 and 4's protobuf, its columns read with ``numpy.frombuffer``): the bulk of a
-fleet's traffic.  Read as they come, beside the frames: the state stream's packets, the
+A recording the fast path takes is an MCAP file of batched frames (protobuf, its columns
+read with ``numpy.frombuffer``): the bulk of a fleet's traffic.  Read as they come, beside the frames: the state stream's packets, the
 gaps and the client's malformed bytes (:attr:`ColumnStream.states`,
 :attr:`ColumnStream.problems`); each frame's framing problems (a column: such a frame is
 judged alone); the controller's malformed runs, whose request is worked out as the windows
@@ -13,8 +12,8 @@ the walk skips and each message on the recording's topics that does not read or 
 schema (a negative number, a time past 2106), both skipped and named as the reader names
 them, in its order (:attr:`ColumnStream.damage`: the reader's own
 :func:`~conformance.recording.reader.read_message` says why); a message on a topic the
-reader does not read (a later layout's) is skipped as it skips it.  Anything else (a
-layout-1 frame without LEN, a message the reader reads and these columns do not:
+reader does not read is skipped as it skips it.  Anything else (a message the reader
+reads and these columns do not:
 :class:`NotFast`) goes the general way (:func:`~conformance.offline.check.check_recording` over the reader's
 records).  What the fast path does is the same, step by step, so the
 verdicts are the same (the tests compare them frame by frame):
@@ -31,38 +30,20 @@ verdicts are the same (the tests compare them frame by frame):
 
 from __future__ import annotations
 
-import binascii
-import json
 import sys
-from array import array
 from collections.abc import Iterator
 from dataclasses import replace
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 from ..recording.blame import Blame, Unknown
 from ..recording.blame_ahead import Foreseen
-from ..recording.frames_pb import BatchColumns, decode_columns, decode_one_frame
-from ..recording.layout import (
-    C2S,
-    INT_MAX,
-    METADATA_NAME,
-    STATE_KIND,
-    TIME_MAX,
-    TOPIC_C2S,
-    TOPIC_FRAMES,
-    TOPIC_S2C,
-)
-from ..recording.reader import READ_TOPICS, message_damage, read_message
-from ..recording.records import ConnectionRecord, FrameBatch, ProblemRecord, StateRecord
+from ..recording.layout import C2S, METADATA_NAME, STATE_KIND, TOPIC_FRAMES
+from ..recording.reader import READ_TOPICS, check_layout, message_damage, read_message
+from ..recording.records import ConnectionRecord, Frames, ProblemRecord, StateRecord
 from ..recording.salvage import MAGIC, Damage, Walk
-from ..recording.traffic_pb import TrafficColumns, decode_traffic
-from .columns import FRAME_COLUMNS, Columns
-from .fast_pb import Pending, texts
+from ..recording.traffic_pb import decode_traffic
+from .columns import Columns
 from .general import StateRow, state_row
-from .verdicts import _pairs_at_once as _pairs_at_once  # tests read it here
-
-#: Where tests/test_fleet_fast_pb.py reads it (moved to .columns).
-_FRAME_COLUMNS = FRAME_COLUMNS
 
 __all__ = [
     "Blamed",
@@ -85,7 +66,6 @@ class _At(NamedTuple):
     damage: int
 
 
-_FRAME_TOPICS = frozenset((TOPIC_C2S, TOPIC_S2C, TOPIC_FRAMES))
 #: What a message that does not read or fit raises on the way (the reader then names it).
 _UNREAD = (
     ValueError,
@@ -160,16 +140,15 @@ class ColumnStream:
         from mcap.records import Channel, Message, Metadata
 
         c = Columns()
-        pending = Pending()
         topics: dict[int, str] = {}
-        binary: set[int] = set()  # frame channels in protobuf (layout 3)
+        protobuf: set[int] = set()  # channels whose messages are protobuf
 
         def channel(r: Channel) -> None:
             topics[r.id] = r.topic
             if r.message_encoding == "protobuf":
-                binary.add(r.id)
+                protobuf.add(r.id)
             else:
-                binary.discard(r.id)
+                protobuf.discard(r.id)
 
         try:
             with open(self.path, "rb") as f:
@@ -186,20 +165,19 @@ class ColumnStream:
                         count += 1
                         topic = topics.get(rec.channel_id)
                         if topic not in READ_TOPICS:
-                            continue  # not the reader's (a later layout's topic too): skipped
+                            continue  # not the reader's: skipped
                         at = _At(count, topic, rec.sequence, where, len(walk.damage))
-                        if topic in _FRAME_TOPICS:
-                            self._frames_message(c, pending, rec.data, rec.channel_id in binary, at)
+                        if topic == TOPIC_FRAMES:
+                            self._frames_message(c, rec.data, rec.channel_id in protobuf, at)
                             # A connection record weighs some eight frames (a window ends
                             # among frames: a connection open, for window.py to judge by).
                             weight = 8 * len(self.connections)
-                            if len(c.cnt) + pending.frames + weight >= self.window:
-                                self._flush(c, pending)
+                            if len(c.cnt) + weight >= self.window:
                                 self._check(c)
                                 yield c
                                 c = Columns()
                             continue
-                        got, why = read_message(topic, rec.data, binary=False, traffic=False)
+                        got, why = read_message(topic, rec.data, protobuf=False)
                         if isinstance(got, ConnectionRecord):
                             self.connections.append(got)
                         elif isinstance(got, StateRecord):
@@ -209,7 +187,6 @@ class ColumnStream:
                             if p.kind == "malformed" and p.dir != C2S:
                                 # The controller's malformed run is blamed on the request
                                 # it answered (recording/blame.py), after the frames before.
-                                self._flush(c, pending)
                                 self._blame(c).run(p)
                             elif p.kind != STATE_KIND:  # the state decoder's: no row
                                 self.problems.append(p)
@@ -217,8 +194,7 @@ class ColumnStream:
                             self._unread(at, why)
                         held = len(self.states) + len(self.problems) + len(self.connections)
                         if held >= self.window:
-                            self._flush(c, pending)  # a window's worth, frames or not
-                            self._check(c)
+                            self._check(c)  # a window's worth, frames or not
                             yield c
                             c = Columns()
                     elif isinstance(rec, Channel):
@@ -229,7 +205,7 @@ class ColumnStream:
                         and not self.metadata
                     ):
                         self.metadata = dict(rec.metadata)
-                self._flush(c, pending)
+                        check_layout(self.path, self.metadata)
                 if not self.metadata:
                     raise NotFast
                 # A damaged chunk or region is skipped by the walk as by the reader's: the
@@ -253,75 +229,29 @@ class ColumnStream:
         got, self.connections = self.connections, []
         return got
 
-    def _frames_message(
-        self, c: Columns, pending: Pending, data: bytes, binary: bool, at: _At
-    ) -> None:
-        """A message of frames added to ``c`` (a layout-3 batch to ``pending``, checked
-        with the window's); one that does not read or fit is skipped and named as the
-        reader names it (:meth:`_unread`)."""
-        if at.topic == TOPIC_FRAMES and not binary:
-            self._unread(at, read_message(at.topic, data, binary=False, traffic=False)[1])
-            return
-        if binary and at.topic != TOPIC_FRAMES:
-            one = decode_one_frame(data)  # request/reply: a frame each
-            if one is None and pending.add(data):
-                self._held.append((data, at))
-                return
-        else:
-            one = None
-        self._flush(c, pending)
+    def _frames_message(self, c: Columns, data: bytes, protobuf: bool, at: _At) -> None:
+        """A message of frames added to ``c``; one that does not read or fit is skipped and
+        named as the reader names it (:meth:`_unread`)."""
         n = len(c)
         try:
-            if at.topic == TOPIC_FRAMES:  # layout 4
-                _traffic(c, decode_traffic(data), flaws=True)
-            elif one is not None:
-                _one_frame(c, one)
-            elif binary:
-                _binary_batch(c, decode_columns(data), flaws=True)
-            else:
-                doc, raw_size, booleans = _message(data)
-                if isinstance(doc, dict) and "cnt" in doc and not isinstance(doc["cnt"], list):
-                    doc = _layout1(doc, raw_size)  # a frame a message
-                if not _batch(c, doc, raw_size, booleans):
-                    raise ValueError
+            if not protobuf:
+                raise ValueError
+            _traffic(c, decode_traffic(data))
         except _UNREAD:
             c.truncate(n)
-            traffic = at.topic == TOPIC_FRAMES
-            self._unread(at, read_message(at.topic, data, binary=binary, traffic=traffic)[1])
+            self._unread(at, read_message(at.topic, data, protobuf=protobuf)[1])
 
-    def _flush(self, c: Columns, pending: Pending) -> None:
-        """The layout-3 batches pending added to ``c``; where one does not read or fit, each
-        is read alone, and those that do not are skipped and named (:meth:`_unread`)."""
-        held, self._held = self._held, []
-        n = len(c)
-        try:
-            pending.flush(c)
-            return
-        except _UNREAD:
-            c.truncate(n)
-            pending.clear()
-        skipped = 0
-        for data, at in held:
-            n = len(c)
-            try:
-                _binary_batch(c, decode_columns(data), flaws=True)
-            except _UNREAD:
-                c.truncate(n)
-                why = read_message(at.topic, data, binary=True, traffic=False)[1]
-                self._unread(at, why, skipped)
-                skipped += 1
-
-    def _unread(self, at: _At, why: str, before: int = 0) -> None:
+    def _unread(self, at: _At, why: str) -> None:
         """A message skipped, named in :attr:`damage` where the reader names it: after the
-        damage named before it was read, and ``before`` messages skipped since that were
-        read before it (layout 3's, checked with the window's); one the reader reads
-        (``why`` empty) is the general path's: :class:`NotFast`."""
+        damage named before it was read; one the reader reads (``why`` empty) is the
+        general path's: :class:`NotFast`."""
         if not why:
             raise NotFast
         walk = self._walk
         assert walk is not None
-        place = at.damage + before
-        walk.damage.insert(place, message_damage(at.number, at.topic, at.sequence, at.where, why))
+        walk.damage.insert(
+            at.damage, message_damage(at.number, at.topic, at.sequence, at.where, why)
+        )
 
     def _blame(self, c: Columns) -> Blame[FrameRef]:
         """:attr:`blame`, fed the frames read so far (from the first window on: a run of
@@ -396,153 +326,21 @@ def read_columns(path: str) -> Columns | None:
     return c
 
 
-#: A batch message ends with its frames' bytes, ``"raw":"<base64>"}`` (the writer's template,
-#: conformance/recording/records.py): the fast path checks them apart and parses the rest.
-_RAW = b',"raw":"'
+def _traffic(c: Columns, b: Frames) -> None:
+    """Add one ``fairino.Traffic`` message's columns (numpy ``uint64`` of values up to
+    2^63 - 1: the same bytes as the 64-bit arrays'), each frame's connection, transport
+    and direction its stream table row's, taken with numpy."""
+    import numpy as np
 
-
-def _message(m: bytes) -> tuple[Any, int, bool]:
-    """A frames message's JSON without ``raw``, how many bytes ``raw`` holds (a
-    ``ValueError`` for base64 that does not read), and whether a number column may hold a
-    boolean (for :func:`_batch` to look: the writer's messages hold none).  The writer's
-    shape (``raw`` last, no ``true`` or ``false`` anywhere) is parsed without ``raw``;
-    any other JSON whole."""
-    i = m.rfind(_RAW)
-    # Read as the reader reads it (base64.b64decode: characters outside the alphabet
-    # skipped), so the two paths take the same messages.
-    if i >= 0 and m.endswith(b'"}') and b"true" not in m and b"false" not in m:
-        return json.loads(m[:i] + b"}"), len(binascii.a2b_base64(m[i + len(_RAW) : -2])), False
-    doc = json.loads(m)
-    if not isinstance(doc, dict) or type(doc.get("raw")) is not str:
-        return None, -1, True
-    return doc, len(binascii.a2b_base64(doc.pop("raw"))), True
-
-
-def _intern_name(x: str | None) -> str | None:
-    return None if x is None else sys.intern(x)
-
-
-_INT = {int}
-
-
-def _batch(c: Columns, d: Any, raw_size: int, booleans: bool = False) -> bool:
-    """Add one ``fairino.Frames`` message's columns; False for one the fast path leaves
-    (``booleans``: its number columns looked at for one)."""
-    if not isinstance(d, dict) or not isinstance(d.get("cnt"), list):
-        return False
-    sizes = d.get("size")
-    if not isinstance(sizes, list) or not {*map(type, sizes)} <= _INT or sum(sizes) != raw_size:
-        return False  # the frames' bytes are not all there: the reader names it
-    n = len(d["cnt"])
-    complete = d["complete_ns"]
-    first: list[int] = d["first_ns"] if "first_ns" in d else complete  # noqa: SIM401
-    names = d.get("name", [None] * n)
-    flaws = _flaws(d["problems"], n) if "problems" in d else None
-    cols = (d["cmd_id"], d["data"], d["len"], d["offset"], complete, first, names, sizes)
-    if flaws == [] or any(not isinstance(x, list) or len(x) != n for x in cols):
-        return False
-    numbers = (d["cnt"], d["cmd_id"], d["len"], d["offset"], complete, first)
-    if booleans and not all({*map(type, x)} <= _INT for x in numbers):
-        return False  # a boolean (True is 1 to an array): the reader names it
-    conn, transport, direction = d["conn"], d.get("transport", "tcp"), d["dir"]
-    if type(conn) is not int or direction not in ("c2s", "s2c") or transport not in _TRANSPORTS:
-        return False
-    # The types the schema asks for, checked as they are stored: a 64-bit array takes only
-    # integers (TypeError, OverflowError), sys.intern only strings (TypeError); booleans,
-    # which an array would take as 0 and 1, looked for where the message may hold one.
-    # The ranges (layout.py: numbers non-negative, times before 2106) checked here.
-    # Whatever does not fit is skipped and named as the reader names it.
-    if not 0 <= conn <= INT_MAX or not all(
-        _within(col, top)
-        for col, top in (
-            (d["cnt"], INT_MAX),
-            (d["cmd_id"], INT_MAX),
-            (d["len"], INT_MAX),
-            (d["offset"], INT_MAX),
-            (sizes, INT_MAX),
-            (complete, TIME_MAX),
-            (first, TIME_MAX),
-        )
-    ):
-        return False
-    c.conn.extend([conn] * n)
-    c.transport += [transport] * n
-    c.dir += [direction] * n
-    c.request.extend([direction == "c2s"] * n)
-    c.cnt.extend(d["cnt"])
-    c.cmd_id.extend(d["cmd_id"])
-    c.name += names if names.count(None) == n else map(_intern_name, names)
-    c.data += map(sys.intern, d["data"])
-    c.length.extend(d["len"])
-    c.offset.extend(d["offset"])
-    c.first_ns.extend(first)
-    c.complete_ns.extend(complete)
-    c.add_flaws(n, flaws)
-    return True
-
-
-#: Layout 1's ``fairino.Frame`` fields that are a batch's columns (one value each).
-_ONE = ("cnt", "cmd_id", "name", "data", "len", "offset", "first_ns", "complete_ns")
-
-
-def _layout1(d: dict[str, Any], raw_size: int) -> dict[str, Any] | None:
-    """Layout 1's frame a message as a batch of one (as ``FrameRecord.from_json`` reads
-    it: offset 0 where absent); None for one without ``len`` (the reader takes the DATA's
-    length then: the general path's)."""
-    if "len" not in d or isinstance(d.get("problems", []), str):
-        return None
-    out = {k: v for k, v in d.items() if k not in _ONE and k != "problems"}
-    out.update({k: [d[k]] for k in _ONE if k in d})
-    out.setdefault("offset", [0])
-    out["size"] = [raw_size]
-    if "problems" in d:
-        out["problems"] = [d["problems"]]
-    return out
-
-
-_TRANSPORTS = frozenset(("tcp", "udp"))
-
-
-def _within(col: list[int], top: int) -> bool:
-    """Whether a column's integers are from 0 to ``top`` (their types checked as stored)."""
-    return not col or (min(col) >= 0 and max(col) <= top)
-
-
-def _flaws(problems: Any, n: int) -> list[tuple[str, ...]]:
-    """A JSON batch's ``problems`` (a list of strings a frame) as :attr:`Columns.flaws`;
-    an empty list for anything else (the reader names it)."""
-    if not isinstance(problems, list) or len(problems) != n or not n:
-        return []
-    out: list[tuple[str, ...]] = []
-    for p in problems:
-        if not isinstance(p, list) or not all(type(x) is str for x in p):
-            return []
-        out.append(tuple(p) if p else ())
-    return out
-
-
-def _binary_batch(c: Columns, b: BatchColumns, *, flaws: bool = False) -> bool:
-    """Add one layout-3 ``fairino.Frames`` message's columns (read and checked by
-    :func:`~conformance.recording.frames_pb.decode_columns`: numpy arrays of values up to
-    2^63 - 1, so their bytes are the 64-bit arrays' as they are); with ``flaws``, each
-    frame's framing problems with them, else False for a message with any."""
-    if b.problems is not None and not flaws:
-        return False
-    n = len(b.cnt)
-    c.conn += array("q", [b.conn]) * n
-    c.transport += [b.transport] * n
-    c.dir += [b.dir] * n
-    c.request += array("b", [b.dir == "c2s"]) * n
-    _add_numbers(c, b)
-    c.name += b.names
-    c.data += map(sys.intern, b.datas())
-    c.add_flaws(n, b.problems)
-    return True
-
-
-def _add_numbers(c: Columns, b: BatchColumns | TrafficColumns) -> None:
-    """A decoded message's number columns appended as their bytes (numpy ``uint64`` of
-    values up to 2^63 - 1: the same bytes as the 64-bit arrays')."""
+    stream = np.asarray(b.stream)
+    streams = b.streams
+    c.conn.frombytes(np.asarray([s[0] for s in streams], dtype="<u8")[stream].tobytes())
+    rows = stream.tolist()
+    transports = [s[1] for s in streams]
+    dirs = [s[2] for s in streams]
+    c.transport += map(transports.__getitem__, rows)
+    c.dir += map(dirs.__getitem__, rows)
+    c.request.frombytes(np.asarray([d == "c2s" for d in dirs], dtype="i1")[stream].tobytes())
     for mine, theirs in (
         (c.cnt, b.cnt),
         (c.cmd_id, b.cmd_id),
@@ -551,45 +349,7 @@ def _add_numbers(c: Columns, b: BatchColumns | TrafficColumns) -> None:
         (c.first_ns, b.first_ns),
         (c.complete_ns, b.complete_ns),
     ):
-        mine.frombytes(memoryview(theirs).cast("B"))
-
-
-def _traffic(c: Columns, b: TrafficColumns, *, flaws: bool = False) -> bool:
-    """Add one layout-4 ``fairino.Traffic`` message's columns (as :func:`_binary_batch`
-    does; each frame's connection, transport and direction its stream table row's, taken
-    with numpy; ``flaws`` as there)."""
-    if b.problems is not None and not flaws:
-        return False
-    import numpy as np
-
-    stream = b.stream
-    c.conn.frombytes(np.asarray(b.stream_conn, dtype="<u8")[stream].tobytes())
-    rows = stream.tolist()
-    c.transport += map(b.stream_transport.__getitem__, rows)
-    c.dir += map(b.stream_dir.__getitem__, rows)
-    c.request.frombytes(
-        np.asarray([d == "c2s" for d in b.stream_dir], dtype="i1")[stream].tobytes()
-    )
-    _add_numbers(c, b)
-    c.name += b.names
-    c.data += texts(b.data, b.data_size)  # as b.datas() reads them, interned
+        mine.frombytes(np.asarray(theirs, dtype="<u8").tobytes())
+    c.name += b.name
+    c.data += map(sys.intern, b.data)
     c.add_flaws(len(rows), b.problems)
-    return True
-
-
-def _one_frame(c: Columns, b: FrameBatch) -> None:
-    """Add a layout-3 batch of one frame without framing problems (read at fixed places:
-    :func:`~conformance.recording.frames_pb.decode_one_frame`)."""
-    c.conn.append(b.conn)
-    c.transport.append(b.transport)
-    c.dir.append(b.dir)
-    c.request.append(b.dir == "c2s")
-    c.cnt.append(b.cnts[0])
-    c.cmd_id.append(b.cmd_ids[0])
-    c.name.append(_intern_name(b.names[0]))
-    c.data.append(sys.intern(b.datas[0]))
-    c.length.append(b.lengths[0])
-    c.first_ns.append(b.first_ns[0])
-    c.complete_ns.append(b.complete_ns[0])
-    c.offset.append(b.offsets[0])
-    c.add_flaws(1, None)

@@ -38,7 +38,7 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
-from ..recording.layout import C2S, S2C
+from ..recording.layout import C2S, S2C, DirectionText
 from ..recording.recorder import StreamRecorder
 from ..recording.records import FrameRecord
 from ..recording.rotating import RotatingWriter
@@ -51,7 +51,9 @@ __all__ = ["CLOSE", "DATA", "DGRAM", "OPEN", "STOP", "RecorderCounters", "Record
 OPEN, DATA, DGRAM, CLOSE, STOP, GAP = range(6)
 _EVENT = struct.Struct("<BBIqI")
 _DIR_CODE = {C2S: 0, S2C: 1, "": 2}
-_DIR_NAME = (C2S, S2C, "")
+#: The direction of a DATA, DGRAM or GAP event by its code (OPEN, CLOSE and STOP have
+#: none: code 2).
+_DIR_NAME: tuple[DirectionText, DirectionText] = (C2S, S2C)
 _F_SETPIPE_SZ = 1031  # Linux fcntl: grow the pipe (1 MiB, the unprivileged maximum)
 _PIPE_SIZE = 1 << 20
 # Counters the recorder process keeps in shared memory: frames, problems, bytes taken,
@@ -486,9 +488,10 @@ class _Recorder:
     def events(self, buf: bytearray) -> bool:
         """Record the whole events in ``buf`` (and remove them); True at the stop event.
 
-        Reads of one stream that follow each other in ``buf`` go to the recorder
-        together (:meth:`StreamRecorder.segments`): frames cut across them are still
-        decoded as runs.  The records are those of one ``data`` call a read.
+        The reads of TCP streams that follow each other in ``buf`` go to the recorder
+        together (:meth:`StreamRecorder.reads`: request/reply frames decoded at once, a
+        stream's frames cut across reads still decoded as runs).  The records are those
+        of one ``data`` call a read.
         """
         rec = self.rec
         unpack = _EVENT.unpack_from
@@ -501,18 +504,14 @@ class _Recorder:
         # One copy of the lot, then a slice (one more) per payload: a bytearray's slice
         # made bytes would be two.
         blob = bytes(buf)
-        reads: list[tuple[int, bytes]] = []
-        key = (-1, -1)
+        reads: list[tuple[int, DirectionText, int, bytes]] = []
         latest = self.latest_ns
         taken = 0
 
         def flush_reads() -> None:
             if reads:
                 try:
-                    if len(reads) == 1:  # request/reply: a read a direction
-                        rec.data(key[0], _DIR_NAME[key[1]], *reads[0])  # type: ignore[arg-type]
-                    else:
-                        rec.segments(key[0], _DIR_NAME[key[1]], reads)  # type: ignore[arg-type]
+                    rec.reads(reads)
                 except Exception as e:
                     self.fail(e)
                 reads.clear()
@@ -528,24 +527,21 @@ class _Recorder:
                 latest = t_ns
             if kind == DATA:
                 taken += n
-                if (conn, d) != key:
-                    flush_reads()
-                    key = (conn, d)
-                reads.append((t_ns, payload))
+                reads.append((conn, _DIR_NAME[d], t_ns, payload))
                 continue
             flush_reads()
             self.latest_ns = latest
             try:
                 if kind == DGRAM:
                     taken += n
-                    rec.datagram(conn, _DIR_NAME[d], t_ns, payload)  # type: ignore[arg-type]
+                    rec.datagram(conn, _DIR_NAME[d], t_ns, payload)
                 elif kind == OPEN:
                     rec.open(conn, t_ns=t_ns, **json.loads(payload))
                 elif kind == CLOSE:
                     rec.close(conn, t_ns=t_ns, reason=payload.decode("utf-8"))
                 elif kind == GAP:  # the proxy forwarded bytes it could not queue for us
                     gap = json.loads(payload)
-                    rec.gap(conn, _DIR_NAME[d], t_ns, gap["missing"], gap["detail"])  # type: ignore[arg-type]
+                    rec.gap(conn, _DIR_NAME[d], t_ns, gap["missing"], gap["detail"])
                 else:
                     rec.finish(t_ns=t_ns, reason="proxy stopped")
                     stop = True

@@ -41,9 +41,9 @@ from .packets import (
 from .read import RecordBlock
 from .reassembly import TcpReassembler
 
-#: In-order segments of one direction in a row that import-pcap records together, and the
-#: bytes after which it records them (see PacketRecorder; 64: bench_pcap.py's best).
-IMPORT_TOGETHER = 64
+#: In-order segments (of any connections and directions) that import-pcap records together,
+#: and the bytes after which it records them (see PacketRecorder; 256: bench_pcap.py's best).
+IMPORT_TOGETHER = 256
 TOGETHER_BYTES = 1 << 20
 
 #: Records of a block read one by one (feed_all) rather than as columns: fewer than this.
@@ -123,13 +123,14 @@ class PacketRecorder:
     in order goes straight to the recorder (no list, no reassembly work): that is most
     packets of most captures.
 
-    With ``together`` > 1 (``import-pcap``), up to that many such segments of one
-    direction in a row (and at most ``TOGETHER_BYTES``) go to the recorder in one
-    :meth:`~conformance.recording.StreamRecorder.segments` call, which records what a
-    ``data`` call each records, decoding the frames cut across packets as runs.  They
-    are held until a packet that is not the next of that direction, :meth:`idle`,
-    :meth:`stats` or :meth:`finish`; ``capture`` (``together=1``) records each segment
-    as it comes.
+    With ``together`` > 1 (``import-pcap``), up to that many such segments, of any
+    connections and directions (and at most ``TOGETHER_BYTES``), go to the recorder in one
+    :meth:`~conformance.recording.StreamRecorder.reads` call, which records what a
+    ``data`` call each records, decoding request/reply frames at once and frames cut
+    across packets as runs.  They are held until a packet that is not the next in order
+    of its connection, :meth:`idle`, :meth:`stats` or :meth:`finish`; ``capture``
+    (``together=1``) records each segment as it comes.  Every way a packet reaches the
+    recorder ends in one step (:meth:`_take`).
     """
 
     def __init__(
@@ -164,13 +165,15 @@ class PacketRecorder:
         if together < 1:
             raise ValueError(f"together must be at least 1, not {together}")
         self.together = together
-        self._held: _TcpWay | None = None  # the direction whose segments are held
-        self._reads: list[tuple[int, bytes]] = []  # its segments: (time, bytes)
+        #: In-order segments held (:meth:`_take`): (connection, direction, time, bytes).
+        self._reads: list[tuple[int, DirectionText, int, bytes]] = []
         self._held_bytes = 0
+        if together == 1:  # capture: nothing held
+            self._take = self._record  # type: ignore[method-assign]
         self._epoch = 0  # counts connections opened and closed (_feed_block's flows)
 
     def stats(self) -> ImportStats:
-        if self._held is not None:
+        if self._reads:
             self._record_held()
         return ImportStats(
             packets=self.packets,
@@ -194,7 +197,7 @@ class PacketRecorder:
             self.last_t = t
         proto, flow, payload, seq, flags = p
         if proto == "udp":
-            if self._held is not None:
+            if self._reads:
                 self._record_held()
             uway = self.udp_ways.get(flow)
             if uway is None:
@@ -212,22 +215,9 @@ class PacketRecorder:
                 # The next bytes in order, nothing held: what TcpReassembler.segment
                 # would return, without it.
                 r.next = nxt + len(payload)
-                if self.together == 1:
-                    self.rec.data(way[0], way[1], t, payload)
-                    return
-                if (
-                    way is self._held
-                    and len(self._reads) < self.together
-                    and self._held_bytes < TOGETHER_BYTES
-                ):
-                    self._reads.append((t, payload))
-                    self._held_bytes += len(payload)
-                    return
-                if self._held is not None:
-                    self._record_held()
-                self._held, self._reads, self._held_bytes = way, [(t, payload)], len(payload)
+                self._take(way, t, payload)
                 return
-        if self._held is not None:
+        if self._reads:
             self._record_held()
         self._tcp(t, flow, payload, seq, flags, way)
 
@@ -238,9 +228,8 @@ class PacketRecorder:
         connection's first and last); what parse_packet and feed do with it, step by
         step, without the calls.  Anything else goes to :meth:`feed`."""
         feed = self.feed
+        take = self._take
         ways = self.tcp_ways
-        together = self.together
-        rec_data = self.rec.data
         inline = 0
         for lt, t, data in packets:
             size = len(data)
@@ -265,26 +254,7 @@ class PacketRecorder:
                             if t > self.last_t:
                                 self.last_t = t
                             r.next = nxt + len(payload)
-                            if together == 1:
-                                rec_data(way[0], way[1], t, payload)
-                            elif (
-                                way is self._held
-                                and len(self._reads) < together
-                                and self._held_bytes < TOGETHER_BYTES
-                            ):
-                                self._reads.append((t, payload))
-                                self._held_bytes += len(payload)
-                            else:
-                                held = self._held
-                                if held is not None:  # _record_held(), inline
-                                    reads = self._reads
-                                    if len(reads) == 1:
-                                        rt, rp = reads[0]
-                                        rec_data(held[0], held[1], rt, rp)
-                                    else:
-                                        self.rec.segments(held[0], held[1], reads)
-                                self._held, self._reads = way, [(t, payload)]
-                                self._held_bytes = len(payload)
+                            take(way, t, payload)
                             continue
             feed(t, lt, data)
         self.packets += inline
@@ -400,9 +370,8 @@ class PacketRecorder:
         other record (at ``offs`` in ``buf``, ``size`` bytes) to :meth:`feed`."""
         usual, times, which, seqs, payloads, offs, size = cols
         feed = self.feed
+        take = self._take
         ways = self.tcp_ways
-        together = self.together
-        rec_data = self.rec.data
         epoch = self._epoch
         way_of = [ways.get(k) for k in flow_keys]
         inline = 0
@@ -418,29 +387,10 @@ class PacketRecorder:
                     r = way[2]
                     nxt = r.next
                     if nxt is not None and sq == nxt & 0xFFFFFFFF and not r.pending:
-                        # What feed_all does with it (and feed, and _record_held).
+                        # What feed_all does with it (and feed).
                         inline += 1
                         r.next = nxt + len(payload)
-                        if together == 1:
-                            rec_data(way[0], way[1], t, payload)
-                        elif (
-                            way is self._held
-                            and len(self._reads) < together
-                            and self._held_bytes < TOGETHER_BYTES
-                        ):
-                            self._reads.append((t, payload))
-                            self._held_bytes += len(payload)
-                        else:
-                            held = self._held
-                            if held is not None:
-                                reads = self._reads
-                                if len(reads) == 1:
-                                    rt, rp = reads[0]
-                                    rec_data(held[0], held[1], rt, rp)
-                                else:
-                                    self.rec.segments(held[0], held[1], reads)
-                            self._held, self._reads = way, [(t, payload)]
-                            self._held_bytes = len(payload)
+                        take(way, t, payload)
                         continue
             pos = offs[i] + 16
             self.packets += inline
@@ -486,72 +436,34 @@ class PacketRecorder:
         self, way_of: list[_TcpWay | None], which: Any, times: list[int], payloads: list[bytes]
     ) -> None:
         """A block of usual packets each the next in order (:meth:`_in_order`) to the
-        recorder, as :meth:`feed_all` hands them: a packet alone between packets of other
-        directions (request/reply) straight to ``data``, one after another; the others
-        (a direction's packets in a row, the block's first and last) held and recorded
-        together as :meth:`feed_all` does."""
-        import numpy as np
-
-        n = len(times)
-        self.packets += n
-        ws = which.tolist()
-        ways = [way_of[w] for w in ws]
-        if self.together == 1:
-            edges = []
-        else:
-            # Packets alone: another direction's before and after (the first's before it:
-            # what is held), the block's last one held for the next block.
-            lone = np.ones(n, dtype=bool)
-            lone[1:] &= which[1:] != which[:-1]
-            lone[:-1] &= which[:-1] != which[1:]
-            lone[-1] = False
-            if ways[0] is self._held:
-                lone[0] = False
-            edges = np.flatnonzero(np.diff(lone.view(np.int8), prepend=0, append=0)).tolist()
+        recorder, as :meth:`feed_all` hands them (:meth:`_take`)."""
+        self.packets += len(times)
         take = self._take
-        rec_data = self.rec.data
-        at = 0
-        for start, stop in zip(edges[::2], edges[1::2], strict=True):
-            for i in range(at, start):  # held and recorded together
-                take(ways[i], times[i], payloads[i])  # type: ignore[arg-type]
-            if start < stop:  # alone: each read recorded as it is
-                if self._held is not None:
-                    self._record_held()
-                conns = [w[0] for w in ways[start:stop]]  # type: ignore[index]
-                dirs = [w[1] for w in ways[start:stop]]  # type: ignore[index]
-                for _ in map(rec_data, conns, dirs, times[start:stop], payloads[start:stop]):
-                    pass
-            at = stop
-        for i in range(at, n):
-            take(ways[i], times[i], payloads[i])  # type: ignore[arg-type]
+        for w, t, payload in zip(which.tolist(), times, payloads, strict=True):
+            take(way_of[w], t, payload)  # type: ignore[arg-type]
 
     def _take(self, way: _TcpWay, t: int, payload: bytes) -> None:
-        """The next bytes in order of ``way`` (its reassembler moved past them already),
-        held or recorded as :meth:`feed_all` does."""
-        if self.together == 1:
-            self.rec.data(way[0], way[1], t, payload)
-        elif (
-            way is self._held
-            and len(self._reads) < self.together
-            and self._held_bytes < TOGETHER_BYTES
-        ):
-            self._reads.append((t, payload))
-            self._held_bytes += len(payload)
-        else:
-            if self._held is not None:
-                self._record_held()
-            self._held, self._reads, self._held_bytes = way, [(t, payload)], len(payload)
+        """The next bytes in order of ``way`` (its reassembler moved past them already):
+        every path from a packet to the recorder ends here.  ``import-pcap`` holds up to
+        ``together`` of them (and :data:`TOGETHER_BYTES`), of any connections and
+        directions, and records them together
+        (:meth:`~conformance.recording.recorder.StreamRecorder.reads`); ``capture``
+        (``together`` 1) records each as it comes (:meth:`_record` stands for this)."""
+        reads = self._reads
+        reads.append((way[0], way[1], t, payload))
+        self._held_bytes += len(payload)
+        if len(reads) >= self.together or self._held_bytes >= TOGETHER_BYTES:
+            self._record_held()
+
+    def _record(self, way: _TcpWay, t: int, payload: bytes) -> None:
+        """:meth:`_take` of ``capture`` (``together`` 1): each segment recorded now."""
+        self.rec.data(way[0], way[1], t, payload)
 
     def _record_held(self) -> None:
         """The held segments to the recorder (before anything else reaches it)."""
-        way = self._held
-        assert way is not None
-        self._held = None
-        reads = self._reads
-        if len(reads) == 1:  # request/reply: a packet a direction (data() decides as segments)
-            self.rec.data(way[0], way[1], *reads[0])
-        else:
-            self.rec.segments(way[0], way[1], reads)
+        reads, self._reads = self._reads, []
+        self._held_bytes = 0
+        self.rec.reads(reads)
 
     def _tcp(
         self, t: int, flow: bytes, payload: bytes, seq: int, flags: int, way: _TcpWay | None
@@ -683,16 +595,17 @@ class PacketRecorder:
     def idle(self, now_ns: int, idle_ns: int) -> None:
         """Live capture: decide frames whose sender went quiet mid-frame (see
         :meth:`~conformance.recording.StreamRecorder.idle`)."""
-        if self._held is not None:
+        if self._reads:
             self._record_held()
         self.rec.idle(now_ns, idle_ns)
 
     def finish(self, t_ns: int | None = None, reason: str = "capture ended") -> None:
         """Close every connection still open (at ``t_ns``, default the last packet's time)."""
-        if self._held is not None:
+        if self._reads:
             self._record_held()
         t = self.last_t if t_ns is None else t_ns
         for c in list(self.conns.values()):
             self._close_tcp(c, t, reason)
         for conn in self.udp_conns:
             self.rec.close(conn, t_ns=t, reason=reason)
+        self.rec.write_held()

@@ -33,6 +33,8 @@ explains them, in both readings.  A frame whose CMD_ID field is empty
 from __future__ import annotations
 
 import re
+from collections.abc import Sequence
+from typing import NamedTuple
 
 from ..errors import Rule
 from .frame import (
@@ -66,7 +68,7 @@ from .frame_run import (
 )
 from .skipped import skipped_rule
 
-__all__ = ["FrameDecoder", "decode_all"]
+__all__ = ["FrameDecoder", "ReadFrames", "decode_all", "take_reads"]
 
 # The fast path: a standard header, read at the parse position only (an anchored
 # match: a search would rescan the rest of the buffer for every frame, which made
@@ -235,15 +237,6 @@ class FrameDecoder:
         self._frames_seen += 1
         self._frame_end = self._base
         return run
-
-    def skip_frames(self, count: int, size: int) -> None:
-        """Go on after ``count`` whole standard frames (``size`` bytes) the caller read
-        itself from the next bytes, as :meth:`feed` of them would.  Only when idle."""
-        if self._closed or not self.idle:
-            raise RuntimeError("skip_frames() on a decoder that holds bytes, or closed")
-        self._base += size
-        self._frames_seen += count
-        self._frame_end = self._base
 
     def resolve_pending(self) -> list[Event]:
         """The peer went quiet inside a frame: decide on it now if a tail is buffered.
@@ -690,6 +683,55 @@ class FrameDecoder:
                 )
             )
         return end
+
+
+class ReadFrames(NamedTuple):
+    """The frames of reads of one standard frame each (:func:`take_reads`), one a read, in
+    the reads' order: each frame's CNT, CMD_ID, DATA, LEN, size and stream offset (its
+    decoder's); their bytes, the reads joined."""
+
+    cnts: list[int]
+    cmd_ids: list[int]
+    datas: list[str]
+    lengths: list[int]
+    sizes: list[int]
+    offsets: list[int]
+    raw: bytes
+
+
+def take_reads(reads: Sequence[tuple[FrameDecoder, bytes]]) -> ReadFrames | None:
+    """Reads of several streams, each exactly one standard frame of a decoder that holds
+    nothing (request/reply traffic: a frame a read, streams taking turns), decoded at once:
+    the frames in the reads' order, each decoder moved past its reads as :meth:`FrameDecoder.feed`
+    of each in turn would have moved it (and given the same frames).  None, and nothing
+    changed, unless every read is exactly one standard frame and every decoder holds
+    nothing; then the caller feeds each read.
+
+    The frames are read with the one split :meth:`FrameDecoder.take_run` uses, over the
+    reads joined, and each is checked to be its read whole.
+    """
+    datas = [r[1] for r in reads]
+    decoders = dict.fromkeys(dec for dec, _ in reads)
+    if not reads or any(dec._closed or dec._buf or dec._run for dec in decoders):
+        return None
+    try:
+        blob = b"".join(datas)
+    except TypeError:  # not bytes-like
+        return None
+    most = min(dec.max_frame_size for dec in decoders)
+    cols = _canonical_run(blob, most)
+    if cols is None:
+        return None
+    size, cnts, ids, texts, lens, sizes = cols
+    if size != len(blob) or sizes != list(map(len, datas)):
+        return None
+    offsets = []
+    for (dec, _), n in zip(reads, sizes, strict=True):
+        offsets.append(dec._base)
+        dec._base += n
+        dec._frames_seen += 1
+        dec._frame_end = dec._base
+    return ReadFrames(cnts, ids, texts, lens, sizes, offsets, blob)
 
 
 def decode_all(

@@ -49,7 +49,7 @@ def controller_runs(path: str | os.PathLike[str]) -> list[ProblemRecord]:
             if isinstance(rec, Channel):
                 topics[rec.id] = rec.topic
             elif isinstance(rec, Message) and topics.get(rec.channel_id) == TOPIC_PROBLEMS:
-                got, _ = read_message(TOPIC_PROBLEMS, rec.data, binary=False, traffic=False)
+                got, _ = read_message(TOPIC_PROBLEMS, rec.data, protobuf=False)
                 if isinstance(got, ProblemRecord) and got.kind == "malformed" and got.dir != C2S:
                     out.append(replace(got, raw=b""))
     return out

@@ -1,31 +1,21 @@
 """The MCAP layout of a recording: its topics, schemas and format constants.
 
 A recording is an MCAP file that Foxglove and the ``mcap`` command-line tools open as it
-is.  Layout 4 (``format`` ``fairino-conformance/4`` in the metadata, written by default):
-the frames of every connection and direction go to one topic, ``/fairino/frames``, in
-the order they were recorded, as protobuf messages ``fairino.Traffic`` (``protobuf``
-message encoding, a ``FileDescriptorSet`` schema: :mod:`~conformance.recording.traffic_pb`):
-a batch holds a small table of its streams (connection, transport, direction) and a
-``stream`` column saying each frame's, so request/reply traffic, whose direction changes
-every frame, is batched like pipelined traffic: by count (:data:`BATCH_FRAMES`), bytes
-(:data:`BATCH_BYTES`) and the writer's flush (the proxy's flush interval), never by
-direction.  Layout 3 (``fairino-conformance/3``) held one stream a message, on
-``/fairino/c2s`` and ``/fairino/s2c`` (``fairino.Frames``:
-:mod:`~conformance.recording.frames_pb`), so alternating traffic made a message a frame.
-In both, the columns are packed fixed-width integers that the recorder writes and a
-reader reads as arrays (``array.tobytes``, ``numpy.frombuffer``), not JSON text: the hot
-path of the recorder and of every reader.  The other topics (problems, connections,
-state) are rare and stay JSON documents described by JSON schemas (``json`` message
-encoding, ``jsonschema`` schema encoding).  Layout 2 (``fairino-conformance/2``) is
-layout 3 but for the frame batches, which are the JSON objects of :data:`SCHEMAS`
-(``RecordingWriter(layout=2)`` and ``layout=3`` still write them).  The topics:
+is, in layout 4 (``format`` ``fairino-conformance/4`` in the metadata).  The frames of
+every connection and direction go to one topic, ``/fairino/frames``, in the order they
+were recorded, as protobuf messages ``fairino.Traffic`` (``protobuf`` message encoding, a
+``FileDescriptorSet`` schema: :mod:`~conformance.recording.traffic_pb`): a batch holds a
+small table of its streams (connection, transport, direction) and a ``stream`` column
+saying each frame's, so request/reply traffic, whose direction changes every frame, is
+batched like pipelined traffic: by count (:data:`BATCH_FRAMES`), bytes
+(:data:`BATCH_BYTES`) and the recorder's flush, never by direction.  The other topics
+(problems, connections, state) are rare and stay JSON documents described by JSON schemas
+(``json`` message encoding, ``jsonschema`` schema encoding).  The topics:
 
 =========================  ====================  ===========================================
 topic                      schema                one message per
 =========================  ====================  ===========================================
-``/fairino/frames``        ``fairino.Traffic``   batch of frames, any streams (layout 4)
-``/fairino/c2s``           ``fairino.Frames``    batch of frames sent by a client to the controller (layouts 1-3)
-``/fairino/s2c``           ``fairino.Frames``    batch of frames sent by the controller to a client (layouts 1-3)
+``/fairino/frames``        ``fairino.Traffic``   batch of frames, any streams, in order
 ``/fairino/problems``      ``fairino.Problem``   malformed bytes, partial frame, capture gap
 ``/fairino/connections``   ``fairino.Connection`` connection opened, closed or refused
 ``/fairino/state``         ``fairino.State``     state packet of port 8083 (decoded fields + raw)
@@ -34,18 +24,12 @@ topic                      schema                one message per
 and one metadata record, ``fairino.recording`` (kit and spec version, source,
 upstream, listen address, start time, host, segment number).
 
-A frame message is a batch, in columns, frame *k* being ``cnt[k]``, ``cmd_id[k]``,
-``data[k]``... and its exact bytes the next ``size[k]`` bytes of ``raw`` (layouts 3 and
-4: its DATA the next ``data_size[k]`` bytes of ``data``, its name ``names[name[k] - 1]``;
-layout 4: its connection ``stream_conn[stream[k]]``, its direction
-``stream_dir[stream[k]]``).  In layouts 2 and 3 a batch is the frames of one connection
-and direction written one after the other, so at 1 kHz request/reply it holds one frame;
-in layout 4 it holds whatever came until the count, the bytes or the flush ended it
-(``mcap.Writer.add_message`` costs about 4 us a call; a column costs a copy of its
-integers in layouts 3 and 4, the text of each number in layout 2:
-``tools/bench_proxy.py --section record``).  The message's log time is the time the
-batch's last byte arrived, its publish time the time the first byte of its earliest
-frame arrived (ns since the Unix epoch).
+A frame message is a batch, in columns, frame *k* being ``cnt[k]``, ``cmd_id[k]``...,
+its exact bytes the next ``size[k]`` bytes of ``raw``, its DATA the next
+``data_size[k]`` bytes of ``data``, its name ``names[name[k] - 1]``, its connection
+``stream_conn[stream[k]]`` and direction ``stream_dir[stream[k]]``.  The message's log
+time is the time the batch's last byte arrived, its publish time the time the first byte
+of its earliest frame arrived (ns since the Unix epoch).
 
 A state connection (port 8083: ``proxy --state-upstream``, ``capture``/``import-pcap
 --state-port``) is a connection like the others (its ``fairino.Connection`` records
@@ -57,12 +41,12 @@ the log time) and the exact bytes.  Its schema is made from ``specs/*/state.json
 (:func:`state_schema`) and registered with the first state message.  What the state
 decoder finds (checksum, CNT gap, garbage, truncated packet) goes to
 ``/fairino/problems`` with ``kind`` ``state``, its ``rule`` the decoder's kind and
-its ``detail`` the decoder's words; a garbage run's bytes are all kept.  Layout version
-1 (``format`` ``fairino-conformance/1`` in the metadata) had one ``fairino.Frame``
-object per frame; :func:`~conformance.recording.read_recording` reads all four (a frame
-channel's topic and message encoding say which: ``/fairino/frames``, or ``protobuf`` or
-``json`` on ``/fairino/c2s`` and ``/fairino/s2c``), and a frame message that does not
-read or fit is skipped and named, whatever its layout.
+its ``detail`` the decoder's words; a garbage run's bytes are all kept.
+
+Earlier versions of the kit wrote layouts 1 to 3 (a frame a JSON message; JSON frame
+batches per stream; protobuf ``fairino.Frames`` batches per stream).  The reader refuses
+them in one line naming the layout (:data:`OLD_FORMATS`): 0.1.0 was never released, and
+its recordings are made again by recording the traffic again.
 """
 
 from __future__ import annotations
@@ -78,14 +62,14 @@ __all__ = [
     "FORMAT",
     "METADATA_NAME",
     "MIN_SPLIT_SIZE",
+    "OLD_FORMATS",
     "PROBLEM_RAW_LIMIT",
     "S2C",
     "SCHEMAS",
-    "TOPIC_C2S",
+    "TOPICS",
     "TOPIC_CONNECTIONS",
     "TOPIC_FRAMES",
     "TOPIC_PROBLEMS",
-    "TOPIC_S2C",
     "TOPIC_STATE",
     "DirectionText",
     "state_schema",
@@ -100,9 +84,7 @@ C2S: DirectionText = "c2s"
 #: Controller to client (replies).
 S2C: DirectionText = "s2c"
 
-TOPIC_C2S = "/fairino/c2s"
-TOPIC_S2C = "/fairino/s2c"
-#: Layout 4's frames, of every connection and direction (one ``fairino.Traffic`` a batch).
+#: The frames, of every connection and direction (one ``fairino.Traffic`` a batch).
 TOPIC_FRAMES = "/fairino/frames"
 TOPIC_PROBLEMS = "/fairino/problems"
 TOPIC_CONNECTIONS = "/fairino/connections"
@@ -120,19 +102,13 @@ INT_MAX = (1 << 63) - 1
 #: A time (``*_ns``: ns since the Unix epoch) is before 2106-02-07, the end of the 32-bit
 #: seconds a classic pcap (``export-pcap``) holds.
 TIME_MAX = (1 << 32) * 1_000_000_000 - 1
-#: Each layout's ``format`` in the metadata (every one reads everywhere; a writer asked
-#: for layout 2 writes it, and ``RecordingWriter(layout=...)`` picks).
-FORMAT_1 = "fairino-conformance/1"
-FORMAT_2 = "fairino-conformance/2"
-FORMAT_3 = "fairino-conformance/3"
-FORMAT_4 = "fairino-conformance/4"
-#: Each layout a writer writes, by its ``format``.
-FORMATS = {2: FORMAT_2, 3: FORMAT_3, 4: FORMAT_4}
-#: The layout a recording is written in unless asked otherwise; bump on incompatible changes.
-LAYOUT = 4
-FORMAT = FORMATS[LAYOUT]
-#: Most frames, and bytes of them, in one ``fairino.Frames`` message (RecordingWriter):
-#: a reader holds one message at a time, and a frame message stays well under a chunk.
+#: The layout this kit writes and reads, as the metadata's ``format`` names it; bump on
+#: incompatible changes.
+FORMAT = "fairino-conformance/4"
+#: The earlier layouts' ``format``: the reader names them and reads none.
+OLD_FORMATS = {f"fairino-conformance/{n}": n for n in (1, 2, 3)}
+#: Most frames, and bytes of them, in one ``fairino.Traffic`` message (the recorder cuts
+#: batches so): a reader holds one message at a time, and it stays well under a chunk.
 BATCH_FRAMES = 4096
 BATCH_BYTES = 256 * 1024
 #: The smallest ``--split-size`` the commands take: a file holds its header and the index
@@ -150,59 +126,8 @@ _TRANSPORT = {"type": "string", "enum": ["tcp", "udp"]}
 _DIR = {"type": "string", "enum": ["c2s", "s2c"], "description": "c2s: client to controller"}
 
 
-def _column(items: Mapping[str, Any], description: str = "") -> dict[str, Any]:
-    col: dict[str, Any] = {"type": "array", "items": items}
-    if description:
-        col["description"] = description
-    return col
-
-
-#: The JSON schemas of the three message kinds (draft 2020-12).
+#: The JSON schemas of the JSON topics' messages (draft 2020-12).
 SCHEMAS: Mapping[str, Mapping[str, Any]] = {
-    "fairino.Frames": {
-        "$schema": "https://json-schema.org/draft/2020-12/schema",
-        "title": "fairino.Frames",
-        "description": (
-            "Frames /f/bIII{CNT}III{CMD_ID}III{LEN}III{DATA}III/b/f (manual 1.1) one after "
-            "the other on one connection and direction, in columns: frame k is cnt[k], "
-            "cmd_id[k], data[k]..., its bytes the next size[k] bytes of raw"
-        ),
-        "type": "object",
-        "properties": {
-            "conn": _CONN,
-            "transport": _TRANSPORT,
-            "dir": _DIR,
-            "cnt": _column({"type": "integer"}),
-            "cmd_id": _column({"type": "integer"}),
-            "name": _column({"type": ["string", "null"]}, "command name from the specs"),
-            "data": _column({"type": "string"}, "DATA as text (invalid UTF-8 replaced)"),
-            "len": _column({"type": "integer"}, "LEN as sent"),
-            "offset": _column({"type": "integer"}, "stream offset of the frame's first byte"),
-            "first_ns": _column(
-                {"type": "integer"}, "when the frame's first byte came (absent: complete_ns)"
-            ),
-            "complete_ns": _column({"type": "integer"}, "when the frame's last byte came"),
-            "size": _column({"type": "integer"}, "bytes of the frame in raw"),
-            "problems": _column(
-                {"type": "array", "items": {"type": "string"}},
-                "deviations tolerated (absent: none in the batch)",
-            ),
-            "raw": {**_B64, "description": "the frames' bytes, one after the other"},
-        },
-        "required": [
-            "conn",
-            "transport",
-            "dir",
-            "cnt",
-            "cmd_id",
-            "data",
-            "len",
-            "offset",
-            "complete_ns",
-            "size",
-            "raw",
-        ],
-    },
     "fairino.Problem": {
         "$schema": "https://json-schema.org/draft/2020-12/schema",
         "title": "fairino.Problem",
@@ -250,9 +175,8 @@ SCHEMAS: Mapping[str, Mapping[str, Any]] = {
     },
 }
 
-_TOPICS = {
-    TOPIC_C2S: "fairino.Frames",
-    TOPIC_S2C: "fairino.Frames",
+#: The JSON topics and their schema's name.
+TOPICS = {
     TOPIC_PROBLEMS: "fairino.Problem",
     TOPIC_CONNECTIONS: "fairino.Connection",
 }

@@ -1,4 +1,4 @@
-"""Protobuf's wire format, the part layout 3's frame batches use (:mod:`.frames_pb`):
+"""Protobuf's wire format, the part the frame batches use (:mod:`.traffic_pb`):
 varints, tags, length-delimited fields, and the ``FileDescriptorSet`` of one proto3
 message from a table of its fields (the schema an MCAP protobuf channel carries).
 

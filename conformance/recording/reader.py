@@ -4,7 +4,6 @@ requests paired with their replies (:class:`RecordedExchange`)."""
 from __future__ import annotations
 
 import binascii
-import functools
 import json
 import os
 from collections import deque
@@ -13,30 +12,29 @@ from dataclasses import dataclass
 from typing import Any
 
 from .blame import Blame
-from .frames_pb import decode_batch
 from .layout import (
     C2S,
     INT_MAX,
     METADATA_NAME,
+    OLD_FORMATS,
     SCHEMAS,
     STATE_KIND,
     TIME_MAX,
-    TOPIC_C2S,
     TOPIC_CONNECTIONS,
     TOPIC_FRAMES,
     TOPIC_PROBLEMS,
-    TOPIC_S2C,
     TOPIC_STATE,
 )
-from .records import ConnectionRecord, FrameBatch, FrameRecord, ProblemRecord, StateRecord
+from .records import ConnectionRecord, FrameRecord, ProblemRecord, StateRecord
 from .salvage import MAGIC, Damage, Walk
-from .traffic_pb import decode_records
+from .traffic_pb import decode_traffic
 
 __all__ = [
     "READ_TOPICS",
     "Damage",
     "RecordedExchange",
     "Recording",
+    "check_layout",
     "message_damage",
     "read_message",
     "read_recording",
@@ -363,67 +361,30 @@ def _object_fits(schema: Mapping[str, Any]) -> Callable[[Any], bool]:
 _INT = frozenset({int})
 
 
-@functools.cache
-def _layout1_schema() -> dict[str, Any]:
-    """Layout 1's ``fairino.Frame`` (one frame a message): the batch's columns as single
-    values, ``problems`` one frame's list."""
-    batch = SCHEMAS["fairino.Frames"]
-    props = {
-        k: (sub["items"] if sub.get("type") == "array" and k not in ("problems",) else sub)
-        for k, sub in batch["properties"].items()
-        if k != "size"
-    }
-    props["problems"] = batch["properties"]["problems"]["items"]
-    return {
-        "type": "object",
-        "properties": props,
-        "required": ["conn", "dir", "cnt", "cmd_id", "data", "complete_ns", "raw"],
-    }
-
-
-@functools.cache
-def _layout1_fits() -> Callable[[Any], bool]:
-    return _fits(_layout1_schema())
-
-
-#: The topics read here and the schema their messages must fit.
+#: The JSON topics read here and the schema their messages must fit.
 _SCHEMA_OF_TOPIC = {
-    TOPIC_C2S: SCHEMAS["fairino.Frames"],
-    TOPIC_S2C: SCHEMAS["fairino.Frames"],
     TOPIC_PROBLEMS: SCHEMAS["fairino.Problem"],
     TOPIC_CONNECTIONS: SCHEMAS["fairino.Connection"],
 }
 
 
 _FITS = {topic: _fits(schema) for topic, schema in _SCHEMA_OF_TOPIC.items()}
-#: Every topic the reader reads.
-_READ = frozenset((*_SCHEMA_OF_TOPIC, TOPIC_STATE, TOPIC_FRAMES))
+#: Every topic the reader reads (a message on any other is not the reader's: skipped, unnamed).
+READ_TOPICS = frozenset((*_SCHEMA_OF_TOPIC, TOPIC_STATE, TOPIC_FRAMES))
 
 
-def _record_of(
-    topic: str, doc: Any
-) -> list[FrameRecord] | ProblemRecord | ConnectionRecord | StateRecord:
-    """The records of one message on one of the recording's topics, its JSON checked
+def _record_of(topic: str, doc: Any) -> ProblemRecord | ConnectionRecord | StateRecord:
+    """The record of one JSON message on one of the recording's topics, its JSON checked
     against the topic's schema first (:data:`~.layout.SCHEMAS`): a ``ValueError``
     saying what does not fit."""
     if not isinstance(doc, dict):
         raise ValueError(f"the message is {_kind(doc)}, not an object")
-    if topic == TOPIC_STATE:  # its schema comes from the spec set's state layouts
-        try:
-            return StateRecord.from_json(doc)
-        except (binascii.Error, KeyError, TypeError) as e:
-            raise ValueError(f"{type(e).__name__}: {e}") from None
-    frames = topic in (TOPIC_C2S, TOPIC_S2C)
-    layout1 = frames and not isinstance(doc.get("cnt"), list)
-    fits = _layout1_fits() if layout1 else _FITS[topic]
-    if not fits(doc):
-        schema = _layout1_schema() if layout1 else _SCHEMA_OF_TOPIC[topic]
-        raise ValueError(_misfit(doc, schema, "the message") or "it does not fit its schema")
     try:
-        if layout1:
-            return [FrameRecord.from_json(doc)]
-        if frames:
-            return FrameBatch.from_json(doc).records()
+        if topic == TOPIC_STATE:  # its schema comes from the spec set's state layouts
+            return StateRecord.from_json(doc)
+        if not _FITS[topic](doc):
+            why = _misfit(doc, _SCHEMA_OF_TOPIC[topic], "the message")
+            raise ValueError(why or "it does not fit its schema")
         if topic == TOPIC_PROBLEMS:
             return ProblemRecord.from_json(doc)
         return ConnectionRecord.from_json(doc)
@@ -433,30 +394,20 @@ def _record_of(
 
 #: The records of one message (:func:`read_message`).
 Read = list[FrameRecord] | ProblemRecord | ConnectionRecord | StateRecord
-#: Every topic the reader reads (a message on any other is not the reader's: skipped, unnamed).
-READ_TOPICS = _READ
 
 
-def read_message(
-    topic: str, data: bytes, *, binary: bool, traffic: bool
-) -> tuple[Read | None, str]:
-    """One message on one of :data:`READ_TOPICS` as :func:`read_recording` reads it (its
-    channel's frame batches in protobuf: ``binary``, layout 3; ``traffic``, layout 4):
-    its records and "", or None and why it is skipped (the reason
-    :func:`message_damage` names; ``export-parquet``'s windows ask it of a message they
-    do not take)."""
-    if traffic:
+def read_message(topic: str, data: bytes, *, protobuf: bool) -> tuple[Read | None, str]:
+    """One message on one of :data:`READ_TOPICS` as :func:`read_recording` reads it
+    (``protobuf``: its channel's message encoding is protobuf, as the frames' is): its
+    records and "", or None and why it is skipped (the reason :func:`message_damage`
+    names)."""
+    if topic == TOPIC_FRAMES:
+        if not protobuf:
+            return None, f"a {topic} message not in protobuf (the layout writes fairino.Traffic)"
         try:
-            return decode_records(data), ""
+            return decode_traffic(data, as_arrays=False).records(), ""
         except ValueError as e:
             return None, f"not a fairino.Traffic message that can be read ({e})"
-    if topic == TOPIC_FRAMES:
-        return None, f"a {topic} message not in protobuf (layout 4 writes fairino.Traffic)"
-    if binary:
-        try:
-            return decode_batch(data).records(), ""
-        except ValueError as e:
-            return None, f"not a fairino.Frames message that can be read ({e})"
     try:
         doc = json.loads(data)
     except RecursionError:
@@ -467,6 +418,20 @@ def read_message(
         return _record_of(topic, doc), ""
     except ValueError as e:
         return None, str(e)
+
+
+def check_layout(path: str, metadata: Mapping[str, str]) -> None:
+    """A recording in an earlier layout (:data:`~.layout.OLD_FORMATS`) is refused in one
+    line naming it: this kit reads layout 4 only."""
+    from ..errors import RecordingError
+
+    fmt = metadata.get("format", "")
+    if fmt in OLD_FORMATS:
+        raise RecordingError(
+            f"{path} is a recording in layout {OLD_FORMATS[fmt]} ({fmt}), which this kit no "
+            "longer reads: record the traffic again (layout 4)",
+            path=path,
+        )
 
 
 def message_damage(count: int, topic: str, sequence: int, offset: int, why: str) -> Damage:
@@ -481,26 +446,21 @@ def message_damage(count: int, topic: str, sequence: int, offset: int, why: str)
     )
 
 
-def _channel(c: Any, topics: dict[int, str], binary: set[int], traffic: set[int]) -> None:
-    """Note a channel: its topic, and whether its frame batches are protobuf (layout 3)
-    or layout 4's ``fairino.Traffic``."""
+def _channel(c: Any, topics: dict[int, str], protobuf: set[int]) -> None:
+    """Note a channel: its topic, and whether its messages are protobuf."""
     topics[c.id] = c.topic
-    binary.discard(c.id)
-    traffic.discard(c.id)
+    protobuf.discard(c.id)
     if c.message_encoding == "protobuf":
-        if c.topic in (TOPIC_C2S, TOPIC_S2C):
-            binary.add(c.id)
-        elif c.topic == TOPIC_FRAMES:
-            traffic.add(c.id)
+        protobuf.add(c.id)
 
 
 def read_recording(path: str | os.PathLike[str]) -> Recording:
     """Read a recording, finished or not (an unfinished one reads up to its last whole
     chunk), damaged or not: a chunk that cannot be read is skipped and the reading goes
     on (:class:`~.salvage.Walk`), and a message on the recording's topics whose JSON does
-    not fit its schema (or, layouts 3 and 4, whose protobuf frame batch does not read or
-    fit: :mod:`.frames_pb`, :mod:`.traffic_pb`) is skipped; each is in
-    :attr:`Recording.damage`."""
+    not fit its schema, or whose frame batch does not read or fit (:mod:`.traffic_pb`), is
+    skipped; each is in :attr:`Recording.damage`.  A recording of an earlier layout is a
+    :class:`~conformance.errors.RecordingError` (:func:`check_layout`)."""
     from mcap.records import Channel, Message, Metadata
 
     from ..errors import RecordingError
@@ -513,9 +473,7 @@ def read_recording(path: str | os.PathLike[str]) -> Recording:
     state_problems: list[ProblemRecord] = []
     metadata: dict[str, str] = {}
     topics: dict[int, str] = {}
-    # Channels whose frame batches are protobuf (layout 3), not JSON; layout 4's.
-    binary: set[int] = set()
-    traffic: set[int] = set()
+    protobuf: set[int] = set()  # channels whose messages are protobuf
     try:
         f = open(p, "rb")  # noqa: SIM115
     except FileNotFoundError:
@@ -529,23 +487,18 @@ def read_recording(path: str | os.PathLike[str]) -> Recording:
         walk = Walk(f, p)
         for r in walk.summary_records():
             if isinstance(r, Channel):
-                _channel(r, topics, binary, traffic)
+                _channel(r, topics, protobuf)
         damage = walk.damage
         count = 0
         for rec, where in walk.records():
             if isinstance(rec, Channel):
-                _channel(rec, topics, binary, traffic)
+                _channel(rec, topics, protobuf)
             elif isinstance(rec, Message):
                 count += 1
                 topic = topics.get(rec.channel_id)
-                if topic not in _READ:
+                if topic not in READ_TOPICS:
                     continue  # a foreign topic: not ours to read
-                got, why = read_message(
-                    topic,
-                    rec.data,
-                    binary=rec.channel_id in binary,
-                    traffic=rec.channel_id in traffic,
-                )
+                got, why = read_message(topic, rec.data, protobuf=rec.channel_id in protobuf)
                 if got is None:
                     damage.append(message_damage(count, topic, rec.sequence, where, why))
                     continue
@@ -560,6 +513,7 @@ def read_recording(path: str | os.PathLike[str]) -> Recording:
                     conns.append(got)
             elif isinstance(rec, Metadata) and rec.name == METADATA_NAME and not metadata:
                 metadata = dict(rec.metadata)
+                check_layout(p, metadata)
     if not metadata:
         lost = f" ({walk.damage[0]})" if walk.damage else ""
         raise RecordingError(

@@ -3,7 +3,10 @@
 :class:`StreamRecorder` is the one path from bytes to records: the proxy feeds it
 socket reads, the pcap importer reassembled segments, so both produce recordings
 that read and diff alike.  It is sans-I/O: the caller passes the bytes and the
-times they were seen (STYLE.md, convention 1).
+times they were seen.  The frames it decodes wait in one batch (:mod:`.batch`) until
+it writes them to its sink (:class:`~.records.RecordSink`): as one message when the batch
+is full, before any record of another kind, and when its owner flushes
+(:meth:`StreamRecorder.write_held`).
 """
 
 from __future__ import annotations
@@ -13,24 +16,24 @@ from collections.abc import Callable, Sequence
 from functools import partial
 from itertools import accumulate
 
-from ..protocol.decoder import FrameDecoder
+from ..protocol.decoder import FrameDecoder, take_reads
 from ..protocol.frame import DEFAULT_MAX_FRAME_SIZE, SEP, TAIL, Event, Frame, Malformed
 from ..protocol.frame_run import FrameRun
 from ..spec.commands import SpecSet
-from .layout import C2S, PROBLEM_RAW_LIMIT, S2C, STATE_STREAM, DirectionText
-from .lone_reads import LONE_MAX, LoneRead, read_together
+from .batch import FrameBatcher
+from .layout import BATCH_FRAMES, C2S, PROBLEM_RAW_LIMIT, S2C, STATE_STREAM, DirectionText
 from .names import _CommandNames
 from .records import (
     ConnectionRecord,
-    FrameBatch,
     FrameRecord,
+    Frames,
     ProblemRecord,
+    Record,
     RecordSink,
     problem_records,
 )
 from .state_stream import StateStream
 from .streams import _TIMELINE_MAX, _Conn, _Stream
-from .traffic_pb import Mixed
 
 __all__ = ["DECODE_SLICE", "StreamRecorder"]
 
@@ -48,7 +51,9 @@ _RUN_MIN = 512
 class StreamRecorder(_CommandNames):
     """Bytes and times in, records out (sans-I/O): the proxy's and importer's one path.
 
-    ``on_frame`` (for ``--print``) sees each frame record as it is written.
+    ``on_frame`` (for ``--print``) sees each frame record as it is written.  Frames are
+    held in one batch and written as one message (see the module); a caller that must
+    have them in the file now (a flush) calls :meth:`write_held`.
 
     Bytes reach the decoder ``slice_size`` at a time, and ``checkpoint`` (if given)
     is called after each slice: the caller may flush its sink there, or call
@@ -69,6 +74,7 @@ class StreamRecorder(_CommandNames):
         slice_size: int = DECODE_SLICE,
         checkpoint: Callable[[], None] | None = None,
         state_version: str | None = None,
+        batch_frames: int = BATCH_FRAMES,
     ) -> None:
         if slice_size < 1:
             raise ValueError("slice_size must be positive")
@@ -82,25 +88,12 @@ class StreamRecorder(_CommandNames):
         self.undecoded_reason: str | None = None
         self._conns: dict[int, _Conn] = {}
         self._names: dict[tuple[int, str | None], str | None] = {}
-        # The sink's fast path for frames (RecordingWriter.write_frames), unless each
-        # frame must also be handed to on_frame as a FrameRecord.
-        self._write_frames: Callable[[FrameBatch], None] | None = (
-            getattr(sink, "write_frames", None) if on_frame is None else None
-        )
-        self._write_frame: Callable[..., None] | None = (
-            getattr(sink, "write_frame", None) if self._write_frames is not None else None
-        )
-        # Reads of a frame each, held to be read together (lone_reads.py), for a sink that
-        # drains them first (RecordingWriter.hold); checkpoint runs after each batch.
-        self._write_rows: Callable[[Mixed], None] | None = (
-            getattr(sink, "write_mixed", None) if self._write_frame is not None else None
-        )
-        hold = getattr(sink, "hold", None)
-        if hold is None:
-            self._write_rows = None
-        elif self._write_rows is not None:
-            hold(self._drain)  # the sink writes them before anything else, and at flush
-        self._lone: list[LoneRead] = []
+        #: The frames decoded and not written yet (see the module).
+        self._held = FrameBatcher()
+        #: A batch is written once it holds this many frames, or its sink's
+        #: ``batch_bytes`` bytes (:data:`~.layout.BATCH_FRAMES`, ``BATCH_BYTES``).
+        self.batch_frames = batch_frames
+        self._batch_bytes = sink.batch_bytes
         # Command name by ID where the ID alone decides it (one command has it), else
         # _BY_DATA: then the name in DATA picks among the commands (command_name).
         self._id_names: dict[int, object] = {}
@@ -126,7 +119,6 @@ class StreamRecorder(_CommandNames):
     ) -> None:
         """A connection opened; ``stream="state"``: a state-port (8083) connection, its
         bytes read as state packets (:class:`~.state_stream.StateStream`)."""
-        self._drain()
         self._conns[conn] = _Conn(
             transport=transport,
             client=client,
@@ -137,12 +129,12 @@ class StreamRecorder(_CommandNames):
                 S2C: _Stream(self.max_frame_size, (conn, transport, S2C)),
             },
             state=(
-                StateStream(self.sink, conn, transport=transport, version=self.state_version)
+                StateStream(self.write, conn, transport=transport, version=self.state_version)
                 if stream == STATE_STREAM
                 else None
             ),
         )
-        self.sink.write(
+        self.write(
             ConnectionRecord(
                 conn=conn,
                 event="open",
@@ -159,7 +151,6 @@ class StreamRecorder(_CommandNames):
         return conn in self._conns
 
     def close(self, conn: int, *, t_ns: int, reason: str) -> None:
-        self._drain()
         c = self._conns.pop(conn, None)
         if c is None:
             return
@@ -168,7 +159,7 @@ class StreamRecorder(_CommandNames):
             return
         for d, st in c.streams.items():
             self._emit(conn, c.transport, d, st, st.decoder.close(), t_ns)  # type: ignore[arg-type]
-        self.sink.write(
+        self.write(
             ConnectionRecord(
                 conn=conn,
                 event="close",
@@ -191,7 +182,7 @@ class StreamRecorder(_CommandNames):
         self.state_packets += s.packets - before[0]
         self.problems += s.problems - before[1]
         c_bytes, s_bytes = s.bytes[C2S], s.bytes[S2C]
-        self.sink.write(
+        self.write(
             ConnectionRecord(
                 conn=conn,
                 event="close",
@@ -223,7 +214,7 @@ class StreamRecorder(_CommandNames):
             self.checkpoint()
 
     def finish(self, *, t_ns: int, reason: str = "recording ended") -> None:
-        self._drain()
+        self.write_held()
         for conn in list(self._conns):
             self.close(conn, t_ns=t_ns, reason=reason)
 
@@ -236,66 +227,124 @@ class StreamRecorder(_CommandNames):
         frames before this point are kept; the bytes after it are Problem records of
         rule ``undecoded``, at their stream offsets.  Idempotent.
         """
-        self._drain()
         if self.undecoded_reason is None:
             self.undecoded_reason = reason
 
     def data(self, conn: int, direction: DirectionText, t_ns: int, data: bytes) -> None:
-        """Bytes of a TCP stream, in order, as they arrived at ``t_ns``.
+        """Bytes of a TCP stream, in order, as they arrived at ``t_ns``: :meth:`reads` of
+        one read."""
+        self.reads(((conn, direction, t_ns, data),))
 
-        Where the decoder holds nothing, standard frames back to back are taken as a
-        :class:`~conformance.protocol.frame_run.FrameRun` and written as one batch (the columns
-        straight from the split, no tuple per frame); anything else goes through
-        :meth:`FrameDecoder.feed` a slice at a time.  Either way ``checkpoint`` runs
-        after each piece, and the records are the same.
+    def reads(self, reads: Sequence[tuple[int, DirectionText, int, bytes]]) -> None:
+        """Reads of TCP streams in the order they came, any connections and directions,
+        each ``(connection, direction, t_ns, bytes)``: the records :meth:`data` of each in
+        turn gives, but decoded together.
+
+        Reads of one standard frame each (request/reply traffic) are decoded at once
+        (:func:`~conformance.protocol.decoder.take_reads`); otherwise each run of reads of
+        one stream goes to that stream's decoder together (:meth:`_stream_reads`: frames
+        cut across reads are still taken as runs).  ``checkpoint`` runs after each piece.
         """
-        n = len(data)
-        if n >= _RUN_MIN or n > self.slice_size or self.undecoded_reason is not None:
-            self.segments(conn, direction, ((t_ns, data),))
+        if not reads:
             return
-        # A short read (request/reply: one frame): held (lone_reads.py), or to the decoder.
-        c = self._conns[conn]
-        st = c.streams[direction]
-        if (
-            self._write_rows is not None
-            and c.state is None
-            and n
-            and type(data) is bytes
-            and st.decoder.idle
-            and len(st.timeline) < _TIMELINE_MAX
-        ):
-            st.bytes += n
-            st.last_ns = t_ns
-            lone = self._lone
-            lone.append((st, t_ns, data))
-            if len(lone) >= LONE_MAX:
-                self._drain()
-                if self.checkpoint is not None:  # after a batch of them, not each one
-                    self.checkpoint()
+        if len(reads) > 1 and self._reads_together(reads):
             return
-        self._drain()
-        if c.state is not None:
-            self._state_data(c, direction, t_ns, data)
-            return
-        st.bytes += n
-        self._read(conn, c.transport, direction, st, t_ns, data)
+        start = 0
+        for k in range(1, len(reads) + 1):
+            if k == len(reads) or reads[k][:2] != reads[start][:2]:
+                conn, direction = reads[start][:2]
+                self._stream_reads(conn, direction, [(r[2], r[3]) for r in reads[start:k]])
+                start = k
 
-    def _drain(self) -> None:
-        """The reads held (data()), read together if each is a frame, else one by one."""
-        lone = self._lone
-        if not lone:
-            return
-        self._lone = []
-        got = read_together(lone, self.max_frame_size)
+    def _reads_together(self, reads: Sequence[tuple[int, DirectionText, int, bytes]]) -> bool:
+        """:meth:`reads` of reads of one standard frame each, at once; False, nothing
+        done, unless every read is one (and no stream is a state port's or undecoded)."""
+        if self.undecoded_reason is not None:
+            return False
+        keys = [(r[0], r[1]) for r in reads]
+        streams_of: dict[tuple[int, DirectionText], _Stream] = {}
+        for conn, d in dict.fromkeys(keys):
+            c = self._conns.get(conn)
+            if c is None or c.state is not None:
+                return False
+            st = streams_of[conn, d] = c.streams[d]
+            if len(st.timeline) >= _TIMELINE_MAX:
+                return False
+        streams = list(map(streams_of.__getitem__, keys))
+        datas = [r[3] for r in reads]
+        got = take_reads(list(zip([st.decoder for st in streams], datas, strict=True)))
         if got is None:
-            for st, t_ns, data in lone:
-                self._read(*st.key, st, t_ns, data)  # type: ignore[call-arg]
+            return False
+        times = [r[2] for r in reads]
+        last: dict[_Stream, tuple[int, int]] = {}
+        for st, t, at, n in zip(streams, times, got.offsets, got.sizes, strict=True):
+            st.bytes += n
+            st.frames += 1
+            last[st] = (at, t)
+        for st, (at, t) in last.items():
+            # What feeding each alone leaves: the last frame's first byte came at its time.
+            st.last_ns = t
+            st.timeline.clear()
+            st.timeline.append((at, t))
+        self.frames += len(reads)
+        self._make_room(len(reads), len(got.raw))
+        table = list(streams_of)
+        row = {k: i for i, k in enumerate(table)}
+        self._held.extend(
+            Frames(
+                streams=[streams_of[k].key for k in table],
+                stream=list(map(row.__getitem__, keys)),
+                cnt=got.cnts,
+                cmd_id=got.cmd_ids,
+                name=self._names_of(got.cmd_ids, got.datas),
+                data=got.datas,
+                length=got.lengths,
+                offset=[st.base + at for st, at in zip(streams, got.offsets, strict=True)],
+                first_ns=times,
+                complete_ns=times,
+                size=got.sizes,
+                raw=got.raw,
+            )
+        )
+        self._hold_check()
+        if self.checkpoint is not None:
+            self.checkpoint()
+        return True
+
+    def write_held(self) -> None:
+        """Write the frames held (a message, or a few where they pass a message's size),
+        and hand each to ``on_frame``."""
+        held = self._held
+        if not held.cnt:
             return
-        table, index, cnts, ids, texts, lens, offsets, times, raws = got
-        self.frames += len(cnts)
-        assert self._write_rows is not None
-        names = self._names_of(ids, texts)
-        self._write_rows(Mixed(table, index, cnts, ids, names, texts, lens, offsets, times, raws))
+        frames = held.take()
+        # Reads taken at once may hold more than a message should (a pipe's worth).
+        for piece in frames.pieces(self.batch_frames, self._batch_bytes):
+            self.sink.write_frames(piece)
+        if self.on_frame is not None:
+            for rec in frames.records():
+                self.on_frame(rec)
+
+    def write(self, record: Record) -> None:
+        """A record of another kind than a frame (a connection, a problem, a state
+        packet: :class:`~.state_stream.StateStream` writes through here), after the frames
+        held, so that the file keeps the order things came in."""
+        self.write_held()
+        self.sink.write(record)
+
+    def _hold_check(self) -> None:
+        """Write the frames held once they fill a message."""
+        held = self._held
+        if len(held.cnt) >= self.batch_frames or held.bytes >= self._batch_bytes:
+            self.write_held()
+
+    def _make_room(self, frames: int, size: int) -> None:
+        """Write the frames held if ``frames`` more (``size`` bytes) would pass a message."""
+        held = self._held
+        if held.cnt and (
+            len(held.cnt) + frames > self.batch_frames or held.bytes + size > self._batch_bytes
+        ):
+            self.write_held()
 
     def _read(
         self,
@@ -315,28 +364,16 @@ class StreamRecorder(_CommandNames):
         if noted:
             tl.append((at, t_ns))
         events = dec.feed(data)
-        one = self._write_frame
-        if len(events) == 1 and noted and one is not None and type(events[0]) is Frame:
-            cnt, cmd_id, text, length, raw, probs, offset = events[0]
-            if offset == at and not probs:
-                # One frame, all of it in this read (request/reply traffic): what _emit
-                # and _emit_frames do with it, inline.  Its first byte came now; the
-                # times noted before it are no longer needed.
-                tl.clear()
-                tl.append((at, t_ns))
-                st.frames += 1
-                self.frames += 1
-                one(conn, transport, direction, cnt, cmd_id, self._name_of(cmd_id, text), text,
-                    length if length is not None else len(text.encode("utf-8")),
-                    st.base + offset, t_ns, t_ns, raw, None)  # fmt: skip
-                if self.checkpoint is not None:
-                    self.checkpoint()
-                return
+        if len(events) == 1 and noted and type(events[0]) is Frame and events[0].offset == at:
+            # One frame, all of it in this read (request/reply traffic): its first byte
+            # came now; the times noted before it are no longer needed.
+            tl.clear()
+            tl.append((at, t_ns))
         self._emit(conn, transport, direction, st, events, t_ns)  # type: ignore[arg-type]
         if self.checkpoint is not None:
             self.checkpoint()
 
-    def segments(
+    def _stream_reads(
         self, conn: int, direction: DirectionText, reads: Sequence[tuple[int, bytes]]
     ) -> None:
         """Several reads of one TCP stream in a row, each ``(t_ns, bytes)``: the records
@@ -347,22 +384,20 @@ class StreamRecorder(_CommandNames):
         ``complete_ns`` that of the read holding its last; :meth:`FrameDecoder.feed`
         is never given bytes of two reads at once.
         """
-        if not reads:
-            return
-        if len(reads) == 1:
-            t_ns, data = reads[0]
-            n = len(data)
-            if n < _RUN_MIN and n <= self.slice_size and self.undecoded_reason is None:
-                # One short read (request/reply traffic: a frame a packet): what data()
-                # does with it, without the bookkeeping of reads put together.
-                self.data(conn, direction, t_ns, data)
-                return
-        self._drain()
         c = self._conns[conn]
         if c.state is not None:
             for t_ns, piece in reads:
                 self._state_data(c, direction, t_ns, piece)
             return
+        if len(reads) == 1:
+            t_ns, data = reads[0]
+            n = len(data)
+            if n < _RUN_MIN and n <= self.slice_size and self.undecoded_reason is None:
+                # One short read (request/reply traffic: a frame a packet): to the
+                # decoder as it is.
+                c.streams[direction].bytes += n
+                self._read(conn, c.transport, direction, c.streams[direction], t_ns, data)
+                return
         st = c.streams[direction]
         transport = c.transport
         if len(reads) == 1:
@@ -455,7 +490,6 @@ class StreamRecorder(_CommandNames):
 
     def datagram(self, conn: int, direction: DirectionText, t_ns: int, data: bytes) -> None:
         """One UDP datagram: decoded on its own (a frame never spans datagrams)."""
-        self._drain()
         c = self._conns[conn]
         st = c.streams[direction]
         st.bytes += len(data)
@@ -504,7 +538,7 @@ class StreamRecorder(_CommandNames):
         reason = self.undecoded_reason or "not decoded"
         for k in range(0, len(data), PROBLEM_RAW_LIMIT):
             piece = data[k : k + PROBLEM_RAW_LIMIT]
-            self.sink.write(
+            self.write(
                 ProblemRecord(
                     conn=conn,
                     transport=transport,
@@ -528,7 +562,6 @@ class StreamRecorder(_CommandNames):
         self, conn: int, direction: DirectionText, t_ns: int, missing: int, detail: str = ""
     ) -> None:
         """``missing`` bytes of the stream were never captured: record it, restart decoding."""
-        self._drain()
         c = self._conns[conn]
         if c.state is not None:
             before = c.state.packets, c.state.problems
@@ -539,7 +572,7 @@ class StreamRecorder(_CommandNames):
         st = c.streams[direction]
         self._emit(conn, c.transport, direction, st, st.decoder.close(), t_ns)
         offset = st.base + st.decoder.stream_offset
-        self.sink.write(
+        self.write(
             ProblemRecord(
                 conn=conn,
                 transport=c.transport,
@@ -559,12 +592,14 @@ class StreamRecorder(_CommandNames):
         st.timeline.clear()
 
     def idle(self, now_ns: int, idle_ns: int) -> None:
-        """Decide on frames whose peer went quiet mid-frame for ``idle_ns`` (LEN too large)."""
-        self._drain()
+        """Decide on frames whose peer went quiet mid-frame for ``idle_ns`` (LEN too large),
+        then write the frames held (the proxy's recorder and ``capture`` call this before
+        each flush)."""
         for conn, c in self._conns.items():
             for d, st in c.streams.items():
                 if st.decoder.buffered and now_ns - st.last_ns >= idle_ns:
                     self._emit(conn, c.transport, d, st, st.decoder.resolve_pending(), now_ns)  # type: ignore[arg-type]
+        self.write_held()
 
     def _emit_run(
         self,
@@ -580,32 +615,24 @@ class StreamRecorder(_CommandNames):
         k = len(run.cnts)
         st.frames += k
         self.frames += k
-        offsets = run.offsets(st.base)
-        batch = FrameBatch(
-            conn=conn,
-            transport=transport,
-            dir=direction,
-            cnts=run.cnts,
-            cmd_ids=run.cmd_ids,
-            names=self._names_of(run.cmd_ids, run.datas),
-            datas=run.datas,
-            lengths=run.lengths,
-            offsets=offsets,
-            first_ns=first_ns,
-            complete_ns=complete_ns,
-            sizes=run.sizes,
-            raw=run.raw,
+        self._make_room(k, len(run.raw))
+        self._held.extend(
+            Frames(
+                streams=[st.key],
+                stream=[0] * k,
+                cnt=run.cnts,
+                cmd_id=run.cmd_ids,
+                name=self._names_of(run.cmd_ids, run.datas),
+                data=run.datas,
+                length=run.lengths,
+                offset=run.offsets(st.base),
+                first_ns=first_ns,
+                complete_ns=complete_ns,
+                size=run.sizes,
+                raw=run.raw,
+            )
         )
-        self._write_batch(batch)
-
-    def _write_batch(self, batch: FrameBatch) -> None:
-        if self._write_frames is not None:
-            self._write_frames(batch)
-            return
-        for rec in batch.records():
-            self.sink.write(rec)
-            if self.on_frame is not None:
-                self.on_frame(rec)
+        self._hold_check()
 
     def _emit(
         self,
@@ -623,7 +650,7 @@ class StreamRecorder(_CommandNames):
             return
         b = st.base if base is None else base
         tl = st.timeline
-        write = self.sink.write
+        write = self.write
         frames: list[Frame] = []
         firsts: list[int] = []
         for ev in events:
@@ -638,56 +665,27 @@ class StreamRecorder(_CommandNames):
                 continue
             assert isinstance(ev, Malformed)
             if frames:
-                self._emit_frames(conn, transport, direction, st, frames, firsts, b, t_ns)
+                self._emit_frames(st, frames, firsts, b, t_ns)
                 frames, firsts = [], []
             for pr in problem_records(conn, transport, direction, ev, b, first, t_ns):
                 self.problems += 1
                 write(pr)
         if frames:
-            self._emit_frames(conn, transport, direction, st, frames, firsts, b, t_ns)
+            self._emit_frames(st, frames, firsts, b, t_ns)
 
     def _emit_frames(
         self,
-        conn: int,
-        transport: str,
-        direction: DirectionText,
         st: _Stream,
         frames: list[Frame],
         firsts: list[int],
         base: int,
         t_ns: int,
     ) -> None:
-        k = len(frames)
-        st.frames += k
-        self.frames += k
-        one = self._write_frame
-        if k == 1 and one is not None:
-            # A lone frame: its fields straight to the writer (no batch made here).
-            cnt, cmd_id, data, length, raw, probs, offset = frames[0]
-            one(conn, transport, direction, cnt, cmd_id, self._name_of(cmd_id, data), data,
-                length if length is not None else len(data.encode("utf-8")), base + offset,
-                firsts[0], t_ns, raw, [p.value for p in probs] if probs else None)  # fmt: skip
-            return
-        cnts, cmd_ids, datas, lengths, raws, probss, offsets = zip(*frames, strict=True)
-        problems = [[p.value for p in ps] for ps in probss] if any(probss) else None
-        self._write_batch(
-            FrameBatch(
-                conn=conn,
-                transport=transport,
-                dir=direction,
-                cnts=cnts,
-                cmd_ids=cmd_ids,
-                names=self._names_of(cmd_ids, datas),
-                datas=datas,
-                lengths=[
-                    n if n is not None else len(d.encode("utf-8"))
-                    for n, d in zip(lengths, datas, strict=True)
-                ],
-                offsets=[base + o for o in offsets],
-                first_ns=firsts,
-                complete_ns=[t_ns] * k,
-                sizes=list(map(len, raws)),
-                raw=b"".join(raws),
-                problems=problems,
-            )
-        )
+        """Frames the decoder gave one by one, to the batch held."""
+        st.frames += len(frames)
+        self.frames += len(frames)
+        add = self._held.add
+        key = st.key
+        for f, first in zip(frames, firsts, strict=True):
+            add(key, f, self._name_of(f.cmd_id, f.data), base + f.offset, first, t_ns)
+        self._hold_check()

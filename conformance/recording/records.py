@@ -1,28 +1,30 @@
-"""The records of a recording (frames, frame batches, problems, connections) and their
-JSON encoding: ``to_json``/``from_json`` per record, and the templates the writer's fast
-path fills to give the same bytes (see :mod:`conformance.recording.layout`)."""
+"""The records of a recording: frames (one by one, :class:`FrameRecord`, or a batch as
+columns, :class:`Frames`), problems, connections and state packets, and the JSON of the
+records the layout writes as JSON (:mod:`conformance.recording.layout`)."""
 
 from __future__ import annotations
 
 import base64
 import contextlib
-import json
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from bisect import bisect_right
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
-from itertools import accumulate, repeat
-from typing import Any, Literal, NamedTuple, Protocol
+from itertools import accumulate, pairwise, repeat
+from typing import Any, Literal, Protocol
 
 from ..protocol.frame import Frame, Malformed
 from .layout import PROBLEM_RAW_LIMIT, DirectionText
 
 __all__ = [
     "ConnectionRecord",
-    "FrameBatch",
     "FrameRecord",
+    "Frames",
     "ProblemRecord",
     "Record",
     "RecordSink",
     "StateRecord",
+    "Stream",
+    "problem_records",
 ]
 
 
@@ -30,26 +32,9 @@ def _b64(raw: bytes) -> str:
     return base64.b64encode(raw).decode("ascii")
 
 
-#: ``json.dumps(s, ensure_ascii=False)`` for one string (the C encoder), quotes included.
-_json_str: Callable[[str], str] = json.encoder.encode_basestring  # type: ignore[attr-defined]
-
-#: A batch message as ``FrameBatch.to_json`` dumped compactly (the recorder's fast path):
-#: same keys, same order, same separators; the parts are passed already JSON-encoded.
-_BATCH_JSON = (
-    '{"conn":%d,"transport":%s,"dir":"%s","cnt":%s,"cmd_id":%s,"name":%s,"data":%s,"len":%s,'
-    '"offset":%s,%s"complete_ns":%s,"size":%s,%s"raw":"%s"}'
-)
-
-#: The same for a batch of one frame.
-_ONE_JSON = (
-    '{"conn":%d,"transport":%s,"dir":"%s","cnt":[%d],"cmd_id":[%d],"name":[%s],"data":[%s],'
-    '"len":[%d],"offset":[%d],%s"complete_ns":[%d],"size":[%d],%s"raw":"%s"}'
-)
-
-
 @dataclass(frozen=True, kw_only=True)
 class FrameRecord:
-    """One recorded frame (topic ``/fairino/c2s`` or ``/fairino/s2c``)."""
+    """One recorded frame (a row of a ``/fairino/frames`` batch: :class:`Frames`)."""
 
     conn: int
     dir: DirectionText
@@ -119,201 +104,137 @@ class FrameRecord:
         )
 
 
-#: FrameBatch's columns of one value a frame (all but raw and problems), in order.
-_COLUMNS = (
-    "cnts",
-    "cmd_ids",
-    "names",
-    "datas",
-    "lengths",
-    "offsets",
-    "first_ns",
-    "complete_ns",
-    "sizes",
-)
+#: A stream of a recording: a connection, its transport and a direction.
+Stream = tuple[int, str, DirectionText]
 
 
-class FrameBatch(NamedTuple):
-    """Frames one after the other on one connection and direction, as columns: one
-    ``fairino.Frames`` message (see :mod:`conformance.recording.layout`).  Frame *k*'s
-    bytes are the ``sizes[k]`` bytes of ``raw`` after those of frames 0 to *k*-1."""
+@dataclass(frozen=True)
+class Frames:
+    """Frames of any streams, in the order they were recorded, as columns: one
+    ``fairino.Traffic`` message (:mod:`conformance.recording.layout`), what the recorder
+    writes and the reader reads.
 
-    conn: int
-    transport: str
-    dir: DirectionText
-    cnts: Sequence[int]
-    cmd_ids: Sequence[int]
-    names: Sequence[str | None]
-    datas: Sequence[str]
-    lengths: Sequence[int]
-    offsets: Sequence[int]
+    Frame *k* is of stream ``streams[stream[k]]`` (connection, transport, direction); its
+    bytes are the ``size[k]`` bytes of ``raw`` after those of frames 0 to *k*-1.  The number
+    columns are any sequence of ints (lists as the recorder builds them, numpy arrays as
+    the reader decodes them)."""
+
+    streams: Sequence[Stream]
+    stream: Sequence[int]
+    cnt: Sequence[int]
+    cmd_id: Sequence[int]
+    name: Sequence[str | None]
+    data: Sequence[str]
+    length: Sequence[int]
+    offset: Sequence[int]
     first_ns: Sequence[int]
     complete_ns: Sequence[int]
-    sizes: Sequence[int]
-    raw: bytes
-    #: Each frame's problems; None when no frame of the batch has any.
+    size: Sequence[int]
+    raw: bytes = field(repr=False)
+    #: Each frame's framing problems (the decoder's rules); None when no frame has any.
     problems: Sequence[Sequence[str]] | None = None
 
+    def __len__(self) -> int:
+        return len(self.cnt)
+
     @classmethod
-    def of(cls, records: Sequence[FrameRecord]) -> FrameBatch:
-        """The batch of ``records`` (all of one connection and direction)."""
-        r0 = records[0]
-        probs = [list(r.problems) for r in records]
+    def of(cls, records: Sequence[FrameRecord]) -> Frames:
+        """The batch of ``records``, in their order."""
+        table: dict[Stream, int] = {}
+        stream = [table.setdefault((r.conn, r.transport, r.dir), len(table)) for r in records]
+        probs = [tuple(r.problems) for r in records]
         return cls(
-            conn=r0.conn,
-            transport=r0.transport,
-            dir=r0.dir,
-            cnts=[r.cnt for r in records],
-            cmd_ids=[r.cmd_id for r in records],
-            names=[r.name for r in records],
-            datas=[r.data for r in records],
-            lengths=[
+            streams=list(table),
+            stream=stream,
+            cnt=[r.cnt for r in records],
+            cmd_id=[r.cmd_id for r in records],
+            name=[r.name for r in records],
+            data=[r.data for r in records],
+            length=[
                 r.length if r.length is not None else len(r.data.encode("utf-8")) for r in records
             ],
-            offsets=[r.offset for r in records],
+            offset=[r.offset for r in records],
             first_ns=[r.first_ns or r.complete_ns for r in records],
             complete_ns=[r.complete_ns for r in records],
-            sizes=[len(r.raw) for r in records],
+            size=[len(r.raw) for r in records],
             raw=b"".join(r.raw for r in records),
             problems=probs if any(probs) else None,
         )
 
+    def pieces(self, most_frames: int, most_bytes: int) -> list[Frames]:
+        """The batch cut into batches of at most ``most_frames`` frames and ``most_bytes``
+        bytes (a frame larger alone), in order; the batch itself when it fits."""
+        n = len(self)
+        if n <= most_frames and len(self.raw) <= most_bytes:
+            return [self]
+        ends = list(accumulate(map(int, self.size), initial=0))
+        cuts = [0]
+        while cuts[-1] < n:
+            a = cuts[-1]
+            # The most frames from a whose bytes fit (one at least), at most most_frames.
+            b = bisect_right(ends, ends[a] + most_bytes, a + 1, min(n, a + most_frames) + 1) - 1
+            cuts.append(max(b, a + 1))
+        return [
+            Frames(
+                streams=self.streams,
+                stream=self.stream[a:b],
+                cnt=self.cnt[a:b],
+                cmd_id=self.cmd_id[a:b],
+                name=self.name[a:b],
+                data=self.data[a:b],
+                length=self.length[a:b],
+                offset=self.offset[a:b],
+                first_ns=self.first_ns[a:b],
+                complete_ns=self.complete_ns[a:b],
+                size=self.size[a:b],
+                raw=self.raw[ends[a] : ends[b]],
+                problems=self.problems[a:b] if self.problems is not None else None,
+            )
+            for a, b in pairwise(cuts)
+        ]
+
     def records(self) -> list[FrameRecord]:
-        """The batch as one :class:`FrameRecord` per frame."""
-        out = []
-        starts = accumulate(self.sizes, initial=0)
+        """The batch as one :class:`FrameRecord` per frame, in order."""
+        streams = self.streams
+        sizes = [int(x) for x in self.size]
+        ends = list(accumulate(sizes))
+        raw = self.raw
+        raws = list(map(raw.__getitem__, map(slice, [0, *ends[:-1]], ends)))
         probs = self.problems if self.problems is not None else repeat(())
-        for cnt, cmd_id, name, data, length, offset, first, complete, start, size, pr in zip(
-            self.cnts,
-            self.cmd_ids,
-            self.names,
-            self.datas,
-            self.lengths,
-            self.offsets,
+        out = []
+        for s, cnt, cmd_id, name, data, length, offset, first, complete, r, pr in zip(
+            self.stream,
+            self.cnt,
+            self.cmd_id,
+            self.name,
+            self.data,
+            self.length,
+            self.offset,
             self.first_ns,
             self.complete_ns,
-            starts,
-            self.sizes,
+            raws,
             probs,
-            strict=False,  # starts has one more, repeat() no end
+            strict=False,  # probs: repeat() when no frame has a problem
         ):
+            conn, transport, direction = streams[int(s)]
             out.append(
                 FrameRecord(
-                    conn=self.conn,
-                    transport=self.transport,
-                    dir=self.dir,
-                    cnt=cnt,
-                    cmd_id=cmd_id,
+                    conn=conn,
+                    transport=transport,
+                    dir=direction,
+                    cnt=int(cnt),
+                    cmd_id=int(cmd_id),
                     name=name,
                     data=data,
-                    length=length,
-                    raw=self.raw[start : start + size],
+                    length=int(length),
+                    raw=r,
                     problems=tuple(pr),
-                    offset=offset,
-                    first_ns=first,
-                    complete_ns=complete,
+                    offset=int(offset),
+                    first_ns=int(first),
+                    complete_ns=int(complete),
                 )
             )
         return out
-
-    def to_json(self) -> dict[str, Any]:
-        doc: dict[str, Any] = {
-            "conn": self.conn,
-            "transport": self.transport,
-            "dir": self.dir,
-            "cnt": list(self.cnts),
-            "cmd_id": list(self.cmd_ids),
-            "name": list(self.names),
-            "data": list(self.datas),
-            "len": list(self.lengths),
-            "offset": list(self.offsets),
-        }
-        if list(self.first_ns) != list(self.complete_ns):
-            doc["first_ns"] = list(self.first_ns)
-        doc["complete_ns"] = list(self.complete_ns)
-        doc["size"] = list(self.sizes)
-        if self.problems is not None:
-            doc["problems"] = [list(p) for p in self.problems]
-        doc["raw"] = _b64(self.raw)
-        return doc
-
-    @classmethod
-    def from_json(cls, d: Mapping[str, Any]) -> FrameBatch:
-        """A batch as read back; columns of different lengths or a ``raw`` that does not
-        hold the sizes are a ``ValueError`` (the reader skips such a message)."""
-        n = len(d["cnt"])
-        complete = d["complete_ns"]
-        names = d.get("name", [None] * n)
-        first = d.get("first_ns", complete)
-        cols = (d["cmd_id"], names, d["data"], d["len"], d["offset"], first, complete, d["size"])
-        problems = d.get("problems")
-        if any(len(c) != n for c in cols) or (problems is not None and len(problems) != n):
-            raise ValueError("columns of different lengths")
-        raw = base64.b64decode(d["raw"])
-        if sum(d["size"]) != len(raw):
-            raise ValueError("sizes do not add up to raw")
-        return cls(
-            conn=d["conn"],
-            transport=d.get("transport", "tcp"),
-            dir=d["dir"],
-            cnts=d["cnt"],
-            cmd_ids=d["cmd_id"],
-            names=names,
-            datas=d["data"],
-            lengths=d["len"],
-            offsets=d["offset"],
-            first_ns=first,
-            complete_ns=complete,
-            sizes=d["size"],
-            raw=raw,
-            problems=problems,
-        )
-
-
-class _JsonStrings(dict[str | None, str]):
-    """JSON text of strings, made once each (command names, transports: a few)."""
-
-    def __missing__(self, key: str | None) -> str:
-        text = self[key] = "null" if key is None else _json_str(key)
-        return text
-
-
-#: RecordingWriter.write_frame's fields: conn, transport, dir, cnt, cmd_id, name, data,
-#: len, offset, first_ns, complete_ns, raw, problems.
-_OneFrame = tuple[
-    int, str, DirectionText, int, int, str | None, str, int, int, int, int, bytes, list[str] | None
-]
-
-
-def _batch_of_one(f: _OneFrame) -> FrameBatch:
-    conn, transport, direction, cnt, cmd_id, name, data, length, offset, first, complete = f[:11]
-    return FrameBatch(
-        conn,
-        transport,
-        direction,
-        [cnt],
-        [cmd_id],
-        [name],
-        [data],
-        [length],
-        [offset],
-        [first],
-        [complete],
-        [len(f[11])],
-        f[11],
-        [f[12]] if f[12] is not None else None,
-    )
-
-
-def _json_ints(xs: Sequence[int]) -> str:
-    """``json.dumps(list(xs), separators=(",", ":"))`` for ints, without the encoder's
-    set-up per call (about 1.5 us: a batch message has a dozen columns)."""
-    return "[" + ",".join(map(str, xs)) + "]"
-
-
-def _json_strs(xs: Sequence[str]) -> str:
-    """The same for strings (``ensure_ascii=False``)."""
-    return "[" + ",".join(map(_json_str, xs)) + "]"
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -482,7 +403,13 @@ Record = FrameRecord | ProblemRecord | ConnectionRecord | StateRecord
 
 
 class RecordSink(Protocol):
-    """Where a :class:`StreamRecorder` puts its records."""
+    """Where a :class:`~.recorder.StreamRecorder` puts its records: frames a batch at a
+    time, anything else a record at a time (:class:`~.writer.RecordingWriter`)."""
+
+    #: The bytes of frames one batch should hold at most.
+    batch_bytes: int
+
+    def write_frames(self, frames: Frames) -> None: ...
 
     def write(self, record: Record) -> None: ...
 

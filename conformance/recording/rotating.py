@@ -7,10 +7,9 @@ import os
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
 
-from .records import FrameBatch, Record
-from .traffic_pb import Mixed
+from .layout import BATCH_BYTES
+from .records import Frames, Record
 from .writer import RecordingWriter
 
 __all__ = ["RotatingWriter", "segment_path"]
@@ -76,11 +75,11 @@ class RotatingWriter:
         # its message indexes), the chunks so far, and what closing a file adds.
         self._seen = self._step = self._chunks = 0
         self._closing = _close_cost(self.metadata) if split_size is not None else 0
-        # Holders (RecordingWriter.hold), registered with each segment's writer; and
-        # whether a call into the writer is under way (a holder drained by it must not
-        # start the next file under it: that call's own size check follows).
-        self._holders: list[Callable[[], None]] = []
-        self._busy = False
+        #: The largest batch of frames a file takes in one message (the recorder cuts its
+        #: batches so): a chunk, by size, so that a file ends within ``split_size``.
+        self.batch_bytes = (
+            BATCH_BYTES if split_size is None else min(1 << 20, split_size // CHUNKS_PER_SPLIT)
+        )
         self._writer = self._open()
 
     @property
@@ -94,51 +93,20 @@ class RotatingWriter:
         md = dict(self.metadata, segment=str(self._segment))
         self._opened = self._clock()
         if self.split_size is None:
-            return self._held_by(RecordingWriter(path, metadata=md))
-        chunk = min(1 << 20, self.split_size // CHUNKS_PER_SPLIT)
-        w = RecordingWriter(path, metadata=md, chunk_size=chunk, batch_bytes=chunk)
+            return RecordingWriter(path, metadata=md)
+        w = RecordingWriter(path, metadata=md, chunk_size=self.batch_bytes)
         self._seen, self._chunks = w.tell(), 0
-        return self._held_by(w)
-
-    def _held_by(self, w: RecordingWriter) -> RecordingWriter:
-        for drain in self._holders:
-            w.hold(drain)
         return w
 
-    def hold(self, drain: Callable[[], None]) -> None:
-        """:meth:`RecordingWriter.hold`, for this segment's writer and the next ones."""
-        if drain not in self._holders:
-            self._holders.append(drain)
-            self._writer.hold(drain)
-
-    def write_mixed(self, m: Mixed) -> None:
-        """:meth:`RecordingWriter.write_mixed` on the current segment."""
-        self._writer.write_mixed(m)
-        if self.split_size is not None and not self._busy and self._writer.tell() != self._seen:
-            self._grew()
-
     def write(self, record: Record) -> None:
-        self._busy = True
-        try:
-            self._writer.write(record)
-        finally:
-            self._busy = False
+        """:meth:`RecordingWriter.write` on the current segment."""
+        self._writer.write(record)
         if self.split_size is not None and self._writer.tell() != self._seen:
             self._grew()
 
-    def write_frames(self, batch: FrameBatch) -> None:
+    def write_frames(self, frames: Frames) -> None:
         """:meth:`RecordingWriter.write_frames` on the current segment."""
-        self._busy = True
-        try:
-            self._writer.write_frames(batch)
-        finally:
-            self._busy = False
-        if self.split_size is not None and self._writer.tell() != self._seen:
-            self._grew()
-
-    def write_frame(self, *fields: Any) -> None:
-        """:meth:`RecordingWriter.write_frame` on the current segment."""
-        self._writer.write_frame(*fields)
+        self._writer.write_frames(frames)
         if self.split_size is not None and self._writer.tell() != self._seen:
             self._grew()
 
@@ -157,11 +125,7 @@ class RotatingWriter:
     def _next(self) -> None:
         """Close this file and open the next; what the close took teaches the next check."""
         before = self._writer.tell()
-        self._busy = True
-        try:
-            self._writer.close()
-        finally:
-            self._busy = False
+        self._writer.close()
         took = self._writer.tell() - before - CHUNK_INDEX_BYTES * self._chunks
         self._closing = max(self._closing, took)
         self._writer = self._open()
@@ -171,11 +135,7 @@ class RotatingWriter:
         return self._writer.messages
 
     def flush(self) -> None:
-        self._busy = True
-        try:
-            self._writer.flush()
-        finally:
-            self._busy = False
+        self._writer.flush()
         self.maybe_rotate()
 
     def maybe_rotate(self) -> None:
@@ -189,5 +149,4 @@ class RotatingWriter:
             self._next()
 
     def close(self) -> None:
-        self._busy = True
         self._writer.close()

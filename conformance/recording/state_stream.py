@@ -17,11 +17,12 @@ one packet, or one garbage run of at most 64 KiB.
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Callable
 
 from ..protocol.state import StatePacket, StateProblem, StateProblemKind
 from ..spec.state import state_decoder as _Decoder
 from .layout import C2S, PROBLEM_RAW_LIMIT, S2C, STATE_KIND, DirectionText
-from .records import ProblemRecord, RecordSink, StateRecord
+from .records import ProblemRecord, Record, StateRecord
 
 __all__ = ["CLIENT_BYTES", "StateStream"]
 
@@ -34,9 +35,15 @@ class StateStream:
     """The records of one state connection (see the module docstring)."""
 
     def __init__(
-        self, sink: RecordSink, conn: int, *, transport: str = "tcp", version: str | None = None
+        self,
+        write: Callable[[Record], None],
+        conn: int,
+        *,
+        transport: str = "tcp",
+        version: str | None = None,
     ) -> None:
-        self.sink = sink
+        #: Where the records go (the recorder's :meth:`~.recorder.StreamRecorder.write`).
+        self.write = write
         self.conn = conn
         self.transport = transport
         self.version = version
@@ -100,7 +107,7 @@ class StateStream:
         else:
             self.close(t_ns)
             at = self.pending_at
-        self.sink.write(
+        self.write(
             ProblemRecord(
                 conn=self.conn,
                 transport=self.transport,
@@ -168,7 +175,7 @@ class StateStream:
             if isinstance(ev, StatePacket):
                 self._drop(offset + len(ev.raw))
                 self.packets += 1
-                self.sink.write(
+                self.write(
                     StateRecord(
                         conn=self.conn,
                         transport=self.transport,
@@ -196,7 +203,7 @@ class StateStream:
                 self._kept(S2C, kind.value, ev.detail, offset, raw, first, t_ns)
                 continue
             self.problems += 1
-            self.sink.write(
+            self.write(
                 ProblemRecord(
                     conn=self.conn,
                     transport=self.transport,
@@ -226,7 +233,7 @@ class StateStream:
         for k in range(parts):
             piece = raw[k * PROBLEM_RAW_LIMIT : (k + 1) * PROBLEM_RAW_LIMIT]
             self.problems += 1
-            self.sink.write(
+            self.write(
                 ProblemRecord(
                     conn=self.conn,
                     transport=self.transport,

@@ -7,6 +7,7 @@ from collections import deque
 from dataclasses import dataclass
 
 from ..protocol.decoder import FrameDecoder
+from .records import Stream
 from .state_stream import StateStream
 
 __all__ = ["_TIMELINE_MAX", "_Conn", "_Stream"]
@@ -23,7 +24,7 @@ class _Stream:
 
     __slots__ = ("base", "bytes", "decoder", "frames", "key", "last_ns", "raw", "timeline")
 
-    def __init__(self, max_frame_size: int, key: tuple[int, str, str]) -> None:
+    def __init__(self, max_frame_size: int, key: Stream) -> None:
         #: (connection, transport, direction): the stream's row in a layout-4 batch.
         self.key = key
         self.decoder = FrameDecoder(max_frame_size=max_frame_size)

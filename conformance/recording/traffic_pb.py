@@ -2,15 +2,12 @@
 connections and directions in the order they were recorded (no protobuf library at run
 time).
 
-Layout 3's ``fairino.Frames`` holds the frames of one connection and direction, so
-request/reply traffic, whose directions alternate frame by frame, made a message a frame
-(``mcap.Writer.add_message``, a message index entry and a protobuf head each).  Here a
-small table of the message's streams (a connection, its transport and a direction: the
+A small table of the message's streams (a connection, its transport and a direction: the
 columns ``stream_conn``, ``stream_transport``, ``stream_dir``) and a column ``stream``
-(each frame's row in that table) let one message hold thousands of frames whatever
-their streams; the writer cuts batches by count, bytes and its flush, never by
-direction.  Every other field is layout 3's, with its number, so the two read alike.
-In ``.proto`` terms::
+(each frame's row in that table) let one message hold thousands of frames whatever their
+streams; the writer cuts batches by count, bytes and its flush, never by direction.  The
+columns are packed fixed-width integers that the recorder writes and a reader reads as
+arrays (``array.tobytes``, ``numpy.frombuffer``), not JSON text.  In ``.proto`` terms::
 
     syntax = "proto3";
     package fairino;
@@ -36,35 +33,26 @@ In ``.proto`` terms::
     }
 
 The decoder reads any valid protobuf of this message (fields in any order, a packed
-column in several pieces or unpacked, unknown fields skipped) and checks what layout 3's
-checks, and that the stream table's three columns have one length and each frame's
-``stream`` is a row of it; whatever does not read or fit is a ``ValueError`` saying what,
-never another exception (the reader skips and names the message).
+column in several pieces or unpacked, unknown fields skipped) and checks that every
+per-frame column has one length, integers and times are in range (:data:`~.layout.INT_MAX`,
+:data:`~.layout.TIME_MAX`), ``raw`` and ``data`` hold their sizes, names, problems and
+streams point where they may; whatever does not read or fit is a ``ValueError`` saying
+what, never another exception (the reader skips and names the message).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from itertools import accumulate, chain, repeat
+import sys
+from array import array
+from collections.abc import Iterable, Mapping, Sequence
+from itertools import accumulate
 from typing import Any, NamedTuple
 
-from .frames_pb import _column, _encode_data, _encode_names
-from .layout import INT_MAX, DirectionText
-from .pb_frames import as_list as _list
-from .pb_frames import checks, column_bytes, cut_datas, high, parse, read_frames, strings, values
-from .pb_wire import descriptor_set
-from .pb_wire import field as _field
-from .records import FrameBatch, FrameRecord, _OneFrame
+from .layout import INT_MAX, TIME_MAX, DirectionText
+from .pb_wire import I32, I64, LEN, VARINT, descriptor_set, field, read_varint, tag, varint
+from .records import Frames, Stream
 
-__all__ = [
-    "FIELDS",
-    "FILE_DESCRIPTOR_SET",
-    "SCHEMA_NAME",
-    "TrafficColumns",
-    "decode_records",
-    "decode_traffic",
-    "encode_traffic",
-]
+__all__ = ["FIELDS", "FILE_DESCRIPTOR_SET", "SCHEMA_NAME", "decode_traffic", "encode_traffic"]
 
 SCHEMA_NAME = "fairino.Traffic"
 
@@ -95,29 +83,26 @@ _STRINGS = {number: name for name, number, kind, _ in FIELDS if kind in ("string
 #: The MCAP schema's data for ``fairino.Traffic`` (schema encoding ``protobuf``).
 FILE_DESCRIPTOR_SET = descriptor_set("fairino/traffic.proto", "fairino", "Traffic", FIELDS)
 
+_BIG = sys.byteorder == "big"
+
 # -- encoding
 
 
-class Mixed(NamedTuple):
-    """Frames of several streams as columns (the recorder's reads of a frame each, read
-    together): the streams' (connection, transport, direction) and each frame's index
-    among them; first and complete time are the same, no frame has problems."""
-
-    streams: Sequence[tuple[int, str, str]]
-    stream: Sequence[int]
-    cnts: Sequence[int]
-    cmd_ids: Sequence[int]
-    names: Sequence[str | None]
-    datas: Sequence[str]
-    lengths: Sequence[int]
-    offsets: Sequence[int]
-    times: Sequence[int]
-    raws: Sequence[bytes]
+def _u64(values: Iterable[int]) -> bytes:
+    """Little-endian unsigned 64-bit values, in C (``array``)."""
+    try:
+        a = array("Q", values)
+    except (OverflowError, TypeError) as e:  # a negative or non-integer value: ours
+        raise ValueError(f"a column holds a value that is not a 64-bit count: {e}") from None
+    if _BIG:  # pragma: no cover - the wire is little-endian
+        a.byteswap()
+    return a.tobytes()
 
 
-#: What the writer holds between two messages: a run of lone frames (write_frame's
-#: fields), a batch of one stream (a pipelined read), or frames read together.
-Part = list[_OneFrame] | FrameBatch | Mixed
+def _column(number: int, values: Iterable[int]) -> bytes:
+    packed = _u64(values)
+    return tag(number, LEN) + varint(len(packed)) + packed
+
 
 _TEXT_FIELD: dict[tuple[int, str], bytes] = {}
 
@@ -125,254 +110,380 @@ _TEXT_FIELD: dict[tuple[int, str], bytes] = {}
 def _text_field(number: int, text: str) -> bytes:
     got = _TEXT_FIELD.get((number, text))
     if got is None:
-        got = _field(number, text.encode("utf-8", "surrogatepass"))
+        got = field(number, text.encode("utf-8", "surrogatepass"))
         if len(_TEXT_FIELD) < 64:
             _TEXT_FIELD[number, text] = got
     return got
 
 
-def encode_traffic(parts: Sequence[Part]) -> tuple[bytes, int, int]:
-    """The frames of ``parts``, in order, as one ``fairino.Traffic`` message, with its
-    MCAP log time (the latest ``complete_ns``) and publish time (the earliest
-    ``first_ns``); a ``ValueError`` for a negative number.  Nothing in ``parts`` is
-    changed."""
-    table: dict[tuple[int, str, str], int] = {}
-    stream: list[int] = []
-    cnts: list[int] = []
-    ids: list[int] = []
-    names: list[str | None] = []
-    datas: list[str] = []
-    lens: list[int] = []
-    offsets: list[int] = []
-    firsts: list[int] = []
-    completes: list[int] = []
-    sizes: list[int] = []
-    raws: list[bytes] = []
-    problems: list[Sequence[str] | None] = []
-    c: Sequence[int]
-    i: Sequence[int]
-    nm: Sequence[str | None]
-    d: Sequence[str]
-    ln: Sequence[int]
-    o: Sequence[int]
-    f: Sequence[int]
-    t: Sequence[int]
-    for p in parts:
-        if type(p) is list:
-            # The rows' fields one after the other, each column a slice of them by
-            # stride: a copy of references in C (zip(*rows) steps an iterator a row).
-            flat: list[Any] = list(chain.from_iterable(p))
-            if len(flat) != 13 * len(p):
-                raise ValueError("a held frame has not the 13 fields of write_frame")
-            conns, transports, dirs, c, i, nm, d, ln, o, f, t, r, pr = (
-                flat[k::13] for k in range(13)
-            )
-            keys = list(zip(conns, transports, dirs, strict=True))
-            for key in dict.fromkeys(keys):
-                table.setdefault(key, len(table))
-            stream += map(table.__getitem__, keys)
-            sizes += map(len, r)
-            raws += r
-            problems += pr
-        elif type(p) is Mixed:
-            n = len(p.cnts)
-            remap = [table.setdefault(k, len(table)) for k in p.streams]
-            stream += map(remap.__getitem__, p.stream)
-            c, i, nm, d, ln, o = p.cnts, p.cmd_ids, p.names, p.datas, p.lengths, p.offsets
-            f = t = p.times
-            sizes += map(len, p.raws)
-            raws += p.raws
-            problems += repeat(None, n)
-        else:
-            assert isinstance(p, FrameBatch)
-            n = len(p.cnts)
-            stream += repeat(table.setdefault((p.conn, p.transport, p.dir), len(table)), n)
-            c, i, nm, d = p.cnts, p.cmd_ids, p.names, p.datas
-            ln, o, f, t = p.lengths, p.offsets, p.first_ns, p.complete_ns
-            sizes += p.sizes
-            raws.append(p.raw)
-            problems += p.problems if p.problems is not None else repeat(None, n)
-        cnts += c
-        ids += i
-        names += nm
-        datas += d
-        lens += ln
-        offsets += o
-        firsts += f
-        completes += t
-    data, data_sizes = _encode_data(datas)
-    complete = _column(13, completes)
-    streams = list(table)
+def _encode_data(datas: Sequence[str]) -> tuple[bytes, Sequence[int]]:
+    text = "".join(datas)
+    data = text.encode("utf-8", "surrogatepass")
+    if len(data) == len(text):  # ASCII: a character a byte
+        return data, list(map(len, datas))
+    return data, [len(d.encode("utf-8", "surrogatepass")) for d in datas]
+
+
+def _encode_names(names: Sequence[str | None]) -> bytes:
+    distinct = [n for n in dict.fromkeys(names) if n is not None]
+    if not distinct:
+        return b""
+    index: dict[str | None, int] = {None: 0}
+    parts = []
+    for k, n in enumerate(distinct, 1):
+        index[n] = k
+        parts.append(field(6, n.encode("utf-8", "surrogatepass")))
+    parts.append(_column(7, map(index.__getitem__, names)))
+    return b"".join(parts)
+
+
+def _encode_problems(problems: Sequence[Sequence[str]]) -> bytes:
+    frames = [k for k, ps in enumerate(problems) if ps for _ in ps]
+    if not frames:
+        return b""
+    return _column(16, frames) + b"".join(
+        field(17, p.encode("utf-8", "surrogatepass")) for ps in problems if ps for p in ps
+    )
+
+
+def encode_traffic(f: Frames) -> tuple[bytes, int, int]:
+    """The frames of ``f`` as one ``fairino.Traffic`` message, with its MCAP log time (the
+    latest ``complete_ns``) and publish time (the earliest ``first_ns``); a ``ValueError``
+    for a negative number."""
+    data, data_sizes = _encode_data(f.data)
+    streams = f.streams
+    firsts, completes = f.first_ns, f.complete_ns
+    same_times = firsts is completes or list(firsts) == list(completes)
     msg = b"".join(
         (
             _column(1, [s[0] for s in streams]),
             *[_text_field(2, s[1]) for s in streams],
             *[_text_field(3, s[2]) for s in streams],
-            _column(4, cnts),
-            _column(5, ids),
-            _encode_names(names),
-            _field(8, data),
+            _column(4, f.cnt),
+            _column(5, f.cmd_id),
+            _encode_names(f.name),
+            field(8, data),
             _column(9, data_sizes),
-            _column(10, lens),
-            _column(11, offsets),
-            b"" if firsts == completes else _column(12, firsts),
-            complete,
-            _column(14, sizes),
-            _field(15, b"".join(raws)),
-            b"" if problems.count(None) == len(problems) else _encode_problems(problems),
-            _column(18, stream) if len(streams) > 1 else b"",
+            _column(10, f.length),
+            _column(11, f.offset),
+            b"" if same_times else _column(12, firsts),
+            _column(13, completes),
+            _column(14, f.size),
+            field(15, f.raw),
+            b"" if f.problems is None else _encode_problems(f.problems),
+            _column(18, f.stream) if len(streams) > 1 else b"",
         )
     )
     return msg, max(completes, default=0), min(firsts, default=0)
 
 
-def _encode_problems(problems: Sequence[Sequence[str] | None]) -> bytes:
-    frames = [k for k, ps in enumerate(problems) if ps for _ in ps]
-    if not frames:
-        return b""
-    return _column(16, frames) + b"".join(
-        _field(17, p.encode("utf-8", "surrogatepass")) for ps in problems if ps for p in ps
-    )
-
-
 # -- decoding
 
+#: A check of a number column: (field number, name, largest value, may be absent, one
+#: value a frame).
+_Check = tuple[int, str, int, bool, bool]
 
-class TrafficColumns(NamedTuple):
-    """One ``fairino.Traffic`` message as read: the number columns as numpy ``uint64``
-    arrays or lists of ints (checked: every value at most 2^63 - 1, times before 2106),
-    the stream table and the rest as Python values.  Frame *k* is of connection
-    ``stream_conn[stream[k]]``, and so on."""
+#: The frame columns that may be absent from a message (first_ns: complete_ns stands
+#: for it; name: no names; problem_frame: no problems; stream: every frame of stream 0).
+_OPTIONAL = ("first_ns", "name", "problem_frame", "stream")
 
-    stream_conn: list[int]
-    stream_transport: list[str]
-    stream_dir: list[DirectionText]
-    #: Each frame's row in the stream table.
-    stream: Any
-    cnt: Any
-    cmd_id: Any
-    length: Any
-    offset: Any
-    first_ns: Any
-    complete_ns: Any
-    size: Any
-    data_size: Any
-    #: Each frame's command name (None: none).
+#: The checks of the number columns past ``cnt`` (field 4), by field number.
+_CHECKS: tuple[_Check, ...] = tuple(
+    (
+        number,
+        name,
+        TIME_MAX if name.endswith("_ns") else INT_MAX,
+        name in _OPTIONAL,
+        name != "problem_frame",  # a value a problem
+    )
+    for number, name in sorted(_COLUMNS.items())
+    if number > 4
+)
+
+
+def _parse(
+    buf: bytes,
+    columns: Mapping[int, str],
+    strings: Mapping[int, str],
+    varints: Mapping[int, str],
+) -> tuple[dict[int, int], dict[int, list[bytes]]]:
+    """A message's ``varints`` fields' values and its ``columns`` (packed or single
+    fixed64) and ``strings`` fields' pieces by number, in order; unknown fields skipped,
+    a known one of the wrong wire type a ``ValueError`` (an ``IndexError`` when the
+    message ends inside a field's head)."""
+    n = len(buf)
+    i = 0
+    values: dict[int, int] = {}
+    pieces: dict[int, list[bytes]] = {}
+    while i < n:
+        key = buf[i]
+        i += 1
+        if key >= 0x80:
+            key, i = read_varint(buf, i - 1)
+        number, wire = key >> 3, key & 7
+        if wire == LEN:
+            size = buf[i]
+            i += 1
+            if size >= 0x80:
+                size, i = read_varint(buf, i - 1)
+            end = i + size
+            if end > n:
+                raise ValueError(f"field {number} runs {end - n} bytes past the message's end")
+            piece = buf[i:end]
+            i = end
+        elif wire == VARINT:
+            value, i = read_varint(buf, i)
+            if number in varints:
+                values[number] = value
+                continue
+            piece = b""
+        elif wire == I64:
+            end = i + 8
+            if end > n:
+                raise ValueError(f"field {number} runs past the message's end")
+            piece = buf[i:end]
+            i = end
+        elif wire == I32:
+            i += 4
+            if i > n:
+                raise ValueError(f"field {number} runs past the message's end")
+            piece = b""
+        else:
+            raise ValueError(f"field {number} has wire type {wire}, which protobuf has not")
+        if number in columns:
+            if wire != LEN and wire != I64:
+                raise ValueError(f"{columns[number]} has wire type {wire}, not fixed64's")
+        elif number in strings:
+            if wire != LEN:
+                raise ValueError(f"{strings[number]} has wire type {wire}, not a string's")
+        elif number in varints:
+            raise ValueError(f"{varints[number]} has wire type {wire}, not a varint's")
+        else:
+            continue  # a field this kit does not know: protobuf skips it
+        got = pieces.get(number)
+        if got is None:
+            pieces[number] = [piece]
+        else:
+            got.append(piece)
+    return values, pieces
+
+
+def _column_bytes(pieces: dict[int, list[bytes]], number: int, name: str) -> bytes | None:
+    """A column's packed values as they are (its pieces joined), checked to be whole."""
+    got = pieces.get(number)
+    if not got:
+        return None
+    buf = got[0] if len(got) == 1 else b"".join(got)
+    if len(buf) % 8:
+        raise ValueError(f"{name} holds {len(buf)} bytes, not 8 a value")
+    return buf
+
+
+def _values(buf: bytes, as_array: bool) -> Any:
+    """Packed little-endian 64-bit values as a numpy ``uint64`` array or a list of ints."""
+    if as_array:
+        import numpy as np
+
+        return np.frombuffer(buf, dtype="<u8")
+    if len(buf) == 8:  # a batch of one frame: no array
+        return [int.from_bytes(buf, "little")]
+    a = array("Q")
+    a.frombytes(buf)
+    if _BIG:  # pragma: no cover - the wire is little-endian
+        a.byteswap()
+    return a.tolist()
+
+
+def _high(col: Any) -> int:
+    return max(col) if type(col) is list else int(col.max())
+
+
+def _total(col: Any) -> int:
+    return sum(col) if type(col) is list else int(col.sum())
+
+
+def _as_list(col: Any) -> list[int]:
+    return col if type(col) is list else col.tolist()  # type: ignore[no-any-return]
+
+
+def _strings(pieces: dict[int, list[bytes]], number: int, name: str) -> list[str]:
+    """A repeated string field's values (a ``ValueError`` for one that is not UTF-8)."""
+    try:
+        return [p.decode("utf-8") for p in pieces.get(number, ())]
+    except UnicodeDecodeError:
+        raise ValueError(f"{name} holds text that is not UTF-8") from None
+
+
+class _Columns(NamedTuple):
+    """The frame columns of a message, checked: ``cols`` maps a number column's name to
+    its values (numpy ``uint64`` or a list of ints; None for an absent optional one, but
+    ``first_ns`` is ``complete_ns`` then)."""
+
+    n: int
+    cols: dict[str, Any]
     names: list[str | None]
-    #: The frames' DATA, one after the other (UTF-8), and their bytes.
+    problems: list[list[str]] | None
     data: bytes
     raw: bytes
-    #: Each frame's problems; None when no frame of the batch has any.
-    problems: list[list[str]] | None
 
-    def datas(self) -> list[str]:
-        """Each frame's DATA as text (a ``ValueError`` for DATA that is not UTF-8 where
-        ``data_size`` cuts it)."""
-        return cut_datas(self.data, self.data_size)
 
-    def records(self) -> list[FrameRecord]:
-        """The message's frames as records, in order."""
-        datas = self.datas()
-        stream = _list(self.stream)
-        conns, transports, dirs = self.stream_conn, self.stream_transport, self.stream_dir
-        sizes = _list(self.size)
-        ends = list(accumulate(sizes))
-        raw = self.raw
-        raws = list(map(raw.__getitem__, map(slice, [0, *ends[:-1]], ends)))
-        probs = self.problems if self.problems is not None else repeat([])
+def _read_frames(
+    pieces: dict[int, list[bytes]], checks: tuple[_Check, ...], as_arrays: bool
+) -> _Columns:
+    """The frame columns (``cnt``, field 4, and those ``checks`` names) of a parsed
+    message, checked; a ``ValueError`` saying what does not fit."""
+    cnt = _column_bytes(pieces, 4, "cnt") or b""
+    n = len(cnt) // 8
+    # Every column's bytes one after the other: one array, its columns views of it, and
+    # the ranges checked with one reduction (and one more for the two time columns).
+    order: list[str] = ["cnt"]
+    parts: list[bytes] = [cnt]
+    absent: list[str] = []
+    for number, name, _top, optional, per_frame in checks:
+        col = _column_bytes(pieces, number, name)
+        if col is None:
+            if optional:
+                absent.append(name)
+                continue
+            if n:
+                raise ValueError(f"the message has no {name!r}")
+            col = b""
+        elif per_frame and len(col) != 8 * n:
+            raise ValueError(f"{name} has {len(col) // 8} values for {n} frames")
+        order.append(name)
+        parts.append(col)
+    vals = _values(b"".join(parts), as_arrays)
+    cols: dict[str, Any] = dict.fromkeys(absent)
+    at = 0
+    for name, part in zip(order, parts, strict=True):
+        cols[name] = vals[at : at + len(part) // 8]
+        at += len(part) // 8
+    if len(vals) and _high(vals) > INT_MAX:
+        _name_the_misfit(cols, checks)
+    times = [c for c in (cols["first_ns"], cols["complete_ns"]) if c is not None and len(c)]
+    if times and max(map(_high, times)) > TIME_MAX:
+        _name_the_misfit(cols, checks)
+    raw = pieces.get(15, [b""])[-1]
+    data = pieces.get(8, [b""])[-1]
+    for what, sizes, held in (("raw", cols["size"], raw), ("data", cols["data_size"], data)):
+        # Each size at most the bytes held first: the sum cannot wrap round then.
+        if n and (_high(sizes) > len(held) or _total(sizes) != len(held)):
+            raise ValueError(f"the sizes do not add up to {what} ({len(held)} bytes)")
+        if not n and held:
+            raise ValueError(f"{what} holds {len(held)} bytes for no frame")
+    if cols["first_ns"] is None:
+        cols["first_ns"] = cols["complete_ns"]
+    names = _names(pieces, cols.pop("name"), n)
+    problems = _problems(pieces, cols.pop("problem_frame"), n)
+    return _Columns(n, cols, names, problems, data, raw)
+
+
+def _name_the_misfit(cols: dict[str, Any], checks: tuple[_Check, ...]) -> None:
+    """Raise the ``ValueError`` naming the first column with a value out of its range."""
+    for _number, name, top, _optional, _per in ((4, "cnt", INT_MAX, False, True), *checks):
+        col = cols.get(name)
+        if col is not None and len(col) and _high(col) > top:
+            what = "a time in ns from 1970 to 2106" if top == TIME_MAX else None
+            raise ValueError(
+                f"{name} holds {_high(col)}, not {what or 'a non-negative 64-bit integer'}"
+            )
+    raise ValueError("a column holds a value out of its range")  # pragma: no cover
+
+
+def _names(pieces: dict[int, list[bytes]], index: Any, n: int) -> list[str | None]:
+    table: list[str | None] = [None, *_strings(pieces, 6, "names")]
+    if index is None:
+        return [None] * n
+    if n and _high(index) >= len(table):
+        raise ValueError(f"name holds {_high(index)}, past the {len(table) - 1} names")
+    return list(map(table.__getitem__, _as_list(index)))
+
+
+def _problems(pieces: dict[int, list[bytes]], frames: Any, n: int) -> list[list[str]] | None:
+    texts = _strings(pieces, 17, "problem")
+    if frames is None:
+        if texts:
+            raise ValueError(f"{len(texts)} problems without problem_frame")
+        return None
+    if len(frames) != len(texts):
+        raise ValueError(f"problem_frame has {len(frames)} values for {len(texts)} problems")
+    if not texts:
+        return None
+    if _high(frames) >= n:
+        raise ValueError(f"problem_frame holds {_high(frames)}, past the {n} frames")
+    out: list[list[str]] = [[] for _ in range(n)]
+    for k, p in zip(_as_list(frames), texts, strict=True):
+        out[k].append(p)
+    return out
+
+
+def _cut_datas(data: bytes, data_size: Any) -> list[str]:
+    """Each frame's DATA as text, ``data`` cut by ``data_size`` (a ``ValueError`` for
+    DATA that is not UTF-8 where the cuts fall)."""
+    try:
+        n = len(data_size)
+        if n < 2:
+            return [data.decode("utf-8", "surrogatepass")] if n else []
+        text = data.decode("utf-8", "surrogatepass")
+        ends = list(accumulate(_as_list(data_size)))
+        if len(text) == len(data):  # ASCII: cut the text where the bytes are cut
+            return [text[a:b] for a, b in zip([0, *ends[:-1]], ends, strict=True)]
         return [
-            FrameRecord(
-                conn=conns[s],
-                transport=transports[s],
-                dir=dirs[s],
-                cnt=cnt,
-                cmd_id=cmd_id,
-                name=name,
-                data=data,
-                length=length,
-                raw=r,
-                problems=tuple(pr),
-                offset=offset,
-                first_ns=first,
-                complete_ns=complete,
-            )
-            for s, cnt, cmd_id, name, data, length, offset, first, complete, r, pr in zip(
-                stream,
-                _list(self.cnt),
-                _list(self.cmd_id),
-                self.names,
-                datas,
-                _list(self.length),
-                _list(self.offset),
-                _list(self.first_ns),
-                _list(self.complete_ns),
-                raws,
-                probs,
-                strict=False,  # probs: repeat() when no frame has a problem
-            )
+            data[a:b].decode("utf-8", "surrogatepass")
+            for a, b in zip([0, *ends[:-1]], ends, strict=True)
         ]
+    except UnicodeDecodeError as e:
+        raise ValueError(f"data is not UTF-8 where data_size cuts it: {e}") from None
 
 
-_CHECKS = checks(_COLUMNS)
-
-
-def decode_traffic(buf: bytes, *, as_arrays: bool = True) -> TrafficColumns:
-    """A ``fairino.Traffic`` message's columns; a ``ValueError`` saying what does not
-    read or does not fit (see the module).  ``as_arrays``: the number columns as numpy
+def decode_traffic(buf: bytes, *, as_arrays: bool = True) -> Frames:
+    """A ``fairino.Traffic`` message's frames; a ``ValueError`` saying what does not read
+    or does not fit (see the module).  ``as_arrays``: the number columns as numpy
     ``uint64`` arrays (else lists of ints)."""
     try:
-        _, pieces = parse(buf, _COLUMNS, _STRINGS, {})
+        _, pieces = _parse(buf, _COLUMNS, _STRINGS, {})
     except IndexError:
         raise ValueError("the message ends inside a field") from None
-    conns = values(column_bytes(pieces, 1, "stream_conn") or b"", False)
+    conns = _values(_column_bytes(pieces, 1, "stream_conn") or b"", False)
     if conns and max(conns) > INT_MAX:
         raise ValueError(f"stream_conn holds {max(conns)}, not a non-negative 64-bit integer")
-    transports = strings(pieces, 2, "stream_transport")
-    dir_texts = strings(pieces, 3, "stream_dir")
+    transports = _strings(pieces, 2, "stream_transport")
+    dir_texts = _strings(pieces, 3, "stream_dir")
     m = len(conns)
     if len(transports) != m or len(dir_texts) != m:
         raise ValueError(
             f"the stream table has {m} connections, {len(transports)} transports "
             f"and {len(dir_texts)} directions"
         )
-    for t in transports:
+    streams: list[Stream] = []
+    for conn, t, d in zip(conns, transports, dir_texts, strict=True):
         if t != "tcp" and t != "udp":
             raise ValueError(f"stream_transport holds {t[:40]!r}, not one of tcp, udp")
-    dirs: list[DirectionText] = []
-    for d in dir_texts:
         if d != "c2s" and d != "s2c":
             raise ValueError(f"stream_dir holds {d[:40]!r}, not one of c2s, s2c")
-        dirs.append("c2s" if d == "c2s" else "s2c")
-    f = read_frames(pieces, _CHECKS, as_arrays)
+        direction: DirectionText = "c2s" if d == "c2s" else "s2c"
+        streams.append((conn, t, direction))
+    f = _read_frames(pieces, _CHECKS, as_arrays)
     n, cols = f.n, f.cols
     if n and not m:
         raise ValueError(f"{n} frames and no stream in the stream table")
     stream = cols["stream"]
     if stream is None:
-        stream = values(bytes(8 * n), as_arrays)
-    elif n and high(stream) >= m:
-        raise ValueError(f"stream holds {high(stream)}, past the {m} streams")
-    return TrafficColumns(
-        stream_conn=conns,
-        stream_transport=transports,
-        stream_dir=dirs,
+        stream = _values(bytes(8 * n), as_arrays)
+    elif n and _high(stream) >= m:
+        raise ValueError(f"stream holds {_high(stream)}, past the {m} streams")
+    return Frames(
+        streams=streams,
         stream=stream,
         cnt=cols["cnt"],
         cmd_id=cols["cmd_id"],
+        name=f.names,
+        data=_cut_datas(f.data, cols["data_size"]),
         length=cols["len"],
         offset=cols["offset"],
         first_ns=cols["first_ns"],
         complete_ns=cols["complete_ns"],
         size=cols["size"],
-        data_size=cols["data_size"],
-        names=f.names,
-        data=f.data,
         raw=f.raw,
         problems=f.problems,
     )
-
-
-def decode_records(buf: bytes) -> list[FrameRecord]:
-    """A ``fairino.Traffic`` message's frames as records (a ``ValueError`` for one that
-    does not read or fit)."""
-    return decode_traffic(buf, as_arrays=False).records()
