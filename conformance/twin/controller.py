@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from ..errors import ProtocolError, Rule
 from ..judge.judge import LENIENT, Judge, Verdict
 from ..judge.requests import ERR_ARG_COUNT, ERR_ARG_VALUE, ERR_EXEC_FAILED
-from ..judge.verdict import Outcome, Reference, fails
+from ..judge.verdict import Outcome, Reference
 from ..protocol.data_format import format_number
 from ..protocol.data_parse import parse_reply
 from ..protocol.data_values import Arg, Call, Number, Text
@@ -500,7 +500,7 @@ class Controller:
         d = v.dialect
         if v.outcome is not Outcome.DIALECT or d is None:
             return False
-        if fails(Outcome.DIALECT, self.judge.reference):
+        if v.fails(self.judge.reference):
             return False  # the manual reference: a dialect is refused as the manual would
         return d.kind != "dispatch" or self.dispatch != "off"
 

@@ -8,7 +8,7 @@ from typing import Any
 from ...spec.commands import Command, SpecSet, Variant
 from ...spec.knowledge import derive_pairs, motion_targets
 from ..config import GROUPS, SuiteConfig, select_commands
-from ..runner import Case, SuiteRunner, Verdict
+from ..runner import Case, CaseEnd, SuiteRunner
 from .examples import _run_example
 from .framing import _run_framing
 from .invalid import _invalid_kinds, _run_invalid
@@ -33,7 +33,7 @@ def _case(
     group: str,
     cmd: Command | None,
     what: str,
-    run: Callable[[SuiteRunner, Case], Verdict],
+    run: Callable[[SuiteRunner, Case], CaseEnd],
     variant: Variant | None = None,
     extra: Any = None,
 ) -> Case:

@@ -7,7 +7,7 @@ from ...judge.verdict import Outcome
 from ...net.client import Exchange
 from ...spec.commands import Command, Variant
 from ..evidence import describe_exchange
-from ..runner import Case, CaseFailure, SuiteRunner, Verdict
+from ..runner import Case, CaseEnd, CaseFailure, SuiteRunner
 from ..strategies import BOUNDS, bounds_applies, invalid_call_batches, invalid_kinds
 from .shared import _batched, _notes
 
@@ -19,10 +19,10 @@ _EXPECTED_CODE = {
 }
 
 
-def _run_invalid(runner: SuiteRunner, case: Case) -> Verdict:
+def _run_invalid(runner: SuiteRunner, case: Case) -> CaseEnd:
     cmd, variant = case.command, case.variant
     assert cmd is not None and variant is not None
-    notes: list[Verdict] = []
+    notes: list[CaseEnd] = []
 
     def check(pair: tuple[str, str], ex: Exchange) -> None:
         kind = pair[0]
@@ -39,7 +39,7 @@ def _run_invalid(runner: SuiteRunner, case: Case) -> Verdict:
         if verdict.code != want and not notes:
             form = verdict.form.value if verdict.form else "?"
             notes.append(
-                Verdict(
+                CaseEnd(
                     outcome=Outcome.NON_STRICT,
                     detail=f"refused invalid arguments ({kind}) with {form} {verdict.code}; "
                     f"chapter 9 has code {want} for this",

@@ -23,7 +23,7 @@ from ...judge.verdict import Outcome
 from ...net.client import Exchange
 from ...spec.commands import Variant
 from ..evidence import describe_exchange
-from ..runner import Case, CaseFailure, SuiteRunner, Verdict
+from ..runner import Case, CaseEnd, CaseFailure, SuiteRunner
 from ..strategies import Batch
 
 PROTOCOL_ID = 0
@@ -92,7 +92,7 @@ def _hypothesis(
     n: int,
     strategy: st.SearchStrategy[Any],
     check: Callable[[Any], None],
-) -> Verdict | None:
+) -> CaseEnd | None:
     """Run ``check`` on ``n`` examples; the first failure (shrunk if the profile says) ends it."""
     sticky: list[CaseFailure] = []
 
@@ -119,10 +119,10 @@ def _run_given(
     body: Callable[[Any], None],
     settings: hypothesis.settings,
     sticky: list[CaseFailure],
-) -> Verdict | None:
+) -> CaseEnd | None:
     """Run ``body`` on ``strategy``'s examples under ``settings``, seeded by the case:
-    None when every example passed, SKIPPED when none could be built, else the verdict
-    of the failure (of the sticky one, which later examples re-raise, if any)."""
+    None when every example passed, SKIPPED when none could be built, else how the
+    failure ended the case (of the sticky one, which later examples re-raise, if any)."""
     test = hypothesis.given(strategy)(body)
     # The database is off (see _settings), so the key Hypothesis would derive from
     # the test's source (inspect + ast + tokenize on every case) is never used.
@@ -132,14 +132,14 @@ def _run_given(
     try:
         test()
     except Unsatisfiable:
-        return Verdict(outcome=Outcome.SKIPPED, detail=_UNSATISFIED)
+        return CaseEnd(outcome=Outcome.SKIPPED, detail=_UNSATISFIED)
     except BaseException as e:
         f = _failure_in(e)
         if f is None:
             raise
         if sticky and f is not sticky[0]:
-            return sticky[0].verdict
-        return f.verdict
+            return sticky[0].end
+        return f.end
     return None
 
 
@@ -163,7 +163,7 @@ def _batched(
     data: Callable[[T], str],
     check: Callable[[T, Exchange], None],
     usable: Callable[[T], bool],
-) -> Verdict | None:
+) -> CaseEnd | None:
     """Send ``n`` distinct requests of the case's command, at most :data:`BATCH` a
     Hypothesis example, and ``check`` each exchange.
 
@@ -210,23 +210,24 @@ def _batched(
                 raise
             passed.add(d)
 
-    verdict = _run_given(runner, case, batches(per), body, settings, sticky)
-    if verdict is None and not passed:
-        return Verdict(outcome=Outcome.SKIPPED, detail=_UNSATISFIED)
-    return verdict
+    end = _run_given(runner, case, batches(per), body, settings, sticky)
+    if end is None and not passed:
+        return CaseEnd(outcome=Outcome.SKIPPED, detail=_UNSATISFIED)
+    return end
 
 
-def _notes(notes: list[Verdict], passed: str) -> Verdict:
+def _notes(notes: list[CaseEnd], passed: str) -> CaseEnd:
     if notes:
         return notes[0]
-    return Verdict(outcome=Outcome.PASS, detail=passed)
+    return CaseEnd(outcome=Outcome.PASS, detail=passed)
 
 
-def _judge_success(runner: SuiteRunner, ex: Any, variant: Variant, what: str) -> Verdict | None:
+def _judge_success(runner: SuiteRunner, ex: Any, variant: Variant, what: str) -> CaseEnd | None:
     """A reply to a valid request: must succeed with the declared shape."""
     verdict = runner.judge(ex, variant)
     assert verdict is not None and ex.reply is not None
-    if verdict.ok:
+    faults = runner.shape_faults(verdict)
+    if not verdict.refused and not faults:
         return None
     frames = describe_exchange(ex)
     if verdict.refused:
@@ -245,17 +246,17 @@ def _judge_success(runner: SuiteRunner, ex: Any, variant: Variant, what: str) ->
                 frames=frames,
                 raw=ex.request,
             )
-        return Verdict(
+        return CaseEnd(
             outcome=Outcome.NON_STRICT,
             detail=f"{what}: refused a request the table allows ({form} form, "
             f"code {verdict.code}); the target's state may forbid it",
             frames=frames,
             raw=ex.request,
         )
-    if verdict.violations:
+    if faults:
         raise CaseFailure(
             Outcome.FAIL,
-            f"{what}: " + "; ".join(v.detail for v in verdict.violations),
+            f"{what}: " + "; ".join(faults),
             frames=frames,
             raw=ex.request,
         )

@@ -22,7 +22,7 @@ from ...spec.knowledge import (
     position_query,
 )
 from ..evidence import describe_exchange
-from ..runner import Case, CaseFailure, SuiteRunner, Verdict
+from ..runner import Case, CaseEnd, CaseFailure, SuiteRunner
 from ..strategies import Batch, Step, step_programs
 from .shared import _hypothesis, _judge_success
 
@@ -69,7 +69,7 @@ class _Machine(Protocol):
 
 def _run_machine(
     runner: SuiteRunner, case: Case, variant: Variant, machine: Callable[[], _Machine]
-) -> Verdict:
+) -> CaseEnd:
     """Run ``stateful_examples`` programs of ``stateful_steps`` steps on fresh machines.
 
     A program is one Hypothesis draw (strategies.step_programs): each step writes,
@@ -96,11 +96,11 @@ def _run_machine(
     if v is not None:
         return v
     if not written[0]:
-        return Verdict(outcome=Outcome.SKIPPED, detail="no valid step could be built")
-    return Verdict(outcome=Outcome.PASS)
+        return CaseEnd(outcome=Outcome.SKIPPED, detail="no valid step could be built")
+    return CaseEnd(outcome=Outcome.PASS)
 
 
-def _run_pair(runner: SuiteRunner, case: Case) -> Verdict:
+def _run_pair(runner: SuiteRunner, case: Case) -> CaseEnd:
     pair: StatePair = case.extra
     sv, gv = pair.setter_variant, pair.getter_variant
 
@@ -154,7 +154,7 @@ def _show(v: Value) -> str:
     return _key_text(v) if not isinstance(v, list) else str(v)
 
 
-def _run_motion(runner: SuiteRunner, case: Case) -> Verdict:
+def _run_motion(runner: SuiteRunner, case: Case) -> CaseEnd:
     cmd, variant = case.command, case.variant
     assert cmd is not None and variant is not None
     targets = motion_targets(cmd, variant)

@@ -3,15 +3,15 @@
 from __future__ import annotations
 
 from ...net.client import Exchange
-from ..runner import Case, SuiteRunner, Verdict
+from ..runner import Case, CaseEnd, SuiteRunner
 from ..strategies import valid_call_batches
 from .shared import _batched, _judge_success, _notes
 
 
-def _run_valid(runner: SuiteRunner, case: Case) -> Verdict:
+def _run_valid(runner: SuiteRunner, case: Case) -> CaseEnd:
     cmd, variant = case.command, case.variant
     assert cmd is not None and variant is not None
-    notes: list[Verdict] = []
+    notes: list[CaseEnd] = []
 
     def check(data: str, ex: Exchange) -> None:
         note = _judge_success(runner, ex, variant, "valid arguments")
