@@ -210,7 +210,7 @@ def test_hypothesis_profile_passes_through() -> None:
     import hypothesis
     from hypothesis import Phase
 
-    from conformance.suite.cases.shared import _settings
+    from conformance.suite.cases.shared import case_settings
     from conformance.suite.config import PROFILES
 
     hypothesis.settings.register_profile(
@@ -219,12 +219,12 @@ def test_hypothesis_profile_passes_through() -> None:
     kit = SimpleNamespace(
         config=SimpleNamespace(hypothesis_profile=None, profile=PROFILES["default"])
     )
-    own = _settings(kit, 10)  # type: ignore[arg-type]
+    own = case_settings(kit, 10)  # type: ignore[arg-type]
     assert own.max_examples == 10 and Phase.shrink in own.phases
     named = SimpleNamespace(
         config=SimpleNamespace(hypothesis_profile="fairino-test-three", profile=PROFILES["default"])
     )
-    theirs = _settings(named, 10)  # type: ignore[arg-type]
+    theirs = case_settings(named, 10)  # type: ignore[arg-type]
     assert theirs.max_examples == 3 and Phase.shrink not in theirs.phases
     assert theirs.deadline is None and theirs.database is None  # the kit's, for network cases
 

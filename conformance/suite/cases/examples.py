@@ -6,10 +6,10 @@ from ...judge.verdict import Outcome
 from ...protocol.decoder import decode_all
 from ...protocol.frame import Frame, encode_frame
 from ..runner import Case, CaseEnd, SuiteRunner
-from .shared import _judge_success
+from .shared import judge_success
 
 
-def _run_example(runner: SuiteRunner, case: Case) -> CaseEnd:
+def run_example(runner: SuiteRunner, case: Case) -> CaseEnd:
     cmd, variant = case.command, case.variant
     assert cmd is not None and variant is not None
     request, reply_text = case.extra
@@ -33,7 +33,7 @@ def _run_example(runner: SuiteRunner, case: Case) -> CaseEnd:
             outcome=Outcome.PASS,
             detail=f"the manual's example disagrees with its own table; the target {how} it",
         )
-    note = _judge_success(runner, ex, variant, "the manual's example")
+    note = judge_success(runner, ex, variant, "the manual's example")
     if note is not None:
         return note
     # The example's reply is not compared: it shows one state of one arm (and the

@@ -9,7 +9,7 @@ from ..evidence import describe_exchange
 from ..runner import Case, CaseEnd, CaseFailure, SuiteRunner
 
 
-def _run_framing(runner: SuiteRunner, case: Case) -> CaseEnd:
+def run_framing(runner: SuiteRunner, case: Case) -> CaseEnd:
     cmd, variant = case.command, case.variant
     assert cmd is not None and variant is not None
     client = runner.client()
@@ -25,7 +25,8 @@ def _run_framing(runner: SuiteRunner, case: Case) -> CaseEnd:
     ex = runner.send_raw_exchange(raw, cnt, cmd.cmd_id)
     verdict = runner.judge(ex, variant)
     frames = describe_exchange(ex)
-    if runner.config.transport == "tcp" and runner._client is not None:
+    # A reply came, so the connection stands (SuiteRunner.send_raw_exchange drops it without).
+    if runner.config.transport == "tcp" and ex.reply is not None:
         runner.client().send_raw(hraw)
         follow = runner.client().await_reply(hcnt, runner.health_command.cmd_id, request=hraw)
         dupes = [f for f in follow.unsolicited if f.cnt == cnt and f.cmd_id == cmd.cmd_id]

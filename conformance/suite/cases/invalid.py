@@ -9,7 +9,7 @@ from ...spec.commands import Command, Variant
 from ..evidence import describe_exchange
 from ..runner import Case, CaseEnd, CaseFailure, SuiteRunner
 from ..strategies import BOUNDS, bounds_applies, invalid_call_batches, invalid_kinds
-from .shared import _batched, _notes
+from .shared import first_note, run_batched
 
 _EXPECTED_CODE = {
     "count": ERR_ARG_COUNT,
@@ -19,7 +19,7 @@ _EXPECTED_CODE = {
 }
 
 
-def _run_invalid(runner: SuiteRunner, case: Case) -> CaseEnd:
+def run_invalid(runner: SuiteRunner, case: Case) -> CaseEnd:
     cmd, variant = case.command, case.variant
     assert cmd is not None and variant is not None
     notes: list[CaseEnd] = []
@@ -50,7 +50,7 @@ def _run_invalid(runner: SuiteRunner, case: Case) -> CaseEnd:
 
     kind: str = case.extra
     # One case per kind (count, type, range, bounds), so that each is sure to be tried.
-    v = _batched(
+    v = run_batched(
         runner,
         case,
         runner.config.profile.invalid,
@@ -59,10 +59,10 @@ def _run_invalid(runner: SuiteRunner, case: Case) -> CaseEnd:
         check=check,
         usable=lambda pair: not runner.check_request_valid(cmd.cmd_id, pair[1]),
     )
-    return v or _notes(notes, "")
+    return v or first_note(notes, "")
 
 
-def _invalid_kinds(cmd: Command, variant: Variant) -> list[str]:
+def invalid_case_kinds(cmd: Command, variant: Variant) -> list[str]:
     """The invalid-call kinds to try for this variant: strategies.invalid_kinds, plus bounds."""
     kinds = list(invalid_kinds(cmd, variant))
     if bounds_applies(variant):

@@ -10,14 +10,14 @@ from ...spec.knowledge import default_data
 from ..evidence import describe_exchange
 from ..runner import Case, CaseEnd, CaseFailure, SuiteRunner
 from ..strategies import garbage
-from .shared import _hypothesis
+from .shared import run_examples
 
 
 def _silence_window(runner: SuiteRunner) -> float:
     return min(runner.config.reply_timeout, 0.5)
 
 
-def _run_malformed_command(runner: SuiteRunner, case: Case) -> CaseEnd:
+def run_malformed_command(runner: SuiteRunner, case: Case) -> CaseEnd:
     """A frame of this command that must not be executed: LEN mismatch or broken DATA."""
     cmd, variant = case.command, case.variant
     assert cmd is not None and variant is not None
@@ -57,7 +57,7 @@ def _run_malformed_command(runner: SuiteRunner, case: Case) -> CaseEnd:
     return after or CaseEnd(outcome=Outcome.PASS)
 
 
-_PROTOCOL_INPUTS: dict[str, bytes] = {
+PROTOCOL_INPUTS: dict[str, bytes] = {
     "bad-head": b"/x/bIII1III%dIII0IIIIII/b/f",
     "bad-tail": b"/f/bIII1III%dIII0IIIIII/x/f",
     "bad-separator": b"/f/bII1II%dII0IIIII/b/f",
@@ -69,14 +69,14 @@ _PROTOCOL_INPUTS: dict[str, bytes] = {
 }
 
 
-def _run_protocol_input(runner: SuiteRunner, case: Case) -> CaseEnd:
+def run_protocol_input(runner: SuiteRunner, case: Case) -> CaseEnd:
     name = case.extra
     hid = runner.health_command.cmd_id
     if name == "oversize":
         payload = b"A" * (300 * 1024)
         raw = b"/f/bIII1III%dIII%dIII%sIII/b/f" % (hid, len(payload), payload)
     else:
-        raw = _PROTOCOL_INPUTS[name]
+        raw = PROTOCOL_INPUTS[name]
         if b"%d" in raw:
             raw = raw % hid
     client = runner.client()
@@ -96,7 +96,7 @@ def _run_protocol_input(runner: SuiteRunner, case: Case) -> CaseEnd:
     return after or CaseEnd(outcome=Outcome.PASS)
 
 
-def _run_unknown_id(runner: SuiteRunner, case: Case) -> CaseEnd:
+def run_unknown_id(runner: SuiteRunner, case: Case) -> CaseEnd:
     unknown = next(i for i in range(9999, 100000) if not runner.specs.by_id(i))
     client = runner.client()
     cnt = client.next_cnt()
@@ -126,7 +126,7 @@ def _run_unknown_id(runner: SuiteRunner, case: Case) -> CaseEnd:
     )
 
 
-def _run_garbage(runner: SuiteRunner, case: Case) -> CaseEnd:
+def run_garbage(runner: SuiteRunner, case: Case) -> CaseEnd:
     def check(junk: bytes) -> None:
         client = runner.client()
         client.send_raw(junk)
@@ -138,5 +138,5 @@ def _run_garbage(runner: SuiteRunner, case: Case) -> CaseEnd:
                 after.outcome, after.detail, frames=after.frames, raw=junk, sticky=True
             )
 
-    v = _hypothesis(runner, case, runner.config.profile.garbage, garbage(), check)
+    v = run_examples(runner, case, runner.config.profile.garbage, garbage(), check)
     return v or CaseEnd(outcome=Outcome.PASS)

@@ -3,7 +3,7 @@ judgement of a reply to a valid request.
 
 Every case runs its examples through :func:`_run_given` (seeded by the case, the
 database off); the valid and invalid groups send their requests in batches
-(:func:`_batched`), the others an example at a time (:func:`_hypothesis`).
+(:func:`run_batched`), the others an example at a time (:func:`run_examples`).
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ PROTOCOL = "protocol"
 # --------------------------------------------------------------------------- helpers
 
 
-def _settings(runner: SuiteRunner, n: int) -> hypothesis.settings:
+def case_settings(runner: SuiteRunner, n: int) -> hypothesis.settings:
     """Per-case settings: the kit profile's example count, or a Hypothesis profile's.
 
     With ``--hypothesis-profile NAME`` that profile's ``max_examples``, phases and
@@ -86,7 +86,7 @@ def _failure_in(exc: BaseException) -> CaseFailure | None:
     return _failure_in(cause) if cause is not None and cause is not exc else None
 
 
-def _hypothesis(
+def run_examples(
     runner: SuiteRunner,
     case: Case,
     n: int,
@@ -106,7 +106,7 @@ def _hypothesis(
                 sticky.append(f)
             raise
 
-    return _run_given(runner, case, strategy, body, _settings(runner, n), sticky)
+    return _run_given(runner, case, strategy, body, case_settings(runner, n), sticky)
 
 
 _UNSATISFIED = "no example satisfying the table could be built"
@@ -124,7 +124,7 @@ def _run_given(
     None when every example passed, SKIPPED when none could be built, else how the
     failure ended the case (of the sticky one, which later examples re-raise, if any)."""
     test = hypothesis.given(strategy)(body)
-    # The database is off (see _settings), so the key Hypothesis would derive from
+    # The database is off (see case_settings), so the key Hypothesis would derive from
     # the test's source (inspect + ast + tokenize on every case) is never used.
     test._hypothesis_internal_database_key = None  # type: ignore[attr-defined]
     test = settings(test)
@@ -155,7 +155,7 @@ T = TypeVar("T")
 BATCH = 10
 
 
-def _batched(
+def run_batched(
     runner: SuiteRunner,
     case: Case,
     n: int,
@@ -175,7 +175,7 @@ def _batched(
     ends the case, shrunk if the profile says: from then on every example is sent
     whole, so the shrinker sees each candidate fail or pass as it would alone.
     """
-    settings = _settings(runner, n)
+    settings = case_settings(runner, n)
     n = settings.max_examples  # a --hypothesis-profile's count replaces the kit's
     per = min(n, BATCH)
     examples = 1 + math.ceil((n - 1) / per)
@@ -216,13 +216,13 @@ def _batched(
     return end
 
 
-def _notes(notes: list[CaseEnd], passed: str) -> CaseEnd:
+def first_note(notes: list[CaseEnd], passed: str) -> CaseEnd:
     if notes:
         return notes[0]
     return CaseEnd(outcome=Outcome.PASS, detail=passed)
 
 
-def _judge_success(runner: SuiteRunner, ex: Any, variant: Variant, what: str) -> CaseEnd | None:
+def judge_success(runner: SuiteRunner, ex: Any, variant: Variant, what: str) -> CaseEnd | None:
     """A reply to a valid request: must succeed with the declared shape."""
     verdict = runner.judge(ex, variant)
     assert verdict is not None and ex.reply is not None

@@ -15,7 +15,7 @@ from ..evidence import describe_exchange
 from ..runner import Case, CaseEnd, CaseFailure, SuiteRunner
 
 
-def _run_pipelined(runner: SuiteRunner, case: Case) -> CaseEnd:
+def run_pipelined(runner: SuiteRunner, case: Case) -> CaseEnd:
     cmd, variant = case.command, case.variant
     assert cmd is not None and variant is not None
     client = runner.client()
@@ -45,7 +45,7 @@ def _judge_in(
         ) from None
 
 
-def _run_split(runner: SuiteRunner, case: Case) -> CaseEnd:
+def run_split(runner: SuiteRunner, case: Case) -> CaseEnd:
     cmd, variant = case.command, case.variant
     assert cmd is not None and variant is not None
     client = runner.client()
@@ -56,7 +56,7 @@ def _run_split(runner: SuiteRunner, case: Case) -> CaseEnd:
     return CaseEnd(outcome=Outcome.PASS)
 
 
-def _run_concurrent(runner: SuiteRunner, case: Case) -> CaseEnd:
+def run_concurrent(runner: SuiteRunner, case: Case) -> CaseEnd:
     errors: list[str] = []
     hdata = default_data(runner.health_command, runner.health_variant)
     hid = runner.health_command.cmd_id
@@ -83,7 +83,7 @@ def _run_concurrent(runner: SuiteRunner, case: Case) -> CaseEnd:
     return CaseEnd(outcome=Outcome.PASS)
 
 
-def _run_reconnect(runner: SuiteRunner, case: Case) -> CaseEnd:
+def run_reconnect(runner: SuiteRunner, case: Case) -> CaseEnd:
     hdata = default_data(runner.health_command, runner.health_variant)
     for n in range(5):
         with runner.new_client() as c:
