@@ -37,7 +37,7 @@ __all__ = [
 ]
 
 
-# The severity order and the failing rule live in conformance/verdict.py (one place).
+# The severity order and the failing rule live in conformance/judge/verdict.py (one place).
 
 #: What the totals and a command's counts call cases (and commands) the run never reached:
 #: not an outcome (nothing was judged), so counted apart from them.
@@ -175,7 +175,7 @@ class Report:
     kit_version: str = __version__
     transport: str = "tcp"
     strict: bool = False
-    #: ``field`` (DIALECT is not a failure) or ``manual`` (it is): see conformance/judge.py.
+    #: ``field`` (DIALECT is not a failure) or ``manual`` (it is): see conformance/judge/judge.py.
     reference: str = "field"
     meta: dict[str, Any] = field(default_factory=dict)
     cases: list[CaseResult] = field(default_factory=list)

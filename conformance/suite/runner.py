@@ -126,7 +126,7 @@ class SuiteRunner:
         self._unknown: tuple[str, Verdict] | None = None
         self._unknown_learnt = False
         self.health_command, self.health_variant = health_query(specs)
-        #: The one judge of every frame (conformance/judge.py), under the run's
+        #: The one judge of every frame (conformance/judge/judge.py), under the run's
         #: reference; the built-in emulator judges with it too.
         self.frame_judge = RequestMemo(
             specs,

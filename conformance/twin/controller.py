@@ -2,8 +2,8 @@
 
 What particular commands *mean* (Set/Get pairs, motion targets, position
 queries) is read from the specs by :mod:`conformance.spec.knowledge`, which the suite
-shares; this module holds only the state that meaning drives (STYLE.md,
-convention 2, like h11's ``_state.py``).  Two parts:
+shares; this module holds only the state that meaning drives (the specs are data, the
+code generic over them: docs/ARCHITECTURE.md, floor 2; like h11's ``_state.py``).  Two parts:
 
 * :class:`RobotModel`: what was set can be read back, motion moves the joints and
   the TCP that the position queries return.

@@ -149,7 +149,7 @@ T = TypeVar("T")
 #: example costs Hypothesis about half a millisecond (a fresh ConjectureData, its
 #: tree, the PRNG state saved and restored), more than an exchange with the
 #: emulator, so a case's requests are drawn in batches (one byte string each: see
-#: conformance/strategies.py).  The first example is the simplest, as Hypothesis
+#: conformance/suite/strategies.py).  The first example is the simplest, as Hypothesis
 #: always tries first: one request, each argument zero or the end of its range
 #: nearer to zero.  So the default profile's 10 requests take 2 examples, not 10.
 BATCH = 10
