@@ -48,7 +48,7 @@ from typing import TYPE_CHECKING, Any
 import pytest
 
 from .errors import EXIT_ERROR, EXIT_FAIL, EXIT_OK, ConformanceError, EmulatorError
-from .judge.verdict import Outcome, fails
+from .judge.verdict import Outcome
 from .net.addresses import format_address, parse_address
 from .suite.options import OPTIONS, option, resolve
 
@@ -272,9 +272,9 @@ class CaseItem(pytest.Item):
         self.user_properties.append(("group", case.group))
 
     def runtest(self) -> None:
-        config = self.config.stash[_CONFIG_KEY]
         engine = _engine(self.config)
-        result = engine.step(self.case).result  # the engine's CaseFinished, as ``run`` gets it
+        finished = engine.step(self.case)  # the engine's CaseFinished, as ``run`` gets it
+        result = finished.result
         # The controller (xdist) or this process rebuilds the report from it.
         self.result = result
         if engine.runner.stopped is not None:
@@ -287,7 +287,7 @@ class CaseItem(pytest.Item):
             self.user_properties.append(("dialect", result.source))
         if result.expected:
             pytest.xfail(f"expected failure: {result.detail}")
-        if fails(outcome, config.reference, config.strict):
+        if finished.failing:  # the engine's decision (Report.failing), not asked again
             raise CaseFailed(result)
         if outcome is Outcome.SKIPPED:
             pytest.skip(result.detail or "skipped")

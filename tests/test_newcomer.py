@@ -15,7 +15,7 @@ from conformance.report.html import render_html
 from conformance.report.junit import junit_xml
 from conformance.report.model import CaseResult, Report
 from conformance.suite.config import GROUPS
-from conformance.suite.runner import Case, SuiteRunner, Verdict
+from conformance.suite.runner import Case, CaseEnd, SuiteRunner
 
 EVERY_BYTE = bytes(range(256)).decode("utf-8", "surrogateescape")
 
@@ -58,7 +58,7 @@ def test_item_7_a_selection_that_leaves_no_case_is_an_error(
     ]
 
 
-def _never(runner: SuiteRunner, case: Case) -> Verdict:
+def _never(runner: SuiteRunner, case: Case) -> CaseEnd:
     raise AssertionError("not run")
 
 

@@ -20,10 +20,10 @@ from conformance.report.html import render_html, render_html_sections
 from conformance.report.model import CaseResult, Report
 from conformance.suite.engine import CaseFinished, RunFinished, RunStarted, stop_report
 from conformance.suite.present import Progress
-from conformance.suite.runner import Case, SuiteRunner, Verdict
+from conformance.suite.runner import Case, CaseEnd, SuiteRunner
 
 
-def _never(runner: SuiteRunner, case: Case) -> Verdict:
+def _never(runner: SuiteRunner, case: Case) -> CaseEnd:
     raise AssertionError("not run")
 
 
@@ -158,7 +158,10 @@ def _progress_run(durations: list[float], *, tty: bool, not_run_from: int | None
             not_run=not_run,
         )
         progress.handle(
-            CaseFinished(index=i, total=total, case=case, result=result, elapsed=elapsed)
+            # A not-run ERROR fails as an outcome (Report.failing); it counts as not run.
+            CaseFinished(
+                index=i, total=total, case=case, result=result, failing=not_run, elapsed=elapsed
+            )
         )
     progress.handle(RunFinished(report=Report(target="t", spec_version="x"), elapsed=elapsed))
     return stream.getvalue()

@@ -27,7 +27,7 @@ from conformance.suite.cases.build import build_cases
 from conformance.suite.cases.shared import PROTOCOL_ID
 from conformance.suite.config import GROUPS, PROFILES, SuiteConfig
 from conformance.suite.evidence import describe_exchange
-from conformance.suite.runner import Case, SuiteRunner, Verdict
+from conformance.suite.runner import Case, CaseEnd, SuiteRunner
 from conformance.twin.faults import FaultKind
 from tests.hostile_targets import HostileTarget, refusing_port
 
@@ -210,7 +210,7 @@ def test_hypothesis_profile_passes_through() -> None:
     import hypothesis
     from hypothesis import Phase
 
-    from conformance.suite.cases.shared import _settings
+    from conformance.suite.cases.shared import case_settings
     from conformance.suite.config import PROFILES
 
     hypothesis.settings.register_profile(
@@ -219,12 +219,12 @@ def test_hypothesis_profile_passes_through() -> None:
     kit = SimpleNamespace(
         config=SimpleNamespace(hypothesis_profile=None, profile=PROFILES["default"])
     )
-    own = _settings(kit, 10)  # type: ignore[arg-type]
+    own = case_settings(kit, 10)  # type: ignore[arg-type]
     assert own.max_examples == 10 and Phase.shrink in own.phases
     named = SimpleNamespace(
         config=SimpleNamespace(hypothesis_profile="fairino-test-three", profile=PROFILES["default"])
     )
-    theirs = _settings(named, 10)  # type: ignore[arg-type]
+    theirs = case_settings(named, 10)  # type: ignore[arg-type]
     assert theirs.max_examples == 3 and Phase.shrink not in theirs.phases
     assert theirs.deadline is None and theirs.database is None  # the kit's, for network cases
 
@@ -422,10 +422,10 @@ def test_udp_targets_that_do_not_answer_stop_the_run_in_one_line() -> None:
 
 
 def test_a_budget_running_out_while_waiting_for_the_target_is_not_its_death() -> None:
-    def case_that_ends_with_silence(runner: SuiteRunner, case: Case) -> Verdict:
+    def case_that_ends_with_silence(runner: SuiteRunner, case: Case) -> CaseEnd:
         runner._suspect = True  # as after an exchange with no reply
         runner.run_deadline = time.monotonic()  # and the budget ends with the case
-        return Verdict(outcome=Outcome.PASS)
+        return CaseEnd(outcome=Outcome.PASS)
 
     config = SuiteConfig(target=("127.0.0.1", refusing_port()), budget=5.0)
     runner = SuiteRunner(config, SPECS)  # not started: the target is only probed after the case

@@ -5,7 +5,9 @@ from __future__ import annotations
 import pytest
 
 from conformance.errors import Rule
-from conformance.judge.requests import RefusalForm, classify_reply, validate_reply, validate_request
+from conformance.judge.judge import Judge
+from conformance.judge.requests import RefusalForm, classify_reply, validate_request
+from conformance.judge.verdict import Outcome
 from conformance.protocol.decoder import decode_all
 from conformance.protocol.frame import Frame, encode_frame
 from conformance.spec.commands import Returns, default_specs
@@ -89,10 +91,24 @@ def test_request_departures_name_their_rule(raw: bytes, rules: set[Rule]) -> Non
 def test_reply_must_echo_cnt_and_cmd_id() -> None:
     req = frame(encode_frame(7, 204, "SetDO(0,1,0,0)"))
     variant = SPECS.lookup("SetDO")[0].variants[0]
-    verdict, framing = validate_reply(req, frame(encode_frame(7, 204, "1")), variant, SPECS)
-    assert verdict.ok and framing == []
-    _, framing = validate_reply(req, frame(encode_frame(8, 205, "1")), variant, SPECS)
-    assert {v.rule for v in framing} == {Rule.BAD_CNT, Rule.BAD_CMD_ID}
+    judge = Judge(SPECS)
+    ok = judge.reply(frame(encode_frame(7, 204, "1")), req, variant=variant)
+    assert ok.outcome is Outcome.PASS and not ok.refused and ok.findings == ()
+    bad = judge.reply(frame(encode_frame(8, 205, "1")), req, variant=variant)
+    assert {f.rule for f in bad.findings} == {Rule.BAD_CNT.value, Rule.BAD_CMD_ID.value}
+    assert bad.outcome is Outcome.FAIL and not bad.refused
+
+
+def test_the_judges_verdict_carries_what_a_reply_reads_as() -> None:
+    """A reply's refusal (form, code) and DATA faults are the judge's one verdict's."""
+    req = frame(encode_frame(7, 204, "SetDO(0,1,0,0)"))
+    judge = Judge(SPECS)
+    text = judge.reply(frame(encode_frame(7, 204, "robot errcode:14")), req)
+    assert (text.refused, text.form, text.code) == (True, RefusalForm.TEXT, 14)
+    assert text.outcome is Outcome.PASS and text.failing_findings(judge.reference) == []
+    shape = judge.reply(frame(encode_frame(7, 204, "1,0")), req)
+    assert not shape.refused and shape.outcome is Outcome.FAIL
+    assert [f.rule for f in shape.failing_findings(judge.reference)] == [Rule.REPLY_SHAPE.value]
 
 
 # ------------------------------------------------------------------- hostile DATA

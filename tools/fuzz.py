@@ -16,8 +16,8 @@ through the public API of
   the input twice over;
 * the **DATA parser** (:mod:`conformance.data`): ``parse_data`` and
   ``parse_reply`` give a value or a ``ProtocolError``, never another exception;
-* the **judge** (:mod:`conformance.judge.requests`): ``validate_request``,
-  ``classify_reply`` and ``validate_reply`` against the real specs never raise;
+* the **judge** (:mod:`conformance.judge`): ``validate_request``, ``classify_reply``
+  and ``Judge.reply`` against the real specs never raise;
 
 and (by default every input; one in ``--model-every`` N) the **emulator's model**
 (:class:`conformance.twin.controller.Controller`): any bytes give actions, and every
@@ -45,7 +45,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from conformance.errors import ProtocolError, Rule
-from conformance.judge.requests import classify_reply, validate_reply, validate_request
+from conformance.judge.judge import Judge
+from conformance.judge.requests import classify_reply, validate_request
 from conformance.protocol.data_format import format_call
 from conformance.protocol.data_parse import parse_data, parse_reply
 from conformance.protocol.data_values import MAX_DEPTH, MAX_ITEMS
@@ -148,12 +149,12 @@ def check_parser(text: str) -> None:
 
 
 def check_judge(text: str, specs: SpecSet, command: Command, variant: Variant, cnt: int) -> None:
-    """validate_request / classify_reply / validate_reply never raise."""
+    """validate_request / classify_reply / Judge.reply never raise."""
     request = Frame(cnt=cnt, cmd_id=command.cmd_id, data=text)
     check = validate_request(request, specs, strict=cnt % 2 == 1)
     classify_reply(variant.returns, text, specs if cnt % 3 else None)
     reply = Frame(cnt=cnt, cmd_id=command.cmd_id, data=text)
-    validate_reply(request, reply, check.variant, specs)
+    Judge(specs).reply(reply, request, variant=check.variant)
 
 
 def check_model(controller: Controller, data: bytes, rng: random.Random) -> None:

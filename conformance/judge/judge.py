@@ -32,14 +32,13 @@ from dataclasses import dataclass, replace
 
 from ..errors import ProtocolError, Rule
 from ..protocol.data_parse import parse_data
-from ..protocol.data_values import Call, Keyword, Parsed
-from ..protocol.data_values import _shown as shown
+from ..protocol.data_values import Call, Keyword, Parsed, shown
 from ..protocol.frame import Frame, Malformed
 from ..spec.checks import Violation, check_args
 from ..spec.commands import Command, Returns, SpecSet, Variant
 from ..spec.dialects import ERRCODE_RETURNS, Dialect, DialectSet, known_bug, manual_command
 from ..spec.knowledge import unsolicited_ids
-from .requests import RefusalForm, ReplyVerdict, RequestCheck, classify_reply, validate_request
+from .requests import RefusalForm, ReplyReading, RequestCheck, classify_reply, validate_request
 from .verdict import REFERENCE_ENV, Direction, Outcome, Reference, fails, reference_from, worst
 
 __all__ = [
@@ -107,7 +106,8 @@ class Verdict:
 
     ``command`` / ``variant``: what the frame means (for a dispatched call, the
     command its DATA names); ``dialect``: the field entry it follows, if any;
-    for replies, ``refused``/``form``/``code`` say whether the controller said no.
+    for replies, ``refused``/``form``/``code`` say whether the controller said no, and the
+    findings ruled ``reply_shape`` (or ``dialect``) how DATA departs from the returns due.
     """
 
     direction: Direction
@@ -151,11 +151,15 @@ class Verdict:
 
     def fails(self, reference: Reference = Reference.FIELD, *, strict: bool = False) -> bool:
         """Whether this verdict fails under ``reference`` (and ``--strict``): any of its
-        findings does (conformance/verdict.py), so NUL padding on a dialect frame fails
+        findings does (conformance/judge/verdict.py), so NUL padding on a dialect frame fails
         under ``--strict`` although the frame's outcome reads DIALECT."""
         return fails(self.outcome, reference, strict) or any(
             fails(f.outcome, reference, strict) for f in self.findings
         )
+
+    def failing_findings(self, reference: Reference, *, strict: bool = False) -> list[Finding]:
+        """The findings that fail under ``reference`` (and ``--strict``), in order."""
+        return [f for f in self.findings if fails(f.outcome, reference, strict)]
 
     def to_json(self) -> dict[str, object]:
         out: dict[str, object] = {
@@ -602,7 +606,7 @@ class Judge:
 
     def _match_reply(
         self, frame: Frame, rv: Verdict, transport: str | None
-    ) -> tuple[Dialect, ReplyVerdict] | None:
+    ) -> tuple[Dialect, ReplyReading] | None:
         name = (rv.command.name if rv.command is not None else rv.name or "").lower()
         for d in self.dialects.by_id(frame.cmd_id):
             if d.kind != "reply" or d.returns is None or d.name.lower() != name:

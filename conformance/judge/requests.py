@@ -1,7 +1,10 @@
-"""Judge frames against the specs: requests, replies, and the forms refusals take.
+"""Read frames against the specs: requests, replies, and the forms refusals take.
 
-Shared by the emulator (argument checks), client mode (``serve``), the offline
-capture checker and the suite, so that all of them read the tables one way.
+The judge's own readings (:mod:`conformance.judge.judge` makes them its one
+:class:`~conformance.judge.judge.Verdict`): what a request means and how it departs
+from its table (:func:`validate_request`), and what a reply's DATA reads as against the
+returns it was due (:func:`classify_reply`: success, a refusal and its form, or a reply
+of the wrong shape).  Front-ends read the judge's verdict, not these.
 """
 
 from __future__ import annotations
@@ -12,18 +15,16 @@ from dataclasses import dataclass, field
 
 from ..errors import RemoteProtocolError, Rule
 from ..protocol.data_parse import parse_data, parse_reply
-from ..protocol.data_values import SHOWN_CHARS, Call, Number, Parsed
-from ..protocol.data_values import _shown as shown
+from ..protocol.data_values import SHOWN_CHARS, Call, Number, Parsed, shown
 from ..protocol.frame import Frame
 from ..spec.checks import Violation, check_reply, match_variant
 from ..spec.commands import Command, Returns, SpecSet, Variant
 
 __all__ = [
     "RefusalForm",
-    "ReplyVerdict",
+    "ReplyReading",
     "RequestCheck",
     "classify_reply",
-    "validate_reply",
     "validate_request",
 ]
 
@@ -131,8 +132,10 @@ class RefusalForm(str, enum.Enum):
 
 
 @dataclass(frozen=True, kw_only=True)
-class ReplyVerdict:
-    """A reply read against the request's declared return values."""
+class ReplyReading:
+    """A reply's DATA read against the declared return values: the judge's reading, which
+    :meth:`~conformance.judge.judge.Judge.reply` folds into its verdict (``refused``,
+    ``form`` and ``code`` as they are; each violation a finding)."""
 
     refused: bool
     form: RefusalForm | None = None
@@ -144,7 +147,7 @@ class ReplyVerdict:
         return not self.refused and not self.violations
 
 
-def classify_reply(returns: Returns, data: str, specs: SpecSet | None = None) -> ReplyVerdict:
+def classify_reply(returns: Returns, data: str, specs: SpecSet | None = None) -> ReplyReading:
     """Success, refusal (and in which form), or a reply of the wrong shape.
 
     errcode-only commands reply ``1`` on success in the manual's examples; ``0``
@@ -153,22 +156,22 @@ def classify_reply(returns: Returns, data: str, specs: SpecSet | None = None) ->
     text = data.strip()
     m = _TEXT_ERR_RE.search(text)
     if m:
-        return ReplyVerdict(refused=True, form=RefusalForm.TEXT, code=_code(m.group(1)))
+        return ReplyReading(refused=True, form=RefusalForm.TEXT, code=_code(m.group(1)))
     if returns.errcode_only:
         try:
             values = parse_reply(text, returns.separator)
         except RemoteProtocolError as e:
-            return ReplyVerdict(
+            return ReplyReading(
                 refused=False, violations=(Violation(rule=Rule.REPLY_SHAPE, detail=e.message),)
             )
         if len(values) == 1 and isinstance(values[0], Number) and values[0].is_int:
             code = int(values[0].value)
             if code == 1:
-                return ReplyVerdict(refused=False)
+                return ReplyReading(refused=False)
             if code == 0:
-                return ReplyVerdict(refused=True, form=RefusalForm.ZERO, code=0)
-            return ReplyVerdict(refused=True, form=RefusalForm.ERRCODE, code=code)
-        return ReplyVerdict(
+                return ReplyReading(refused=True, form=RefusalForm.ZERO, code=0)
+            return ReplyReading(refused=True, form=RefusalForm.ERRCODE, code=code)
+        return ReplyReading(
             refused=False,
             violations=(
                 Violation(
@@ -192,28 +195,5 @@ def classify_reply(returns: Returns, data: str, specs: SpecSet | None = None) ->
         ):
             code = int(values[0].value)
             form = RefusalForm.ZERO if code == 0 else RefusalForm.ERRCODE
-            return ReplyVerdict(refused=True, form=form, code=code)
-    return ReplyVerdict(refused=False, violations=tuple(viols))
-
-
-def validate_reply(
-    request: Frame, reply: Frame, variant: Variant | None, specs: SpecSet
-) -> tuple[ReplyVerdict, list[Violation]]:
-    """Check a reply's framing and echo against its request, and its DATA against the variant."""
-    framing: list[Violation] = [
-        Violation(rule=r, detail=f"reply framing: {r.value}") for r in reply.problems
-    ]
-    if reply.cnt != request.cnt:
-        framing.append(
-            Violation(rule=Rule.BAD_CNT, detail=f"reply CNT {reply.cnt}, request CNT {request.cnt}")
-        )
-    if reply.cmd_id != request.cmd_id:
-        framing.append(
-            Violation(
-                rule=Rule.BAD_CMD_ID,
-                detail=f"reply CMD_ID {reply.cmd_id}, request {request.cmd_id}",
-            )
-        )
-    if variant is None:
-        return ReplyVerdict(refused=False), framing
-    return classify_reply(variant.returns, reply.data, specs), framing
+            return ReplyReading(refused=True, form=form, code=code)
+    return ReplyReading(refused=False, violations=tuple(viols))

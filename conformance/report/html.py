@@ -75,11 +75,6 @@ def _clashing(labels: Mapping[str, str]) -> list[str]:
     return [g for gs in _by_label(labels).values() if len(gs) > 1 for g in gs]
 
 
-def _failing(report: Report, outcome: Outcome) -> bool:
-    """Fails the run as ``report`` was judged (NON-STRICT, DIALECT only when its options say)."""
-    return report.fails(outcome)
-
-
 def _worst_first(cases: Iterable[CaseResult]) -> list[CaseResult]:
     return sorted(cases, key=lambda c: (SEVERITY[c.outcome], c.cmd_id))
 
@@ -231,7 +226,7 @@ def _rows(
                 list(p[i].cases),
                 groups,
                 labels,
-                open_=unfold and bool(p[i].ran) and _failing(r, p[i].outcome),
+                open_=unfold and bool(p[i].ran) and r.fails(p[i].outcome),
             )
             if i in p
             else _missing_cell(missing(col, i) if missing is not None else None)
@@ -323,9 +318,7 @@ def render_html_sections(reports: list[Report], *, title: str = "FAIRINO conform
         per = [r.commands()]
         rows = _rows([r], per, groups)
         count += len(rows)
-        failing = _worst_first(
-            c for c in r.cases if _failing(r, c.outcome) and not (c.not_run or c.expected)
-        )
+        failing = _worst_first(r.failing_cases())
         not_run = sum(c.not_run for c in r.cases)
         items = [_case_item(c, with_name=True) for c in failing[:MAX_LISTED_FAILURES]]
         if len(failing) > MAX_LISTED_FAILURES:

@@ -37,7 +37,7 @@ __all__ = [
 ]
 
 
-# The severity order and the failing rule live in conformance/verdict.py (one place).
+# The severity order and the failing rule live in conformance/judge/verdict.py (one place).
 
 #: What the totals and a command's counts call cases (and commands) the run never reached:
 #: not an outcome (nothing was judged), so counted apart from them.
@@ -175,7 +175,7 @@ class Report:
     kit_version: str = __version__
     transport: str = "tcp"
     strict: bool = False
-    #: ``field`` (DIALECT is not a failure) or ``manual`` (it is): see conformance/judge.py.
+    #: ``field`` (DIALECT is not a failure) or ``manual`` (it is): see conformance/judge/judge.py.
     reference: str = "field"
     meta: dict[str, Any] = field(default_factory=dict)
     cases: list[CaseResult] = field(default_factory=list)
@@ -200,15 +200,24 @@ class Report:
         }
 
     def fails(self, outcome: Outcome) -> bool:
-        """Whether ``outcome`` fails this run (its reference and ``--strict``): conformance/verdict.py."""
+        """Whether ``outcome`` fails this run (its reference and ``--strict``):
+        conformance/judge/verdict.py."""
         return fails(outcome, self.reference, self.strict)
+
+    def failing(self, case: CaseResult) -> bool:
+        """Whether ``case`` fails this run: its outcome does (:meth:`fails`) and the baseline
+        does not list it.  The one answer every front-end shows (the pytest item, the
+        progress line, the tables, JUnit and HTML), none asking the rule itself.  A case
+        the run never reached fails as the ERROR it is, but :meth:`failing_cases` leaves it
+        out."""
+        return not case.expected and self.fails(case.outcome)
 
     def failing_cases(self) -> list[CaseResult]:
         """The cases that fail this run: the only source of the exit code and the failing totals.
 
         A case the run never reached is not among them: nothing was judged.  It makes the
         run an error of its own (:meth:`exit_code`), and the totals count it as NOT-RUN."""
-        return [c for c in self.cases if not (c.expected or c.not_run) and self.fails(c.outcome)]
+        return [c for c in self.cases if not c.not_run and self.failing(c)]
 
     def failing_ids(self) -> list[int]:
         """Command IDs with a failing case, in order."""

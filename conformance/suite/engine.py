@@ -23,14 +23,14 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
 
 from ..errors import EmulatorError, UsageError
-from ..judge.verdict import Outcome, fails
+from ..judge.verdict import Outcome
 from ..net.addresses import format_address
 from ..report.model import CaseResult, Report
 from ..report.text import plural
 from ..spec.commands import SpecSet, default_specs
 from .cases.build import build_cases
 from .config import SuiteConfig
-from .runner import Case, SuiteRunner, not_run_result
+from .runner import Case, CaseEnd, SuiteRunner, case_result, not_run_result
 from .spec_choice import load_chosen, note_spec
 
 __all__ = [
@@ -55,9 +55,6 @@ class RunStarted:
     total: int
     target: str
     seed: int
-    #: What the run is held to: which outcomes fail it (conformance/verdict.py).
-    reference: str = "field"
-    strict: bool = False
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -71,6 +68,10 @@ class CaseFinished:
     total: int
     case: Case
     result: CaseResult
+    #: Whether the case fails the run (``Report.failing``: its outcome under the run's
+    #: reference and ``--strict``, a baselined case not): decided here, shown by both
+    #: front-ends.
+    failing: bool
     #: Seconds since the run started.
     elapsed: float
 
@@ -180,19 +181,12 @@ class Engine:
             ok, reason = self.config.safety.permits(case.command, self.specs)
             if not ok:
                 why = f"dry run: {reason}"
-        return CaseResult(
-            id=case.id,
-            cmd_id=case.cmd_id,
-            name=case.name,
-            group=case.group,
-            outcome=Outcome.SKIPPED,
-            detail=why,
-        )
+        return case_result(case, CaseEnd(outcome=Outcome.SKIPPED, detail=why))
 
     def _baseline(self, result: CaseResult) -> CaseResult:
         if result.id not in self.config.expected_failures:
             return result
-        if fails(result.outcome, self.config.reference, self.config.strict):
+        if self.report.fails(result.outcome):
             return replace(result, expected=True)
         if result.outcome in (Outcome.PASS, Outcome.DIALECT, Outcome.NON_STRICT):
             return replace(
@@ -210,7 +204,12 @@ class Engine:
         self.start()  # the target's probe first: a run it stops reaches no case, not even one
         result = self.not_run(case) if self.runner.stopped is not None else self.run_case(case)
         return CaseFinished(
-            index=index, total=total, case=case, result=result, elapsed=time.monotonic() - self._t0
+            index=index,
+            total=total,
+            case=case,
+            result=result,
+            failing=self.report.failing(result),
+            elapsed=time.monotonic() - self._t0,
         )
 
     def not_run(self, case: Case) -> CaseResult:
@@ -223,13 +222,7 @@ class Engine:
         and RunFinished says ``interrupted``.
         """
         t0 = time.monotonic()
-        yield RunStarted(
-            total=len(cases),
-            target=self.runner.target_label(),
-            seed=self.config.seed,
-            reference=self.config.reference,
-            strict=self.config.strict,
-        )
+        yield RunStarted(total=len(cases), target=self.runner.target_label(), seed=self.config.seed)
         for w in self.warnings(cases):
             self.report.meta.setdefault("warnings", []).append(w)
             yield RunWarning(message=w)

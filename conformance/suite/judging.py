@@ -2,8 +2,8 @@
 
 The suite judges each request it generates several times (its filter, the
 built-in emulator answering it, each reading of its reply); :class:`RequestMemo`
-does that work once.  :func:`reply_classification` reads a reply's verdict as the cases do.  The verdicts
-themselves are the judge's (conformance/judge.py).
+does that work once.  :func:`is_shape_fault` sorts a reply's failing findings as the
+cases word them.  The verdicts themselves are the judge's (conformance/judge/judge.py).
 """
 
 from __future__ import annotations
@@ -12,20 +12,17 @@ from collections.abc import Sequence
 from typing import Any
 
 from ..errors import Rule
-from ..judge.judge import Judge
-from ..judge.judge import Verdict as FrameVerdict
-from ..judge.requests import ReplyVerdict
-from ..judge.verdict import Outcome, Reference, fails
+from ..judge.judge import Finding, Judge, Verdict
+from ..judge.verdict import Outcome
 from ..net.client import Exchange
 from ..protocol.data_values import Call
 from ..protocol.decoder import decode_all
 from ..protocol.frame import Frame
-from ..spec.checks import Violation
 
 __all__ = [
     "RequestMemo",
+    "is_shape_fault",
     "parsed_is_call",
-    "reply_classification",
     "request_frame",
     "transport_free",
 ]
@@ -47,9 +44,9 @@ class RequestMemo(Judge):
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
-        self._verdicts: dict[tuple[int, str, str | None], FrameVerdict] = {}
+        self._verdicts: dict[tuple[int, str, str | None], Verdict] = {}
 
-    def _request(self, frame: Frame, transport: str | None) -> FrameVerdict:
+    def _request(self, frame: Frame, transport: str | None) -> Verdict:
         # The frame's own verdict; a CNT step (Judge.request's previous_cnt) is added on top.
         if frame.problems:
             return super()._request(frame, transport)
@@ -81,7 +78,7 @@ def request_frame(ex: Exchange) -> Frame:
     return Frame(cnt=ex.cnt, cmd_id=ex.cmd_id, data="")
 
 
-def transport_free(v: FrameVerdict, dialects: Sequence[object] = ()) -> bool:
+def transport_free(v: Verdict, dialects: Sequence[object] = ()) -> bool:
     """Whether a request's verdict is the same whatever transport it was judged for.
 
     Judge.request consults the transport only to match field dialects, those
@@ -102,14 +99,9 @@ def parsed_is_call(x: object) -> bool:
     return isinstance(x, Call)
 
 
-def reply_classification(v: FrameVerdict, reference: Reference) -> ReplyVerdict:
-    """The judge's verdict on a reply as the cases read it: refused or not (form, code), and the
-    faults of its shape: the FAIL reply-shape findings, and a dialect reply form where the run's
-    reference fails it (``--reference manual``)."""
-    shape = tuple(
-        Violation(rule=Rule.REPLY_SHAPE, detail=f.message)
-        for f in v.findings
-        if (f.rule == Rule.REPLY_SHAPE.value and f.outcome is Outcome.FAIL)
-        or (f.outcome is Outcome.DIALECT and fails(f.outcome, reference))
-    )
-    return ReplyVerdict(refused=v.refused, form=v.form, code=v.code, violations=shape)
+def is_shape_fault(f: Finding) -> bool:
+    """Whether a failing finding of a reply is about its DATA rather than its framing or echo:
+    its shape against the returns due (``reply_shape``), or the recorded field dialect's
+    reply form it follows (failing under ``--reference manual``).  The cases word the two
+    apart: a framing problem fails the case at once, a shape fault in the case's words."""
+    return f.rule == Rule.REPLY_SHAPE.value or f.outcome is Outcome.DIALECT

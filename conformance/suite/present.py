@@ -15,7 +15,6 @@ from __future__ import annotations
 import math
 from typing import TextIO
 
-from ..judge.verdict import Reference, fails
 from ..report.junit import junit_xml, write_junit
 from ..report.model import Report
 from ..report.text import plural
@@ -98,8 +97,6 @@ class Progress:
         self.done = 0
         self.failed = 0
         self.not_run = 0
-        self.reference = Reference.FIELD
-        self.strict = False
         self.estimate = Estimate()
         self._left: float | None = None
         self._last_draw = -math.inf
@@ -122,7 +119,6 @@ class Progress:
     def handle(self, ev: Event) -> None:
         if isinstance(ev, RunStarted):
             self.total = ev.total
-            self.reference, self.strict = Reference(ev.reference), ev.strict
             if not self.quiet:
                 self.stream.write(
                     f"running {plural(ev.total, 'case')} against {ev.target} (seed {ev.seed})\n"
@@ -137,7 +133,7 @@ class Progress:
             r = ev.result
             if r.not_run:
                 self.not_run += 1
-            elif fails(r.outcome, self.reference, self.strict) and not r.expected:
+            elif ev.failing:
                 self.failed += 1
             self._draw(ev.elapsed)
         elif isinstance(ev, RunFinished) and not self.quiet:

@@ -13,6 +13,12 @@ Bounded against hostile targets (a kit must outlive the peer it tests):
 
 A stopped run leaves every remaining case ERROR with that one reason
 (``Report.stopped``; the cases are marked ``not_run``).
+
+A case's function returns how it ended (:class:`CaseEnd`: outcome, detail, frames, the
+bytes that reproduce it), or raises it (:class:`CaseFailure`); :func:`case_result` makes
+that the case's report row, the one place a :class:`~conformance.report.model.CaseResult`
+of the suite is made.  Replies are read by the judge alone: :meth:`SuiteRunner.judge`
+gives the cases its :class:`~conformance.judge.judge.Verdict`.
 """
 
 from __future__ import annotations
@@ -24,10 +30,9 @@ from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-from ..errors import ConformanceError, Rule
-from ..judge.judge import Verdict as FrameVerdict
-from ..judge.requests import ReplyVerdict
-from ..judge.verdict import Outcome, Reference, fails
+from ..errors import ConformanceError
+from ..judge.judge import Verdict
+from ..judge.verdict import Outcome, Reference
 from ..net.client import Client, Exchange, TargetUnreachable
 from ..protocol.frame import Frame, Malformed, encode_frame
 from ..report.model import CaseResult, Report
@@ -37,26 +42,32 @@ from ..spec.dialects import dialects_from
 from ..spec.knowledge import default_data, health_query, unsolicited_ids
 from .config import SuiteConfig
 from .evidence import describe_exchange, reproduction
-from .judging import RequestMemo, reply_classification, request_frame, transport_free
+from .judging import RequestMemo, is_shape_fault, request_frame, transport_free
 from .liveness import AstrayWatch
 
 __all__ = [
     "Case",
+    "CaseEnd",
     "CaseFailure",
     "RequestMemo",
     "SuiteRunner",
-    "Verdict",
+    "case_result",
     "describe_exchange",
+    "not_run_result",
     "shell_printf",
     "transport_free",
 ]
 
 
 @dataclass(frozen=True, kw_only=True)
-class Verdict:
+class CaseEnd:
+    """How a case ended, as its function returns it (or raises it, :class:`CaseFailure`):
+    what :func:`case_result` makes its report row from."""
+
     outcome: Outcome
     detail: str = ""
     frames: tuple[str, ...] = ()
+    #: The bytes the case sent that show the outcome: its reproduction line sends them.
     raw: bytes = b""
     #: The run had stopped before the case (``SuiteRunner.stopped``).
     not_run: bool = False
@@ -75,7 +86,7 @@ class CaseFailure(Exception):
         sticky: bool = False,
     ) -> None:
         super().__init__(detail)
-        self.verdict = Verdict(outcome=outcome, detail=detail, frames=frames, raw=raw)
+        self.end = CaseEnd(outcome=outcome, detail=detail, frames=frames, raw=raw)
         #: A transport failure (no reply, closed): later examples of the case fail the same way.
         self.sticky = sticky
 
@@ -88,7 +99,7 @@ class Case:
     group: str
     cmd_id: int
     name: str
-    run: Callable[[SuiteRunner, Case], Verdict] = field(repr=False, compare=False)
+    run: Callable[[SuiteRunner, Case], CaseEnd] = field(repr=False, compare=False)
     command: Command | None = field(default=None, repr=False, compare=False)
     variant: Variant | None = field(default=None, repr=False, compare=False)
     extra: Any = field(default=None, repr=False, compare=False)
@@ -112,10 +123,10 @@ class SuiteRunner:
         self.emulator: Any = None
         self.address: tuple[str, int] | None = config.target
         self._client: Client | None = None
-        self._unknown: tuple[str, ReplyVerdict] | None = None
+        self._unknown: tuple[str, Verdict] | None = None
         self._unknown_learnt = False
         self.health_command, self.health_variant = health_query(specs)
-        #: The one judge of every frame (conformance/judge.py), under the run's
+        #: The one judge of every frame (conformance/judge/judge.py), under the run's
         #: reference; the built-in emulator judges with it too.
         self.frame_judge = RequestMemo(
             specs,
@@ -430,8 +441,9 @@ class SuiteRunner:
             )
         self.report.stopped = self.stopped
 
-    def unknown_fingerprint(self) -> tuple[str, ReplyVerdict] | None:
-        """How the target answers an unknown command ID (None: it stays silent)."""
+    def unknown_fingerprint(self) -> tuple[str, Verdict] | None:
+        """How the target answers an unknown command ID: its reply's DATA and the judge's
+        verdict on it (None: it stays silent)."""
         if not self._unknown_learnt:
             self._unknown_learnt = True
             unknown = next(i for i in range(9999, 100000) if not self.specs.by_id(i))
@@ -443,7 +455,7 @@ class SuiteRunner:
             if ex.reply is None:
                 self._unknown = None
             else:
-                self._unknown = (ex.reply.data, self._classified(self.reply_verdict(ex, None)))
+                self._unknown = (ex.reply.data, self.reply_verdict(ex, None))
         return self._unknown
 
     def is_unimplemented(self, reply: Frame) -> bool:
@@ -452,7 +464,7 @@ class SuiteRunner:
 
     # ------------------------------------------------------------------ judging
 
-    def framing_problems(self, ex: Exchange, verdict: FrameVerdict | None = None) -> list[str]:
+    def framing_problems(self, ex: Exchange, verdict: Verdict | None = None) -> list[str]:
         """How an exchange departs from 1.1 framing and echo rules (empty when it conforms).
 
         ``verdict``: the judge's verdict on the reply read without a variant, when
@@ -485,16 +497,17 @@ class SuiteRunner:
                     out.append(f"no reply within {self.config.reply_timeout:g} s")
         else:
             v = verdict if verdict is not None else self.reply_verdict(ex, None)
-            out += [
-                f.message
-                for f in v.findings
-                if f.rule != Rule.REPLY_SHAPE.value
-                and f.outcome is not Outcome.DIALECT  # a failing dialect is a shape fault
-                and fails(f.outcome, self.config.reference, self.config.strict)
-            ]
+            failing = v.failing_findings(self.frame_judge.reference, strict=self.config.strict)
+            out += [f.message for f in failing if not is_shape_fault(f)]
         return out
 
-    def reply_verdict(self, ex: Exchange, variant: Variant | None) -> FrameVerdict:
+    def shape_faults(self, verdict: Verdict) -> list[str]:
+        """How a reply's DATA departs from the returns it was due, where that fails the run
+        (:func:`~.judging.is_shape_fault`): the messages of the judge's findings."""
+        failing = verdict.failing_findings(self.frame_judge.reference)
+        return [f.message for f in failing if is_shape_fault(f)]
+
+    def reply_verdict(self, ex: Exchange, variant: Variant | None) -> Verdict:
         """The judge's verdict on an exchange's reply (read against ``variant`` if given)."""
         assert ex.reply is not None
         v = self.frame_judge.reply(
@@ -516,13 +529,12 @@ class SuiteRunner:
         self._request_frames = (key, frame)
         return frame
 
-    def _classified(self, v: FrameVerdict) -> ReplyVerdict:
-        return reply_classification(v, self.frame_judge.reference)
-
-    def judge(self, ex: Exchange, variant: Variant | None) -> ReplyVerdict | None:
-        """Raise CaseFailure for framing problems; else the reply's classification."""
+    def judge(self, ex: Exchange, variant: Variant | None) -> Verdict | None:
+        """Raise CaseFailure for framing problems; else the judge's verdict on the reply read
+        against ``variant`` (None without one): ``refused``, ``form`` and ``code`` say how it
+        refused, :meth:`shape_faults` how its DATA departs from the returns."""
         self._waited(ex)
-        verdict: FrameVerdict | None = None
+        verdict: Verdict | None = None
         if ex.reply is not None and variant is not None:
             rv = self.frame_judge.request(self._request_frame(ex))
             if rv.variant is variant and rv.dialect is None:
@@ -543,7 +555,7 @@ class SuiteRunner:
             return None
         if verdict is None:
             verdict = self.reply_verdict(ex, variant)
-        return self._classified(verdict)
+        return verdict
 
     def check_request_valid(self, cmd_id: int, data: str) -> bool:
         """Whether the judge lets a request pass (NON-STRICT and, under ``field``, DIALECT too).
@@ -566,17 +578,16 @@ class SuiteRunner:
         """Run one case (never raises): safety, a dead target and kit errors become outcomes."""
         self._dialects = []
         started = time.monotonic()
-        verdict = self._run(case)
+        end = self._run(case)
         source = ""
-        if verdict.outcome is Outcome.PASS and self._dialects:
+        if end.outcome is Outcome.PASS and self._dialects:
             # Passed, with a reply in a recorded field dialect (a failure only under the
             # manual reference, where the reply's check already failed the case).
             source = self._dialects[0][0]
-            verdict = Verdict(
+            end = replace(
+                end,
                 outcome=Outcome.DIALECT,
-                detail=f"{verdict.detail}; {self._dialects[0][1]}".lstrip("; "),
-                frames=verdict.frames,
-                raw=verdict.raw,
+                detail=f"{end.detail}; {self._dialects[0][1]}".lstrip("; "),
             )
         astray = self._liveness.case_done(case.cmd_id, case.id)
         if astray is not None and self.stopped is None:
@@ -590,25 +601,18 @@ class SuiteRunner:
                 self._stop_dead(case, why)
         reproduce = ""
         if (
-            verdict.outcome is Outcome.NON_STRICT
-            or fails(verdict.outcome, self.config.reference, self.config.strict)
-        ) and not verdict.not_run:
-            reproduce = self.reproduce(case, verdict.raw)
-        result = CaseResult(
-            id=case.id,
-            cmd_id=case.cmd_id,
-            name=case.name,
-            group=case.group,
-            outcome=verdict.outcome,
-            detail=verdict.detail,
+            end.outcome is Outcome.NON_STRICT or self.report.fails(end.outcome)
+        ) and not end.not_run:
+            reproduce = self.reproduce(case, end.raw)
+        result = case_result(
+            case,
+            end,
             reproduce=reproduce,
-            frames=verdict.frames,
-            not_run=verdict.not_run,
             source=source,
-            duration=0.0 if verdict.not_run else time.monotonic() - started,
+            duration=0.0 if end.not_run else time.monotonic() - started,
         )
         self.report.add(result)
-        if not verdict.not_run:
+        if not end.not_run:
             self.last_case = case.id
         return result
 
@@ -618,7 +622,7 @@ class SuiteRunner:
         self.report.add(result)
         return result
 
-    def _run(self, case: Case) -> Verdict:
+    def _run(self, case: Case) -> CaseEnd:
         # A stopped run reaches no case, one the safety profile skips neither: it is not
         # run, not SKIPPED (a lone SKIPPED row under "350 ERROR" told another story).
         now = time.monotonic()
@@ -627,31 +631,31 @@ class SuiteRunner:
             self.stopped = f"run budget of {self.config.budget:g} s used up{after}"
             self.report.stopped = self.stopped
         if self.stopped is not None:
-            return Verdict(outcome=Outcome.ERROR, detail=f"not run: {self.stopped}", not_run=True)
+            return CaseEnd(outcome=Outcome.ERROR, detail=f"not run: {self.stopped}", not_run=True)
         if case.command is not None:
             ok, why = self.config.safety.permits(case.command, self.specs)
             if not ok:
-                return Verdict(outcome=Outcome.SKIPPED, detail=why)
+                return CaseEnd(outcome=Outcome.SKIPPED, detail=why)
         self.case_started = now
         self.case_deadline = min(now + self.config.case_timeout, self.run_deadline)
         self._suspect = False
         try:
             return case.run(self, case)
         except CaseFailure as f:
-            return f.verdict
+            return f.end
         except TargetUnreachable as e:
             self._suspect = False
             gone = self.wait_alive(time.monotonic() + self.config.recovery_timeout)
             if gone is None:
-                return Verdict(outcome=Outcome.FAIL, detail=f"target dropped during the case: {e}")
+                return CaseEnd(outcome=Outcome.FAIL, detail=f"target dropped during the case: {e}")
             self._stop_dead(case, gone)
-            return Verdict(outcome=Outcome.ERROR, detail=str(e))
+            return CaseEnd(outcome=Outcome.ERROR, detail=str(e))
         except ConformanceError as e:
-            return Verdict(outcome=Outcome.ERROR, detail=f"kit error: {e}")
+            return CaseEnd(outcome=Outcome.ERROR, detail=f"kit error: {e}")
         except OSError as e:
-            return Verdict(outcome=Outcome.ERROR, detail=f"connection error: {e}")
+            return CaseEnd(outcome=Outcome.ERROR, detail=f"connection error: {e}")
 
-    def after_disturbance(self, case: Case, frames: tuple[str, ...], raw: bytes) -> Verdict | None:
+    def after_disturbance(self, case: Case, frames: tuple[str, ...], raw: bytes) -> CaseEnd | None:
         """Health check on a fresh connection; a failure is blamed on ``case``.
 
         The wait for recovery ends with the case's time; a target still silent
@@ -665,20 +669,32 @@ class SuiteRunner:
         if not self.recover(until=self.case_deadline):
             self._suspect = True
             detail += f"; target did not recover within {self.config.recovery_timeout:g} s"
-        return Verdict(outcome=Outcome.FAIL, detail=detail, frames=frames, raw=raw)
+        return CaseEnd(outcome=Outcome.FAIL, detail=detail, frames=frames, raw=raw)
 
 
 _ = Malformed, encode_frame
 
 
-def not_run_result(case: Case, why: str) -> CaseResult:
-    """A case the run never reached: ERROR, ``not_run``, with the reason the run stopped."""
+def case_result(
+    case: Case, end: CaseEnd, *, reproduce: str = "", source: str = "", duration: float = 0.0
+) -> CaseResult:
+    """The report row of ``case``, which ended as ``end``: the one place the suite makes one
+    (a run's case, one it never reached, a dry run's)."""
     return CaseResult(
         id=case.id,
         cmd_id=case.cmd_id,
         name=case.name,
         group=case.group,
-        outcome=Outcome.ERROR,
-        detail=f"not run: {why}",
-        not_run=True,
+        outcome=end.outcome,
+        detail=end.detail,
+        reproduce=reproduce,
+        frames=end.frames,
+        not_run=end.not_run,
+        source=source,
+        duration=duration,
     )
+
+
+def not_run_result(case: Case, why: str) -> CaseResult:
+    """A case the run never reached: ERROR, ``not_run``, with the reason the run stopped."""
+    return case_result(case, CaseEnd(outcome=Outcome.ERROR, detail=f"not run: {why}", not_run=True))

@@ -2,8 +2,8 @@
 
 What particular commands *mean* (Set/Get pairs, motion targets, position
 queries) is read from the specs by :mod:`conformance.spec.knowledge`, which the suite
-shares; this module holds only the state that meaning drives (STYLE.md,
-convention 2, like h11's ``_state.py``).  Two parts:
+shares; this module holds only the state that meaning drives (the specs are data, the
+code generic over them: docs/ARCHITECTURE.md, floor 2; like h11's ``_state.py``).  Two parts:
 
 * :class:`RobotModel`: what was set can be read back, motion moves the joints and
   the TCP that the position queries return.
@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from ..errors import ProtocolError, Rule
 from ..judge.judge import LENIENT, Judge, Verdict
 from ..judge.requests import ERR_ARG_COUNT, ERR_ARG_VALUE, ERR_EXEC_FAILED
-from ..judge.verdict import Outcome, Reference, fails
+from ..judge.verdict import Outcome, Reference
 from ..protocol.data_format import format_number
 from ..protocol.data_parse import parse_reply
 from ..protocol.data_values import Arg, Call, Number, Text
@@ -500,7 +500,7 @@ class Controller:
         d = v.dialect
         if v.outcome is not Outcome.DIALECT or d is None:
             return False
-        if fails(Outcome.DIALECT, self.judge.reference):
+        if v.fails(self.judge.reference):
             return False  # the manual reference: a dialect is refused as the manual would
         return d.kind != "dispatch" or self.dispatch != "off"
 

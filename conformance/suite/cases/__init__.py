@@ -15,6 +15,5 @@ from __future__ import annotations
 from .build import build_cases
 from .shared import BATCH as BATCH
 from .shared import PROTOCOL_ID
-from .shared import _settings as _settings
 
 __all__ = ["PROTOCOL_ID", "build_cases"]

@@ -5,18 +5,18 @@ from __future__ import annotations
 from ...judge.verdict import Outcome
 from ...protocol.decoder import decode_all
 from ...protocol.frame import Frame, encode_frame
-from ..runner import Case, SuiteRunner, Verdict
-from .shared import _judge_success
+from ..runner import Case, CaseEnd, SuiteRunner
+from .shared import judge_success
 
 
-def _run_example(runner: SuiteRunner, case: Case) -> Verdict:
+def run_example(runner: SuiteRunner, case: Case) -> CaseEnd:
     cmd, variant = case.command, case.variant
     assert cmd is not None and variant is not None
     request, reply_text = case.extra
     events = decode_all(request.encode("utf-8"))
     frames = [e for e in events if isinstance(e, Frame)]
     if len(frames) != 1:
-        return Verdict(
+        return CaseEnd(
             outcome=Outcome.SKIPPED, detail=f"example request {request!r} is not one frame"
         )
     f = frames[0]
@@ -29,14 +29,14 @@ def _run_example(runner: SuiteRunner, case: Case) -> Verdict:
         verdict = runner.judge(ex, variant)
         assert verdict is not None
         how = "refused" if verdict.refused else "accepted"
-        return Verdict(
+        return CaseEnd(
             outcome=Outcome.PASS,
             detail=f"the manual's example disagrees with its own table; the target {how} it",
         )
-    note = _judge_success(runner, ex, variant, "the manual's example")
+    note = judge_success(runner, ex, variant, "the manual's example")
     if note is not None:
         return note
     # The example's reply is not compared: it shows one state of one arm (and the
     # extraction leaves some empty); its shape was checked above.
     del reply_text
-    return Verdict(outcome=Outcome.PASS)
+    return CaseEnd(outcome=Outcome.PASS)

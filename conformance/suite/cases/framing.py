@@ -6,10 +6,10 @@ from ...judge.verdict import Outcome
 from ...protocol.frame import encode_frame
 from ...spec.knowledge import default_data
 from ..evidence import describe_exchange
-from ..runner import Case, CaseFailure, SuiteRunner, Verdict
+from ..runner import Case, CaseEnd, CaseFailure, SuiteRunner
 
 
-def _run_framing(runner: SuiteRunner, case: Case) -> Verdict:
+def run_framing(runner: SuiteRunner, case: Case) -> CaseEnd:
     cmd, variant = case.command, case.variant
     assert cmd is not None and variant is not None
     client = runner.client()
@@ -25,7 +25,8 @@ def _run_framing(runner: SuiteRunner, case: Case) -> Verdict:
     ex = runner.send_raw_exchange(raw, cnt, cmd.cmd_id)
     verdict = runner.judge(ex, variant)
     frames = describe_exchange(ex)
-    if runner.config.transport == "tcp" and runner._client is not None:
+    # A reply came, so the connection stands (SuiteRunner.send_raw_exchange drops it without).
+    if runner.config.transport == "tcp" and ex.reply is not None:
         runner.client().send_raw(hraw)
         follow = runner.client().await_reply(hcnt, runner.health_command.cmd_id, request=hraw)
         dupes = [f for f in follow.unsolicited if f.cnt == cnt and f.cmd_id == cmd.cmd_id]
@@ -40,17 +41,18 @@ def _run_framing(runner: SuiteRunner, case: Case) -> Verdict:
             runner.drop_client()
     assert verdict is not None and ex.reply is not None
     if verdict.refused and runner.is_unimplemented(ex.reply):
-        return Verdict(
+        return CaseEnd(
             outcome=Outcome.UNIMPLEMENTED,
             detail="refused like an unknown command ID",
             frames=frames,
             raw=raw,
         )
-    if not verdict.refused and verdict.violations:
-        return Verdict(
+    faults = runner.shape_faults(verdict)
+    if not verdict.refused and faults:
+        return CaseEnd(
             outcome=Outcome.FAIL,
-            detail="; ".join(v.detail for v in verdict.violations),
+            detail="; ".join(faults),
             frames=frames,
             raw=raw,
         )
-    return Verdict(outcome=Outcome.PASS)
+    return CaseEnd(outcome=Outcome.PASS)

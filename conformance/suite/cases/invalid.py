@@ -7,9 +7,9 @@ from ...judge.verdict import Outcome
 from ...net.client import Exchange
 from ...spec.commands import Command, Variant
 from ..evidence import describe_exchange
-from ..runner import Case, CaseFailure, SuiteRunner, Verdict
+from ..runner import Case, CaseEnd, CaseFailure, SuiteRunner
 from ..strategies import BOUNDS, bounds_applies, invalid_call_batches, invalid_kinds
-from .shared import _batched, _notes
+from .shared import first_note, run_batched
 
 _EXPECTED_CODE = {
     "count": ERR_ARG_COUNT,
@@ -19,10 +19,10 @@ _EXPECTED_CODE = {
 }
 
 
-def _run_invalid(runner: SuiteRunner, case: Case) -> Verdict:
+def run_invalid(runner: SuiteRunner, case: Case) -> CaseEnd:
     cmd, variant = case.command, case.variant
     assert cmd is not None and variant is not None
-    notes: list[Verdict] = []
+    notes: list[CaseEnd] = []
 
     def check(pair: tuple[str, str], ex: Exchange) -> None:
         kind = pair[0]
@@ -39,7 +39,7 @@ def _run_invalid(runner: SuiteRunner, case: Case) -> Verdict:
         if verdict.code != want and not notes:
             form = verdict.form.value if verdict.form else "?"
             notes.append(
-                Verdict(
+                CaseEnd(
                     outcome=Outcome.NON_STRICT,
                     detail=f"refused invalid arguments ({kind}) with {form} {verdict.code}; "
                     f"chapter 9 has code {want} for this",
@@ -50,7 +50,7 @@ def _run_invalid(runner: SuiteRunner, case: Case) -> Verdict:
 
     kind: str = case.extra
     # One case per kind (count, type, range, bounds), so that each is sure to be tried.
-    v = _batched(
+    v = run_batched(
         runner,
         case,
         runner.config.profile.invalid,
@@ -59,10 +59,10 @@ def _run_invalid(runner: SuiteRunner, case: Case) -> Verdict:
         check=check,
         usable=lambda pair: not runner.check_request_valid(cmd.cmd_id, pair[1]),
     )
-    return v or _notes(notes, "")
+    return v or first_note(notes, "")
 
 
-def _invalid_kinds(cmd: Command, variant: Variant) -> list[str]:
+def invalid_case_kinds(cmd: Command, variant: Variant) -> list[str]:
     """The invalid-call kinds to try for this variant: strategies.invalid_kinds, plus bounds."""
     kinds = list(invalid_kinds(cmd, variant))
     if bounds_applies(variant):

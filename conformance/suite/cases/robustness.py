@@ -8,16 +8,16 @@ from ...judge.verdict import Outcome
 from ...protocol.frame import encode_frame
 from ...spec.knowledge import default_data
 from ..evidence import describe_exchange
-from ..runner import Case, CaseFailure, SuiteRunner, Verdict
+from ..runner import Case, CaseEnd, CaseFailure, SuiteRunner
 from ..strategies import garbage
-from .shared import _hypothesis
+from .shared import run_examples
 
 
 def _silence_window(runner: SuiteRunner) -> float:
     return min(runner.config.reply_timeout, 0.5)
 
 
-def _run_malformed_command(runner: SuiteRunner, case: Case) -> Verdict:
+def run_malformed_command(runner: SuiteRunner, case: Case) -> CaseEnd:
     """A frame of this command that must not be executed: LEN mismatch or broken DATA."""
     cmd, variant = case.command, case.variant
     assert cmd is not None and variant is not None
@@ -45,7 +45,7 @@ def _run_malformed_command(runner: SuiteRunner, case: Case) -> Verdict:
                 if kind == "len-mismatch"
                 else "a frame with broken DATA"
             )
-            return Verdict(
+            return CaseEnd(
                 outcome=Outcome.FAIL,
                 detail=f"executed {what}: replied {ex.reply.data!r}",
                 frames=frames,
@@ -54,10 +54,10 @@ def _run_malformed_command(runner: SuiteRunner, case: Case) -> Verdict:
     if ex.closed:
         runner.drop_client()
     after = runner.after_disturbance(case, frames, raw)
-    return after or Verdict(outcome=Outcome.PASS)
+    return after or CaseEnd(outcome=Outcome.PASS)
 
 
-_PROTOCOL_INPUTS: dict[str, bytes] = {
+PROTOCOL_INPUTS: dict[str, bytes] = {
     "bad-head": b"/x/bIII1III%dIII0IIIIII/b/f",
     "bad-tail": b"/f/bIII1III%dIII0IIIIII/x/f",
     "bad-separator": b"/f/bII1II%dII0IIIII/b/f",
@@ -69,14 +69,14 @@ _PROTOCOL_INPUTS: dict[str, bytes] = {
 }
 
 
-def _run_protocol_input(runner: SuiteRunner, case: Case) -> Verdict:
+def run_protocol_input(runner: SuiteRunner, case: Case) -> CaseEnd:
     name = case.extra
     hid = runner.health_command.cmd_id
     if name == "oversize":
         payload = b"A" * (300 * 1024)
         raw = b"/f/bIII1III%dIII%dIII%sIII/b/f" % (hid, len(payload), payload)
     else:
-        raw = _PROTOCOL_INPUTS[name]
+        raw = PROTOCOL_INPUTS[name]
         if b"%d" in raw:
             raw = raw % hid
     client = runner.client()
@@ -93,10 +93,10 @@ def _run_protocol_input(runner: SuiteRunner, case: Case) -> Verdict:
             runner.drop_client()
     frames = (f">> {raw[:200]!r}", *tuple(f"<< {f.raw!r}" for f in frames_in))
     after = runner.after_disturbance(case, frames, raw)
-    return after or Verdict(outcome=Outcome.PASS)
+    return after or CaseEnd(outcome=Outcome.PASS)
 
 
-def _run_unknown_id(runner: SuiteRunner, case: Case) -> Verdict:
+def run_unknown_id(runner: SuiteRunner, case: Case) -> CaseEnd:
     unknown = next(i for i in range(9999, 100000) if not runner.specs.by_id(i))
     client = runner.client()
     cnt = client.next_cnt()
@@ -105,7 +105,7 @@ def _run_unknown_id(runner: SuiteRunner, case: Case) -> Verdict:
     frames = describe_exchange(ex)
     if ex.reply is None:
         after = runner.after_disturbance(case, frames, raw)
-        return after or Verdict(
+        return after or CaseEnd(
             outcome=Outcome.NON_STRICT,
             detail="no reply to an unknown command ID",
             frames=frames,
@@ -113,7 +113,7 @@ def _run_unknown_id(runner: SuiteRunner, case: Case) -> Verdict:
         )
     fp = runner.unknown_fingerprint()
     if fp is not None and not fp[1].refused:
-        return Verdict(
+        return CaseEnd(
             outcome=Outcome.FAIL,
             detail=f"reported success ({ex.reply.data!r}) for an unknown command ID",
             frames=frames,
@@ -121,12 +121,12 @@ def _run_unknown_id(runner: SuiteRunner, case: Case) -> Verdict:
         )
     after = runner.after_disturbance(case, frames, raw)
     form = fp[1].form.value if fp and fp[1].form else "?"
-    return after or Verdict(
+    return after or CaseEnd(
         outcome=Outcome.PASS, detail=f"refused ({form} form, DATA {ex.reply.data!r})"
     )
 
 
-def _run_garbage(runner: SuiteRunner, case: Case) -> Verdict:
+def run_garbage(runner: SuiteRunner, case: Case) -> CaseEnd:
     def check(junk: bytes) -> None:
         client = runner.client()
         client.send_raw(junk)
@@ -138,5 +138,5 @@ def _run_garbage(runner: SuiteRunner, case: Case) -> Verdict:
                 after.outcome, after.detail, frames=after.frames, raw=junk, sticky=True
             )
 
-    v = _hypothesis(runner, case, runner.config.profile.garbage, garbage(), check)
-    return v or Verdict(outcome=Outcome.PASS)
+    v = run_examples(runner, case, runner.config.profile.garbage, garbage(), check)
+    return v or CaseEnd(outcome=Outcome.PASS)

@@ -3,7 +3,7 @@ judgement of a reply to a valid request.
 
 Every case runs its examples through :func:`_run_given` (seeded by the case, the
 database off); the valid and invalid groups send their requests in batches
-(:func:`_batched`), the others an example at a time (:func:`_hypothesis`).
+(:func:`run_batched`), the others an example at a time (:func:`run_examples`).
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from ...judge.verdict import Outcome
 from ...net.client import Exchange
 from ...spec.commands import Variant
 from ..evidence import describe_exchange
-from ..runner import Case, CaseFailure, SuiteRunner, Verdict
+from ..runner import Case, CaseEnd, CaseFailure, SuiteRunner
 from ..strategies import Batch
 
 PROTOCOL_ID = 0
@@ -33,7 +33,7 @@ PROTOCOL = "protocol"
 # --------------------------------------------------------------------------- helpers
 
 
-def _settings(runner: SuiteRunner, n: int) -> hypothesis.settings:
+def case_settings(runner: SuiteRunner, n: int) -> hypothesis.settings:
     """Per-case settings: the kit profile's example count, or a Hypothesis profile's.
 
     With ``--hypothesis-profile NAME`` that profile's ``max_examples``, phases and
@@ -86,13 +86,13 @@ def _failure_in(exc: BaseException) -> CaseFailure | None:
     return _failure_in(cause) if cause is not None and cause is not exc else None
 
 
-def _hypothesis(
+def run_examples(
     runner: SuiteRunner,
     case: Case,
     n: int,
     strategy: st.SearchStrategy[Any],
     check: Callable[[Any], None],
-) -> Verdict | None:
+) -> CaseEnd | None:
     """Run ``check`` on ``n`` examples; the first failure (shrunk if the profile says) ends it."""
     sticky: list[CaseFailure] = []
 
@@ -106,7 +106,7 @@ def _hypothesis(
                 sticky.append(f)
             raise
 
-    return _run_given(runner, case, strategy, body, _settings(runner, n), sticky)
+    return _run_given(runner, case, strategy, body, case_settings(runner, n), sticky)
 
 
 _UNSATISFIED = "no example satisfying the table could be built"
@@ -119,12 +119,12 @@ def _run_given(
     body: Callable[[Any], None],
     settings: hypothesis.settings,
     sticky: list[CaseFailure],
-) -> Verdict | None:
+) -> CaseEnd | None:
     """Run ``body`` on ``strategy``'s examples under ``settings``, seeded by the case:
-    None when every example passed, SKIPPED when none could be built, else the verdict
-    of the failure (of the sticky one, which later examples re-raise, if any)."""
+    None when every example passed, SKIPPED when none could be built, else how the
+    failure ended the case (of the sticky one, which later examples re-raise, if any)."""
     test = hypothesis.given(strategy)(body)
-    # The database is off (see _settings), so the key Hypothesis would derive from
+    # The database is off (see case_settings), so the key Hypothesis would derive from
     # the test's source (inspect + ast + tokenize on every case) is never used.
     test._hypothesis_internal_database_key = None  # type: ignore[attr-defined]
     test = settings(test)
@@ -132,14 +132,14 @@ def _run_given(
     try:
         test()
     except Unsatisfiable:
-        return Verdict(outcome=Outcome.SKIPPED, detail=_UNSATISFIED)
+        return CaseEnd(outcome=Outcome.SKIPPED, detail=_UNSATISFIED)
     except BaseException as e:
         f = _failure_in(e)
         if f is None:
             raise
         if sticky and f is not sticky[0]:
-            return sticky[0].verdict
-        return f.verdict
+            return sticky[0].end
+        return f.end
     return None
 
 
@@ -149,13 +149,13 @@ T = TypeVar("T")
 #: example costs Hypothesis about half a millisecond (a fresh ConjectureData, its
 #: tree, the PRNG state saved and restored), more than an exchange with the
 #: emulator, so a case's requests are drawn in batches (one byte string each: see
-#: conformance/strategies.py).  The first example is the simplest, as Hypothesis
+#: conformance/suite/strategies.py).  The first example is the simplest, as Hypothesis
 #: always tries first: one request, each argument zero or the end of its range
 #: nearer to zero.  So the default profile's 10 requests take 2 examples, not 10.
 BATCH = 10
 
 
-def _batched(
+def run_batched(
     runner: SuiteRunner,
     case: Case,
     n: int,
@@ -163,7 +163,7 @@ def _batched(
     data: Callable[[T], str],
     check: Callable[[T, Exchange], None],
     usable: Callable[[T], bool],
-) -> Verdict | None:
+) -> CaseEnd | None:
     """Send ``n`` distinct requests of the case's command, at most :data:`BATCH` a
     Hypothesis example, and ``check`` each exchange.
 
@@ -175,7 +175,7 @@ def _batched(
     ends the case, shrunk if the profile says: from then on every example is sent
     whole, so the shrinker sees each candidate fail or pass as it would alone.
     """
-    settings = _settings(runner, n)
+    settings = case_settings(runner, n)
     n = settings.max_examples  # a --hypothesis-profile's count replaces the kit's
     per = min(n, BATCH)
     examples = 1 + math.ceil((n - 1) / per)
@@ -210,23 +210,24 @@ def _batched(
                 raise
             passed.add(d)
 
-    verdict = _run_given(runner, case, batches(per), body, settings, sticky)
-    if verdict is None and not passed:
-        return Verdict(outcome=Outcome.SKIPPED, detail=_UNSATISFIED)
-    return verdict
+    end = _run_given(runner, case, batches(per), body, settings, sticky)
+    if end is None and not passed:
+        return CaseEnd(outcome=Outcome.SKIPPED, detail=_UNSATISFIED)
+    return end
 
 
-def _notes(notes: list[Verdict], passed: str) -> Verdict:
+def first_note(notes: list[CaseEnd], passed: str) -> CaseEnd:
     if notes:
         return notes[0]
-    return Verdict(outcome=Outcome.PASS, detail=passed)
+    return CaseEnd(outcome=Outcome.PASS, detail=passed)
 
 
-def _judge_success(runner: SuiteRunner, ex: Any, variant: Variant, what: str) -> Verdict | None:
+def judge_success(runner: SuiteRunner, ex: Any, variant: Variant, what: str) -> CaseEnd | None:
     """A reply to a valid request: must succeed with the declared shape."""
     verdict = runner.judge(ex, variant)
     assert verdict is not None and ex.reply is not None
-    if verdict.ok:
+    faults = runner.shape_faults(verdict)
+    if not verdict.refused and not faults:
         return None
     frames = describe_exchange(ex)
     if verdict.refused:
@@ -245,17 +246,17 @@ def _judge_success(runner: SuiteRunner, ex: Any, variant: Variant, what: str) ->
                 frames=frames,
                 raw=ex.request,
             )
-        return Verdict(
+        return CaseEnd(
             outcome=Outcome.NON_STRICT,
             detail=f"{what}: refused a request the table allows ({form} form, "
             f"code {verdict.code}); the target's state may forbid it",
             frames=frames,
             raw=ex.request,
         )
-    if verdict.violations:
+    if faults:
         raise CaseFailure(
             Outcome.FAIL,
-            f"{what}: " + "; ".join(v.detail for v in verdict.violations),
+            f"{what}: " + "; ".join(faults),
             frames=frames,
             raw=ex.request,
         )

@@ -22,9 +22,9 @@ from ...spec.knowledge import (
     position_query,
 )
 from ..evidence import describe_exchange
-from ..runner import Case, CaseFailure, SuiteRunner, Verdict
+from ..runner import Case, CaseEnd, CaseFailure, SuiteRunner
 from ..strategies import Batch, Step, step_programs
-from .shared import _hypothesis, _judge_success
+from .shared import judge_success, run_examples
 
 
 def _close(a: float, b: float) -> bool:
@@ -46,7 +46,7 @@ def _same(expected: Value, got: str) -> bool:
 
 
 def _values(runner: SuiteRunner, ex: Any, variant: Variant, what: str) -> list[str]:
-    note = _judge_success(runner, ex, variant, what)
+    note = judge_success(runner, ex, variant, what)
     if note is not None:
         raise CaseFailure(note.outcome, note.detail, frames=note.frames, raw=note.raw)
     assert ex.reply is not None
@@ -69,7 +69,7 @@ class _Machine(Protocol):
 
 def _run_machine(
     runner: SuiteRunner, case: Case, variant: Variant, machine: Callable[[], _Machine]
-) -> Verdict:
+) -> CaseEnd:
     """Run ``stateful_examples`` programs of ``stateful_steps`` steps on fresh machines.
 
     A program is one Hypothesis draw (strategies.step_programs): each step writes,
@@ -92,15 +92,15 @@ def _run_machine(
                 written[0] += 1
 
     strategy = step_programs(variant, prof.stateful_steps)
-    v = _hypothesis(runner, case, prof.stateful_examples, strategy, run)
+    v = run_examples(runner, case, prof.stateful_examples, strategy, run)
     if v is not None:
         return v
     if not written[0]:
-        return Verdict(outcome=Outcome.SKIPPED, detail="no valid step could be built")
-    return Verdict(outcome=Outcome.PASS)
+        return CaseEnd(outcome=Outcome.SKIPPED, detail="no valid step could be built")
+    return CaseEnd(outcome=Outcome.PASS)
 
 
-def _run_pair(runner: SuiteRunner, case: Case) -> Verdict:
+def run_pair(runner: SuiteRunner, case: Case) -> CaseEnd:
     pair: StatePair = case.extra
     sv, gv = pair.setter_variant, pair.getter_variant
 
@@ -154,7 +154,7 @@ def _show(v: Value) -> str:
     return _key_text(v) if not isinstance(v, list) else str(v)
 
 
-def _run_motion(runner: SuiteRunner, case: Case) -> Verdict:
+def run_motion(runner: SuiteRunner, case: Case) -> CaseEnd:
     cmd, variant = case.command, case.variant
     assert cmd is not None and variant is not None
     targets = motion_targets(cmd, variant)
@@ -205,7 +205,7 @@ def _run_motion(runner: SuiteRunner, case: Case) -> Verdict:
     return _run_machine(runner, case, mvariant, MotionMachine)
 
 
-def _position_queries(specs: SpecSet, targets: Any) -> list[tuple[Command, Variant, str]]:
+def position_queries(specs: SpecSet, targets: Any) -> list[tuple[Command, Variant, str]]:
     out: list[tuple[Command, Variant, str]] = []
     for c in specs:
         kind = position_query(specs, c.name)

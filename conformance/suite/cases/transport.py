@@ -12,10 +12,10 @@ from ...protocol.frame import encode_frame
 from ...spec.commands import Variant
 from ...spec.knowledge import default_data
 from ..evidence import describe_exchange
-from ..runner import Case, CaseFailure, SuiteRunner, Verdict
+from ..runner import Case, CaseEnd, CaseFailure, SuiteRunner
 
 
-def _run_pipelined(runner: SuiteRunner, case: Case) -> Verdict:
+def run_pipelined(runner: SuiteRunner, case: Case) -> CaseEnd:
     cmd, variant = case.command, case.variant
     assert cmd is not None and variant is not None
     client = runner.client()
@@ -28,7 +28,7 @@ def _run_pipelined(runner: SuiteRunner, case: Case) -> Verdict:
         if ex.reply is None:
             runner.drop_client()
         _judge_in(runner, ex, variant, f"3 frames in one segment, reply to CNT {c}", raw)
-    return Verdict(outcome=Outcome.PASS)
+    return CaseEnd(outcome=Outcome.PASS)
 
 
 def _judge_in(
@@ -38,14 +38,14 @@ def _judge_in(
     try:
         runner.judge(ex, variant)
     except CaseFailure as f:
-        if f.verdict.outcome is not Outcome.FAIL:
+        if f.end.outcome is not Outcome.FAIL:
             raise  # the case's time ran out (ERROR): not the target's failure
         raise CaseFailure(
-            Outcome.FAIL, f"{context}: {f.verdict.detail}", frames=f.verdict.frames, raw=raw
+            Outcome.FAIL, f"{context}: {f.end.detail}", frames=f.end.frames, raw=raw
         ) from None
 
 
-def _run_split(runner: SuiteRunner, case: Case) -> Verdict:
+def run_split(runner: SuiteRunner, case: Case) -> CaseEnd:
     cmd, variant = case.command, case.variant
     assert cmd is not None and variant is not None
     client = runner.client()
@@ -53,10 +53,10 @@ def _run_split(runner: SuiteRunner, case: Case) -> Verdict:
     raw = encode_frame(cnt, cmd.cmd_id, default_data(cmd, variant))
     ex = runner.send_raw_exchange(raw, cnt, cmd.cmd_id, chunk=1)
     _judge_in(runner, ex, variant, "frame sent byte by byte", raw)
-    return Verdict(outcome=Outcome.PASS)
+    return CaseEnd(outcome=Outcome.PASS)
 
 
-def _run_concurrent(runner: SuiteRunner, case: Case) -> Verdict:
+def run_concurrent(runner: SuiteRunner, case: Case) -> CaseEnd:
     errors: list[str] = []
     hdata = default_data(runner.health_command, runner.health_variant)
     hid = runner.health_command.cmd_id
@@ -79,21 +79,21 @@ def _run_concurrent(runner: SuiteRunner, case: Case) -> Verdict:
     for t in threads:
         t.join()
     if errors:
-        return Verdict(outcome=Outcome.FAIL, detail=f"6 concurrent connections: {errors[0]}")
-    return Verdict(outcome=Outcome.PASS)
+        return CaseEnd(outcome=Outcome.FAIL, detail=f"6 concurrent connections: {errors[0]}")
+    return CaseEnd(outcome=Outcome.PASS)
 
 
-def _run_reconnect(runner: SuiteRunner, case: Case) -> Verdict:
+def run_reconnect(runner: SuiteRunner, case: Case) -> CaseEnd:
     hdata = default_data(runner.health_command, runner.health_variant)
     for n in range(5):
         with runner.new_client() as c:
             ex = c.request(runner.health_command.cmd_id, hdata)
             probs = runner.framing_problems(ex)
             if probs:
-                return Verdict(
+                return CaseEnd(
                     outcome=Outcome.FAIL,
                     detail=f"connection {n + 1} of 5: {'; '.join(probs)}",
                     frames=describe_exchange(ex),
                     raw=ex.request,
                 )
-    return Verdict(outcome=Outcome.PASS)
+    return CaseEnd(outcome=Outcome.PASS)

@@ -3,22 +3,22 @@
 from __future__ import annotations
 
 from ...net.client import Exchange
-from ..runner import Case, SuiteRunner, Verdict
+from ..runner import Case, CaseEnd, SuiteRunner
 from ..strategies import valid_call_batches
-from .shared import _batched, _judge_success, _notes
+from .shared import first_note, judge_success, run_batched
 
 
-def _run_valid(runner: SuiteRunner, case: Case) -> Verdict:
+def run_valid(runner: SuiteRunner, case: Case) -> CaseEnd:
     cmd, variant = case.command, case.variant
     assert cmd is not None and variant is not None
-    notes: list[Verdict] = []
+    notes: list[CaseEnd] = []
 
     def check(data: str, ex: Exchange) -> None:
-        note = _judge_success(runner, ex, variant, "valid arguments")
+        note = judge_success(runner, ex, variant, "valid arguments")
         if note is not None and not notes:
             notes.append(note)
 
-    v = _batched(
+    v = run_batched(
         runner,
         case,
         runner.config.profile.valid,
@@ -27,4 +27,4 @@ def _run_valid(runner: SuiteRunner, case: Case) -> Verdict:
         check=check,
         usable=lambda d: runner.check_request_valid(cmd.cmd_id, d),
     )
-    return v or _notes(notes, "")
+    return v or first_note(notes, "")
