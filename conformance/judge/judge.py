@@ -32,8 +32,7 @@ from dataclasses import dataclass, replace
 
 from ..errors import ProtocolError, Rule
 from ..protocol.data_parse import parse_data
-from ..protocol.data_values import Call, Keyword, Parsed
-from ..protocol.data_values import _shown as shown
+from ..protocol.data_values import Call, Keyword, Parsed, shown
 from ..protocol.frame import Frame, Malformed
 from ..spec.checks import Violation, check_args
 from ..spec.commands import Command, Returns, SpecSet, Variant

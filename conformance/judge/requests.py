@@ -12,8 +12,7 @@ from dataclasses import dataclass, field
 
 from ..errors import RemoteProtocolError, Rule
 from ..protocol.data_parse import parse_data, parse_reply
-from ..protocol.data_values import SHOWN_CHARS, Call, Number, Parsed
-from ..protocol.data_values import _shown as shown
+from ..protocol.data_values import SHOWN_CHARS, Call, Number, Parsed, shown
 from ..protocol.frame import Frame
 from ..spec.checks import Violation, check_reply, match_variant
 from ..spec.commands import Command, Returns, SpecSet, Variant

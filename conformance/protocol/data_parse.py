@@ -42,9 +42,9 @@ from .data_values import (
     Parsed,
     RawData,
     Text,
-    _error,
-    _plain_call,
-    _shown,
+    data_error,
+    plain_call,
+    shown,
 )
 
 __all__ = ["parse_data", "parse_reply"]
@@ -93,15 +93,15 @@ class _ArgParser:
             j += 1
         if j != self.i:
             if self.strict:
-                raise _error(f"whitespace at offset {self.i} in {_shown(self.s)}", self.s)
+                raise data_error(f"whitespace at offset {self.i} in {shown(self.s)}", self.s)
             self.spaces = True
             self.i = j
 
     def counted(self, n: int) -> None:
         self.count += n
         if self.count > MAX_ITEMS:
-            raise _error(
-                f"more than {MAX_ITEMS} values in {_shown(self.s)}", self.s, Rule.DATA_LIMIT
+            raise data_error(
+                f"more than {MAX_ITEMS} values in {shown(self.s)}", self.s, Rule.DATA_LIMIT
             )
 
     def items(self, close: str | None) -> list[Arg]:
@@ -157,8 +157,8 @@ class _ArgParser:
             if close is None and c == "":
                 return out
             if c == "":
-                raise _error(f"unterminated argument list in {_shown(self.s)}", self.s)
-            raise _error(f"unexpected {c!r} at offset {self.i} in {_shown(self.s)}", self.s)
+                raise data_error(f"unterminated argument list in {shown(self.s)}", self.s)
+            raise data_error(f"unexpected {c!r} at offset {self.i} in {shown(self.s)}", self.s)
 
     def peek(self) -> str:
         return self.s[self.i] if self.i < len(self.s) else ""
@@ -168,8 +168,8 @@ class _ArgParser:
         c = self.peek()
         if c == "{":
             if self.depth >= MAX_DEPTH:
-                raise _error(
-                    f"arrays nested deeper than {MAX_DEPTH} in {_shown(self.s)}",
+                raise data_error(
+                    f"arrays nested deeper than {MAX_DEPTH} in {shown(self.s)}",
                     self.s,
                     Rule.DATA_LIMIT,
                 )
@@ -181,7 +181,7 @@ class _ArgParser:
         if c == '"':
             end = self.s.find('"', self.i + 1)
             if end < 0:
-                raise _error(f"unterminated string in {_shown(self.s)}", self.s)
+                raise data_error(f"unterminated string in {shown(self.s)}", self.s)
             value = self.s[self.i + 1 : end]
             self.i = end + 1
             return Text(value=value, quoted=True)
@@ -190,7 +190,7 @@ class _ArgParser:
             j += 1
         token = self.s[self.i : j]
         if not token:
-            raise _error(f"empty argument at offset {self.i} in {_shown(self.s)}", self.s)
+            raise data_error(f"empty argument at offset {self.i} in {shown(self.s)}", self.s)
         self.i = self.i + len(token)
         if _NUMBER_RE.fullmatch(token):
             return _number(token, self.s)
@@ -202,7 +202,7 @@ def _number(token: str, data: str) -> Number:
     try:
         return Number.of(token)
     except RemoteProtocolError as e:
-        raise _error(f"{e.message} in {_shown(data)}", data, e.rule) from None
+        raise data_error(f"{e.message} in {shown(data)}", data, e.rule) from None
 
 
 def parse_data(data: str, *, strict: bool = False) -> Parsed:
@@ -235,20 +235,20 @@ def parse_data(data: str, *, strict: bool = False) -> Parsed:
             except (ValueError, StopIteration):
                 values = None
             if values is not None:
-                return _plain_call(name, inner, tuple(values))
+                return plain_call(name, inner, tuple(values))
             if _PLAIN_LIST_RE.fullmatch(inner):
-                return _plain_call(name, inner)
+                return plain_call(name, inner)
     m = _NAME_RE.match(data)
     if m and data[m.end() : m.end() + 1] == "(":
-        name = _shown(m.group()) if m.end() > SHOWN_CHARS else m.group()
+        name = shown(m.group()) if m.end() > SHOWN_CHARS else m.group()
         if not data.endswith(")"):
-            raise _error(f"call {name} does not end with ')'", data)
+            raise data_error(f"call {name} does not end with ')'", data)
         inner = data[m.end() + 1 : -1]
         p = _ArgParser(inner, strict=strict)
         try:
             items = p.items(None)
         except RemoteProtocolError as e:
-            raise _error(f"{name}: {e.message}", data, e.rule) from None
+            raise data_error(f"{name}: {e.message}", data, e.rule) from None
         problems = (Rule.SPACE_IN_ARGS,) if p.spaces else ()
         return Call(name=m.group(), args=tuple(items), problems=problems)
     if _KEYWORD_RE.fullmatch(data):
@@ -265,7 +265,9 @@ def parse_reply(
     if separator == " ":
         parts = [x for x in data.split(" ") if x != ""] if not strict else data.split(" ")
         if len(parts) > MAX_ITEMS:
-            raise _error(f"more than {MAX_ITEMS} values in {_shown(data)}", data, Rule.DATA_LIMIT)
+            raise data_error(
+                f"more than {MAX_ITEMS} values in {shown(data)}", data, Rule.DATA_LIMIT
+            )
         out: list[Arg] = []
         count = 0
         for part in parts:

@@ -3,8 +3,10 @@
 A call of plain numbers only (MoveJ's 29 values, at most 300 characters) keeps its
 argument text and its values in one tuple (:attr:`Call.values`) and makes its
 arguments on first use (:class:`Call`); the parser (:mod:`.data_parse`) makes such
-calls, the checks (:mod:`.data_checks`) read their values or text.  Errors about the peer's DATA are :class:`RemoteProtocolError` built by
-:func:`_error`, whose messages show at most :data:`SHOWN_CHARS` characters.
+calls (:func:`plain_call`), the checks (``conformance/spec/checks.py``) read their
+values or text.  Errors about the peer's DATA are :class:`RemoteProtocolError` built
+by :func:`data_error`, whose messages show at most :data:`SHOWN_CHARS` characters
+(:func:`shown`).
 """
 
 from __future__ import annotations
@@ -34,6 +36,9 @@ __all__ = [
     "Parsed",
     "RawData",
     "Text",
+    "data_error",
+    "plain_call",
+    "shown",
 ]
 
 
@@ -61,11 +66,11 @@ FAST_CHECKS = True
 SHOWN_CHARS = 80
 
 
-def _shown(text: str, *, quote: bool = True) -> str:
+def shown(text: str, *, quote: bool = True) -> str:
     """``text`` for a message (its repr), cut to :data:`SHOWN_CHARS` characters with its length."""
     cut = text[:SHOWN_CHARS]
-    shown = repr(cut) if quote else cut
-    return shown if len(text) <= SHOWN_CHARS else f"{shown}... ({len(text)} chars)"
+    out = repr(cut) if quote else cut
+    return out if len(text) <= SHOWN_CHARS else f"{out}... ({len(text)} chars)"
 
 
 class Number(tuple[str, "int | float"]):
@@ -150,7 +155,7 @@ class Call:
     args: tuple[Arg, ...]
     problems: tuple[Rule, ...] = ()
 
-    # A non-data descriptor: once read (or set by _plain_call), the tuple is in the
+    # A non-data descriptor: once read (or set by plain_call), the tuple is in the
     # instance dict and reading it is an ordinary attribute read, not a call.
     @cached_property
     def values(self) -> tuple[int | float, ...] | None:
@@ -182,7 +187,7 @@ class Call:
 
 
 class _LazyArgs:
-    """``Call.args`` where the instance dict has none: a call made by _plain_call,
+    """``Call.args`` where the instance dict has none: a call made by plain_call,
     whose arguments are made on first use (then they are in the dict, and this is not
     asked again).  A non-data descriptor put on the class after the dataclass is made
     (the instance dict comes first, so ``__init__``'s ``args`` is read as any
@@ -227,7 +232,7 @@ def _plain_args(text: str, values: tuple[int | float, ...] | None) -> tuple[Numb
 _object_new = object.__new__
 
 
-def _plain_call(name: str, text: str, values: tuple[int | float, ...] | None = None) -> Call:
+def plain_call(name: str, text: str, values: tuple[int | float, ...] | None = None) -> Call:
     """``Call(name=name, args=_plain_args(text, ...))``, with ``args`` made when first
     used, and ``values`` those of ``text`` when already read (else read when asked)."""
     call = _object_new(Call)
@@ -253,7 +258,8 @@ class RawData:
 Parsed = Call | Keyword | RawData
 
 
-def _error(msg: str, data: str, rule: Rule = Rule.BAD_DATA) -> RemoteProtocolError:
+def data_error(msg: str, data: str, rule: Rule = Rule.BAD_DATA) -> RemoteProtocolError:
+    """The peer's DATA ``data`` broke ``rule`` (the message shows it with :func:`shown`)."""
     return RemoteProtocolError(msg, rule=rule, raw=data.encode("utf-8", "replace"))
 
 
@@ -263,15 +269,15 @@ def _number_value(token: str) -> int | float:
     if len(token) > MAX_NUMBER_DIGITS and (
         len(token) - sum(token.count(c) for c in "+-.eE") > MAX_NUMBER_DIGITS
     ):
-        raise _error(
-            f"number {_shown(token)} has more than {MAX_NUMBER_DIGITS} digits",
+        raise data_error(
+            f"number {shown(token)} has more than {MAX_NUMBER_DIGITS} digits",
             token,
             Rule.BAD_NUMBER,
         )
     if "." in token or "e" in token or "E" in token:
         value = float(token)
         if not math.isfinite(value):
-            raise _error(f"number {_shown(token)} is not finite", token, Rule.BAD_NUMBER)
+            raise data_error(f"number {shown(token)} is not finite", token, Rule.BAD_NUMBER)
         return value
     n = int(token)
     if len(token) > 300:
@@ -279,7 +285,7 @@ def _number_value(token: str) -> int | float:
         try:
             float(n)
         except OverflowError:
-            raise _error(
-                f"number {_shown(token)} is beyond a double's range", token, Rule.BAD_NUMBER
+            raise data_error(
+                f"number {shown(token)} is beyond a double's range", token, Rule.BAD_NUMBER
             ) from None
     return n

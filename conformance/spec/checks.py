@@ -26,7 +26,7 @@ from ..protocol.data_values import (
     Parsed,
     RawData,
     Text,
-    _shown,
+    shown,
 )
 from .checks_fast import (
     _FIRST,
@@ -64,7 +64,7 @@ def _check_scalar(p: Param, arg: Arg, where: str) -> Violation | None:
             )
         return None
     if not isinstance(arg, Number):
-        kind = "an array" if isinstance(arg, Array) else f"text {_shown(arg.value)}"
+        kind = "an array" if isinstance(arg, Array) else f"text {shown(arg.value)}"
         return Violation(rule=Rule.ARG_TYPE, detail=f"{where}: expected {p.type}, got {kind}")
     # An integer written as 1.000 is tolerated; 1.5 is not.
     if p.is_integer and not arg.is_int and not float(arg.value).is_integer():
@@ -205,7 +205,7 @@ def _match_word(
                 return v, [
                     Violation(
                         rule=Rule.NAME_MISMATCH,
-                        detail=f"DATA is the keyword {_shown(parsed.word)} but the command is {command.name}",
+                        detail=f"DATA is the keyword {shown(parsed.word)} but the command is {command.name}",
                     )
                 ]
         return None, [
@@ -258,7 +258,7 @@ def check_reply(returns: Returns, data: str) -> list[Violation]:
             out.append(
                 Violation(
                     rule=Rule.REPLY_SHAPE,
-                    detail=f"value {i + 1} ({rv.name}): expected {rv.type}, got {_shown(repr(a), quote=False)}",
+                    detail=f"value {i + 1} ({rv.name}): expected {rv.type}, got {shown(repr(a), quote=False)}",
                     index=i,
                 )
             )
