@@ -4,7 +4,7 @@ A call of plain numbers only (MoveJ's 29 values, at most 300 characters) keeps i
 argument text and its values in one tuple (:attr:`Call.values`) and makes its
 arguments on first use (:class:`Call`); the parser (:mod:`.data_parse`) makes such
 calls (:func:`plain_call`), the checks (``conformance/spec/checks.py``) read their
-values or text.  Errors about the peer's DATA are :class:`RemoteProtocolError` built
+values.  Errors about the peer's DATA are :class:`RemoteProtocolError` built
 by :func:`data_error`, whose messages show at most :data:`SHOWN_CHARS` characters
 (:func:`shown`).
 """
@@ -57,10 +57,9 @@ MAX_DEPTH = 16
 #: manual's longest list is 75 values (specs/); this bounds the memory one DATA
 #: can cost (a 256 KB frame of ``1,1,1,...`` would otherwise be 128 K objects).
 MAX_ITEMS = 10_000
-#: The fast paths: plain-number calls read lazily and checked from their text, flat
-#: argument lists read without the parser, conforming arguments recognised by
-#: compiled per-variant checks.  Off: every call goes the careful way (the argument
-#: parser, then parameter by parameter), with the same results (tests/test_data_fast.py).
+#: The parser's fast paths: plain-number calls read lazily, flat argument lists read
+#: without the argument parser's loop.  Off: every call goes through that loop, with
+#: the same results (tests/test_data_fast.py).
 FAST_CHECKS = True
 #: Characters of an offending DATA a message shows (it says how long the DATA was).
 SHOWN_CHARS = 80
@@ -146,8 +145,9 @@ class Call:
     form, ``-116.061`` or ``0``), its :attr:`values`; it makes ``args`` on first
     use: the text is known to be such a list, so ``args`` cannot fail, and it is
     the tuple the parser would have made (same values, same types).
-    :func:`match_variant` checks such a call against a variant from its values or
-    text, without ``args`` (tools/bench_codec.py, full MoveJ decode).  Equality,
+    ``match_variant`` (``conformance/spec/checks.py``) checks such a call against a
+    variant of number parameters from its values, without ``args``
+    (tools/bench_codec.py, full MoveJ decode).  Equality,
     hash and repr read ``args`` and are those of any call.
     """
 
