@@ -369,7 +369,7 @@ def test_nesting_is_bounded() -> None:
     "data",
     [
         "F(" + ",".join(["1"] * (MAX_ITEMS + 1)) + ")",  # flat list
-        "F(" + ", ".join(["1"] * (MAX_ITEMS + 1)) + ")",  # with spaces (the careful path)
+        "F(" + ", ".join(["1"] * (MAX_ITEMS + 1)) + ")",  # with spaces (the argument parser's loop)
         "F({" + ",".join(["1"] * MAX_ITEMS) + "})",  # the array counts too
     ],
     ids=["flat", "spaces", "array"],
