@@ -123,6 +123,51 @@ def test_parse_data_rejects_broken_calls(bad: str) -> None:
     assert exc.value.raw == bad.encode()
 
 
+#: Refusals of the DATA grammar, with the messages the parser writes (strict, lenient:
+#: the same unless a blank is involved).
+REFUSALS = [
+    ("MoveJ(1,,2)", "MoveJ: empty argument at offset 2 in '1,,2'", None),
+    ("F(1,2,)", "F: empty argument at offset 4 in '1,2,'", None),
+    ("F(,)", "F: empty argument at offset 0 in ','", None),
+    ("MoveJ(.5,,)", "MoveJ: empty argument at offset 3 in '.5,,'", None),
+    ('MoveJ("P1)', "MoveJ: unterminated string in '\"P1'", None),
+    ("MoveJ(1,{2)", "MoveJ: unterminated argument list in '1,{2'", None),
+    ("F(1)x)", "F: unexpected ')' at offset 1 in '1)x'", None),
+    ("MoveJ(1", "call MoveJ does not end with ')'", None),
+    ("MoveJ(1, 2)", "MoveJ: whitespace at offset 2 in '1, 2'", ""),
+    ("F( 1)", "F: whitespace at offset 0 in ' 1'", ""),
+    (
+        "SetDO(0,1,x y)",
+        "SetDO: whitespace at offset 5 in '0,1,x y'",
+        "SetDO: unexpected 'y' at offset 6 in '0,1,x y'",
+    ),
+    ("MoveJ(1e999)", "MoveJ: number '1e999' is not finite in '1e999'", None),
+    (
+        "F({{{{{{{{{{{{{{{{{1}}}}}}}}}}}}}}}}})",
+        "F: arrays nested deeper than 16 in '{{{{{{{{{{{{{{{{{1}}}}}}}}}}}}}}}}}'",
+        None,
+    ),
+    (
+        f"F({'9' * 310})",
+        f"F: number '{'9' * 80}'... (310 chars) is beyond a double's range in '{'9' * 80}'... (310 chars)",
+        None,
+    ),
+]
+
+
+@pytest.mark.parametrize(("data", "strict", "lenient"), REFUSALS, ids=[r[0][:30] for r in REFUSALS])
+def test_refusals_in_the_parsers_words(data: str, strict: str, lenient: str | None) -> None:
+    """``lenient``: None when the lenient parse refuses alike, "" when it reads the call."""
+    for is_strict, message in ((True, strict), (False, strict if lenient is None else lenient)):
+        if message == "":
+            assert isinstance(parse_data(data, strict=is_strict), Call)
+            continue
+        with pytest.raises(RemoteProtocolError) as exc:
+            parse_data(data, strict=is_strict)
+        assert exc.value.message == message
+        assert exc.value.raw == data.encode()
+
+
 @pytest.mark.parametrize(
     ("data", "sep", "values"),
     [
@@ -324,7 +369,7 @@ def test_nesting_is_bounded() -> None:
     "data",
     [
         "F(" + ",".join(["1"] * (MAX_ITEMS + 1)) + ")",  # flat list
-        "F(" + ", ".join(["1"] * (MAX_ITEMS + 1)) + ")",  # with spaces (the careful path)
+        "F(" + ", ".join(["1"] * (MAX_ITEMS + 1)) + ")",  # with spaces (the argument parser's loop)
         "F({" + ",".join(["1"] * MAX_ITEMS) + "})",  # the array counts too
     ],
     ids=["flat", "spaces", "array"],

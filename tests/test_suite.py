@@ -22,6 +22,7 @@ from conformance.net.emulator import EmulatorServer
 from conformance.protocol.frame import encode_frame
 from conformance.report.model import CaseResult, Report
 from conformance.report.text import shell_printf
+from conformance.spec.checks import allows
 from conformance.spec.commands import Command, default_specs
 from conformance.suite.cases.build import build_cases
 from conformance.suite.cases.shared import PROTOCOL_ID
@@ -68,7 +69,7 @@ def _faultable() -> Command:
             v.form == "call"
             and v.returns.errcode_only
             and any(
-                p.is_integer and not p.is_array and (p.range or p.enum) and not p.allows(10**6)
+                p.is_integer and not p.is_array and (p.range or p.enum) and not allows(p, 10**6)
                 for p in v.params
             )
         ):

@@ -30,7 +30,7 @@ from conformance.protocol.data_parse import parse_data
 from conformance.protocol.data_values import Call
 from conformance.protocol.decoder import decode_all
 from conformance.protocol.frame import Frame, encode_frame
-from conformance.spec.checks import check_args
+from conformance.spec.checks import allows, check_args
 from conformance.spec.commands import TYPE_BOUNDS, Command, Variant, default_specs
 from conformance.spec.dialects import default_dialects, dialects_from
 from conformance.suite.cases.build import build_cases
@@ -88,7 +88,7 @@ def _simplest(command: Command, variant: Variant) -> str:
     its first interval nearer to zero; the first enum value."""
     args: list[object] = []
     for p in variant.params:
-        nums = [v for v, _ in p.enum or () if not isinstance(v, str) and p.allows(v)]
+        nums = [v for v, _ in p.enum or () if not isinstance(v, str) and allows(p, v)]
         if nums:
             v: object = int(nums[0]) if p.is_integer else nums[0]
         elif p.range:

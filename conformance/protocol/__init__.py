@@ -6,9 +6,8 @@
 * :mod:`.decoder`: the streaming :class:`~.decoder.FrameDecoder`, with :mod:`.frame_columns`
   (its fast paths: runs read column-wise, one whole frame) and :mod:`.frame_header` (the
   careful reading of a header);
-* :mod:`.data_values`, :mod:`.data_parse`, :mod:`.data_format`, :mod:`.data_checks`
-  and :mod:`.data_fast`: the DATA grammar (re-exported by :mod:`conformance.data`).
+* :mod:`.data_values`, :mod:`.data_parse` and :mod:`.data_format`: the DATA grammar
+  (its checks against the spec tables are ``conformance/spec/checks.py``).
 
-:mod:`conformance.protocol.frame` and :mod:`conformance.data` re-export what the rest of the
-kit imports; nothing here imports a higher floor.
+Nothing here imports a higher floor.
 """

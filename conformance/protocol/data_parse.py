@@ -29,7 +29,6 @@ from collections.abc import Callable
 from typing import Any
 
 from ..errors import RemoteProtocolError, Rule
-from . import data_values
 from .data_values import (
     MAX_DEPTH,
     MAX_ITEMS,
@@ -56,15 +55,16 @@ _NUMBER_RE = re.compile(r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?", re.ASC
 _KEYWORD_RE = re.compile(r"[A-Z][A-Z_]*")
 # A flat argument list: tokens without quotes, braces, parens or blanks, one comma apart.
 _SIMPLE_LIST_RE = re.compile(r'[^\s,(){}"]+(?:,[^\s,(){}"]+)*')
-# A flat list of plain numbers without exponent (MoveJ's 29 values): each token is
-# a number of the grammar above, read by int() or float() without further checks
-# as long as it is short (see _number_value: the limits are past 300 characters).
+# A flat list of plain numbers without exponent (MoveJ's 29 values, a reply's six
+# joints): each token is a number of the grammar above, read by int() or float()
+# without further checks as long as it is short (see _number_value: the limits are
+# past 300 characters).
 _PLAIN_NUMBER = r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)"
 _PLAIN_LIST_RE = re.compile(rf"{_PLAIN_NUMBER}(?:,{_PLAIN_NUMBER})*", re.ASCII)
 # The characters of such a list (deleted from its UTF-8 bytes, nothing may be left).
 # A JSON array of numbers written with these only ("[" + list + "]": no blanks,
 # exponents, NaN or Infinity) is one such list, and json reads each number as
-# _plain_values does: int() without a point, float() with one (its C scanner calls
+# _ArgParser.items does: int() without a point, float() with one (its C scanner calls
 # them on the token; -0 is the int 0).  Its scanner (raw_decode without the call
 # around it) raises StopIteration or JSONDecodeError (a ValueError) where it stops.
 _PLAIN_CHARS = b"0123456789.,+-"
@@ -106,29 +106,26 @@ class _ArgParser:
 
     def items(self, close: str | None) -> list[Arg]:
         """Comma-separated items up to ``close`` (or end of text when None)."""
-        if (
-            close is None
-            and self.i == 0
-            and data_values.FAST_CHECKS
-            and _PLAIN_LIST_RE.fullmatch(self.s)
-        ):
-            # Faster path: plain numbers only.  A token of at most 300 characters
-            # without exponent is one _number_value cannot refuse (always finite),
-            # so it is read by int() or float() directly.
+        if close is None and _PLAIN_LIST_RE.fullmatch(self.s):
+            # The whole text a list of plain numbers (a reply's six joints, a call's
+            # plain list too long for parse_data's scan): a token of at most 300
+            # characters without exponent is one _number_value cannot refuse (always
+            # finite), so it is read by int() or float() directly.
             tokens = self.s.split(",")
             self.counted(len(tokens))
             new = tuple.__new__
-            out_: list[Arg] = [
+            plain: list[Arg] = [
                 _number(t, self.s)
                 if len(t) > 300
                 else new(Number, (t, float(t) if "." in t else int(t)))
                 for t in tokens
             ]
             self.i = len(self.s)
-            return out_
-        if close is None and data_values.FAST_CHECKS and _SIMPLE_LIST_RE.fullmatch(self.s, self.i):
-            # Fast path: a flat list of numbers and bare words, no spaces or nesting.
-            tokens = self.s[self.i :].split(",")
+            return plain
+        if close is None and _SIMPLE_LIST_RE.fullmatch(self.s):
+            # The whole text a flat list of numbers and bare words (no blanks,
+            # quotes or braces): its tokens, without the loop below.
+            tokens = self.s.split(",")
             self.counted(len(tokens))
             out: list[Arg] = [
                 _number(t, self.s) if _NUMBER_RE.fullmatch(t) else Text(value=t, quoted=False)
@@ -215,7 +212,7 @@ def parse_data(data: str, *, strict: bool = False) -> Parsed:
     # name; a plain number is ASCII): a long one is not looked at twice.  Its name is
     # what comes before the first "(" (an ASCII identifier: _NAME_RE), its argument
     # text what comes between that and the final ")".
-    if data_values.FAST_CHECKS and len(data) <= 400 and data.isascii():
+    if len(data) <= 400 and data.isascii():
         name, _, rest = data.partition("(")
         if (
             1 < len(rest) <= 301
@@ -223,21 +220,18 @@ def parse_data(data: str, *, strict: bool = False) -> Parsed:
             and name.isidentifier()
             and not (inner := rest[:-1]).encode().translate(None, _PLAIN_CHARS)
         ):
-            # The common call (MoveJ's 29 plain numbers): what _ArgParser.items reads
-            # on its fast path, without the parser (300 characters: under MAX_ITEMS
-            # values), its arguments made when first used (Call).  In JSON's form
-            # (-116.061, 0, as C's printf writes numbers) one pass of the json
-            # module's scanner both checks the list and reads its values; another
-            # plain list (.5, 5., +1, 007) is checked by the grammar and read when
-            # first used.
+            # The common call (MoveJ's 29 plain numbers, as C's printf writes them:
+            # -116.061, 0) is a JSON array's body: one pass of the json module's
+            # scanner both checks the list and reads its values, and the call makes
+            # its arguments when first used (Call; 300 characters: under MAX_ITEMS
+            # values).  Another plain list (.5, 5., +1, 007) is no JSON: the argument
+            # parser below reads it (_ArgParser.items, a plain list at once).
             try:
                 values = _scan_json(f"[{inner}]", 0)[0]
             except (ValueError, StopIteration):
                 values = None
             if values is not None:
                 return plain_call(name, inner, tuple(values))
-            if _PLAIN_LIST_RE.fullmatch(inner):
-                return plain_call(name, inner)
     m = _NAME_RE.match(data)
     if m and data[m.end() : m.end() + 1] == "(":
         name = shown(m.group()) if m.end() > SHOWN_CHARS else m.group()

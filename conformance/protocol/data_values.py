@@ -1,10 +1,12 @@
 """The values of the DATA grammar: arguments, calls, keywords, raw text, and the bounds.
 
-A call of plain numbers only (MoveJ's 29 values, at most 300 characters) keeps its
-argument text and its values in one tuple (:attr:`Call.values`) and makes its
-arguments on first use (:class:`Call`); the parser (:mod:`.data_parse`) makes such
-calls, the checks (:mod:`.data_checks`) read their values or text.  Errors about the peer's DATA are :class:`RemoteProtocolError` built by
-:func:`data_error`, whose messages show at most :data:`SHOWN_CHARS` characters.
+A call of plain numbers only, written as C's printf writes them (MoveJ's 29 values,
+at most 300 characters), keeps its argument text and its values in one tuple
+(:attr:`Call.values`) and makes its arguments on first use (:class:`Call`); the parser
+(:mod:`.data_parse`) makes such calls (:func:`plain_call`), the checks
+(``conformance/spec/checks.py``) read their values.  Errors about the peer's DATA are :class:`RemoteProtocolError` built by
+:func:`data_error`, whose messages show at most :data:`SHOWN_CHARS` characters
+(:func:`shown`).
 """
 
 from __future__ import annotations
@@ -55,11 +57,6 @@ MAX_DEPTH = 16
 #: manual's longest list is 75 values (specs/); this bounds the memory one DATA
 #: can cost (a 256 KB frame of ``1,1,1,...`` would otherwise be 128 K objects).
 MAX_ITEMS = 10_000
-#: The fast paths: plain-number calls read lazily and checked from their text, flat
-#: argument lists read without the parser, conforming arguments recognised by
-#: compiled per-variant checks.  Off: every call goes the careful way (the argument
-#: parser, then parameter by parameter), with the same results (tests/test_data_fast.py).
-FAST_CHECKS = True
 #: Characters of an offending DATA a message shows (it says how long the DATA was).
 SHOWN_CHARS = 80
 
@@ -139,14 +136,15 @@ Arg = Number | Text | Array
 class Call:
     """A call ``Name(arg,arg,...)``.
 
-    A call :func:`parse_data` reads as a short list of plain numbers (MoveJ's 29
-    values) holds its argument text and, when it was read in one pass (the common
-    form, ``-116.061`` or ``0``), its :attr:`values`; it makes ``args`` on first
-    use: the text is known to be such a list, so ``args`` cannot fail, and it is
-    the tuple the parser would have made (same values, same types).
-    :func:`match_variant` checks such a call against a variant from its values or
-    text, without ``args`` (tools/bench_codec.py, full MoveJ decode).  Equality,
-    hash and repr read ``args`` and are those of any call.
+    A call :func:`parse_data` reads in one pass as a short list of plain numbers in
+    C's form (MoveJ's 29 values, ``-116.061`` or ``0``) holds its argument text and
+    its :attr:`values`; it makes ``args`` on first use: the text is known to be such
+    a list, so ``args`` cannot fail, and it is the tuple the argument parser makes
+    of it (same values, same types).
+    ``match_variant`` (``conformance/spec/checks.py``) checks such a call against a
+    variant of number parameters from its values, without ``args``
+    (tools/bench_codec.py, full MoveJ decode).  Equality, hash and repr read ``args``
+    and are those of any call.
     """
 
     name: str
@@ -160,13 +158,10 @@ class Call:
         """The arguments' values in one tuple, when every argument is a number (else None).
 
         ``tuple(a.value for a in args)``, same values and types (``0`` an int,
-        ``0.000`` a float), without making ``args``: a plain-number call read in
-        one pass has them from the parser; any other call makes them once from
-        its arguments.
+        ``0.000`` a float): a plain-number call read in one pass has them from the
+        parser, without making ``args``; any other call makes them once from its
+        arguments.
         """
-        text = self.__dict__.get(_PLAIN)
-        if text is not None:
-            return _plain_values(text)
         args = self.args
         nums = [a.value for a in args if type(a) is Number]
         return tuple(nums) if len(nums) == len(args) else None
@@ -199,47 +194,32 @@ class _LazyArgs:
         text = d.get(_PLAIN)
         if text is None:
             raise AttributeError(f"{type(call).__name__!r} object has no attribute 'args'")
-        args = d["args"] = _plain_args(text, call.values)
+        # The tokens and their values (plain_call): as many, and each value is the
+        # token's (int() or float() of it, the parser's reading).
+        args = d["args"] = tuple(
+            map(tuple.__new__, repeat(Number), zip(text.split(","), d["values"], strict=True))  # type: ignore[arg-type]
+        )
         return args
 
 
 if not TYPE_CHECKING:  # mypy: no attribute of Call is dynamic
     Call.args = _LazyArgs()
 
-#: Keys of a lazily read call's argument text and of its values in its instance
-#: dict (not fields).
+#: Key of a lazily read call's argument text in its instance dict (not a field).
 _PLAIN = "_plain_args_text"
-_VALUES = "values"
-
-
-def _plain_values(text: str) -> tuple[int | float, ...]:
-    """The values of a plain-number list of at most 300 characters (_PLAIN_LIST_RE).
-
-    Each token is short and has no exponent, so _number_value could not refuse it
-    (always finite): it is read by int() or float() directly.
-    """
-    return tuple([float(t) if "." in t else int(t) for t in text.split(",")])
-
-
-def _plain_args(text: str, values: tuple[int | float, ...] | None) -> tuple[Number, ...]:
-    """The arguments of a plain-number list (_plain_values), from its tokens and values."""
-    assert values is not None  # a plain list's values are all numbers
-    return tuple(map(tuple.__new__, repeat(Number), zip(text.split(","), values, strict=True)))  # type: ignore[arg-type]
-
-
 _object_new = object.__new__
 
 
-def plain_call(name: str, text: str, values: tuple[int | float, ...] | None = None) -> Call:
-    """``Call(name=name, args=_plain_args(text, ...))``, with ``args`` made when first
-    used, and ``values`` those of ``text`` when already read (else read when asked)."""
+def plain_call(name: str, text: str, values: tuple[int | float, ...]) -> Call:
+    """``Call(name=name, args=...)`` of a list of plain numbers ``text`` (no exponent,
+    at most 300 characters) and their ``values`` (each token's int() or float(), as the
+    parser reads it), with ``args`` made when first used."""
     call = _object_new(Call)
     d = call.__dict__
     d["name"] = name
     d["problems"] = ()
     d[_PLAIN] = text
-    if values is not None:
-        d[_VALUES] = values
+    d["values"] = values
     return call
 
 
@@ -257,6 +237,7 @@ Parsed = Call | Keyword | RawData
 
 
 def data_error(msg: str, data: str, rule: Rule = Rule.BAD_DATA) -> RemoteProtocolError:
+    """The peer's DATA ``data`` broke ``rule`` (the message shows it with :func:`shown`)."""
     return RemoteProtocolError(msg, rule=rule, raw=data.encode("utf-8", "replace"))
 
 

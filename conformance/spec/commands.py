@@ -87,12 +87,12 @@ class Interval:
     min: float
     max: float
 
-    def __contains__(self, value: object) -> bool:
-        return isinstance(value, (int, float)) and self.min <= value <= self.max
-
 
 @dataclass(frozen=True, kw_only=True)
 class Param:
+    """A parameter's row of a variant's table.  What values it takes is stated once, by
+    its domain compiled from this row (``conformance/spec/checks.py``: ``allows``)."""
+
     name: str
     type: str
     printed_type: str = ""
@@ -115,27 +115,6 @@ class Param:
     @property
     def is_integer(self) -> bool:
         return self.type in INTEGER_TYPES
-
-    def allows(self, value: float | str) -> bool:
-        """Whether a scalar value satisfies the stated range/enum (and the C type's bounds)."""
-        if self.is_string:
-            if not isinstance(value, str):
-                return False
-            return self.max_length is None or len(value.encode("utf-8")) <= self.max_length
-        if isinstance(value, str):
-            return False
-        if self.is_integer and isinstance(value, float) and not value.is_integer():
-            return False
-        bounds = TYPE_BOUNDS.get(self.type)
-        if bounds is not None and not bounds[0] <= value <= bounds[1]:
-            return False
-        if self.range is None and self.enum is None:
-            return True
-        if self.range is not None and any(value in iv for iv in self.range):
-            return True
-        return self.enum is not None and any(
-            not isinstance(v, str) and v == value for v, _ in self.enum
-        )
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 from ..errors import ConformanceError
 from ..protocol.data_format import Value, format_call
 from ..protocol.data_values import Arg, Array
+from .checks import allows
 from .commands import TYPE_BOUNDS, Command, Param, Returns, ReturnValue, SpecSet, Variant
 
 __all__ = [
@@ -291,7 +292,7 @@ def _number(p: Param) -> int | float:
                 cands.append(lo if lo > 0 or hi < 0 else 0.0)
     cands.append(0.0)
     for c in cands:
-        if p.allows(c):
+        if allows(p, c):
             return int(c) if p.is_integer else c
     return 0 if p.is_integer else 0.0
 

@@ -27,6 +27,7 @@ from hypothesis import strategies as st
 
 from ..protocol.data_format import Value, format_call, format_value
 from ..protocol.frame import CNT_MAX, encode_frame
+from ..spec.checks import allows
 from ..spec.commands import TYPE_BOUNDS, Command, Param, SpecSet, Variant
 from ..spec.knowledge import JOINT_ARRAYS, JOINT_NAMES
 
@@ -256,7 +257,7 @@ def _scalar(p: Param) -> Layout[Value]:
         nums: list[Value] = [
             int(v) if p.is_integer and float(v).is_integer() else v
             for v, _ in p.enum
-            if not isinstance(v, str) and p.allows(v)
+            if not isinstance(v, str) and allows(p, v)
         ]
         if nums:
             pick = _pick(len(nums))
@@ -345,8 +346,8 @@ def minimal_value(p: Param) -> Value:
     (the first enum value; ``P1``, ``127.0.0.1`` for strings)."""
     if p.is_string:
         v: Value = "P1" if p.quoted else "127.0.0.1"
-    elif p.enum and any(not isinstance(x, str) and p.allows(x) for x, _ in p.enum):
-        v = next(x for x, _ in p.enum if not isinstance(x, str) and p.allows(x))
+    elif p.enum and any(not isinstance(x, str) and allows(p, x) for x, _ in p.enum):
+        v = next(x for x, _ in p.enum if not isinstance(x, str) and allows(p, x))
         if p.is_integer:
             v = int(v)
     elif p.range:
@@ -445,7 +446,7 @@ def _out_of_range(p: Param) -> list[Value]:
     ]
     step = 1 if p.is_integer else 0.5
     cands = [min(lows) - step * 1000, max(highs) + step * 1000, max(highs) + step]
-    return [int(c) if p.is_integer else c for c in cands if not p.allows(c)]
+    return [int(c) if p.is_integer else c for c in cands if not allows(p, c)]
 
 
 INVALID_KINDS = ("count", "type", "range")
