@@ -60,6 +60,13 @@ os.environ.setdefault(
     os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), ".hypothesis"),
 )
 
+# No example has a deadline: the tests run on two busy cores beside other processes, and a
+# test that fails for a slow moment says nothing about the kit (speed is benchmarks' job).
+from hypothesis import settings  # noqa: E402 (after its storage directory is named)
+
+settings.register_profile("kit", deadline=None)
+settings.load_profile("kit")
+
 
 @pytest.fixture
 def emulator() -> Iterator[EmulatorServer]:

@@ -1,11 +1,14 @@
-"""The fleet dataset's tables as both export paths write them, checked equal: the fast
-(windowed) path's and the general path's (check_recording over the whole recording), for
-tests/test_fleet_paths.py."""
+"""The fleet dataset's tables of a recording exported a window at a time, checked equal to
+those of the recording exported as one window, and its frames' verdicts checked equal to
+the ones ``check`` gives (the same engine, another reading: conformance/offline/check.py
+over the recording read whole), for tests/test_fleet_paths.py and test_fleet_window.py."""
 
 from __future__ import annotations
 
 import glob
 import json
+import sys
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
@@ -43,45 +46,76 @@ class Rows(dict):  # type: ignore[type-arg]
         return self[t]  # type: ignore[no-any-return]
 
 
+def checked_frames(path: Path) -> Counter[tuple[object, ...]]:
+    """Each frame ``check`` judges in the recording or capture (read whole): its
+    direction, connection, CNT, ID, outcome and rule."""
+    from conformance.judge.judge import Judge
+    from conformance.offline.check import check_recording
+    from conformance.pcap.importer import read_capture
+    from conformance.recording.records import FrameRecord
+    from conformance.spec.commands import default_specs
+    from conformance.spec.dialects import default_dialects
+
+    got: Counter[tuple[object, ...]] = Counter()
+
+    def keep(f: Any, v: Any) -> None:
+        if isinstance(f, FrameRecord):
+            got[(f.dir, f.conn, f.cnt, f.cmd_id, v.outcome.value, v.rule)] += 1
+
+    rec = read_capture(path)
+    judge = Judge(default_specs(), default_dialects())
+    if rec.frames:
+        check_recording(rec, judge.specs, judge=judge, on_verdict=keep)
+    return got
+
+
 def both_paths(
     path: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, **kw: Any
 ) -> tuple[dict[str, list[dict[str, Any]]], list[str]]:
-    """The dataset's tables by the fast path, checked equal to the general path's (all
-    tables, all rows in any order, all columns and their types); and what the fast path
-    read whole (none: windowed)."""
-    from conformance.fleet import export
+    """The dataset's tables exported with ``kw`` (a small ``window``), checked equal to
+    those exported as one window (all tables, all rows in any order, all columns and their
+    types), and the frames' verdicts to ``check``'s; and what the windowed export read
+    again as one window (none: windowed to the end)."""
     from conformance.fleet.export import export_recording, open_dataset
     from conformance.fleet.schema import TABLES
     from conformance.judge.judge import Judge
+    from conformance.offline import engine
     from conformance.spec.commands import default_specs
     from conformance.spec.dialects import default_dialects
 
     judge = Judge(default_specs(), default_dialects())
-    whole: list[str] = []
-    real = export._whole
+    again: list[str] = []
+    real = engine.Engine.run
 
-    def spy(*a: Any, **k: Any) -> None:
-        whole.append(a[0])
-        real(*a, **k)
+    def spy(self: Any, reading: Any) -> None:
+        real(self, reading)
+        if self.again:
+            again.append(self.path)
 
-    monkeypatch.setattr(export, "_whole", spy)
+    monkeypatch.setattr(engine.Engine, "run", spy)
     tables = {}
-    for fast in (True, False):
-        out = open_dataset(tmp_path / f"ds-{fast}-{path.name}")
-        export_recording(str(path), out, judge_for=lambda fw: judge, fast=fast, **kw)
-        tables[fast] = {t: _table(out, t) for t in TABLES}
-        if fast:
-            fast_whole = list(whole)
-    for t, a in tables[True].items():
-        b = tables[False][t]
+    for name, args in (("windows", kw), ("one", {**kw, "window": sys.maxsize})):
+        out = open_dataset(tmp_path / f"ds-{name}-{path.name}")
+        export_recording(str(path), out, judge_for=lambda fw: judge, **args)
+        tables[name] = {t: _table(out, t) for t in TABLES}
+        if name == "windows":
+            windowed_again = list(again)
+    for t, a in tables["windows"].items():
+        b = tables["one"][t]
         assert a is b if None in (a, b) else a.equals(b), t
-    return Rows(tables[True]), fast_whole
+    rows = Rows(tables["windows"])
+    exported = Counter(
+        (r["direction"], r["conn"], r["cnt"], r["cmd_id"], r["outcome"], r["rule"])
+        for r in rows["frames"]
+    )
+    assert exported == checked_frames(path)
+    return rows, windowed_again
 
 
-def named_damage(tmp_path: Path, path: Path) -> dict[bool, list[str]]:
-    """The damage each path's export named (its ``_recordings`` entry), by ``fast``."""
+def named_damage(tmp_path: Path, path: Path) -> dict[str, list[str]]:
+    """The damage each export named (its ``_recordings`` entry), windowed and whole."""
     out = {}
-    for fast in (True, False):
-        (mark,) = (tmp_path / f"ds-{fast}-{path.name}" / "_recordings").glob("*.json")
-        out[fast] = json.loads(mark.read_text())["damage"]
+    for name in ("windows", "one"):
+        (mark,) = (tmp_path / f"ds-{name}-{path.name}" / "_recordings").glob("*.json")
+        out[name] = json.loads(mark.read_text())["damage"]
     return out

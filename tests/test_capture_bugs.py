@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 from conformance.net.replay_server import ReplayServer
+from conformance.offline.exchanges import exchanges
 from conformance.offline.replay import NOT_RECORDED, ReplyBook
 from conformance.protocol.decoder import FrameDecoder
 from conformance.protocol.frame import Frame, encode_frame
@@ -434,7 +435,7 @@ def test_a_request_decided_after_its_reply_still_pairs_with_it(tmp_path: Path) -
         rec.close(1, t_ns=2_000_000_000, reason="client closed")
     recording = read_recording(path)
     assert [f.dir for f in recording.frames] == ["s2c", "c2s"]  # as the recorder wrote them
-    ex = recording.exchanges()
+    ex = exchanges(recording)
     assert len(ex) == 1 and ex[0].request is not None and ex[0].reply is not None
     report = check_recording(recording, default_specs(), side="controller")
     assert failing_ids_by_side(report)["controller"] == 0, [(c.id, c.detail) for c in report.cases]

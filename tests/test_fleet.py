@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
@@ -224,17 +225,15 @@ def _a_frame_a_message(path: Path) -> int:
 
 
 @pytest.mark.parametrize("layout", ["batches", "a frame a message"])
-def test_fast_path_gives_the_general_paths_rows(tmp_path: Path, layout: str) -> None:
-    """The columnar path (conformance/fleet/fast.py) and check_recording's give the same
-    rows: a wrong reply CNT (the pairing one by one), time-outs and refusals (at once);
-    of layout 2's JSON batches and of layout 3's protobuf ones, batched or one frame a
-    message (read at fixed places)."""
+def test_exported_frames_carry_checks_verdicts(tmp_path: Path, layout: str) -> None:
+    """Each frame's row carries the verdict check gives it: a wrong reply CNT (paired by
+    ID alone), time-outs and refusals, batched or one frame a message; the firmware each
+    recording's 905 reply names chose its spec set."""
     from conformance.fleet.export import export_recording, open_dataset
-    from conformance.fleet.fast import read_columns
-    from conformance.fleet.verdicts import _pairs_at_once
     from conformance.judge.judge import Judge
     from conformance.spec.commands import default_specs
     from conformance.spec.dialects import default_dialects
+    from tests.fleet_both import checked_frames
 
     faults = (
         Fault("cnt", "*", "*", 212),
@@ -246,18 +245,20 @@ def test_fast_path_gives_the_general_paths_rows(tmp_path: Path, layout: str) -> 
     write_recording(b, "r09", "3.8.2", 600, faults[1:], START)
     if layout == "a frame a message":
         assert _a_frame_a_message(a) > 400 and _a_frame_a_message(b) > 400
-    ca, cb = read_columns(str(a)), read_columns(str(b))
-    assert ca is not None and cb is not None
-    assert _pairs_at_once(ca) is None and _pairs_at_once(cb) is not None
     judge = Judge(default_specs(), default_dialects())
-    tables = {}
-    for fast in (True, False):
-        out = open_dataset(tmp_path / f"ds-{fast}")
-        for path in (a, b):
-            export_recording(str(path), out, judge_for=lambda fw: judge, fast=fast)
-        tables[fast] = duck_tables(out)
-    assert_same_tables(tables[True], tables[False])
-    assert "bad_cnt" in tables[True]["frames"]["rule"].to_pylist()
+    out = open_dataset(tmp_path / "ds")
+    for path, firmware in ((a, "3.9.8"), (b, "3.8.2")):
+        r = export_recording(str(path), out, judge_for=lambda fw: judge)
+        assert r.firmware == firmware
+    frames = duck_tables(out)["frames"].to_pylist()
+    for path in (a, b):
+        exported = Counter(
+            (r["direction"], r["conn"], r["cnt"], r["cmd_id"], r["outcome"], r["rule"])
+            for r in frames
+            if r["recording"] == path.name
+        )
+        assert exported == checked_frames(path)
+    assert "bad_cnt" in {r["rule"] for r in frames}
 
 
 @pytest.mark.parametrize(
@@ -268,12 +269,11 @@ def test_fast_path_gives_the_general_paths_rows(tmp_path: Path, layout: str) -> 
         (b"\x1a\x03c2s", b"\x1a\x03c3s"),  # no direction
     ],
 )
-def test_a_protobuf_batch_that_does_not_fit_goes_the_general_way(
+def test_a_protobuf_batch_that_does_not_fit_is_skipped_and_named(
     tmp_path: Path, old: bytes, new: bytes
 ) -> None:
     """A frame batch that does not read or fit is skipped and named as damage (exit 3),
     the windows naming it as the reader does, never an internal error."""
-    from conformance.fleet.fast import read_columns
     from conformance.recording.layout import TOPIC_FRAMES
     from conformance.recording.reader import read_recording
     from conformance.recording.records import Frames
@@ -291,10 +291,9 @@ def test_a_protobuf_batch_that_does_not_fit_goes_the_general_way(
         w.write_frames(good)
         w.flush()
         w._mcap.add_message(w._channels[TOPIC_FRAMES], START + 2, wire.replace(old, new), START, 9)
-    # The windows skip it and name it as the reader does (issue 19), the rest read.
-    cols = read_columns(str(path))
-    assert cols is not None and len(cols) == 2
-    assert [str(d) for d in cols.damage] == [str(d) for d in read_recording(path).damage]
+    # The reader skips it and names it (issue 19), the rest read.
+    rec = read_recording(path)
+    assert len(rec.frames) == 2 and len(rec.damage) == 1
     p = cli_run("export-parquet", str(path), "-o", str(tmp_path / "ds"))
     assert p.returncode == 3, p.stderr
     assert "damaged:" in p.stderr and "internal error" not in p.stderr

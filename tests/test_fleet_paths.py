@@ -1,7 +1,9 @@
-"""export-parquet's fast path beyond clean MCAP recordings (issue 19): pcap/pcapng captures
-(imported to a temporary recording, then windowed), the state stream and problems give
-the rows of the general path (check_recording over the whole recording), every table,
-every column; and the fast path is the one that wrote them."""
+"""export-parquet beyond clean MCAP recordings: pcap/pcapng captures (imported to a
+temporary recording, then read in windows), the state stream, problems, framing problems,
+damage, messages that do not read, many connections: the rows of a recording read a few
+frames at a time are those of it read as one window, every table, every column, and its
+frames' verdicts are check's (tests/fleet_both.py); and it was read in windows to the end
+(not read again as one window)."""
 
 from __future__ import annotations
 
@@ -49,7 +51,7 @@ def _synth_capture(path: Path, frames: int, pcapng: bool = False) -> Path:
 
 
 @pytest.mark.parametrize("fmt", ["pcap", "pcapng"])
-def test_a_capture_goes_the_fast_path(
+def test_a_capture_is_read_in_windows(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, fmt: str
 ) -> None:
     """A clean capture is imported to a temporary recording and exported in windows; its
@@ -57,8 +59,8 @@ def test_a_capture_goes_the_fast_path(
     if fmt == "pcapng":
         pytest.importorskip("scapy")
     path = _synth_capture(tmp_path / f"cap.{fmt}", 900, pcapng=fmt == "pcapng")
-    tables, whole = both_paths(path, tmp_path, monkeypatch, window=64)
-    assert whole == []
+    tables, again = both_paths(path, tmp_path, monkeypatch, window=64)
+    assert again == []
     assert len(tables["frames"]) == 900
     assert {r["recording"] for r in tables["frames"]} == {path.name}
     assert any(r["missing_reply"] for r in tables["exchanges"])
@@ -66,41 +68,41 @@ def test_a_capture_goes_the_fast_path(
     assert not list(tmp_path.rglob("*.mcap"))  # the temporary recording is gone
 
 
-def test_the_field_capture_gives_the_general_paths_rows(
+def test_the_field_capture_reads_as_check_reads_it(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     tables, _ = both_paths(CAPTURES / "field_segments.pcap", tmp_path, monkeypatch)
     assert tables["frames"] and tables["problems"]
 
 
-def test_a_damaged_capture_goes_the_windowed_path(
+def test_a_damaged_capture_is_read_in_windows(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """A capture cut inside a packet: imported and windowed (a window of 64 frames), its
-    damage named as the general path names it, the rows the same."""
+    damage named as one window names it, the rows the same."""
     path = _synth_capture(tmp_path / "cut.pcap", 300)
     data = path.read_bytes()
     path.write_bytes(data[: len(data) - 7])
-    tables, whole = both_paths(path, tmp_path, monkeypatch, window=64)
-    assert whole == [] and len(tables["frames"]) > 200
+    tables, again = both_paths(path, tmp_path, monkeypatch, window=64)
+    assert again == [] and len(tables["frames"]) > 200
     damage = named_damage(tmp_path, path)
-    assert damage[True] == damage[False] and damage[True]
+    assert damage["windows"] == damage["one"] and damage["windows"]
 
 
 @pytest.mark.parametrize(
     "faults", [[], ["state_checksum:3"], ["state_cnt_gap:3"], ["state_layout"]]
 )
-def test_the_state_stream_goes_the_fast_path(
+def test_the_state_stream_is_read_in_windows(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, faults: list[str]
 ) -> None:
     """The emulator's command and state ports recorded (the state decoder's problems on
     /fairino/problems, which are no rows): the state table written window by window (5
-    packets a window), the rows those of the general path."""
+    packets a window), the rows those of one window."""
     from tests.test_state_recording import record_emulator
 
     path = record_emulator(tmp_path, faults, packets=24)
-    tables, whole = both_paths(path, tmp_path, monkeypatch, window=5)
-    assert whole == []
+    tables, again = both_paths(path, tmp_path, monkeypatch, window=5)
+    assert again == []
     state = tables["state"]
     assert len(state) >= 24 and tables["frames"]
     # state_layout: the packets are v3.9.8's, LEN matching that layout, not the spec's.
@@ -120,8 +122,8 @@ def test_a_state_stream_alone_with_the_decoders_problems(
     from tests.test_state_recording import _record, _stream
 
     path = _record(tmp_path, _stream(), 4096, "state.mcap")
-    tables, whole = both_paths(path, tmp_path, monkeypatch, window=2)
-    assert whole == [] and len(tables["state"]) == 5 and not tables["frames"]
+    tables, again = both_paths(path, tmp_path, monkeypatch, window=2)
+    assert again == [] and len(tables["state"]) == 5 and not tables["frames"]
     assert [r["gap"] for r in sorted(tables["state"], key=lambda r: r["time"])] == [0, 0, 1, 0, 0]
 
 
@@ -129,7 +131,7 @@ def test_a_proxy_recording_with_the_state_stream(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """``proxy --state`` in front of the emulator (every fourth state packet's checksum one
-    off): the fast path's rows are the general path's."""
+    off): its rows in windows are one window's."""
     import socket
 
     from conformance.net.emulator import EmulatorServer
@@ -148,8 +150,8 @@ def test_a_proxy_recording_with_the_state_stream(
                 assert command(cmd, 1, 1207, "SetStatePeriod(8083,8)").data == "1"
                 assert command(cmd, 2, 201, MOVEJ).data == "1"
                 read_packets(state, 12)
-    tables, whole = both_paths(out, tmp_path, monkeypatch, window=3)
-    assert whole == []
+    tables, again = both_paths(out, tmp_path, monkeypatch, window=3)
+    assert again == []
     assert len(tables["state"]) >= 12 and any(not r["checksum_ok"] for r in tables["state"])
     assert {r["stream"] for r in tables["connections"]} == {"", "state"}
 
@@ -202,16 +204,16 @@ def _with_problems(path: Path, garbage: str) -> Path:
     ("garbage", "blamed"),
     [("", set()), ("before_reply", {212}), ("trailing", {214}), ("first", {None, 500})],
 )
-def test_problems_go_the_windowed_path(
+def test_problems_are_read_in_windows(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, garbage: str, blamed: set[int | None]
 ) -> None:
     """Gaps and the client's malformed bytes (blamed on no request), and the controller's
-    malformed bytes, blamed on the request they answered (recording/blame.py: before a
+    malformed bytes, blamed on the request they answered (judge/blame.py: before a
     reply, no reply after them, before any request), are written window by window (8
-    frames a window): check's verdicts, the rows those of the general path."""
+    frames a window): check's verdicts, the rows those of one window."""
     path = _with_problems(tmp_path / "p.mcap", garbage)
-    tables, whole = both_paths(path, tmp_path, monkeypatch, window=8)
-    assert whole == []
+    tables, again = both_paths(path, tmp_path, monkeypatch, window=8)
+    assert again == []
     kinds = {(r["kind"], r["direction"]) for r in tables["problems"]}
     assert {("malformed", "c2s"), ("gap", "c2s"), ("gap", "s2c")} <= kinds
     assert len(tables["frames"]) > 100
@@ -229,12 +231,12 @@ def _synth(path: Path, frames: int) -> Path:
 
 
 @pytest.mark.parametrize("how", ["cut", "flipped"])
-def test_a_damaged_recording_goes_the_windowed_path(
+def test_a_damaged_recording_is_read_in_windows(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, how: str
 ) -> None:
     """A recording cut off two thirds in (an unfinished file: no summary) or with a byte
     flipped inside a chunk (its CRC fails: the chunk is skipped and named): windowed
-    (a window of 64 frames), the rows and the damage those of the general path."""
+    (a window of 64 frames), the rows and the damage those of one window."""
     path = _synth(tmp_path / f"{how}.mcap", 2000)
     data = bytearray(path.read_bytes())
     if how == "cut":
@@ -242,11 +244,11 @@ def test_a_damaged_recording_goes_the_windowed_path(
     else:
         data[len(data) // 2] ^= 0xFF
     path.write_bytes(bytes(data))
-    tables, whole = both_paths(path, tmp_path, monkeypatch, window=64)
-    assert whole == [] and 600 < len(tables["frames"]) < 2000
+    tables, again = both_paths(path, tmp_path, monkeypatch, window=64)
+    assert again == [] and 600 < len(tables["frames"]) < 2000
     damage = named_damage(tmp_path, path)
-    assert damage[True] == damage[False]
-    assert bool(damage[True]) == (how == "flipped")
+    assert damage["windows"] == damage["one"]
+    assert bool(damage["windows"]) == (how == "flipped")
 
 
 def _with_flaws(path: Path) -> Path:
@@ -277,15 +279,15 @@ def _with_flaws(path: Path) -> Path:
     return path
 
 
-def test_frame_batches_with_framing_problems_go_the_windowed_path(
+def test_frame_batches_with_framing_problems_are_read_in_windows(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """Frame batches carrying framing problems: windowed (8 frames a window), each such
     frame judged alone, ``len_ok`` False where its LEN does not fit; the rows those of the
-    general path."""
+    one window."""
     path = _with_flaws(tmp_path / "flaws.mcap")
-    tables, whole = both_paths(path, tmp_path, monkeypatch, window=8)
-    assert whole == []
+    tables, again = both_paths(path, tmp_path, monkeypatch, window=8)
+    assert again == []
     frames = tables["frames"]
     assert len(frames) == 236
     assert sum(not r["len_ok"] for r in frames) == 2 * (11 + 6)
@@ -346,29 +348,19 @@ def _out_of_order(path: Path, case: str) -> Path:
 
 
 @pytest.mark.parametrize("case", ["judged", "swapped"])
-def test_runs_written_out_of_order_go_the_windowed_path(
+def test_runs_written_out_of_order_take_the_file_order(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, case: str
 ) -> None:
     """The controller's garbage written after the reply it came before was judged, or a
-    stream's frames stepping back after the garbage found a frame: the windows cannot tell
-    whose it is as they read it (recording/blame.py's Unknown), so the recording is read
-    again with the controller's runs read first (recording/blame_ahead.py) and windowed;
-    the rows are the general path's (blamed on reply 3's request, 214)."""
-    from conformance.fleet import export
-
+    stream's frames stepping back after the garbage: whose it is follows the file's order
+    (conformance/judge/blame.py), so the windows decide as one window does and as check
+    does: the garbage is before the next reply read after it (reply 41's, or reply 4's:
+    a GetDI, 212; reply 3 answered a GetAI, 214)."""
     path = _out_of_order(tmp_path / f"{case}.mcap", case)
-    ahead: list[str] = []
-    real = export.controller_runs  # type: ignore[attr-defined]
-
-    def runs(p: str) -> Any:
-        ahead.append(p)
-        return real(p)
-
-    monkeypatch.setattr(export, "controller_runs", runs)
-    tables, whole = both_paths(path, tmp_path, monkeypatch, window=8)
-    assert whole == [] and ahead == [str(path)]
+    tables, again = both_paths(path, tmp_path, monkeypatch, window=8)
+    assert again == []
     (run,) = tables["problems"]
-    assert run["cmd_id"] == 214
+    assert run["cmd_id"] == 212
 
 
 def _with_bad_messages(path: Path, *, flip: int = 0) -> Path:
@@ -432,25 +424,25 @@ def _with_bad_messages(path: Path, *, flip: int = 0) -> Path:
 
 
 @pytest.mark.parametrize("flip", [0, 4000, 5000, 7000])
-def test_messages_that_do_not_read_or_fit_go_the_windowed_path(
+def test_messages_that_do_not_read_or_fit_are_read_in_windows(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, flip: int
 ) -> None:
     """A frame batch, a connection record and a problem that do not read or fit its schema
     (a negative number among them), and a later layout's topic: windowed (8 frames a
     window), each skipped and named as the reader names it, in the reader's order among
     a damaged chunk's (read after the batch, named before the window checks it); the rows
-    those of the general path."""
+    those of one window."""
     path = _with_bad_messages(tmp_path / f"bad-{flip}.mcap", flip=flip)
-    tables, whole = both_paths(path, tmp_path, monkeypatch, window=64 if flip else 8)
-    assert whole == []
+    tables, again = both_paths(path, tmp_path, monkeypatch, window=64 if flip else 8)
+    assert again == []
     damage = named_damage(tmp_path, path)
-    assert damage[True] == damage[False]
-    named = [d for d in damage[True] if d.startswith("message ")]
+    assert damage["windows"] == damage["one"]
+    named = [d for d in damage["windows"] if d.startswith("message ")]
     if not flip:
-        assert len(named) == len(damage[True]) == 4
+        assert len(named) == len(damage["windows"]) == 4
         assert len(tables["frames"]) == 2 * 4 * 24
     else:  # the chunk flipped named among them (it may hold one of them)
-        assert len(damage[True]) > len(named) >= 2
+        assert len(damage["windows"]) > len(named) >= 2
 
 
 def _many_connections(path: Path, short: int) -> Path:
@@ -485,77 +477,62 @@ def _many_connections(path: Path, short: int) -> Path:
 
 
 @pytest.mark.parametrize(("short", "found"), [(6, True), (40, False)])
-def test_more_connections_than_check_remembers_go_the_windowed_path(
+def test_more_connections_than_check_remembers_are_read_in_windows(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, short: int, found: bool
 ) -> None:
     """More connections than check's CntSteps remembers (16 here, 4,096 as shipped): the
     windows forget a connection's CNT when CntSteps does (connection 1's CNT jump found
     only while it is remembered), and keep per connection only what the connections open
-    need (a closed one's dropped: its ports, streams, the blame of its garbage), so that
-    memory does not grow with their number; the rows those of the general path."""
-    from conformance.fleet import window
+    need (a closed one's dropped: its streams, the blame of its garbage, the closed kept
+    above a floor), so that memory does not grow with their number."""
     from conformance.judge.stream import CntSteps
-    from conformance.recording import blame
+    from conformance.offline import engine
 
     monkeypatch.setattr(CntSteps.__init__, "__kwdefaults__", {"limit": 16})
-    monkeypatch.setattr(blame.Gone.__init__, "__defaults__", (4,))  # its floor used
-    monkeypatch.setattr(window, "HELD", 8)
+    monkeypatch.setattr(engine._Gone.__init__, "__defaults__", (4,))  # its floor used
+    monkeypatch.setattr(engine, "HELD", 8)
     most: list[int] = []
-    real = window.Windows.add
+    real = engine._State.judged
 
-    def add(self: window.Windows, *a: Any, **k: Any) -> None:
-        real(self, *a, **k)
-        kept = self.blame._streams if self.blame is not None else {}
-        most.append(max(len(self.ports), len(self.last_ns), len(self.last_cnt), len(kept)))
+    def judged(self: Any, *a: Any, **k: Any) -> Any:
+        out = real(self, *a, **k)
+        if self.window == 8:  # not the export as one window both_paths compares with
+            blame = self.blame
+            kept = (self.open, self.last_ns, self.used, self.gone.ids, blame._recent)
+            most.append(max(map(len, (*kept, blame._waiting))))
+        return out
 
-    monkeypatch.setattr(window.Windows, "add", add)
+    monkeypatch.setattr(engine._State, "judged", judged)
     path = _many_connections(tmp_path / f"many-{short}.mcap", short)
-    tables, whole = both_paths(path, tmp_path, monkeypatch, window=8)
-    assert whole == []
+    tables, again = both_paths(path, tmp_path, monkeypatch, window=8)
+    assert again == []
     assert len(tables["connections"]) == 2 * (short + 1)
     jump = [r for r in tables["frames"] if r["conn"] == 1 and r["cnt"] == 5]
     assert len(jump) == 2 and (jump[0]["rule"] == "cnt_step") == found, jump[0]["rule"]
     assert len([r for r in tables["problems"] if r["cmd_id"] == 212]) == (short + 1) // 5
-    # Per connection (open, or with frames held for the next window: at most 32 frames
-    # here), not per connection there was (41, 82 streams: 16 from the CNTs' 16).
+    # Per connection open (or with frames held for the next window: at most 32 frames
+    # here), not per connection there was (41, 82 streams).
     assert max(most) <= 24
 
 
-def test_more_connections_open_at_once_than_the_bound_read_the_recording_whole(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+@pytest.mark.parametrize("case", ["many", "swapped"])
+def test_more_connections_open_at_once_than_the_bound_read_the_recording_as_one_window(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, case: str
 ) -> None:
-    """More connections open at once than window.OPEN (65,536 as shipped; 1 here: a
-    connection stays open while the others come and go): the recording is read whole, as
-    columns (hostile input), the rows still the general path's."""
-    from conformance.fleet import window
+    """More connections open at once than engine.OPEN (65,536 as shipped; 0 here): the
+    recording is read again as one window (hostile input), the rows the same, the
+    controller's garbage of a stream stepping back blamed as the file's order says."""
+    from conformance.offline import engine
 
-    monkeypatch.setattr(window, "OPEN", 1)
-    path = _many_connections(tmp_path / "open.mcap", 6)
-    tables, whole = both_paths(path, tmp_path, monkeypatch, window=8)
-    assert whole == [str(path)] and len(tables["connections"]) == 14
-
-
-def test_a_recording_read_whole_as_columns_takes_runs_out_of_order(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    """Read whole as columns (more connections open at once than window.OPEN, 0 here), a
-    stream's offsets stepping back after the controller's garbage found a frame: the runs
-    read first there too (recording/blame_ahead.py), not the general path; the rows those
-    of the general path."""
-    from conformance.fleet import export, window
-
-    monkeypatch.setattr(window, "OPEN", 0)
-    columns: list[bool] = []
-    real = export.read_columns  # type: ignore[attr-defined]
-
-    def read(p: str) -> Any:
-        got = real(p)
-        columns.append(got is not None)
-        return got
-
-    monkeypatch.setattr(export, "read_columns", read)
-    path = _out_of_order(tmp_path / "swapped.mcap", "swapped")
-    tables, whole = both_paths(path, tmp_path, monkeypatch, window=8)
-    assert whole == [str(path)] and columns == [True]
-    (run,) = tables["problems"]
-    assert run["cmd_id"] == 214
+    monkeypatch.setattr(engine, "OPEN", 0)
+    if case == "many":
+        path = _many_connections(tmp_path / "open.mcap", 6)
+    else:
+        path = _out_of_order(tmp_path / "swapped.mcap", "swapped")
+    tables, again = both_paths(path, tmp_path, monkeypatch, window=8)
+    assert again == [str(path)]
+    if case == "many":
+        assert len(tables["connections"]) == 14
+    else:
+        (run,) = tables["problems"]
+        assert run["cmd_id"] == 212

@@ -1,9 +1,10 @@
-"""export-parquet's fast path a window at a time (conformance/fleet/window.py): the rows of
-a recording exported in windows of a few messages are the rows of one window, and those
-of the general path (check_recording's verdicts), whatever the windows cut."""
+"""export-parquet a window at a time (conformance/offline/engine.py): the rows of a
+recording exported in windows of a few frames are the rows of one window, and its frames'
+verdicts check's, whatever the windows cut."""
 
 from __future__ import annotations
 
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
@@ -15,6 +16,7 @@ if gone := missing("pyarrow", "duckdb"):
     pytest.skip(f"{gone} not installed", allow_module_level=True)
 
 import tools.synth_fleet
+from tests.fleet_both import checked_frames
 from tests.test_fleet import START, _a_frame_a_message, assert_same_tables, duck_tables
 from tools.synth_fleet import Fault, write_recording
 
@@ -30,7 +32,7 @@ FAULTS = (
 def test_windows_give_the_rows_of_one_window(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, layout: str
 ) -> None:
-    from conformance.fleet import window
+    from conformance.fleet import rows
     from conformance.fleet.export import export_recording, open_dataset
     from conformance.judge.judge import Judge
     from conformance.spec.commands import default_specs
@@ -43,15 +45,15 @@ def test_windows_give_the_rows_of_one_window(
         assert _a_frame_a_message(path) > 400
     judge = Judge(default_specs(), default_dialects())
     carried: list[int] = []
-    judge_window = window.Windows._judge
+    real = rows.Rows.window
 
-    def spy(self: Any, c: Any, k: int, final: bool) -> None:
-        carried.append(k)
-        judge_window(self, c, k, final)
+    def spy(self: Any, j: Any) -> None:
+        carried.append(j.carried)
+        real(self, j)
 
-    monkeypatch.setattr(window.Windows, "_judge", spy)
+    monkeypatch.setattr(rows.Rows, "window", spy)
     tables = {}
-    for name, kw in (("one", {}), ("small", {"window": 5}), ("general", {"fast": False})):
+    for name, kw in (("one", {}), ("small", {"window": 5})):
         carried.clear()
         out = open_dataset(tmp_path / name)
         r = export_recording(str(path), out, judge_for=lambda fw: judge, **kw)  # type: ignore[arg-type]
@@ -64,7 +66,11 @@ def test_windows_give_the_rows_of_one_window(
         if name == "one":
             assert carried == [0]
     assert_same_tables(tables["small"], tables["one"])
-    assert_same_tables(tables["one"], tables["general"])
+    frames = tables["one"]["frames"].to_pylist()
+    exported = Counter(
+        (r["direction"], r["conn"], r["cnt"], r["cmd_id"], r["outcome"], r["rule"]) for r in frames
+    )
+    assert exported == checked_frames(path)
     assert any(tables["one"]["exchanges"]["missing_reply"].to_pylist())
     assert "bad_cnt" in tables["one"]["frames"]["rule"].to_pylist()
     conns = (
@@ -77,11 +83,15 @@ def test_windows_give_the_rows_of_one_window(
     assert conns[0][0] >= 3  # waiting requests written at their connection's close
 
 
-def test_frames_out_of_order_are_read_whole(tmp_path: Path) -> None:
+def test_frames_out_of_order_are_read_whole(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """A recording whose later messages hold earlier frames than those already judged:
-    the windows give up and the recording is read whole, with the same rows."""
+    the windows give up and the recording is read again as one window (nothing of the
+    first reading left), its frames judged as check judges them."""
     from conformance.fleet.export import export_recording, open_dataset
     from conformance.judge.judge import Judge
+    from conformance.offline import engine
     from conformance.recording.reader import read_recording
     from conformance.recording.records import Frames
     from conformance.recording.writer import RecordingWriter
@@ -98,11 +108,22 @@ def test_frames_out_of_order_are_read_whole(tmp_path: Path) -> None:
         for k in range(0, len(frames), 16):
             w.write_frames(Frames.of(frames[k : k + 16]))
     judge = Judge(default_specs(), default_dialects())
-    tables = {}
-    for name, kw in (("small", {"window": 5}), ("general", {"fast": False})):
-        out = open_dataset(tmp_path / name)
-        export_recording(str(path), out, judge_for=lambda fw: judge, **kw)  # type: ignore[arg-type]
-        tables[name] = duck_tables(out)
-        assert not list((tmp_path / name).rglob("*.tmp"))
-    assert_same_tables(tables["small"], tables["general"])
-    assert tables["small"]["frames"].num_rows == 300
+    again: list[str] = []
+    real = engine.Engine.run
+
+    def spy(self: Any, reading: Any) -> None:
+        real(self, reading)
+        again.append(self.again)
+
+    monkeypatch.setattr(engine.Engine, "run", spy)
+    out = open_dataset(tmp_path / "small")
+    export_recording(str(path), out, judge_for=lambda fw: judge, window=5)
+    assert again == ["a frame before one already judged"]
+    assert not list((tmp_path / "small").rglob("*.tmp"))
+    tables = duck_tables(out)
+    assert tables["frames"].num_rows == 300
+    exported = Counter(
+        (r["direction"], r["conn"], r["cnt"], r["cmd_id"], r["outcome"], r["rule"])
+        for r in tables["frames"].to_pylist()
+    )
+    assert exported == checked_frames(path)

@@ -25,6 +25,7 @@ from conformance.net import capture as capture_mod
 from conformance.net.capture import CaptureStats, LiveCapture
 from conformance.net.emulator import EmulatorServer
 from conformance.net.packet_ring import RingUnavailable
+from conformance.offline.exchanges import exchanges
 from conformance.pcap.importer import import_pcap
 from conformance.pcap.read import read_packets
 from conformance.pcap.recorder import PacketRecorder
@@ -156,7 +157,7 @@ def test_every_request_and_reply_recorded_once_paired_in_order(
     assert [(f.cnt, f.cmd_id, f.data) for f in reqs] == REQUESTS
     assert [(f.cnt, f.cmd_id, f.data) for f in reps] == [(r.cnt, r.cmd_id, r.data) for r in replies]
     assert [f.raw for f in reqs] == [encode_frame(*r) for r in REQUESTS]
-    ex = rec.exchanges()
+    ex = exchanges(rec)
     assert [(e.request.cnt, e.reply.cnt) for e in ex if e.request and e.reply] == [
         (r[0], r[0]) for r in REQUESTS
     ]

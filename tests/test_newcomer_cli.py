@@ -134,7 +134,7 @@ def test_item_8_check_blames_a_controllers_garbage_on_the_request_it_answered(
         if c["id"].endswith("/controller/garbage")
     ]
     assert garbage == [("206", "SetSpeed", 2)] and "0" not in commands
-    # diff blames the same request (the one rule: Recording.answered_by / noise_before).
+    # diff blames the same request (the one rule: conformance/judge/blame.py).
     assert main(["diff", str(clean), str(faulty)]) == 1
     out = capsys.readouterr().out
     assert "  206  SetSpeed" in out and "framing: 11 malformed bytes before the reply" in out

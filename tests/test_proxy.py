@@ -21,6 +21,7 @@ from mcap.reader import make_reader
 
 from conformance.net.addresses import parse_address
 from conformance.net.proxy import RecordingProxy
+from conformance.offline.exchanges import exchanges
 from conformance.protocol.decoder import FrameDecoder
 from conformance.protocol.frame import Frame, encode_frame
 from conformance.recording.layout import TOPIC_CONNECTIONS, TOPIC_FRAMES
@@ -137,7 +138,7 @@ def test_forwards_and_records_both_directions(tmp_path: Path, upstream: Upstream
     assert all(f.name == "MoveJ" and f.cmd_id == 201 for f in rec.frames)
     assert req[0].raw == encode_frame(0, 201, 'MoveJ("P1")')
     assert all(f.first_ns <= f.complete_ns for f in rec.frames)
-    ex = rec.exchanges()
+    ex = exchanges(rec)
     assert len(ex) == 20 and all(e.latency_ns is not None and e.latency_ns >= 0 for e in ex)
     events = [(c.event, c.reason) for c in rec.connections]
     assert events == [("open", ""), ("close", "client closed")]

@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 from mcap.reader import make_reader
 
 from conformance._version import __version__
+from conformance.offline.exchanges import exchanges
 from conformance.pcap.export import export_pcap
 from conformance.pcap.importer import import_pcap
 from conformance.protocol.frame import encode_frame
@@ -492,7 +493,7 @@ class _BatchSink(ListSink):
 
 def _exchanges_by_search(frames: list[FrameRecord]) -> list[tuple[int | None, int | None]]:
     """The pairing rule written the plain way (each reply searches its connection's
-    waiting requests from the oldest): the reference for Recording.exchanges."""
+    waiting requests from the oldest): the reference for offline/exchanges.exchanges."""
     out: list[list[int | None]] = []
     waiting: dict[int, list[tuple[int, FrameRecord]]] = {}
     for i, f in sorted(enumerate(frames), key=lambda p: p[1].first_ns):
@@ -552,6 +553,6 @@ def test_exchanges_pair_as_the_oldest_waiting_request_rule_says(
     index = {id(f): i for i, f in enumerate(frames)}
     got = [
         (index[id(e.request)] if e.request else None, index[id(e.reply)] if e.reply else None)
-        for e in rec.exchanges()
+        for e in exchanges(rec)
     ]
     assert got == _exchanges_by_search(frames)

@@ -10,6 +10,7 @@ import pytest
 from conformance.net.emulator import EmulatorServer
 from conformance.net.replay_server import ReplayServer
 from conformance.offline.diff import Ignore
+from conformance.offline.exchanges import exchanges
 from conformance.offline.replay import NOT_RECORDED, ReplyBook, replay_to_target
 from conformance.protocol.decoder import FrameDecoder
 from conformance.protocol.frame import Frame, encode_frame
@@ -121,7 +122,7 @@ def test_serve_answers_with_recorded_replies(session) -> None:  # type: ignore[n
         )
     recorded = {
         (e.request.cmd_id, e.request.data): e.reply
-        for e in session.exchanges()
+        for e in exchanges(session)
         if e.request is not None and e.reply is not None
     }
     assert (got[0].cnt, got[0].data) == (77, recorded[(400, "GetVersion()")].data)

@@ -21,6 +21,7 @@ from conformance.net.client import Client
 from conformance.net.emulator import EmulatorServer
 from conformance.net.proxy import RecordingProxy
 from conformance.net.replay_server import ReplayServer
+from conformance.offline.exchanges import exchanges
 from conformance.offline.replay import NOT_RECORDED, ReplyBook
 from conformance.protocol.decoder import FrameDecoder
 from conformance.protocol.frame import Frame, encode_frame
@@ -81,7 +82,7 @@ def _recorded(rec: Recording, transport: str, cmd_id: int, data: str) -> list[st
     """The DATA of the replies recorded on ``transport`` to this request, in order."""
     return [
         ex.reply.data
-        for ex in rec.exchanges()
+        for ex in exchanges(rec)
         if ex.request is not None
         and ex.reply is not None
         and ex.request.transport == transport

@@ -21,18 +21,18 @@ slow and bad replies on a few robots), then, each in its own process (its CPU ti
 ``--memory 250000,1000000,4000000``: instead, one recording of each size (one robot, one
 firmware, time-outs, slow replies and refusals on every robot), each exported in its own
 process: peak RSS against frames (flat: the same
-figure whatever the size; conformance/fleet/window.py) and frames/s CPU; with ``--pcap``,
+figure whatever the size; conformance/offline/engine.py) and frames/s CPU; with ``--pcap``,
 captures of those sizes (the same traffic as a pcap); with ``--baseline-rev REV``, each
 file exported by that revision's code too, in the same run.
 
-``--injected 1000000``: instead, one recording of that size clean and with each kind the
-windowed path took from the general one injected (tools/synth_fleet.py ``inject``): the
+``--injected 1000000``: instead, one recording of that size clean and with each kind of
+trouble injected (tools/synth_fleet.py ``inject``): the
 controller's garbage (ahead of replies and after each connection's last), framing problems
 (every 50th request's LEN off) and damage (a byte flipped in a chunk half way, the last
 tenth cut off), a frame batch that does not read near the start (``bad_message``: the
 reader skips and names it) and ``--connections`` short connections of 6 frames each
 (``connections``; 20,000: more than check's CntSteps remembers); each exported in its own
-process by this tree's windows and by its whole path (``fast=False``: the general path, which these kinds took before), the same run:
+process by this tree's windows and as one window (the recording held whole), the same run:
 frames/s CPU and peak RSS (flat: the windowed figures about the clean one's, whatever the
 kind); with ``--baseline-rev REV``, by that revision's code too.
 """
@@ -227,13 +227,13 @@ def memory(sizes: list[int], tmp: str, *, pcap: bool = False, rev: str = "") -> 
         path.unlink()
 
 
-#: export-parquet (the CLI's) with the whole path when argv[1] is ``whole``
-#: (``export_recording(fast=False)``: the general path), else as it is.
+#: export-parquet (the CLI's) as one window when argv[1] is ``whole``
+#: (``export_recording(window=sys.maxsize)``: the recording held whole), else as it is.
 _EXPORT = """
 import functools, sys
 import conformance.fleet.export as export
 if sys.argv.pop(1) == "whole":
-    export.export_recording = functools.partial(export.export_recording, fast=False)
+    export.export_recording = functools.partial(export.export_recording, window=sys.maxsize)
 from conformance.cli.main import main
 sys.exit(main(["export-parquet", *sys.argv[1:]]))
 """

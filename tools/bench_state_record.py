@@ -39,7 +39,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from conformance.offline.state_check import state_figures  # noqa: E402
+from conformance.offline.state_check import StatePort, state_figures  # noqa: E402
 from conformance.protocol.decoder import FrameDecoder  # noqa: E402
 from conformance.protocol.frame import Frame, encode_frame  # noqa: E402
 from conformance.protocol.state import StatePacket  # noqa: E402
@@ -228,7 +228,7 @@ def run(mode: str, period_ms: int, seconds: float, tmp: str) -> dict[str, Any]:
     finally:
         _stop(emu)
     r = read_recording(out)
-    figs = state_figures(r, version="3.8.2")
+    figs = state_figures(StatePort.of(r), version="3.8.2")
     valid, invalid, error = _validate(out)
     iv = figs[0].to_json()["interval_ms"] if figs else {}
     return {

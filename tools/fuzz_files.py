@@ -12,7 +12,7 @@ Each target mutates one valid file of its kind and reads it through the public A
 * ``mcap-json``: one field of one JSON message (a problem, a connection) replaced
   by a hostile JSON value (wrong type, out of range, deep, huge, a lone surrogate);
   the recording is read, summarized and checked (``info`` and ``check``:
-  :func:`~conformance.offline.check.summarize`, ``check_recording``);
+  :func:`~conformance.offline.info.summarize`, ``check_recording``);
 * ``traffic-pb``: the ``fairino.Traffic`` frame batch (frames of two TCP connections
   and a UDP one, both ways, names and none, problems, non-ASCII DATA; one stream and no
   ``stream`` column) mutated (bytes flipped, overwritten, cut or repeated; a column's
@@ -218,7 +218,8 @@ def _make(target: str, tmp: Path, rng: random.Random) -> Callable[[], Any]:
 
         return one
     if target == "mcap-json":
-        from conformance.offline.check import check_recording, summarize
+        from conformance.offline.check import check_recording
+        from conformance.offline.info import summarize
         from conformance.recording.reader import read_recording
         from conformance.recording.writer import RecordingWriter
         from conformance.spec.commands import default_specs
@@ -243,8 +244,8 @@ def _make(target: str, tmp: Path, rng: random.Random) -> Callable[[], Any]:
                     data = json.dumps(bad if j == k else d).encode()
                     w._mcap.add_message(w._channels[t], j + 1, data, j + 1, j)
             got = read_recording(f)
-            summarize(got, specs)
-            check_recording(got, specs)
+            summarize(str(f), specs)  # the file read a window at a time
+            check_recording(got, specs)  # the recording read whole
             return got
 
         return one
@@ -263,7 +264,8 @@ def _make(target: str, tmp: Path, rng: random.Random) -> Callable[[], Any]:
         return one
     if target == "mcap-traffic":
         # The same batches inside a recording, read and checked whole.
-        from conformance.offline.check import check_recording, summarize
+        from conformance.offline.check import check_recording
+        from conformance.offline.info import summarize
         from conformance.recording.reader import read_recording
         from conformance.recording.records import FrameRecord, Frames
         from conformance.recording.writer import RecordingWriter
@@ -282,8 +284,8 @@ def _make(target: str, tmp: Path, rng: random.Random) -> Callable[[], Any]:
                 w._mcap.add_message(w._channels["/fairino/frames"], 7,
                                     _mutate_pb(rng.choice(goods), rng), 7, 1)  # fmt: skip
             got = read_recording(f)
-            summarize(got, specs)
-            check_recording(got, specs)
+            summarize(str(f), specs)  # the file read a window at a time
+            check_recording(got, specs)  # the recording read whole
             return got
 
         return one

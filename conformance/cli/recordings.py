@@ -11,6 +11,7 @@ import signal
 import sys
 import threading
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -18,15 +19,17 @@ from ..errors import EXIT_DAMAGED, EXIT_ERROR, UsageError
 from ..net.addresses import Address, format_address, parse_address
 from ..offline.check import SIDES
 from ..offline.diff import ignore_help
+from ..offline.engine import Source
+from ..offline.firmware import recorded_version
 from ..offline.replay import NOT_RECORDED
-from ..pcap.importer import read_capture
+from ..pcap.importer import opened, read_capture
 from ..protocol.frame import DEFAULT_MAX_FRAME_SIZE, Frame
 from ..recording.repair import recover
 from .capture import add_label_options, check_ports, labels_of, parse_size
 from .judging import add_judge_options, judge_from, verdict_line
 from .judging import verdict_sink as _verdict_sink
 from .safety import add_safety_options
-from .specs_option import add_specs_dir, reported_by, spec_choice_of, specs_of
+from .specs_option import add_specs_dir, spec_choice_of, specs_of
 
 __all__ = ["register"]
 
@@ -243,17 +246,12 @@ def _register_more(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
 # --------------------------------------------------------------------------- recover / info / check
 
 
-def _damaged(rec: Any) -> bool:
+def _damaged(path: str, damage: Sequence[object]) -> bool:
     """Each part of a recording that could not be read, one line on stderr (what it
     cost, where): a recording that lost data is never a silent pass."""
-    for d in rec.damage:
-        print(f"damaged: {rec.path}: {d}", file=sys.stderr)
-    return bool(rec.damage)
-
-
-def _reported(rec: Any) -> Any:
-    """The controller's first GetSoftwareVersion (905) reply in a recording, read."""
-    return reported_by((f.dir, f.cmd_id, f.data) for f in rec.frames)
+    for d in damage:
+        print(f"damaged: {path}: {d}", file=sys.stderr)
+    return bool(damage)
 
 
 def _run_recover(args: argparse.Namespace) -> int:
@@ -272,48 +270,46 @@ def _run_recover(args: argparse.Namespace) -> int:
 
 
 def _run_info(args: argparse.Namespace) -> int:
-    from ..offline.check import render_info, summarize
+    from ..offline.info import render_info, summarize
 
-    rec = read_capture(args.capture)
-    specs, _ = spec_choice_of(args, traffic=_reported(rec))
-    info = summarize(rec, specs, judge=judge_from(args, specs))
-    info["damage"] = [str(d) for d in rec.damage]  # --json: what could not be read
+    with opened(args.capture) as (path, lost):
+        specs, _ = spec_choice_of(args, traffic=recorded_version(path))
+        source = Source(path, args.capture, lost)
+        info = summarize(source, specs, judge=judge_from(args, specs))
     if args.json:
         _write_json("-", info)
     else:
         print(render_info(info))
-    return EXIT_DAMAGED if _damaged(rec) else 0
+    return EXIT_DAMAGED if _damaged(args.capture, info["damage"]) else 0
 
 
 def _run_check(args: argparse.Namespace) -> int:
-    from ..offline.check import check_recording, failing_ids_by_side, judgeable
+    from ..offline.check import check_recording, failing_ids_by_side
     from ..report.model import failure_lines
     from ..report.write import write_reports
-
-    rec = read_capture(args.capture)
-    specs, choice = spec_choice_of(args, traffic=_reported(rec))
-    judge = judge_from(args, specs, strict=args.strict)
-    if (warning := judgeable(rec)) is not None:  # an empty one raises: empty is never success
-        print(warning, file=sys.stderr)
-    side = args.side
-    lost = None
-    if args.verdicts:
-        with _verdict_sink(args.verdicts, "check") as sink:
-            report = check_recording(
-                rec,
-                specs,
-                judge=judge,
-                on_verdict=lambda f, v: sink(verdict_line(f, v)),
-                side=side,
-            )
-        lost = sink.summary()
-    else:
-        report = check_recording(rec, specs, judge=judge, side=side)
     from ..suite.spec_choice import note_spec
 
+    side = args.side
+    lost = None
+    with opened(args.capture) as (path, damage):
+        specs, choice = spec_choice_of(args, traffic=recorded_version(path))
+        judge = judge_from(args, specs, strict=args.strict)
+        source = Source(path, args.capture, damage)
+        if args.verdicts:
+            with _verdict_sink(args.verdicts, "check") as sink:
+                report = check_recording(
+                    source,
+                    specs,
+                    judge=judge,
+                    on_verdict=lambda f, v: sink(verdict_line(f, v)),
+                    side=side,
+                )
+            lost = sink.summary()
+        else:
+            report = check_recording(source, specs, judge=judge, side=side)
+    if not report.meta["complete"]:
+        print(f"warning: {args.capture} is unfinished: run `recover`", file=sys.stderr)
     note_spec(report, choice, judge.dialects)
-    if rec.damage:  # the JSON report says it too (the process exits EXIT_DAMAGED)
-        report.meta["damage"] = [str(d) for d in rec.damage]
     write_reports(report, json_path=args.report_json)  # as run and serve write theirs
     if args.report_json != "-":
         lines = failure_lines(report)  # frames, counts and reproductions, as run prints them
@@ -330,7 +326,8 @@ def _run_check(args: argparse.Namespace) -> int:
                 "suite, which sends invalid requests on purpose, use --side controller)"
             )
         print(line)
-    _damaged(rec)  # its lines on stderr; the report's exit code counts the damage
+    # Its lines on stderr; the report's exit code counts the damage.
+    _damaged(args.capture, report.meta.get("damage", ()))
     if lost is not None:  # the verdicts asked for are not all in the file: an error
         print(lost, file=sys.stderr)
         return max(report.exit_code(), EXIT_ERROR)
@@ -375,12 +372,15 @@ def _run_replay(args: argparse.Namespace) -> int:
     if args.udp_port is not None and not low <= args.udp_port < 65536:
         raise UsageError(f"--udp-port must be {low}..65535, not {args.udp_port}")
     rec = read_capture(args.capture)
-    _damaged(rec)  # what it holds is served or resent; what it lost is said
+    _damaged(rec.path, rec.damage)  # what it holds is served or resent; what it lost is said
     if args.serve is not None:
         specs = specs_of(args)
     else:  # auto: the target's own answer first, else the recording's
         specs, _ = spec_choice_of(
-            args, target=(address.host, address.port), timeout=args.timeout, traffic=_reported(rec)
+            args,
+            target=(address.host, address.port),
+            timeout=args.timeout,
+            traffic=recorded_version(rec),
         )
     ignore = Ignore.parse(args.ignore, specs=specs)
     if args.serve is not None:
@@ -497,7 +497,7 @@ def _run_diff(args: argparse.Namespace) -> int:
 
     a, b = read_capture(args.a), read_capture(args.b)
     specs, _ = spec_choice_of(
-        args, traffic=_reported(a) or _reported(b), traffic_where="the recordings"
+        args, traffic=recorded_version(a) or recorded_version(b), traffic_where="the recordings"
     )
     res = diff_recordings(
         a,
@@ -511,7 +511,7 @@ def _run_diff(args: argparse.Namespace) -> int:
         _write_json("-", res.to_json())
     else:
         print(res.render())
-    damaged = [_damaged(r) for r in (a, b)]
+    damaged = [_damaged(r.path, r.damage) for r in (a, b)]
     return EXIT_DAMAGED if any(damaged) else 1 if res.changed else 0
 
 
@@ -567,4 +567,4 @@ def _run_export_pcap(args: argparse.Namespace) -> int:
     rec = read_capture(args.capture)
     n = export_pcap(rec, args.out)
     print(f"wrote {n} packets to {args.out}")
-    return EXIT_DAMAGED if _damaged(rec) else 0
+    return EXIT_DAMAGED if _damaged(rec.path, rec.damage) else 0

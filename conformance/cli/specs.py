@@ -29,8 +29,7 @@ from ..spec.commands import (
 )
 from ..spec.dialects import default_dialects
 from ..spec.diff import diff_specs
-from ..spec.firmware import AUTO
-from ..suite.spec_choice import reported_in
+from ..spec.firmware import AUTO, reported_in
 from .judging import add_judge_options, judge_from
 from .specs_option import add_specs_dir, asked_spec_version, spec_choice_of, specs_of
 

@@ -12,19 +12,17 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-from collections.abc import Iterable
 
 from ..errors import UsageError
 from ..spec.commands import SpecSet, available_spec_versions, load_specs
 from ..spec.firmware import AUTO, SoftwareVersion, SpecChoice
 from ..suite.options import option
-from ..suite.spec_choice import choice_line, choose, load_chosen, reported_in
+from ..suite.spec_choice import choice_line, choose, load_chosen
 
 __all__ = [
     "add_specs_dir",
     "announce",
     "asked_spec_version",
-    "reported_by",
     "spec_choice_of",
     "specs_of",
 ]
@@ -56,12 +54,6 @@ def asked_spec_version(args: argparse.Namespace) -> str | None:
     if given is None and not getattr(args, "specs_dir", None):
         given = os.environ.get(option("spec_version").env) or None
     return given
-
-
-def reported_by(frames: Iterable[tuple[str, int, str]]) -> SoftwareVersion | None:
-    """The first GetSoftwareVersion reply naming a version among (direction, command ID,
-    DATA) of a recording's frames (the controller's, ``s2c``)."""
-    return reported_in((cid, data) for d, cid, data in frames if d == "s2c")
 
 
 def announce(choice: SpecChoice, command: str) -> None:

@@ -5,7 +5,8 @@ and DuckDB's reports over it (``query``).
 module         holds
 =============  ==========================================================================
 ``schema``     the dataset's contract: tables, columns, types, partitioning, schema version
-``memo``       MemoJudge: the one judge, remembering its verdicts per distinct frame
+``rows``       the one engine's windows (conformance/offline/engine.py) as the tables' rows
+``table``      one table's Parquet file of one recording, written a row group at a time
 ``export``     a recording (MCAP, pcap, pcapng) to the dataset's files; many, in processes
 ``query``      DuckDB views over the dataset and the built-in reports
 ``html``       the reports as one HTML page with inline SVG charts

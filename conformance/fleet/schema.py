@@ -144,19 +144,16 @@ VerdictColumns = tuple[str, str, str, str | None, bool, str | None, int | None, 
 
 
 def verdict_columns(v: Verdict) -> VerdictColumns:
-    """A verdict as the dataset holds it (:data:`VERDICT_COLUMNS`), for both ways a
-    recording is exported (each frame's row; the fast path's distinct verdicts).
+    """A verdict as the dataset holds it (:data:`VERDICT_COLUMNS`): each distinct verdict
+    of a window, taken per frame (conformance/fleet/rows.py).
 
-    The name is the one ``check`` shows: the dialect's or the command's, else the
-    judge's; None where the judge names none (the frame's recorded name is then shown).
+    The name is the one ``check`` shows (:func:`~conformance.judge.judge.display_name`);
+    None where the judge names none (the frame's recorded name is then shown).
     A refusal's code is null where a 64-bit column cannot hold it (a reply's digits are
     not bounded)."""
+    from ..judge.judge import display_name
+
     code = v.code if v.refused else None
-    name: str | None
-    if v.command is not None:
-        name = v.command.name if v.dialect is None else v.dialect.name
-    else:
-        name = v.name
     return (
         v.outcome.value,
         v.rule,
@@ -165,7 +162,7 @@ def verdict_columns(v: Verdict) -> VerdictColumns:
         v.refused,
         v.form.value if v.refused and v.form is not None else None,
         code if code is not None and -(2**63) <= code < 2**63 else None,
-        name,
+        display_name(v),
     )
 
 

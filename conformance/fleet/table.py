@@ -79,7 +79,7 @@ class Table:
             self.rows = []
 
     def add_columns(self, cols: dict[str, Any], n: int) -> None:
-        """Rows given as columns (the fast path's), written a row group at a time."""
+        """Rows given as columns (a window's), written a row group at a time."""
         self.flush()
         for at in range(0, n, ROW_GROUP):
             m = min(ROW_GROUP, n - at)
@@ -151,7 +151,7 @@ class Table:
             os.replace(str(self.path) + ".tmp", path or self.path)
 
     def discard(self) -> None:
-        """Nothing written after all (a recording the fast path gave up half way)."""
+        """Nothing written after all (a reading begun again, or given up half way)."""
         if self._writer is not None:
             self._writer.close()
             os.unlink(str(self.path) + ".tmp")

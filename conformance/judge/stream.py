@@ -10,6 +10,7 @@ of requests (``ServoJ`` before ``ServoMoveStart``) are :mod:`conformance.judge.s
 from __future__ import annotations
 
 from collections import OrderedDict
+from typing import Any
 
 from ..protocol.frame import Frame
 from .judge import Judge, Verdict, display_name
@@ -38,6 +39,44 @@ class CntSteps:
         if len(self._last) > self.limit:
             self._last.popitem(last=False)
         return None if last is None else last[0]
+
+    def steps(self, conns: Any, cnts: Any) -> list[tuple[int, int]]:
+        """:meth:`previous` for a batch of requests, in the order they came (integer
+        columns: each one's connection and CNT): the positions of those whose CNT does not
+        step by one from the one before on their connection, each with that CNT; the
+        memory left as :meth:`previous` request by request leaves it."""
+        import numpy as np
+
+        conns = np.asarray(conns, dtype=np.int64)
+        cnts = np.asarray(cnts, dtype=np.int64)
+        n = len(conns)
+        if not n:
+            return []
+        last = self._last
+        by_conn = np.argsort(conns, kind="stable")
+        cs, cn = conns[by_conn], cnts[by_conn]
+        firsts = np.flatnonzero(np.r_[True, cs[1:] != cs[:-1]])
+        distinct = cs[firsts].tolist()
+        if len(last) + sum(c not in last for c in distinct) > self.limit:
+            # A connection may be forgotten within the batch: request by request.
+            out = []
+            for k, (c, x) in enumerate(zip(conns.tolist(), cnts.tolist(), strict=True)):
+                before = self.previous(c, x)
+                if before is not None and x != (before + 1) % 0x10000:
+                    out.append((k, before))
+            return out
+        prev = np.full(n, -1, dtype=np.int64)  # in connection order; -1: none
+        prev[1:] = cn[:-1]
+        prev[firsts] = [last[c][0] if c in last else -1 for c in distinct]
+        bad = np.flatnonzero((prev >= 0) & (cn != (prev + 1) % 0x10000))
+        out = sorted(zip(by_conn[bad].tolist(), prev[bad].tolist(), strict=True))
+        # Each connection's last request, in the order they came: the most recent last.
+        lasts = np.r_[firsts[1:] - 1, n - 1]
+        for k in np.sort(by_conn[lasts]).tolist():
+            c = int(conns[k])
+            last.pop(c, None)
+            last[c] = (int(cnts[k]), b"")
+        return out
 
     def last_raw(self, conn: object) -> bytes:
         """The bytes of ``conn``'s latest request, as given to :meth:`previous` (else empty)."""

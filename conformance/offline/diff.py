@@ -21,10 +21,11 @@ from ..errors import RemoteProtocolError
 from ..judge.judge import Judge
 from ..protocol.data_parse import parse_reply
 from ..protocol.data_values import Arg, Array, Number, Text
-from ..recording.reader import RecordedExchange, Recording
+from ..recording.reader import Recording
 from ..recording.records import FrameRecord
 from ..spec.commands import ReturnValue, SpecSet
-from .check import percentile
+from .exchanges import RecordedExchange, exchanges, noise_before
+from .info import percentile
 
 __all__ = [
     "IGNORE_RULES",
@@ -425,8 +426,8 @@ def diff_recordings(
     A p50 latency change counts when it is larger than ``latency_threshold``
     (a fraction) and than ``latency_floor_ns``.
     """
-    ex_a, ex_b = a.exchanges(), b.exchanges()
-    noise_a, noise_b = a.noise_before(), b.noise_before()
+    ex_a, ex_b = exchanges(a), exchanges(b)
+    noise_a, noise_b = noise_before(a), noise_before(b)
     groups_b: dict[tuple[int, str], list[RecordedExchange]] = {}
     for e in ex_b:
         groups_b.setdefault(_key(e), []).append(e)
@@ -528,11 +529,11 @@ class _StateShape:
 
 
 def _state_shape(rec: Recording, version: str | None) -> _StateShape | None:
-    from .state_check import state_figures
+    from .state_check import StatePort, state_figures
 
     if not rec.states and not rec.state_problems:
         return None
-    figs = state_figures(rec, version=version)
+    figs = state_figures(StatePort.of(rec), version=version)
     medians = [f.to_json()["interval_ms"]["median"] for f in figs]
     periods = [m for m in medians if m is not None]
     fields: dict[str, str] = {}

@@ -40,6 +40,7 @@ from ..report.model import CaseResult, Report
 from ..spec.commands import SpecSet
 from ..spec.safety import SafetyPolicy
 from .diff import Difference, Ignore, compare_replies
+from .exchanges import exchanges, noise_before
 
 __all__ = ["NOT_RECORDED", "NOT_RECORDED_CODE", "ReplayResult", "ReplyBook", "replay_to_target"]
 
@@ -115,7 +116,7 @@ class ReplyBook:
         self._last: dict[tuple[int, str], FrameRecord] = {}
         self._by_id: dict[int, dict[str, FrameRecord]] = {}
         self._nearest: dict[tuple[int, str], FrameRecord] = {}
-        for ex in rec.exchanges():
+        for ex in exchanges(rec):
             if ex.request is None or ex.reply is None:
                 continue
             if transport is not None and ex.request.transport != transport:
@@ -311,8 +312,8 @@ def replay_to_target(
     start = time.monotonic()
     # What each recorded request got, by connection and request index.
     replies: dict[int, FrameRecord | None] = {}
-    noise = rec.noise_before()
-    for rx in rec.exchanges():
+    noise = noise_before(rec)
+    for rx in exchanges(rec):
         if rx.request is not None:
             replies[id(rx.request)] = rx.reply
     per_conn: dict[int, list[tuple[int, FrameRecord | ProblemRecord]]] = {}

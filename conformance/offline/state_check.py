@@ -17,6 +17,7 @@ import itertools
 import re
 import statistics
 from collections import Counter
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -25,6 +26,7 @@ from ..judge.verdict import Outcome
 from ..protocol.state import StateDecoder, StatePacket, StateProblem, StateProblemKind
 from ..recording.layout import C2S
 from ..recording.reader import Recording
+from ..recording.records import ConnectionRecord, ProblemRecord, StateRecord
 from ..report.model import CaseResult
 from ..report.text import plural
 from ..spec.state import known_layouts, state_decoder
@@ -32,6 +34,7 @@ from ..spec.state import known_layouts, state_decoder
 __all__ = [
     "STATE_ID",
     "StateFigures",
+    "StatePort",
     "recorded_state_stream",
     "render_state",
     "state_cases",
@@ -109,15 +112,42 @@ class StateFigures:
         }
 
 
-def _asked_periods(rec: Recording) -> list[tuple[int, float]]:
-    """(time, ms) of each ``SetStatePeriod(8083, p)`` the recording's clients sent."""
-    out = []
-    for f in rec.frames:
-        if f.dir == C2S and "SetStatePeriod" in f.data:
-            m = _SET_PERIOD.search(f.data)
-            if m is not None:
-                out.append((f.complete_ns, float(m.group(1))))
-    return sorted(out)
+@dataclass
+class StatePort:
+    """What a recording holds of the state port, gathered as it is read: the state
+    connections' records, their packets and the state decoder's problems, and each
+    ``SetStatePeriod(8083, p)`` the clients sent (time, ms)."""
+
+    connections: list[ConnectionRecord] = field(default_factory=list)
+    states: list[StateRecord] = field(default_factory=list)
+    problems: list[ProblemRecord] = field(default_factory=list)
+    asked: list[tuple[int, float]] = field(default_factory=list)
+
+    @classmethod
+    def of(cls, rec: Recording) -> StatePort:
+        """A recording read whole's."""
+        port = cls()
+        port.add(rec.connections, rec.states, rec.state_problems)
+        port.requests((f.complete_ns, f.data) for f in rec.frames if f.dir == C2S)
+        return port
+
+    def add(
+        self,
+        connections: Iterable[ConnectionRecord],
+        states: Iterable[StateRecord],
+        problems: Iterable[ProblemRecord],
+    ) -> None:
+        self.connections += [c for c in connections if c.stream == "state"]
+        self.states += states
+        self.problems += problems
+
+    def requests(self, requests: Iterable[tuple[int, str]]) -> None:
+        """The clients' requests (time, DATA): the periods they asked are noted."""
+        for t, data in requests:
+            if "SetStatePeriod" in data:
+                m = _SET_PERIOD.search(data)
+                if m is not None:
+                    self.asked.append((t, float(m.group(1))))
 
 
 def _expected(version: str | None) -> str | None:
@@ -128,23 +158,23 @@ def _expected(version: str | None) -> str | None:
     return v if any(lay.version == v for lay in known_layouts()) else None
 
 
-def state_figures(rec: Recording, *, version: str | None = None) -> list[StateFigures]:
-    """Each state connection of ``rec`` read again by the state decoder (module docstring);
+def state_figures(port: StatePort, *, version: str | None = None) -> list[StateFigures]:
+    """Each state connection read again by the state decoder (module docstring);
     ``version``: the layout the controller should send (the spec set's), None for any."""
     expected = _expected(version)
     conns: dict[int, StateFigures] = {}
-    for c in rec.connections:
-        if c.stream == "state" and c.event == "open":
+    for c in port.connections:
+        if c.event == "open":
             conns[c.conn] = StateFigures(conn=c.conn, client=c.client, upstream=c.upstream)
-    for c in rec.connections:
-        if c.stream == "state" and c.event == "close" and c.conn in conns:
+    for c in port.connections:
+        if c.event == "close" and c.conn in conns:
             conns[c.conn].closed = c.reason
     # Each connection's pieces: (offset, order, complete_ns, bytes or None for a gap).
     pieces: dict[int, list[tuple[int, int, int, bytes | None]]] = {}
-    for s in rec.states:
+    for s in port.states:
         conns.setdefault(s.conn, StateFigures(conn=s.conn))
         pieces.setdefault(s.conn, []).append((s.offset, 1, s.complete_ns, s.raw))
-    for p in rec.state_problems:
+    for p in port.problems:
         fig = conns.setdefault(p.conn, StateFigures(conn=p.conn))
         if p.dir == C2S or p.rule == "gap":
             fig.recorded[p.rule] += 1
@@ -154,7 +184,7 @@ def state_figures(rec: Recording, *, version: str | None = None) -> list[StateFi
             pieces.setdefault(p.conn, []).append((p.offset, 0, p.complete_ns, None))
         elif p.raw:  # bytes that are no packet (order 2: not a packet's time)
             pieces.setdefault(p.conn, []).append((p.offset, 2, p.complete_ns, p.raw))
-    asked = _asked_periods(rec)
+    asked = sorted(port.asked)
     for conn, fig in sorted(conns.items()):
         _read_again(fig, sorted(pieces.get(conn, ()), key=lambda x: x[:2]), expected, asked)
     return [conns[k] for k in sorted(conns)]
@@ -265,12 +295,12 @@ def _count(fig: StateFigures, events: list[StatePacket | StateProblem]) -> None:
             ex.append((e.detail, e.raw))
 
 
-def state_cases(rec: Recording, *, version: str | None = None) -> list[CaseResult]:
+def state_cases(port: StatePort, *, version: str | None = None) -> list[CaseResult]:
     """``check``'s cases for the state port: one per problem kind (its count, the first
     message in the decoder's words, the manual's section) and one PASS case counting the
     packets read, all in the ``controller`` group (the stream is the controller's)."""
     out: list[CaseResult] = []
-    figs = state_figures(rec, version=version)
+    figs = state_figures(port, version=version)
     if not figs:
         return out
     problems: Counter[str] = Counter()

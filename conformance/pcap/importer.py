@@ -9,10 +9,11 @@ import.)
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import os
 import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from typing import TYPE_CHECKING
 
 from ..errors import CaptureError
@@ -56,23 +57,25 @@ def capture_format(path: str | os.PathLike[str]) -> str | None:
     return None
 
 
-def read_capture(
+@contextlib.contextmanager
+def opened(
     path: str | os.PathLike[str],
     *,
     tcp_ports: Iterable[int] = DEFAULT_TCP_PORTS,
     udp_ports: Iterable[int] = DEFAULT_UDP_PORTS,
     specs: SpecSet | None = None,
     state_ports: Iterable[int] = (),
-) -> Recording:
-    """A recording, or a pcap/pcapng capture imported as one (:func:`import_pcap`, into a
-    temporary file that is gone on return); which one is told by the magic bytes."""
-    import dataclasses
+) -> Iterator[tuple[str, tuple[Damage, ...]]]:
+    """A recording's path, or a pcap/pcapng capture's imported as one (:func:`import_pcap`,
+    into a temporary file that is gone when the block ends), with what the capture lost
+    (named as a recording's damage); which one is told by the magic bytes."""
     import tempfile
 
     p = os.fspath(path)
     fmt = capture_format(p)
     if fmt == "mcap":
-        return read_recording(p)
+        yield p, ()
+        return
     if fmt is None:
         raise CaptureError(f"{p}: neither an MCAP recording nor a pcap/pcapng capture", path=str(p))
     lost: list[CaptureDamage] = []
@@ -87,8 +90,25 @@ def read_capture(
             state_ports=state_ports,
             damage=lost,
         )
-        rec = read_recording(out)
-    return dataclasses.replace(rec, path=p, damage=rec.damage + tuple(map(as_damage, lost)))
+        yield out, tuple(map(as_damage, lost))
+
+
+def read_capture(
+    path: str | os.PathLike[str],
+    *,
+    tcp_ports: Iterable[int] = DEFAULT_TCP_PORTS,
+    udp_ports: Iterable[int] = DEFAULT_UDP_PORTS,
+    specs: SpecSet | None = None,
+    state_ports: Iterable[int] = (),
+) -> Recording:
+    """A recording, or a pcap/pcapng capture imported as one (:func:`opened`), read whole;
+    a capture's keeps its name, and its damage follows the recording's."""
+    import dataclasses
+
+    ports = {"tcp_ports": tcp_ports, "udp_ports": udp_ports, "state_ports": state_ports}
+    with opened(path, specs=specs, **ports) as (p, lost):
+        rec = read_recording(p)
+    return dataclasses.replace(rec, path=os.fspath(path), damage=rec.damage + lost)
 
 
 def as_damage(d: CaptureDamage) -> Damage:

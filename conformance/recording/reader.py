@@ -1,17 +1,15 @@
-"""The reader: a recording, finished or not, as records (:func:`read_recording`), and its
-requests paired with their replies (:class:`RecordedExchange`)."""
+"""The reader: a recording, finished or not, in file order (:class:`RecordingReader`), or
+whole as its records (:func:`read_recording`)."""
 
 from __future__ import annotations
 
 import binascii
 import json
 import os
-from collections import deque
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from .blame import Blame
 from .layout import (
     C2S,
     INT_MAX,
@@ -25,47 +23,21 @@ from .layout import (
     TOPIC_PROBLEMS,
     TOPIC_STATE,
 )
-from .records import ConnectionRecord, FrameRecord, ProblemRecord, StateRecord
+from .records import ConnectionRecord, FrameRecord, Frames, ProblemRecord, StateRecord
 from .salvage import MAGIC, Damage, Walk
 from .traffic_pb import decode_traffic
 
 __all__ = [
     "READ_TOPICS",
     "Damage",
-    "RecordedExchange",
+    "Item",
     "Recording",
+    "RecordingReader",
     "check_layout",
     "message_damage",
     "read_message",
     "read_recording",
 ]
-
-
-@dataclass(frozen=True, kw_only=True)
-class RecordedExchange:
-    """A request and the reply paired with it (either may be missing)."""
-
-    conn: int
-    request: FrameRecord | None
-    reply: FrameRecord | None
-
-    @property
-    def cmd_id(self) -> int:
-        f = self.request or self.reply
-        assert f is not None
-        return f.cmd_id
-
-    @property
-    def name(self) -> str | None:
-        f = self.request or self.reply
-        assert f is not None
-        return f.name if f.name is not None else (self.reply.name if self.reply else None)
-
-    @property
-    def latency_ns(self) -> int | None:
-        if self.request is None or self.reply is None:
-            return None
-        return self.reply.complete_ns - self.request.complete_ns
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -90,6 +62,9 @@ class Recording:
     #: The state decoder's problems (``kind`` ``state`` on ``/fairino/problems``): kept
     #: apart from :attr:`problems`, which are the command port's.
     state_problems: tuple[ProblemRecord, ...] = ()
+    #: For each of :attr:`problems`, the frames read before it: the file's order of the
+    #: two (whose a malformed run is rests on it: conformance/judge/blame.py).
+    problems_at: tuple[int, ...] = ()
 
     @property
     def start_ns(self) -> int:
@@ -103,83 +78,8 @@ class Recording:
         times = [f.complete_ns for f in self.frames] + [c.t_ns for c in self.connections]
         return max(times) if times else 0
 
-    def _blame(self) -> Blame[FrameRecord]:
-        """The one rule for whose a malformed run is (:mod:`.blame`), fed everything."""
-        b: Blame[FrameRecord] = Blame()
-        for f in self.frames:
-            b.frame(f, f.conn, f.dir, f.offset, f.first_ns or f.complete_ns)
-        for p in self.problems:
-            b.run(p)
-        b.finish()
-        return b
-
-    def noise_before(self) -> dict[int, int]:
-        """For each frame (by ``id()``), the malformed bytes its sender sent just before it
-        (since the previous frame in that direction): garbage ahead of a reply."""
-        out: dict[int, int] = {}
-        for p, f in self._blame().before():
-            out[id(f)] = out.get(id(f), 0) + p.size
-        return out
-
-    def answered_by(self) -> dict[int, FrameRecord]:
-        """For each run of the controller's (by ``id()``), the request it answered: the
-        one rule (:mod:`.blame`, which ``export-parquet`` follows a window at a time).
-
-        That is the request of the reply it came just before (the garbage ahead of a
-        reply: :meth:`noise_before` gives its bytes to that reply, ``diff`` and ``replay``
-        compare them per request), or the reply itself when no request is paired with it;
-        a run no reply follows answered the last request its client sent before the run
-        ended.  A run before any request answered none (absent)."""
-        b = self._blame()
-        for e in self.exchanges():
-            if e.reply is not None:
-                b.paired(e.reply, e.request)
-        return {id(p): f for p, f in b.settled() if f is not None}
-
     def requests(self) -> list[FrameRecord]:
         return [f for f in self.frames if f.dir == C2S]
-
-    def exchanges(self) -> list[RecordedExchange]:
-        """Pair each reply with the oldest unanswered request of its connection with the same
-        CNT and CMD_ID (else the same CMD_ID); unpaired frames stand alone.
-
-        Frames are taken in the order their first byte arrived, not file order: a frame
-        the recorder could decide only once its sender went quiet (a LEN that does not
-        fit, odd separators) is written after the reply that already answered it.
-        """
-        out: list[RecordedExchange | None] = []
-        # The unanswered requests of each connection, oldest first, found by (CNT, CMD_ID)
-        # and by CMD_ID: an entry is [index in out, request, taken]; one taken through
-        # one index is skipped when it comes to the head of the other.  (A list searched
-        # from its start made a reply cost every request still waiting: quadratic time in
-        # a recording of time-outs, ~900 frames/s.)
-        by_key: dict[tuple[int, int, int], deque[list[Any]]] = {}
-        by_id: dict[tuple[int, int], deque[list[Any]]] = {}
-        for f in sorted(self.frames, key=lambda f: f.first_ns or f.complete_ns):
-            if f.dir == C2S:
-                new: list[Any] = [len(out), f, False]
-                by_key.setdefault((f.conn, f.cnt, f.cmd_id), deque()).append(new)
-                by_id.setdefault((f.conn, f.cmd_id), deque()).append(new)
-                out.append(RecordedExchange(conn=f.conn, request=f, reply=None))
-                continue
-            entry = _oldest(by_key.get((f.conn, f.cnt, f.cmd_id)))
-            if entry is None:
-                entry = _oldest(by_id.get((f.conn, f.cmd_id)))
-            if entry is None:
-                out.append(RecordedExchange(conn=f.conn, request=None, reply=f))
-                continue
-            entry[2] = True
-            out[entry[0]] = RecordedExchange(conn=f.conn, request=entry[1], reply=f)
-        return [e for e in out if e is not None]
-
-
-def _oldest(waiting: deque[list[Any]] | None) -> list[Any] | None:
-    """The oldest entry not taken yet (those taken before it dropped), or None."""
-    while waiting:
-        if not waiting[0][2]:
-            return waiting[0]
-        waiting.popleft()
-    return None
 
 
 #: The ranges of a recording's integers (:data:`~.layout.INT_MAX`, :data:`~.layout.TIME_MAX`).
@@ -454,80 +354,133 @@ def _channel(c: Any, topics: dict[int, str], protobuf: set[int]) -> None:
         protobuf.add(c.id)
 
 
+#: What :meth:`RecordingReader.items` gives: a batch of frames, or another record.
+Item = Frames | ProblemRecord | ConnectionRecord | StateRecord
+
+
+class RecordingReader:
+    """A recording read in file order, finished or not (an unfinished one reads up to its
+    last whole chunk), damaged or not: a chunk that cannot be read is skipped and the
+    reading goes on (:class:`~.salvage.Walk`), and a message on the recording's topics
+    whose JSON does not fit its schema, or whose frame batch does not read or fit
+    (:mod:`.traffic_pb`), is skipped; each is in :attr:`damage` once read.
+
+    Opening it checks the file (a :class:`~conformance.errors.RecordingError` for one
+    missing, unreadable or not MCAP); :meth:`items` reads it, a message at a time, and
+    raises the same error for a file with no recording's metadata or of an earlier layout
+    (:func:`check_layout`).  Every reading of a recording goes through here: the whole
+    of it (:func:`read_recording`) and a window at a time (``check``, ``info``,
+    ``export-parquet``: :mod:`conformance.offline.engine`)."""
+
+    def __init__(self, path: str | os.PathLike[str]) -> None:
+        from ..errors import RecordingError
+
+        self.path = os.fspath(path)
+        try:
+            self._file = open(self.path, "rb")  # noqa: SIM115 (closed when items() ends)
+        except FileNotFoundError:
+            raise RecordingError(f"no such recording: {self.path}", path=self.path) from None
+        except OSError as e:
+            raise RecordingError(
+                f"cannot read {self.path}: {e.strerror or e}", path=self.path
+            ) from None
+        if self._file.read(8) != MAGIC:
+            self._file.close()
+            raise RecordingError(f"{self.path} is not an MCAP file", path=self.path)
+        self.metadata: dict[str, str] = {}
+        #: The file has its summary and footer (False: unfinished); known once read.
+        self.complete = True
+        #: Why reading stopped early, for an unfinished file.
+        self.truncated = ""
+        #: What could not be read, in the order met (growing as the file is read).
+        self.damage: list[Damage] = []
+
+    def items(self, *, arrays: bool = False) -> Iterator[Item]:
+        """The recording's frame batches and records in file order (``arrays``: a batch's
+        number columns as numpy arrays, else lists)."""
+        from mcap.records import Channel, Message, Metadata
+
+        from ..errors import RecordingError
+
+        topics: dict[int, str] = {}
+        protobuf: set[int] = set()  # channels whose messages are protobuf
+        with self._file as f:
+            walk = Walk(f, self.path)
+            self.damage = walk.damage
+            for r in walk.summary_records():
+                if isinstance(r, Channel):
+                    _channel(r, topics, protobuf)
+            count = 0
+            for rec, where in walk.records():
+                if isinstance(rec, Channel):
+                    _channel(rec, topics, protobuf)
+                elif isinstance(rec, Message):
+                    count += 1
+                    topic = topics.get(rec.channel_id)
+                    if topic not in READ_TOPICS:
+                        continue  # a foreign topic: not ours to read
+                    got, why = _read(topic, rec.data, rec.channel_id in protobuf, arrays)
+                    if got is None:
+                        walk.damage.append(message_damage(count, topic, rec.sequence, where, why))
+                        continue
+                    yield got
+                elif isinstance(rec, Metadata) and rec.name == METADATA_NAME and not self.metadata:
+                    self.metadata = dict(rec.metadata)
+                    check_layout(self.path, self.metadata)
+            self.complete = walk.complete
+            self.truncated = walk.stopped if not walk.complete else ""
+        if not self.metadata:
+            lost = f" ({walk.damage[0]})" if walk.damage else ""
+            raise RecordingError(
+                f"{self.path} is an MCAP file but not a fairino-conformance recording{lost}",
+                path=self.path,
+            )
+
+
+def _read(topic: str, data: bytes, protobuf: bool, arrays: bool) -> tuple[Item | None, str]:
+    """One message as :meth:`RecordingReader.items` reads it (see :func:`read_message`)."""
+    if topic == TOPIC_FRAMES and protobuf:
+        try:
+            return decode_traffic(data, as_arrays=arrays), ""
+        except ValueError as e:
+            return None, f"not a fairino.Traffic message that can be read ({e})"
+    got, why = read_message(topic, data, protobuf=protobuf)
+    return (None, why) if isinstance(got, list) else (got, why)
+
+
 def read_recording(path: str | os.PathLike[str]) -> Recording:
-    """Read a recording, finished or not (an unfinished one reads up to its last whole
-    chunk), damaged or not: a chunk that cannot be read is skipped and the reading goes
-    on (:class:`~.salvage.Walk`), and a message on the recording's topics whose JSON does
-    not fit its schema, or whose frame batch does not read or fit (:mod:`.traffic_pb`), is
-    skipped; each is in :attr:`Recording.damage`.  A recording of an earlier layout is a
-    :class:`~conformance.errors.RecordingError` (:func:`check_layout`)."""
-    from mcap.records import Channel, Message, Metadata
-
-    from ..errors import RecordingError
-
-    p = os.fspath(path)
+    """A recording read whole (:class:`RecordingReader`) as its records."""
+    reader = RecordingReader(path)
     frames: list[FrameRecord] = []
     problems: list[ProblemRecord] = []
+    problems_at: list[int] = []
     conns: list[ConnectionRecord] = []
     states: list[StateRecord] = []
     state_problems: list[ProblemRecord] = []
-    metadata: dict[str, str] = {}
-    topics: dict[int, str] = {}
-    protobuf: set[int] = set()  # channels whose messages are protobuf
-    try:
-        f = open(p, "rb")  # noqa: SIM115
-    except FileNotFoundError:
-        raise RecordingError(f"no such recording: {p}", path=str(p)) from None
-    except OSError as e:
-        raise RecordingError(f"cannot read {p}: {e.strerror or e}", path=str(p)) from None
-    with f:
-        head = f.read(8)
-        if head != MAGIC:
-            raise RecordingError(f"{p} is not an MCAP file", path=str(p))
-        walk = Walk(f, p)
-        for r in walk.summary_records():
-            if isinstance(r, Channel):
-                _channel(r, topics, protobuf)
-        damage = walk.damage
-        count = 0
-        for rec, where in walk.records():
-            if isinstance(rec, Channel):
-                _channel(rec, topics, protobuf)
-            elif isinstance(rec, Message):
-                count += 1
-                topic = topics.get(rec.channel_id)
-                if topic not in READ_TOPICS:
-                    continue  # a foreign topic: not ours to read
-                got, why = read_message(topic, rec.data, protobuf=rec.channel_id in protobuf)
-                if got is None:
-                    damage.append(message_damage(count, topic, rec.sequence, where, why))
-                    continue
-                if isinstance(got, list):
-                    frames += got
-                elif isinstance(got, ProblemRecord):
-                    # The state decoder's problems apart from the command port's.
-                    (state_problems if got.kind == STATE_KIND else problems).append(got)
-                elif isinstance(got, StateRecord):
-                    states.append(got)
-                else:
-                    conns.append(got)
-            elif isinstance(rec, Metadata) and rec.name == METADATA_NAME and not metadata:
-                metadata = dict(rec.metadata)
-                check_layout(p, metadata)
-    if not metadata:
-        lost = f" ({walk.damage[0]})" if walk.damage else ""
-        raise RecordingError(
-            f"{p} is an MCAP file but not a fairino-conformance recording{lost}", path=str(p)
-        )
+    for got in reader.items():
+        if isinstance(got, Frames):
+            frames += got.records()
+        elif isinstance(got, ProblemRecord):
+            # The state decoder's problems apart from the command port's.
+            if got.kind == STATE_KIND:
+                state_problems.append(got)
+            else:
+                problems.append(got)
+                problems_at.append(len(frames))
+        elif isinstance(got, StateRecord):
+            states.append(got)
+        else:
+            conns.append(got)
     return Recording(
-        path=p,
-        metadata=metadata,
+        path=reader.path,
+        metadata=reader.metadata,
         frames=tuple(frames),
         problems=tuple(problems),
         connections=tuple(conns),
-        complete=walk.complete,
-        truncated=walk.stopped if not walk.complete else "",
-        damage=tuple(damage),
+        complete=reader.complete,
+        truncated=reader.truncated,
+        damage=tuple(reader.damage),
         states=tuple(states),
         state_problems=tuple(state_problems),
+        problems_at=tuple(problems_at),
     )

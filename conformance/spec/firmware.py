@@ -41,6 +41,7 @@ __all__ = [
     "evidence_range",
     "firmware_versions_in",
     "parse_software_version",
+    "reported_in",
     "version_text",
     "version_tuple",
 ]
@@ -273,3 +274,14 @@ def choose_spec(
     best = max(fitting, key=lambda v: version_tuple(v) or ())
     note = "" if version_tuple(best) == target else "the newest spec set not newer than it"
     return SpecChoice(version=best, asked=AUTO, reported=reported, where=where, note=note)
+
+
+def reported_in(replies: Iterable[tuple[int, str]]) -> SoftwareVersion | None:
+    """The first ``GetSoftwareVersion`` reply naming a version among (command ID, DATA) of
+    the controller's frames."""
+    for cmd_id, data in replies:
+        if cmd_id == GET_SOFTWARE_VERSION_ID:
+            found = parse_software_version(data)
+            if found is not None:
+                return found
+    return None

@@ -4,7 +4,7 @@ A version (or a spec-set directory) is taken as given; ``auto`` asks the target
 ``GetSoftwareVersion()`` (ID 905) once, on a connection of its own, and picks the newest
 spec set not newer than the firmware it reports (:func:`conformance.spec.firmware.choose_spec`);
 an offline reading (``check``, ``info``, ``replay``, ``diff``) reads the first 905 reply of
-its traffic instead (:func:`reported_in`).  A target that does not answer, or a reading
+its traffic instead (:func:`~conformance.spec.firmware.reported_in`).  A target that does not answer, or a reading
 with no such reply, leaves the default spec set with one warning line.  Without the option
 nothing is asked and the default is used, as before.
 """
@@ -12,7 +12,6 @@ nothing is asked and the default is used, as before.
 from __future__ import annotations
 
 import os
-from collections.abc import Iterable
 from dataclasses import replace
 from pathlib import Path
 
@@ -48,7 +47,6 @@ __all__ = [
     "choose",
     "load_chosen",
     "note_spec",
-    "reported_in",
     "with_spec",
 ]
 
@@ -76,17 +74,6 @@ def ask_software_version(
         shown = ex.reply.data[:60]
         return None, f"{where} answered GetSoftwareVersion (ID 905) with {shown!r}, no version"
     return found, where
-
-
-def reported_in(replies: Iterable[tuple[int, str]]) -> SoftwareVersion | None:
-    """The first ``GetSoftwareVersion`` reply naming a version among (command ID, DATA) of
-    the controller's frames."""
-    for cmd_id, data in replies:
-        if cmd_id == GET_SOFTWARE_VERSION_ID:
-            found = parse_software_version(data)
-            if found is not None:
-                return found
-    return None
 
 
 def _given(asked: str, option: str) -> SpecChoice:

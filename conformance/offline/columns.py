@@ -1,18 +1,18 @@
-"""A recording's frames as columns (:class:`Columns`): what the fast path reads
-(:mod:`.fast`), judges (:mod:`.verdicts`) and writes a window at a time (:mod:`.window`)."""
+"""A window of a recording's frames as columns (:class:`Columns`): what the engine reads,
+pairs and judges (:mod:`.engine`), and what ``check``, ``info`` and ``export-parquet``
+read its verdicts against."""
 
 from __future__ import annotations
 
+import sys
 from array import array
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
+from itertools import accumulate
 from operator import itemgetter
 from typing import Any
 
-from ..recording.blame import Blame
-from ..recording.records import ConnectionRecord, ProblemRecord
-from ..recording.salvage import Damage
-from .general import StateRow
+from ..recording.records import Frames
 
 __all__ = ["FRAME_COLUMNS", "Columns"]
 
@@ -23,14 +23,13 @@ def _ints() -> array[int]:
 
 @dataclass
 class Columns:
-    """A recording's frames as columns (file order), its connections and metadata.
+    """Frames as columns, in file order.
 
     Numbers are kept as 64-bit arrays (8 bytes a value, not a Python int each), DATA
     strings interned (a fleet sends the same few again and again): a million frames take
-    some 60 MB, not half a gigabyte."""
+    some 60 MB, not half a gigabyte.  ``raw`` (each frame's bytes) is kept only where the
+    reader asked for it (``check``'s evidence)."""
 
-    metadata: dict[str, str] = field(default_factory=dict)
-    connections: list[ConnectionRecord] = field(default_factory=list)
     conn: array[int] = field(default_factory=_ints)
     transport: list[str] = field(default_factory=list)
     dir: list[str] = field(default_factory=list)
@@ -46,20 +45,44 @@ class Columns:
     #: Each frame's framing problems (the decoder's, as the recording names them; none:
     #: the empty tuple); absent (empty) while no frame here has any, as a rule.
     flaws: list[tuple[str, ...]] = field(default_factory=list)
-    #: Each frame's offset in its stream (connection and direction), while the window is
-    #: read (:mod:`.fast` empties it as it gives the window: an empty column is absent).
+    #: Each frame's offset in its stream (connection and direction).
     offset: array[int] = field(default_factory=_ints)
-    #: Each frame's number in the recording (file order, from 0), where the recording's
-    #: controller's runs are blamed (:attr:`~.fast.ColumnStream.blame`); else absent.
+    #: Each frame's number in the recording (file order, from 0).
     seq: array[int] = field(default_factory=_ints)
-    complete: bool = True
-    #: The state packets' rows (:func:`read_columns`; a window's are its stream's).
-    states: list[StateRow] = field(default_factory=list)
-    problems: list[ProblemRecord] = field(default_factory=list)
-    #: Whose the controller's malformed runs are (:func:`~.fast.read_columns`'s).
-    blame: Blame[tuple[int, int]] | None = None
-    #: The parts of the file that could not be read (:class:`~conformance.recording.salvage.Walk`).
-    damage: list[Damage] = field(default_factory=list)
+    #: Each frame's bytes (absent: not asked for).
+    raw: list[bytes] = field(default_factory=list)
+
+    def add(self, b: Frames, first: int, *, raw: bool = False) -> None:
+        """A batch's frames after these, numbered from ``first`` in the recording; ``raw``:
+        their bytes too."""
+        import numpy as np
+
+        n = len(b)
+        stream = np.asarray(b.stream, dtype=np.int64)
+        streams = b.streams
+        self.conn.frombytes(np.asarray([s[0] for s in streams], dtype="<i8")[stream].tobytes())
+        rows = stream.tolist()
+        transports = [s[1] for s in streams]
+        dirs = [s[2] for s in streams]
+        self.transport += map(transports.__getitem__, rows)
+        self.dir += map(dirs.__getitem__, rows)
+        self.request.frombytes(np.asarray([d == "c2s" for d in dirs], dtype="i1")[stream].tobytes())
+        for mine, theirs in (
+            (self.cnt, b.cnt),
+            (self.cmd_id, b.cmd_id),
+            (self.length, b.length),
+            (self.offset, b.offset),
+            (self.first_ns, b.first_ns),
+            (self.complete_ns, b.complete_ns),
+        ):
+            mine.frombytes(np.asarray(theirs, dtype="<i8").tobytes())
+        self.name += b.name
+        self.data += map(sys.intern, b.data)
+        self.seq.extend(range(first, first + n))
+        self.add_flaws(n, b.problems)
+        if raw:
+            ends = list(accumulate(map(int, b.size), initial=0))
+            self.raw += map(b.raw.__getitem__, map(slice, ends[:-1], ends[1:]))
 
     def flawed(self) -> Any:
         """Which frames have framing problems (numpy bool)."""
@@ -80,7 +103,8 @@ class Columns:
         self.flaws += map(tuple, flaws)  # tuple([]) is the one empty tuple
 
     def np(self, name: str) -> Any:
-        """A number column as a numpy int64 array (a view, no copy)."""
+        """A number column as a numpy int64 array (a view, no copy: valid until the
+        column grows)."""
         import numpy as np
 
         return np.frombuffer(getattr(self, name), dtype=np.int64)
@@ -89,7 +113,7 @@ class Columns:
         return len(self.cnt)
 
     def extend(self, other: Columns) -> None:
-        """``other``'s frames after these."""
+        """``other``'s frames after these (both with their bytes, or neither)."""
         if other.flaws and not self.flaws:
             self.flaws = [()] * len(self)
         elif self.flaws and not other.flaws:
@@ -120,7 +144,7 @@ class Columns:
         pick = itemgetter(*idx) if n > 1 else lambda x: (x[idx[0]],) if n else ()
         for k in FRAME_COLUMNS:
             mine = getattr(self, k)
-            if len(mine) != len(self):  # absent (offset, seq, flaws)
+            if len(mine) != len(self):  # absent (flaws, raw)
                 continue
             if isinstance(mine, array):
                 dtype = np.int8 if mine.typecode == "b" else np.int64
@@ -135,5 +159,5 @@ class Columns:
 #: A frame's columns in :class:`Columns`.
 FRAME_COLUMNS = (
     *("conn", "transport", "dir", "cnt", "cmd_id", "name", "data", "length"),
-    *("first_ns", "complete_ns", "request", "flaws", "offset", "seq"),
+    *("first_ns", "complete_ns", "request", "flaws", "offset", "seq", "raw"),
 )
