@@ -19,6 +19,7 @@ from typing import Any
 import pytest
 
 from conformance.spec import SpecSet, default_specs, load_specs, validate_document
+from tools._manuals import manual_path, missing_reason
 
 REPO = Path(__file__).resolve().parent.parent
 SPEC_DIR = REPO / "specs" / "fairino-3.8.2"
@@ -49,11 +50,20 @@ def raw() -> dict[str, dict[str, Any]]:
 # --------------------------------------------------------------------------- (1) reproducible
 
 
+def _manual(mod: ModuleType, what: str) -> Path:
+    """The v3.8.2 manual text from ``$FAIRINO_MANUAL_DIR``, else the test skips, saying why."""
+    name = mod.EDITIONS["3.8.2"].manual
+    why = missing_reason(name)
+    if why is not None:
+        pytest.skip(f"cannot {what}: {why}")
+    path = manual_path(name)
+    assert path is not None
+    return path
+
+
 def test_extractor_reproduces_committed_specs(tmp_path: Path) -> None:
     mod = _extractor()
-    manual = Path(mod.DEFAULT_MANUAL)
-    if not manual.is_file():
-        pytest.skip(f"manual text not available at {manual}; cannot re-run the extractor")
+    _manual(mod, "re-run the extractor")
     rc = mod.main(["--out", str(tmp_path)])
     assert rc == 0
     for name in FILES:
@@ -234,9 +244,7 @@ def test_gripper_replies_are_space_separated(specs: SpecSet) -> None:
 
 def _audits() -> list[Any]:
     mod = _extractor()
-    manual = Path(mod.DEFAULT_MANUAL)
-    if not manual.is_file():
-        pytest.skip(f"manual text not available at {manual}; cannot audit the 序号 columns")
+    manual = _manual(mod, "audit the 序号 columns")
     audits: list[Any] = mod.audit_tables(manual, mod.DEFAULT_CORRECTIONS)
     return audits
 

@@ -1,9 +1,9 @@
 #!/usr/bin/env python3
 """Extract the machine-readable protocol specs from the FAIRINO manual text.
 
-Reads the plain-text manual (``../shared/manual/fairino-command-protocol-v3.8.2.zh.txt``
-relative to the repository root unless ``--manual`` says otherwise), applies the
-human-reviewed corrections in ``tools/manual_corrections.yaml`` and writes
+Reads the plain-text manual (``--manual PATH``, else
+``fairino-command-protocol-v3.8.2.zh.txt`` in the directory ``$FAIRINO_MANUAL_DIR`` names;
+the manual is not part of the repository), applies the human-reviewed corrections in ``tools/manual_corrections.yaml`` and writes
 ``specs/fairino-3.8.2/{commands,errata,error_codes}.json``.
 
 The heuristics below do most of the work (section and table segmentation, parameter
@@ -37,11 +37,11 @@ REPO = Path(__file__).resolve().parent.parent
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
+from tools._manuals import MANUAL_DIR_ENV, manual_path  # noqa: E402
 from tools._regenerate import write_or_check  # noqa: E402
 from tools.json_indent import dumps_indent2  # noqa: E402
 from tools.manual_model import FrameText, RawSection, RawVariant, Row  # noqa: E402
 
-DEFAULT_MANUAL = REPO.parent / "shared" / "manual" / "fairino-command-protocol-v3.8.2.zh.txt"
 DEFAULT_CORRECTIONS = REPO / "tools" / "manual_corrections.yaml"
 DEFAULT_OUT = REPO / "specs" / "fairino-3.8.2"
 SPEC_VERSION = "3.8.2"
@@ -52,7 +52,8 @@ class Edition:
     """One manual the extractor reads: its version, text, corrections and output."""
 
     version: str
-    manual: Path
+    #: the manual text's file name (in ``$FAIRINO_MANUAL_DIR`` unless ``--manual`` is given)
+    manual: str
     corrections: Path
     out: Path
     #: "zh" (this module's front-end) or "en" (tools/manual_en.py)
@@ -64,7 +65,7 @@ class Edition:
 EDITIONS: dict[str, Edition] = {
     "3.8.2": Edition(
         version="3.8.2",
-        manual=DEFAULT_MANUAL,
+        manual="fairino-command-protocol-v3.8.2.zh.txt",
         corrections=DEFAULT_CORRECTIONS,
         out=DEFAULT_OUT,
         language="zh",
@@ -72,7 +73,7 @@ EDITIONS: dict[str, Edition] = {
     ),
     "3.9.8": Edition(
         version="3.9.8",
-        manual=REPO.parent / "shared" / "manual" / "fairino-protocol-v3.9.8-en.txt",
+        manual="fairino-protocol-v3.9.8-en.txt",
         corrections=REPO / "tools" / "manual_corrections-3.9.8.yaml",
         out=REPO / "specs" / "fairino-3.9.8",
         language="en",
@@ -2201,9 +2202,7 @@ def dump(doc: dict[str, Any]) -> str:
     return dumps_indent2(doc) + "\n"  # json.dumps(doc, indent=2, ensure_ascii=False)
 
 
-def audit_tables(
-    manual: Path = DEFAULT_MANUAL, corrections: Path = DEFAULT_CORRECTIONS
-) -> list[TableAudit]:
+def audit_tables(manual: Path, corrections: Path = DEFAULT_CORRECTIONS) -> list[TableAudit]:
     """The index audit of every parameter and numbered return table of the manual."""
     audits: list[TableAudit] = []
     build(manual, load_corrections(corrections), audits)
@@ -2245,7 +2244,12 @@ def main(argv: list[str] | None = None) -> int:
         help="which manual: its text, corrections and output directory are the defaults "
         "of --manual, --corrections and --out (default %(default)s)",
     )
-    ap.add_argument("--manual", type=Path, default=None)
+    ap.add_argument(
+        "--manual",
+        type=Path,
+        default=None,
+        help=f"the manual text (default: its file in ${MANUAL_DIR_ENV})",
+    )
     ap.add_argument("--corrections", type=Path, default=None)
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument(
@@ -2260,7 +2264,14 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = ap.parse_args(argv)
     ed = EDITIONS[args.version]
-    args.manual = args.manual or ed.manual
+    args.manual = args.manual or manual_path(ed.manual)
+    if args.manual is None:
+        print(
+            f"extract_specs: no manual: give --manual PATH or set {MANUAL_DIR_ENV} to the "
+            f"directory holding {ed.manual}",
+            file=sys.stderr,
+        )
+        return 2
     args.corrections = args.corrections or ed.corrections
     args.out = args.out or ed.out
     texts, audits = extract(args.manual, args.corrections, ed)
