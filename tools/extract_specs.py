@@ -27,6 +27,7 @@ import hashlib
 import re
 import sys
 import unicodedata
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -1067,6 +1068,7 @@ def parse_range(desc: str) -> list[dict[str, float | int]] | None:
         out.append({"min": _num(m.group(1)), "max": _num(m.group(2))})
     for m in re.finditer(rf"\[\s*({NUM})\s*-\s*({NUM})\s*\]", d):
         out.append({"min": _num(m.group(1)), "max": _num(m.group(2))})
+    out += hyphen_ranges(d)
     if _EDITION.language == "en":
         # "0 to 100"; "0/100" where the PDF dump lost the "~" of a range (table 2-18
         # prints "Speed percentage, 0/100" beside "Acceleration percentage, 0 to 100")
@@ -1084,6 +1086,50 @@ def parse_range(desc: str) -> list[dict[str, float | int]] | None:
     return uniq or None
 
 
+#: two numbers joined by a hyphen: "0-100" (table 2-37), "(1-10)" (5-1-23), "范围(0-1)"
+#: (8-49), "-360-360" (7-4-27); not inside a name ("SV-XD3EA040L-E")
+_HYPHEN_RANGE_RE = re.compile(rf"(?<![\w.\-])({NUM})\s*-\s*(\d+(?:\.\d+)?)(?![\d.\w])")
+
+
+def hyphen_ranges(d: str) -> list[dict[str, float | int]]:
+    """The ranges a description writes with a hyphen (the cross-check of the spec sets
+    found 20 the ``~`` and ``[a-b]`` forms left out).  Items of a numbered list whose
+    labels are numbers ("0-8080；1-8083；2-20002", table 9-2-2) are not ranges: two or more
+    pairs whose first numbers count up by one are read as such a list and skipped."""
+    pairs = [(m.group(1), m.group(2)) for m in _HYPHEN_RANGE_RE.finditer(d)]
+    firsts = [float(a) for a, _ in pairs]
+    if any(b - a == 1 for a, b in zip(firsts, firsts[1:], strict=False)):
+        return []
+    return [{"min": _num(a), "max": _num(b)} for a, b in pairs if float(a) < float(b)]
+
+
+#: an item of a list of values, where the manual's separators vary: "0-绝对位姿",
+#: "1: 360°", "0 关闭", "0不启用", "1为软件对时", "0:+X" (tables 2-14, 5-1-15, 5-1-24, 5-1-27,
+#: 8-20); the label runs to the next item
+_ITEM_RE = re.compile(
+    rf"(?:^|(?<=[\s,;，；、:：(（]))(-?\d{{1,3}})\s*"
+    rf"(?:(?:-(?!\s*\d)|:|：|—|=|为)\s*|(?=[{CJK}]))"
+)
+
+
+def parse_enum_items(d: str) -> list[dict[str, Any]] | None:
+    """A list of values :func:`parse_enum` does not read (labels with parentheses or
+    digits, items separated by ``、`` or ``:``, a value without a separator before a
+    Chinese label), or None.  Two or more items, each value once."""
+    starts = list(_ITEM_RE.finditer(d))
+    if len(starts) < 2:
+        return None
+    out: list[dict[str, Any]] = []
+    for m, nxt in zip(starts, [*starts[1:], None], strict=True):
+        label = d[m.end() : nxt.start() if nxt is not None else len(d)]
+        label = re.sub(r"[\s,;，；、:：]+$", "", label).strip()
+        v = int(m.group(1))
+        if not label or any(x["value"] == v for x in out):
+            return None
+        out.append({"value": v, "label": clean_text(label)})
+    return out
+
+
 def parse_enum(desc: str) -> list[dict[str, Any]] | None:
     d = desc.translate(LOOKALIKES)
     items = re.findall(
@@ -1094,7 +1140,7 @@ def parse_enum(desc: str) -> list[dict[str, Any]] | None:
         d,
     )
     if len(items) < 2:
-        return None
+        return parse_enum_items(d)
     seen: set[int] = set()
     out: list[dict[str, Any]] = []
     for val, label in items:
@@ -1278,10 +1324,22 @@ def build_frame(cnt: str, cmd_id: int, data: str) -> str:
 # --------------------------------------------------------------------------- main build
 
 
+class _UniqueKeyLoader(getattr(yaml, "CSafeLoader", yaml.SafeLoader)):  # type: ignore[misc]
+    """libyaml's parser where PyYAML has it (the same documents, ten times faster), with
+    a mapping that refuses a key given twice: YAML keeps the last silently, and a second
+    entry for one table would drop the first's corrections without a word."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        keys = [self.construct_object(k, deep=deep) for k, _v in node.value]
+        twice = sorted({str(k) for k in keys if keys.count(k) > 1})
+        if twice:
+            raise SystemExit(f"corrections: key(s) {twice} given twice ({node.start_mark})")
+        return super().construct_mapping(node, deep=deep)  # type: ignore[no-any-return]
+
+
 def load_corrections(path: Path) -> dict[str, Any]:
     with path.open(encoding="utf-8") as f:
-        # libyaml's parser where PyYAML has it (the same documents, ten times faster)
-        doc = yaml.load(f, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader)) or {}
+        doc = yaml.load(f, Loader=_UniqueKeyLoader) or {}
     if not isinstance(doc, dict):
         raise SystemExit(f"{path}: top level must be a mapping")
     return doc
@@ -1309,6 +1367,32 @@ def read_tables(
     return out, end
 
 
+#: a piece of a name the line wrap moved into the description ("rotDirectio" / "n",
+#: table 2-19; "errco" / "de", table 5-4-19)
+_WRAP_PIECE_RE = re.compile(r"(?<![^\s])([a-z][a-z0-9_]{0,3})(?=\s|$)")
+
+
+def rejoin_wrapped_names(tables: list[tuple[RawSection, list[RawVariant]]]) -> None:
+    """Join a name cut by a line wrap with its piece, where the joined name is one the
+    manual prints elsewhere (``rotDirection``, table 2-17; ``errcode``).
+
+    The wrap leaves the start of the name in its cell and the rest, a few lower-case
+    letters, on the next line or in the next cell, which the row reader takes for the
+    start of the description.  A name the manual prints elsewhere is left alone.
+    """
+    rows = [r for _sec, vs in tables for v in vs for r in (*v.params, *v.returns)]
+    printed = Counter(ident(r.name) for r in rows)
+    for r in rows:
+        name = ident(r.name)
+        if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*[a-z]", name) or printed[name] > 1:
+            continue
+        for m in _WRAP_PIECE_RE.finditer(r.description):
+            if printed.get(name + m.group(1), 0) > 0:
+                r.name = name + m.group(1)
+                r.description = clean_text(r.description[: m.start()] + r.description[m.end() :])
+                break
+
+
 def build(
     manual: Path,
     corrections: dict[str, Any],
@@ -1323,6 +1407,7 @@ def build(
     # the English dump keeps its page breaks (form feeds) inside lines: split on \n only
     lines = text.split("\n") if ed.language == "en" else text.splitlines()
     tables, end = read_tables(lines, ed)
+    rejoin_wrapped_names(tables)
     errata = Errata()
     ccmds: dict[str, Any] = corrections.get("commands") or {}
     inconsistent = {
@@ -1998,8 +2083,40 @@ def row_to_param(r: Row) -> dict[str, Any]:
     return p
 
 
+#: the keys a parameter or return value of the corrections file may have
+CORRECTION_KEYS = frozenset(
+    {
+        "printed_type",
+        "name",
+        "description",
+        "type",
+        "type_override",
+        "length",
+        "max_length",
+        "quoted",
+        "unit",
+        "range",
+        "enum",
+        "volatile",
+    }
+)
+
+
+def check_correction_keys(p: dict[str, Any]) -> None:
+    """A row of the corrections file with a key no row has stops the extractor: in a YAML
+    flow mapping an unquoted description with a comma ("工具号, 0~14") becomes two keys,
+    and the description loses its range without a word (tables 2-24, 5-3-1, 8-20, 8-36)."""
+    unknown = sorted(set(p) - CORRECTION_KEYS)
+    if unknown:
+        raise SystemExit(
+            f"corrections: row {p.get('name')!r} has unknown key(s) {unknown}; "
+            "quote a description that holds a comma"
+        )
+
+
 def complete_param(p: dict[str, Any]) -> dict[str, Any]:
     """A parameter given in the corrections file: fill the derivable fields."""
+    check_correction_keys(p)
     desc = p.get("description", "")
     pt = p.get("printed_type", p.get("type", "int"))
     t = normalise_type(pt, p["name"])
@@ -2036,6 +2153,7 @@ def row_to_return(r: Row) -> dict[str, Any]:
 
 
 def complete_return(r: dict[str, Any]) -> dict[str, Any]:
+    check_correction_keys(r)
     desc = r.get("description", "")
     pt = r.get("printed_type", r.get("type", "int"))
     t = normalise_type(pt, r["name"])
