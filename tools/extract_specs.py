@@ -1108,7 +1108,7 @@ def hyphen_ranges(d: str) -> list[dict[str, float | int]]:
 #: 8-20); the label runs to the next item
 _ITEM_RE = re.compile(
     rf"(?:^|(?<=[\s,;，；、:：(（]))(-?\d{{1,3}})\s*"
-    rf"(?:(?:-(?!\s*\d)|:|：|—|=|为)\s*|(?=[{CJK}]))"
+    rf"(?:(?:-(?!\s*\d)|:|：|—|–|=|为)\s*|(?=[{CJK}]))"
 )
 
 

@@ -355,9 +355,11 @@ def parse_variant_en(
     after_rows = False  # the command number or the examples were seen
     toks = [(n, ln.strip()) for n, ln in body]
     ids: list[tuple[int, str, bool]] = []  # command-number candidates: (ID, text, labelled)
-    prev = ""
+    prev = prev2 = ""
     for _n, s in toks:
-        before, prev = prev, (s if s and not FOOTER_RE.match(s) else prev)
+        before2, before = prev2, prev
+        if s and not FOOTER_RE.match(s):
+            prev2, prev = prev, s
         if not s:
             para_open = False
             continue
@@ -376,6 +378,22 @@ def parse_variant_en(
             _head, _, tail = s.partition("/f/b")
             frames.append(["/f/b" + tail])
             in_frame = "/b/f" not in tail
+            continue
+        if (
+            s == "value"
+            and TYPE_EN.match(before)
+            and not before2.startswith("returne")
+            and rows
+            and rows[-1].name is None
+            and not after_rows
+        ):
+            # a row named 'value' right after its type cell (table 3-1-2: 'uint8_t' /
+            # 'value' / 'DI price' / 'returned' / 'value'), not the label's second word
+            # with a type cell printed inside the label ('returned' / 'int' / 'value')
+            row = rows[-1]
+            row.name = s
+            target = last_name = row
+            para_open = True
             continue
         if s in LABELS or re.fullmatch(r"(?:Send|Receive)(?: the)? frame", s):
             if s.startswith("parame"):
