@@ -292,6 +292,8 @@ NUM = r"-?\d+(?:\.\d+)?"
 _UNIT = r"(?:\s*(?:度|°|mm|ms|s|%|V|A))?"
 #: "0~100", "0 ～ 100", "-20 度~20 度", "0 to 100", "[0~1000]"
 _RANGE_TILDE = re.compile(rf"(?<![\w.])({NUM}){_UNIT}\s*(?:[~～]|\bto\b)\s*({NUM})(?![\d.])")
+#: "[0,10]", "range[0,2000]A": an interval written as in mathematics
+_RANGE_BRACKET = re.compile(rf"\[\s*({NUM})\s*[,，]\s*({NUM})\s*\]")
 #: "0-100", "(1-10)", "范围 0-3": two numbers joined by a hyphen, the second not the start
 #: of a label ("0-1 ..." is read as a range only when what follows is not a word)
 _RANGE_HYPHEN = re.compile(
@@ -307,7 +309,7 @@ _ENUM_ITEM = re.compile(
 def stated_ranges(desc: str) -> list[tuple[float, float]]:
     """The ranges a description states: ``a~b``, ``a to b``, ``a-b`` (both numbers)."""
     out: list[tuple[float, float]] = []
-    for rx in (_RANGE_TILDE, _RANGE_HYPHEN):
+    for rx in (_RANGE_TILDE, _RANGE_HYPHEN, _RANGE_BRACKET):
         for m in rx.finditer(desc):
             lo, hi = float(m.group(1)), float(m.group(2))
             if lo < hi and (lo, hi) not in out:

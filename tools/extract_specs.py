@@ -24,6 +24,7 @@ import dataclasses
 import difflib
 import functools
 import hashlib
+import itertools
 import re
 import sys
 import unicodedata
@@ -1068,6 +1069,9 @@ def parse_range(desc: str) -> list[dict[str, float | int]] | None:
         out.append({"min": _num(m.group(1)), "max": _num(m.group(2))})
     for m in re.finditer(rf"\[\s*({NUM})\s*-\s*({NUM})\s*\]", d):
         out.append({"min": _num(m.group(1)), "max": _num(m.group(2))})
+    for m in re.finditer(rf"\[\s*({NUM})\s*[,，]\s*({NUM})\s*\]", d):
+        # "range[0,10]V" (v3.9.8 tables 8-83, 8-84): an interval written as in mathematics
+        out.append({"min": _num(m.group(1)), "max": _num(m.group(2))})
     out += hyphen_ranges(d)
     if _EDITION.language == "en":
         # "0 to 100"; "0/100" where the PDF dump lost the "~" of a range (table 2-18
@@ -1098,7 +1102,7 @@ def hyphen_ranges(d: str) -> list[dict[str, float | int]]:
     pairs whose first numbers count up by one are read as such a list and skipped."""
     pairs = [(m.group(1), m.group(2)) for m in _HYPHEN_RANGE_RE.finditer(d)]
     firsts = [float(a) for a, _ in pairs]
-    if any(b - a == 1 for a, b in zip(firsts, firsts[1:], strict=False)):
+    if any(b - a == 1 for a, b in itertools.pairwise(firsts)):
         return []
     return [{"min": _num(a), "max": _num(b)} for a, b in pairs if float(a) < float(b)]
 

@@ -15,6 +15,7 @@ the PDF dump prints as three streams (codes, meanings, remedies) per page.
 
 from __future__ import annotations
 
+import itertools
 import re
 from dataclasses import dataclass, field
 from typing import Any
@@ -483,6 +484,7 @@ def parse_variant_en(
             v.cmd_ids.append(cid)
             v.printed_cmd_id = v.printed_cmd_id or text
     _place_orphans(rows, orphans)
+    _give_back_split_cells(rows)
     _split_params_returns(rows, has_param_label, frames)
     for r in rows:
         read = Row(
@@ -544,6 +546,34 @@ def _place_orphans(rows: list[_Row], orphans: list[list[str]]) -> None:
     for r in rows:
         if r.printed_type is None:
             r.printed_type = "int" if (r.name or "").lower() == "errcode" else ""
+
+
+def _give_back_split_cells(rows: list[_Row]) -> None:
+    """A cell printed from above its row: its first line goes back to the row it belongs to.
+
+    The dump prints a tall description cell vertically centred, so its first line comes
+    before its row's index and type and is read as the end of the row above (table 2-4:
+    'Whether to do offset, 0-no, 1-workpiece' above '21 uint8_t offset_flag' 'coordinate
+    system, 2-tool coordinate system, ...').  The line moves down when the row below
+    starts in mid-sentence (a lower-case word) and the line starts a sentence, or when the
+    line leaves its list open (ends with ';' or ',': '[-1]: Stop (block) at this
+    position;' above '[0~1000] Smooth radius ...').  A row's first line never moves.
+    """
+    for r, nxt in itertools.pairwise(rows):
+        if r.returns != nxt.returns or not nxt.paras or not r.paras:
+            continue
+        lines = [x for p in r.paras for x in p]
+        if len(lines) < 2:
+            continue
+        head = nxt.paras[0][0] if nxt.paras[0] else ""
+        last = lines[-1]
+        mid_sentence = bool(re.match(r"^[a-z]", head)) and bool(re.match(r"^[A-Z]", last))
+        open_list = last.endswith((";", ",")) and bool(re.match(r"^[A-Z\[]", last))
+        if not (mid_sentence or open_list):
+            continue
+        k = len(lines) - 1
+        r.paras = [lines[:k]]
+        nxt.paras = [[*lines[k:], *nxt.paras[0]], *nxt.paras[1:]]
 
 
 def _split_params_returns(rows: list[_Row], has_param_label: bool, frames: list[list[str]]) -> None:
