@@ -38,6 +38,7 @@ Within one set:
 from __future__ import annotations
 
 import difflib
+import itertools
 import re
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -115,9 +116,12 @@ def _num(x: float) -> str:
 
 
 def _ranges(r: Sequence[Interval] | None) -> str:
+    """The intervals in order (the manuals print them in either order: '[-1.0] ..., 0~500')."""
     if not r:
         return "none"
-    return ", ".join(f"{_num(i.min)}~{_num(i.max)}" for i in r)
+    return ", ".join(
+        f"{_num(i.min)}~{_num(i.max)}" for i in sorted(r, key=lambda i: (i.min, i.max))
+    )
 
 
 def _values(p: Param) -> list[float]:
@@ -240,8 +244,8 @@ def _name_disagreement(at: str, x: str, y: str, kind: str, dis: _Dis) -> Disagre
         return dis("name_fragment", at, x or "(no name)", y or "(no name)")
     short, long_ = (x, y) if len(x) < len(y) else (y, x)
     ls, ll = short.lower(), long_.lower()
-    start = ll.startswith(ls) and _mid_word(short[-1], long_[len(short)])
-    end = ll.endswith(ls) and len(ls) >= 2 and _mid_word(long_[-len(short) - 1], short[0])
+    start = ll.startswith(ls) and _mid_word(long_[len(short) - 1], long_[len(short)])
+    end = ll.endswith(ls) and len(ls) >= 2 and _mid_word(long_[-len(short) - 1], long_[-len(short)])
     glued = ls == "errcode" and ll.endswith(ls)
     return dis("name_fragment" if start or end or glued else kind, at, x, y)
 
@@ -309,7 +313,10 @@ _ENUM_ITEM = re.compile(
 def stated_ranges(desc: str) -> list[tuple[float, float]]:
     """The ranges a description states: ``a~b``, ``a to b``, ``a-b`` (both numbers)."""
     out: list[tuple[float, float]] = []
-    for rx in (_RANGE_TILDE, _RANGE_HYPHEN, _RANGE_BRACKET):
+    hyphens = [float(m.group(1)) for m in _RANGE_HYPHEN.finditer(desc)]
+    listed = any(b - a == 1 for a, b in itertools.pairwise(hyphens))
+    for rx in (_RANGE_TILDE, _RANGE_BRACKET, *(() if listed else (_RANGE_HYPHEN,))):
+        # a numbered list whose labels are numbers ('0-8080；1-8083') is not a range
         for m in rx.finditer(desc):
             lo, hi = float(m.group(1)), float(m.group(2))
             if lo < hi and (lo, hi) not in out:
@@ -433,9 +440,16 @@ def _fragment_of(
         lw = w.lower()
         if len(lw) <= len(n):
             continue
-        if lw.startswith(n) and _mid_word(name[-1], w[len(n)]):
+        if len(n) >= 2 and lw.startswith(n) and _mid_word(w[len(n) - 1], w[len(n)]):
             return f"the start of {w}"
-        if len(n) >= 3 and lw.endswith(n) and _mid_word(w[-len(n) - 1], name[0]):
+        if (
+            len(n) >= 3
+            and lw.endswith(n)
+            and name[0].islower()
+            and _mid_word(w[-len(n) - 1], w[-len(n)])
+        ):
+            # the second half of a wrapped name starts in lower case ('hreshold'); a name
+            # printed with a capital ('Num') starts a word of its own
             return f"the end of {w}"
     return None
 

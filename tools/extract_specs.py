@@ -1065,7 +1065,8 @@ def parse_range(desc: str) -> list[dict[str, float | int]] | None:
     for m in re.finditer(rf"\[\s*({NUM})\s*\]\s*(?=[:：]|不平滑|在此)", d):
         v = _num(m.group(1))
         out.append({"min": v, "max": v})
-    for m in re.finditer(rf"(?<![\d.\w])({NUM})\s*[~～]\s*({NUM})(?![\d.])", d):
+    # "0~100"; "-20 度~20 度" (table 5-4-20: a unit after the first number too)
+    for m in re.finditer(rf"(?<![\d.\w])({NUM})(?:\s*(?:度|°))?\s*[~～]\s*({NUM})(?![\d.])", d):
         out.append({"min": _num(m.group(1)), "max": _num(m.group(2))})
     for m in re.finditer(rf"\[\s*({NUM})\s*-\s*({NUM})\s*\]", d):
         out.append({"min": _num(m.group(1)), "max": _num(m.group(2))})
@@ -1077,7 +1078,8 @@ def parse_range(desc: str) -> list[dict[str, float | int]] | None:
         # "0 to 100"; "0/100" where the PDF dump lost the "~" of a range (table 2-18
         # prints "Speed percentage, 0/100" beside "Acceleration percentage, 0 to 100")
         for m in re.finditer(
-            rf"(?<![\d.\w/])({NUM})\s*(?:to|/)\s*({NUM})(?![\d.]|\s*(?:mm|°|s\b))", d
+            rf"(?<![\d.\w/])({NUM})(?:\s*degrees?)?\s*(?:to|/)\s*({NUM})(?![\d.]|\s*(?:mm|°|s\b))",
+            d,
         ):
             out.append({"min": _num(m.group(1)), "max": _num(m.group(2))})
         for m in re.finditer(rf"\[\s*({NUM})\s*\]\s*(?=[:：]|is not smooth)", d):
@@ -1134,6 +1136,26 @@ def parse_enum_items(d: str) -> list[dict[str, Any]] | None:
     return out
 
 
+#: an item written with a space only: "Whether to block, 0 block, 1 not block" (v3.9.8
+#: tables 6-3-7 .. 6-3-13)
+_WORD_ITEM_RE = re.compile(
+    r"(?:^|(?<=[,;，；:：]))\s*(\d{1,2}) (?![\d.])([A-Za-z][^,;，；]*?)\s*(?=[,;，；]|$)"
+)
+
+
+def parse_enum_words(d: str) -> list[dict[str, Any]] | None:
+    """Values each followed by a space and a word, as a comma-separated list counting up by
+    one, and no other number after the first (else the list is not all read: '0 is not
+    enabled, 1 is software timing, and 2 is ...'), or None."""
+    items = list(_WORD_ITEM_RE.finditer(d))
+    vals = [int(m.group(1)) for m in items]
+    if len(vals) < 2 or vals != list(range(vals[0], vals[0] + len(vals))):
+        return None
+    if len(re.findall(r"\d+", d[items[0].start() :])) != len(vals):
+        return None
+    return [{"value": v, "label": clean_text(m.group(2))} for v, m in zip(vals, items, strict=True)]
+
+
 def parse_enum(desc: str) -> list[dict[str, Any]] | None:
     d = desc.translate(LOOKALIKES)
     items = re.findall(
@@ -1144,7 +1166,7 @@ def parse_enum(desc: str) -> list[dict[str, Any]] | None:
         d,
     )
     if len(items) < 2:
-        return parse_enum_items(d)
+        return parse_enum_items(d) or parse_enum_words(d)
     seen: set[int] = set()
     out: list[dict[str, Any]] = []
     for val, label in items:
@@ -1432,6 +1454,21 @@ def build(
         cmd_ids: list[int] = []
         for vi, rv in enumerate(variants_raw):
             vcorr = (corr.get("variants") or {}).get(rv.table) or {}
+            if vcorr.get("drop"):
+                # not a table of this command (a stray frame the dump printed under the
+                # heading, v3.9.8 3.2.1): left out, with an erratum saying what it was
+                printed = " ".join(f.printed for f in (*rv.requests, *rv.replies))
+                errata.add(
+                    order=(rv.line, 0),
+                    kind="ocr_damage",
+                    commands=[sec.key],
+                    table=rv.table,
+                    cmd_id=None,
+                    manual_text=printed or rv.caption or rv.table,
+                    adopted="not a table of this command: left out",
+                    note=clean_ws(str(vcorr.get("why", ""))),
+                )
+                continue
             ids = vcorr.get("cmd_ids") or rv.cmd_ids
             for cid in ids:
                 if cid not in cmd_ids:
@@ -1446,7 +1483,8 @@ def build(
             if ed.language == "en":
                 for a in table_audits:
                     if not a.ok:
-                        damaged_table(a, cmd_ids[0] if cmd_ids else None, errata)
+                        reviewed = a.part in vcorr or f"{a.part}_patch" in vcorr
+                        damaged_table(a, cmd_ids[0] if cmd_ids else None, errata, reviewed)
             variants.append(variant)
             pending_examples.append((variant, ex_links))
         if not variants:
@@ -1568,10 +1606,19 @@ def build(
     }
 
 
-def damaged_table(a: TableAudit, cmd_id: int | None, errata: Errata) -> None:
+def damaged_table(
+    a: TableAudit, cmd_id: int | None, errata: Errata, reviewed: bool = False
+) -> None:
     """An ``ocr_damage`` erratum for a table whose rows the English front-end could not
     read in order: the PDF dump printed its cells out of order (a column as a block, an
-    index cell away from its row), so the rows read do not match the index column."""
+    index cell away from its row), so the rows read do not match the index column.
+    ``reviewed``: the corrections file gives the part's rows, read by hand."""
+    if reviewed:
+        adopted = f"{a.extracted} row(s) read by hand (tools/manual_corrections-3.9.8.yaml)"
+        tail = "; the rows are read by hand in the corrections file."
+    else:
+        adopted = f"{a.extracted} row(s) as read; to be reviewed in the corrections file"
+        tail = ", so names, types or descriptions of this table may be misplaced."
     errata.add(
         order=(a.line, 0),
         kind="ocr_damage",
@@ -1579,10 +1626,9 @@ def damaged_table(a: TableAudit, cmd_id: int | None, errata: Errata) -> None:
         table=a.table,
         cmd_id=cmd_id,
         manual_text=f"{a.part}: index column read as {compact_indices(a.printed)}",
-        adopted=f"{a.extracted} row(s) as read; to be reviewed in the corrections file",
+        adopted=adopted,
         note=f"The text dump prints the cells of {a.name} table {a.table} out of order; "
-        f"the {a.part} rows read ({a.extracted}) do not match the printed index column, "
-        "so names, types or descriptions of this table may be misplaced.",
+        f"the {a.part} rows read do not match the printed index column{tail}",
     )
 
 
@@ -1611,6 +1657,33 @@ def fix_name(printed: str, variants: list[RawVariant]) -> str:
     return n
 
 
+def patch_rows(
+    rows: list[dict[str, Any]],
+    vcorr: dict[str, Any],
+    part: str,
+    complete: Any,
+    where: str,
+) -> list[dict[str, Any]]:
+    """The rows of one part with the corrections file's ``<part>_patch`` applied: a
+    mapping from a row's number (1-based, as the table's index column) to the row read
+    by hand, which replaces the extracted row or, one past the last, is appended; then
+    ``<part>_count`` (if given) keeps only that many rows.  For a table whose rows are
+    read right but for a few (a name run together with the next, a row the label block
+    swallowed), without copying out the rows that are right."""
+    out = list(rows)
+    for key, row in sorted((vcorr.get(f"{part}_patch") or {}).items(), key=lambda kv: int(kv[0])):
+        i = int(key) - 1
+        if not 0 <= i <= len(out):
+            raise SystemExit(f"corrections: {where} {part}_patch row {key}: no row {i} before it")
+        fixed = complete(dict(row))
+        if i < len(out):
+            out[i] = fixed
+        else:
+            out.append(fixed)
+    count = vcorr.get(f"{part}_count")
+    return out if count is None else out[: int(count)]
+
+
 def build_variant(
     sec: RawSection,
     name: str,
@@ -1632,6 +1705,8 @@ def build_variant(
         rvals = [complete_return(dict(r)) for r in vcorr["returns"]]
     else:
         rvals = [row_to_return(r) for r in rv.returns]
+    params = patch_rows(params, vcorr, "params", complete_param, f"{sec.key} table {rv.table}")
+    rvals = patch_rows(rvals, vcorr, "returns", complete_return, f"{sec.key} table {rv.table}")
 
     # ---- examples
     ex_corr: list[dict[str, Any]] = vcorr.get("examples") or []
