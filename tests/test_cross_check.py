@@ -195,6 +195,7 @@ def test_an_adjudication_matches_only_its_own_readings(tmp_path: Path) -> None:
         ("自动抬升运动角度(-20 度~20 度)", [(-20, 20)]),
         ("Speed percentage, 0 to 100", [(0, 100)]),
         ("AI 通道上限, 默认值 10V, 范围[0,10]V", [(0, 10)]),
+        ("offset percentage (-100%, +100%)", [(-100, 100)]),
         ("Port type；0-8080；1-8083；2-20002；3-20004", []),  # a list, not ranges
         ("驱动器型号 1-禾川-SV-XD3EA040L-E", []),
         ("偏移量 y, 单位: [mm]", []),

@@ -296,8 +296,10 @@ NUM = r"-?\d+(?:\.\d+)?"
 _UNIT = r"(?:\s*(?:度|°|mm|ms|s|%|V|A))?"
 #: "0~100", "0 ～ 100", "-20 度~20 度", "0 to 100", "[0~1000]"
 _RANGE_TILDE = re.compile(rf"(?<![\w.])({NUM}){_UNIT}\s*(?:[~～]|\bto\b)\s*({NUM})(?![\d.])")
-#: "[0,10]", "range[0,2000]A": an interval written as in mathematics
-_RANGE_BRACKET = re.compile(rf"\[\s*({NUM})\s*[,，]\s*({NUM})\s*\]")
+#: "[0,10]", "range[0,2000]A": an interval written as in mathematics; "(-100%,+100%)"
+_RANGE_BRACKET = re.compile(
+    rf"\[\s*({NUM})\s*[,，]\s*({NUM})\s*\]|\(\s*({NUM})\s*%\s*[,，]\s*\+?({NUM})\s*%\s*\)"
+)
 #: "0-100", "(1-10)", "范围 0-3": two numbers joined by a hyphen, the second not the start
 #: of a label ("0-1 ..." is read as a range only when what follows is not a word)
 _RANGE_HYPHEN = re.compile(
@@ -318,7 +320,8 @@ def stated_ranges(desc: str) -> list[tuple[float, float]]:
     for rx in (_RANGE_TILDE, _RANGE_BRACKET, *(() if listed else (_RANGE_HYPHEN,))):
         # a numbered list whose labels are numbers ('0-8080；1-8083') is not a range
         for m in rx.finditer(desc):
-            lo, hi = float(m.group(1)), float(m.group(2))
+            a, b = [g for g in m.groups() if g is not None]
+            lo, hi = float(a), float(b)
             if lo < hi and (lo, hi) not in out:
                 out.append((lo, hi))
     return out

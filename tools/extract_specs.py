@@ -1073,6 +1073,9 @@ def parse_range(desc: str) -> list[dict[str, float | int]] | None:
     for m in re.finditer(rf"\[\s*({NUM})\s*[,，]\s*({NUM})\s*\]", d):
         # "range[0,10]V" (v3.9.8 tables 8-83, 8-84): an interval written as in mathematics
         out.append({"min": _num(m.group(1)), "max": _num(m.group(2))})
+    for m in re.finditer(rf"\(\s*({NUM})\s*%\s*[,，]\s*\+?({NUM})\s*%\s*\)", d):
+        # "(-100%,+100%)" (table 8-60): a percentage's bounds
+        out.append({"min": _num(m.group(1)), "max": _num(m.group(2))})
     out += hyphen_ranges(d)
     if _EDITION.language == "en":
         # "0 to 100"; "0/100" where the PDF dump lost the "~" of a range (table 2-18
