@@ -1569,7 +1569,9 @@ def build(
         if problems:
             raise SystemExit("error-code table: " + "; ".join(problems))
     else:
-        error_codes = parse_error_codes(lines, end)
+        error_codes = correct_error_codes(
+            parse_error_codes(lines, end), corrections.get("error_codes") or {}
+        )
     seen_codes: dict[int, dict[str, Any]] = {}
     for ec_row in error_codes:
         prev = seen_codes.get(ec_row["code"])
@@ -2278,6 +2280,29 @@ def parse_error_codes(lines: list[str], start: int) -> list[dict[str, Any]]:
             r["remedy"] = ""
     rows.sort(key=lambda r: r["code"])
     return rows
+
+
+def correct_error_codes(rows: list[dict[str, Any]], corr: dict[str, Any]) -> list[dict[str, Any]]:
+    """Chapter 9's rows with the corrections file's reviewed ones: ``drop`` (a row printed
+    under another code's number, given by code and meaning) and ``codes.<n>`` (a reviewed
+    meaning or remedy, or a row the text lost), each with a ``why``."""
+    out = list(rows)
+    for d in corr.get("drop") or []:
+        hit = [r for r in out if r["code"] == int(d["code"]) and r["meaning"] == d["meaning"]]
+        if len(hit) != 1:
+            raise SystemExit(f"corrections: error code {d['code']} {d['meaning']!r} not found once")
+        out.remove(hit[0])
+    for key, fix in (corr.get("codes") or {}).items():
+        code = int(key)
+        row = next((r for r in out if r["code"] == code), None)
+        if row is None:
+            row = {"code": code, "meaning": "", "remedy": ""}
+            out.append(row)
+        for k in ("meaning", "remedy"):
+            if k in fix:
+                row[k] = fix[k]
+    out.sort(key=lambda r: r["code"])
+    return out
 
 
 # --------------------------------------------------------------------------- index audit
