@@ -130,6 +130,11 @@ def test_an_injected_disagreement_of_each_kind_is_reported_open(tmp_path: Path) 
         _command(commands, "FT_ComplianceStop")["name"] = "FT_Compliancestop"
         # an empty name in a command v3.8.2 lacks
         _command(commands, "SetServoJRpyEnable")["variants"][0]["params"][0]["name"] = ""
+        # a type's wrapped tail taken for a name, and two cells run together
+        _command(commands, "ServoJV")["variants"][0]["params"][7]["name"] = "_t"
+        _command(commands, "OriginPointWeaveStart")["variants"][0]["params"][2]["name"] = (
+            "refPoint[6]point"
+        )
 
     _edit(a, damage_a)
     _edit(b, damage_b)
@@ -141,6 +146,8 @@ def test_an_injected_disagreement_of_each_kind_is_reported_open(tmp_path: Path) 
     assert ("command_name", "FT_ComplianceStop") in found  # the sets now differ in case
     assert ("caption_name", "FT_Compliancestop") in found
     assert ("name_fragment", "SetServoJRpyEnable") in found
+    assert ("name_fragment", "ServoJV") in found
+    assert ("name_fragment", "OriginPointWeaveStart") in found
     (frag,) = [d for d in rep.open if d.command == "HorizonSpiralMotionStart"]
     assert dict(frag.readings) == {"3.8.2": "rotDirectio", "3.9.8": "rotDirection"}
     assert not rep.ok

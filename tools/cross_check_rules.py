@@ -28,9 +28,10 @@ Within one set:
   ``0-100``, ``0 to 100``) that its recorded range and values do not hold;
 * ``enum_in_description``: a parameter's description lists values (``0-绝对位姿,
   1-相对位姿``, ``0: block, 1: not block``) that its recorded values and range do not hold;
-* ``name_fragment``: in a command the other set lacks, a name that is empty or a piece of
-  a longer name (of the other set, of two commands of its own, of its description) cut
-  inside a word;
+* ``name_fragment``: in a command the other set lacks, a name that is empty, no
+  identifier, starts with '_' (a wrapped type's or name's tail), or is a piece of a longer
+  name (of the other set, of two commands of its own, of its description) cut inside a
+  word;
 * ``caption_name``: the command's heading prints a name that its examples do not send,
   and its table captions print the examples' spelling (or none).
 """
@@ -390,6 +391,7 @@ def _clip(s: str, n: int = 80) -> str:
 
 # --------------------------------------------------------------------------- names
 
+_IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 #: an identifier in a description, not a plain word: camelCase, snake_case or with digits
 _NAMELIKE = re.compile(r"[a-z][A-Za-z0-9]*[A-Z_0-9][A-Za-z0-9_]*|[A-Z][a-z0-9]+[A-Z][A-Za-z0-9_]*")
 
@@ -473,6 +475,10 @@ def name_checks(
             rows += [("return", i, r) for i, r in enumerate(v.returns.values, 1)]
             for part, i, p in rows:
                 what = "(no name)" if not p.name else None
+                if what is None and not _IDENTIFIER.fullmatch(p.name):
+                    what = "not an identifier (two cells run together)"
+                if what is None and p.name.startswith("_"):
+                    what = "the end of a wrapped word (starts with '_')"
                 if what is None:
                     what = _fragment_of(p.name, c.name, own, oth, p.description)
                 if what is None:
