@@ -1,7 +1,7 @@
 """The port-8083 state layouts (specs/fairino-*/state.json) and how they were extracted.
 
-(1) tools/extract_state.py reproduces the committed files (skipped, saying why, when the
-manuals are not beside the checkout); (2) each file validates against
+(1) tools/extract_state.py reproduces the committed files (skipped, saying why, when
+``$FAIRINO_MANUAL_DIR`` does not hold the manuals); (2) each file validates against
 specs/state.schema.json; (3) a packet built by hand from each manual's table 2-2, with
 ``struct`` and a byte sum written out here, decodes to the values put in.
 """
@@ -21,6 +21,7 @@ import pytest
 
 from conformance.protocol.state import StatePacket
 from conformance.spec.state import decode_stream, known_layouts, layout_for
+from tools._manuals import missing_reason
 
 REPO = Path(__file__).resolve().parent.parent
 SCHEMA = json.loads((REPO / "specs" / "state.schema.json").read_text(encoding="utf-8"))
@@ -45,9 +46,9 @@ def _extractor() -> ModuleType:
 
 def test_extractor_reproduces_committed_layouts(capsys: pytest.CaptureFixture[str]) -> None:
     mod = _extractor()
-    d = Path(mod.DEFAULT_MANUAL_DIR)
-    if not (d / mod.ZH_FILE).is_file() or not (d / mod.EN_FILE).is_file():
-        pytest.skip(f"the 8083 state manuals are not in {d}; cannot re-run the extractor")
+    why = missing_reason(mod.ZH_FILE) or missing_reason(mod.EN_FILE)
+    if why is not None:
+        pytest.skip(f"cannot re-run the extractor: {why}")
     assert mod.main(["--check"]) == 0, capsys.readouterr().out[:2000]
 
 

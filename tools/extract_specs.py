@@ -1,9 +1,9 @@
 #!/usr/bin/env python3
 """Extract the machine-readable protocol specs from the FAIRINO manual text.
 
-Reads the plain-text manual (``../shared/manual/fairino-command-protocol-v3.8.2.zh.txt``
-relative to the repository root unless ``--manual`` says otherwise), applies the
-human-reviewed corrections in ``tools/manual_corrections.yaml`` and writes
+Reads the plain-text manual (``--manual PATH``, else
+``fairino-command-protocol-v3.8.2.zh.txt`` in the directory ``$FAIRINO_MANUAL_DIR`` names;
+the manual is not part of the repository), applies the human-reviewed corrections in ``tools/manual_corrections.yaml`` and writes
 ``specs/fairino-3.8.2/{commands,errata,error_codes}.json``.
 
 The heuristics below do most of the work (section and table segmentation, parameter
@@ -24,9 +24,11 @@ import dataclasses
 import difflib
 import functools
 import hashlib
+import itertools
 import re
 import sys
 import unicodedata
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -37,11 +39,11 @@ REPO = Path(__file__).resolve().parent.parent
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
+from tools._manuals import MANUAL_DIR_ENV, manual_path  # noqa: E402
 from tools._regenerate import write_or_check  # noqa: E402
 from tools.json_indent import dumps_indent2  # noqa: E402
 from tools.manual_model import FrameText, RawSection, RawVariant, Row  # noqa: E402
 
-DEFAULT_MANUAL = REPO.parent / "shared" / "manual" / "fairino-command-protocol-v3.8.2.zh.txt"
 DEFAULT_CORRECTIONS = REPO / "tools" / "manual_corrections.yaml"
 DEFAULT_OUT = REPO / "specs" / "fairino-3.8.2"
 SPEC_VERSION = "3.8.2"
@@ -52,7 +54,8 @@ class Edition:
     """One manual the extractor reads: its version, text, corrections and output."""
 
     version: str
-    manual: Path
+    #: the manual text's file name (in ``$FAIRINO_MANUAL_DIR`` unless ``--manual`` is given)
+    manual: str
     corrections: Path
     out: Path
     #: "zh" (this module's front-end) or "en" (tools/manual_en.py)
@@ -64,7 +67,7 @@ class Edition:
 EDITIONS: dict[str, Edition] = {
     "3.8.2": Edition(
         version="3.8.2",
-        manual=DEFAULT_MANUAL,
+        manual="fairino-command-protocol-v3.8.2.zh.txt",
         corrections=DEFAULT_CORRECTIONS,
         out=DEFAULT_OUT,
         language="zh",
@@ -72,7 +75,7 @@ EDITIONS: dict[str, Edition] = {
     ),
     "3.9.8": Edition(
         version="3.9.8",
-        manual=REPO.parent / "shared" / "manual" / "fairino-protocol-v3.9.8-en.txt",
+        manual="fairino-protocol-v3.9.8-en.txt",
         corrections=REPO / "tools" / "manual_corrections-3.9.8.yaml",
         out=REPO / "specs" / "fairino-3.9.8",
         language="en",
@@ -1062,15 +1065,24 @@ def parse_range(desc: str) -> list[dict[str, float | int]] | None:
     for m in re.finditer(rf"\[\s*({NUM})\s*\]\s*(?=[:：]|不平滑|在此)", d):
         v = _num(m.group(1))
         out.append({"min": v, "max": v})
-    for m in re.finditer(rf"(?<![\d.\w])({NUM})\s*[~～]\s*({NUM})(?![\d.])", d):
+    # "0~100"; "-20 度~20 度" (table 5-4-20: a unit after the first number too)
+    for m in re.finditer(rf"(?<![\d.\w])({NUM})(?:\s*(?:度|°))?\s*[~～]\s*({NUM})(?![\d.])", d):
         out.append({"min": _num(m.group(1)), "max": _num(m.group(2))})
     for m in re.finditer(rf"\[\s*({NUM})\s*-\s*({NUM})\s*\]", d):
         out.append({"min": _num(m.group(1)), "max": _num(m.group(2))})
+    for m in re.finditer(rf"\[\s*({NUM})\s*[,，]\s*({NUM})\s*\]", d):
+        # "range[0,10]V" (v3.9.8 tables 8-83, 8-84): an interval written as in mathematics
+        out.append({"min": _num(m.group(1)), "max": _num(m.group(2))})
+    for m in re.finditer(rf"\(\s*({NUM})\s*%\s*[,，]\s*\+?({NUM})\s*%\s*\)", d):
+        # "(-100%,+100%)" (table 8-60): a percentage's bounds
+        out.append({"min": _num(m.group(1)), "max": _num(m.group(2))})
+    out += hyphen_ranges(d)
     if _EDITION.language == "en":
         # "0 to 100"; "0/100" where the PDF dump lost the "~" of a range (table 2-18
         # prints "Speed percentage, 0/100" beside "Acceleration percentage, 0 to 100")
         for m in re.finditer(
-            rf"(?<![\d.\w/])({NUM})\s*(?:to|/)\s*({NUM})(?![\d.]|\s*(?:mm|°|s\b))", d
+            rf"(?<![\d.\w/])({NUM})(?:\s*degrees?)?\s*(?:to|/)\s*({NUM})(?![\d.]|\s*(?:mm|°|s\b))",
+            d,
         ):
             out.append({"min": _num(m.group(1)), "max": _num(m.group(2))})
         for m in re.finditer(rf"\[\s*({NUM})\s*\]\s*(?=[:：]|is not smooth)", d):
@@ -1083,6 +1095,70 @@ def parse_range(desc: str) -> list[dict[str, float | int]] | None:
     return uniq or None
 
 
+#: two numbers joined by a hyphen: "0-100" (table 2-37), "(1-10)" (5-1-23), "范围(0-1)"
+#: (8-49), "-360-360" (7-4-27); not inside a name ("SV-XD3EA040L-E")
+_HYPHEN_RANGE_RE = re.compile(rf"(?<![\w.\-])({NUM})\s*-\s*(\d+(?:\.\d+)?)(?![\d.\w])")
+
+
+def hyphen_ranges(d: str) -> list[dict[str, float | int]]:
+    """The ranges a description writes with a hyphen (the cross-check of the spec sets
+    found 20 the ``~`` and ``[a-b]`` forms left out).  Items of a numbered list whose
+    labels are numbers ("0-8080；1-8083；2-20002", table 9-2-2) are not ranges: two or more
+    pairs whose first numbers count up by one are read as such a list and skipped."""
+    pairs = [(m.group(1), m.group(2)) for m in _HYPHEN_RANGE_RE.finditer(d)]
+    firsts = [float(a) for a, _ in pairs]
+    if any(b - a == 1 for a, b in itertools.pairwise(firsts)):
+        return []
+    return [{"min": _num(a), "max": _num(b)} for a, b in pairs if float(a) < float(b)]
+
+
+#: an item of a list of values, where the manual's separators vary: "0-绝对位姿",
+#: "1: 360°", "0 关闭", "0不启用", "1为软件对时", "0:+X" (tables 2-14, 5-1-15, 5-1-24, 5-1-27,
+#: 8-20); the label runs to the next item
+_ITEM_RE = re.compile(
+    rf"(?:^|(?<=[\s,;，；、:：(（]))(-?\d{{1,3}})\s*"
+    rf"(?:(?:-(?!\s*\d)|:|：|—|–|=|为)\s*|(?=[{CJK}]))"
+)
+
+
+def parse_enum_items(d: str) -> list[dict[str, Any]] | None:
+    """A list of values :func:`parse_enum` does not read (labels with parentheses or
+    digits, items separated by ``、`` or ``:``, a value without a separator before a
+    Chinese label), or None.  Two or more items, each value once."""
+    starts = list(_ITEM_RE.finditer(d))
+    if len(starts) < 2:
+        return None
+    out: list[dict[str, Any]] = []
+    for m, nxt in zip(starts, [*starts[1:], None], strict=True):
+        label = d[m.end() : nxt.start() if nxt is not None else len(d)]
+        label = re.sub(r"[\s,;，；、:：]+$", "", label).strip()
+        v = int(m.group(1))
+        if not label or any(x["value"] == v for x in out):
+            return None
+        out.append({"value": v, "label": clean_text(label)})
+    return out
+
+
+#: an item written with a space only: "Whether to block, 0 block, 1 not block" (v3.9.8
+#: tables 6-3-7 .. 6-3-13)
+_WORD_ITEM_RE = re.compile(
+    r"(?:^|(?<=[,;，；:：]))\s*(\d{1,2}) (?![\d.])([A-Za-z][^,;，；]*?)\s*(?=[,;，；]|$)"
+)
+
+
+def parse_enum_words(d: str) -> list[dict[str, Any]] | None:
+    """Values each followed by a space and a word, as a comma-separated list counting up by
+    one, and no other number after the first (else the list is not all read: '0 is not
+    enabled, 1 is software timing, and 2 is ...'), or None."""
+    items = list(_WORD_ITEM_RE.finditer(d))
+    vals = [int(m.group(1)) for m in items]
+    if len(vals) < 2 or vals != list(range(vals[0], vals[0] + len(vals))):
+        return None
+    if len(re.findall(r"\d+", d[items[0].start() :])) != len(vals):
+        return None
+    return [{"value": v, "label": clean_text(m.group(2))} for v, m in zip(vals, items, strict=True)]
+
+
 def parse_enum(desc: str) -> list[dict[str, Any]] | None:
     d = desc.translate(LOOKALIKES)
     items = re.findall(
@@ -1093,7 +1169,7 @@ def parse_enum(desc: str) -> list[dict[str, Any]] | None:
         d,
     )
     if len(items) < 2:
-        return None
+        return parse_enum_items(d) or parse_enum_words(d)
     seen: set[int] = set()
     out: list[dict[str, Any]] = []
     for val, label in items:
@@ -1277,10 +1353,22 @@ def build_frame(cnt: str, cmd_id: int, data: str) -> str:
 # --------------------------------------------------------------------------- main build
 
 
+class _UniqueKeyLoader(getattr(yaml, "CSafeLoader", yaml.SafeLoader)):  # type: ignore[misc]
+    """libyaml's parser where PyYAML has it (the same documents, ten times faster), with
+    a mapping that refuses a key given twice: YAML keeps the last silently, and a second
+    entry for one table would drop the first's corrections without a word."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        keys = [self.construct_object(k, deep=deep) for k, _v in node.value]
+        twice = sorted({str(k) for k in keys if keys.count(k) > 1})
+        if twice:
+            raise SystemExit(f"corrections: key(s) {twice} given twice ({node.start_mark})")
+        return super().construct_mapping(node, deep=deep)  # type: ignore[no-any-return]
+
+
 def load_corrections(path: Path) -> dict[str, Any]:
     with path.open(encoding="utf-8") as f:
-        # libyaml's parser where PyYAML has it (the same documents, ten times faster)
-        doc = yaml.load(f, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader)) or {}
+        doc = yaml.load(f, Loader=_UniqueKeyLoader) or {}
     if not isinstance(doc, dict):
         raise SystemExit(f"{path}: top level must be a mapping")
     return doc
@@ -1308,6 +1396,32 @@ def read_tables(
     return out, end
 
 
+#: a piece of a name the line wrap moved into the description ("rotDirectio" / "n",
+#: table 2-19; "errco" / "de", table 5-4-19)
+_WRAP_PIECE_RE = re.compile(r"(?<![^\s])([a-z][a-z0-9_]{0,3})(?=\s|$)")
+
+
+def rejoin_wrapped_names(tables: list[tuple[RawSection, list[RawVariant]]]) -> None:
+    """Join a name cut by a line wrap with its piece, where the joined name is one the
+    manual prints elsewhere (``rotDirection``, table 2-17; ``errcode``).
+
+    The wrap leaves the start of the name in its cell and the rest, a few lower-case
+    letters, on the next line or in the next cell, which the row reader takes for the
+    start of the description.  A name the manual prints elsewhere is left alone.
+    """
+    rows = [r for _sec, vs in tables for v in vs for r in (*v.params, *v.returns)]
+    printed = Counter(ident(r.name) for r in rows)
+    for r in rows:
+        name = ident(r.name)
+        if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*[a-z]", name) or printed[name] > 1:
+            continue
+        for m in _WRAP_PIECE_RE.finditer(r.description):
+            if printed.get(name + m.group(1), 0) > 0:
+                r.name = name + m.group(1)
+                r.description = clean_text(r.description[: m.start()] + r.description[m.end() :])
+                break
+
+
 def build(
     manual: Path,
     corrections: dict[str, Any],
@@ -1322,6 +1436,7 @@ def build(
     # the English dump keeps its page breaks (form feeds) inside lines: split on \n only
     lines = text.split("\n") if ed.language == "en" else text.splitlines()
     tables, end = read_tables(lines, ed)
+    rejoin_wrapped_names(tables)
     errata = Errata()
     ccmds: dict[str, Any] = corrections.get("commands") or {}
     inconsistent = {
@@ -1342,6 +1457,21 @@ def build(
         cmd_ids: list[int] = []
         for vi, rv in enumerate(variants_raw):
             vcorr = (corr.get("variants") or {}).get(rv.table) or {}
+            if vcorr.get("drop"):
+                # not a table of this command (a stray frame the dump printed under the
+                # heading, v3.9.8 3.2.1): left out, with an erratum saying what it was
+                printed = " ".join(f.printed for f in (*rv.requests, *rv.replies))
+                errata.add(
+                    order=(rv.line, 0),
+                    kind="ocr_damage",
+                    commands=[sec.key],
+                    table=rv.table,
+                    cmd_id=None,
+                    manual_text=printed or rv.caption or rv.table,
+                    adopted="not a table of this command: left out",
+                    note=clean_ws(str(vcorr.get("why", ""))),
+                )
+                continue
             ids = vcorr.get("cmd_ids") or rv.cmd_ids
             for cid in ids:
                 if cid not in cmd_ids:
@@ -1356,7 +1486,8 @@ def build(
             if ed.language == "en":
                 for a in table_audits:
                     if not a.ok:
-                        damaged_table(a, cmd_ids[0] if cmd_ids else None, errata)
+                        reviewed = a.part in vcorr or f"{a.part}_patch" in vcorr
+                        damaged_table(a, cmd_ids[0] if cmd_ids else None, errata, reviewed)
             variants.append(variant)
             pending_examples.append((variant, ex_links))
         if not variants:
@@ -1438,7 +1569,9 @@ def build(
         if problems:
             raise SystemExit("error-code table: " + "; ".join(problems))
     else:
-        error_codes = parse_error_codes(lines, end)
+        error_codes = correct_error_codes(
+            parse_error_codes(lines, end), corrections.get("error_codes") or {}
+        )
     seen_codes: dict[int, dict[str, Any]] = {}
     for ec_row in error_codes:
         prev = seen_codes.get(ec_row["code"])
@@ -1478,10 +1611,19 @@ def build(
     }
 
 
-def damaged_table(a: TableAudit, cmd_id: int | None, errata: Errata) -> None:
+def damaged_table(
+    a: TableAudit, cmd_id: int | None, errata: Errata, reviewed: bool = False
+) -> None:
     """An ``ocr_damage`` erratum for a table whose rows the English front-end could not
     read in order: the PDF dump printed its cells out of order (a column as a block, an
-    index cell away from its row), so the rows read do not match the index column."""
+    index cell away from its row), so the rows read do not match the index column.
+    ``reviewed``: the corrections file gives the part's rows, read by hand."""
+    if reviewed:
+        adopted = f"{a.extracted} row(s) read by hand (tools/manual_corrections-3.9.8.yaml)"
+        tail = "; the rows are read by hand in the corrections file."
+    else:
+        adopted = f"{a.extracted} row(s) as read; to be reviewed in the corrections file"
+        tail = ", so names, types or descriptions of this table may be misplaced."
     errata.add(
         order=(a.line, 0),
         kind="ocr_damage",
@@ -1489,10 +1631,9 @@ def damaged_table(a: TableAudit, cmd_id: int | None, errata: Errata) -> None:
         table=a.table,
         cmd_id=cmd_id,
         manual_text=f"{a.part}: index column read as {compact_indices(a.printed)}",
-        adopted=f"{a.extracted} row(s) as read; to be reviewed in the corrections file",
+        adopted=adopted,
         note=f"The text dump prints the cells of {a.name} table {a.table} out of order; "
-        f"the {a.part} rows read ({a.extracted}) do not match the printed index column, "
-        "so names, types or descriptions of this table may be misplaced.",
+        f"the {a.part} rows read do not match the printed index column{tail}",
     )
 
 
@@ -1521,6 +1662,33 @@ def fix_name(printed: str, variants: list[RawVariant]) -> str:
     return n
 
 
+def patch_rows(
+    rows: list[dict[str, Any]],
+    vcorr: dict[str, Any],
+    part: str,
+    complete: Any,
+    where: str,
+) -> list[dict[str, Any]]:
+    """The rows of one part with the corrections file's ``<part>_patch`` applied: a
+    mapping from a row's number (1-based, as the table's index column) to the row read
+    by hand, which replaces the extracted row or, one past the last, is appended; then
+    ``<part>_count`` (if given) keeps only that many rows.  For a table whose rows are
+    read right but for a few (a name run together with the next, a row the label block
+    swallowed), without copying out the rows that are right."""
+    out = list(rows)
+    for key, row in sorted((vcorr.get(f"{part}_patch") or {}).items(), key=lambda kv: int(kv[0])):
+        i = int(key) - 1
+        if not 0 <= i <= len(out):
+            raise SystemExit(f"corrections: {where} {part}_patch row {key}: no row {i} before it")
+        fixed = complete(dict(row))
+        if i < len(out):
+            out[i] = fixed
+        else:
+            out.append(fixed)
+    count = vcorr.get(f"{part}_count")
+    return out if count is None else out[: int(count)]
+
+
 def build_variant(
     sec: RawSection,
     name: str,
@@ -1542,6 +1710,8 @@ def build_variant(
         rvals = [complete_return(dict(r)) for r in vcorr["returns"]]
     else:
         rvals = [row_to_return(r) for r in rv.returns]
+    params = patch_rows(params, vcorr, "params", complete_param, f"{sec.key} table {rv.table}")
+    rvals = patch_rows(rvals, vcorr, "returns", complete_return, f"{sec.key} table {rv.table}")
 
     # ---- examples
     ex_corr: list[dict[str, Any]] = vcorr.get("examples") or []
@@ -1997,8 +2167,40 @@ def row_to_param(r: Row) -> dict[str, Any]:
     return p
 
 
+#: the keys a parameter or return value of the corrections file may have
+CORRECTION_KEYS = frozenset(
+    {
+        "printed_type",
+        "name",
+        "description",
+        "type",
+        "type_override",
+        "length",
+        "max_length",
+        "quoted",
+        "unit",
+        "range",
+        "enum",
+        "volatile",
+    }
+)
+
+
+def check_correction_keys(p: dict[str, Any]) -> None:
+    """A row of the corrections file with a key no row has stops the extractor: in a YAML
+    flow mapping an unquoted description with a comma ("工具号, 0~14") becomes two keys,
+    and the description loses its range without a word (tables 2-24, 5-3-1, 8-20, 8-36)."""
+    unknown = sorted(set(p) - CORRECTION_KEYS)
+    if unknown:
+        raise SystemExit(
+            f"corrections: row {p.get('name')!r} has unknown key(s) {unknown}; "
+            "quote a description that holds a comma"
+        )
+
+
 def complete_param(p: dict[str, Any]) -> dict[str, Any]:
     """A parameter given in the corrections file: fill the derivable fields."""
+    check_correction_keys(p)
     desc = p.get("description", "")
     pt = p.get("printed_type", p.get("type", "int"))
     t = normalise_type(pt, p["name"])
@@ -2035,6 +2237,7 @@ def row_to_return(r: Row) -> dict[str, Any]:
 
 
 def complete_return(r: dict[str, Any]) -> dict[str, Any]:
+    check_correction_keys(r)
     desc = r.get("description", "")
     pt = r.get("printed_type", r.get("type", "int"))
     t = normalise_type(pt, r["name"])
@@ -2077,6 +2280,29 @@ def parse_error_codes(lines: list[str], start: int) -> list[dict[str, Any]]:
             r["remedy"] = ""
     rows.sort(key=lambda r: r["code"])
     return rows
+
+
+def correct_error_codes(rows: list[dict[str, Any]], corr: dict[str, Any]) -> list[dict[str, Any]]:
+    """Chapter 9's rows with the corrections file's reviewed ones: ``drop`` (a row printed
+    under another code's number, given by code and meaning) and ``codes.<n>`` (a reviewed
+    meaning or remedy, or a row the text lost), each with a ``why``."""
+    out = list(rows)
+    for d in corr.get("drop") or []:
+        hit = [r for r in out if r["code"] == int(d["code"]) and r["meaning"] == d["meaning"]]
+        if len(hit) != 1:
+            raise SystemExit(f"corrections: error code {d['code']} {d['meaning']!r} not found once")
+        out.remove(hit[0])
+    for key, fix in (corr.get("codes") or {}).items():
+        code = int(key)
+        row = next((r for r in out if r["code"] == code), None)
+        if row is None:
+            row = {"code": code, "meaning": "", "remedy": ""}
+            out.append(row)
+        for k in ("meaning", "remedy"):
+            if k in fix:
+                row[k] = fix[k]
+    out.sort(key=lambda r: r["code"])
+    return out
 
 
 # --------------------------------------------------------------------------- index audit
@@ -2201,9 +2427,7 @@ def dump(doc: dict[str, Any]) -> str:
     return dumps_indent2(doc) + "\n"  # json.dumps(doc, indent=2, ensure_ascii=False)
 
 
-def audit_tables(
-    manual: Path = DEFAULT_MANUAL, corrections: Path = DEFAULT_CORRECTIONS
-) -> list[TableAudit]:
+def audit_tables(manual: Path, corrections: Path = DEFAULT_CORRECTIONS) -> list[TableAudit]:
     """The index audit of every parameter and numbered return table of the manual."""
     audits: list[TableAudit] = []
     build(manual, load_corrections(corrections), audits)
@@ -2245,7 +2469,12 @@ def main(argv: list[str] | None = None) -> int:
         help="which manual: its text, corrections and output directory are the defaults "
         "of --manual, --corrections and --out (default %(default)s)",
     )
-    ap.add_argument("--manual", type=Path, default=None)
+    ap.add_argument(
+        "--manual",
+        type=Path,
+        default=None,
+        help=f"the manual text (default: its file in ${MANUAL_DIR_ENV})",
+    )
     ap.add_argument("--corrections", type=Path, default=None)
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument(
@@ -2260,7 +2489,14 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = ap.parse_args(argv)
     ed = EDITIONS[args.version]
-    args.manual = args.manual or ed.manual
+    args.manual = args.manual or manual_path(ed.manual)
+    if args.manual is None:
+        print(
+            f"extract_specs: no manual: give --manual PATH or set {MANUAL_DIR_ENV} to the "
+            f"directory holding {ed.manual}",
+            file=sys.stderr,
+        )
+        return 2
     args.corrections = args.corrections or ed.corrections
     args.out = args.out or ed.out
     texts, audits = extract(args.manual, args.corrections, ed)

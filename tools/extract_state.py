@@ -3,8 +3,8 @@
 
 Reads the Chinese v3.8.2 manual (pandoc HTML, ``机器人控制器8083端口状态反馈用户手册``) and
 the English v3.9.8 manual (PDF-extracted text, "Collaborative Robot 8083 Port Status
-Feedback (V3.9.8)"), both from ``../shared/manual/`` unless ``--manual-dir`` says
-otherwise, and writes ``specs/fairino-3.8.2/state.json`` and
+Feedback (V3.9.8)"), both from the directory ``--manual-dir`` gives, else the one
+``$FAIRINO_MANUAL_DIR`` names (the manuals are not part of the repository), and writes ``specs/fairino-3.8.2/state.json`` and
 ``specs/fairino-3.9.8/state.json``: the frame (section 2.1, table 2-1), the DATA fields
 of table 2-2 grouped into C fields (``jt_cur_pos[0]`` .. ``[5]`` is one ``double[6]``)
 with their byte offsets, the structures of tables 2-3 and 2-4, the error codes of
@@ -39,9 +39,9 @@ REPO = Path(__file__).resolve().parent.parent
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
+from tools._manuals import MANUAL_DIR_ENV, manual_dir  # noqa: E402
 from tools._regenerate import write_or_check  # noqa: E402
 
-DEFAULT_MANUAL_DIR = REPO.parent / "shared" / "manual"
 ZH_FILE = "fairino-8083-state-v3.8.2-zh.html"
 EN_FILE = "fairino-8083-state-v3.9.8-en.md"
 OUT = {
@@ -617,15 +617,28 @@ def validate(doc: dict[str, Any]) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--manual-dir", type=Path, default=DEFAULT_MANUAL_DIR)
+    ap.add_argument(
+        "--manual-dir",
+        type=Path,
+        default=None,
+        help=f"the directory holding the two state manuals (default: ${MANUAL_DIR_ENV})",
+    )
     ap.add_argument(
         "--check",
         action="store_true",
         help="compare with the committed files; exit 1 with a diff if they differ",
     )
     args = ap.parse_args(argv)
+    directory = args.manual_dir or manual_dir()
+    if directory is None:
+        print(
+            f"extract_state: no manuals: give --manual-dir DIR or set {MANUAL_DIR_ENV} to the "
+            f"directory holding {ZH_FILE} and {EN_FILE}",
+            file=sys.stderr,
+        )
+        return 2
     try:
-        docs = build(args.manual_dir)
+        docs = build(directory)
     except (ExtractError, OSError, ValueError) as e:
         print(f"extract_state: {e}", file=sys.stderr)
         return 2

@@ -15,6 +15,7 @@ the PDF dump prints as three streams (codes, meanings, remedies) per page.
 
 from __future__ import annotations
 
+import itertools
 import re
 from dataclasses import dataclass, field
 from typing import Any
@@ -355,9 +356,11 @@ def parse_variant_en(
     after_rows = False  # the command number or the examples were seen
     toks = [(n, ln.strip()) for n, ln in body]
     ids: list[tuple[int, str, bool]] = []  # command-number candidates: (ID, text, labelled)
-    prev = ""
+    prev = prev2 = ""
     for _n, s in toks:
-        before, prev = prev, (s if s and not FOOTER_RE.match(s) else prev)
+        before2, before = prev2, prev
+        if s and not FOOTER_RE.match(s):
+            prev2, prev = prev, s
         if not s:
             para_open = False
             continue
@@ -376,6 +379,22 @@ def parse_variant_en(
             _head, _, tail = s.partition("/f/b")
             frames.append(["/f/b" + tail])
             in_frame = "/b/f" not in tail
+            continue
+        if (
+            s == "value"
+            and TYPE_EN.match(before)
+            and not before2.startswith("returne")
+            and rows
+            and rows[-1].name is None
+            and not after_rows
+        ):
+            # a row named 'value' right after its type cell (table 3-1-2: 'uint8_t' /
+            # 'value' / 'DI price' / 'returned' / 'value'), not the label's second word
+            # with a type cell printed inside the label ('returned' / 'int' / 'value')
+            row = rows[-1]
+            row.name = s
+            target = last_name = row
+            para_open = True
             continue
         if s in LABELS or re.fullmatch(r"(?:Send|Receive)(?: the)? frame", s):
             if s.startswith("parame"):
@@ -465,6 +484,7 @@ def parse_variant_en(
             v.cmd_ids.append(cid)
             v.printed_cmd_id = v.printed_cmd_id or text
     _place_orphans(rows, orphans)
+    _give_back_split_cells(rows)
     _split_params_returns(rows, has_param_label, frames)
     for r in rows:
         read = Row(
@@ -526,6 +546,34 @@ def _place_orphans(rows: list[_Row], orphans: list[list[str]]) -> None:
     for r in rows:
         if r.printed_type is None:
             r.printed_type = "int" if (r.name or "").lower() == "errcode" else ""
+
+
+def _give_back_split_cells(rows: list[_Row]) -> None:
+    """A cell printed from above its row: its first line goes back to the row it belongs to.
+
+    The dump prints a tall description cell vertically centred, so its first line comes
+    before its row's index and type and is read as the end of the row above (table 2-4:
+    'Whether to do offset, 0-no, 1-workpiece' above '21 uint8_t offset_flag' 'coordinate
+    system, 2-tool coordinate system, ...').  The line moves down when the row below
+    starts in mid-sentence (a lower-case word) and the line starts a sentence, or when the
+    line leaves its list open (ends with ';' or ',': '[-1]: Stop (block) at this
+    position;' above '[0~1000] Smooth radius ...').  A row's first line never moves.
+    """
+    for r, nxt in itertools.pairwise(rows):
+        if r.returns != nxt.returns or not nxt.paras or not r.paras:
+            continue
+        lines = [x for p in r.paras for x in p]
+        if len(lines) < 2:
+            continue
+        head = nxt.paras[0][0] if nxt.paras[0] else ""
+        last = lines[-1]
+        mid_sentence = bool(re.match(r"^[a-z]", head)) and bool(re.match(r"^[A-Z]", last))
+        open_list = last.endswith((";", ",")) and bool(re.match(r"^[A-Z\[]", last))
+        if not (mid_sentence or open_list):
+            continue
+        k = len(lines) - 1
+        r.paras = [lines[:k]]
+        nxt.paras = [[*lines[k:], *nxt.paras[0]], *nxt.paras[1:]]
 
 
 def _split_params_returns(rows: list[_Row], has_param_label: bool, frames: list[list[str]]) -> None:
