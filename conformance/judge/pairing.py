@@ -10,8 +10,8 @@ request waits for stands alone, and so does a request no reply comes for.
 :class:`Exchanges` applies the rule a frame at a time and remembers the requests that wait
 (at most ``limit`` of them: a stream of requests never answered stays bounded); every
 front-end pairs through it: ``check``, ``info`` and ``export-parquet`` a window at a time
-(:func:`pair_window`), ``diff`` and ``replay`` over a recording, ``decode --dir auto``
-a frame at a time.
+(:func:`pair_window`), ``diff`` and ``replay`` over a recording, ``decode`` and the names
+``proxy --print`` shows a frame at a time (conformance/judge/stream.py).
 """
 
 from __future__ import annotations
@@ -53,6 +53,8 @@ class Exchanges(Generic[R]):
         by_id.append(entry)
         self._order.append(entry)
         self.waiting += 1
+        if len(self._order) > 2 * self.waiting + 1024:
+            self._compact()  # answered ones behind one that waits: memory follows the waiting
         if self.waiting > self.limit:
             return self._give_up()
         return None
@@ -100,11 +102,16 @@ class Exchanges(Generic[R]):
         return None
 
     def _compact(self) -> None:
-        """Drop the entries taken from every index (after a close)."""
+        """Drop the entries taken from every index (after a close, or once most are taken:
+        the time it takes is that of the requests since the last time)."""
         self._order = deque(e for e in self._order if not e[1])
         for index in (self._by_key, self._by_id):
-            for k in [k for k, q in index.items() if all(e[1] for e in q)]:
-                del index[k]
+            for k in list(index):
+                left = deque(e for e in index[k] if not e[1])
+                if left:
+                    index[k] = left
+                else:
+                    del index[k]
 
 
 def _oldest(

@@ -2,18 +2,21 @@
 
 :class:`CntSteps` gives :meth:`~conformance.judge.judge.Judge.request` the CNT before a
 request on its connection, for every front-end that reads a stream (``serve``,
-``check``, ``info``, ``decode``); :class:`Pairing` pairs replies with their
-requests in one stream (``decode --dir auto``).  The rules over a client's sequence
+``check``, ``info``, ``decode``); :class:`Pairing` tells requests from replies in one
+stream (``decode --dir auto``) and :class:`FrameNames` names a stream's frames (``proxy
+--print``), both pairing by the one rule (:mod:`.pairing`).  The rules over a client's sequence
 of requests (``ServoJ`` before ``ServoMoveStart``) are :mod:`conformance.judge.sequence`'s.
 """
 
 from __future__ import annotations
 
 from collections import OrderedDict
+from collections.abc import Hashable
 from typing import Any
 
 from ..protocol.frame import Frame
 from .judge import Judge, Verdict, display_name
+from .pairing import Exchanges
 from .verdict import Direction
 
 __all__ = ["CntSteps", "FrameNames", "Pairing"]
@@ -88,7 +91,8 @@ class CntSteps:
 
 
 class Pairing:
-    """Tells requests from replies in one stream (``decode --dir auto``).
+    """Tells requests from replies in one stream (``decode --dir auto``), and pairs them by
+    the one rule (:class:`~.pairing.Exchanges`).
 
     A frame echoing the CNT and CMD_ID of an earlier request still unanswered is
     its reply; otherwise the frame's shape decides (:meth:`Judge.looks_like_reply`).
@@ -98,58 +102,46 @@ class Pairing:
 
     def __init__(self, judge: Judge, *, limit: int = 4096) -> None:
         self.judge = judge
-        self.limit = limit
-        self._waiting: dict[tuple[int, int], tuple[Frame, Verdict]] = {}
+        self._waiting: Exchanges[tuple[Frame, Verdict]] = Exchanges(limit=limit)
         self._cnt = CntSteps(limit=1)
 
     def judge_frame(
         self, frame: Frame, direction: Direction | None = None, *, transport: str | None = None
     ) -> Verdict:
-        key = (frame.cnt, frame.cmd_id)
         if direction is None:
-            direction = (
-                Direction.REPLY
-                if key in self._waiting or self.judge.looks_like_reply(frame)
-                else Direction.REQUEST
-            )
+            echoes = self._waiting.waits(None, frame.cnt, frame.cmd_id)
+            reply = echoes or self.judge.looks_like_reply(frame)
+            direction = Direction.REPLY if reply else Direction.REQUEST
         if direction is Direction.REPLY:
-            req = self._waiting.pop(key, None)
+            req = self._waiting.reply(None, frame.cnt, frame.cmd_id)
             if req is None:
                 return self.judge.reply(frame, None, transport=transport, paired=False)
             return self.judge.reply(frame, req[0], req[1], transport=transport)
         previous = self._cnt.previous(None, frame.cnt)
         v = self.judge.request(frame, transport=transport, previous_cnt=previous)
-        self._waiting.pop(key, None)
-        self._waiting[key] = (frame, v)
-        if len(self._waiting) > self.limit:
-            self._waiting.pop(next(iter(self._waiting)))
+        self._waiting.request(None, frame.cnt, frame.cmd_id, (frame, v))
         return v
 
 
 class FrameNames:
     """The judge's name of each frame of a recording as it streams by (``proxy --print``,
     ``info``, ``replay``): a request's from its verdict (:func:`~conformance.judge.judge.display_name`),
-    a reply's from the request it echoes (CNT and ID on its connection).  At most ``limit``
-    requests are remembered."""
+    a reply's from the request it answers (:class:`~.pairing.Exchanges`, per connection).
+    At most ``limit`` requests are remembered."""
 
     def __init__(self, judge: Judge, *, limit: int = 4096) -> None:
         self.judge = judge
-        self.limit = limit
-        self._asked: OrderedDict[tuple[object, int, int], str | None] = OrderedDict()
+        self._asked: Exchanges[tuple[str | None]] = Exchanges(limit=limit)
 
-    def request(self, conn: object, frame: Frame, transport: str | None = None) -> str | None:
+    def request(self, conn: Hashable, frame: Frame, transport: str | None = None) -> str | None:
         name = display_name(self.judge.request(frame, transport=transport))
-        key = (conn, frame.cnt, frame.cmd_id)
-        self._asked.pop(key, None)
-        self._asked[key] = name
-        if len(self._asked) > self.limit:
-            self._asked.popitem(last=False)
+        self._asked.request(conn, frame.cnt, frame.cmd_id, (name,))
         return name
 
-    def reply(self, conn: object, frame: Frame) -> str | None:
-        """The name of the request this reply echoes, else the manual's for its ID."""
-        key = (conn, frame.cnt, frame.cmd_id)
-        if key in self._asked:
-            return self._asked[key]
+    def reply(self, conn: Hashable, frame: Frame) -> str | None:
+        """The name of the request this reply answers, else the manual's for its ID."""
+        asked = self._asked.reply(conn, frame.cnt, frame.cmd_id)
+        if asked is not None:
+            return asked[0]
         cmd = self.judge.specs.resolve(frame.cmd_id)
         return cmd.name if cmd is not None else None
