@@ -28,7 +28,7 @@ from dataclasses import dataclass
 from ..errors import ConformanceError
 from ..protocol.data_format import Value, format_call
 from ..protocol.data_values import Arg, Array
-from .commands import TYPE_BOUNDS, Command, Param, Returns, ReturnValue, SpecSet, Variant
+from .commands import TYPE_BOUNDS, Command, Param, Returns, ReturnValue, Safety, SpecSet, Variant
 
 __all__ = [
     "JOINT_ARRAYS",
@@ -42,6 +42,7 @@ __all__ = [
     "flat_returns",
     "health_query",
     "motion_targets",
+    "motion_targets_of",
     "position_query",
     "refusal_data",
     "target_args",
@@ -54,6 +55,20 @@ JOINT_NAMES = ("j1", "j2", "j3", "j4", "j5", "j6")
 _CART = ("x", "y", "z", "rx", "ry", "rz")
 #: Names an array of six joint angles goes by (the C++ and C# SDKs' ServoJ: ``joint_pos``).
 JOINT_ARRAYS = frozenset({"joint_pos", "jointpos", "joints", "jpos"})
+#: ServoMIT's joint targets, in degrees (the python SDK's UDP ServoMIT,
+#: specs/fairino-field/python-sdk.json python-sdk-013: ``desPos1..6``).
+DESIRED_JOINT_NAMES = ("despos1", "despos2", "despos3", "despos4", "despos5", "despos6")
+#: ServoJV's joint velocities in deg/s, held for one command period ``cmdT`` in s
+#: (python-sdk-010: ``jointVel1..6``, ``cmdT``).
+JOINT_VELOCITY_NAMES = (
+    "jointvel1",
+    "jointvel2",
+    "jointvel3",
+    "jointvel4",
+    "jointvel5",
+    "jointvel6",
+)
+_PERIOD_NAMES = ("cmdt", "interval")
 
 
 # --------------------------------------------------------------------------- semantics
@@ -191,6 +206,10 @@ class MotionTargets:
     tcp_array: int | None = None
     #: An array of the six joint angles (the SDKs' ``joint_pos``), when no ``J1..J6`` run.
     joints_array: int | None = None
+    #: Joint velocities (deg/s) the arm moves at for ``period`` seconds (ServoJV), when the
+    #: call carries no position.
+    joint_velocities: tuple[int, ...] | None = None
+    period: int | None = None
 
 
 def target_args(
@@ -225,11 +244,23 @@ def motion_targets(command: Command, variant: Variant) -> MotionTargets | None:
     The last complete ``J1..J6`` (and ``x..rz``) run counts: MoveC's second point
     is where the arm ends.  Named points (``MoveJ("P1")``) carry no position.
     """
-    if command.safety.value != "motion" or variant.form != "call":
+    return motion_targets_of(command.safety, variant)
+
+
+def motion_targets_of(safety: Safety | None, variant: Variant) -> MotionTargets | None:
+    """:func:`motion_targets` for a variant of a command of class ``safety`` (a field
+    dialect's own command, ServoMIT or ServoJV, has no manual command to ask): also
+    ServoMIT's ``desPos1..6`` as joint targets and ServoJV's ``jointVel1..6`` with its
+    ``cmdT`` as one period's motion."""
+    if safety is None or safety.value != "motion" or variant.form != "call":
         return None
     names = [p.name.lower() for p in variant.params]
     scalar = [n if not variant.params[i].is_array else "" for i, n in enumerate(names)]
-    joints = _last_complete(scalar, JOINT_NAMES)
+    joints = _last_complete(scalar, JOINT_NAMES) or _last_complete(scalar, DESIRED_JOINT_NAMES)
+    velocities = _last_complete(scalar, JOINT_VELOCITY_NAMES)
+    period = next((i for i, n in enumerate(scalar) if n in _PERIOD_NAMES), None)
+    if joints is None and velocities is not None and period is not None:
+        return MotionTargets(joint_velocities=velocities, period=period)
     tcp = _last_complete(scalar, _CART)
     arr = next(
         (
