@@ -127,7 +127,7 @@ class Rule(str, enum.Enum):
     #: HTTP/1.1: a header block or body beyond the kit's bounds (answered 431 or 413).
     HTTP_LIMIT = "http_limit"
     #: CNDE (the SDKs' state channel, port 20005): bytes that are not a frame
-    #: ``5A 5A | count | type | len | data | A5 A5`` (specs/fairino-field/cnde.json,
+    #: ``5A 5A | count | type | len | data | A5 A5`` (specs/fairino-field/channels/cnde.json,
     #: ``frame``).
     CNDE_FRAME = "cnde_frame"
     #: CNDE: a frame whose LEN is past the bound (the SDKs' 4096-byte receive buffer).

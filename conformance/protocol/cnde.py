@@ -1,7 +1,7 @@
 """CNDE, the SDKs' state channel (port 20005), sans-I/O: frames, their data, state payloads.
 
 The official SDKs from Python SDK V2.2.5, C++ SDK V2.3.5 and C# SDK V1.2.9 on read the
-controller's state over CNDE instead of the 20004 push (``specs/fairino-field/cnde.json``
+controller's state over CNDE instead of the 20004 push (``specs/fairino-field/channels/cnde.json``
 records the facts with their evidence).  A frame is::
 
     5A 5A | count u8 | type u8 | len u16 LE | data[len] | A5 A5

@@ -69,6 +69,9 @@ JOINT_VELOCITY_NAMES = (
     "jointvel6",
 )
 _PERIOD_NAMES = ("cmdt", "interval")
+#: The same as six-value arrays (the C# SDK's UDP ServoMIT and ServoJV, csharp-sdk-010/011).
+_DESIRED_ARRAYS = frozenset({"despos"})
+_VELOCITY_ARRAYS = frozenset({"joint_vel", "jointvel"})
 
 
 # --------------------------------------------------------------------------- semantics
@@ -209,6 +212,7 @@ class MotionTargets:
     #: Joint velocities (deg/s) the arm moves at for ``period`` seconds (ServoJV), when the
     #: call carries no position.
     joint_velocities: tuple[int, ...] | None = None
+    velocities_array: int | None = None
     period: int | None = None
 
 
@@ -238,6 +242,18 @@ def _last_complete(params: Sequence[str], names: Sequence[str]) -> tuple[int, ..
     return out if list(out) == sorted(out) else None
 
 
+def _six(variant: Variant, names: frozenset[str]) -> int | None:
+    """The first six-value array parameter of one of ``names``."""
+    return next(
+        (
+            i
+            for i, p in enumerate(variant.params)
+            if p.is_array and p.length == 6 and p.name.lower() in names
+        ),
+        None,
+    )
+
+
 def motion_targets(command: Command, variant: Variant) -> MotionTargets | None:
     """Joint / Cartesian targets of a motion variant with explicit positions, else None.
 
@@ -258,9 +274,17 @@ def motion_targets_of(safety: Safety | None, variant: Variant) -> MotionTargets 
     scalar = [n if not variant.params[i].is_array else "" for i, n in enumerate(names)]
     joints = _last_complete(scalar, JOINT_NAMES) or _last_complete(scalar, DESIRED_JOINT_NAMES)
     velocities = _last_complete(scalar, JOINT_VELOCITY_NAMES)
+    varr = _six(variant, _VELOCITY_ARRAYS)
     period = next((i for i, n in enumerate(scalar) if n in _PERIOD_NAMES), None)
-    if joints is None and velocities is not None and period is not None:
-        return MotionTargets(joint_velocities=velocities, period=period)
+    moving = velocities is not None or varr is not None
+    if joints is None and _six(variant, JOINT_ARRAYS | _DESIRED_ARRAYS) is None and moving:
+        if period is None:
+            return None
+        return MotionTargets(
+            joint_velocities=velocities,
+            velocities_array=varr if velocities is None else None,
+            period=period,
+        )
     tcp = _last_complete(scalar, _CART)
     arr = next(
         (
@@ -270,14 +294,7 @@ def motion_targets_of(safety: Safety | None, variant: Variant) -> MotionTargets 
         ),
         None,
     )
-    jarr = next(
-        (
-            i
-            for i, p in enumerate(variant.params)
-            if p.is_array and p.length == 6 and p.name.lower() in JOINT_ARRAYS
-        ),
-        None,
-    )
+    jarr = _six(variant, JOINT_ARRAYS | _DESIRED_ARRAYS)
     if joints is None and tcp is None and arr is None and jarr is None:
         return None
     if any(variant.params[i].is_string for i in (*(joints or ()), *(tcp or ()))):

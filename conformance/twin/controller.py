@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 import re
 import weakref
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 from ..errors import ProtocolError, Rule
@@ -27,7 +27,7 @@ from ..judge.requests import ERR_ARG_COUNT, ERR_ARG_VALUE, ERR_EXEC_FAILED
 from ..judge.verdict import Outcome, Reference
 from ..protocol.data_format import format_number
 from ..protocol.data_parse import parse_reply
-from ..protocol.data_values import Arg, Call, Number, Text
+from ..protocol.data_values import Arg, Array, Call, Number, Text
 from ..protocol.decoder import FrameDecoder, decode_all
 from ..protocol.frame import DEFAULT_MAX_FRAME_SIZE, Frame, Malformed
 from ..spec.commands import Command, Returns, ReturnValue, SpecSet, Variant, default_specs
@@ -215,6 +215,20 @@ def _state_period(m: RobotModel, a: list[float | None]) -> None:
         m.state_period_ms = int(a[1])
 
 
+def _soft_limits(side: int) -> Callable[[RobotModel, list[float | None]], None]:
+    """5.4.1 SetLimitPositive(pos_deg1..6) / 5.4.2 SetLimitNegative(neg_deg1..6): one side
+    of the soft limits GetJointSoftLimitDeg (6.3.13) reads back."""
+
+    def effect(m: RobotModel, a: list[float | None]) -> None:
+        if len(a) == 6 and None not in a:
+            for i, x in enumerate(a):
+                lim = list(m.soft_limits[i])
+                lim[side] = float(x or 0.0)
+                m.soft_limits[i] = (lim[0], lim[1])
+
+    return effect
+
+
 def _enable(m: RobotModel, a: list[float | None]) -> None:
     if a and a[0] in (0, 1):  # 5.1.5 RobotEnable(state 0 off, 1 on)
         m.enabled = int(a[0] or 0)
@@ -227,6 +241,13 @@ _STATE_EFFECTS = {
     "Mode": _mode,
     "SetStatePeriod": _state_period,
     "RobotEnable": _enable,
+    "SetLimitPositive": _soft_limits(1),
+    "SetLimitNegative": _soft_limits(0),
+}
+#: Queries the model answers from what it keeps: name -> the reply's values.
+_STATE_QUERIES: Mapping[str, Callable[[RobotModel], list[str]]] = {
+    # 6.3.13: jMin1, jMax1, ..., jMin6, jMax6.
+    "GetJointSoftLimitDeg": lambda m: [_fmt(x) for lim in m.soft_limits for x in lim],
 }
 
 #: Queries whose reply is the arm's kinematics, by lower-case name (6.3.24-6.3.27 of the
@@ -272,6 +293,10 @@ class RobotModel:
         self.tool_do_bits = 0  # tool DO 1..0 (SetToolDO)
         self.robot_mode = 0  # 0 automatic, 1 manual (Mode)
         self.enabled = 0  # RobotEnable
+        #: Soft limits (min, max) per joint, degrees: the arm's own until set.
+        self.soft_limits: list[tuple[float, float]] = [
+            (j.min, j.max) for j in self.robot.joint_limits
+        ]
         #: The latched fault (GetRobotErrorCode; ResetAllError clears it).
         self.main_code = 0
         self.sub_code = 0
@@ -373,8 +398,12 @@ class RobotModel:
         the TCP at the joints' forward kinematics; :class:`Refused` leaves it where it was."""
         servo = name.lower().startswith("servo")
         current = [_num(j) or 0.0 for j in self.joints]
-        if m.joint_velocities is not None and m.period is not None:
-            v = [_num(_arg_text(args[i])) for i in m.joint_velocities]
+        if m.period is not None and (m.joint_velocities or m.velocities_array) is not None:
+            if m.joint_velocities is not None:
+                v = [_num(_arg_text(args[i])) for i in m.joint_velocities]
+            else:
+                arr = args[m.velocities_array or 0]
+                v = [_num(_arg_text(a)) for a in arr.items] if isinstance(arr, Array) else [None]
             dt = _num(_arg_text(args[m.period]))
             if None in v or dt is None or not 0 <= dt <= 1:
                 return
@@ -474,6 +503,11 @@ class RobotModel:
                 rec = self.records.get((command.key, variant.table, key), rec)
                 if rec:
                     break
+        known = _STATE_QUERIES.get(command.name)
+        if known is not None and len(args) == len(variant.params):
+            values = known(self)
+            if len(values) == len(flat):
+                return values
         kind = KINEMATICS_QUERIES.get(command.name.lower())
         if kind is not None and len(args) == len(variant.params):
             values = self.kinematics(kind, [_num(t) for t in texts])
