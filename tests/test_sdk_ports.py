@@ -360,3 +360,51 @@ def test_emulate_host_serves_every_port_on_one_address(tmp_path: object) -> None
     finally:
         proc.terminate()
         proc.wait(timeout=20)
+
+
+def test_each_port_has_its_own_connection_limit() -> None:
+    with EmulatorServer(port=0, xmlrpc_port=0, cnde_port=0, max_connections=2) as e:
+        assert e.xmlrpc_address is not None and e.cnde_address is not None
+        held = [socket.create_connection(e.xmlrpc_address, timeout=WAIT) for _ in range(2)]
+        time.sleep(0.2)  # accepted and counted
+        extra = socket.create_connection(e.xmlrpc_address, timeout=WAIT)
+        assert extra.recv(10) == b""  # accepted and closed at once: the port is full
+        # ... while the text port and the CNDE port still take clients.
+        assert text(e, 1, 375, "GetActualJointPosDegree()").count(",") == 5
+        c = Cnde(e)
+        c.start()
+        assert "actual_joint_pos" in c.state()
+        for s in [*held, extra, c.sock]:
+            s.close()
+
+
+def test_getinversekin_honours_the_configuration_it_names(emu: EmulatorServer) -> None:
+    p = proxy(emu)
+    pose = list(FR5.forward(TARGET))
+    for config in (0, 2, 5, 7):
+        err, *joints = p.GetInverseKin(0, pose, config)
+        assert err == 0 and FR5.config_of(joints) == config
+        assert close(list(FR5.forward(joints)), pose, tol=1e-2)
+    err, *joints = p.GetInverseKin(0, pose, -1)  # -1: the one nearest the current joints
+    assert err == 0 and FR5.config_of(joints) == FR5.config_of(list(FR5.home))
+
+
+def test_servomit_and_servojv_over_udp_move_the_arm(emu: EmulatorServer) -> None:
+    """The python SDK's UDP ServoMIT (1336: desPos in degrees) and ServoJV (1337: joint
+    velocities for one cmdT) move the arm the position queries report."""
+    assert emu.udp_address is not None
+    gains = ",".join(["0.000"] * 6)
+    mit = f"ServoMIT({gains},{','.join(f'{j:.3f}' for j in TARGET)},{gains},{gains},{gains},0.008)"
+    jv = "ServoJV(10.000,0.000,0.000,0.000,0.000,0.000,0.000,0.000,0.000,0.000,0.000,0.000,0.500,0.000,0.000,0)"
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as u:
+        u.settimeout(WAIT)
+        u.sendto(encode_frame(1, 1336, mit), emu.udp_address)
+        assert [f.data for f in decode_all(u.recv(4096)) if isinstance(f, Frame)] == ["1"]
+        joints = [float(x) for x in text(emu, 2, 375, "GetActualJointPosDegree()").split(",")]
+        assert close(joints, TARGET)
+        u.sendto(encode_frame(3, 1337, jv), emu.udp_address)
+        assert [f.data for f in decode_all(u.recv(4096)) if isinstance(f, Frame)] == ["1"]
+    joints = [float(x) for x in text(emu, 4, 375, "GetActualJointPosDegree()").split(",")]
+    assert close(joints, [TARGET[0] + 5.0, *TARGET[1:]])  # 10 deg/s for 0.5 s
+    pose = [float(x) for x in text(emu, 5, 1152, "GetActualTCPPose()").split(",")]
+    assert close(pose, list(FR5.forward(joints)))

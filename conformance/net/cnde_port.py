@@ -9,7 +9,8 @@ whole frame per ``recv`` and drops anything else (specs/fairino-field/channels/c
 ``client_behaviour``): each frame goes out in one send, and the first state frame waits
 one period after the ``MESSAGE`` that acknowledges ``START``, so that the two do not
 arrive as one.  A client that does not read is dropped once a send has waited
-``send_timeout``; one that sends only garbage is closed after ``max_problems`` problems.
+``send_timeout``; one that sends only garbage is closed after ``max_problems`` problems,
+and one that neither streams nor sends anything for ``idle_timeout`` is closed too.
 """
 
 from __future__ import annotations
@@ -47,8 +48,11 @@ class CndePort(ListeningPort):
         snapshot: Callable[[], Mapping[str, Any]],
         send_timeout: float = SEND_TIMEOUT,
         max_problems: int = MAX_PROBLEMS,
+        idle_timeout: float | None = None,
     ) -> None:
         super().__init__(ctx, port)
+        #: A client that is not streaming and sends nothing this long is closed.
+        self.idle_timeout = idle_timeout
         self.catalogue = catalogue
         self._snapshot = snapshot
         self.send_timeout = send_timeout
@@ -63,6 +67,7 @@ class CndePort(ListeningPort):
         self.sessions += 1
         problems = 0
         due: float | None = None  # when the next state frame is owed
+        heard = time.monotonic()
         stop = self.ctx.stop
         while not stop.is_set():
             now = time.monotonic()
@@ -86,9 +91,13 @@ class CndePort(ListeningPort):
             try:
                 data = conn.recv(65536)
             except TimeoutError:
+                idle = time.monotonic() - heard
+                if due is None and self.idle_timeout is not None and idle > self.idle_timeout:
+                    return  # not streaming, and silent: it holds a thread for nothing
                 continue
             if not data:
                 return
+            heard = time.monotonic()
             for ev in decoder.feed(data):
                 if not isinstance(ev, CndeFrame):
                     problems += 1

@@ -38,20 +38,16 @@ import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from types import TracebackType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..errors import EmulatorError, RemoteProtocolError, UsageError
 from ..judge.judge import Judge
 from ..protocol.frame import DEFAULT_MAX_FRAME_SIZE, Frame, Malformed
-from ..spec.cnde import cnde_catalogue
 from ..spec.commands import SpecSet
-from ..spec.realtime import realtime_layout
 from ..twin.actions import Action, Dropped
 from ..twin.controller import STATE_VERSION, Controller, ControllerConnection
 from ..twin.faults import Fault, FaultKind, parse_fault, parse_faults
-from ..twin.xmlrpc import XmlRpcController
 from .addresses import format_address, format_sockaddr
-from .cnde_port import CndePort
 from .emulator_state import StatePort
 from .port import ListeningPort, PortContext
 from .server import (
@@ -64,7 +60,11 @@ from .server import (
     family,
     serve_forever,
 )
-from .xmlrpc_port import CallObserver, XmlRpcPort
+
+if TYPE_CHECKING:  # the SDKs' ports are imported when an emulator serves them
+    from ..twin.xmlrpc import XmlRpcController
+    from .cnde_port import CndePort
+    from .xmlrpc_port import CallObserver, XmlRpcPort
 
 __all__ = [
     "DEFAULT_MAX_CONNECTIONS",
@@ -216,10 +216,14 @@ class EmulatorServer:
         self._xmlrpc_observer = xmlrpc_observer
         self.xmlrpc: XmlRpcController | None = None
         if xmlrpc_port is not None:
+            from ..twin.xmlrpc import XmlRpcController
+
             self.xmlrpc = XmlRpcController(
                 self.controller, controller_ip=controller_ip or host.strip("[]")
             )
         self.xmlrpc_port: XmlRpcPort | None = None
+        #: The SDK ports' connections (a set a port).
+        self._port_conns: list[ConnectionSet] = []
         self.cnde: CndePort | None = None
         self.realtime: StatePort | None = None
         self.host = host.strip("[]")
@@ -354,12 +358,17 @@ class EmulatorServer:
         return self
 
     def _context(self) -> PortContext:
+        """What one SDK port shares with the emulator; its connections are counted apart
+        (``max_connections`` a port), so that a flood on one port locks no other out."""
+
         def backoff(what: str) -> Backoff:
             return _backoff(what, lambda: f"{self.open_connections} open")
 
+        conns = ConnectionSet(self.max_connections, self._conns_lock)
+        self._port_conns.append(conns)
         return PortContext(
             host=self.host,
-            conns=self._conns,
+            conns=conns,
             spawn=self._spawn,
             stop=self._stop,
             down=self._down,
@@ -382,12 +391,18 @@ class EmulatorServer:
         """The SDKs' own ports (20003, 20004, 20005) beside the text and state ports, from
         the same model (:mod:`.xmlrpc_port`, :mod:`.cnde_port`, the state port in a 20004
         layout)."""
-        ctx = self._context()
+        if all(p is None for p in self._sdk_ports.values()):
+            return
+        from ..spec.cnde import cnde_catalogue
+        from ..spec.realtime import realtime_layout
+        from .cnde_port import CndePort
+        from .xmlrpc_port import XmlRpcPort
+
         ports: list[tuple[str, int, ListeningPort | StatePort]] = []
         if self._sdk_ports["xmlrpc"] is not None and self.xmlrpc is not None:
             xmlrpc = self.xmlrpc
             self.xmlrpc_port = XmlRpcPort(
-                ctx,
+                self._context(),
                 self._sdk_ports["xmlrpc"],
                 answer=xmlrpc.answer,
                 idle_timeout=self.idle_timeout,
@@ -396,18 +411,23 @@ class EmulatorServer:
             ports.append(("TCP", self._sdk_ports["xmlrpc"], self.xmlrpc_port))
         if self._sdk_ports["cnde"] is not None:
             self.cnde = CndePort(
-                ctx, self._sdk_ports["cnde"], catalogue=cnde_catalogue(), snapshot=self._fields
+                self._context(),
+                self._sdk_ports["cnde"],
+                catalogue=cnde_catalogue(),
+                snapshot=self._fields,
+                idle_timeout=self.idle_timeout,
             )
             ports.append(("TCP", self._sdk_ports["cnde"], self.cnde))
         if self._sdk_ports["realtime"] is not None:
             lay = realtime_layout(self._realtime_version)
+            ctx = self._context()
             self.realtime = StatePort(
                 host=self.host,
                 port=self._sdk_ports["realtime"],
                 version=self.controller.state_version,
                 faults=(),
                 snapshot=self._realtime_snapshot,
-                conns=self._conns,
+                conns=ctx.conns,
                 spawn=self._spawn,
                 stop=self._stop,
                 down=self._down,
@@ -482,8 +502,9 @@ class EmulatorServer:
         for port in (self.state, self.xmlrpc_port, self.cnde, self.realtime):
             if port is not None:
                 port.close()
-        for c in self._conns.snapshot():
-            _shutdown(c)
+        for conns in (self._conns, *self._port_conns):
+            for c in conns.snapshot():
+                _shutdown(c)
         for t in list(self._threads):
             if t is not threading.current_thread():
                 t.join(timeout=5)

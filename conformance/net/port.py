@@ -5,9 +5,10 @@ and accept loop each one runs (:class:`ListeningPort`).
 The emulator (:mod:`conformance.net.emulator`) serves the text port itself; the state port
 (8083, :mod:`.emulator_state`), the XML-RPC port (20003, :mod:`.xmlrpc_port`), the realtime
 port (20004, the state port with an SDK layout) and the CNDE port (20005,
-:mod:`.cnde_port`) run beside it from the same model.  Every connection of every port
-counts against one connection limit, and a client of one port never holds the model's
-lock across socket I/O, so a slow client cannot hold up the others.
+:mod:`.cnde_port`) run beside it from the same model.  Each SDK port counts its own
+connections against the emulator's limit (a flood on one port locks no other out), and a
+client of one port never holds the model's lock across socket I/O, so a slow client
+cannot hold up the others.
 """
 
 from __future__ import annotations
