@@ -104,6 +104,37 @@ class Rule(str, enum.Enum):
     REPLY_SHAPE = "reply_shape"
     #: A value cannot be encoded (local error).
     UNENCODABLE = "unencodable"
+    #: XML-RPC (the official SDKs' channel, port 20003): a body that is not a well-formed
+    #: ``methodCall`` or ``methodResponse`` (the XML-RPC specification, xmlrpc.com/spec:
+    #: its elements, their nesting, the scalar types' text).
+    XMLRPC_SYNTAX = "xmlrpc_syntax"
+    #: XML-RPC: a body beyond the kit's bounds (bytes, nesting depth, values, digits of a
+    #: number): far past what any SDK sends (``specs/*/xmlrpc.json``), and a bound on what
+    #: one body can cost.
+    XMLRPC_LIMIT = "xmlrpc_limit"
+    #: XML-RPC: a document type declaration or an entity (XML 1.0, 2.8 and 4.2).  No
+    #: XML-RPC body needs one, and entities are how a small body becomes a huge one.
+    XMLRPC_DTD = "xmlrpc_dtd"
+    #: XML-RPC: a number no SDK type holds (a non-finite double; an ``int``/``i4`` past
+    #: 32 bits, an ``i8`` past 64).
+    XMLRPC_NUMBER = "xmlrpc_number"
+    #: HTTP/1.1 framing of XML-RPC (RFC 9112, sections 2-3 and 5): a request or status line
+    #: or a header field that cannot be read.
+    HTTP_SYNTAX = "http_syntax"
+    #: HTTP/1.1: a message without a usable body length (RFC 9112, 6.3: the kit reads
+    #: ``Content-Length`` bodies only; a POST without one is answered 411).
+    HTTP_LENGTH = "http_length"
+    #: HTTP/1.1: a header block or body beyond the kit's bounds (answered 431 or 413).
+    HTTP_LIMIT = "http_limit"
+    #: CNDE (the SDKs' state channel, port 20005): bytes that are not a frame
+    #: ``5A 5A | count | type | len | data | A5 A5`` (specs/fairino-field/channels/cnde.json,
+    #: ``frame``).
+    CNDE_FRAME = "cnde_frame"
+    #: CNDE: a frame whose LEN is past the bound (the SDKs' 4096-byte receive buffer).
+    CNDE_LIMIT = "cnde_limit"
+    #: CNDE: a frame's data that does not read as its type says (an OUTPUT_CONFIG without
+    #: its period, a state name list that is not text).
+    CNDE_DATA = "cnde_data"
 
 
 class ConformanceError(Exception):

@@ -18,7 +18,7 @@ from typing import Any
 
 import pytest
 
-from conformance.spec import SpecSet, load_specs
+from conformance.spec.commands import SpecSet, load_specs
 from tools.cross_check import (
     DEFAULT_A,
     DEFAULT_ADJUDICATIONS,

@@ -62,9 +62,16 @@ def _ranged(kind: str = "int") -> tuple[Command, Variant, int]:
 def test_every_variant_answers_success_with_declared_shape() -> None:
     ctrl = Controller(SPECS)
     for c, v in _variants():
+        before = list(ctrl.model.joints)
         reply = _reply(ctrl, c.cmd_id, default_data(c, v), cnt=c.cmd_id % 65536)
         assert (reply.cnt, reply.cmd_id, reply.problems) == (c.cmd_id % 65536, c.cmd_id, ())
         verdict = classify_reply(v.returns, reply.data, SPECS)
+        if reply.data == "28" and motion_targets(c, v) is not None:
+            # The simplest valid arguments of a motion to a pose (MoveCart, ServoCart,
+            # MoveLinear) put the TCP at the base's origin, which no joints reach: chapter
+            # 9's 28 (inverse kinematics), and the arm stays where it was.
+            assert ctrl.model.joints == before, c.name
+            continue
         assert verdict.ok, (c.name, v.table, reply.data, verdict)
         if v.returns.errcode_only:
             assert reply.data == "1"

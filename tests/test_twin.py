@@ -75,15 +75,30 @@ def test_the_sdks_servoj_with_a_joint_array_moves_the_arm(udp: ControllerConnect
 def test_a_cartesian_target_alone_moves_the_joints_by_inverse_kinematics(
     tcp: ControllerConnection,
 ) -> None:
-    """MoveCart (2.15) carries a pose only: the joints go to its inverse nearest the current."""
+    """MoveCart (2.15) carries a pose only: the joints go to its inverse nearest the current
+    (config -1, the default the manual's example and the SDKs send)."""
     goal = [5.0, -80.0, 85.0, -95.0, -88.0, 3.0]
     want = list(FR5.forward(goal))
-    data = "MoveCart({" + ",".join(f"{x:.4f}" for x in want) + "},0,0,100,100,100,-1,0)"
+    data = "MoveCart({" + ",".join(f"{x:.4f}" for x in want) + "},0,0,100,100,100,-1,-1)"
     assert ask(tcp, 2, 351, data) == "1"
     got = joints(tcp)
     assert close(got, goal, tol=5e-3)  # the branch nearest home is the goal's own
     assert close(list(FR5.forward(got)), want, tol=5e-3)
     assert close(pose(tcp), want, tol=5e-3)
+
+
+def test_movecart_honours_the_configuration_it_names(tcp: ControllerConnection) -> None:
+    """config 0..7 picks that branch of the inverse (2.15, table 2-21); the TCP reported is
+    the forward kinematics of the joints reached, the pose asked for."""
+    want = list(FR5.forward([5.0, -80.0, 85.0, -95.0, -88.0, 3.0]))
+    for config in (0, 3, 5):
+        data = (
+            "MoveCart({" + ",".join(f"{x:.4f}" for x in want) + f"}},0,0,100,100,100,-1,{config})"
+        )
+        assert ask(tcp, 2, 351, data) == "1"
+        got = joints(tcp)
+        assert FR5.config_of(got) == config
+        assert close(list(FR5.forward(got)), want, tol=5e-3) and close(pose(tcp), want, tol=5e-3)
 
 
 def test_a_joint_target_past_the_limits_is_refused_and_the_arm_stays(

@@ -36,7 +36,7 @@ REPO = Path(__file__).resolve().parent.parent
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from conformance.spec import SpecSet, load_specs  # noqa: E402
+from conformance.spec.commands import SpecSet, load_specs  # noqa: E402
 from tools.cross_check_rules import KINDS, Disagreement, find  # noqa: E402
 
 DEFAULT_A = REPO / "specs" / "fairino-3.8.2"

@@ -45,7 +45,7 @@ from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from conformance.spec import (
+from conformance.spec.commands import (
     Command,
     Interval,
     Param,
@@ -53,7 +53,7 @@ from conformance.spec import (
     SpecSet,
     Variant,
 )
-from conformance.spec_diff import diff_specs
+from conformance.spec.diff import diff_specs
 
 __all__ = ["KINDS", "Disagreement", "find"]
 
@@ -347,7 +347,7 @@ def _holds_range(p: Param, lo: float, hi: float) -> bool:
 
 def _holds_values(p: Param, vals: Sequence[int]) -> bool:
     have = set(_values(p))
-    return all(v in have or any(v in i for i in p.range or ()) for v in vals)
+    return all(v in have or any(i.min <= v <= i.max for i in p.range or ()) for v in vals)
 
 
 def description_checks(s: SpecSet, label: str) -> Iterator[Disagreement]:

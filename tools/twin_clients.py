@@ -8,8 +8,8 @@ its code builds it, TCP and UDP in their own order) and the public drivers' fram
 frame goes to an emulator on 127.0.0.1 (kernel-chosen ports) over its transport.  After
 every acknowledged motion whose arguments carry a target (joints, a pose, or both), the
 position queries are asked over TCP: GetActualJointPosDegree (375) must give the joint
-target, GetActualTCPPose (1152) the pose target (or, for a joints-only motion, the forward
-kinematics of the joints; for a pose-only motion, a pose the joints reach).
+target and GetActualTCPPose (1152) the forward kinematics of the joints, whatever pose the
+motion carried beside them (a motion to a pose alone: a pose the joints reach, that pose).
 
 Per client: frames answered without a refusal of the total (frames the kit's data expects a
 refusal for, a client defect or a target past the arm's limits, are counted apart), motions
@@ -148,7 +148,7 @@ def drive(name: str, frames: list[dict[str, Any]], robot_name: str, judge: Judge
                     t.motions += 1
                     got_j = query(ask, 9001, 375, "GetActualJointPosDegree")
                     got_p = query(ask, 9002, 1152, "GetActualTCPPose")
-                    want_p = pose if pose is not None else arm.forward(joints or [])
+                    want_p = arm.forward(joints) if joints is not None else pose or []
                     ok = _close(got_p, want_p) and (
                         _close(got_j, joints)
                         if joints is not None

@@ -29,9 +29,23 @@ def _add_emulate(sub: Any) -> None:
         "stderr; --max-connections and --max-frame-size bound what clients cost.",
     )
     p.add_argument(
-        "--listen", default="127.0.0.1:8080", help="TCP HOST:PORT (default 127.0.0.1:8080)"
+        "--host",
+        default=None,
+        metavar="ADDR",
+        help="serve every port a controller has on ADDR, from one model: the text port TCP "
+        "8080 and UDP 20007, the state port 8083, and the SDKs' own: XML-RPC 20003, the "
+        "realtime push 20004, CNDE 20005 (instead of --listen, --udp and --state-listen)",
     )
+    p.add_argument("--listen", default=None, help="TCP HOST:PORT (default 127.0.0.1:8080)")
     p.add_argument("--udp", default=None, metavar="HOST:PORT", help="also answer UDP here")
+    p.add_argument(
+        "--realtime-layout",
+        default=None,
+        metavar="ID",
+        help="the 20004 packet layout --host serves: an id of "
+        "specs/fairino-field/channels/realtime-20004.json (3.8.7/1236) or a size (1236); "
+        "default the newest",
+    )
     p.add_argument(
         "--state-listen",
         default=None,
@@ -167,7 +181,8 @@ def _drop_summary(server: Any) -> str | None:
 
 def _listen_addresses(args: argparse.Namespace) -> tuple[str, int, int | None]:
     """``--listen`` and ``--udp`` (which must share the host): (host, tcp port, udp port)."""
-    host, port = parse_address(args.listen, default_port=8080, listen=True, option="--listen")
+    listen = args.listen if args.listen is not None else "127.0.0.1:8080"
+    host, port = parse_address(listen, default_port=8080, listen=True, option="--listen")
     udp_port: int | None = None
     if args.udp is not None:
         uhost, udp_port = parse_address(args.udp, default_port=20007, listen=True, option="--udp")
@@ -190,13 +205,60 @@ def _state_port(args: argparse.Namespace, host: str, port: int) -> int | None:
     return sport
 
 
+#: The ports ``emulate --host`` serves: a controller's (the SDKs' own channels
+#: specs/fairino-field/channels/ and specs/*/xmlrpc.json; the manual's 8080 and 20007, 8083).
+CONTROLLER_PORTS = {
+    "tcp": 8080,
+    "udp": 20007,
+    "state": 8083,
+    "xmlrpc": 20003,
+    "realtime": 20004,
+    "cnde": 20005,
+}
+
+
+def _host_ports(args: argparse.Namespace) -> dict[str, Any]:
+    """``--host ADDR``: every controller port on ADDR (EmulatorServer keywords)."""
+    if args.host is None:
+        if args.realtime_layout is not None:
+            raise UsageError("--realtime-layout goes with --host (the 20004 port)")
+        return {}
+    if any(v is not None for v in (args.listen, args.udp, args.state_listen)):
+        raise UsageError("--host serves every port: leave out --listen, --udp and --state-listen")
+    host, _ = parse_address(args.host, default_port=8080, listen=True, option="--host")
+    return {
+        "host": host,
+        "port": CONTROLLER_PORTS["tcp"],
+        "udp_port": CONTROLLER_PORTS["udp"],
+        "state_port": CONTROLLER_PORTS["state"],
+        "xmlrpc_port": CONTROLLER_PORTS["xmlrpc"],
+        "realtime_port": CONTROLLER_PORTS["realtime"],
+        "cnde_port": CONTROLLER_PORTS["cnde"],
+        "realtime_version": args.realtime_layout,
+    }
+
+
 def _emulate(args: argparse.Namespace) -> int:
     from ..errors import SpecError
     from ..net.emulator import EmulatorServer
+    from ..spec.realtime import realtime_layout
     from ..spec.state import layout_for
 
-    host, port, udp_port = _listen_addresses(args)
-    state_port = _state_port(args, host, port)
+    ports = _host_ports(args)
+    if ports:
+        host, port, udp_port, state_port = (
+            ports.pop("host"),
+            ports.pop("port"),
+            ports.pop("udp_port"),
+            ports.pop("state_port"),
+        )
+        try:
+            realtime_layout(ports["realtime_version"])
+        except SpecError as e:
+            raise UsageError(f"--realtime-layout: {e}") from None
+    else:
+        host, port, udp_port = _listen_addresses(args)
+        state_port = _state_port(args, host, port)
     try:
         layout_for(args.state_version)
     except SpecError as e:
@@ -216,6 +278,7 @@ def _emulate(args: argparse.Namespace) -> int:
         faults=faults,
         state_port=state_port,
         state_version=args.state_version,
+        **ports,
         **_limits(args),
         **emulation,
     )
@@ -226,6 +289,13 @@ def _emulate(args: argparse.Namespace) -> int:
         if server.state_address is not None:
             v = server.controller.state_version
             udp += f", state port {format_address(*server.state_address)} (v{v} layout)"
+        if server.xmlrpc_address is not None:
+            udp += f", XML-RPC {format_address(*server.xmlrpc_address)}"
+        if server.realtime is not None and server.realtime_address is not None:
+            lay = server.realtime.layout.version
+            udp += f", realtime {format_address(*server.realtime_address)} ({lay} layout)"
+        if server.cnde_address is not None:
+            udp += f", CNDE {format_address(*server.cnde_address)}"
         flts = ", ".join(str(f) for f in faults) or "none"
         n = len(server.controller.specs)
         judge = server.controller.judge

@@ -38,7 +38,7 @@ import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from types import TracebackType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..errors import EmulatorError, RemoteProtocolError, UsageError
 from ..judge.judge import Judge
@@ -49,6 +49,7 @@ from ..twin.controller import STATE_VERSION, Controller, ControllerConnection
 from ..twin.faults import Fault, FaultKind, parse_fault, parse_faults
 from .addresses import format_address, format_sockaddr
 from .emulator_state import StatePort
+from .port import ListeningPort, PortContext
 from .server import (
     BACKOFF_MAX,
     DEFAULT_IDLE_TIMEOUT,
@@ -59,6 +60,11 @@ from .server import (
     family,
     serve_forever,
 )
+
+if TYPE_CHECKING:  # the SDKs' ports are imported when an emulator serves them
+    from ..twin.xmlrpc import XmlRpcController
+    from .cnde_port import CndePort
+    from .xmlrpc_port import CallObserver, XmlRpcPort
 
 __all__ = [
     "DEFAULT_MAX_CONNECTIONS",
@@ -96,6 +102,9 @@ _KIT_ERRORS_KEPT = 10
 _RAW_KEPT = 200  # bytes of the blamed frame kept in a Dropped record
 _REASON_MAX = 300
 _QUIET = 10.0  # seconds: an episode starting this soon after the last message is not announced
+#: The realtime port's period: the controller pushes every 8 ms (C++ SDK robot.cpp line 253,
+#: specs/fairino-field/channels/realtime-20004.json ``frame``).
+REALTIME_PERIOD_MS = 8
 
 
 def _errno_name(e: OSError) -> str:
@@ -183,6 +192,12 @@ class EmulatorServer:
         robot: str | None = None,
         state_port: int | None = None,
         state_version: str = STATE_VERSION,
+        xmlrpc_port: int | None = None,
+        cnde_port: int | None = None,
+        realtime_port: int | None = None,
+        realtime_version: str | None = None,
+        controller_ip: str | None = None,
+        xmlrpc_observer: CallObserver | None = None,
     ) -> None:
         self.controller = Controller(
             specs,
@@ -195,6 +210,22 @@ class EmulatorServer:
         #: The state port (8083) to serve, if any (0: an ephemeral one); see :attr:`state`.
         self._state_port = state_port
         self.state: StatePort | None = None
+        #: The SDKs' ports to serve, if any (0: ephemeral), and the servers once started.
+        self._sdk_ports = {"xmlrpc": xmlrpc_port, "cnde": cnde_port, "realtime": realtime_port}
+        self._realtime_version = realtime_version
+        self._xmlrpc_observer = xmlrpc_observer
+        self.xmlrpc: XmlRpcController | None = None
+        if xmlrpc_port is not None:
+            from ..twin.xmlrpc import XmlRpcController
+
+            self.xmlrpc = XmlRpcController(
+                self.controller, controller_ip=controller_ip or host.strip("[]")
+            )
+        self.xmlrpc_port: XmlRpcPort | None = None
+        #: The SDK ports' connections (a set a port).
+        self._port_conns: list[ConnectionSet] = []
+        self.cnde: CndePort | None = None
+        self.realtime: StatePort | None = None
         self.host = host.strip("[]")
         self._port = port
         self._udp_port = udp_port
@@ -258,6 +289,21 @@ class EmulatorServer:
         return self.state.address if self.state is not None else None
 
     @property
+    def xmlrpc_address(self) -> tuple[str, int] | None:
+        """Where the XML-RPC port (20003) listens, if it is served."""
+        return self.xmlrpc_port.address if self.xmlrpc_port is not None else None
+
+    @property
+    def cnde_address(self) -> tuple[str, int] | None:
+        """Where the CNDE port (20005) listens, if it is served."""
+        return self.cnde.address if self.cnde is not None else None
+
+    @property
+    def realtime_address(self) -> tuple[str, int] | None:
+        """Where the realtime port (20004) listens, if it is served."""
+        return self.realtime.address if self.realtime is not None else None
+
+    @property
     def target(self) -> str:
         return format_address(*self.address)
 
@@ -307,8 +353,112 @@ class EmulatorServer:
             self._spawn(self._serve_udp, "emulator-udp")
         if self._state_port is not None:
             self._start_state(self._state_port)
+        self._start_sdk_ports()
         self._spawn(self._serve_tcp, "emulator-accept")
         return self
+
+    def _context(self) -> PortContext:
+        """What one SDK port shares with the emulator; its connections are counted apart
+        (``max_connections`` a port), so that a flood on one port locks no other out."""
+
+        def backoff(what: str) -> Backoff:
+            return _backoff(what, lambda: f"{self.open_connections} open")
+
+        conns = ConnectionSet(self.max_connections, self._conns_lock)
+        self._port_conns.append(conns)
+        return PortContext(
+            host=self.host,
+            conns=conns,
+            spawn=self._spawn,
+            stop=self._stop,
+            down=self._down,
+            changed=self._notify,
+            lock=self._lock,
+            backoff=backoff,
+            failed=self._port_failed,
+        )
+
+    def _port_failed(self, peer: str, e: BaseException) -> None:
+        if not isinstance(e, RemoteProtocolError) and len(self.kit_errors) < _KIT_ERRORS_KEPT:
+            self.kit_errors.append(e)
+        self._record(
+            Dropped(
+                peer=peer, kind="error", reason=f"kit error: {type(e).__name__}: {e}"[:_REASON_MAX]
+            )
+        )
+
+    def _start_sdk_ports(self) -> None:
+        """The SDKs' own ports (20003, 20004, 20005) beside the text and state ports, from
+        the same model (:mod:`.xmlrpc_port`, :mod:`.cnde_port`, the state port in a 20004
+        layout)."""
+        if all(p is None for p in self._sdk_ports.values()):
+            return
+        from ..spec.cnde import cnde_catalogue
+        from ..spec.realtime import realtime_layout
+        from .cnde_port import CndePort
+        from .xmlrpc_port import XmlRpcPort
+
+        ports: list[tuple[str, int, ListeningPort | StatePort]] = []
+        if self._sdk_ports["xmlrpc"] is not None and self.xmlrpc is not None:
+            xmlrpc = self.xmlrpc
+            self.xmlrpc_port = XmlRpcPort(
+                self._context(),
+                self._sdk_ports["xmlrpc"],
+                answer=xmlrpc.answer,
+                idle_timeout=self.idle_timeout,
+                observer=self._xmlrpc_observer,
+            )
+            ports.append(("TCP", self._sdk_ports["xmlrpc"], self.xmlrpc_port))
+        if self._sdk_ports["cnde"] is not None:
+            self.cnde = CndePort(
+                self._context(),
+                self._sdk_ports["cnde"],
+                catalogue=cnde_catalogue(),
+                snapshot=self._fields,
+                idle_timeout=self.idle_timeout,
+            )
+            ports.append(("TCP", self._sdk_ports["cnde"], self.cnde))
+        if self._sdk_ports["realtime"] is not None:
+            lay = realtime_layout(self._realtime_version)
+            ctx = self._context()
+            self.realtime = StatePort(
+                host=self.host,
+                port=self._sdk_ports["realtime"],
+                version=self.controller.state_version,
+                faults=(),
+                snapshot=self._realtime_snapshot,
+                conns=ctx.conns,
+                spawn=self._spawn,
+                stop=self._stop,
+                down=self._down,
+                changed=self._notify,
+                backoff=_backoff("realtime port accept", lambda: f"{self.open_connections} open"),
+                layout=lay,
+                name="realtime",
+            )
+            ports.append(("TCP", self._sdk_ports["realtime"], self.realtime))
+        for transport, port, server in ports:
+            try:
+                server.start()
+            except OSError as e:
+                self._stop.set()
+                for s in (self._tcp, self._udp):
+                    if s is not None:
+                        s.close()
+                self._tcp = self._udp = None
+                for _, _, other in ports:
+                    other.close()
+                if self.state is not None:
+                    self.state.close()
+                raise _bind_error(transport, self.host, port, e) from e
+
+    def _fields(self) -> dict[str, object]:
+        """The model's state fields (the CNDE port calls it under the model's lock)."""
+        return self.controller.model.state_fields()
+
+    def _realtime_snapshot(self) -> tuple[dict[str, object], float]:
+        with self._lock:
+            return self.controller.model.state_fields(), float(REALTIME_PERIOD_MS)
 
     def _start_state(self, port: int) -> None:
         state = StatePort(
@@ -349,10 +499,12 @@ class EmulatorServer:
         self._stop.set()
         for s in (self._tcp, self._udp):
             close_server(s)
-        if self.state is not None:
-            self.state.close()
-        for c in self._conns.snapshot():
-            _shutdown(c)
+        for port in (self.state, self.xmlrpc_port, self.cnde, self.realtime):
+            if port is not None:
+                port.close()
+        for conns in (self._conns, *self._port_conns):
+            for c in conns.snapshot():
+                _shutdown(c)
         for t in list(self._threads):
             if t is not threading.current_thread():
                 t.join(timeout=5)

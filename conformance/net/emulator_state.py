@@ -1,5 +1,8 @@
 """The emulator's state port (8083): the model's state, one packet per period, per client.
 
+The SDKs' realtime port (20004) frames its packets the same way, in an SDK's layout
+(:mod:`conformance.spec.realtime`): the same class serves it, given that layout.
+
 The vendor's 8083 state manual (section 1): once a client connects, the controller
 sends it a state packet every period (default 100 ms, 8..100 ms), unasked; the
 client sends nothing.  :class:`StatePort` accepts on its own TCP socket and gives
@@ -70,10 +73,20 @@ class StatePort:
         changed: Callable[[], None],
         backoff: Backoff,
         send_timeout: float = SEND_TIMEOUT,
+        layout: StateLayout | None = None,
+        name: str = "state",
     ) -> None:
-        self.version = layout_for(version).version
         self.plan = StateFaults.of(faults)
-        self.layout = served_layout(self.version, self.plan)
+        if layout is not None:
+            # Another port framed the same way (20004, specs/fairino-field/channels/):
+            # its own layout, and no state faults.
+            self.version = layout.version
+            self.layout = layout
+            self.plan = StateFaults.of(())
+        else:
+            self.version = layout_for(version).version
+            self.layout = served_layout(self.version, self.plan)
+        self.name = name
         self.host = host
         self._port = port
         self._snapshot = snapshot
@@ -93,7 +106,7 @@ class StatePort:
     @property
     def address(self) -> tuple[str, int]:
         if self._sock is None:
-            raise RuntimeError("the state port is not started")
+            raise RuntimeError(f"the {self.name} port is not started")
         return self.host, int(self._sock.getsockname()[1])
 
     def start(self) -> None:
@@ -108,7 +121,7 @@ class StatePort:
             sock.close()
             raise
         self._sock = sock
-        self._spawn(self._accept_loop, "emulator-state-accept")
+        self._spawn(self._accept_loop, f"emulator-{self.name}-accept")
 
     def close(self) -> None:
         close_server(self._sock)
@@ -130,7 +143,7 @@ class StatePort:
             conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         self.clients += 1
         try:
-            self._spawn(self._serve, "emulator-state-conn", conn, format_sockaddr(addr))
+            self._spawn(self._serve, f"emulator-{self.name}-conn", conn, format_sockaddr(addr))
         except RuntimeError:  # no thread to serve it
             self._conns.discard(conn)
             _shutdown(conn)

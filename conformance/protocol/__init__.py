@@ -7,7 +7,11 @@
   (its fast paths: runs read column-wise, one whole frame) and :mod:`.frame_header` (the
   careful reading of a header);
 * :mod:`.data_values`, :mod:`.data_parse` and :mod:`.data_format`: the DATA grammar
-  (its checks against the spec tables are ``conformance/spec/checks.py``).
+  (its checks against the spec tables are ``conformance/spec/checks.py``);
+* :mod:`.state`: the state packets of port 8083, and of the SDKs' realtime port 20004,
+  which frames its packets the same way;
+* the official SDKs' own channels: :mod:`.xmlrpc` (XML-RPC bodies, port 20003) inside
+  :mod:`.http` (HTTP/1.1 framing), :mod:`.cnde` (the CNDE state channel, port 20005).
 
 Nothing here imports a higher floor.
 """

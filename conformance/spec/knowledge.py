@@ -29,7 +29,7 @@ from ..errors import ConformanceError
 from ..protocol.data_format import Value, format_call
 from ..protocol.data_values import Arg, Array
 from .checks import allows
-from .commands import TYPE_BOUNDS, Command, Param, Returns, ReturnValue, SpecSet, Variant
+from .commands import TYPE_BOUNDS, Command, Param, Returns, ReturnValue, Safety, SpecSet, Variant
 
 __all__ = [
     "JOINT_ARRAYS",
@@ -43,6 +43,7 @@ __all__ = [
     "flat_returns",
     "health_query",
     "motion_targets",
+    "motion_targets_of",
     "position_query",
     "refusal_data",
     "target_args",
@@ -55,6 +56,23 @@ JOINT_NAMES = ("j1", "j2", "j3", "j4", "j5", "j6")
 _CART = ("x", "y", "z", "rx", "ry", "rz")
 #: Names an array of six joint angles goes by (the C++ and C# SDKs' ServoJ: ``joint_pos``).
 JOINT_ARRAYS = frozenset({"joint_pos", "jointpos", "joints", "jpos"})
+#: ServoMIT's joint targets, in degrees (the python SDK's UDP ServoMIT,
+#: specs/fairino-field/python-sdk.json python-sdk-013: ``desPos1..6``).
+DESIRED_JOINT_NAMES = ("despos1", "despos2", "despos3", "despos4", "despos5", "despos6")
+#: ServoJV's joint velocities in deg/s, held for one command period ``cmdT`` in s
+#: (python-sdk-010: ``jointVel1..6``, ``cmdT``).
+JOINT_VELOCITY_NAMES = (
+    "jointvel1",
+    "jointvel2",
+    "jointvel3",
+    "jointvel4",
+    "jointvel5",
+    "jointvel6",
+)
+_PERIOD_NAMES = ("cmdt", "interval")
+#: The same as six-value arrays (the C# SDK's UDP ServoMIT and ServoJV, csharp-sdk-010/011).
+_DESIRED_ARRAYS = frozenset({"despos"})
+_VELOCITY_ARRAYS = frozenset({"joint_vel", "jointvel"})
 
 
 # --------------------------------------------------------------------------- semantics
@@ -192,6 +210,11 @@ class MotionTargets:
     tcp_array: int | None = None
     #: An array of the six joint angles (the SDKs' ``joint_pos``), when no ``J1..J6`` run.
     joints_array: int | None = None
+    #: Joint velocities (deg/s) the arm moves at for ``period`` seconds (ServoJV), when the
+    #: call carries no position.
+    joint_velocities: tuple[int, ...] | None = None
+    velocities_array: int | None = None
+    period: int | None = None
 
 
 def target_args(
@@ -220,17 +243,49 @@ def _last_complete(params: Sequence[str], names: Sequence[str]) -> tuple[int, ..
     return out if list(out) == sorted(out) else None
 
 
+def _six(variant: Variant, names: frozenset[str]) -> int | None:
+    """The first six-value array parameter of one of ``names``."""
+    return next(
+        (
+            i
+            for i, p in enumerate(variant.params)
+            if p.is_array and p.length == 6 and p.name.lower() in names
+        ),
+        None,
+    )
+
+
 def motion_targets(command: Command, variant: Variant) -> MotionTargets | None:
     """Joint / Cartesian targets of a motion variant with explicit positions, else None.
 
     The last complete ``J1..J6`` (and ``x..rz``) run counts: MoveC's second point
     is where the arm ends.  Named points (``MoveJ("P1")``) carry no position.
     """
-    if command.safety.value != "motion" or variant.form != "call":
+    return motion_targets_of(command.safety, variant)
+
+
+def motion_targets_of(safety: Safety | None, variant: Variant) -> MotionTargets | None:
+    """:func:`motion_targets` for a variant of a command of class ``safety`` (a field
+    dialect's own command, ServoMIT or ServoJV, has no manual command to ask): also
+    ServoMIT's ``desPos1..6`` as joint targets and ServoJV's ``jointVel1..6`` with its
+    ``cmdT`` as one period's motion."""
+    if safety is None or safety.value != "motion" or variant.form != "call":
         return None
     names = [p.name.lower() for p in variant.params]
     scalar = [n if not variant.params[i].is_array else "" for i, n in enumerate(names)]
-    joints = _last_complete(scalar, JOINT_NAMES)
+    joints = _last_complete(scalar, JOINT_NAMES) or _last_complete(scalar, DESIRED_JOINT_NAMES)
+    velocities = _last_complete(scalar, JOINT_VELOCITY_NAMES)
+    varr = _six(variant, _VELOCITY_ARRAYS)
+    period = next((i for i, n in enumerate(scalar) if n in _PERIOD_NAMES), None)
+    moving = velocities is not None or varr is not None
+    if joints is None and _six(variant, JOINT_ARRAYS | _DESIRED_ARRAYS) is None and moving:
+        if period is None:
+            return None
+        return MotionTargets(
+            joint_velocities=velocities,
+            velocities_array=varr if velocities is None else None,
+            period=period,
+        )
     tcp = _last_complete(scalar, _CART)
     arr = next(
         (
@@ -240,14 +295,7 @@ def motion_targets(command: Command, variant: Variant) -> MotionTargets | None:
         ),
         None,
     )
-    jarr = next(
-        (
-            i
-            for i, p in enumerate(variant.params)
-            if p.is_array and p.length == 6 and p.name.lower() in JOINT_ARRAYS
-        ),
-        None,
-    )
+    jarr = _six(variant, JOINT_ARRAYS | _DESIRED_ARRAYS)
     if joints is None and tcp is None and arr is None and jarr is None:
         return None
     if any(variant.params[i].is_string for i in (*(joints or ()), *(tcp or ()))):

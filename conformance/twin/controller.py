@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 import re
 import weakref
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 from ..errors import ProtocolError, Rule
@@ -27,7 +27,7 @@ from ..judge.requests import ERR_ARG_COUNT, ERR_ARG_VALUE, ERR_EXEC_FAILED
 from ..judge.verdict import Outcome, Reference
 from ..protocol.data_format import format_number
 from ..protocol.data_parse import parse_reply
-from ..protocol.data_values import Arg, Call, Number, Text
+from ..protocol.data_values import Arg, Array, Call, Number, Text
 from ..protocol.decoder import FrameDecoder, decode_all
 from ..protocol.frame import DEFAULT_MAX_FRAME_SIZE, Frame, Malformed
 from ..spec.commands import Command, Returns, ReturnValue, SpecSet, Variant, default_specs
@@ -38,6 +38,7 @@ from ..spec.knowledge import (
     derive_pairs,
     flat_returns,
     motion_targets,
+    motion_targets_of,
     position_query,
     refusal_data,
     target_args,
@@ -161,6 +162,16 @@ class Refused(Exception):
         self.code = code
 
 
+def _config_arg(variant: Variant, args: Sequence[Arg]) -> int | None:
+    """A motion's ``config`` argument (MoveCart, 2.15 table 2-21): 0..7 a configuration of
+    the inverse kinematics, -1 (the default) the one nearest the current joints."""
+    for p, a in zip(variant.params, args, strict=False):
+        if p.name.lower() == "config":
+            c = _num(_arg_text(a))
+            return int(c) if c is not None and c == int(c) and 0 <= c <= 7 else None
+    return None
+
+
 def _num(text: str | None) -> float | None:
     try:
         x = float(text) if text is not None else None
@@ -204,24 +215,68 @@ def _state_period(m: RobotModel, a: list[float | None]) -> None:
         m.state_period_ms = int(a[1])
 
 
-#: What an executed command changes of the state the 8083 stream shows.
+def _soft_limits(side: int) -> Callable[[RobotModel, list[float | None]], None]:
+    """5.4.1 SetLimitPositive(pos_deg1..6) / 5.4.2 SetLimitNegative(neg_deg1..6): one side
+    of the soft limits GetJointSoftLimitDeg (6.3.13) reads back."""
+
+    def effect(m: RobotModel, a: list[float | None]) -> None:
+        if len(a) == 6 and None not in a:
+            for i, x in enumerate(a):
+                lim = list(m.soft_limits[i])
+                lim[side] = float(x or 0.0)
+                m.soft_limits[i] = (lim[0], lim[1])
+
+    return effect
+
+
+def _enable(m: RobotModel, a: list[float | None]) -> None:
+    if a and a[0] in (0, 1):  # 5.1.5 RobotEnable(state 0 off, 1 on)
+        m.enabled = int(a[0] or 0)
+
+
+#: What an executed command changes of the state the state ports (8083, 20004, CNDE) show.
 _STATE_EFFECTS = {
     "SetDO": _set_do,
     "SetToolDO": _set_tool_do,
     "Mode": _mode,
     "SetStatePeriod": _state_period,
+    "RobotEnable": _enable,
+    "SetLimitPositive": _soft_limits(1),
+    "SetLimitNegative": _soft_limits(0),
 }
+#: Queries the model answers from what it keeps: name -> the reply's values.
+_STATE_QUERIES: Mapping[str, Callable[[RobotModel], list[str]]] = {
+    # 6.3.13: jMin1, jMax1, ..., jMin6, jMax6.
+    "GetJointSoftLimitDeg": lambda m: [_fmt(x) for lim in m.soft_limits for x in lim],
+}
+
+#: Queries whose reply is the arm's kinematics, by lower-case name (6.3.24-6.3.27 of the
+#: v3.9.8 manual: GetForwardKin, GetInverseKin, GetInverseKinRef, GetInverseKinHasSolution;
+#: the field sends the first two on 377 too, specs/fairino-field/drivers.json ``reports``).
+KINEMATICS_QUERIES = {
+    "getforwardkin": "forward_kin",
+    "getinversekin": "inverse_kin",
+    "getinversekinref": "inverse_kin_ref",
+    "getinversekinhassolution": "has_solution",
+}
+#: Chapter 9's codes for a pose the arm cannot take: 28 "inverse kinematics result
+#: abnormal" (no solution), 32 "joint over limit" (solutions only past the limits).
+IK_UNREACHABLE = 28
+JOINT_OVER_LIMIT = 32
 
 
 class RobotModel:
     """The emulated controller's state: stored Set values, joint and TCP position.
 
     The joints and the TCP follow one arm's kinematics (``robot``, default FR5;
-    :mod:`conformance.twin.kinematics`): a motion to joints puts the TCP at their forward
-    kinematics, a motion to a pose alone puts the joints at its inverse nearest the
-    current ones; a motion carrying both (MoveJ, MoveL) keeps both as commanded.  A
-    joint target past the arm's limits is refused with the manual's code (chapter 9:
-    32 "joint over limit", 29 for ServoJ).
+    :mod:`conformance.twin.kinematics`), and the TCP reported everywhere is always the
+    forward kinematics of the joints.  A motion carrying joints (MoveJ, MoveL, ServoJ,
+    ServoMIT's ``desPos``) goes to those joints, whatever pose it carries beside them;
+    a motion to a pose alone (MoveCart) goes to its inverse, of the configuration the
+    call names (``config`` 0..7) or, for -1, nearest the current joints; ServoJV moves
+    the joints at its velocities for one command period.  A joint target past the arm's
+    limits is refused with the manual's code (chapter 9: 32 "joint over limit", 29 for
+    ServoJ), a pose without an inverse with 28; the arm stays where it was.
     """
 
     def __init__(
@@ -237,6 +292,14 @@ class RobotModel:
         self.do_bits = 0  # control box DO 15..0 (SetDO)
         self.tool_do_bits = 0  # tool DO 1..0 (SetToolDO)
         self.robot_mode = 0  # 0 automatic, 1 manual (Mode)
+        self.enabled = 0  # RobotEnable
+        #: Soft limits (min, max) per joint, degrees: the arm's own until set.
+        self.soft_limits: list[tuple[float, float]] = [
+            (j.min, j.max) for j in self.robot.joint_limits
+        ]
+        #: The latched fault (GetRobotErrorCode; ResetAllError clears it).
+        self.main_code = 0
+        self.sub_code = 0
         known = _read_off(specs)
         self.pairs = known.pairs
         self._by_setter = known.by_setter
@@ -263,7 +326,7 @@ class RobotModel:
                     rec[fi] = t
         m = self._targets(command, variant)
         if m is not None and len(args) == len(variant.params):
-            self._move(command, m, args)
+            self._move(command.name, m, args, config=_config_arg(variant, args))
         effect = _STATE_EFFECTS.get(command.name)
         if effect is not None:
             effect(self, [_num(t) for t in texts])
@@ -287,17 +350,32 @@ class RobotModel:
         return int(period) if lo <= period <= hi else None
 
     def state_fields(self) -> dict[str, object]:
-        """The model's state as the 8083 packet's fields (table 2-2; the rest stay zero)."""
+        """The model's state by the state ports' field names, the rest zero: the 8083
+        packet's (table 2-2) and the SDKs' state struct's (``ROBOT_STATE_PKG``: the 20004
+        packet's fields and what CNDE's states fill, specs/fairino-field/channels/), which
+        share most names (``jt_cur_pos``, ``cl_dgt_output_h``)."""
+        joints = [_num(j) or 0.0 for j in self.joints]
+        tcp = [_num(t) or 0.0 for t in self.tcp]
         return {
             "program_state": 1,  # 1 stopped: the emulator runs no programs
+            "robot_state": 1,  # 1 stopped: motions complete at once
             "error_code": 0,
+            "main_code": self.main_code,
+            "sub_code": self.sub_code,
             "robot_mode": self.robot_mode,
-            "jt_cur_pos": [_num(j) or 0.0 for j in self.joints],
-            "tl_cur_pos": [_num(t) or 0.0 for t in self.tcp],
+            "jt_cur_pos": joints,
+            "tl_cur_pos": tcp,
+            # No tool is modelled: the tool frame is the flange.
+            "flange_cur_pos": tcp,
             "cl_dgt_output_h": self.do_bits >> 8 & 0xFF,
             "cl_dgt_output_l": self.do_bits & 0xFF,
             "tl_dgt_output_l": self.tool_do_bits & 0x03,  # "only bit0-bit1 works"
             "robot_motion_done": 1,  # motions complete at once
+            "motion_done": 1,
+            "rbtEnableState": self.enabled,
+            "lastServoTarget": joints,
+            "targetJointPos": joints,
+            "targetTCPPos": tcp,
         }
 
     def _targets(self, command: Command, variant: Variant) -> MotionTargets | None:
@@ -313,37 +391,87 @@ class RobotModel:
         self.joints = [_fmt(j) for j in joints]
         self.tcp = [_fmt(v) for v in self.robot.forward(joints)]
 
-    def _move(self, command: Command, m: MotionTargets, args: Sequence[Arg]) -> None:
-        joint_args, pose_args = target_args(m, args)
-        joints = [_arg_text(a) for a in joint_args] if joint_args is not None else None
-        tcp = [_arg_text(a) for a in pose_args] if pose_args is not None else None
-        q = [_num(t) for t in joints] if joints is not None else None
-        if joints is not None and q is not None and None not in q:
-            qs = [x for x in q if x is not None]
-            bad = self.robot.violations(qs)
-            if bad:
-                servo = command.name.lower().startswith("servo")
-                raise Refused(29 if servo else 32, "; ".join(str(b) for b in bad))
-            if tcp is None:
-                self._set_joints(qs)
+    def _move(
+        self, name: str, m: MotionTargets, args: Sequence[Arg], *, config: int | None = None
+    ) -> None:
+        """Put the arm where a motion's arguments say (joints win over a pose beside them),
+        the TCP at the joints' forward kinematics; :class:`Refused` leaves it where it was."""
+        servo = name.lower().startswith("servo")
+        current = [_num(j) or 0.0 for j in self.joints]
+        if m.period is not None and (m.joint_velocities or m.velocities_array) is not None:
+            if m.joint_velocities is not None:
+                v = [_num(_arg_text(args[i])) for i in m.joint_velocities]
+            else:
+                arr = args[m.velocities_array or 0]
+                v = [_num(_arg_text(a)) for a in arr.items] if isinstance(arr, Array) else [None]
+            dt = _num(_arg_text(args[m.period]))
+            if None in v or dt is None or not 0 <= dt <= 1:
                 return
-            self.joints = [t or "0.000" for t in joints]
-        if tcp is not None:
-            self.tcp = [t or "0.000" for t in tcp]
-            pose = [_num(t) for t in tcp]
-            if joints is None and all(x is not None for x in pose):
-                r = self.robot.inverse(
-                    [x for x in pose if x is not None],
-                    ref=[_num(t) or 0.0 for t in self.joints],
-                )
-                if r.ok and r.joints is not None:
-                    self.joints = [_fmt(j) for j in r.joints]
+            self._go([q + (w or 0.0) * dt for q, w in zip(current, v, strict=True)], servo)
+            return
+        joint_args, pose_args = target_args(m, args)
+        q = [_num(_arg_text(a)) for a in joint_args] if joint_args is not None else None
+        if q is not None and None not in q:
+            self._go([x for x in q if x is not None], servo)
+            return
+        pose = [_num(_arg_text(a)) for a in pose_args] if pose_args is not None else None
+        if pose is None or None in pose:
+            return
+        r = self.robot.inverse([x for x in pose if x is not None], ref=current, config=config)
+        if not r.ok or r.joints is None:
+            code = IK_UNREACHABLE if r.status.value == "unreachable" else JOINT_OVER_LIMIT
+            raise Refused(code, f"no joints within the limits put the TCP at {pose}")
+        self._set_joints(r.joints)
+
+    def _go(self, q: Sequence[float], servo: bool) -> None:
+        bad = self.robot.violations(q)
+        if bad:
+            raise Refused(29 if servo else JOINT_OVER_LIMIT, "; ".join(str(b) for b in bad))
+        self._set_joints(q)
+
+    def kinematics(self, kind: str, values: Sequence[float | None]) -> list[str]:
+        """A kinematics query's reply values (``kind``: :data:`KINEMATICS_QUERIES`'s) for its
+        numeric arguments, as the manual (6.3.24-6.3.27) and the field send them:
+        ``GetForwardKin(j1..j6)``; ``GetInverseKin([type,] x..rz[, config])``, config 0..7
+        naming a configuration and -1 the one nearest the current joints;
+        ``GetInverseKinRef(type, x..rz, j1..j6)`` nearest the joints given;
+        ``GetInverseKinHasSolution(type, x..rz, j1..j6)``.  :class:`Refused` (28, 32) for a
+        pose without an inverse, since the reply has no value to say so."""
+        nums = [x for x in values if x is not None]
+        if len(nums) != len(values):
+            raise Refused(ERR_ARG_VALUE, "a kinematics query's arguments are numbers")
+        current = [_num(j) or 0.0 for j in self.joints]
+        if kind == "forward_kin":
+            if len(nums) < 6:
+                raise Refused(ERR_ARG_COUNT, "GetForwardKin takes six joints")
+            return [_fmt(v) for v in self.robot.forward(nums[:6])]
+        # The relative pose types (1, 2) are read as absolute, as the text path does.
+        pose = nums[1:7] if len(nums) in (8, 13) else nums[:6]
+        if len(pose) != 6:
+            raise Refused(ERR_ARG_COUNT, f"{kind}: a pose is six values")
+        config: int | None = None
+        ref = current
+        if kind == "inverse_kin" and len(nums) in (7, 8):
+            c = nums[-1]
+            config = int(c) if c == int(c) and 0 <= c <= 7 else None
+        elif kind in ("inverse_kin_ref", "has_solution") and len(nums) >= 12:
+            ref = nums[-6:]
+        r = self.robot.inverse(pose, ref=ref, config=config)
+        if kind == "has_solution":
+            return ["1" if r.ok else "0"]
+        if not r.ok or r.joints is None:
+            code = IK_UNREACHABLE if r.status.value == "unreachable" else JOINT_OVER_LIMIT
+            raise Refused(code, f"no inverse kinematics for {pose}")
+        return [_fmt(j) for j in r.joints]
 
     def dialect_values(self, d: Dialect, args: Sequence[Arg] = ()) -> list[str]:
         """Reply values for a command the manual lacks (a field dialect): ``1`` if an error code;
         what the entry ``reports`` (the joints in radians, a forward or inverse kinematics of
         its arguments) from the arm model; else its recorded example, else typed zeros."""
         returns = d.variant.returns
+        m = motion_targets_of(d.safety, d.variant)
+        if m is not None and len(args) == len(d.variant.params):
+            self._move(d.name, m, args)  # ServoMIT's desPos, ServoJV's velocities
         if returns.errcode_only:
             return ["1"]
         texts = [_num(_arg_text(a)) for a in args]
@@ -353,19 +481,9 @@ class RobotModel:
             return list(self.tcp)
         if d.reports == "joints_rad":
             return [f"{math.radians(_num(j) or 0.0):.6f}" for j in self.joints]
-        if d.reports == "forward_kin" and len(texts) >= 6 and None not in texts[:6]:
-            q = [t for t in texts[:6] if t is not None]
-            return [_fmt(v) for v in self.robot.forward(q)]
-        if d.reports == "inverse_kin" and len(texts) >= 7 and None not in texts[1:7]:
-            # GetInverseKin(type, x, y, z, rx, ry, rz, config): type 0, a pose in the base
-            # frame (the relative types 1 and 2 are read as absolute too); config -1: any.
-            pose = [t for t in texts[1:7] if t is not None]
-            config = int(texts[7]) if len(texts) > 7 and texts[7] is not None else None
-            cur = [_num(j) or 0.0 for j in self.joints]
-            r = self.robot.inverse(pose, ref=cur, config=config if config in range(8) else None)
-            if not r.ok or r.joints is None:
-                raise Refused(28, f"no inverse kinematics for {pose}")  # 28: IK result abnormal
-            return [_fmt(j) for j in r.joints]
+        if d.reports in ("forward_kin", "inverse_kin") and len(texts) >= 6:
+            # GetInverseKin(type, x, y, z, rx, ry, rz, config) on 377: see kinematics().
+            return self.kinematics(d.reports, texts)
         return _typed(returns, d.reply_example)
 
     def reply_values(self, command: Command, variant: Variant, args: Sequence[Arg]) -> list[str]:
@@ -385,6 +503,18 @@ class RobotModel:
                 rec = self.records.get((command.key, variant.table, key), rec)
                 if rec:
                     break
+        known = _STATE_QUERIES.get(command.name)
+        if known is not None and len(args) == len(variant.params):
+            values = known(self)
+            if len(values) == len(flat):
+                return values
+        kind = KINEMATICS_QUERIES.get(command.name.lower())
+        if kind is not None and len(args) == len(variant.params):
+            values = self.kinematics(kind, [_num(t) for t in texts])
+            if len(values) == len(flat):
+                return values
+            if len(values) == len(flat) - 1:  # a leading status value (6-3-26's first row)
+                return ["0", *values]
         example = self._examples.get((command.key, variant.table))
         pos = position_query(self.specs, command.name)
         pnames = {p.name.lower(): i for i, p in enumerate(variant.params)}

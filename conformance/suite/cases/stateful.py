@@ -174,14 +174,17 @@ def run_motion(runner: SuiteRunner, case: Case) -> CaseEnd:
                 return False
             ex = runner.exchange(mcmd.cmd_id, data)
             _values(runner, ex, mvariant, mcmd.name)
+            # A motion carrying joints goes to them, and the TCP to where they put it (a
+            # pose sent beside them, MoveJ's and MoveL's, does not move the arm): only the
+            # joints are known.  A motion to a pose alone (MoveCart) is known by its TCP.
             if mtargets.joints is not None:
-                self.where["joints"] = [args[i] for i in mtargets.joints]
-            if mtargets.tcp is not None:
-                self.where["tcp"] = [args[i] for i in mtargets.tcp]
+                self.where = {"joints": [args[i] for i in mtargets.joints]}
+            elif mtargets.tcp is not None:
+                self.where = {"tcp": [args[i] for i in mtargets.tcp]}
             elif mtargets.tcp_array is not None:
                 arr = args[mtargets.tcp_array]
                 assert isinstance(arr, list)
-                self.where["tcp"] = list(arr)
+                self.where = {"tcp": list(arr)}
             return True
 
         def readable(self) -> bool:
