@@ -1,4 +1,4 @@
-"""One error tree for the whole kit (see STYLE.md, convention 3).
+"""One error tree for the whole kit (docs/ARCHITECTURE.md, "Whose fault").
 
 ``ConformanceError`` is the root.  Protocol errors split, as in h11, into
 ``LocalProtocolError`` (we were asked to build something illegal) and

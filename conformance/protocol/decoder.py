@@ -5,9 +5,9 @@ CNT is a uint16 frame counter the reply echoes, CMD_ID the command number
 (指令号), LEN the length of DATA.  We read LEN as the UTF-8 byte length of DATA
 (the manual says only "数据内容的长度"; every ASCII example agrees).
 
-No sockets, no clock, no asyncio here (STYLE.md, convention 1): the decoder takes
-bytes with :meth:`FrameDecoder.feed` and returns :class:`Frame` and
-:class:`Malformed` events.  It is LEN-driven (DATA may contain ``III`` or
+No sockets, no clock, no asyncio here (the protocol floor is sans-I/O:
+docs/ARCHITECTURE.md): the decoder takes bytes with :meth:`FrameDecoder.feed` and
+returns :class:`Frame` and :class:`Malformed` events.  It is LEN-driven (DATA may contain ``III`` or
 ``/b/f``), resynchronises on the next ``/f/b`` after garbage, reports every byte
 it skips, and never buffers more than ``max_frame_size`` bytes of one frame or of
 one garbage run.  Feeding a stream whole or one byte at a time gives the same

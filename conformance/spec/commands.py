@@ -1,6 +1,6 @@
 """Load and validate the machine-readable specs under ``specs/``.
 
-The spec is data; the code is generic over it (STYLE.md, convention 2).  This
+The spec is data; the code is generic over it (docs/ARCHITECTURE.md).  This
 module turns the JSON files of one spec set (``commands.json``, ``errata.json``,
 ``error_codes.json``, ``semantics.json``) into frozen dataclasses and offers the
 look-ups the rest of the kit needs: by command ID, by name, by key (section).

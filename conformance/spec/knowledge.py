@@ -5,7 +5,7 @@ some commands *mean* (which queries report the arm's position, which setter a
 getter of another name reads back, which command IDs a controller sends on its
 own).  Both the emulator's state model (:mod:`conformance.twin.controller`) and the suite
 (:mod:`conformance.suite`) take that meaning from here, so neither holds a table
-of command names (STYLE.md, convention 2).  Nothing here keeps state.
+of command names (the spec is data: docs/ARCHITECTURE.md).  Nothing here keeps state.
 
 * :func:`derive_pairs`: the Set/Get pairs the specs reveal (``SetX``/``GetX``
   with parameters and return values of the same names, plus the explicit pairs

@@ -1,4 +1,4 @@
-"""Hypothesis strategies generated from the specs (STYLE.md, convention 10).
+"""Hypothesis strategies generated from the specs.
 
 Every strategy is a public function returning ``SearchStrategy[...]``; each
 docstring says what it generates and what it shrinks towards.
