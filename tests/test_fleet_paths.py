@@ -248,7 +248,9 @@ def test_a_damaged_recording_is_read_in_windows(
     assert again == [] and 600 < len(tables["frames"]) < 2000
     damage = named_damage(tmp_path, path)
     assert damage["windows"] == damage["one"]
-    assert bool(damage["windows"]) == (how == "flipped")
+    # Either loses data: a chunk that cannot be read, or the last one cut off.
+    assert damage["windows"]
+    assert ("the last record at offset" in damage["windows"][-1]) == (how == "cut")
 
 
 def _with_flaws(path: Path) -> Path:

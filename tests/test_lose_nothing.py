@@ -119,11 +119,13 @@ def test_an_unfinished_file_resyncs_at_the_next_chunk_header(good: Path, tmp_pat
     _corrupt(good, bad, 2, "length", cut=fourth + 50)  # cut inside chunk 4
     rec = read_recording(bad)
     assert not rec.complete and "ends inside a record" in rec.truncated
-    # Chunks 1 and 3 read; 2 damaged (how many messages: no index to say); 4 cut off.
+    # Chunks 1 and 3 read; 2 damaged (how many messages: no index to say); 4 cut off,
+    # named as lost too (an unfinished file's last record).
     cnts = sorted({f.cnt for f in rec.frames})
     assert cnts == list(range(PER_CHUNK)) + list(range(2 * PER_CHUNK, 3 * PER_CHUNK))
-    assert [d.lost for d in rec.damage] == [None]
+    assert [d.lost for d in rec.damage] == [None, None]
     assert "an unknown number of messages are lost" in str(rec.damage[0])
+    assert str(rec.damage[1]).startswith(f"the last record at offset {fourth}: ")
 
 
 def test_check_info_recover_say_what_was_lost_and_exit_damaged(good: Path, tmp_path: Path) -> None:

@@ -10,7 +10,7 @@ import functools
 import sys
 from pathlib import Path
 
-from ..errors import EXIT_DAMAGED, UsageError
+from ..errors import EXIT_DAMAGED, EXIT_ERROR, UsageError
 from ..judge.judge import Judge
 from ..spec.firmware import SoftwareVersion
 from .judging import add_judge_options, judge_from
@@ -111,7 +111,7 @@ def _run_export(args: argparse.Namespace) -> int:
         raise UsageError(f"--jobs {args.jobs}: at least 1")
     paths = expand_inputs(args.recordings)
     judge_for = functools.partial(_judge_for, argparse.Namespace(**vars(args)))
-    damaged = 0
+    damaged = failed = 0
     totals: dict[str, int] = {}
     skipped = 0
     for r in export_many(
@@ -125,7 +125,19 @@ def _run_export(args: argparse.Namespace) -> int:
     ):
         for d in r.damage:
             print(f"damaged: {r.recording}: {d}", file=sys.stderr)
+        if r.unfinished:
+            print(
+                f"unfinished: {r.recording}: {r.unfinished} (exported as far as it reads; "
+                "`recover` rewrites it)",
+                file=sys.stderr,
+            )
         damaged += bool(r.damage)
+        if r.error:  # it costs only itself: the others are exported
+            print(f"not exported: {r.error}", file=sys.stderr)
+            failed += 1
+            if args.json:
+                print(json.dumps(r.to_json()))
+            continue
         if args.json:
             print(json.dumps(r.to_json()))
         elif r.skipped:
@@ -140,10 +152,13 @@ def _run_export(args: argparse.Namespace) -> int:
         for t, n in r.rows.items():
             totals[t] = totals.get(t, 0) + n
     if not args.json:
+        not_read = f", {failed} not exported (above)" if failed else ""
         print(
-            f"{len(paths)} recordings ({skipped} already there) into {args.out}: "
+            f"{len(paths)} recordings ({skipped} already there{not_read}) into {args.out}: "
             + ", ".join(f"{n} {t}" for t, n in totals.items())
         )
+    if failed:
+        return EXIT_ERROR
     return EXIT_DAMAGED if damaged else 0
 
 

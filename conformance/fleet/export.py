@@ -30,13 +30,12 @@ from ..errors import FileError, UsageError
 from ..judge.judge import Judge
 from ..offline.engine import WINDOW, Engine, Source
 from ..offline.firmware import recorded_version
-from ..pcap.importer import opened
+from ..pcap.importer import RECORDING_SUFFIXES, opened
 from .rows import Rows
 from .schema import SCHEMA_VERSION, TABLES, partition_value
 from .table import Table
 
 __all__ = [
-    "RECORDING_SUFFIXES",
     "ExportResult",
     "JudgeFor",
     "expand_inputs",
@@ -45,8 +44,6 @@ __all__ = [
     "open_dataset",
 ]
 
-#: What a directory given as input is searched for (recursively).
-RECORDING_SUFFIXES = (".mcap", ".pcap", ".pcapng", ".cap", ".pcap.gz", ".pcapng.gz")
 
 #: The judge for a firmware version (None: the traffic names none): the front-end's choice
 #: of spec set and dialects, as ``check`` makes it.  Must pickle for ``jobs`` > 1.
@@ -66,7 +63,14 @@ class ExportResult:
     rows: dict[str, int] = field(default_factory=dict)
     #: Already in the dataset: nothing written.
     skipped: bool = False
+    #: What could not be read (the rows hold the rest).
     damage: list[str] = field(default_factory=list)
+    #: Why the recording ends before its summary (an unfinished one: ``recover``
+    #: rewrites it); empty for a finished one.
+    unfinished: str = ""
+    #: Why nothing of it could be exported (a file that is no recording, unreadable):
+    #: nothing is in the dataset, and another run tries it again.
+    error: str = ""
     seconds: float = 0.0
 
     def to_json(self) -> dict[str, Any]:
@@ -91,7 +95,9 @@ def expand_inputs(items: Sequence[str]) -> list[str]:
         else:
             raise UsageError(f"{item}: no such file or directory")
         if not found:
-            raise UsageError(f"{item}: names no recording (.mcap, .pcap, .pcapng)")
+            raise UsageError(
+                f"{item}: names no recording ({', '.join(RECORDING_SUFFIXES)})"
+            )
         out += found
     unique: dict[str, str] = {}
     for p in out:
@@ -216,6 +222,8 @@ class _Job:
             rows.begin(None)  # nothing of it is written
             raise
         self.result.damage = [str(d) for d in engine.damage]
+        if not engine.complete:
+            self.result.unfinished = engine.truncated or "the file ends without its footer"
         self._close(rows, engine.metadata)
 
     def _tables(self, md: Mapping[str, str], fw: str | None, judge: Judge) -> dict[str, Table]:
@@ -250,10 +258,15 @@ class _Job:
 
 
 def _one(args: tuple[str, str, JudgeFor, str | None, str | None, bool]) -> ExportResult:
+    """One recording of many: one that cannot be read at all costs only itself (its
+    result names why)."""
     path, out, judge_for, robot, firmware, data = args
-    return export_recording(
-        path, out, judge_for=judge_for, robot=robot, firmware=firmware, data=data
-    )
+    try:
+        return export_recording(
+            path, out, judge_for=judge_for, robot=robot, firmware=firmware, data=data
+        )
+    except (FileError, UsageError) as e:
+        return ExportResult(recording=path, recording_id="", error=str(e))
 
 
 def export_many(

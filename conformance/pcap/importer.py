@@ -38,14 +38,36 @@ _PCAP_MAGICS = (
 _PCAPNG_MAGIC = bytes.fromhex("0a0d0d0a")  # section header block
 
 
+#: The names a recording or a capture goes by, for a directory searched for them
+#: (``export-parquet DIR``); a file given by name is told by its magic bytes, whatever it is
+#: called (:func:`capture_format`).
+RECORDING_SUFFIXES = (".mcap", ".pcap", ".pcapng", ".cap", ".pcap.gz", ".pcapng.gz", ".cap.gz")
+_GZIP_MAGIC = b"\x1f\x8b"
+
+
 def capture_format(path: str | os.PathLike[str]) -> str | None:
-    """``mcap``, ``pcap`` or ``pcapng`` by the file's magic bytes (None: none of them)."""
+    """``mcap``, ``pcap`` or ``pcapng`` by the file's magic bytes, a gzip-compressed
+    capture's after decompressing them (None: none of them)."""
+    import gzip
+    import zlib
+
     p = os.fspath(path)
     try:
         with open(p, "rb") as f:
             head = f.read(8)
+            if head[:2] == _GZIP_MAGIC:
+                f.seek(0)
+                try:
+                    with gzip.GzipFile(fileobj=f) as g:
+                        head = g.read(8)
+                except (OSError, EOFError, zlib.error):
+                    return None  # gzip's header, then no capture: neither
+                if head == _MCAP_MAGIC:
+                    return None  # a compressed recording is not read (recordings are zstd'd)
     except FileNotFoundError:
         raise CaptureError(f"no such recording: {p}", path=str(p)) from None
+    except IsADirectoryError:
+        raise CaptureError(f"{p} is a directory, not a recording", path=str(p)) from None
     except OSError as e:
         raise CaptureError(f"cannot read {p}: {e.strerror or e}", path=str(p)) from None
     if head == _MCAP_MAGIC:

@@ -108,6 +108,7 @@ def _open(name: str) -> Any:
     from scapy.error import Scapy_Exception
     from scapy.utils import RawPcapReader
 
+    _check_section_header(name)
     try:
         return RawPcapReader(name)
     except FileNotFoundError:
@@ -115,6 +116,34 @@ def _open(name: str) -> Any:
     except (Scapy_Exception, EOFError, OSError, zlib.error) as e:
         # A .gz cut inside the header, or not gzip after all: the file's fault.
         raise CaptureError(f"{name}: {e}", path=name) from None
+
+
+def _check_section_header(name: str) -> None:
+    """A pcapng's first block (its section header) is read whole by scapy when it opens
+    the file, its length taken as the file gives it: one claiming gigabytes is refused
+    here, before anything is allocated (a classic pcap's header has a fixed size)."""
+    import gzip
+
+    try:
+        with open(name, "rb") as raw:
+            head = raw.read(12)
+            if head[:2] == b"\x1f\x8b":
+                raw.seek(0)
+                with gzip.GzipFile(fileobj=raw) as g:
+                    head = g.read(12)
+    except (OSError, EOFError, zlib.error):
+        return  # the reader says what is wrong with the file
+    if len(head) < 12 or head[:4] != b"\x0a\x0d\x0d\x0a":
+        return
+    order = "<" if head[8:12] == b"\x4d\x3c\x2b\x1a" else ">"
+    (length,) = struct.unpack(order + "I", head[4:8])
+    bound = _MAX_PACKET + _BLOCK_OVERHEAD
+    if length > bound:
+        raise CaptureError(
+            f"{name}: its section header block claims {length} bytes, past the bound of "
+            f"{bound} (a corrupt length)",
+            path=name,
+        )
 
 
 def _is_pcapng(reader: Any) -> bool:

@@ -208,11 +208,10 @@ class Walk:
         after_data_end = False
         while True:
             if pos + _HEAD.size > size:
-                self.stopped = (
-                    "the file ends without its footer"
-                    if pos == size
-                    else f"the file ends inside a record at offset {pos}"
-                )
+                if pos == size:
+                    self.stopped = "the file ends without its footer"
+                else:
+                    self._cut(pos, size - pos, after_data_end)
                 return
             f.seek(pos)
             opcode, length = _HEAD.unpack(f.read(_HEAD.size))
@@ -294,7 +293,7 @@ class Walk:
         if nxt is None and not after_data_end:
             nxt = self._scan(pos + 1)
         if nxt is None and cut and not self._index:
-            self.stopped = f"the file ends inside a record at offset {pos}"
+            self._cut(pos, self._size - pos, after_data_end)
             return None
         if after_data_end:
             # The summary (after the data): the messages are all read.
@@ -324,6 +323,24 @@ class Walk:
         if nxt is None:
             self.stopped = f"unreadable from offset {pos} on: {why}"
         return nxt
+
+    def _cut(self, pos: int, have: int, after_data_end: bool) -> None:
+        """The file ends inside the record at ``pos`` (``have`` of its bytes there): an
+        unfinished recording (:attr:`stopped`).  In the data, its last record, a chunk of
+        messages as a rule, is lost: damage, as any part that cannot be read; after the
+        data's end (in the summary), every message was read."""
+        self.stopped = f"the file ends inside a record at offset {pos}"
+        if after_data_end:
+            return
+        self.damage.append(
+            Damage(
+                where="the last record",
+                offset=pos,
+                reason=f"the file ends inside it ({have} of its bytes are there: an "
+                "unfinished recording)",
+                lost=None,
+            )
+        )
 
     def _indexed_messages(self, start: int, end: int) -> int | None:
         """Messages the message index records between ``start`` and ``end`` list."""
