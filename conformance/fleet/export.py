@@ -95,9 +95,7 @@ def expand_inputs(items: Sequence[str]) -> list[str]:
         else:
             raise UsageError(f"{item}: no such file or directory")
         if not found:
-            raise UsageError(
-                f"{item}: names no recording ({', '.join(RECORDING_SUFFIXES)})"
-            )
+            raise UsageError(f"{item}: names no recording ({', '.join(RECORDING_SUFFIXES)})")
         out += found
     unique: dict[str, str] = {}
     for p in out:
