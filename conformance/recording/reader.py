@@ -6,7 +6,7 @@ from __future__ import annotations
 import binascii
 import json
 import os
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -137,130 +137,6 @@ def _misfit(v: Any, schema: Mapping[str, Any], name: str, top: int = _INT_MAX) -
     return None
 
 
-def _fits(schema: Mapping[str, Any], top: int = _INT_MAX) -> Callable[[Any], bool]:
-    """A quick yes or no to ``_misfit(v, schema) is None`` (the reader asks it of every
-    message; :func:`_misfit` says what is wrong only after a no): the schema compiled
-    once to closures, a column of integers checked with one ``all`` and its ``min`` and
-    ``max``."""
-    t = schema.get("type")
-    allowed = frozenset([t] if isinstance(t, str) else t or ())
-    if "enum" in schema:
-        values = frozenset(schema["enum"])
-        return lambda v: type(v) is str and v in values
-    if allowed == {"integer"}:
-        return lambda v: type(v) is int and 0 <= v <= top
-    if allowed == {"string"}:
-        return lambda v: type(v) is str
-    if allowed == {"string", "null"}:
-        return lambda v: v is None or type(v) is str
-    if allowed == {"array"} and "items" in schema:
-        items = schema["items"]
-        it = items.get("type")
-        kinds: set[type] | None = (
-            {int}
-            if it == "integer"
-            else {str}
-            if it == "string"
-            else {str, type(None)}
-            if it == ["string", "null"]
-            else None
-        )
-        if kinds is not None and "enum" not in items:  # the element types, in C
-            if kinds == {int}:
-                return lambda v: (
-                    type(v) is list
-                    and set(map(type, v)) <= kinds
-                    and (not v or (min(v) >= 0 and max(v) <= top))
-                )
-            return lambda v: type(v) is list and set(map(type, v)) <= kinds
-        each = _fits(items, top)
-        return lambda v: type(v) is list and all(map(each, v))
-    if allowed == {"object"}:
-        return _object_fits(schema)
-    return lambda v: _misfit(v, schema, "", top) is None
-
-
-_NONE = type(None)
-
-
-def _object_fits(schema: Mapping[str, Any]) -> Callable[[Any], bool]:
-    """:func:`_fits` of an object: its properties grouped by kind (integers, text, enums,
-    columns of integers or text) and each group checked in a loop of its own, inline:
-    the reader asks this of every message."""
-    required = tuple(schema.get("required", ()))
-    ints: list[tuple[str, int]] = []
-    texts: list[str] = []
-    enums: list[tuple[str, frozenset[str]]] = []
-    int_cols: list[tuple[str, int]] = []
-    text_cols: list[tuple[str, frozenset[type]]] = []
-    others: list[tuple[str, Callable[[Any], bool]]] = []
-    for k, sub in schema.get("properties", {}).items():
-        top = _TIME_MAX if k.endswith("_ns") else _INT_MAX
-        t = sub.get("type")
-        it = sub.get("items", {}).get("type") if t == "array" else None
-        if "enum" in sub:
-            enums.append((k, frozenset(sub["enum"])))
-        elif t == "integer":
-            ints.append((k, top))
-        elif t == "string":
-            texts.append(k)
-        elif it == "integer" and "enum" not in sub["items"]:
-            int_cols.append((k, top))
-        elif it == "string" and "enum" not in sub["items"]:
-            text_cols.append((k, frozenset({str})))
-        elif it == ["string", "null"]:
-            text_cols.append((k, frozenset({str, _NONE})))
-        else:
-            others.append((k, _fits(sub, top)))
-
-    def fits(v: Any) -> bool:
-        if type(v) is not dict:
-            return False
-        for k in required:
-            if k not in v:
-                return False
-        for k, top in ints:
-            x = v.get(k, 0)
-            if type(x) is not int or not 0 <= x <= top:
-                return False
-        for k in texts:
-            if type(v.get(k, "")) is not str:
-                return False
-        for k, values in enums:
-            if k in v and (type(v[k]) is not str or v[k] not in values):
-                return False
-        for k, top in int_cols:
-            col = v.get(k)
-            if col is None:
-                continue
-            if type(col) is not list:
-                return False
-            if len(col) < 8:  # most batches hold a frame or two: a loop costs least
-                for x in col:
-                    if type(x) is not int or x < 0 or x > top:
-                        return False
-            elif not set(map(type, col)) <= _INT or min(col) < 0 or max(col) > top:
-                return False
-        for k, kinds in text_cols:
-            col = v.get(k)
-            if col is None:
-                continue
-            if type(col) is not list:
-                return False
-            if len(col) < 8:
-                for x in col:
-                    if type(x) not in kinds:
-                        return False
-            elif not set(map(type, col)) <= kinds:
-                return False
-        return all(k not in v or fit(v[k]) for k, fit in others)
-
-    return fits
-
-
-_INT = frozenset({int})
-
-
 #: The JSON topics read here and the schema their messages must fit.
 _SCHEMA_OF_TOPIC = {
     TOPIC_PROBLEMS: SCHEMAS["fairino.Problem"],
@@ -268,7 +144,6 @@ _SCHEMA_OF_TOPIC = {
 }
 
 
-_FITS = {topic: _fits(schema) for topic, schema in _SCHEMA_OF_TOPIC.items()}
 #: Every topic the reader reads (a message on any other is not the reader's: skipped, unnamed).
 READ_TOPICS = frozenset((*_SCHEMA_OF_TOPIC, TOPIC_STATE, TOPIC_FRAMES))
 
@@ -282,9 +157,9 @@ def _record_of(topic: str, doc: Any) -> ProblemRecord | ConnectionRecord | State
     try:
         if topic == TOPIC_STATE:  # its schema comes from the spec set's state layouts
             return StateRecord.from_json(doc)
-        if not _FITS[topic](doc):
-            why = _misfit(doc, _SCHEMA_OF_TOPIC[topic], "the message")
-            raise ValueError(why or "it does not fit its schema")
+        why = _misfit(doc, _SCHEMA_OF_TOPIC[topic], "the message")
+        if why is not None:
+            raise ValueError(why)
         if topic == TOPIC_PROBLEMS:
             return ProblemRecord.from_json(doc)
         return ConnectionRecord.from_json(doc)
