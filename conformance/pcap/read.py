@@ -317,150 +317,184 @@ def _classic_blocks(reader: Any, damage: list[CaptureDamage]) -> Iterator[Record
     ``damage`` and reading goes on at the next offset where a record header and the
     one after it are plausible (:func:`_resync`); a file cut inside a record, or a
     ``.gz`` cut short or corrupt, is named too."""
-    head = struct.Struct(reader.endian + "IIII").unpack_from
-    mult = 1 if reader.nano else 1000
-    fmax = 1_000_000_000 if reader.nano else 1_000_000
-    linktype = reader.linktype
-    f = reader.f
-    broken: list[str] = []
-    taken = [24]  # bytes of the (decompressed) file read so far
+    return _Classic(reader, damage).blocks()
 
-    def read(n: int) -> bytes:
-        if broken:
-            return b""
-        try:
-            data: bytes = f.read(n)
-        except (EOFError, OSError, zlib.error) as e:  # a .gz cut short or corrupt
-            broken.append(f"the file cannot be read on ({type(e).__name__}: {e})")
-            # gzip's read loses what it decompressed in the call that failed: that
-            # much is decompressed again, as far as it goes.
-            return _gunzip_rest(reader.filename, taken[0]) if hasattr(f, "fileobj") else b""
-        taken[0] += len(data)
-        return data
 
-    buf = b""
-    pos = 0
-    off = 24  # the file offset of buf[0] (after the 24-byte file header)
-    n_rec = 0  # records read
-    sec = 0  # the last good record's seconds
-    little = reader.endian == "<"
-    caplen_at = struct.Struct(reader.endian + "I").unpack_from
-    import numpy as np  # here, not at the top: `replay`, `check` and `info` start without it
+class _Classic:
+    """The reading of one classic pcap's records (:func:`_classic_blocks`): a buffer of
+    the file's bytes, where it is in the file, and what was read."""
 
-    fields = np.dtype(reader.endian + "u4")
-    header = np.arange(16)  # a record header's bytes, to gather a block's headers as columns
+    def __init__(self, reader: Any, damage: list[CaptureDamage]) -> None:
+        import numpy as np  # here, not at the top: `replay`, `check` and `info` start without it
 
-    def block(b: bytes, offsets: list[int]) -> RecordBlock:
-        return RecordBlock(linktype=linktype, little=little, mult=mult, buf=b, offsets=offsets)
+        self.reader, self.damage = reader, damage
+        self.head = struct.Struct(reader.endian + "IIII").unpack_from
+        self.caplen_at = struct.Struct(reader.endian + "I").unpack_from
+        self.mult = 1 if reader.nano else 1000
+        self.fmax = 1_000_000_000 if reader.nano else 1_000_000
+        self.little = reader.endian == "<"
+        self.fields = np.dtype(reader.endian + "u4")
+        self.header = np.arange(16)  # a record header's bytes, gathered as columns
+        self.broken = ""  # why the file cannot be read on (a .gz cut short or corrupt)
+        self.taken = 24  # bytes of the (decompressed) file read so far
+        self.buf = b""
+        self.pos = 0
+        self.off = 24  # the file offset of buf[0] (after the 24-byte file header)
+        self.records = 0  # records read
+        self.sec = 0  # the last good record's seconds
 
-    def one(s: int, frac: int, data: bytes) -> RecordBlock:  # a record made whole, alone
-        n = len(data)
-        return block(struct.pack(reader.endian + "IIII", s, frac, n, n) + data, [0])
-
-    with reader:
-        while True:
-            n = len(buf)
-            offsets: list[int] = []
-            take = offsets.append
-            while pos + 16 <= n:  # the records wholly in the buffer
-                (caplen,) = caplen_at(buf, pos + 8)
-                end = pos + 16 + caplen
-                if end > n or caplen > _MAX_PACKET:
-                    break
-                take(pos)
-                pos = end
-            if offsets:
-                # The headers' other fields, column by column: a record that cannot be
-                # right ends the block (it is read below, as the damage it is).
-                at = np.array(offsets, dtype=np.int64)
-                cols = np.frombuffer(buf, np.uint8)[at[:, None] + header].view(fields)
-                bad = np.flatnonzero((cols[:, 2] > cols[:, 3]) | (cols[:, 1] >= fmax))
-                if len(bad):
-                    j = int(bad[0])
-                    pos = offsets[j]
-                    del offsets[j:]
-                if offsets:
-                    n_rec += len(offsets)
-                    sec = int(cols[len(offsets) - 1, 0])
-                    yield block(buf, offsets)
-            buf = buf[pos:]
-            off += pos
-            pos = 0
-            if len(buf) < 16:
-                more = read(_CHUNK)
-                if not more:
-                    # The end (or a record header cut short: nothing follows).
-                    where = off + len(buf)
-                    if broken:
-                        damage.append(
-                            CaptureDamage(record=0, offset=where, reason=broken[0], skipped=None)
-                        )
-                    elif buf:
-                        damage.append(
-                            CaptureDamage(
-                                record=n_rec + 1,
-                                offset=off,
-                                reason=f"the file ends inside its header ({len(buf)} of 16 bytes)",
-                                skipped=None,
-                            )
-                        )
-                    return
-                buf += more
-                continue
-            s, frac, caplen, wirelen = head(buf, 0)
-            why = _implausible(frac, caplen, wirelen, fmax)
-            if why:
-                # A length (or time) that cannot be right: the next record that reads.
-                buf, skipped = _resync(buf, read, head, fmax, sec if n_rec else None)
-                damage.append(
-                    CaptureDamage(record=n_rec + 1, offset=off, reason=why, skipped=skipped)
-                )
-                if skipped is None:
-                    if broken:
-                        damage.append(
-                            CaptureDamage(record=0, offset=off, reason=broken[0], skipped=None)
-                        )
-                    return
-                off += skipped
-                continue
-            # A record the buffer holds only the start of (or longer than the bound).
-            want = 16 + min(caplen, _MAX_PACKET)
-            while len(buf) < want:
-                more = read(max(want - len(buf), _CHUNK))
-                if not more:
+    def blocks(self) -> Iterator[RecordBlock]:
+        with self.reader:
+            while True:
+                yield from self._whole()
+                self.buf = self.buf[self.pos :]
+                self.off += self.pos
+                self.pos = 0
+                if len(self.buf) < 16:
+                    if not self._refill():
+                        return
+                    continue
+                s, frac, caplen, wirelen = self.head(self.buf, 0)
+                why = _implausible(frac, caplen, wirelen, self.fmax)
+                if why:
+                    if not self._resync(why):
+                        return
+                    continue
+                if not self._fill(16 + min(caplen, _MAX_PACKET)):
                     # The file ends inside this record: its bytes are the last packet
                     # (as scapy's reader gives them), and nothing follows.
-                    damage.append(
-                        CaptureDamage(
-                            record=n_rec + 1,
-                            offset=off,
-                            reason=broken[0]
-                            if broken
-                            else f"the file ends inside it ({len(buf) - 16} of {caplen} bytes)",
-                            skipped=None,
-                        )
+                    self._lost(
+                        self.records + 1,
+                        self.off,
+                        self.broken
+                        or f"the file ends inside it ({len(self.buf) - 16} of {caplen} bytes)",
                     )
-                    n_rec += 1
-                    yield one(s, frac, buf[16:])
+                    self.records += 1
+                    yield self._one(s, frac, self.buf[16:])
                     return
-                buf += more
-            if caplen <= _MAX_PACKET:
-                continue  # whole in the buffer now
-            data = buf[16:want]
-            skip = caplen - (want - 16)
-            off += want + skip
-            if len(buf) - want >= skip:
-                buf = buf[want + skip :]
-            else:
-                skip -= len(buf) - want
-                buf = b""
-                while skip > 0:  # what is beyond the bound, in bounded reads
-                    got = len(read(min(skip, _CHUNK)))
-                    if not got:
-                        break
-                    skip -= got
-            n_rec += 1
-            yield one(s, frac, data)
+                if caplen > _MAX_PACKET:
+                    self.records += 1
+                    yield self._one(s, frac, self._cut_long(caplen))
+
+    def _read(self, n: int) -> bytes:
+        if self.broken:
+            return b""
+        try:
+            data: bytes = self.reader.f.read(n)
+        except (EOFError, OSError, zlib.error) as e:  # a .gz cut short or corrupt
+            self.broken = f"the file cannot be read on ({type(e).__name__}: {e})"
+            # gzip's read loses what it decompressed in the call that failed: that
+            # much is decompressed again, as far as it goes.
+            f = self.reader.f
+            return _gunzip_rest(self.reader.filename, self.taken) if hasattr(f, "fileobj") else b""
+        self.taken += len(data)
+        return data
+
+    def _lost(self, record: int, offset: int, reason: str, skipped: int | None = None) -> None:
+        self.damage.append(
+            CaptureDamage(record=record, offset=offset, reason=reason, skipped=skipped)
+        )
+
+    def _block(self, b: bytes, offsets: list[int]) -> RecordBlock:
+        return RecordBlock(
+            linktype=self.reader.linktype,
+            little=self.little,
+            mult=self.mult,
+            buf=b,
+            offsets=offsets,
+        )
+
+    def _one(self, s: int, frac: int, data: bytes) -> RecordBlock:
+        """A record made whole, alone."""
+        n = len(data)
+        return self._block(struct.pack(self.reader.endian + "IIII", s, frac, n, n) + data, [0])
+
+    def _whole(self) -> Iterator[RecordBlock]:
+        """The records wholly in the buffer, as one block; a record that cannot be right
+        ends it (read next, as the damage it is)."""
+        import numpy as np
+
+        buf, pos, caplen_at = self.buf, self.pos, self.caplen_at
+        n = len(buf)
+        offsets: list[int] = []
+        take = offsets.append
+        while pos + 16 <= n:
+            (caplen,) = caplen_at(buf, pos + 8)
+            end = pos + 16 + caplen
+            if end > n or caplen > _MAX_PACKET:
+                break
+            take(pos)
+            pos = end
+        self.pos = pos
+        if not offsets:
+            return
+        # The headers' other fields, column by column.
+        at = np.array(offsets, dtype=np.int64)
+        cols = np.frombuffer(buf, np.uint8)[at[:, None] + self.header].view(self.fields)
+        bad = np.flatnonzero((cols[:, 2] > cols[:, 3]) | (cols[:, 1] >= self.fmax))
+        if len(bad):
+            j = int(bad[0])
+            self.pos = offsets[j]
+            del offsets[j:]
+        if offsets:
+            self.records += len(offsets)
+            self.sec = int(cols[len(offsets) - 1, 0])
+            yield self._block(buf, offsets)
+
+    def _refill(self) -> bool:
+        """More of the file after a buffer too short for a header; False at the end (or a
+        record header cut short: nothing follows), named when something is lost."""
+        more = self._read(_CHUNK)
+        if more:
+            self.buf += more
+            return True
+        if self.broken:
+            self._lost(0, self.off + len(self.buf), self.broken)
+        elif self.buf:
+            why = f"the file ends inside its header ({len(self.buf)} of 16 bytes)"
+            self._lost(self.records + 1, self.off, why)
+        return False
+
+    def _resync(self, why: str) -> bool:
+        """A length (or time) that cannot be right: on to the next record that reads
+        (False: none does)."""
+        sec = self.sec if self.records else None
+        self.buf, skipped = _resync(self.buf, self._read, self.head, self.fmax, sec)
+        self._lost(self.records + 1, self.off, why, skipped)
+        if skipped is None:
+            if self.broken:
+                self._lost(0, self.off, self.broken)
+            return False
+        self.off += skipped
+        return True
+
+    def _fill(self, want: int) -> bool:
+        """The buffer holds ``want`` bytes (False: the file ends first)."""
+        while len(self.buf) < want:
+            more = self._read(max(want - len(self.buf), _CHUNK))
+            if not more:
+                return False
+            self.buf += more
+        return True
+
+    def _cut_long(self, caplen: int) -> bytes:
+        """A record longer than the bound: its first ``_MAX_PACKET`` bytes; the rest is
+        skipped, in bounded reads."""
+        want = 16 + _MAX_PACKET
+        data = self.buf[16:want]
+        skip = caplen - _MAX_PACKET
+        self.off += want + skip
+        if len(self.buf) - want >= skip:
+            self.buf = self.buf[want + skip :]
+            return data
+        skip -= len(self.buf) - want
+        self.buf = b""
+        while skip > 0:
+            got = len(self._read(min(skip, _CHUNK)))
+            if not got:
+                break
+            skip -= got
+        return data
 
 
 def _gunzip_rest(name: str, skip: int) -> bytes:
