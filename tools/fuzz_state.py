@@ -17,9 +17,14 @@ must give:
 * a valid packet (checksum right) decodes to fields that encode back to its bytes
   (checked on one input in ten: it is the slowest check).
 
+One input in ten is a flood of stray headers with packets among them, of known layouts
+and of unknown LENs with a right checksum (the decoder's vector scan,
+``conformance/protocol/state_scan.py``, decides those).
+
 Then time must be linear in the input: hostile streams (random bytes, stray headers
-with the longest LEN the decoder waits for, valid packets a byte at a time) of 256 KB,
-512 KB and 1 MB are timed, with the ratio of each doubling (near 2 when linear).
+with the longest LEN the decoder waits for in feeds of 64 B to 64 KiB, 0x5A only, valid
+packets a byte at a time) of 256 KB, 512 KB and 1 MB are timed, with the ratio of each
+doubling (near 2 when linear) and the MB/s.
 
 Prints inputs, packets and problems seen, unexpected exceptions and broken invariants
 (the first example of each), inputs/s and wall time; exits 1 if there was any.
@@ -46,6 +51,7 @@ from conformance.protocol.state import (
     StatePacket,
     StateProblem,
     StateProblemKind,
+    checksum,
     encode_state,
 )
 from conformance.protocol.state_layout import StateLayout
@@ -72,6 +78,8 @@ def make_input(rnd: random.Random, layouts: tuple[StateLayout, ...]) -> tuple[by
         n = rnd.choice([0, 1, 2, 5, 7, 64, 500, 3000])
         alphabet = rnd.choice([b"\x5a", b"\x5a\x00", b"\x5a\x5a\x00\x10", bytes(range(256))])
         return bytes(rnd.choice(alphabet) for _ in range(n)), []
+    if kind < 0.1:  # a flood of stray headers, packets of known and unknown LENs among them
+        return _stray_flood(rnd, layouts)
     packets = []
     out = b""
     for _ in range(rnd.choice([1, 1, 2, 3])):
@@ -104,6 +112,31 @@ def make_input(rnd: random.Random, layouts: tuple[StateLayout, ...]) -> tuple[by
         else:
             del data[rnd.randrange(len(data)) :]  # cut
     return bytes(data), packets
+
+
+def _stray_flood(rnd: random.Random, layouts: tuple[StateLayout, ...]) -> tuple[bytes, list[bytes]]:
+    """Stray headers (a LEN the decoder waits for, or one it does not), 0x5A runs, and
+    packets: valid ones of a known layout, and ones of an unknown LEN with a right checksum
+    (the vector scan's two sides: a checksum that fails and one that holds)."""
+    out = b""
+    packets = []
+    for _ in range(rnd.randrange(1, 40)):
+        r = rnd.random()
+        if r < 0.5:
+            length = rnd.choice([0, 1, 7, 100, DEFAULT_MAX_LENGTH, DEFAULT_MAX_LENGTH + 1])
+            out += b"\x5a\x5a" + bytes([rnd.randrange(256)]) + struct.pack("<H", length)
+        elif r < 0.6:
+            out += b"\x5a" * rnd.randrange(1, 8)
+        elif r < 0.8:
+            p = encode_state(rnd.choice(layouts), {}, cnt=rnd.randrange(256))
+            packets.append(p)
+            out += p
+        else:
+            length = rnd.choice([0, 3, 50, DEFAULT_MAX_LENGTH])
+            head = b"\x5a\x5a" + bytes([rnd.randrange(256)]) + struct.pack("<H", length)
+            body = rnd.randbytes(length)
+            out += head + body + struct.pack("<H", checksum(head + body))
+    return out, packets
 
 
 def summary(events: list[StateEvent]) -> list[tuple[object, ...]]:
@@ -180,6 +213,9 @@ def linear_time() -> list[str]:
     streams = {
         "random bytes, whole": (bytes(rnd.randrange(256) for _ in range(1 << 20)), 1 << 20),
         f"stray headers with LEN {DEFAULT_MAX_LENGTH}, 4 KiB feeds": (stray, 4096),
+        f"stray headers with LEN {DEFAULT_MAX_LENGTH}, 64 B feeds": (stray, 64),
+        f"stray headers with LEN {DEFAULT_MAX_LENGTH}, 64 KiB feeds": (stray, 65536),
+        "0x5A only, 64 KiB feeds": (b"\x5a" * (1 << 20), 65536),
         "valid packets, 1 byte a feed": (valid, 1),
     }
     lines = []
