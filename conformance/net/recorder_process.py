@@ -38,7 +38,7 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
-from ..recording.layout import C2S, S2C, DirectionText
+from ..recording.layout import C2S, S2C, STATE_STREAM, DirectionText
 from ..recording.recorder import StreamRecorder
 from ..recording.records import FrameRecord
 from ..recording.rotating import RotatingWriter
@@ -57,8 +57,11 @@ _DIR_NAME: tuple[DirectionText, DirectionText] = (C2S, S2C)
 _F_SETPIPE_SZ = 1031  # Linux fcntl: grow the pipe (1 MiB, the unprivileged maximum)
 _PIPE_SIZE = 1 << 20
 # Counters the recorder process keeps in shared memory: frames, problems, bytes taken,
-# state packets, bytes not recorded (taken after the file could not be written).
-_COUNTERS = struct.Struct("<qqqqq")
+# state packets, bytes not recorded (taken after the file could not be written), bytes of
+# state connections taken, bytes of state connections recorded as damage, bytes recorded
+# undecoded (the stop deadline passed).
+_COUNTERS = struct.Struct("<qqqqqqqq")
+_ZEROS = (0,) * 8
 # And one value the proxy writes there: when stopping, the time.monotonic() (one clock
 # for every process on the machine) after which the recorder stops decoding and
 # copies what is left to the file undecoded, so that a stop never waits on a backlog.
@@ -71,19 +74,19 @@ class RecorderCounters:
 
     def __init__(self, shared: mmap.mmap) -> None:
         self._shared = shared
-        self._final: tuple[int, int, int, int, int] | None = None
+        self._final: tuple[int, ...] | None = None
 
     def freeze(self) -> None:
         """Keep the last values: the shared memory is about to be closed."""
         self._final = self._get()
 
-    def _get(self) -> tuple[int, int, int, int, int]:
+    def _get(self) -> tuple[int, ...]:
         if self._final is not None:
             return self._final
         try:
-            return _COUNTERS.unpack_from(self._shared)  # type: ignore[return-value]
+            return _COUNTERS.unpack_from(self._shared)
         except ValueError:  # closed
-            return (0, 0, 0, 0, 0)
+            return _ZEROS
 
     @property
     def frames(self) -> int:
@@ -110,6 +113,22 @@ class RecorderCounters:
     def lost(self) -> int:
         """Payload bytes taken but not recorded: the file could not be written."""
         return self._get()[4]
+
+    @property
+    def state_taken(self) -> int:
+        """Payload bytes of state-port connections the recorder has taken from the pipe."""
+        return self._get()[5]
+
+    @property
+    def state_damaged(self) -> int:
+        """Bytes of state-port connections recorded as damage: garbage, truncated packets,
+        the client's bytes (problem records that hold them)."""
+        return self._get()[6]
+
+    @property
+    def undecoded(self) -> int:
+        """Bytes recorded undecoded: the recorder was still behind at the stop deadline."""
+        return self._get()[7]
 
 
 class RecorderProcess:
@@ -367,6 +386,9 @@ class _Recorder:
         self.tick = config["record_tick"]
         self.stop_timeout = config["stop_timeout"]
         self.taken = 0
+        #: Payload bytes of state connections taken (the proxy bounds their backlog).
+        self.state_taken = 0
+        self.state_conns: set[int] = set()
         self.error_sent = False
         #: The file could not be written (disk full, file too large...): what comes is
         #: taken from the pipe (the proxy must not stall) and counted, not recorded, and
@@ -507,6 +529,8 @@ class _Recorder:
         reads: list[tuple[int, DirectionText, int, bytes]] = []
         latest = self.latest_ns
         taken = 0
+        state_taken = 0
+        state_conns = self.state_conns
 
         def flush_reads() -> None:
             if reads:
@@ -527,6 +551,8 @@ class _Recorder:
                 latest = t_ns
             if kind == DATA:
                 taken += n
+                if conn in state_conns:
+                    state_taken += n
                 reads.append((conn, _DIR_NAME[d], t_ns, payload))
                 continue
             flush_reads()
@@ -536,8 +562,12 @@ class _Recorder:
                     taken += n
                     rec.datagram(conn, _DIR_NAME[d], t_ns, payload)
                 elif kind == OPEN:
-                    rec.open(conn, t_ns=t_ns, **json.loads(payload))
+                    doc = json.loads(payload)
+                    if doc.get("stream") == STATE_STREAM:
+                        state_conns.add(conn)
+                    rec.open(conn, t_ns=t_ns, **doc)
                 elif kind == CLOSE:
+                    state_conns.discard(conn)
                     rec.close(conn, t_ns=t_ns, reason=payload.decode("utf-8"))
                 elif kind == GAP:  # the proxy forwarded bytes it could not queue for us
                     gap = json.loads(payload)
@@ -550,6 +580,7 @@ class _Recorder:
                 self.fail(e)
         self.latest_ns = latest
         self.taken += taken
+        self.state_taken += state_taken
         flush_reads()
         del buf[:pos]
         if self.broken and not stop:  # it broke on the way: the rest is lost
@@ -580,13 +611,21 @@ class _Recorder:
         pos, end = 0, len(buf)
         stop = False
         while end - pos >= size:
-            kind, _, _, _, n = unpack(buf, pos)
+            kind, _, conn, _, n = unpack(buf, pos)
             if end - pos - size < n:
                 break
-            pos += size + n
+            at = pos + size
+            pos = at + n
             if kind in (DATA, DGRAM):
                 self.taken += n
                 self.lost += n
+                if kind == DATA and conn in self.state_conns:
+                    self.state_taken += n
+            elif kind == OPEN:
+                if json.loads(bytes(buf[at:pos])).get("stream") == STATE_STREAM:
+                    self.state_conns.add(conn)
+            elif kind == CLOSE:
+                self.state_conns.discard(conn)
             elif kind == STOP:
                 stop = True
                 break
@@ -600,7 +639,18 @@ class _Recorder:
             frames, problems, states = self.saved
         else:
             frames, problems, states = rec.frames, rec.problems, rec.state_packets
-        _COUNTERS.pack_into(self.shared, 0, frames, problems, self.taken, states, self.lost)
+        _COUNTERS.pack_into(
+            self.shared,
+            0,
+            frames,
+            problems,
+            self.taken,
+            states,
+            self.lost,
+            self.state_taken,
+            rec.state_damaged,
+            rec.undecoded_bytes,
+        )
         try:
             if self.out_frames:
                 self.status.send(("frames", list(self.out_frames)))
