@@ -41,6 +41,10 @@ _SPLIT_SIZE_HELP = (
 )
 
 
+#: ``--max-unrecorded``: a few hundred requests and their replies.
+DEFAULT_MAX_UNRECORDED = 64 << 10
+
+
 def _split_size(text: str) -> int:
     size = parse_size(text)
     if size < MIN_SPLIT_SIZE:
@@ -172,7 +176,17 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         help="when the recording cannot be written (disk full, file too large, I/O error), "
         "said at once either way: forward keeps forwarding, unrecorded, and says every "
         "second how many bytes are not recorded (the default: the proxy never stops a "
-        "cell); stop closes every connection and stops, so nothing passes unrecorded",
+        "cell); stop never lets more than --max-unrecorded bytes be forwarded ahead of the "
+        "file, reads nothing more once a write fails, closes every connection and stops",
+    )
+    p.add_argument(
+        "--max-unrecorded",
+        type=parse_size,
+        default=DEFAULT_MAX_UNRECORDED,
+        metavar="SIZE",
+        help="with --on-write-error stop: the most bytes forwarded that the file does not "
+        "hold yet (the recorder flushes at half of it; past it, reads wait for the flush); "
+        "what a failed write can leave forwarded but unrecorded (default 64K)",
     )
     add_specs_dir(p)
     add_label_options(p)
@@ -265,6 +279,8 @@ def _run_proxy(args: argparse.Namespace) -> int:
 
     if args.max_state_connections < 1:
         raise UsageError("--max-state-connections must be at least 1")
+    if args.max_unrecorded < 1:
+        raise UsageError("--max-unrecorded must be at least 1 byte")
 
     listen = parse_address(args.listen, default_port=18080, listen=True, option="--listen")
     upstream = parse_address(args.upstream, default_port=8080, option="--upstream")
@@ -325,6 +341,7 @@ def _run_proxy(args: argparse.Namespace) -> int:
             stop_timeout=args.stop_timeout,
             max_pending=args.max_pending,
             max_backlog=args.max_backlog,
+            max_unrecorded=args.max_unrecorded if args.on_write_error == "stop" else None,
         )
     except OSError as e:
         if e.filename is not None:  # the output file, not a socket
@@ -363,6 +380,18 @@ def _run_proxy(args: argparse.Namespace) -> int:
         except Exception as e:
             failure = e
     print(stop_line(proxy, state=state_upstream is not None), file=sys.stderr)
+    if proxy.max_unrecorded is not None and proxy.error is not None:
+        print(
+            f"proxy: {proxy.unrecorded} bytes were forwarded that the file does not hold "
+            f"(at most --max-unrecorded {proxy.max_unrecorded}: reads wait for the file, and "
+            "stopped at the failed write)"
+            + (
+                f"; {proxy.stats.udp_held} UDP datagrams recorded but not forwarded"
+                if proxy.stats.udp_held
+                else ""
+            ),
+            file=sys.stderr,
+        )
     if failure is not None:
         print(failure_line(failure), file=sys.stderr)
         return 2

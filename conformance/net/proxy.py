@@ -139,12 +139,15 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
         max_state_backlog: int | None = None,
         max_frame_size: int = DEFAULT_MAX_FRAME_SIZE,
         stop_timeout: float | None = None,
+        max_unrecorded: int | None = None,
         log: Callable[[str], None] | None = None,
     ) -> None:
         if max_frame_size < 64:
             raise ValueError("max_frame_size must be at least 64 bytes")
         if max_state_connections < 1:
             raise ValueError("max_state_connections must be at least 1")
+        if max_unrecorded is not None and max_unrecorded < 1:
+            raise ValueError("max_unrecorded must be at least 1 byte")
         if specs is None:
             from ..spec.commands import default_specs
 
@@ -163,6 +166,9 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
         self.record_tick = record_tick
         self.max_frame_size = max_frame_size
         self.stop_timeout = stop_timeout
+        #: The most bytes forwarded that the file does not hold yet (None: no bound); once
+        #: the recording fails, nothing more is read (``--on-write-error stop``).
+        self.max_unrecorded = max_unrecorded
         self.max_connections = (
             max_connections if max_connections is not None else default_max_connections()
         )
@@ -345,6 +351,11 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
         return self._open_pairs + len(self._state_pairs)
 
     @property
+    def unrecorded(self) -> int:
+        """Bytes read (and forwarded) that the file does not hold as of its last flush."""
+        return max(0, self._recorder.queued - self.recorder.flushed)
+
+    @property
     def state_backlog(self) -> int:
         """Bytes read from state connections and not yet taken by the recorder."""
         return self._state_read - self.recorder.state_taken
@@ -381,6 +392,7 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
                 "specs": self.specs,
                 "max_frame_size": self.max_frame_size,
                 "stop_timeout": self.stop_timeout,
+                "max_unrecorded": self.max_unrecorded,
             }
         )
 
@@ -407,13 +419,15 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
             while not self._stopping.is_set():
                 # The recorder fell behind: stop reading (writes go on) until it catches up.
                 paused = len(self._rec_buf) > self.max_backlog
+                if self.max_unrecorded is not None:
+                    paused |= self._unrecorded_budget() <= 0
                 if paused != self._reads_paused:
                     self._set_paused(paused)
                 if self._state_read != self._state_taken:
                     self._state_backlog_check()
                 self._reply_due = False
                 writable = False  # the pipe to the recorder has room again
-                quick = self._rec_buf or self._state_paused
+                quick = self._rec_buf or self._state_paused or self._reads_paused
                 for key, mask in sel.select(0.005 if quick else 0.25):
                     tag = key.data
                     # Forwarding first: a pair's event is the hot path.
@@ -477,6 +491,18 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
                 self._io_done.set()
 
     _rec_since = 0.0
+
+    def _unrecorded_budget(self) -> int:
+        """What may still be read and forwarded: ``max_unrecorded`` less the bytes read that
+        the file does not hold yet (the recorder flushes at half of it); 0 once the
+        recording has failed."""
+        assert self.max_unrecorded is not None
+        if self.error is not None or self._recorder.dead:
+            budget = 0
+        else:
+            budget = self.max_unrecorded - (self._recorder.queued - self.recorder.flushed)
+        self._read_budget = budget
+        return budget
 
     def _state_backlog_check(self) -> None:
         """The state connections read while the recorder is at most ``max_state_backlog``

@@ -42,6 +42,8 @@ class ProxyStats:
     #: behind (each run of them is a ``gap`` problem in the recording).
     udp_unrecorded: int = 0
     udp_unrecorded_bytes: int = 0
+    #: UDP datagrams recorded but not forwarded: more would have passed --max-unrecorded.
+    udp_held: int = 0
 
 
 class ProxyBase:

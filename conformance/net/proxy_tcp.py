@@ -74,6 +74,8 @@ class TcpForwarding(ProxyBase):
     _state_paused = False
     #: Bytes read from state connections so far (the recorder counts those it took).
     _state_read = 0
+    #: With ``max_unrecorded``: bytes that may still be read this turn (else None).
+    _read_budget: int | None = None
     _state_pairs: set[_Pair]
 
     def _set_paused(self, paused: bool) -> None:
@@ -197,8 +199,15 @@ class TcpForwarding(ProxyBase):
     def _recv(self, p: _Pair, *, from_client: bool) -> bool:
         """Read and forward; True if the pair's interests cannot have changed."""
         sock = p.client if from_client else p.upstream
+        size = _STATE_RECV if p.state else _RECV
+        budget = self._read_budget
+        if budget is not None:
+            # --on-write-error stop: never more forwarded than the file may lack.
+            if budget <= 0:
+                return True  # paused at the next turn
+            size = min(size, budget)
         try:
-            data = sock.recv(_STATE_RECV if p.state else _RECV)
+            data = sock.recv(size)
         except (BlockingIOError, InterruptedError):
             return True
         except OSError as e:
@@ -206,6 +215,8 @@ class TcpForwarding(ProxyBase):
             self._close_pair(p, f"{who} error: {e.strerror or e}")
             return False
         t = time.time_ns()
+        if budget is not None:
+            self._read_budget = budget - len(data)
         if p.state:
             self._state_read += len(data)  # every byte read is queued for the recorder
         if data and p.connected:

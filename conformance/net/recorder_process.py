@@ -59,14 +59,14 @@ _PIPE_SIZE = 1 << 20
 # Counters the recorder process keeps in shared memory: frames, problems, bytes taken,
 # state packets, bytes not recorded (taken after the file could not be written), bytes of
 # state connections taken, bytes of state connections recorded as damage, bytes recorded
-# undecoded (the stop deadline passed).
-_COUNTERS = struct.Struct("<qqqqqqqq")
-_ZEROS = (0,) * 8
+# undecoded (the stop deadline passed), bytes taken before the file's last whole flush.
+_COUNTERS = struct.Struct("<qqqqqqqqq")
+_ZEROS = (0,) * 9
 # And one value the proxy writes there: when stopping, the time.monotonic() (one clock
 # for every process on the machine) after which the recorder stops decoding and
 # copies what is left to the file undecoded, so that a stop never waits on a backlog.
 _STOP_AT = struct.Struct("<d")
-_STOP_AT_OFFSET = 64
+_STOP_AT_OFFSET = 128
 
 
 class RecorderCounters:
@@ -129,6 +129,12 @@ class RecorderCounters:
     def undecoded(self) -> int:
         """Bytes recorded undecoded: the recorder was still behind at the stop deadline."""
         return self._get()[7]
+
+    @property
+    def flushed(self) -> int:
+        """Payload bytes taken before the file's last whole flush: those the file holds
+        (but a frame a decoder held unfinished then)."""
+        return self._get()[8]
 
 
 class RecorderProcess:
@@ -385,7 +391,13 @@ class _Recorder:
         self.idle_ns = config["idle_resolve_ns"]
         self.tick = config["record_tick"]
         self.stop_timeout = config["stop_timeout"]
+        #: Flush once this many bytes taken are not in the file yet, half the proxy's
+        #: --max-unrecorded (None: every flush_interval only).
+        max_unrecorded = config.get("max_unrecorded")
+        self.flush_every = max(1, max_unrecorded // 2) if max_unrecorded else None
         self.taken = 0
+        #: ``taken`` as of the last whole flush (what the file holds).
+        self.flushed = 0
         #: Payload bytes of state connections taken (the proxy bounds their backlog).
         self.state_taken = 0
         self.state_conns: set[int] = set()
@@ -420,7 +432,7 @@ class _Recorder:
         """Between two decoder slices (see StreamRecorder): keep the flush promise,
         and once the proxy's stop deadline has passed, record the rest undecoded."""
         now = time.monotonic()
-        if now - self.last_flush >= self.flush_interval:
+        if self.flush_due(now):
             # Idle decisions use the newest arrival time taken from the pipe: the
             # recorder is behind, and the bytes still queued may complete a frame.
             self.flush(now, self.latest_ns)
@@ -438,6 +450,7 @@ class _Recorder:
     def flush(self, now: float, idle_now_ns: int) -> None:
         self.last_flush = now
         if not self.broken:
+            taken = self.taken  # bytes whose reads were recorded (see events())
             try:
                 self.rec.idle(idle_now_ns, self.idle_ns)
                 self.writer.flush()
@@ -445,7 +458,18 @@ class _Recorder:
                 self.fail(e)
             else:
                 self.saved = (self.rec.frames, self.rec.problems, self.rec.state_packets)
+                # Less what the decoders hold undecided (called between two slices of a
+                # read, they may hold bytes not counted yet: less still, never more).
+                self.flushed = max(self.flushed, taken - self.rec.undecided)
         self.publish()
+
+    def flush_due(self, now: float) -> bool:
+        """The flush promise: every flush_interval, and (``--on-write-error stop``) once
+        half of what the proxy may forward unrecorded is not in the file."""
+        if now - self.last_flush >= self.flush_interval:
+            return True
+        every = self.flush_every
+        return every is not None and self.taken - self.flushed >= every
 
     def run(self) -> None:
         import select
@@ -487,7 +511,7 @@ class _Recorder:
                 eof = True  # the proxy is gone (SIGKILL) and someone else holds the pipe
             self.publish()
             now = time.monotonic()
-            if now - self.last_flush >= self.flush_interval:
+            if self.flush_due(now):
                 self.flush(now, time.time_ns() if drained else self.latest_ns)
         if not stopped and not self.broken:
             try:
@@ -501,6 +525,7 @@ class _Recorder:
                 self.fail(e)
             else:
                 self.saved = (self.rec.frames, self.rec.problems, self.rec.state_packets)
+                self.flushed = self.taken
         if self.broken:
             self.saved = self.in_files()
         self.publish()
@@ -533,12 +558,17 @@ class _Recorder:
         state_conns = self.state_conns
 
         def flush_reads() -> None:
+            # ``taken`` counts the reads once recorded: a flush between two slices of
+            # them (checkpoint) must not count them as in the file.
+            nonlocal taken
             if reads:
                 try:
                     rec.reads(reads)
                 except Exception as e:
                     self.fail(e)
                 reads.clear()
+            self.taken += taken
+            taken = 0
 
         while end - pos >= size and not self.broken:
             kind, d, conn, t_ns, n = unpack(blob, pos)
@@ -559,8 +589,10 @@ class _Recorder:
             self.latest_ns = latest
             try:
                 if kind == DGRAM:
-                    taken += n
-                    rec.datagram(conn, _DIR_NAME[d], t_ns, payload)
+                    try:
+                        rec.datagram(conn, _DIR_NAME[d], t_ns, payload)
+                    finally:
+                        self.taken += n  # once recorded (a flush inside it counts it not)
                 elif kind == OPEN:
                     doc = json.loads(payload)
                     if doc.get("stream") == STATE_STREAM:
@@ -579,7 +611,6 @@ class _Recorder:
             except Exception as e:
                 self.fail(e)
         self.latest_ns = latest
-        self.taken += taken
         self.state_taken += state_taken
         flush_reads()
         del buf[:pos]
@@ -650,6 +681,7 @@ class _Recorder:
             self.state_taken,
             rec.state_damaged,
             rec.undecoded_bytes,
+            self.flushed,
         )
         try:
             if self.out_frames:
