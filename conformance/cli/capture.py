@@ -384,7 +384,7 @@ def _run_proxy(args: argparse.Namespace) -> int:
         print(
             f"proxy: {proxy.unrecorded} bytes were forwarded that the file does not hold "
             f"(at most --max-unrecorded {proxy.max_unrecorded}: reads wait for the file, and "
-            "stopped at the failed write)"
+            "none after the failed write)"
             + (
                 f"; {proxy.stats.udp_held} UDP datagrams recorded but not forwarded"
                 if proxy.stats.udp_held
