@@ -27,11 +27,16 @@ from conformance.net.emulator import EmulatorServer
 from conformance.net.proxy import RecordingProxy
 from conformance.protocol.decoder import decode_all
 from conformance.protocol.frame import Frame, encode_frame
-from conformance.protocol.state import DEFAULT_MAX_LENGTH
+from conformance.protocol.state import DEFAULT_MAX_LENGTH, encode_state
 from conformance.recording.reader import read_recording
+from conformance.spec.state import layout_for
 
 #: The re-probe's flood: stray headers, each with a LEN of 2048 that never validates.
 STRAY = b"\x5a\x5a\x00" + struct.pack("<H", DEFAULT_MAX_LENGTH) + b"\x01"
+
+
+def pkt(cnt: int) -> bytes:
+    return encode_state(layout_for("3.8.2"), {"robot_mode": 1}, cnt=cnt)
 
 
 def stray_flood(size: int) -> bytes:
@@ -204,3 +209,38 @@ def test_emulate_says_it_stopped_on_sigterm() -> None:
         proc.kill()
     assert proc.returncode == 0, err
     assert "stopped" in err
+
+
+# --------------------------------------------------------------------------- pcap round trip
+
+
+def test_export_then_import_keeps_who_closed_a_state_stream(tmp_path: Path) -> None:
+    """The controller closed its state stream inside a packet (``upstream closed``): a
+    ``truncated`` FAIL.  Exported, the client's FIN came first, so ``import-pcap`` read
+    ``client closed``, a cut the recorder's doing: the FAIL was gone."""
+    from conformance.offline.check import check_recording
+    from conformance.pcap.export import export_pcap
+    from conformance.pcap.importer import import_pcap
+    from conformance.recording.recorder import StreamRecorder
+    from conformance.recording.writer import RecordingWriter
+    from conformance.spec.commands import default_specs
+
+    out = tmp_path / "orig.mcap"
+    with RecordingWriter(out) as w:
+        rec = StreamRecorder(w)
+        rec.open(1, t_ns=1, client="127.0.0.1:40001", upstream="127.0.0.1:8083", stream="state")
+        rec.data(1, "s2c", 10, pkt(0) + pkt(1) + pkt(2)[:100])
+        rec.close(1, t_ns=20, reason="upstream closed")
+
+    def truncated(path: Path) -> list[str]:
+        report = check_recording(read_recording(path), default_specs(), side="controller")
+        return [c.detail for c in report.cases if c.id.endswith("state-truncated")]
+
+    assert truncated(out)
+    pcap = tmp_path / "x.pcap"
+    export_pcap(read_recording(out), pcap)
+    back = tmp_path / "back.mcap"
+    import_pcap(pcap, back, state_ports=[8083], guess=False)
+    closed = [c.reason for c in read_recording(back).connections if c.event == "close"]
+    assert closed == ["server closed"]
+    assert truncated(back) == truncated(out)
