@@ -8,9 +8,13 @@ is garbage at the close, what follows it decoded.
 
 from __future__ import annotations
 
+import importlib.util
 import random
 import struct
+import sys
 import zlib
+from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -23,7 +27,8 @@ from conformance.protocol.state import (
     checksum,
     encode_state,
 )
-from conformance.spec.state import decode_stream, layout_for, state_decoder
+from conformance.spec.state import decode_stream, known_layouts, layout_for, state_decoder
+from tests.examples import examples
 
 #: The re-probe's flood: stray headers, each with a LEN of 2048 that never validates.
 STRAY = b"\x5a\x5a\x00" + struct.pack("<H", DEFAULT_MAX_LENGTH) + b"\x01"
@@ -132,3 +137,27 @@ def test_an_unknown_len_packet_in_sequence_is_a_packet_of_no_layout() -> None:
         for e in events
     ]
     assert kinds == ["packet 0 3.8.2", "layout", "packet 1 None"]
+
+
+def _load_fuzz_state() -> Any:
+    path = Path(__file__).resolve().parent.parent / "tools" / "fuzz_state.py"
+    spec = importlib.util.spec_from_file_location("fairino_fuzz_state", path)
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_the_state_fuzzer_finds_nothing_on_a_small_seeded_corpus() -> None:
+    """tools/fuzz_state.py's inputs (stray floods among them), decoded whole and chunked
+    and, one in five here, recorded as a state port's stream (every byte kept, the damage
+    counted)."""
+    fuzz = _load_fuzz_state()
+    rnd = random.Random(35)
+    layouts = known_layouts()
+    for i in range(examples(400)):
+        data, packets = fuzz.make_input(rnd, layouts)
+        assert fuzz.check(data, packets, rnd, reencode=i % 10 == 0) is None, data[:80]
+        if i % 5 == 0:
+            assert fuzz.check_recorded(data, rnd) is None, data[:80]

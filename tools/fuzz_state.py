@@ -15,7 +15,10 @@ must give:
   truncated rest add up to the input's length;
 * the same events whole and chunked;
 * a valid packet (checksum right) decodes to fields that encode back to its bytes
-  (checked on one input in ten: it is the slowest check).
+  (checked on one input in ten: it is the slowest check);
+* one input in twenty, recorded as a state port's stream (:func:`check_recorded`): every
+  byte in a packet or a problem record at its offset, none over 64 KiB, and the damage the
+  stop line counts is the bytes no packet holds.
 
 One input in ten is a flood of stray headers with packets among them, of known layouts
 and of unknown LENs with a right checksum (the decoder's vector scan,
@@ -28,7 +31,7 @@ doubling (near 2 when linear) and the MB/s.
 
 Prints inputs, packets and problems seen, unexpected exceptions and broken invariants
 (the first example of each), inputs/s and wall time; exits 1 if there was any.
-``tests/test_state_decoder.py`` runs the same checks on a small seeded corpus.
+``tests/test_state_scan.py`` runs the same checks on a small seeded corpus.
 """
 
 from __future__ import annotations
@@ -55,9 +58,12 @@ from conformance.protocol.state import (
     encode_state,
 )
 from conformance.protocol.state_layout import StateLayout
+from conformance.recording.layout import C2S, PROBLEM_RAW_LIMIT, S2C
+from conformance.recording.recorder import StreamRecorder
+from conformance.recording.records import ProblemRecord, Record, StateRecord
 from conformance.spec.state import known_layouts, state_decoder
 
-__all__ = ["check", "make_input", "summary"]
+__all__ = ["check", "check_recorded", "make_input", "summary"]
 
 
 def _values(lay: StateLayout, rnd: random.Random) -> dict[str, object]:
@@ -204,6 +210,54 @@ def check(
     return None
 
 
+class _Sink:
+    """The records a state connection gives, kept in a list (no file)."""
+
+    batch_bytes = 1 << 20
+
+    def __init__(self) -> None:
+        self.records: list[Record] = []
+
+    def write_frames(self, frames: object) -> None:
+        raise AssertionError("a state connection gave frames")
+
+    def write(self, record: Record) -> None:
+        self.records.append(record)
+
+
+def check_recorded(data: bytes, rnd: random.Random) -> str | None:
+    """``data`` as a state port's stream (and a few client bytes) through the recorder, in
+    random reads: every byte is in a packet or a problem record, at its offset, each
+    record's raw at most 64 KiB, and the damage counted is the bytes no packet holds."""
+    sink = _Sink()
+    rec = StreamRecorder(sink)
+    rec.open(1, t_ns=1, client="127.0.0.1:1", upstream="127.0.0.1:8083", stream="state")
+    at, t = 0, 10
+    for n in _cuts(rnd, len(data)):
+        rec.data(1, S2C, t, data[at : at + n])
+        at, t = at + n, t + 1
+        if rnd.random() < 0.01:
+            rec.data(1, C2S, t, b"hi")
+    rec.close(1, t_ns=t, reason="upstream closed")
+    pieces = sorted(
+        [(r.offset, r.raw) for r in sink.records if isinstance(r, StateRecord)]
+        + [
+            (r.offset, r.raw)
+            for r in sink.records
+            if isinstance(r, ProblemRecord) and r.dir == S2C and r.raw
+        ]
+    )
+    if b"".join(raw for _, raw in pieces) != data:
+        return "recorded bytes differ from the stream"
+    if any(len(raw) > PROBLEM_RAW_LIMIT for _, raw in pieces):
+        return "a problem record holds more than 64 KiB"
+    in_packets = sum(len(r.raw) for r in sink.records if isinstance(r, StateRecord))
+    client = sum(r.size for r in sink.records if isinstance(r, ProblemRecord) and r.dir == C2S)
+    if rec.state_damaged != len(data) - in_packets + client:
+        return f"damage counted {rec.state_damaged}, not {len(data) - in_packets + client}"
+    return None
+
+
 def linear_time() -> list[str]:
     """Hostile streams at three sizes: seconds and the doubling ratios."""
     rnd = random.Random(7)
@@ -253,6 +307,8 @@ def main(argv: list[str] | None = None) -> int:
         data, packets = make_input(rnd, layouts)
         try:
             broke = check(data, packets, rnd, reencode=i % 10 == 0)
+            if broke is None and i % 20 == 0:
+                broke = check_recorded(data, rnd)
         except Exception as exc:
             broke = f"{type(exc).__name__}"
             first.setdefault(broke, f"{data[:80]!r}: {traceback.format_exc(limit=3)}")
