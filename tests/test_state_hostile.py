@@ -193,6 +193,26 @@ def test_idle_state_clients_never_lock_out_the_command_port() -> None:
         assert any("state-port connections already open" in d.reason for d in emu.dropped)
 
 
+def test_a_state_client_that_stops_reading_is_dropped_and_said() -> None:
+    """The state port's idle rule: a client sends nothing by the protocol, so what ends an
+    idle one is that it does not read (its buffers fill, a packet waits 2 s)."""
+    with EmulatorServer(state_port=0) as emu:
+        assert emu.state_address is not None
+        with socket.create_connection(emu.address) as c:  # 8 ms: the buffers fill fast
+            c.sendall(encode_frame(1, 1207, "SetStatePeriod(8083,8)"))
+            assert c.recv(4096)
+        s = socket.socket()
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        s.connect(emu.state_address)
+        with s:  # never read
+            assert emu.wait_for(
+                lambda: any("state port: read nothing" in d.reason for d in emu.dropped),
+                timeout=120,
+            )
+        (drop,) = [d for d in emu.dropped if d.kind == "idle"]
+        assert drop.reason.startswith("state port: read nothing: a state packet waited 2 s")
+
+
 def test_emulate_says_it_stopped_on_sigterm() -> None:
     proc = subprocess.Popen(
         [sys.executable, "-m", "conformance", "emulate", "--listen", "127.0.0.1:0"],

@@ -336,6 +336,7 @@ class EmulatorServer:
             changed=self._notify,
             backoff=_backoff("state port accept", lambda: f"{self.open_connections} open"),
             refused=self._state_refused,
+            stalled=self._state_stalled,
         )
         try:
             state.start()
@@ -520,6 +521,10 @@ class EmulatorServer:
         reason = f"refused: {n} state-port connections already open"
         self._record(Dropped(peer=peer, kind="limit", reason=reason), quiet=True)
         self._refusing_now(f"{n} state-port connections open (the maximum)")
+
+    def _state_stalled(self, peer: str, reason: str) -> None:
+        """The state port dropped a client that does not read (its idle rule)."""
+        self._record(Dropped(peer=peer, kind="idle", reason=f"state port: {reason}"))
 
     def _crash(self, delay: float) -> None:
         with self._lock:

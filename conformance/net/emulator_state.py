@@ -16,8 +16,8 @@ sends nothing by the protocol, so idle ones cannot be told apart, and they must 
 the command port out; a client refused at the limit is counted (:attr:`StatePort.refused`)
 and told to the emulator (``refused``).  The idle rule of the port is the reading: a client
 that does not read is dropped once a send has waited ``send_timeout`` seconds (its send
-buffer is kept small, ``STATE_SNDBUF``, so that comes soon); what a client sends is read
-and dropped.  The crash fault is the emulator's.
+buffer is kept small, ``STATE_SNDBUF``, so that comes soon), and told to the emulator
+(``stalled``); what a client sends is read and dropped.  The crash fault is the emulator's.
 """
 
 from __future__ import annotations
@@ -79,6 +79,7 @@ class StatePort:
         backoff: Backoff,
         send_timeout: float = SEND_TIMEOUT,
         refused: Callable[[str], None] | None = None,
+        stalled: Callable[[str, str], None] | None = None,
     ) -> None:
         self.version = layout_for(version).version
         self.plan = StateFaults.of(faults)
@@ -93,6 +94,7 @@ class StatePort:
         self._changed = changed
         self._backoff = backoff
         self._on_refused = refused
+        self._on_stalled = stalled
         self.send_timeout = send_timeout
         self._sock: socket.socket | None = None
         #: Packets sent, over all clients (tests wait on it through the emulator).
@@ -155,6 +157,11 @@ class StatePort:
         try:
             conn.settimeout(self.send_timeout)
             self._stream(conn)
+        except TimeoutError:  # the port's idle rule: a client that does not read
+            if self._on_stalled is not None and not self._stop.is_set():
+                self._on_stalled(
+                    peer, f"read nothing: a state packet waited {self.send_timeout:g} s to be sent"
+                )
         except OSError:
             pass  # the client went away, or close() shut the socket
         finally:
