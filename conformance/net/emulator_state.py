@@ -40,9 +40,11 @@ __all__ = ["StatePort", "served_layout"]
 
 #: Seconds a send may wait on a client that does not read before it is dropped.
 SEND_TIMEOUT = 2.0
-#: A state connection's send buffer (bytes; the kernel may double it): a client that
-#: stops reading fills it, and its own receive buffer, within seconds at the usual period.
-STATE_SNDBUF = 16 * 1024
+#: A state connection's send buffer (bytes; the kernel doubles it), instead of one the
+#: kernel grows to megabytes: a client that stops reading fills it, and its own receive
+#: buffer, within a minute at the default period (100 ms) and seconds at 8 ms, while a
+#: reader a few hundred ms late on a loaded machine does not make the port wait.
+STATE_SNDBUF = 64 * 1024
 _POLL = 0.2  # the longest wait between looks at the stop event
 
 #: (fields, period in ms) of the model now, read under the emulator's lock.
