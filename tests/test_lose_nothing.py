@@ -588,6 +588,29 @@ def test_on_write_error_stop_forwards_no_more_than_max_unrecorded(tmp_path: Path
     assert (answered[0] - in_file) * request_size <= bound, (answered[0], in_file)
 
 
+def test_a_frame_begun_does_not_stop_a_bounded_proxy(tmp_path: Path) -> None:
+    """``max_unrecorded``: a client that sends half of a large frame and waits holds its
+    bytes in the recorder's decoder, not yet in the file; counted against the bound, they
+    stopped every read of the proxy (its decoder waited for bytes no read would bring)."""
+    import socket
+
+    from conformance.net.emulator import EmulatorServer
+    from conformance.net.proxy import RecordingProxy
+
+    with (
+        EmulatorServer() as emu,
+        RecordingProxy(
+            emu.address, out=tmp_path / "r.mcap", flush_interval=3600, max_unrecorded=16 * 1024
+        ) as proxy,
+        socket.create_connection(proxy.address, timeout=60) as half,
+    ):
+        half.sendall(b"/f/bIII1III905III200000III" + b"7" * 100_000)  # and waits
+        for k in range(40):  # 40 more than the bound in all
+            with socket.create_connection(proxy.address, timeout=60) as c:
+                c.sendall(encode_frame(k + 1, 905, "GetSoftwareVersion()" + " " * 400))
+                assert c.recv(4096)
+
+
 def _rss_kb(pid: int) -> int:
     with open(f"/proc/{pid}/status") as f:
         return int(f.read().split("VmRSS:")[1].split()[0])

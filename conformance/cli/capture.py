@@ -186,7 +186,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         metavar="SIZE",
         help="with --on-write-error stop: the most bytes forwarded that the file does not "
         "hold yet (the recorder flushes at half of it; past it, reads wait for the flush); "
-        "what a failed write can leave forwarded but unrecorded (default 64K)",
+        "what a failed write can leave forwarded but unrecorded, besides a frame a "
+        "connection has begun (default 64K)",
     )
     add_specs_dir(p)
     add_label_options(p)

@@ -458,9 +458,10 @@ class _Recorder:
                 self.fail(e)
             else:
                 self.saved = (self.rec.frames, self.rec.problems, self.rec.state_packets)
-                # Less what the decoders hold undecided (called between two slices of a
-                # read, they may hold bytes not counted yet: less still, never more).
-                self.flushed = max(self.flushed, taken - self.rec.undecided)
+                # A frame a decoder has begun is not in the file yet, but counted as if: a
+                # peer that sends half a large frame and waits must not stop the proxy
+                # (--on-write-error stop) until its decoder decides (README: the bound).
+                self.flushed = taken
         self.publish()
 
     def flush_due(self, now: float) -> bool:

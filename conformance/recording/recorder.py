@@ -221,18 +221,6 @@ class StreamRecorder(_CommandNames):
         if self.checkpoint is not None:
             self.checkpoint()
 
-    @property
-    def undecided(self) -> int:
-        """Bytes taken that no record holds yet: a frame (or a state packet) begun, a
-        garbage run not yet reported, in each stream's decoder."""
-        n = 0
-        for c in self._conns.values():
-            if c.state is not None:
-                n += len(c.state.pending)
-            else:
-                n += sum(st.decoder.buffered for st in c.streams.values())
-        return n
-
     def finish(self, *, t_ns: int, reason: str = "recording ended") -> None:
         self.write_held()
         for conn in list(self._conns):
