@@ -169,6 +169,7 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
         #: The most bytes forwarded that the file does not hold yet (None: no bound); once
         #: the recording fails, nothing more is read (``--on-write-error stop``).
         self.max_unrecorded = max_unrecorded
+        self._state_reserve = max_unrecorded // 2 if max_unrecorded is not None else 0
         self.max_connections = (
             max_connections if max_connections is not None else default_max_connections()
         )
@@ -423,7 +424,9 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
                     paused |= self._unrecorded_budget() <= 0
                 if paused != self._reads_paused:
                     self._set_paused(paused)
-                if self._state_read != self._state_taken:
+                if self._state_read != self._state_taken or (
+                    self._read_budget is not None and (self._state_pairs or self._state_paused)
+                ):
                     self._state_backlog_check()
                 self._reply_due = False
                 writable = False  # the pipe to the recorder has room again
@@ -507,10 +510,15 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
     def _state_backlog_check(self) -> None:
         """The state connections read while the recorder is at most ``max_state_backlog``
         behind on their bytes: a hostile state upstream is forwarded at the pace the
-        recorder takes its bytes, and never fills the backlog the command port shares."""
+        recorder takes its bytes, and never fills the backlog the command port shares (nor,
+        with ``max_unrecorded``, more than half of what may pass unrecorded)."""
         self._state_taken = self.recorder.state_taken
         behind = self._state_read - self._state_taken
         paused = behind > self.max_state_backlog and not self._recorder.dead
+        budget = self._read_budget
+        if budget is not None:
+            # --on-write-error stop: half of what may pass unrecorded is the command port's.
+            paused |= budget <= self._state_reserve
         if paused != self._state_paused:
             self._set_state_paused(paused)
 

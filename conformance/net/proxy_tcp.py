@@ -76,6 +76,8 @@ class TcpForwarding(ProxyBase):
     _state_read = 0
     #: With ``max_unrecorded``: bytes that may still be read this turn (else None).
     _read_budget: int | None = None
+    #: With ``max_unrecorded``: the part of it the state connections never read into.
+    _state_reserve = 0
     _state_pairs: set[_Pair]
 
     def _set_paused(self, paused: bool) -> None:
@@ -202,10 +204,12 @@ class TcpForwarding(ProxyBase):
         size = _STATE_RECV if p.state else _RECV
         budget = self._read_budget
         if budget is not None:
-            # --on-write-error stop: never more forwarded than the file may lack.
-            if budget <= 0:
+            # --on-write-error stop: never more forwarded than the file may lack, and the
+            # state port never takes the half of it that is the command port's.
+            avail = budget - self._state_reserve if p.state else budget
+            if avail <= 0:
                 return True  # paused at the next turn
-            size = min(size, budget)
+            size = min(size, avail)
         try:
             data = sock.recv(size)
         except (BlockingIOError, InterruptedError):
