@@ -148,6 +148,7 @@ def test_seeded_corpus_through_every_api() -> None:
         FUZZ.check_decoder(stream, rng)
         if k % 3 == 0:
             FUZZ.check_model(controller, stream, rng)
+        FUZZ.check_version(FUZZ.versions(rng, text), report=k % 50 == 0)
 
 
 # ------------------------------------------------------------------- Hypothesis

@@ -526,6 +526,93 @@ def test_a_recording_that_cannot_be_written_says_so_and_counts_what_is_lost(
     assert proxy.frames_recorded == len(rec.frames) > 0
 
 
+def test_on_write_error_stop_forwards_no_more_than_max_unrecorded(tmp_path: Path) -> None:
+    """``--on-write-error stop`` (``max_unrecorded``): the proxy never forwards more than that
+    ahead of the file (the recorder flushes at half of it; reads wait for the flush), and
+    reads nothing once a write has failed.  Before, everything since the last periodic
+    flush (and what came until the CLI noticed) was forwarded unrecorded: 4.8 k to 103 k
+    answered requests in the re-probe.  The periodic flush is set past the test's end here,
+    so only the bound keeps the file in step."""
+    import contextlib
+    import os
+    import resource
+    import socket
+    import threading
+
+    from conformance.net.emulator import EmulatorServer
+    from conformance.net.proxy import RecordingProxy
+
+    bound = 16 * 1024
+    out = tmp_path / "r.mcap"
+    soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
+    answered = [0]
+    request_size = len(encode_frame(1, 905, os.urandom(600).hex()))
+    with EmulatorServer() as emu:
+        proxy = RecordingProxy(emu.address, out=out, flush_interval=3600, max_unrecorded=bound)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (256 * 1024, hard))
+        try:
+            proxy.start()  # the recorder process inherits the limit
+        finally:
+            resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
+
+        def client() -> None:
+            with socket.create_connection(proxy.address) as c, contextlib.suppress(OSError):
+                i = 0
+                while True:
+                    c.sendall(
+                        b"".join(encode_frame(i + k, 905, os.urandom(600).hex()) for k in range(4))
+                    )
+                    got = b""
+                    while got.count(b"/b/f") < 4:
+                        chunk = c.recv(1 << 16)
+                        if not chunk:
+                            return  # the proxy stopped
+                        got += chunk
+                    answered[0] += 4
+                    i = (i + 4) % 60000
+
+        talker = threading.Thread(target=client, daemon=True)
+        talker.start()
+        try:
+            deadline = time.monotonic() + 60
+            while proxy.error is None:  # the file passes 256 KiB, a flush fails
+                assert time.monotonic() < deadline, "no write error reported"
+                assert talker.is_alive()
+                time.sleep(0.02)
+            assert isinstance(proxy.error, OSError), proxy.error
+        finally:
+            with pytest.raises(OSError):
+                proxy.close()  # every connection closed: the client's recv ends
+            talker.join()
+    assert proxy.unrecorded <= bound, proxy.unrecorded
+    in_file = sum(1 for f in read_recording(out).frames if f.dir == "c2s")
+    assert answered[0] > 100
+    assert (answered[0] - in_file) * request_size <= bound, (answered[0], in_file)
+
+
+def test_a_frame_begun_does_not_stop_a_bounded_proxy(tmp_path: Path) -> None:
+    """``max_unrecorded``: a client that sends half of a large frame and waits holds its
+    bytes in the recorder's decoder, not yet in the file; counted against the bound, they
+    stopped every read of the proxy (its decoder waited for bytes no read would bring)."""
+    import socket
+
+    from conformance.net.emulator import EmulatorServer
+    from conformance.net.proxy import RecordingProxy
+
+    with (
+        EmulatorServer() as emu,
+        RecordingProxy(
+            emu.address, out=tmp_path / "r.mcap", flush_interval=3600, max_unrecorded=16 * 1024
+        ) as proxy,
+        socket.create_connection(proxy.address, timeout=60) as half,
+    ):
+        half.sendall(b"/f/bIII1III905III200000III" + b"7" * 100_000)  # and waits
+        for k in range(40):  # 40 more than the bound in all
+            with socket.create_connection(proxy.address, timeout=60) as c:
+                c.sendall(encode_frame(k + 1, 905, "GetSoftwareVersion()" + " " * 400))
+                assert c.recv(4096)
+
+
 def _rss_kb(pid: int) -> int:
     with open(f"/proc/{pid}/status") as f:
         return int(f.read().split("VmRSS:")[1].split()[0])

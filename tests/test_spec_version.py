@@ -69,7 +69,7 @@ def test_a_refusal_names_no_version(data: str) -> None:
         ("v3.8.2.11", "3.8.2", False),
         ("v3.9.0", "3.8.2", False),  # newer than 3.8.2, older than 3.9.8
         ("v3.9.8", "3.9.8", False),
-        ("v3.10.1", "3.9.8", False),  # numbers, not text: 3.10 > 3.9
+        ("v3.10.1", "3.9.8", True),  # numbers, not text: 3.10 > 3.9, a newer series: said
         ("v3.7.5", "3.8.2", True),  # older than every set: the oldest, said
     ],
 )

@@ -21,6 +21,8 @@ Angles, each a few rows of figures:
 * **capture --iface lo** under load (needs CAP_NET_RAW): SIGINT, seconds until it exits.
 * **A target answering every request with a wrong CNT**: ``run``'s wall time and exit code
   under ``--liveness-budget``.
+* **A stray-header state flood** through ``proxy --state-upstream``, and **idle state-port
+  clients** against ``emulate`` (issue 35; tools/_hostile_ports.py).
 
 A flag a checkout lacks makes its cell ``n/a (flag absent)``.  The fixtures (the upstream
 emulator, the hostile target) are this checkout's, the same for every column.  Loopback only.
@@ -52,6 +54,7 @@ from conformance.recording.recorder import StreamRecorder  # noqa: E402
 from conformance.recording.writer import RecordingWriter  # noqa: E402
 from conformance.twin.controller import Controller  # noqa: E402
 from tools._hostile_common import HEALTH_CMD, ask_health, table  # noqa: E402
+from tools._hostile_ports import add_port_options, idle_state_clients, state_flood  # noqa: E402
 from tools._hostile_procs import (  # noqa: E402
     FLOOD,
     Kit,
@@ -85,6 +88,7 @@ def add_options(ap: argparse.ArgumentParser) -> None:
     g.add_argument("--flood-seconds", type=float, default=10.0)
     g.add_argument("--flood-mb-per-s", type=float, default=500.0)
     g.add_argument("--liveness-budget", type=float, default=30.0)
+    add_port_options(ap)
 
 
 # --------------------------------------------------------------------------- the angles
@@ -234,6 +238,9 @@ def disk_full(k: Kit, args: argparse.Namespace, tmp: Path, policy: str) -> tuple
         )
     )
     rows.append(("answered requests not in the file", f"{max(0, acked - c2s):,} of {acked:,}"))
+    unrecorded = next((x for x in proxy.text("err") if "the file does not hold" in x), None)
+    if unrecorded is not None:
+        rows.append(("the proxy's word on it", _tail(unrecorded.removeprefix("proxy: "), 110)))
     how = f"by itself, {gone - t_full:.1f} s after the limit" if gone else "at SIGINT"
     rows.append(("exit code, how", f"{code}, {how}"))
     # Said within a second; the stop line's count is what the file holds.
@@ -486,6 +493,12 @@ ANGLES: list[tuple[str, Callable[[Kit, argparse.Namespace, Path], tuple[Rows, bo
     ("serve --verdicts /dev/full", serve_full),
     ("capture --iface lo stopped under load", capture_stop),
     ("target answering every request with a wrong CNT", wrong_cnt),
+    ("stray-header state flood through proxy --state-upstream", state_flood),
+    (
+        "random-byte state flood through proxy --state-upstream (the anchor)",
+        lambda k, a, t: state_flood(k, a, t, "random"),
+    ),
+    ("idle state-port clients against emulate", idle_state_clients),
 ]
 
 
@@ -513,6 +526,6 @@ def part_own(args: argparse.Namespace) -> bool:
         ok_last &= oks[-1] == "yes"
         # A column with one value for every figure (a flag absent, a capability missing).
         out = [(f, *(c.get(f, c.get(EVERY, "-")) for c in cols)) for f in order or [EVERY]]
-        out.append(("as issue 21 asks", *oks))
+        out.append(("as its issue asks", *oks))
         table(name, ("figure", *(k.label for k in kits)), out)
     return ok_last

@@ -23,6 +23,13 @@ and (by default every input; one in ``--model-every`` N) the **emulator's model*
 (:class:`conformance.twin.controller.Controller`): any bytes give actions, and every
 reply it sends decodes, strictly, to well-formed frames.
 
+The **905 reply and the reports** (``version``; issue 35): each input, and hostile version
+strings (thousands of digits, control characters, a valid version buried in a long
+reply), read as a ``GetSoftwareVersion`` reply (:func:`parse_software_version`), the
+spec set chosen from it and put in a report: no exception, a label and a warning of at
+most 400 printable characters, and (one input in 50) the report's JSON, HTML and JUnit XML
+made with the label in them, the XML well formed.
+
 Prints inputs per API, unexpected exceptions by API and type with the first
 example of each (truncated), inputs/s and wall time; exits 1 if there was any.
 ``tests/test_fuzz.py`` runs the same checks on a small seeded corpus.
@@ -52,7 +59,12 @@ from conformance.protocol.data_parse import parse_data, parse_reply
 from conformance.protocol.data_values import MAX_DEPTH, MAX_ITEMS
 from conformance.protocol.decoder import FrameDecoder, decode_all
 from conformance.protocol.frame import CNT_MAX, Frame, Malformed, encode_frame
+from conformance.report.html import render_html
+from conformance.report.junit import junit_xml
+from conformance.report.model import Report
 from conformance.spec.commands import Command, SpecSet, Variant, default_specs
+from conformance.spec.firmware import choose_spec, parse_software_version
+from conformance.suite.spec_choice import note_spec
 from conformance.suite.strategies import minimal_args
 from conformance.twin.controller import Controller
 
@@ -64,10 +76,11 @@ __all__ = [
     "check_judge",
     "check_model",
     "check_parser",
+    "check_version",
     "main",
 ]
 
-APIS = ("decoder", "parser", "judge", "model")
+APIS = ("decoder", "parser", "judge", "model", "version")
 
 
 class Surprise(Exception):
@@ -193,6 +206,42 @@ _TOKENS = (
     "III", "/b/f", "/f/b", "III/b/f", "robot errcode:", "robot errcode:7",
     "STOP", "MoveJ(", "SetDO(0,1,0,0)", '"P1"', "192.168.58.2",
 )  # fmt: skip
+
+
+def check_version(text: str, *, report: bool = False) -> None:
+    """``text`` as a 905 reply: read, a spec set chosen, labelled (and put in a report)."""
+    import xml.etree.ElementTree as ET
+
+    found = parse_software_version(text)
+    choice = choose_spec(found, ["3.8.2", "3.9.8"], default="3.8.2", where="target t")
+    for line in (choice.label(), choice.warning or ""):
+        if len(line) > 400 or not line.isprintable():
+            raise Surprise(f"a label or warning of {len(line)} characters: {line[:120]!r}")
+    if report:
+        r = Report(target="127.0.0.1:8080", spec_version=choice.version)
+        note_spec(r, choice)
+        r.to_json()
+        render_html([r])
+        ET.fromstring(junit_xml(r))
+
+
+def versions(rng: random.Random, text: str) -> str:
+    """A 905 reply from ``text``: as it is, with a version put in, or hostile."""
+    r = rng.random()
+    if r < 0.4:
+        return text
+    if r < 0.7:
+        return f"{text[:40]},v{rng.randint(0, 99)}.{rng.randint(0, 99)}.{rng.randint(0, 9)},V{text[-20:]}"
+    return rng.choice(
+        (
+            "FR5,v" + "9" * rng.randint(1, 6000) + ".1,V3",
+            "FR5-V1-001(V6.0),v3.9.8,V3.7.77" + "x" * rng.randint(1, 300_000),
+            "".join(chr(rng.randrange(0, 0x110000)) for _ in range(rng.randint(1, 64))),
+            "\x00\x1b[31m,v3.9.8\x00,V3" * rng.randint(1, 100),
+            ".".join(str(rng.randint(0, 10**12)) for _ in range(rng.randint(1, 40))),
+            "v" + ".1" * rng.randint(1, 5000),
+        )
+    )
 
 
 def _hostile(rng: random.Random, name: str) -> str:
@@ -380,6 +429,8 @@ def fuzz(n: int, seed: int, *, model_every: int, progress: bool = False) -> Tall
         tally.run("parser", text, call(check_parser, text))
         tally.run("judge", text, call(check_judge, text, specs, command, variant, k % 65536))
         tally.run("decoder", stream, call(check_decoder, stream, rng))
+        reply = versions(rng, text)
+        tally.run("version", reply, call(check_version, reply, report=k % 50 == 0))
         if model_every and k % model_every == 0:
             if k % (500 * model_every) == 0:
                 controller = Controller(specs)  # its stored values grow with the inputs

@@ -15,15 +15,23 @@ must give:
   truncated rest add up to the input's length;
 * the same events whole and chunked;
 * a valid packet (checksum right) decodes to fields that encode back to its bytes
-  (checked on one input in ten: it is the slowest check).
+  (checked on one input in ten: it is the slowest check);
+* one input in twenty, recorded as a state port's stream (:func:`check_recorded`): every
+  byte in a packet or a problem record at its offset, none over 64 KiB, and the damage the
+  stop line counts is the bytes no packet holds.
+
+One input in ten is a flood of stray headers with packets among them, of known layouts
+and of unknown LENs with a right checksum (the decoder's vector scan,
+``conformance/protocol/state_scan.py``, decides those).
 
 Then time must be linear in the input: hostile streams (random bytes, stray headers
-with the longest LEN the decoder waits for, valid packets a byte at a time) of 256 KB,
-512 KB and 1 MB are timed, with the ratio of each doubling (near 2 when linear).
+with the longest LEN the decoder waits for in feeds of 64 B to 64 KiB, 0x5A only, valid
+packets a byte at a time) of 256 KB, 512 KB and 1 MB are timed, with the ratio of each
+doubling (near 2 when linear) and the MB/s.
 
 Prints inputs, packets and problems seen, unexpected exceptions and broken invariants
 (the first example of each), inputs/s and wall time; exits 1 if there was any.
-``tests/test_state_decoder.py`` runs the same checks on a small seeded corpus.
+``tests/test_state_scan.py`` runs the same checks on a small seeded corpus.
 """
 
 from __future__ import annotations
@@ -46,12 +54,16 @@ from conformance.protocol.state import (
     StatePacket,
     StateProblem,
     StateProblemKind,
+    checksum,
     encode_state,
 )
 from conformance.protocol.state_layout import StateLayout
+from conformance.recording.layout import C2S, PROBLEM_RAW_LIMIT, S2C
+from conformance.recording.recorder import StreamRecorder
+from conformance.recording.records import ProblemRecord, Record, StateRecord
 from conformance.spec.state import known_layouts, state_decoder
 
-__all__ = ["check", "make_input", "summary"]
+__all__ = ["check", "check_recorded", "make_input", "summary"]
 
 
 def _values(lay: StateLayout, rnd: random.Random) -> dict[str, object]:
@@ -72,6 +84,8 @@ def make_input(rnd: random.Random, layouts: tuple[StateLayout, ...]) -> tuple[by
         n = rnd.choice([0, 1, 2, 5, 7, 64, 500, 3000])
         alphabet = rnd.choice([b"\x5a", b"\x5a\x00", b"\x5a\x5a\x00\x10", bytes(range(256))])
         return bytes(rnd.choice(alphabet) for _ in range(n)), []
+    if kind < 0.1:  # a flood of stray headers, packets of known and unknown LENs among them
+        return _stray_flood(rnd, layouts)
     packets = []
     out = b""
     for _ in range(rnd.choice([1, 1, 2, 3])):
@@ -104,6 +118,31 @@ def make_input(rnd: random.Random, layouts: tuple[StateLayout, ...]) -> tuple[by
         else:
             del data[rnd.randrange(len(data)) :]  # cut
     return bytes(data), packets
+
+
+def _stray_flood(rnd: random.Random, layouts: tuple[StateLayout, ...]) -> tuple[bytes, list[bytes]]:
+    """Stray headers (a LEN the decoder waits for, or one it does not), 0x5A runs, and
+    packets: valid ones of a known layout, and ones of an unknown LEN with a right checksum
+    (the vector scan's two sides: a checksum that fails and one that holds)."""
+    out = b""
+    packets = []
+    for _ in range(rnd.randrange(1, 40)):
+        r = rnd.random()
+        if r < 0.5:
+            length = rnd.choice([0, 1, 7, 100, DEFAULT_MAX_LENGTH, DEFAULT_MAX_LENGTH + 1])
+            out += b"\x5a\x5a" + bytes([rnd.randrange(256)]) + struct.pack("<H", length)
+        elif r < 0.6:
+            out += b"\x5a" * rnd.randrange(1, 8)
+        elif r < 0.8:
+            p = encode_state(rnd.choice(layouts), {}, cnt=rnd.randrange(256))
+            packets.append(p)
+            out += p
+        else:
+            length = rnd.choice([0, 3, 50, DEFAULT_MAX_LENGTH])
+            head = b"\x5a\x5a" + bytes([rnd.randrange(256)]) + struct.pack("<H", length)
+            body = rnd.randbytes(length)
+            out += head + body + struct.pack("<H", checksum(head + body))
+    return out, packets
 
 
 def summary(events: list[StateEvent]) -> list[tuple[object, ...]]:
@@ -171,6 +210,54 @@ def check(
     return None
 
 
+class _Sink:
+    """The records a state connection gives, kept in a list (no file)."""
+
+    batch_bytes = 1 << 20
+
+    def __init__(self) -> None:
+        self.records: list[Record] = []
+
+    def write_frames(self, frames: object) -> None:
+        raise AssertionError("a state connection gave frames")
+
+    def write(self, record: Record) -> None:
+        self.records.append(record)
+
+
+def check_recorded(data: bytes, rnd: random.Random) -> str | None:
+    """``data`` as a state port's stream (and a few client bytes) through the recorder, in
+    random reads: every byte is in a packet or a problem record, at its offset, each
+    record's raw at most 64 KiB, and the damage counted is the bytes no packet holds."""
+    sink = _Sink()
+    rec = StreamRecorder(sink)
+    rec.open(1, t_ns=1, client="127.0.0.1:1", upstream="127.0.0.1:8083", stream="state")
+    at, t = 0, 10
+    for n in _cuts(rnd, len(data)):
+        rec.data(1, S2C, t, data[at : at + n])
+        at, t = at + n, t + 1
+        if rnd.random() < 0.01:
+            rec.data(1, C2S, t, b"hi")
+    rec.close(1, t_ns=t, reason="upstream closed")
+    pieces = sorted(
+        [(r.offset, r.raw) for r in sink.records if isinstance(r, StateRecord)]
+        + [
+            (r.offset, r.raw)
+            for r in sink.records
+            if isinstance(r, ProblemRecord) and r.dir == S2C and r.raw
+        ]
+    )
+    if b"".join(raw for _, raw in pieces) != data:
+        return "recorded bytes differ from the stream"
+    if any(len(raw) > PROBLEM_RAW_LIMIT for _, raw in pieces):
+        return "a problem record holds more than 64 KiB"
+    in_packets = sum(len(r.raw) for r in sink.records if isinstance(r, StateRecord))
+    client = sum(r.size for r in sink.records if isinstance(r, ProblemRecord) and r.dir == C2S)
+    if rec.state_damaged != len(data) - in_packets + client:
+        return f"damage counted {rec.state_damaged}, not {len(data) - in_packets + client}"
+    return None
+
+
 def linear_time() -> list[str]:
     """Hostile streams at three sizes: seconds and the doubling ratios."""
     rnd = random.Random(7)
@@ -180,6 +267,9 @@ def linear_time() -> list[str]:
     streams = {
         "random bytes, whole": (bytes(rnd.randrange(256) for _ in range(1 << 20)), 1 << 20),
         f"stray headers with LEN {DEFAULT_MAX_LENGTH}, 4 KiB feeds": (stray, 4096),
+        f"stray headers with LEN {DEFAULT_MAX_LENGTH}, 64 B feeds": (stray, 64),
+        f"stray headers with LEN {DEFAULT_MAX_LENGTH}, 64 KiB feeds": (stray, 65536),
+        "0x5A only, 64 KiB feeds": (b"\x5a" * (1 << 20), 65536),
         "valid packets, 1 byte a feed": (valid, 1),
     }
     lines = []
@@ -217,6 +307,8 @@ def main(argv: list[str] | None = None) -> int:
         data, packets = make_input(rnd, layouts)
         try:
             broke = check(data, packets, rnd, reencode=i % 10 == 0)
+            if broke is None and i % 20 == 0:
+                broke = check_recorded(data, rnd)
         except Exception as exc:
             broke = f"{type(exc).__name__}"
             first.setdefault(broke, f"{data[:80]!r}: {traceback.format_exc(limit=3)}")

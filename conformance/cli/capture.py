@@ -15,12 +15,14 @@ from typing import Any
 
 from ..errors import UsageError
 from ..net.addresses import Address, format_address, parse_address
+from ..net.proxy_base import STATE_BACKLOG_SHARE
+from ..net.server import DEFAULT_MAX_STATE_CONNECTIONS
 from ..protocol.frame import DEFAULT_MAX_FRAME_SIZE
 from ..recording.layout import C2S, MIN_SPLIT_SIZE
 from ..recording.records import FrameRecord
 from .specs_option import add_specs_dir, specs_of
 
-__all__ = ["format_frame_line", "parse_duration", "parse_size", "register"]
+__all__ = ["format_frame_line", "parse_duration", "parse_size", "register", "stop_line"]
 
 
 def parse_size(text: str) -> int:
@@ -37,6 +39,10 @@ _SPLIT_SIZE_HELP = (
     "ends within SIZE, its index included, unless one batch of frames is larger than a "
     "chunk (SIZE/4, at most 1M)"
 )
+
+
+#: ``--max-unrecorded``: a few hundred requests and their replies.
+DEFAULT_MAX_UNRECORDED = 64 << 10
 
 
 def _split_size(text: str) -> int:
@@ -113,6 +119,23 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "and recorded as refused (default 512, fewer if the descriptor limit is lower)",
     )
     p.add_argument(
+        "--max-state-connections",
+        type=int,
+        default=DEFAULT_MAX_STATE_CONNECTIONS,
+        metavar="N",
+        help="state-port connections forwarded at once, apart from --max-connections (a "
+        "state client sends nothing, so idle ones cannot be told apart); beyond, a new one "
+        f"is accepted, closed and recorded as refused (default {DEFAULT_MAX_STATE_CONNECTIONS})",
+    )
+    p.add_argument(
+        "--max-state-backlog",
+        type=parse_size,
+        metavar="SIZE",
+        help="bytes of the state port read but not yet taken by the recorder; beyond, the "
+        "state connections stop reading until it catches up, and the command port reads on "
+        f"(default a {STATE_BACKLOG_SHARE}th of --max-backlog, at least 1M)",
+    )
+    p.add_argument(
         "--max-frame-size",
         type=parse_size,
         default=DEFAULT_MAX_FRAME_SIZE,
@@ -153,7 +176,18 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         help="when the recording cannot be written (disk full, file too large, I/O error), "
         "said at once either way: forward keeps forwarding, unrecorded, and says every "
         "second how many bytes are not recorded (the default: the proxy never stops a "
-        "cell); stop closes every connection and stops, so nothing passes unrecorded",
+        "cell); stop never lets more than --max-unrecorded bytes be forwarded ahead of the "
+        "file, reads nothing more once a write fails, closes every connection and stops",
+    )
+    p.add_argument(
+        "--max-unrecorded",
+        type=parse_size,
+        default=DEFAULT_MAX_UNRECORDED,
+        metavar="SIZE",
+        help="with --on-write-error stop: the most bytes forwarded that the file does not "
+        "hold yet (the recorder flushes at half of it; past it, reads wait for the flush); "
+        "what a failed write can leave forwarded but unrecorded, besides a frame a "
+        "connection has begun (default 64K)",
     )
     add_specs_dir(p)
     add_label_options(p)
@@ -244,6 +278,11 @@ def _side_ports(
 def _run_proxy(args: argparse.Namespace) -> int:
     from ..net.proxy import RecordingProxy
 
+    if args.max_state_connections < 1:
+        raise UsageError("--max-state-connections must be at least 1")
+    if args.max_unrecorded < 1:
+        raise UsageError("--max-unrecorded must be at least 1 byte")
+
     listen = parse_address(args.listen, default_port=18080, listen=True, option="--listen")
     upstream = parse_address(args.upstream, default_port=8080, option="--upstream")
     udp_upstream = udp_listen = None
@@ -297,10 +336,13 @@ def _run_proxy(args: argparse.Namespace) -> int:
             connect_timeout=args.connect_timeout,
             on_frame=on_frame,
             max_connections=args.max_connections,
+            max_state_connections=args.max_state_connections,
+            max_state_backlog=args.max_state_backlog,
             max_frame_size=args.max_frame_size,
             stop_timeout=args.stop_timeout,
             max_pending=args.max_pending,
             max_backlog=args.max_backlog,
+            max_unrecorded=args.max_unrecorded if args.on_write_error == "stop" else None,
         )
     except OSError as e:
         if e.filename is not None:  # the output file, not a socket
@@ -338,30 +380,61 @@ def _run_proxy(args: argparse.Namespace) -> int:
             proxy.close()
         except Exception as e:
             failure = e
-    st = proxy.stats
-    extra = ""
-    if st.rejected or st.accept_errors or st.errors:
-        extra = (
-            f" ({st.rejected} refused for --max-connections, {st.accept_errors} accept "
-            f"errors, {st.errors} closed by an error)"
+    print(stop_line(proxy, state=state_upstream is not None), file=sys.stderr)
+    if proxy.max_unrecorded is not None and proxy.error is not None:
+        print(
+            f"proxy: {proxy.unrecorded} bytes were forwarded that the file does not hold "
+            f"(at most --max-unrecorded {proxy.max_unrecorded}: reads wait for the file, and "
+            "none after the failed write)"
+            + (
+                f"; {proxy.stats.udp_held} UDP datagrams recorded but not forwarded"
+                if proxy.stats.udp_held
+                else ""
+            ),
+            file=sys.stderr,
         )
-    if proxy.recorder.lost:
-        extra += f"; {proxy.recorder.lost} bytes not recorded (the recording could not be written)"
+    if failure is not None:
+        print(failure_line(failure), file=sys.stderr)
+        return 2
+    return 0
+
+
+def stop_line(proxy: Any, *, state: bool) -> str:
+    """The proxy's last line: connections (those refused, by which limit), what was
+    recorded, and every byte that is not in the file as a frame or a state packet: not
+    recorded at all, recorded undecoded, or the state port's damage."""
+    st = proxy.stats
+    rec = proxy.recorder
+    extra = ""
+    if st.rejected or st.state_rejected or st.accept_errors or st.errors:
+        refused = f"{st.rejected} refused for --max-connections, "
+        if state:
+            refused += f"{st.state_rejected} state-port clients for --max-state-connections, "
+        extra = f" ({refused}{st.accept_errors} accept errors, {st.errors} closed by an error)"
+    if rec.lost:
+        extra += f"; {rec.lost} bytes not recorded (the recording could not be written)"
     if st.udp_unrecorded:
         extra += (
             f"; {st.udp_unrecorded} UDP datagrams ({st.udp_unrecorded_bytes} bytes) forwarded "
             "but not recorded, the recorder being half --max-backlog behind (gaps in the recording)"
         )
-    print(
+    if rec.undecoded:
+        extra += (
+            f"; {rec.undecoded} bytes recorded undecoded (the recorder was still behind "
+            "after --stop-timeout: problems with rule undecoded)"
+        )
+    states = ""
+    if state:
+        states = f"and {rec.state_packets} state packets "
+        if rec.state_damaged:
+            states += (
+                f"({rec.state_damaged} bytes of the state port were no packet: garbage, cut "
+                "packets or the client's bytes, recorded as problems; check names them) "
+            )
+    return (
         f"proxy: stopped; {st.connections} connections{extra}, {proxy.frames_recorded} frames "
-        + (f"and {proxy.recorder.state_packets} state packets " if state_upstream else "")
-        + f"recorded to {', '.join(proxy.paths)}",
-        file=sys.stderr,
+        f"{states}recorded to {', '.join(proxy.paths)}"
     )
-    if failure is not None:
-        print(failure_line(failure), file=sys.stderr)
-        return 2
-    return 0
 
 
 def failure_line(failure: BaseException) -> str:

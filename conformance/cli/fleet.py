@@ -75,10 +75,22 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     q.add_argument("dataset", metavar="DIR", help="the dataset export-parquet wrote")
     what = q.add_mutually_exclusive_group()
     what.add_argument("--report", choices=tuple(REPORTS), help="a built-in report")
-    what.add_argument("--sql", metavar="QUERY", help="any SQL against the views")
+    what.add_argument(
+        "--sql",
+        metavar="QUERY",
+        help="one SQL query against the views (SELECT, WITH, SHOW, DESCRIBE, SUMMARIZE, "
+        "EXPLAIN), sandboxed: no file outside the dataset, no network, no extension, no "
+        "statement that writes",
+    )
     q.add_argument("--format", choices=_FORMATS, default="table", help="output (default table)")
     q.add_argument("--html", metavar="PATH", help="write one HTML page with charts")
     q.add_argument("--threads", type=int, default=None, help="DuckDB threads (default: all)")
+    q.add_argument(
+        "--unsafe-sql",
+        action="store_true",
+        help="lift --sql's sandbox: DuckDB's full access (any file the user can read or "
+        "write, ATTACH, COPY ... TO, extensions and the network, several statements)",
+    )
     q.set_defaults(func=_run_query)
 
 
@@ -166,14 +178,14 @@ def _run_query(args: argparse.Namespace) -> int:
     _need_fleet_extra()
     from ..fleet.query import connect, format_rows, run_report, run_sql
 
-    con = connect(args.dataset, threads=args.threads)
+    con = connect(args.dataset, threads=args.threads, sandboxed=not args.unsafe_sql)
     if args.html:
         from ..fleet.html import render_page
 
         Path(args.html).write_text(render_page(con, args.dataset), encoding="utf-8")
         print(f"wrote {args.html}", file=sys.stderr)
     if args.sql:
-        print(format_rows(run_sql(con, args.sql), args.format))
+        print(format_rows(run_sql(con, args.sql, unsafe=args.unsafe_sql), args.format))
     elif args.report or not args.html:
         print(format_rows(run_report(con, args.dataset, args.report or "latency"), args.format))
     return 0

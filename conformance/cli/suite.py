@@ -77,7 +77,11 @@ def _add_emulate(sub: Any) -> None:
 
 def _add_limits(p: Any) -> None:
     """What one client may cost the emulator (``emulate`` and ``serve``)."""
-    from ..net.server import DEFAULT_IDLE_TIMEOUT, DEFAULT_MAX_CONNECTIONS
+    from ..net.server import (
+        DEFAULT_IDLE_TIMEOUT,
+        DEFAULT_MAX_CONNECTIONS,
+        DEFAULT_MAX_STATE_CONNECTIONS,
+    )
     from ..protocol.frame import DEFAULT_MAX_FRAME_SIZE
 
     p.add_argument(
@@ -85,16 +89,26 @@ def _add_limits(p: Any) -> None:
         type=float,
         default=DEFAULT_IDLE_TIMEOUT,
         metavar="SECONDS",
-        help="close a TCP client that sends nothing for this long, so idle connections "
-        f"cannot lock new clients out (default {DEFAULT_IDLE_TIMEOUT:g}; 0: never)",
+        help="close a command-port client that sends nothing for this long, so idle "
+        f"connections cannot lock new clients out (default {DEFAULT_IDLE_TIMEOUT:g}; 0: never); "
+        "a state-port client sends nothing by the protocol: it is closed when it stops reading",
     )
     p.add_argument(
         "--max-connections",
         type=int,
         default=DEFAULT_MAX_CONNECTIONS,
         metavar="N",
-        help="TCP connections served at once; more are accepted and closed at once "
-        f"(default {DEFAULT_MAX_CONNECTIONS})",
+        help="command-port TCP connections served at once; more are accepted and closed at "
+        f"once (default {DEFAULT_MAX_CONNECTIONS})",
+    )
+    p.add_argument(
+        "--max-state-connections",
+        type=int,
+        default=DEFAULT_MAX_STATE_CONNECTIONS,
+        metavar="N",
+        help="state-port connections served at once, a limit of their own (idle state "
+        "clients never lock the command port out); more are accepted and closed at once "
+        f"(default {DEFAULT_MAX_STATE_CONNECTIONS})",
     )
     p.add_argument(
         "--max-frame-size",
@@ -150,12 +164,15 @@ def _limits(args: argparse.Namespace) -> dict[str, Any]:
     """
     if args.max_connections < 1:
         raise UsageError("--max-connections must be at least 1")
+    if args.max_state_connections < 1:
+        raise UsageError("--max-state-connections must be at least 1")
     if args.max_frame_size < 64:
         raise UsageError("--max-frame-size must be at least 64 bytes")
     if not args.idle_timeout >= 0:
         raise UsageError("--idle-timeout must be 0 (never) or a number of seconds")
     return {
         "max_connections": args.max_connections,
+        "max_state_connections": args.max_state_connections,
         "max_frame_size": args.max_frame_size,
         "idle_timeout": args.idle_timeout or None,
         "reraise_kit_errors": False,
@@ -172,10 +189,14 @@ def _drop_summary(server: Any) -> str | None:
     for d in server.dropped:
         kinds[d.kind] = kinds.get(d.kind, 0) + 1
     last = ", ".join(f"{k} {n}" for k, n in sorted(kinds.items()))
+    refused = f"{server.connections_refused} refused at --max-connections"
+    if server.state is not None:
+        refused += (
+            f", {server.state_connections_refused} state-port clients at --max-state-connections"
+        )
     return (
         f"{plural(server.dropped_total, 'connection')} closed by the server "
-        f"({server.connections_refused} refused at --max-connections; "
-        f"last {len(server.dropped)}: {last})"
+        f"({refused}; last {len(server.dropped)}: {last})"
     )
 
 
@@ -283,6 +304,14 @@ def _emulate(args: argparse.Namespace) -> int:
         **emulation,
     )
     server.start()
+    # SIGTERM stops it as Ctrl-C does: the summary printed, exit 0 (it was killed by the
+    # signal, silently, with -15).
+    with _interrupts():
+        _emulate_until_stopped(server, args, specs, faults)
+    return 0
+
+
+def _emulate_until_stopped(server: Any, args: argparse.Namespace, specs: Any, faults: Any) -> None:
     try:
         where = format_address(*server.address)
         udp = f", UDP {format_address(*server.udp_address)}" if server.udp_address else ""
@@ -321,7 +350,6 @@ def _emulate(args: argparse.Namespace) -> int:
         summary = _drop_summary(server)
         if summary:
             print(f"emulator: {summary}", file=sys.stderr)
-    return 0
 
 
 # --------------------------------------------------------------------------- run

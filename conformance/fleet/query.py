@@ -1,5 +1,13 @@
 """DuckDB over the dataset (``query``): one view per table, the built-in reports, any SQL,
-and the rows as a terminal table, CSV or JSON."""
+and the rows as a terminal table, CSV or JSON.
+
+``--sql`` is sandboxed with DuckDB's own settings (:func:`sandbox`): files only under the
+dataset (``allowed_directories``, ``enable_external_access = false``: no ``read_csv`` of
+``/etc``, no ``ATTACH`` elsewhere, no network), no extensions installed or loaded, the
+configuration locked; and :func:`run_sql` runs one statement, a query (``SELECT``,
+``WITH``, ``SHOW``, ``DESCRIBE``, ``SUMMARIZE``, ``EXPLAIN``): no ``COPY ... TO`` into the
+dataset either.  ``--unsafe-sql`` lifts all of it.
+"""
 
 from __future__ import annotations
 
@@ -15,7 +23,7 @@ from ..errors import FileError, UsageError
 from .reports import REPORT_TABLES, REPORTS, report_sql
 from .schema import SCHEMA_VERSION, TABLES
 
-__all__ = ["Result", "connect", "format_rows", "run_report", "run_sql", "views"]
+__all__ = ["Result", "connect", "format_rows", "run_report", "run_sql", "sandbox", "views"]
 
 Result = tuple[list[str], list[tuple[Any, ...]]]
 
@@ -26,9 +34,9 @@ def views(dataset: str | Path) -> list[str]:
     return [t for t in TABLES if (d / t).is_dir() and next((d / t).rglob("*.parquet"), None)]
 
 
-def connect(dataset: str | Path, *, threads: int | None = None) -> Any:
+def connect(dataset: str | Path, *, threads: int | None = None, sandboxed: bool = True) -> Any:
     """A DuckDB connection with a view per table of ``dataset`` (hive partitions read back
-    as the columns ``date`` and ``robot``)."""
+    as the columns ``date`` and ``robot``); ``sandboxed`` (the default): :func:`sandbox`."""
     import duckdb
 
     d = Path(dataset)
@@ -54,14 +62,54 @@ def connect(dataset: str | Path, *, threads: int | None = None) -> Any:
             f"CREATE VIEW {t} AS SELECT * FROM read_parquet('{glob}', hive_partitioning = true, "
             "hive_types = {'date': DATE, 'robot': VARCHAR}, union_by_name = true)"
         )
+    if sandboxed:
+        sandbox(con, d)
     return con
 
 
-def run_sql(con: Any, sql: str) -> Result:
+def sandbox(con: Any, dataset: Path) -> None:
+    """DuckDB's own settings for a sandbox: files under ``dataset`` only (read or write: the
+    one statement :func:`run_sql` runs is a query), no other file, no network, no extension
+    installed or loaded, and the configuration locked so that no SQL can undo it."""
+    root = str(dataset.resolve()).replace("'", "''").rstrip("/") + "/"
+    for setting in (
+        f"SET allowed_directories = ['{root}']",
+        "SET enable_external_access = false",
+        "SET autoinstall_known_extensions = false",
+        "SET autoload_known_extensions = false",
+        "SET lock_configuration = true",
+    ):
+        con.execute(setting)
+
+
+#: What ``--sql`` runs without ``--unsafe-sql``: a query (SHOW, DESCRIBE and SUMMARIZE are
+#: SELECTs to DuckDB).
+_QUERIES = ("SELECT", "EXPLAIN")
+
+
+def run_sql(con: Any, sql: str, *, unsafe: bool = False) -> Result:
+    """``sql`` run: one query, unless ``unsafe`` (``--unsafe-sql``: anything)."""
     import duckdb
 
     try:
+        if not unsafe:
+            statements = duckdb.extract_statements(sql)
+            if len(statements) != 1:
+                raise UsageError(
+                    f"--sql: one statement, a query (this has {len(statements)}); "
+                    "--unsafe-sql runs several"
+                )
+            kind = statements[0].type.name
+            if kind not in _QUERIES:
+                raise UsageError(
+                    f"--sql: only a query runs (SELECT, WITH, SHOW, DESCRIBE, SUMMARIZE, "
+                    f"EXPLAIN), not {kind}; --unsafe-sql runs anything"
+                )
         cur = con.execute(sql)
+    except duckdb.PermissionException as e:
+        raise UsageError(
+            f"--sql: {str(e).splitlines()[0]} (query reads the dataset only; --unsafe-sql lifts it)"
+        ) from None
     except duckdb.Error as e:
         raise UsageError(f"--sql: {str(e).splitlines()[0]}") from None
     cols = [c[0] for c in cur.description] if cur.description else []
@@ -79,7 +127,7 @@ def run_report(con: Any, dataset: str | Path, name: str) -> Result:
                 f"{dataset}: no state packets recorded (no state table): no state report"
             )
         raise UsageError(f"{dataset}: the dataset has no {', '.join(missing)} table")
-    return run_sql(con, report_sql(name, "duckdb"))
+    return run_sql(con, report_sql(name, "duckdb"), unsafe=True)  # the kit's own SQL
 
 
 def _plain(v: Any) -> Any:

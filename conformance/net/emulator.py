@@ -54,6 +54,7 @@ from .server import (
     BACKOFF_MAX,
     DEFAULT_IDLE_TIMEOUT,
     DEFAULT_MAX_CONNECTIONS,
+    DEFAULT_MAX_STATE_CONNECTIONS,
     Backoff,
     ConnectionSet,
     close_server,
@@ -170,7 +171,9 @@ class EmulatorServer:
     connection is closed either way).  ``on_close`` is told when a connection
     ends, and why when the server ended it.  ``state_port`` (default off; 0: an
     ephemeral port) also serves the state port 8083 in ``state_version``'s layout
-    (:mod:`conformance.net.emulator_state`).
+    (:mod:`conformance.net.emulator_state`), to at most ``max_state_connections``
+    clients at once (a limit of their own: idle state clients never lock the command
+    port out), its refusals counted in :attr:`state_connections_refused`.
     """
 
     def __init__(
@@ -184,6 +187,7 @@ class EmulatorServer:
         observer: Observer | None = None,
         on_close: OnClose | None = None,
         max_connections: int = DEFAULT_MAX_CONNECTIONS,
+        max_state_connections: int = DEFAULT_MAX_STATE_CONNECTIONS,
         max_frame_size: int = DEFAULT_MAX_FRAME_SIZE,
         idle_timeout: float | None = DEFAULT_IDLE_TIMEOUT,
         reraise_kit_errors: bool = True,
@@ -247,6 +251,8 @@ class EmulatorServer:
         self._udp: socket.socket | None = None
         self._threads: list[threading.Thread] = []
         self._conns = ConnectionSet(max_connections, self._conns_lock)
+        #: The state port's clients: a set, and a limit, of their own.
+        self._state_conns = ConnectionSet(max_state_connections, self._conns_lock)
         self._stop = threading.Event()
         self._down_until = 0.0
         self._refusing = False
@@ -309,8 +315,14 @@ class EmulatorServer:
 
     @property
     def open_connections(self) -> int:
+        """Connections served now: the command port's and the state port's."""
         # No lock: wait_for() predicates read it while holding the lock.
-        return len(self._conns)
+        return len(self._conns) + len(self._state_conns)
+
+    @property
+    def state_connections_refused(self) -> int:
+        """State-port clients closed at once: ``max_state_connections`` were open."""
+        return self.state.refused if self.state is not None else 0
 
     def wait_for(self, predicate: Callable[[], bool], timeout: float | None = None) -> bool:
         """Block until ``predicate()`` holds; re-checked whenever a connection ends or is dropped.
@@ -467,12 +479,14 @@ class EmulatorServer:
             version=self.controller.state_version,
             faults=self.controller.faults,
             snapshot=self._state_snapshot,
-            conns=self._conns,
+            conns=self._state_conns,
             spawn=self._spawn,
             stop=self._stop,
             down=self._down,
             changed=self._notify,
             backoff=_backoff("state port accept", lambda: f"{self.open_connections} open"),
+            refused=self._state_refused,
+            stalled=self._state_stalled,
         )
         try:
             state.start()
@@ -502,7 +516,7 @@ class EmulatorServer:
         for port in (self.state, self.xmlrpc_port, self.cnde, self.realtime):
             if port is not None:
                 port.close()
-        for conns in (self._conns, *self._port_conns):
+        for conns in (self._conns, self._state_conns, *self._port_conns):
             for c in conns.snapshot():
                 _shutdown(c)
         for t in list(self._threads):
@@ -612,29 +626,10 @@ class EmulatorServer:
             self.connections_refused += 1
             reason = f"refused: {self.max_connections} connections already open"
             self._record(Dropped(peer=peer, kind="limit", reason=reason), quiet=True)
-            if not self._refusing:
-                self._refusing = True
-                # Once per episode, and episodes close together are one: a
-                # client flapping at the limit must not flood stderr.
-                now = time.monotonic()
-                if now - self._refusing_said >= _QUIET:
-                    self._refusing_said = now
-                    self._refusing_logged = True
-                    _log.warning(
-                        "emulator: %d connections open (the maximum): closing new ones at once",
-                        self.max_connections,
-                    )
+            self._refusing_now(f"{self.max_connections} connections open (the maximum)")
             _shutdown(conn)
             return
-        if self._refusing:
-            self._refusing = False
-            if self._refusing_logged:
-                self._refusing_logged = False
-                self._refusing_said = time.monotonic()
-                _log.warning(
-                    "emulator: accepting connections again (%d refused so far)",
-                    self.connections_refused,
-                )
+        self._accepting_again()
         # Replies go out at once: with Nagle, a second reply waits for the
         # client's delayed ACK (~40 ms) behind the first.
         with contextlib.suppress(OSError):  # a peer that already reset it
@@ -648,12 +643,47 @@ class EmulatorServer:
             self._record(Dropped(peer=peer, kind="limit", reason=f"no thread to serve it: {e}"))
             self._stop.wait(BACKOFF_MAX)
 
+    def _refusing_now(self, what: str) -> None:
+        """A client refused at a limit: said once per episode, and episodes close together
+        are one (a client flapping at the limit must not flood stderr)."""
+        if self._refusing:
+            return
+        self._refusing = True
+        now = time.monotonic()
+        if now - self._refusing_said >= _QUIET:
+            self._refusing_said = now
+            self._refusing_logged = True
+            _log.warning("emulator: %s: closing new ones at once", what)
+
+    def _accepting_again(self) -> None:
+        if self._refusing:
+            self._refusing = False
+            if self._refusing_logged:
+                self._refusing_logged = False
+                self._refusing_said = time.monotonic()
+                _log.warning(
+                    "emulator: accepting connections again (%d refused so far)",
+                    self.connections_refused + self.state_connections_refused,
+                )
+
+    def _state_refused(self, peer: str) -> None:
+        """The state port refused a client: ``max_state_connections`` are open."""
+        n = self._state_conns.maximum
+        reason = f"refused: {n} state-port connections already open"
+        self._record(Dropped(peer=peer, kind="limit", reason=reason), quiet=True)
+        self._refusing_now(f"{n} state-port connections open (the maximum)")
+
+    def _state_stalled(self, peer: str, reason: str) -> None:
+        """The state port dropped a client that does not read (its idle rule)."""
+        self._record(Dropped(peer=peer, kind="idle", reason=f"state port: {reason}"))
+
     def _crash(self, delay: float) -> None:
         with self._lock:
             self._down_until = time.monotonic() + delay
             self.controller.restart()
-        for c in self._conns.snapshot():
-            _shutdown(c)
+        for conns in (self._conns, self._state_conns, *self._port_conns):
+            for c in conns.snapshot():
+                _shutdown(c)
 
     def _perform(self, conn: socket.socket, s: _Session, actions: list[Action]) -> bool:
         """Carry out actions on a TCP connection; False when the connection must end."""

@@ -13,9 +13,14 @@ then waits the period the model holds (``SetStatePeriod(8083, period)``).
 
 The state faults (:class:`conformance.twin.faults.StateFaults`) make it send a wrong
 checksum every Nth packet, another version's layout, a CNT gap every Nth packet,
-or nothing for a while after every Nth packet.  A client that does not read is
-dropped once a send has waited ``send_timeout`` seconds; the connection limit and
-the crash fault are the emulator's (the connections share its set).
+or nothing for a while after every Nth packet.  The port's clients are a set of their
+own, with a limit of their own (the emulator's ``max_state_connections``): a state client
+sends nothing by the protocol, so idle ones cannot be told apart, and they must not lock
+the command port out; a client refused at the limit is counted (:attr:`StatePort.refused`)
+and told to the emulator (``refused``).  The idle rule of the port is the reading: a client
+that does not read is dropped once a send has waited ``send_timeout`` seconds (its send
+buffer is kept small, ``STATE_SNDBUF``, so that comes soon), and told to the emulator
+(``stalled``); what a client sends is read and dropped.  The crash fault is the emulator's.
 """
 
 from __future__ import annotations
@@ -38,6 +43,11 @@ __all__ = ["StatePort", "served_layout"]
 
 #: Seconds a send may wait on a client that does not read before it is dropped.
 SEND_TIMEOUT = 2.0
+#: A state connection's send buffer (bytes; the kernel doubles it), instead of one the
+#: kernel grows to megabytes: a client that stops reading fills it, and its own receive
+#: buffer, within a minute at the default period (100 ms) and seconds at 8 ms, while a
+#: reader a few hundred ms late on a loaded machine does not make the port wait.
+STATE_SNDBUF = 64 * 1024
 _POLL = 0.2  # the longest wait between looks at the stop event
 
 #: (fields, period in ms) of the model now, read under the emulator's lock.
@@ -75,6 +85,8 @@ class StatePort:
         send_timeout: float = SEND_TIMEOUT,
         layout: StateLayout | None = None,
         name: str = "state",
+        refused: Callable[[str], None] | None = None,
+        stalled: Callable[[str, str], None] | None = None,
     ) -> None:
         self.plan = StateFaults.of(faults)
         if layout is not None:
@@ -96,6 +108,8 @@ class StatePort:
         self._down = down
         self._changed = changed
         self._backoff = backoff
+        self._on_refused = refused
+        self._on_stalled = stalled
         self.send_timeout = send_timeout
         self._sock: socket.socket | None = None
         #: Packets sent, over all clients (tests wait on it through the emulator).
@@ -135,12 +149,18 @@ class StatePort:
 
     def _accepted(self, got: tuple[socket.socket, Any]) -> None:
         conn, addr = got
-        if self._down() or not self._conns.add(conn):
+        if self._down():
+            _shutdown(conn)  # restarting after a crash
+            return
+        if not self._conns.add(conn):
             self.refused += 1
+            if self._on_refused is not None:
+                self._on_refused(format_sockaddr(addr))
             _shutdown(conn)
             return
         with contextlib.suppress(OSError):
             conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            conn.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, STATE_SNDBUF)
         self.clients += 1
         try:
             self._spawn(self._serve, f"emulator-{self.name}-conn", conn, format_sockaddr(addr))
@@ -152,6 +172,11 @@ class StatePort:
         try:
             conn.settimeout(self.send_timeout)
             self._stream(conn)
+        except TimeoutError:  # the port's idle rule: a client that does not read
+            if self._on_stalled is not None and not self._stop.is_set():
+                self._on_stalled(
+                    peer, f"read nothing: a state packet waited {self.send_timeout:g} s to be sent"
+                )
         except OSError:
             pass  # the client went away, or close() shut the socket
         finally:

@@ -37,6 +37,15 @@ the proxy dies (SIGKILL), the recorder sees the pipe end, or its parent change,
 records the connections still open as closed ("proxy died") and finishes the
 file; if both die, the file is unfinished but flushed, and ``recover`` repairs it.
 
+The state port (``state_upstream``, 8083) cannot hold up the command port: its clients
+have a limit of their own (``max_state_connections``), and its bytes a backlog of their
+own (``max_state_backlog``, a sixteenth of ``max_backlog`` by default): past it, the state
+connections stop reading until the recorder catches up, so a hostile state upstream is
+forwarded at the pace the recorder records it (its decoder takes a flood of stray headers
+at tens of MB/s: :mod:`conformance.protocol.state_scan`) and the command port reads on.
+Their reads are at most 64 KiB, so one turn of the I/O loop stays short.  What was not a
+packet is counted (:attr:`RecorderCounters.state_damaged`) for the stop line.
+
 An upstream that refuses, times out or dies is recorded (a ``close`` event with
 the reason, naming the upstream) and the client's connection is closed; the proxy
 carries on, and ``log`` says so once per episode (until a connection to the
@@ -69,12 +78,19 @@ from ..recording.rotating import segment_path
 from ..recording.writer import default_metadata
 from ..spec.commands import SpecSet
 from .addresses import format_sockaddr
-from .proxy_base import ProxyStats, open_payload
+from .proxy_base import STATE_BACKLOG_SHARE, ProxyStats, open_payload
 from .proxy_tcp import TcpForwarding, _Pair
 from .proxy_udp import UdpForwarding, _UdpSession
 from .recorder_process import CLOSE, OPEN, STOP, RecorderCounters, RecorderProcess
 from .replay_server import ReplayServer
-from .server import BACKOFF_MAX, RESOURCE_ERRNOS, Backoff, family, log_stderr
+from .server import (
+    BACKOFF_MAX,
+    DEFAULT_MAX_STATE_CONNECTIONS,
+    RESOURCE_ERRNOS,
+    Backoff,
+    family,
+    log_stderr,
+)
 
 __all__ = [
     "ProxyStats",
@@ -119,12 +135,19 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
         record_tick: float = 0.02,  # 10 -> 20 ms: the recorder's CPU a frame 12 -> 8 us
         on_frame: Callable[[FrameRecord], None] | None = None,
         max_connections: int | None = None,
+        max_state_connections: int = DEFAULT_MAX_STATE_CONNECTIONS,
+        max_state_backlog: int | None = None,
         max_frame_size: int = DEFAULT_MAX_FRAME_SIZE,
         stop_timeout: float | None = None,
+        max_unrecorded: int | None = None,
         log: Callable[[str], None] | None = None,
     ) -> None:
         if max_frame_size < 64:
             raise ValueError("max_frame_size must be at least 64 bytes")
+        if max_state_connections < 1:
+            raise ValueError("max_state_connections must be at least 1")
+        if max_unrecorded is not None and max_unrecorded < 1:
+            raise ValueError("max_unrecorded must be at least 1 byte")
         if specs is None:
             from ..spec.commands import default_specs
 
@@ -143,13 +166,29 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
         self.record_tick = record_tick
         self.max_frame_size = max_frame_size
         self.stop_timeout = stop_timeout
+        #: The most bytes forwarded that the file does not hold yet (None: no bound); once
+        #: the recording fails, nothing more is read (``--on-write-error stop``).
+        self.max_unrecorded = max_unrecorded
+        self._state_reserve = max_unrecorded // 2 if max_unrecorded is not None else 0
         self.max_connections = (
             max_connections if max_connections is not None else default_max_connections()
+        )
+        #: State-port connections forwarded at once (a limit of their own: idle state
+        #: clients, which send nothing by the protocol, never lock out the command port).
+        self.max_state_connections = max_state_connections
+        #: Bytes of the state port the recorder may be behind on before the state
+        #: connections stop reading (the command port reads on).
+        self.max_state_backlog = (
+            max_state_backlog
+            if max_state_backlog is not None
+            else max(1 << 20, max_backlog // STATE_BACKLOG_SHARE)
         )
         self.log = log if log is not None else log_stderr
         self.stats = ProxyStats()
         self.error: BaseException | None = None
-        self._open_pairs = 0
+        self._open_pairs = 0  # the command port's
+        self._state_pairs = set()
+        self._state_taken = 0  # the recorder's count, as last read
         self._backoff = Backoff(
             lambda m: self.log(m), started=self._shortage, ended=self._shortage_ended
         )
@@ -309,8 +348,18 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
 
     @property
     def open_connections(self) -> int:
-        """TCP connections being forwarded now."""
-        return self._open_pairs
+        """TCP connections being forwarded now (the state port's too)."""
+        return self._open_pairs + len(self._state_pairs)
+
+    @property
+    def unrecorded(self) -> int:
+        """Bytes read (and forwarded) that the file does not hold as of its last flush."""
+        return max(0, self._recorder.queued - self.recorder.flushed)
+
+    @property
+    def state_backlog(self) -> int:
+        """Bytes read from state connections and not yet taken by the recorder."""
+        return self._state_read - self.recorder.state_taken
 
     @property
     def frames_recorded(self) -> int:
@@ -344,6 +393,7 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
                 "specs": self.specs,
                 "max_frame_size": self.max_frame_size,
                 "stop_timeout": self.stop_timeout,
+                "max_unrecorded": self.max_unrecorded,
             }
         )
 
@@ -370,11 +420,18 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
             while not self._stopping.is_set():
                 # The recorder fell behind: stop reading (writes go on) until it catches up.
                 paused = len(self._rec_buf) > self.max_backlog
+                if self.max_unrecorded is not None:
+                    paused |= self._unrecorded_budget() <= 0
                 if paused != self._reads_paused:
                     self._set_paused(paused)
+                if self._state_read != self._state_taken or (
+                    self._read_budget is not None and (self._state_pairs or self._state_paused)
+                ):
+                    self._state_backlog_check()
                 self._reply_due = False
                 writable = False  # the pipe to the recorder has room again
-                for key, mask in sel.select(0.005 if self._rec_buf else 0.25):
+                quick = self._rec_buf or self._state_paused or self._reads_paused
+                for key, mask in sel.select(0.005 if quick else 0.25):
                     tag = key.data
                     # Forwarding first: a pair's event is the hot path.
                     if type(tag) is pairs:
@@ -438,6 +495,33 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
 
     _rec_since = 0.0
 
+    def _unrecorded_budget(self) -> int:
+        """What may still be read and forwarded: ``max_unrecorded`` less the bytes read that
+        the file does not hold yet (the recorder flushes at half of it); 0 once the
+        recording has failed."""
+        assert self.max_unrecorded is not None
+        if self.error is not None or self._recorder.dead:
+            budget = 0
+        else:
+            budget = self.max_unrecorded - (self._recorder.queued - self.recorder.flushed)
+        self._read_budget = budget
+        return budget
+
+    def _state_backlog_check(self) -> None:
+        """The state connections read while the recorder is at most ``max_state_backlog``
+        behind on their bytes: a hostile state upstream is forwarded at the pace the
+        recorder takes its bytes, and never fills the backlog the command port shares (nor,
+        with ``max_unrecorded``, more than half of what may pass unrecorded)."""
+        self._state_taken = self.recorder.state_taken
+        behind = self._state_read - self._state_taken
+        paused = behind > self.max_state_backlog and not self._recorder.dead
+        budget = self._read_budget
+        if budget is not None:
+            # --on-write-error stop: half of what may pass unrecorded is the command port's.
+            paused |= budget <= self._state_reserve
+        if paused != self._state_paused:
+            self._set_state_paused(paused)
+
     def _accept(self, *, state: bool = False) -> None:
         listener = self._state_listener if state else self._listener
         assert listener is not None
@@ -475,13 +559,24 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
         else:
             payload = open_payload("tcp", addr, target, self.address)
         self._put(OPEN, conn, "", t, payload)
-        if self._open_pairs >= self.max_connections:
+        full = (
+            len(self._state_pairs) >= self.max_state_connections
+            if state
+            else self._open_pairs >= self.max_connections
+        )
+        if full:
             # Accepted and closed at once: the client learns at once, and the queue
             # behind it does not fill with clients that would wait in vain.
-            self.stats.rejected += 1
+            if state:
+                self.stats.state_rejected += 1
+                reason = (
+                    f"refused: too many state-port connections (max {self.max_state_connections})"
+                )
+            else:
+                self.stats.rejected += 1
+                reason = f"refused: too many connections (max {self.max_connections})"
             with contextlib.suppress(OSError):
                 client.close()
-            reason = f"refused: too many connections (max {self.max_connections})"
             self._put(CLOSE, conn, "", t, reason.encode("utf-8"))
             return
         client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
@@ -504,10 +599,14 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
             upstream=up,
             deadline=time.monotonic() + self.connect_timeout,
             target=target,
+            state=state,
         )
         self._pairs[client] = pair
         self._pairs[up] = pair
-        self._open_pairs += 1
+        if state:
+            self._state_pairs.add(pair)
+        else:
+            self._open_pairs += 1
         self._backoff.succeeded()  # a whole pair: the end of a shortage episode, if one was on
         err = up.connect_ex(target)
         if err not in (0, errno.EINPROGRESS, errno.EWOULDBLOCK, errno.EAGAIN):

@@ -16,7 +16,11 @@ from typing import Any
 
 from .addresses import format_sockaddr
 
-__all__ = ["ProxyBase", "ProxyStats"]
+__all__ = ["STATE_BACKLOG_SHARE", "ProxyBase", "ProxyStats"]
+
+#: The state port's share of --max-backlog (by default 1/16 of it, at least 1 MiB): past it,
+#: its connections stop reading until the recorder catches up.
+STATE_BACKLOG_SHARE = 16
 
 
 @dataclass
@@ -27,6 +31,10 @@ class ProxyStats:
     refused: int = 0
     closed: int = 0
     paused: int = 0  # times the I/O thread waited for the recorder
+    #: Times the state connections waited for the recorder (--max-state-backlog).
+    state_paused: int = 0
+    #: State-port clients closed at once: --max-state-connections reached.
+    state_rejected: int = 0
     rejected: int = 0  # clients closed at once: --max-connections reached
     accept_errors: int = 0  # accept()/socket() failures for want of a resource
     errors: int = 0  # connections closed by an unexpected error while handling them
@@ -34,6 +42,8 @@ class ProxyStats:
     #: behind (each run of them is a ``gap`` problem in the recording).
     udp_unrecorded: int = 0
     udp_unrecorded_bytes: int = 0
+    #: UDP datagrams recorded but not forwarded: more would have passed --max-unrecorded.
+    udp_held: int = 0
 
 
 class ProxyBase:

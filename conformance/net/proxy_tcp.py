@@ -27,6 +27,9 @@ __all__ = ["TcpForwarding"]
 _READ = selectors.EVENT_READ
 _WRITE = selectors.EVENT_WRITE
 _RECV = 256 * 1024
+#: A state connection's reads: a packet is at most 657 bytes (v3.9.8), and a smaller read
+#: keeps one turn of the I/O loop short when a hostile state upstream floods it.
+_STATE_RECV = 64 * 1024
 
 
 @dataclass(eq=False)
@@ -49,6 +52,8 @@ class _Pair:
     interest: dict[int, int] = field(default_factory=dict)
     #: The upstream this pair connects to (the command port's, or the state port's).
     target: tuple[str, int] = ("", 0)
+    #: A state-port (8083) connection: its reads pause on the state port's own backlog.
+    state: bool = False
 
 
 class TcpForwarding(ProxyBase):
@@ -64,12 +69,29 @@ class TcpForwarding(ProxyBase):
     _upstream_down: set[tuple[str, int]]
     _reads_paused = False  # the recorder fell behind: no reads until it catches up
     _reply_due = False  # a request was forwarded in this turn of the I/O loop
+    #: The recorder is more than max_state_backlog behind on the state port's bytes: its
+    #: connections do not read until it catches up (the command port reads on).
+    _state_paused = False
+    #: Bytes read from state connections so far (the recorder counts those it took).
+    _state_read = 0
+    #: With ``max_unrecorded``: bytes that may still be read this turn (else None).
+    _read_budget: int | None = None
+    #: With ``max_unrecorded``: the part of it the state connections never read into.
+    _state_reserve = 0
+    _state_pairs: set[_Pair]
 
     def _set_paused(self, paused: bool) -> None:
         self._reads_paused = paused
         if paused:
             self.stats.paused += 1
         for p in set(self._pairs.values()):
+            self._update(p)
+
+    def _set_state_paused(self, paused: bool) -> None:
+        self._state_paused = paused
+        if paused:
+            self.stats.state_paused += 1
+        for p in list(self._state_pairs):
             self._update(p)
 
     def _pair_failed(self, p: _Pair, e: BaseException) -> None:
@@ -79,6 +101,7 @@ class TcpForwarding(ProxyBase):
         with contextlib.suppress(Exception):
             self._close_pair(p, f"proxy error: {type(e).__name__}: {e}")
         # Whatever state it failed in, the pair's sockets go (idempotent).
+        self._state_pairs.discard(p)
         for sock in (p.client, p.upstream):
             self._pairs.pop(sock, None)
             with contextlib.suppress(Exception):
@@ -111,7 +134,7 @@ class TcpForwarding(ProxyBase):
         """Register what each socket of the pair should wait for."""
         if p.closed:
             return
-        reading = not self._reads_paused
+        reading = not self._reads_paused and not (p.state and self._state_paused)
         ci = 0
         if reading and not p.client_eof and len(p.to_upstream) < self.max_pending:
             ci |= _READ
@@ -178,8 +201,17 @@ class TcpForwarding(ProxyBase):
     def _recv(self, p: _Pair, *, from_client: bool) -> bool:
         """Read and forward; True if the pair's interests cannot have changed."""
         sock = p.client if from_client else p.upstream
+        size = _STATE_RECV if p.state else _RECV
+        budget = self._read_budget
+        if budget is not None:
+            # --on-write-error stop: never more forwarded than the file may lack, and the
+            # state port never takes the half of it that is the command port's.
+            avail = budget - self._state_reserve if p.state else budget
+            if avail <= 0:
+                return True  # paused at the next turn
+            size = min(size, avail)
         try:
-            data = sock.recv(_RECV)
+            data = sock.recv(size)
         except (BlockingIOError, InterruptedError):
             return True
         except OSError as e:
@@ -187,6 +219,10 @@ class TcpForwarding(ProxyBase):
             self._close_pair(p, f"{who} error: {e.strerror or e}")
             return False
         t = time.time_ns()
+        if budget is not None:
+            self._read_budget = budget - len(data)
+        if p.state:
+            self._state_read += len(data)  # every byte read is queued for the recorder
         if data and p.connected:
             # Forward first, record second: the common case, kept short.
             buf = p.to_upstream if from_client else p.to_client
@@ -295,7 +331,10 @@ class TcpForwarding(ProxyBase):
             self._put(DATA, p.conn, d, t, data)
         p.closed = True
         self.stats.closed += 1
-        self._open_pairs -= 1
+        if p.state:
+            self._state_pairs.discard(p)
+        else:
+            self._open_pairs -= 1
         for sock in (p.client, p.upstream):
             if p.interest.get(sock.fileno(), 0):
                 with contextlib.suppress(KeyError, ValueError):

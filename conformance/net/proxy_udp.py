@@ -60,6 +60,7 @@ class UdpForwarding(ProxyBase):
     _session_socks: dict[socket.socket, _UdpSession]
 
     max_backlog: int
+    _read_budget: int | None
     _rec_buf: bytearray
 
     def _record_dgram(self, s: _UdpSession, direction: str, t: int, data: bytes) -> None:
@@ -91,6 +92,19 @@ class UdpForwarding(ProxyBase):
             )
             gap = json.dumps({"missing": run[1], "detail": detail}).encode("utf-8")
             self._put(GAP, s.conn, direction, t, gap)
+
+    def _may_forward(self, size: int) -> bool:
+        """With ``max_unrecorded`` (``--on-write-error stop``): whether a datagram of
+        ``size`` bytes fits what may still be forwarded unrecorded; one that does not is
+        recorded, not forwarded, and counted (UDP may lose it; the file must not)."""
+        budget = self._read_budget
+        if budget is None:
+            return True
+        self._read_budget = budget - size
+        if budget >= size:
+            return True
+        self.stats.udp_held += 1
+        return False
 
     def _session_failed(self, s: _UdpSession, e: BaseException) -> None:
         self.stats.errors += 1
@@ -156,9 +170,10 @@ class UdpForwarding(ProxyBase):
                     open_payload("udp", addr, self.udp_upstream, self.udp_address),
                 )
             s.last = time.monotonic()
-            # UDP: a failed send loses the datagram on the way, as it would without us.
-            with contextlib.suppress(OSError):
-                s.sock.send(data)
+            if self._may_forward(len(data)):
+                # UDP: a failed send loses the datagram on the way, as it would without us.
+                with contextlib.suppress(OSError):
+                    s.sock.send(data)
             self.stats.bytes_c2s += len(data)
             self._record_dgram(s, C2S, t, data)
 
@@ -173,8 +188,9 @@ class UdpForwarding(ProxyBase):
                 return  # ICMP port unreachable and the like: nothing arrived
             t = time.time_ns()
             s.last = time.monotonic()
-            with contextlib.suppress(OSError):
-                self._udp.sendto(data, s.client_addr)
+            if self._may_forward(len(data)):
+                with contextlib.suppress(OSError):
+                    self._udp.sendto(data, s.client_addr)
             self.stats.bytes_s2c += len(data)
             self._record_dgram(s, S2C, t, data)
 

@@ -38,7 +38,7 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
-from ..recording.layout import C2S, S2C, DirectionText
+from ..recording.layout import C2S, S2C, STATE_STREAM, DirectionText
 from ..recording.recorder import StreamRecorder
 from ..recording.records import FrameRecord
 from ..recording.rotating import RotatingWriter
@@ -57,13 +57,16 @@ _DIR_NAME: tuple[DirectionText, DirectionText] = (C2S, S2C)
 _F_SETPIPE_SZ = 1031  # Linux fcntl: grow the pipe (1 MiB, the unprivileged maximum)
 _PIPE_SIZE = 1 << 20
 # Counters the recorder process keeps in shared memory: frames, problems, bytes taken,
-# state packets, bytes not recorded (taken after the file could not be written).
-_COUNTERS = struct.Struct("<qqqqq")
+# state packets, bytes not recorded (taken after the file could not be written), bytes of
+# state connections taken, bytes of state connections recorded as damage, bytes recorded
+# undecoded (the stop deadline passed), bytes taken before the file's last whole flush.
+_COUNTERS = struct.Struct("<qqqqqqqqq")
+_ZEROS = (0,) * 9
 # And one value the proxy writes there: when stopping, the time.monotonic() (one clock
 # for every process on the machine) after which the recorder stops decoding and
 # copies what is left to the file undecoded, so that a stop never waits on a backlog.
 _STOP_AT = struct.Struct("<d")
-_STOP_AT_OFFSET = 64
+_STOP_AT_OFFSET = 128
 
 
 class RecorderCounters:
@@ -71,19 +74,19 @@ class RecorderCounters:
 
     def __init__(self, shared: mmap.mmap) -> None:
         self._shared = shared
-        self._final: tuple[int, int, int, int, int] | None = None
+        self._final: tuple[int, ...] | None = None
 
     def freeze(self) -> None:
         """Keep the last values: the shared memory is about to be closed."""
         self._final = self._get()
 
-    def _get(self) -> tuple[int, int, int, int, int]:
+    def _get(self) -> tuple[int, ...]:
         if self._final is not None:
             return self._final
         try:
-            return _COUNTERS.unpack_from(self._shared)  # type: ignore[return-value]
+            return _COUNTERS.unpack_from(self._shared)
         except ValueError:  # closed
-            return (0, 0, 0, 0, 0)
+            return _ZEROS
 
     @property
     def frames(self) -> int:
@@ -110,6 +113,28 @@ class RecorderCounters:
     def lost(self) -> int:
         """Payload bytes taken but not recorded: the file could not be written."""
         return self._get()[4]
+
+    @property
+    def state_taken(self) -> int:
+        """Payload bytes of state-port connections the recorder has taken from the pipe."""
+        return self._get()[5]
+
+    @property
+    def state_damaged(self) -> int:
+        """Bytes of state-port connections recorded as damage: garbage, truncated packets,
+        the client's bytes (problem records that hold them)."""
+        return self._get()[6]
+
+    @property
+    def undecoded(self) -> int:
+        """Bytes recorded undecoded: the recorder was still behind at the stop deadline."""
+        return self._get()[7]
+
+    @property
+    def flushed(self) -> int:
+        """Payload bytes taken before the file's last whole flush: those the file holds
+        (but a frame a decoder held unfinished then)."""
+        return self._get()[8]
 
 
 class RecorderProcess:
@@ -366,7 +391,16 @@ class _Recorder:
         self.idle_ns = config["idle_resolve_ns"]
         self.tick = config["record_tick"]
         self.stop_timeout = config["stop_timeout"]
+        #: Flush once this many bytes taken are not in the file yet, half the proxy's
+        #: --max-unrecorded (None: every flush_interval only).
+        max_unrecorded = config.get("max_unrecorded")
+        self.flush_every = max(1, max_unrecorded // 2) if max_unrecorded else None
         self.taken = 0
+        #: ``taken`` as of the last whole flush (what the file holds).
+        self.flushed = 0
+        #: Payload bytes of state connections taken (the proxy bounds their backlog).
+        self.state_taken = 0
+        self.state_conns: set[int] = set()
         self.error_sent = False
         #: The file could not be written (disk full, file too large...): what comes is
         #: taken from the pipe (the proxy must not stall) and counted, not recorded, and
@@ -398,7 +432,7 @@ class _Recorder:
         """Between two decoder slices (see StreamRecorder): keep the flush promise,
         and once the proxy's stop deadline has passed, record the rest undecoded."""
         now = time.monotonic()
-        if now - self.last_flush >= self.flush_interval:
+        if self.flush_due(now):
             # Idle decisions use the newest arrival time taken from the pipe: the
             # recorder is behind, and the bytes still queued may complete a frame.
             self.flush(now, self.latest_ns)
@@ -416,6 +450,7 @@ class _Recorder:
     def flush(self, now: float, idle_now_ns: int) -> None:
         self.last_flush = now
         if not self.broken:
+            taken = self.taken  # bytes whose reads were recorded (see events())
             try:
                 self.rec.idle(idle_now_ns, self.idle_ns)
                 self.writer.flush()
@@ -423,7 +458,19 @@ class _Recorder:
                 self.fail(e)
             else:
                 self.saved = (self.rec.frames, self.rec.problems, self.rec.state_packets)
+                # A frame a decoder has begun is not in the file yet, but counted as if: a
+                # peer that sends half a large frame and waits must not stop the proxy
+                # (--on-write-error stop) until its decoder decides (README: the bound).
+                self.flushed = taken
         self.publish()
+
+    def flush_due(self, now: float) -> bool:
+        """The flush promise: every flush_interval, and (``--on-write-error stop``) once
+        half of what the proxy may forward unrecorded is not in the file."""
+        if now - self.last_flush >= self.flush_interval:
+            return True
+        every = self.flush_every
+        return every is not None and self.taken - self.flushed >= every
 
     def run(self) -> None:
         import select
@@ -465,7 +512,7 @@ class _Recorder:
                 eof = True  # the proxy is gone (SIGKILL) and someone else holds the pipe
             self.publish()
             now = time.monotonic()
-            if now - self.last_flush >= self.flush_interval:
+            if self.flush_due(now):
                 self.flush(now, time.time_ns() if drained else self.latest_ns)
         if not stopped and not self.broken:
             try:
@@ -479,6 +526,7 @@ class _Recorder:
                 self.fail(e)
             else:
                 self.saved = (self.rec.frames, self.rec.problems, self.rec.state_packets)
+                self.flushed = self.taken
         if self.broken:
             self.saved = self.in_files()
         self.publish()
@@ -507,14 +555,21 @@ class _Recorder:
         reads: list[tuple[int, DirectionText, int, bytes]] = []
         latest = self.latest_ns
         taken = 0
+        state_taken = 0
+        state_conns = self.state_conns
 
         def flush_reads() -> None:
+            # ``taken`` counts the reads once recorded: a flush between two slices of
+            # them (checkpoint) must not count them as in the file.
+            nonlocal taken
             if reads:
                 try:
                     rec.reads(reads)
                 except Exception as e:
                     self.fail(e)
                 reads.clear()
+            self.taken += taken
+            taken = 0
 
         while end - pos >= size and not self.broken:
             kind, d, conn, t_ns, n = unpack(blob, pos)
@@ -527,17 +582,25 @@ class _Recorder:
                 latest = t_ns
             if kind == DATA:
                 taken += n
+                if conn in state_conns:
+                    state_taken += n
                 reads.append((conn, _DIR_NAME[d], t_ns, payload))
                 continue
             flush_reads()
             self.latest_ns = latest
             try:
                 if kind == DGRAM:
-                    taken += n
-                    rec.datagram(conn, _DIR_NAME[d], t_ns, payload)
+                    try:
+                        rec.datagram(conn, _DIR_NAME[d], t_ns, payload)
+                    finally:
+                        self.taken += n  # once recorded (a flush inside it counts it not)
                 elif kind == OPEN:
-                    rec.open(conn, t_ns=t_ns, **json.loads(payload))
+                    doc = json.loads(payload)
+                    if doc.get("stream") == STATE_STREAM:
+                        state_conns.add(conn)
+                    rec.open(conn, t_ns=t_ns, **doc)
                 elif kind == CLOSE:
+                    state_conns.discard(conn)
                     rec.close(conn, t_ns=t_ns, reason=payload.decode("utf-8"))
                 elif kind == GAP:  # the proxy forwarded bytes it could not queue for us
                     gap = json.loads(payload)
@@ -549,7 +612,7 @@ class _Recorder:
             except Exception as e:
                 self.fail(e)
         self.latest_ns = latest
-        self.taken += taken
+        self.state_taken += state_taken
         flush_reads()
         del buf[:pos]
         if self.broken and not stop:  # it broke on the way: the rest is lost
@@ -580,13 +643,21 @@ class _Recorder:
         pos, end = 0, len(buf)
         stop = False
         while end - pos >= size:
-            kind, _, _, _, n = unpack(buf, pos)
+            kind, _, conn, _, n = unpack(buf, pos)
             if end - pos - size < n:
                 break
-            pos += size + n
+            at = pos + size
+            pos = at + n
             if kind in (DATA, DGRAM):
                 self.taken += n
                 self.lost += n
+                if kind == DATA and conn in self.state_conns:
+                    self.state_taken += n
+            elif kind == OPEN:
+                if json.loads(bytes(buf[at:pos])).get("stream") == STATE_STREAM:
+                    self.state_conns.add(conn)
+            elif kind == CLOSE:
+                self.state_conns.discard(conn)
             elif kind == STOP:
                 stop = True
                 break
@@ -600,7 +671,19 @@ class _Recorder:
             frames, problems, states = self.saved
         else:
             frames, problems, states = rec.frames, rec.problems, rec.state_packets
-        _COUNTERS.pack_into(self.shared, 0, frames, problems, self.taken, states, self.lost)
+        _COUNTERS.pack_into(
+            self.shared,
+            0,
+            frames,
+            problems,
+            self.taken,
+            states,
+            self.lost,
+            self.state_taken,
+            rec.state_damaged,
+            rec.undecoded_bytes,
+            self.flushed,
+        )
         try:
             if self.out_frames:
                 self.status.send(("frames", list(self.out_frames)))

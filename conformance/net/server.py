@@ -8,8 +8,9 @@ descriptors or memory (EMFILE, ENFILE...).  Retrying the latter at once would sp
 the server rests, 10 ms doubling to 1 s, and says so once per episode
 (:class:`Backoff`).  The threaded servers accept in :func:`serve_forever`; the
 proxy, which waits on a selector, takes the :class:`Backoff` alone.  Each caps the
-connections it serves at once (:class:`ConnectionSet`, or the proxy's pair count):
-beyond, a client is accepted and closed at once.
+connections it serves at once (:class:`ConnectionSet`, or the proxy's pair count), the
+state port's apart from the command port's: beyond, a client is accepted and closed at
+once.
 """
 
 from __future__ import annotations
@@ -26,6 +27,9 @@ from typing import TypeVar
 __all__ = [
     "BACKOFF_FIRST",
     "BACKOFF_MAX",
+    "DEFAULT_IDLE_TIMEOUT",
+    "DEFAULT_MAX_CONNECTIONS",
+    "DEFAULT_MAX_STATE_CONNECTIONS",
     "RESOURCE_ERRNOS",
     "TRANSIENT_ERRNOS",
     "Backoff",
@@ -63,6 +67,10 @@ TRANSIENT_ERRNOS = frozenset(
 #: Connections served at once; more are accepted and closed at once.  256 threads
 #: and descriptors stay well inside the usual ``ulimit -n`` of 1024.
 DEFAULT_MAX_CONNECTIONS = 256
+#: State-port (8083) connections served at once, a limit of their own: a state client
+#: sends nothing (the 8083 manual, section 1), so idle ones cannot be told from others,
+#: and 256 of them once locked the command port out.
+DEFAULT_MAX_STATE_CONNECTIONS = 64
 #: Seconds a TCP client may send nothing before its connection is closed: 256 idle
 #: connections locked every new client out.  Ten minutes outlasts the pauses of real
 #: sessions (the SDKs poll state on their own ports, and a client that waits on a

@@ -13,7 +13,7 @@ import os
 import struct
 from typing import Any
 
-from ..recording.layout import C2S, S2C
+from ..recording.layout import C2S, S2C, DirectionText
 from ..recording.reader import Recording
 from ..recording.repair import atomic_output
 from .packets import _ACK, _FIN, _SYN, DLT_EN10MB
@@ -111,6 +111,14 @@ class _PcapWriter:
         self.f.close()
 
 
+def closed_first(reason: str) -> DirectionText:
+    """The direction whose FIN comes first for a recorded close ``reason``: the
+    controller's (``s2c``) when it ended the connection (the proxy's ``upstream closed``,
+    ``upstream error: …``, ``upstream … refused``; a capture's ``server closed`` and
+    ``server reset``), else the client's."""
+    return S2C if reason.startswith(("upstream", "server")) else C2S
+
+
 def export_pcap(rec: Recording, out: str | os.PathLike[str]) -> int:
     """Write the recording's traffic as a pcap; returns the number of packets written.
 
@@ -118,7 +126,9 @@ def export_pcap(rec: Recording, out: str | os.PathLike[str]) -> int:
     controller addresses (IPv4; others are mapped to 10.0.0.1 / 10.0.0.2), with
     a handshake at its open event, one segment per frame or malformed run at its
     stream offset (so bytes missing from an imported capture stay missing), and
-    FINs at its close event.
+    FINs at its close event, first from the side that closed first (:func:`closed_first`:
+    ``import-pcap`` reads an ``upstream closed`` back as ``server closed``, never as the
+    client's doing, which a state stream's cut packet would then not be blamed on).
     """
     events: list[tuple[int, int, int, str, Any]] = []  # (t, order, conn, kind, payload)
     opened = {c.conn: c for c in rec.connections if c.event == "open"}
@@ -195,9 +205,14 @@ def export_pcap(rec: Recording, out: str | os.PathLike[str]) -> int:
                         continue
                 if kind == "close":
                     if st["open"]:
-                        seg(True, isn[C2S] + sent[C2S], isn[S2C] + sent[S2C], _FIN | _ACK)
-                        seg(False, isn[S2C] + sent[S2C], isn[C2S] + sent[C2S] + 1, _FIN | _ACK)
-                        seg(True, isn[C2S] + sent[C2S] + 1, isn[S2C] + sent[S2C] + 1, _ACK)
+                        c = closed.get(cid)
+                        first = closed_first(c.reason if c is not None else "")
+                        second = S2C if first == C2S else C2S
+                        # The first FIN, the other side's FIN (acknowledging it), the ACK.
+                        end = {d: isn[d] + sent[d] for d in (C2S, S2C)}
+                        seg(first == C2S, end[first], end[second], _FIN | _ACK)
+                        seg(second == C2S, end[second], end[first] + 1, _FIN | _ACK)
+                        seg(first == C2S, end[first] + 1, end[second] + 1, _ACK)
                     continue
                 offset, raw = payload
                 d = kind

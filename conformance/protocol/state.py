@@ -33,6 +33,7 @@ from .state_layout import StateLayout
 
 __all__ = [
     "HEADER",
+    "VECTOR_AFTER",
     "StateDecoder",
     "StateEvent",
     "StatePacket",
@@ -57,6 +58,13 @@ DEFAULT_MAX_LENGTH = 2048
 _RAW_KEPT = 256
 #: A garbage run is reported at least every this many bytes (bounded memory).
 _GARBAGE_CHUNK = 65536
+#: Amid garbage, a header of an unknown LEN waiting for its bytes waits for at least this
+#: many more (see :meth:`StateDecoder._feed`).
+_GARBAGE_STEP = 4096
+#: Stray headers a feed rejects one at a time (a checksum each) before the rest of the feed
+#: is decided in vector passes (:mod:`.state_scan`): after a little garbage the next header
+#: is usually a packet, and deciding it costs less than a vector pass.
+VECTOR_AFTER = 8
 
 
 class StateProblemKind(str, enum.Enum):
@@ -284,6 +292,7 @@ class StateDecoder:
         self._garbage = 0  # bytes of the garbage run being skipped
         self._garbage_at = 0
         self._garbage_raw = bytearray()
+        self._rejected = 0  # stray headers rejected in this feed
         self._last_cnt: int | None = None
         self._last_time: float | None = None
         self.packets = 0
@@ -312,8 +321,24 @@ class StateDecoder:
         if len(self._buf) + len(data) < self._need:  # the packet begun is not complete yet
             self._buf += data
             return []
+        return self._run(data, time, final=False)
+
+    def close(self, time: float | None = None) -> list[StateEvent]:
+        """The stream ended: what is held is decided as no more bytes will come (a header
+        of a known LEN begun is a truncated packet; one of an unknown LEN, garbage, and
+        what follows it is read on)."""
+        out = self._run(b"", time, final=True) if self._buf else []
+        self._need = 0
+        self._flush_garbage(out, time)
+        return out
+
+    # ------------------------------------------------------------------ internals
+
+    def _run(
+        self, data: bytes | bytearray | memoryview, time: float | None, *, final: bool
+    ) -> list[StateEvent]:
         try:
-            return self._feed(data, time)
+            return self._feed(data, time, final)
         except Exception as e:  # a decoder bug must not take the caller down ...
             if self.raise_bugs:  # ... unless the fuzzer is looking for them
                 raise
@@ -328,42 +353,11 @@ class StateDecoder:
                 )
             ]
 
-    def close(self, time: float | None = None) -> list[StateEvent]:
-        """The stream ended: what is left is a truncated packet or garbage."""
+    def _feed(
+        self, data: bytes | bytearray | memoryview, time: float | None, final: bool = False
+    ) -> list[StateEvent]:
         out: list[StateEvent] = []
-        buf = self._buf
-        if buf:
-            length = buf[3] | buf[4] << 8 if len(buf) >= HEAD_SIZE else None
-            known = length is not None and length in self.by_length
-            if buf[:2] == HEADER and (known or len(buf) < HEAD_SIZE):
-                self._flush_garbage(out, time)
-                need = (
-                    f"a {length + HEAD_SIZE + TAIL_SIZE}-byte packet"
-                    if length is not None
-                    else "a header"
-                )
-                out.append(
-                    StateProblem(
-                        kind=StateProblemKind.TRUNCATED,
-                        detail=f"stream ended {len(buf)} bytes into {need}",
-                        offset=self._base,
-                        raw=bytes(buf[:_RAW_KEPT]),
-                        time=time,
-                        actual=len(buf),
-                    )
-                )
-            else:
-                self._skip(len(buf), out, time)
-            self._base += len(buf)
-            buf.clear()
-        self._need = 0
-        self._flush_garbage(out, time)
-        return out
-
-    # ------------------------------------------------------------------ internals
-
-    def _feed(self, data: bytes | bytearray | memoryview, time: float | None) -> list[StateEvent]:
-        out: list[StateEvent] = []
+        self._rejected = 0
         # Work on immutable bytes: a packet is then one slice (one copy) of it.
         buf = bytes(self._buf) + data if self._buf else bytes(data)
         pos = 0
@@ -376,28 +370,45 @@ class StateDecoder:
             if buf[pos] != 0x5A or (pos + 1 < n and buf[pos + 1] != 0x5A):
                 nxt = buf.find(HEADER, pos + 1)
                 if nxt < 0:  # keep a last 0x5A: it may start a header
-                    nxt = n - 1 if buf[n - 1] == 0x5A else n
+                    nxt = n - 1 if buf[n - 1] == 0x5A and not final else n
                 self._skip_bytes(buf, pos, nxt, out, time)
                 pos = nxt
                 continue
             if n - pos < HEAD_SIZE:
+                if final:  # the stream ended inside a header (a lone 0x5A: garbage)
+                    if n - pos < 2:
+                        self._skip_bytes(buf, pos, n, out, time)
+                    else:
+                        self._truncated(buf, pos, "a header", out, time)
+                    pos = n
                 break
             length = buf[pos + 3] | buf[pos + 4] << 8
             lay = by_length.get(length)
             if lay is None and length > self.max_length:
-                self._skip_bytes(buf, pos, pos + 1, out, time)  # not a header after all
-                pos += 1
+                pos = self._skip_to_start(buf, pos, out, time, final)  # not a header after all
                 continue
             end = pos + HEAD_SIZE + length + TAIL_SIZE
             if end > n:
-                self._need = end - pos
+                if final:
+                    if lay is None:  # its bytes never came: no packet
+                        pos = self._skip_to_start(buf, pos, out, time, final)
+                        continue
+                    self._truncated(buf, pos, f"a {end - pos}-byte packet", out, time)
+                    pos = n
+                    break
+                need = end - pos
+                if lay is None and self._garbage:
+                    # A stray header amid garbage, fed in small pieces: wait for a step
+                    # of bytes, so that its successors are decided in one vector pass
+                    # (the decisions are the same; only later).
+                    need = max(need, n - pos + _GARBAGE_STEP)
+                self._need = need
                 break
             raw = buf[pos:end]
             got = raw[-2] | raw[-1] << 8
             computed = _sum16(raw, end - pos - TAIL_SIZE)
             if lay is None and got != computed:
-                self._skip_bytes(buf, pos, pos + 1, out, time)  # a stray 0x5A5A
-                pos += 1
+                pos = self._skip_to_start(buf, pos, out, time, final)  # a stray 0x5A5A
                 continue
             if self._garbage:
                 self._flush_garbage(out, time)
@@ -407,7 +418,8 @@ class StateDecoder:
                 got == computed
                 and last is not None
                 and cnt == (last + 1) & 0xFF
-                and (lay is expected or (expected is None and lay is not None))
+                and lay is not None
+                and (lay is expected or expected is None)
                 and no_period
             ):
                 # The usual packet: nothing to report (the checks of _packet, inlined).
@@ -539,6 +551,39 @@ class StateDecoder:
             )
         )
 
+    def _skip_to_start(
+        self, buf: bytes, pos: int, out: list[StateEvent], time: float | None, final: bool
+    ) -> int:
+        """``pos`` holds no packet: skip to the next position that may start one (each
+        stray header after it decided in one vector pass, not one checksum at a time:
+        :mod:`.state_scan`); that position."""
+        self._rejected += 1
+        if self._rejected <= VECTOR_AFTER:
+            nxt = pos + 1  # the loop finds the next header: after a little garbage, a packet
+        else:
+            from .state_scan import next_start  # numpy: loaded on a flood of stray headers
+
+            nxt = next_start(buf, pos + 1, self.by_length, self.max_length, final=final)
+        self._skip_bytes(buf, pos, nxt, out, time)
+        return nxt
+
+    def _truncated(
+        self, buf: bytes, pos: int, need: str, out: list[StateEvent], time: float | None
+    ) -> None:
+        """The stream ended ``len(buf) - pos`` bytes into ``need`` (a header, a packet)."""
+        self._flush_garbage(out, time)
+        left = len(buf) - pos
+        out.append(
+            StateProblem(
+                kind=StateProblemKind.TRUNCATED,
+                detail=f"stream ended {left} bytes into {need}",
+                offset=self._base + pos,
+                raw=buf[pos : pos + _RAW_KEPT],
+                time=time,
+                actual=left,
+            )
+        )
+
     def _skip_bytes(
         self,
         buf: bytes | bytearray,
@@ -562,9 +607,6 @@ class StateDecoder:
             start += take
             if self._garbage >= _GARBAGE_CHUNK:
                 self._flush_garbage(out, time)
-
-    def _skip(self, count: int, out: list[StateEvent], time: float | None) -> None:
-        self._skip_bytes(self._buf, 0, count, out, time)
 
     def _flush_garbage(self, out: list[StateEvent], time: float | None) -> None:
         if not self._garbage:

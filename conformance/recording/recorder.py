@@ -103,6 +103,11 @@ class StreamRecorder(_CommandNames):
         self.state_version = state_version
         #: State packets recorded, over every state connection.
         self.state_packets = 0
+        #: Bytes of state connections recorded as damage (garbage, truncated packets, the
+        #: client's bytes: :attr:`.state_stream.StateStream.damaged`).
+        self.state_damaged = 0
+        #: Bytes recorded undecoded (after :meth:`stop_decoding`), every kind of stream.
+        self.undecoded_bytes = 0
 
     # -- connection life
 
@@ -177,10 +182,11 @@ class StreamRecorder(_CommandNames):
         )
 
     def _state_close(self, conn: int, c: _Conn, s: StateStream, t_ns: int, reason: str) -> None:
-        before = s.packets, s.problems
+        before = s.packets, s.problems, s.damaged
         s.close(t_ns)
         self.state_packets += s.packets - before[0]
         self.problems += s.problems - before[1]
+        self.state_damaged += s.damaged - before[2]
         c_bytes, s_bytes = s.bytes[C2S], s.bytes[S2C]
         self.write(
             ConnectionRecord(
@@ -203,13 +209,15 @@ class StreamRecorder(_CommandNames):
         """A state connection's bytes (each read on its own: packets are small and slow)."""
         s = c.state
         assert s is not None
-        before = s.packets, s.problems
-        if self.undecoded_reason is not None:
+        before = s.packets, s.problems, s.damaged
+        if self.undecoded_reason is not None and direction == S2C:
             s.undecoded(direction, t_ns, data, self.undecoded_reason)
+            self.undecoded_bytes += len(data)
         else:
             s.data(direction, t_ns, data)
         self.state_packets += s.packets - before[0]
         self.problems += s.problems - before[1]
+        self.state_damaged += s.damaged - before[2]
         if self.checkpoint is not None:
             self.checkpoint()
 
@@ -536,6 +544,7 @@ class StreamRecorder(_CommandNames):
             st.decoder = FrameDecoder(max_frame_size=self.max_frame_size)
             st.timeline.clear()
         reason = self.undecoded_reason or "not decoded"
+        self.undecoded_bytes += len(data)
         for k in range(0, len(data), PROBLEM_RAW_LIMIT):
             piece = data[k : k + PROBLEM_RAW_LIMIT]
             self.write(
@@ -564,10 +573,11 @@ class StreamRecorder(_CommandNames):
         """``missing`` bytes of the stream were never captured: record it, restart decoding."""
         c = self._conns[conn]
         if c.state is not None:
-            before = c.state.packets, c.state.problems
+            before = c.state.packets, c.state.problems, c.state.damaged
             c.state.gap(direction, t_ns, missing, detail)
             self.state_packets += c.state.packets - before[0]
             self.problems += c.state.problems - before[1]
+            self.state_damaged += c.state.damaged - before[2]
             return
         st = c.streams[direction]
         self._emit(conn, c.transport, direction, st, st.decoder.close(), t_ns)

@@ -57,6 +57,9 @@ class StateStream:
         self.last_ns = 0
         self.packets = 0
         self.problems = 0
+        #: Bytes recorded as damage (garbage, a truncated packet, the client's bytes, what
+        #: the decoder failed on): every byte not a packet but those recorded undecoded.
+        self.damaged = 0
 
     # ------------------------------------------------------------------ input
 
@@ -96,7 +99,16 @@ class StateStream:
             self.close(t_ns)
         at = self.pending_at + len(self.pending)
         self.bytes[S2C] += len(data)
-        self._kept(S2C, "undecoded", f"bytes recorded undecoded: {reason}", at, data, t_ns, t_ns)
+        self._kept(
+            S2C,
+            "undecoded",
+            f"bytes recorded undecoded: {reason}",
+            at,
+            data,
+            t_ns,
+            t_ns,
+            damage=False,
+        )
         self.pending_at = at + len(data)
 
     def gap(self, direction: DirectionText, t_ns: int, missing: int, detail: str = "") -> None:
@@ -227,8 +239,14 @@ class StateStream:
         raw: bytes,
         first: int,
         t_ns: int,
+        *,
+        damage: bool = True,
     ) -> None:
-        """A problem that owns bytes: one record per ``PROBLEM_RAW_LIMIT`` of them."""
+        """A problem that owns bytes: one record per ``PROBLEM_RAW_LIMIT`` of them
+        (``damage``: counted in :attr:`damaged`; bytes the recorder had no time to decode
+        are not damage)."""
+        if damage:
+            self.damaged += len(raw)
         parts = max(1, -(-len(raw) // PROBLEM_RAW_LIMIT))
         for k in range(parts):
             piece = raw[k * PROBLEM_RAW_LIMIT : (k + 1) * PROBLEM_RAW_LIMIT]

@@ -29,10 +29,13 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from ..protocol.data_values import SHOWN_CHARS
+
 __all__ = [
     "AUTO",
     "GET_SOFTWARE_VERSION",
     "GET_SOFTWARE_VERSION_ID",
+    "MAX_REPLY_CHARS",
     "SoftwareVersion",
     "SpecChoice",
     "VersionRange",
@@ -41,6 +44,7 @@ __all__ = [
     "evidence_range",
     "firmware_versions_in",
     "parse_software_version",
+    "reply_text",
     "reported_in",
     "version_text",
     "version_tuple",
@@ -57,7 +61,12 @@ Version = tuple[int, ...]
 #: A version given by name (``3.9.8``, ``v3.9.8``), not a directory or ``auto``.
 _GIVEN_VERSION = re.compile(r"[vV]?\d+(?:\.\d+)+")
 
-_NUMBER = re.compile(r"\d+(?:\.\d+)+")
+#: A version: 2 to 8 numbers of at most 9 digits each (a reply is a peer's data: a
+#: 5,000-digit "version" is none, never an integer too long to convert).
+_NUMBER = re.compile(r"(?<!\d)\d{1,9}(?:\.\d{1,9}){1,7}(?!\d)")
+#: The longest 905 reply read for a version: the manual's example is 37 characters
+#: (6.1.4); a longer reply names none (its first characters are shown, escaped).
+MAX_REPLY_CHARS = 256
 #: frcobot_ros2's reading of the reply (fairino_version.cpp:290): a lower-case ``v``, the
 #: web version, then ``,V`` and the controller version.
 _FIELD_RE = re.compile(r"v([^,]+),V([^,]*)")
@@ -70,7 +79,8 @@ _FIRMWARE_IN_TEXT = re.compile(
 
 
 def version_tuple(text: str) -> Version | None:
-    """``v3.9.8`` -> ``(3, 9, 8)``, ``V3.8.2.11`` -> ``(3, 8, 2, 11)``; None without one."""
+    """``v3.9.8`` -> ``(3, 9, 8)``, ``V3.8.2.11`` -> ``(3, 8, 2, 11)``; None without one (a
+    number of more than 9 digits is no version's)."""
     m = _NUMBER.search(text)
     return tuple(int(x) for x in m.group(0).split(".")) if m else None
 
@@ -96,10 +106,34 @@ class SoftwareVersion:
         return version_text(v)
 
 
+def reply_text(data: str) -> str:
+    """A peer's reply as a label or a message quotes it: as it is when it is short and
+    printable (``FR5-V1-001(V6.0),v3.9.8,V3.7.77``), else quoted with each character a
+    terminal cannot carry escaped as Python does, cut at :data:`SHOWN_CHARS` characters
+    shown, with its length (``'FR5\\x00\\x1b[31m,v3.9.8'... (200031 chars)``)."""
+    if len(data) <= SHOWN_CHARS and data.isprintable():
+        return data
+    out: list[str] = []
+    used = 0
+    for ch in data:
+        e = ch if ch.isprintable() and ch not in "'\\" else repr(ch)[1:-1]
+        if ch == "'":
+            e = "\\'"
+        if used + len(e) > SHOWN_CHARS:
+            break
+        out.append(e)
+        used += len(e)
+    cut = len(out) < len(data)
+    return f"'{''.join(out)}'" + (f"... ({len(data)} chars)" if cut else "")
+
+
 def parse_software_version(data: str) -> SoftwareVersion | None:
     """A 905 reply's DATA as a :class:`SoftwareVersion`, or None when it names no version
-    (a refusal such as ``0`` or ``robot errcode:-1``, or anything else)."""
+    (a refusal such as ``0`` or ``robot errcode:-1``, a reply longer than
+    :data:`MAX_REPLY_CHARS`, or anything else)."""
     text = data.strip()
+    if len(text) > MAX_REPLY_CHARS:
+        return None
     m = _FIELD_RE.search(text)
     if m is not None and version_tuple(m.group(1)) is not None:
         model = text[: m.start()].rstrip(",").strip()
@@ -185,14 +219,14 @@ class SpecChoice:
         """``3.9.8 (auto: target … reports FR5-V1-001(V6.0),v3.9.8,V3.7.77)``."""
         if self.asked == AUTO:
             if self.reported is not None:
-                said = f"{self.where} reports {self.reported.data}"
+                said = f"{self.where} reports {reply_text(self.reported.data)}"
             else:
                 said = self.note
             extra = f"; {self.note}" if self.reported is not None and self.note else ""
             return f"{self.version} (auto: {said}{extra})"
         how = "default" if self.asked == "default" else "given"
         if self.reported is not None:
-            return f"{self.version} ({how}; {self.where} reports {self.reported.data})"
+            return f"{self.version} ({how}; {self.where} reports {reply_text(self.reported.data)})"
         return f"{self.version} ({how})"
 
     def to_json(self) -> dict[str, Any]:
@@ -272,6 +306,17 @@ def choose_spec(
             f"than every spec set ({', '.join(available)}); judging against {oldest}",
         )
     best = max(fitting, key=lambda v: version_tuple(v) or ())
+    if target[:2] > (version_tuple(best) or ())[:2] and len(fitting) == len(available):
+        # A newer series than any set (v99.0, v3.10): the newest is a guess, said as one.
+        return SpecChoice(
+            version=best,
+            asked=AUTO,
+            reported=reported,
+            where=where,
+            note=f"newer than every spec set; the newest, {best}",
+            warning=f"--spec-version auto: {where} reports firmware {reported.version}, newer "
+            f"than every spec set ({', '.join(available)}); judging against the newest, {best}",
+        )
     note = "" if version_tuple(best) == target else "the newest spec set not newer than it"
     return SpecChoice(version=best, asked=AUTO, reported=reported, where=where, note=note)
 

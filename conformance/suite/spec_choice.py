@@ -15,9 +15,10 @@ import os
 from dataclasses import replace
 from pathlib import Path
 
-from ..errors import SpecError, UsageError
+from ..errors import Rule, SpecError, UsageError
 from ..net.addresses import format_address
 from ..net.client import Client, TargetUnreachable
+from ..protocol.frame import DEFAULT_MAX_FRAME_SIZE
 from ..report.model import Report
 from ..spec.commands import (
     DEFAULT_SPEC_SET,
@@ -37,6 +38,7 @@ from ..spec.firmware import (
     SpecChoice,
     choose_spec,
     parse_software_version,
+    reply_text,
 )
 from .config import SuiteConfig
 
@@ -67,12 +69,19 @@ def ask_software_version(
     except OSError as e:
         return None, f"{where}: {e.strerror or e}"
     if ex.reply is None:
+        if any(m.rule is Rule.OVERSIZE for m in ex.malformed):
+            # Its bytes are data, never a size we trust: the decoder stopped at its limit.
+            return None, (
+                f"{where} answered GetSoftwareVersion (ID 905) with a reply too large to be "
+                f"one (more than {DEFAULT_MAX_FRAME_SIZE} bytes)"
+            )
         why = "closed the connection" if ex.closed else f"sent no reply within {timeout:g} s"
         return None, f"{where} did not answer GetSoftwareVersion (ID 905): it {why}"
     found = parse_software_version(ex.reply.data)
     if found is None:
-        shown = ex.reply.data[:60]
-        return None, f"{where} answered GetSoftwareVersion (ID 905) with {shown!r}, no version"
+        return None, (
+            f"{where} answered GetSoftwareVersion (ID 905) with {reply_text(ex.reply.data)}, no version"
+        )
     return found, where
 
 
@@ -192,6 +201,7 @@ def choice_line(choice: SpecChoice) -> str | None:
     if fits == choice.version:
         return None
     return (
-        f"{choice.where} reports {choice.reported.data}: judged against spec {choice.version}; "
+        f"{choice.where} reports {reply_text(choice.reported.data)}: judged against spec "
+        f"{choice.version}; "
         f"--spec-version auto would take {fits}"
     )
