@@ -122,3 +122,28 @@ def test_a_pcapng_section_header_claiming_gigabytes_is_refused_before_reading(
     assert p.returncode == EXIT_ERROR, p.stderr
     assert "section header block claims 2147483648 bytes" in p.stderr
     assert "internal error" not in p.stderr
+
+
+@pytest.mark.skipif(bool(missing("pyarrow", "duckdb")), reason="the fleet extra is not installed")
+def test_query_names_a_damaged_dataset_file_and_reads_the_rest(tmp_path: Path) -> None:
+    """One recording's frames file cut short: every report and --sql read the other
+    recordings' rows, the cut file is named on stderr, exit 3 (before: an internal error
+    for every query)."""
+    out = tmp_path / "ds"
+    for robot in ("r01", "r02"):
+        rec = tmp_path / f"{robot}.mcap"
+        write_recording(rec, robot, "3.9.8", 300, (), START)
+        assert cli_run("export-parquet", str(rec), "-o", str(out)).returncode == 0
+    victim = sorted((out / "frames").rglob("*.parquet"))[0]
+    victim.write_bytes(victim.read_bytes()[:-40])
+    sql = "SELECT robot, count(*) AS n FROM frames GROUP BY robot"
+    p = cli_run("query", str(out), "--sql", sql, "--format", "json")
+    assert p.returncode == EXIT_DAMAGED, p.stderr
+    assert f"damaged: {victim}: not read" in p.stderr
+    assert "internal error" not in p.stderr
+    rows = json.loads(p.stdout)
+    assert len(rows) == 1 and rows[0]["n"] == 300  # the other robot's frames, all of them
+    for report in ("latency", "failures", "firmware"):  # no fault: failures has no row
+        p = cli_run("query", str(out), "--report", report, "--format", "json")
+        assert p.returncode == EXIT_DAMAGED, (report, p.stderr)
+        assert bool(json.loads(p.stdout)) == (report != "failures"), report

@@ -178,7 +178,12 @@ def _run_query(args: argparse.Namespace) -> int:
     _need_fleet_extra()
     from ..fleet.query import connect, format_rows, run_report, run_sql
 
-    con = connect(args.dataset, threads=args.threads, sandboxed=not args.unsafe_sql)
+    damaged: list[str] = []
+    con = connect(
+        args.dataset, threads=args.threads, sandboxed=not args.unsafe_sql, damaged=damaged
+    )
+    for d in damaged:  # the rest is read; the exit code says a file was not
+        print(f"damaged: {d}", file=sys.stderr)
     if args.html:
         from ..fleet.html import render_page
 
@@ -188,4 +193,4 @@ def _run_query(args: argparse.Namespace) -> int:
         print(format_rows(run_sql(con, args.sql, unsafe=args.unsafe_sql), args.format))
     elif args.report or not args.html:
         print(format_rows(run_report(con, args.dataset, args.report or "latency"), args.format))
-    return 0
+    return EXIT_DAMAGED if damaged else 0

@@ -23,7 +23,16 @@ from ..errors import FileError, UsageError
 from .reports import REPORT_TABLES, REPORTS, report_sql
 from .schema import SCHEMA_VERSION, TABLES
 
-__all__ = ["Result", "connect", "format_rows", "run_report", "run_sql", "sandbox", "views"]
+__all__ = [
+    "Result",
+    "connect",
+    "format_rows",
+    "run_report",
+    "run_sql",
+    "sandbox",
+    "table_files",
+    "views",
+]
 
 Result = tuple[list[str], list[tuple[Any, ...]]]
 
@@ -34,9 +43,36 @@ def views(dataset: str | Path) -> list[str]:
     return [t for t in TABLES if (d / t).is_dir() and next((d / t).rglob("*.parquet"), None)]
 
 
-def connect(dataset: str | Path, *, threads: int | None = None, sandboxed: bool = True) -> Any:
+def table_files(dataset: Path, table: str) -> tuple[list[Path], list[str]]:
+    """A table's files whose Parquet footer reads, and each other one named with why (a
+    file cut short, not Parquet): a damaged file costs only itself."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    good: list[Path] = []
+    bad: list[str] = []
+    for f in sorted((dataset / table).rglob("*.parquet")):
+        try:
+            pq.read_metadata(f)
+        except (OSError, pa.ArrowException) as e:
+            why = str(e).splitlines()[0] if str(e) else type(e).__name__
+            bad.append(f"{f}: not read ({why})")
+        else:
+            good.append(f)
+    return good, bad
+
+
+def connect(
+    dataset: str | Path,
+    *,
+    threads: int | None = None,
+    sandboxed: bool = True,
+    damaged: list[str] | None = None,
+) -> Any:
     """A DuckDB connection with a view per table of ``dataset`` (hive partitions read back
-    as the columns ``date`` and ``robot``); ``sandboxed`` (the default): :func:`sandbox`."""
+    as the columns ``date`` and ``robot``); ``sandboxed`` (the default): :func:`sandbox`.
+    A file that cannot be read (:func:`table_files`) is left out of its view and named in
+    ``damaged``."""
     import duckdb
 
     d = Path(dataset)
@@ -57,9 +93,17 @@ def connect(dataset: str | Path, *, threads: int | None = None, sandboxed: bool 
     if threads:
         con.execute(f"SET threads = {int(threads)}")
     for t in views(d):
-        glob = str(d / t / "**" / "*.parquet").replace("'", "''")
+        good, bad = table_files(d, t)
+        if damaged is not None:
+            damaged += bad
+        if not good:
+            continue
+        if bad:  # the files that read, by name
+            files = "[" + ", ".join("'" + str(f).replace("'", "''") + "'" for f in good) + "]"
+        else:
+            files = "'" + str(d / t / "**" / "*.parquet").replace("'", "''") + "'"
         con.execute(
-            f"CREATE VIEW {t} AS SELECT * FROM read_parquet('{glob}', hive_partitioning = true, "
+            f"CREATE VIEW {t} AS SELECT * FROM read_parquet({files}, hive_partitioning = true, "
             "hive_types = {'date': DATE, 'robot': VARCHAR}, union_by_name = true)"
         )
     if sandboxed:
