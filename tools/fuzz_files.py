@@ -20,7 +20,8 @@ Each target mutates one valid file of its kind and reads it through the public A
   :func:`~conformance.recording.traffic_pb.decode_traffic` gives frames or a
   ``ValueError``;
 * ``mcap-traffic``: one frame message of a recording replaced by such a mutation; read,
-  summarized and checked as for ``mcap-json``;
+  summarized and checked as for ``mcap-json``, and exported to a fleet dataset (with the
+  fleet extra);
 * ``pcap``, ``pcapng``, ``pcap.gz``: a capture's bytes mutated or cut;
   :func:`~conformance.pcap.read.read_packets` gives packets and damage, or a
   ``CaptureError``;
@@ -43,6 +44,7 @@ import json
 import logging
 import random
 import resource
+import shutil
 import struct
 import sys
 import tempfile
@@ -273,6 +275,16 @@ def _make(target: str, tmp: Path, rng: random.Random) -> Callable[[], Any]:
 
         specs = default_specs()
         goods = _traffic_messages()
+        try:  # the fleet extra, where it is installed
+            from conformance.fleet.export import export_recording as export
+            from conformance.fleet.export import open_dataset
+            from conformance.judge.judge import Judge
+            from conformance.spec.dialects import default_dialects
+
+            judge = Judge(specs, default_dialects())
+            import pyarrow  # noqa: F401
+        except ImportError:
+            export = None  # type: ignore[assignment]
         first = FrameRecord(conn=1, dir="c2s", cnt=1, cmd_id=201, name="MoveJ",
                             data='MoveJ("P1")', length=11, first_ns=5, complete_ns=6,
                             raw=encode_frame(1, 201, 'MoveJ("P1")'))  # fmt: skip
@@ -286,6 +298,9 @@ def _make(target: str, tmp: Path, rng: random.Random) -> Callable[[], Any]:
             got = read_recording(f)
             summarize(str(f), specs)  # the file read a window at a time
             check_recording(got, specs)  # the recording read whole
+            if export is not None:  # and into a fleet dataset, as export-parquet reads it
+                shutil.rmtree(tmp / "ds", ignore_errors=True)
+                export(str(f), open_dataset(tmp / "ds"), judge_for=lambda fw: judge)
             return got
 
         return one
