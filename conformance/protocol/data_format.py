@@ -11,7 +11,7 @@ from collections.abc import Sequence
 from typing import Protocol
 
 from ..errors import LocalProtocolError, Rule
-from .data_parse import _BARE_STOP
+from .data_parse import BARE_STOP
 from .data_values import Arg, Number, Text
 
 __all__ = ["Value", "format_call", "format_number", "format_value", "to_python"]
@@ -54,7 +54,7 @@ def format_value(value: Value, *, quoted: bool = True) -> str:
                     f"string {value!r} contains a double quote", rule=Rule.UNENCODABLE
                 )
             return f'"{value}"'
-        if any(c in _BARE_STOP or c in " \t" for c in value) or value == "":
+        if any(c in BARE_STOP or c in " \t" for c in value) or value == "":
             raise LocalProtocolError(f"bare string {value!r} cannot be sent", rule=Rule.UNENCODABLE)
         return value
     if isinstance(value, (int, float)):

@@ -70,7 +70,7 @@ _PLAIN_LIST_RE = re.compile(rf"{_PLAIN_NUMBER}(?:,{_PLAIN_NUMBER})*", re.ASCII)
 _PLAIN_CHARS = b"0123456789.,+-"
 _scan_json: Callable[[str, int], tuple[Any, int]] = json.JSONDecoder().scan_once  # type: ignore[attr-defined]
 # Characters that end a bare (unquoted) token.
-_BARE_STOP = frozenset(',(){}"')
+BARE_STOP = frozenset(',(){}"')
 _REPLY_STOP = frozenset(',{}"')
 
 
@@ -80,7 +80,7 @@ class _ArgParser:
         self.i = 0
         #: Reply values may hold parentheses (GetSoftwareVersion's ``FR16-V1-001(V6.0)``,
         #: 6.1.4); in a call's arguments they end a bare word.
-        self.stop = _REPLY_STOP if reply else _BARE_STOP
+        self.stop = _REPLY_STOP if reply else BARE_STOP
         self.strict = strict
         self.spaces = False
         self.depth = 0

@@ -38,33 +38,33 @@ from typing import NamedTuple
 
 from ..errors import Rule
 from .frame import (
-    _MAX_DIGITS,
     CNT_MAX,
     DEFAULT_MAX_FRAME_SIZE,
     HEAD,
+    MAX_DIGITS,
     SEP,
     TAIL,
     Event,
     Frame,
     Malformed,
 )
-from .frame_columns import FAST_END, FAST_HEAD_RE, _small_int, one_frame, run_frames
+from .frame_columns import FAST_END, FAST_HEAD_RE, one_frame, run_frames, small_int
 from .frame_header import (
-    _EMPTY_ID_RE,
-    _HEADER_RE,
-    _MAX_HEADER,
     EMPTY_CMD_ID_VALUE,
-    _Pending,
-    _prefix_overlap,
+    EMPTY_ID_RE,
+    HEADER_RE,
+    MAX_HEADER,
+    Pending,
     broken_header,
+    prefix_overlap,
 )
 from .frame_run import (
-    _RUN_FIRST_WINDOW,
-    _RUN_MAX_WINDOW,
-    _TAIL_SEP,
+    RUN_FIRST_WINDOW,
+    RUN_MAX_WINDOW,
+    TAIL_SEP,
     FrameRun,
-    _canonical_run,
-    _standard_run,
+    canonical_run,
+    standard_run,
 )
 from .skipped import skipped_rule
 
@@ -146,12 +146,12 @@ class FrameDecoder:
         # not what is already buffered (a 256 KB frame fed a byte at a time was
         # quadratic): its stream offset and header, read once, and the stream offset
         # below which feeding cannot decide anything (its LEN bytes and tail are not in).
-        self._pending: _Pending | None = None
+        self._pending: Pending | None = None
         self._need = 0
-        self._window = _RUN_FIRST_WINDOW  # take_run's, see there
+        self._window = RUN_FIRST_WINDOW  # take_run's, see there
         self._run_resume = 0  # stream offset before which take_run does not look
         # The same for feed's column-wise reading of runs (see _columns).
-        self._col_window = _RUN_FIRST_WINDOW
+        self._col_window = RUN_FIRST_WINDOW
         self._col_resume = 0
 
     # ------------------------------------------------------------------ public API
@@ -218,15 +218,15 @@ class FrameDecoder:
             return None
         window = self._window
         seg = bytes(data[:window])
-        cols = _canonical_run(seg, self.max_frame_size) or _standard_run(seg, self.max_frame_size)
+        cols = canonical_run(seg, self.max_frame_size) or standard_run(seg, self.max_frame_size)
         size, cnts, ids, datas, lens, sizes = cols
         # Whole window frames (the run ends only where the window does): look further
         # next time.  Anything else stopped it: start small again.
-        whole = size and seg.find(_TAIL_SEP, size) < 0
+        whole = size and seg.find(TAIL_SEP, size) < 0
         if whole:
-            self._window = min(window * 2, _RUN_MAX_WINDOW)
+            self._window = min(window * 2, RUN_MAX_WINDOW)
         else:
-            self._window = _RUN_FIRST_WINDOW
+            self._window = RUN_FIRST_WINDOW
             self._run_resume = self._base + len(seg)
         if not size:
             return None
@@ -315,7 +315,7 @@ class FrameDecoder:
         n = len(buf)
         append = self._events.append
         header = _FAST_HEAD_RE.match
-        small_int = _small_int
+        small = small_int  # a local: the loop below looks it up each frame
         new = tuple.__new__
         base = self._base
         pos = self._pos
@@ -340,10 +340,10 @@ class FrameDecoder:
                         break
                     c, i, ln = m.groups()
                     ds = m.end()
-                    length = small_int(ln) or int(ln)
+                    length = small(ln) or int(ln)
                     de = ds + length
                     end = de + 7
-                    cnt = small_int(c) or int(c)
+                    cnt = small(c) or int(c)
                     if end - pos > max_size or cnt > CNT_MAX:
                         break  # too large, or CNT too: careful path
                     if end > n:
@@ -367,7 +367,7 @@ class FrameDecoder:
                             Frame,
                             (
                                 cnt,
-                                small_int(i) or int(i),
+                                small(i) or int(i),
                                 data,
                                 length,
                                 bytes(buf[pos:end]),
@@ -384,7 +384,7 @@ class FrameDecoder:
                     break
                 head = buf.find(HEAD, pos)
                 if head < 0:
-                    keep = 0 if final else _prefix_overlap(buf, pos)
+                    keep = 0 if final else prefix_overlap(buf, pos)
                     self._skip(pos, n - keep)
                     pos = n - keep
                     break
@@ -413,7 +413,7 @@ class FrameDecoder:
         """
         buf = self._buf
         if not buf.startswith(_RUN_HEAD, pos):  # no standard head here: nothing copied
-            self._col_window = _RUN_FIRST_WINDOW
+            self._col_window = RUN_FIRST_WINDOW
             self._col_resume = self._base + pos + 1
             return pos
         window = self._col_window
@@ -421,10 +421,10 @@ class FrameDecoder:
         off = self._base + pos
         frames = run_frames(seg, off, self.max_frame_size)
         size = frames[-1].offset + len(frames[-1].raw) - off if frames else 0
-        if size and seg.find(_TAIL_SEP, size) < 0:
-            self._col_window = min(window * 2, _RUN_MAX_WINDOW)
+        if size and seg.find(TAIL_SEP, size) < 0:
+            self._col_window = min(window * 2, RUN_MAX_WINDOW)
         else:
-            self._col_window = _RUN_FIRST_WINDOW
+            self._col_window = RUN_FIRST_WINDOW
             self._col_resume = off + len(seg)
         if not size:
             return pos
@@ -441,24 +441,24 @@ class FrameDecoder:
             self._base += self._pos
             self._pos = 0
 
-    def _read_header(self, i: int, *, final: bool) -> _Pending | int | None:
+    def _read_header(self, i: int, *, final: bool) -> Pending | int | None:
         """The header at ``i``: its fields, or where parsing goes on after a broken one, or None to wait."""
         buf = self._buf
-        m = _HEADER_RE.match(buf, i)
+        m = HEADER_RE.match(buf, i)
         assert m is not None  # every group may be empty
         groups = m.groups()
         hdr_end = m.end()
         at_end = hdr_end == len(buf)
-        if at_end and not final and hdr_end - i < _MAX_HEADER:
+        if at_end and not final and hdr_end - i < MAX_HEADER:
             return None  # the header may still complete
         complete = all(groups) and not at_end
         if (
             not complete
-            or len(groups[1]) > _MAX_DIGITS
-            or len(groups[3]) > _MAX_DIGITS
-            or len(groups[5]) > _MAX_DIGITS
+            or len(groups[1]) > MAX_DIGITS
+            or len(groups[3]) > MAX_DIGITS
+            or len(groups[5]) > MAX_DIGITS
         ):
-            empty = None if at_end else _EMPTY_ID_RE.match(buf, i)
+            empty = None if at_end else EMPTY_ID_RE.match(buf, i)
             if empty is not None:
                 # The header above reads up to LEN's digits here too, so that it waited
                 # for them alike; a non-digit follows them.
@@ -480,13 +480,13 @@ class FrameDecoder:
         if cnt > CNT_MAX:
             problems.append(Rule.BAD_CNT)
         # Everything above is final: a non-digit follows LEN.
-        return _Pending(self._base + i, hdr_end - i, cnt, cmd_id, length, tuple(problems))
+        return Pending(self._base + i, hdr_end - i, cnt, cmd_id, length, tuple(problems))
 
-    def _empty_id_header(self, i: int, m: re.Match[bytes]) -> _Pending:
+    def _empty_id_header(self, i: int, m: re.Match[bytes]) -> Pending:
         """A header whose CMD_ID field is empty: CMD_ID 0 and the problem ``empty_cmd_id``."""
         cnt, length = int(m.group(1)), int(m.group(2))
         problems = (Rule.EMPTY_CMD_ID,) if cnt <= CNT_MAX else (Rule.EMPTY_CMD_ID, Rule.BAD_CNT)
-        return _Pending(self._base + i, m.end() - i, cnt, EMPTY_CMD_ID_VALUE, length, problems)
+        return Pending(self._base + i, m.end() - i, cnt, EMPTY_CMD_ID_VALUE, length, problems)
 
     def _frame_at(self, i: int, *, final: bool, quiet: bool) -> int | None:
         """Decode the frame whose head is at ``i``; return where parsing goes on, or None to wait."""
@@ -494,7 +494,7 @@ class FrameDecoder:
         pending = self._pending
         if pending is None or pending.offset != self._base + i:
             got = self._read_header(i, final=final)
-            if not isinstance(got, _Pending):
+            if not isinstance(got, Pending):
                 return got
             pending = self._pending = got
             self._tail_scan = self._head_scan = 0
@@ -719,7 +719,7 @@ def take_reads(reads: Sequence[tuple[FrameDecoder, bytes]]) -> ReadFrames | None
     except TypeError:  # not bytes-like
         return None
     most = min(dec.max_frame_size for dec in decoders)
-    cols = _canonical_run(blob, most)
+    cols = canonical_run(blob, most)
     if cols is None:
         return None
     size, cnts, ids, texts, lens, sizes = cols

@@ -40,7 +40,7 @@ DEFAULT_MAX_FRAME_SIZE = 256 * 1024
 CNT_MAX = 0xFFFF
 
 #: Most digits a header field (CNT, CMD_ID, LEN) is read with.
-_MAX_DIGITS = 10
+MAX_DIGITS = 10
 
 
 class _FrameFields(NamedTuple):

@@ -16,8 +16,8 @@ from collections.abc import Callable, Iterable
 from itertools import accumulate, islice, repeat
 from typing import cast
 
-from .frame import _MAX_DIGITS, CNT_MAX, HEAD, SEP, TAIL, Frame
-from .frame_run import _TAIL_SEP, _standard_run
+from .frame import CNT_MAX, HEAD, MAX_DIGITS, SEP, TAIL, Frame
+from .frame_run import TAIL_SEP, standard_run
 
 __all__ = ["one_frame", "run_frames"]
 
@@ -33,7 +33,7 @@ _TAIL_HEAD = TAIL + HEAD
 # a dict lookup reads one in half the time int() takes, and checks it too.
 _SMALL = {b"%d" % k: k for k in range(4096)}
 _SMALL_INTS = _SMALL.__getitem__
-_small_int = _SMALL.get
+small_int = _SMALL.get
 # The per-frame path's standard header (decoder.py, _FAST_HEAD_RE), anchored.
 FAST_HEAD_RE = re.compile(rb"/f/bIII(\d{1,5})III(\d{1,10})III(\d{1,10})III")
 FAST_END = SEP + TAIL
@@ -53,9 +53,9 @@ def one_frame(data: bytes, offset: int, max_size: int) -> Frame | None:
     parts = data.split(SEP, 5)
     if len(parts) == 6:
         head, c, i, ln, body, tail = parts
-        length = _small_int(ln)
-        cmd_id = _small_int(i)
-        cnt = _small_int(c)
+        length = small_int(ln)
+        cmd_id = small_int(i)
+        cnt = small_int(c)
         if cnt is None and c.isdigit() and len(c) <= 5:
             cnt = int(c)  # past 4095 (most CNTs of a long session)
         if (
@@ -82,16 +82,16 @@ def _one_frame_read(data: bytes, offset: int, max_size: int) -> Frame | None:
         return None
     c, i, ln = m.groups()
     ds = m.end()
-    length = _small_int(ln) or int(ln)
+    length = small_int(ln) or int(ln)
     end = ds + length + 7
-    cnt = _small_int(c) or int(c)
+    cnt = small_int(c) or int(c)
     if end != len(data) or end > max_size or cnt > CNT_MAX or not data.endswith(FAST_END):
         return None
     try:
         text = data[ds : end - 7].decode("utf-8")
     except UnicodeDecodeError:
         return None
-    return _new(Frame, (cnt, _small_int(i) or int(i), text, length, data, (), offset))
+    return _new(Frame, (cnt, small_int(i) or int(i), text, length, data, (), offset))
 
 
 def run_frames(seg: bytes, offset: int, max_size: int) -> list[Frame]:
@@ -101,7 +101,7 @@ def run_frames(seg: bytes, offset: int, max_size: int) -> list[Frame]:
     got = _canonical(seg, offset, max_size)
     if got is not None:
         return got
-    size, cnts, ids, datas, lens, sizes = _standard_run(seg, max_size)
+    size, cnts, ids, datas, lens, sizes = standard_run(seg, max_size)
     if not size:
         return []
     starts = list(accumulate(sizes, initial=0))
@@ -114,7 +114,7 @@ def run_frames(seg: bytes, offset: int, max_size: int) -> list[Frame]:
 
 def _canonical(seg: bytes, offset: int, max_size: int) -> list[Frame] | None:
     """Every frame up to the last tail in ``seg``, if they are all standard frames; else
-    None (and :func:`_standard_run` finds how far the frames go).
+    None (and :func:`standard_run` finds how far the frames go).
 
     The quickest test there is: split the lot on ``III`` once and read the fields off by
     stride (CNT is every fifth piece from the second...).  Where every fifth piece is
@@ -123,10 +123,10 @@ def _canonical(seg: bytes, offset: int, max_size: int) -> list[Frame] | None:
     are those the per-frame path reads, whatever DATA holds (DATA with ``III`` moves
     the pieces off their stride, and a test above fails).
     """
-    last = seg.rfind(_TAIL_SEP)
+    last = seg.rfind(TAIL_SEP)
     if last < 0:
         return None
-    body = seg[: last + len(_TAIL_SEP)]
+    body = seg[: last + len(TAIL_SEP)]
     fields = body.split(SEP)
     n, rest = divmod(len(fields), 5)
     if (
@@ -138,8 +138,8 @@ def _canonical(seg: bytes, offset: int, max_size: int) -> list[Frame] | None:
         return None
     datas_b = fields[4::5]
     cnts = _digits(fields[1::5], 5)
-    ids = _digits(fields[2::5], _MAX_DIGITS)
-    lens = _digits(fields[3::5], _MAX_DIGITS)
+    ids = _digits(fields[2::5], MAX_DIGITS)
+    lens = _digits(fields[3::5], MAX_DIGITS)
     if cnts is None or ids is None or lens is None or max(cnts) > CNT_MAX:
         return None
     if lens != list(map(len, datas_b)):

@@ -11,7 +11,7 @@ import re
 from typing import NamedTuple
 
 from ..errors import Rule
-from .frame import _MAX_DIGITS, HEAD
+from .frame import HEAD, MAX_DIGITS
 
 __all__ = ["EMPTY_CMD_ID_VALUE", "broken_header"]
 
@@ -20,16 +20,16 @@ _MAX_SEP = 4
 # Each field is read one byte past its bound at most, so that the match (and the
 # bytes a broken header is reported with) never depends on how the stream was cut:
 # an unbounded ``\d*`` ran to the end of whatever was buffered.
-_HEADER_RE = re.compile(
+HEADER_RE = re.compile(
     rb"/f/b(I{0,%d})(\d{0,%d})(I{0,%d})(\d{0,%d})(I{0,%d})(\d{0,%d})"
-    % ((_MAX_SEP + 1, _MAX_DIGITS + 1) * 3)
+    % ((_MAX_SEP + 1, MAX_DIGITS + 1) * 3)
 )
 # The longest match: past it a header is decided whatever follows.
-_MAX_HEADER = len(HEAD) + 3 * (_MAX_SEP + 1) + 3 * (_MAX_DIGITS + 1)
+MAX_HEADER = len(HEAD) + 3 * (_MAX_SEP + 1) + 3 * (MAX_DIGITS + 1)
 # 1.1 with the CMD_ID field empty (``/f/bIII7IIIIII0IIIIII/b/f``: frcobot_ros2's frame
 # for a name missing from its map).  Tried only where the header reading broke, at
 # the head only: it reads at most a header's bytes.
-_EMPTY_ID_RE = re.compile(rb"/f/bIII(\d{1,%d})IIIIII(\d{1,%d})(?!\d)" % (_MAX_DIGITS, _MAX_DIGITS))
+EMPTY_ID_RE = re.compile(rb"/f/bIII(\d{1,%d})IIIIII(\d{1,%d})(?!\d)" % (MAX_DIGITS, MAX_DIGITS))
 #: The CMD_ID a frame with an empty CMD_ID field is read as: what C's ``atoi`` makes
 #: of the empty field (the frame's problems say it was empty).
 EMPTY_CMD_ID_VALUE = 0
@@ -45,7 +45,7 @@ _HEADER_FIELDS = (
 )
 
 
-class _Pending(NamedTuple):
+class Pending(NamedTuple):
     """A frame whose header is read and which waits for more bytes."""
 
     offset: int  # stream offset of its head
@@ -56,7 +56,7 @@ class _Pending(NamedTuple):
     problems: tuple[Rule, ...]
 
 
-def _prefix_overlap(buf: bytearray, start: int) -> int:
+def prefix_overlap(buf: bytearray, start: int) -> int:
     """How many trailing bytes of ``buf[start:]`` could begin a frame head."""
     for k in (3, 2, 1):
         if len(buf) - start >= k and buf.endswith(HEAD[:k]):
@@ -65,11 +65,11 @@ def _prefix_overlap(buf: bytearray, start: int) -> int:
 
 
 def broken_header(groups: tuple[bytes, ...], at_end: bool) -> tuple[Rule, str]:
-    """The rule and detail of a header whose progressive reading (``_HEADER_RE``'s
+    """The rule and detail of a header whose progressive reading (``HEADER_RE``'s
     ``groups``) broke; ``at_end``: the stream ended inside it."""
     rule, what = Rule.BAD_HEAD, "header"
     for g, (r, name) in zip(groups, _HEADER_FIELDS, strict=True):
-        if not g or len(g) > (_MAX_SEP if r is Rule.BAD_SEPARATOR else _MAX_DIGITS):
+        if not g or len(g) > (_MAX_SEP if r is Rule.BAD_SEPARATOR else MAX_DIGITS):
             rule, what = r, name
             break
     else:

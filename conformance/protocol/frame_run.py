@@ -2,7 +2,7 @@
 
 A run is standard frames back to back (``III`` separators, LEN equal to the UTF-8
 length of DATA, no problems), read column-wise rather than a frame at a time:
-:func:`_canonical_run` prints the frames back and compares, :func:`_standard_run`
+:func:`canonical_run` prints the frames back and compares, :func:`standard_run`
 finds the longest prefix of standard frames when that fails.  What a run holds is
 what :meth:`~.decoder.FrameDecoder.feed` would have decoded from the same bytes;
 the decoder keeps the window state (see :meth:`~.decoder.FrameDecoder.take_run`).
@@ -15,7 +15,7 @@ from collections.abc import Iterable
 from itertools import accumulate
 from typing import NamedTuple
 
-from .frame import _MAX_DIGITS, CNT_MAX, HEAD, SEP, TAIL, Frame
+from .frame import CNT_MAX, HEAD, MAX_DIGITS, SEP, TAIL, Frame
 
 __all__ = ["FrameRun"]
 
@@ -64,10 +64,10 @@ class FrameRun(NamedTuple):
         return out
 
 
-_RUN_FIRST_WINDOW = 4096
-_RUN_MAX_WINDOW = 256 * 1024
+RUN_FIRST_WINDOW = 4096
+RUN_MAX_WINDOW = 256 * 1024
 _SPLIT_FIELDS = operator.methodcaller("split", SEP, 4)
-_TAIL_SEP = SEP + TAIL
+TAIL_SEP = SEP + TAIL
 
 
 def _first_false(flags: Iterable[bool]) -> int:
@@ -81,10 +81,10 @@ _NO_RUN: _Columns = (0, [], [], [], [], [])
 
 
 _FRAME_FMT = (HEAD + SEP + b"%d" + SEP + b"%d" + SEP + b"%d" + SEP + b"%s" + SEP + TAIL).__mod__
-_CMD_ID_BOUND = 10**_MAX_DIGITS  # the fast path reads at most 10 digits of CMD_ID
+_CMD_ID_BOUND = 10**MAX_DIGITS  # the fast path reads at most 10 digits of CMD_ID
 
 
-def _canonical_run(seg: bytes, max_size: int) -> _Columns | None:
+def canonical_run(seg: bytes, max_size: int) -> _Columns | None:
     """Every frame up to the last tail in ``seg``, if they are all standard frames written
     as :func:`encode_frame` writes them (no leading zeros); else None.
 
@@ -92,12 +92,12 @@ def _canonical_run(seg: bytes, max_size: int) -> _Columns | None:
     stride (CNT is every fifth piece from the second...), print the frames back and
     compare with ``seg``.  Equal bytes are frames the fast path reads exactly so,
     whatever DATA holds; anything else (DATA with ``III``, garbage, a deviation)
-    breaks the equality and :func:`_standard_run` finds how far the frames go.
+    breaks the equality and :func:`standard_run` finds how far the frames go.
     """
-    last = seg.rfind(_TAIL_SEP)
+    last = seg.rfind(TAIL_SEP)
     if last < 0:
         return None
-    body = seg[: last + len(_TAIL_SEP)]
+    body = seg[: last + len(TAIL_SEP)]
     fields = body.split(SEP)
     if len(fields) % 5 != 1:
         return None
@@ -123,7 +123,7 @@ def _canonical_run(seg: bytes, max_size: int) -> _Columns | None:
     return len(body), cnts, ids, datas, lens, sizes
 
 
-def _standard_run(seg: bytes, max_size: int) -> _Columns:
+def standard_run(seg: bytes, max_size: int) -> _Columns:
     """The longest prefix of ``seg`` made of standard frames (the fast path's reading),
     as (bytes, CNTs, CMD_IDs, DATAs, LENs, sizes); (0, ...) when ``seg`` does not start
     with one.
@@ -133,7 +133,7 @@ def _standard_run(seg: bytes, max_size: int) -> _Columns:
     any rule ends the prefix; whatever it is, the caller's careful path decides it.
     DATA holding ``III/b/f`` splits its frame in two and fails LEN: careful path too.
     """
-    pieces = seg.split(_TAIL_SEP)
+    pieces = seg.split(TAIL_SEP)
     pieces.pop()  # after the last tail: an incomplete frame, or nothing
     parts = list(map(_SPLIT_FIELDS, pieces))
     n = _first_false(map((5).__eq__, map(len, parts)))

@@ -457,7 +457,8 @@ def _enum(raw: Any) -> tuple[tuple[float | str, str], ...] | None:
     return tuple((i["value"], i["label"]) for i in raw)
 
 
-def _param(raw: Mapping[str, Any]) -> Param:
+def param_of(raw: Mapping[str, Any]) -> Param:
+    """A parameter's row as the spec files write it (the dialects' files too)."""
     return Param(
         name=raw["name"],
         type=raw["type"],
@@ -472,7 +473,8 @@ def _param(raw: Mapping[str, Any]) -> Param:
     )
 
 
-def _return_value(raw: Mapping[str, Any]) -> ReturnValue:
+def return_value_of(raw: Mapping[str, Any]) -> ReturnValue:
+    """A return value's row as the spec files write it (the dialects' files too)."""
     return ReturnValue(
         name=raw["name"],
         type=raw["type"],
@@ -490,10 +492,10 @@ def _variant(raw: Mapping[str, Any]) -> Variant:
         table=raw["table"],
         caption=raw["caption"],
         form=raw["form"],
-        params=tuple(_param(p) for p in raw["params"]),
+        params=tuple(param_of(p) for p in raw["params"]),
         returns=Returns(
             separator=raw["returns"]["separator"],
-            values=tuple(_return_value(v) for v in raw["returns"]["values"]),
+            values=tuple(return_value_of(v) for v in raw["returns"]["values"]),
         ),
         examples=tuple(
             Example(

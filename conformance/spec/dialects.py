@@ -38,8 +38,8 @@ from .commands import (
     Safety,
     SpecSet,
     Variant,
-    _param,
-    _return_value,
+    param_of,
+    return_value_of,
     specs_root,
     validate_document,
 )
@@ -298,7 +298,7 @@ def _entry(raw: Mapping[str, Any], source: str, path: str) -> Dialect:
     if "returns" in raw:
         returns = Returns(
             separator=raw["returns"]["separator"],
-            values=tuple(_return_value(v) for v in raw["returns"]["values"]),
+            values=tuple(return_value_of(v) for v in raw["returns"]["values"]),
         )
     if raw["kind"] == "reply" and returns is None and pattern is None:
         raise SpecError(
@@ -312,7 +312,7 @@ def _entry(raw: Mapping[str, Any], source: str, path: str) -> Dialect:
         cmd_id=raw["cmd_id"],
         name=raw["name"],
         form=form,
-        params=tuple(_param(p) for p in raw["params"]) if "params" in raw else None,
+        params=tuple(param_of(p) for p in raw["params"]) if "params" in raw else None,
         returns=returns,
         pattern=pattern,
         reply_example=raw.get("reply_example"),
