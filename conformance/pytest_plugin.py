@@ -253,9 +253,11 @@ class CommandNode(pytest.Collector):
 
 
 class CaseFailed(Exception):
-    def __init__(self, result: CaseResult) -> None:
+    def __init__(self, result: CaseResult, status: str) -> None:
         super().__init__(result.detail)
         self.result = result
+        #: What the report counts the case as (FAIL, ERROR, XPASS, ...).
+        self.status = status
 
 
 class CaseItem(pytest.Item):
@@ -285,10 +287,10 @@ class CaseItem(pytest.Item):
         if outcome is Outcome.DIALECT:
             # JUnit shows the dialect and its source as properties of the testcase.
             self.user_properties.append(("dialect", result.source))
+        if finished.failing:  # the engine's decision (Report.failing), not asked again
+            raise CaseFailed(result, engine.report.status(result).value)
         if result.expected:
             pytest.xfail(f"expected failure: {result.detail}")
-        if finished.failing:  # the engine's decision (Report.failing), not asked again
-            raise CaseFailed(result)
         if outcome is Outcome.SKIPPED:
             pytest.skip(result.detail or "skipped")
         if outcome is Outcome.UNIMPLEMENTED:
@@ -297,7 +299,7 @@ class CaseItem(pytest.Item):
     def repr_failure(self, excinfo: pytest.ExceptionInfo[BaseException], style: Any = None) -> str:
         if isinstance(excinfo.value, CaseFailed):
             r = excinfo.value.result
-            lines = [f"{r.outcome.value}: {r.detail}"]
+            lines = [f"{excinfo.value.status}: {r.detail}"]
             lines += [f"  {f}" for f in r.frames]
             if r.reproduce:
                 lines.append(f"reproduce: {r.reproduce}")

@@ -151,7 +151,7 @@ def test_baseline_warns_shows_xfail_and_says_why_a_listed_case_fails(tmp_path: P
     p = run(
         "-q", "--commands", "212", "--groups", "framing",
         "--emulator-fault", "wrong_cnt:212", "--expected-failures", str(baseline),
-        "--report-json", "r.json", "-v",  # -v: the PASS row with its XFAIL count
+        "--report-json", "r.json",  # the XFAIL row is listed without -v: it is no PASS
         cwd=tmp_path,
     )  # fmt: skip
     assert "1 listed case ID matches no case in this selection: 999/Nope/framing/x" in p.stderr
@@ -160,7 +160,11 @@ def test_baseline_warns_shows_xfail_and_says_why_a_listed_case_fails(tmp_path: P
     assert cases[FRAMING]["expected"] is True and cases[FRAMING]["outcome"] == "FAIL"
     assert p.returncode == 0, p.stdout  # the one failure is expected
     row = next(x for x in p.stdout.splitlines() if x.strip().startswith("212 "))
-    assert "XFAIL=1" in row and "PASS" in row and "FAIL " not in row
+    assert row.split()[2:] == ["XFAIL", "XFAIL=1"], row
+    # Every total counts it as what it is, never as a PASS.
+    assert "cases: 1 XFAIL" in p.stdout and "commands: 1 XFAIL (target" in p.stdout
+    assert doc["totals"]["XFAIL"] == 1 and doc["totals"]["PASS"] == 0
+    assert doc["case_totals"]["XFAIL"] == 1 and doc["commands"]["212"]["outcome"] == "XFAIL"
 
 
 def test_listed_case_that_passes_fails_the_run_with_a_reason(tmp_path: Path) -> None:
@@ -169,7 +173,8 @@ def test_listed_case_that_passes_fails_the_run_with_a_reason(tmp_path: Path) -> 
     p = run("-q", "--commands", "212", "--groups", "framing",
             "--expected-failures", str(baseline), cwd=tmp_path)  # fmt: skip
     assert p.returncode == 1
-    assert f"FAIL {FRAMING}: listed in --expected-failures but passed (PASS)" in p.stdout
+    assert f"XPASS {FRAMING}: listed in --expected-failures but passed (PASS)" in p.stdout
+    assert "cases: 1 XPASS" in p.stdout and "commands: 1 XPASS (target" in p.stdout
 
 
 # --------------------------------------------------------------------------- pytest front-end
@@ -262,12 +267,17 @@ def test_baseline_counts_what_fails_under_the_run_options() -> None:
         id="1/x/g/w", cmd_id=1, name="x", group="g", outcome=Outcome.NON_STRICT, detail="d"
     )
     base = SuiteConfig(expected_failures=frozenset({case.id}))
-    lenient = Engine(base)._baseline(case)
-    strict = Engine(dc_replace(base, strict=True))._baseline(case)
-    assert lenient.outcome is Outcome.FAIL and "listed in --expected-failures but passed" in (
-        lenient.detail
-    )
+    lenient_engine = Engine(base)
+    lenient = lenient_engine._baseline(case)
+    strict_engine = Engine(dc_replace(base, strict=True))
+    strict = strict_engine._baseline(case)
+    assert lenient.outcome is Outcome.NON_STRICT and lenient.expected
+    assert "listed in --expected-failures but passed" in lenient.detail
+    assert lenient_engine.report.status(lenient).value == "XPASS"
+    assert lenient_engine.report.failing(lenient)
     assert strict.outcome is Outcome.NON_STRICT and strict.expected
+    assert strict_engine.report.status(strict).value == "XFAIL"
+    assert not strict_engine.report.failing(strict)
 
 
 def test_an_engine_leaves_a_hosts_frozen_objects_frozen() -> None:

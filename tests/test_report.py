@@ -100,8 +100,9 @@ def test_cases_not_run_are_one_line_not_a_table() -> None:
             )
         )
     lines = r.render_terminal().splitlines()
-    assert len(lines) == 5  # header, 201, 212, the not-run line, totals
+    assert len(lines) == 6  # header, 201, 212, the not-run line, totals of cases and commands
     assert lines[3] == f"300 cases not run: {r.stopped}"
+    assert lines[4] == "cases: 1 FAIL, 1 PASS, 300 NOT-RUN"
     assert r.exit_code() == 2  # still an error run
     again = Report.from_json(json.loads(r.dumps()))
     assert again.stopped == r.stopped and sum(c.not_run for c in again.cases) == 300

@@ -300,7 +300,8 @@ def test_a_target_that_does_not_answer_at_the_start_stops_the_run_in_one_line(
     assert report.exit_code() == 2
     text = report.render_terminal()
     assert f"{len(report.cases)} cases not run: {runner.stopped}" in text
-    assert len(text.splitlines()) == 2  # no table of ERROR rows
+    assert len(text.splitlines()) == 3  # no table of ERROR rows: the reason, the totals
+    assert f"cases: {len(report.cases)} NOT-RUN" in text
 
 
 def test_a_target_dying_mid_run_stops_it_naming_the_case() -> None:

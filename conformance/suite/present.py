@@ -5,9 +5,10 @@ re-exported here).
 
 The progress line goes to stderr: redrawn in place (``\\r``) on a terminal, and
 on anything else (a CI log) one plain line at the start, about every 10 % or 30
-seconds, and at the end.  Each shows the cases decided, those that failed, those
-never run (the run stopped), elapsed time and an estimate of the time left
-(:class:`Estimate`).
+seconds, and at the end.  Each shows the cases decided, those that failed, elapsed
+time and an estimate of the time left (:class:`Estimate`).  A run that stops (the
+target unreachable or dead, the budget used up) ends the display with one line that
+says after how many cases and why; the bar never fills with cases that did not run.
 """
 
 from __future__ import annotations
@@ -18,7 +19,15 @@ from typing import TextIO
 from ..report.junit import junit_xml, write_junit
 from ..report.model import Report
 from ..report.text import plural
-from .engine import WOULD_RUN, CaseFinished, Event, RunFinished, RunStarted, RunWarning
+from .engine import (
+    WOULD_RUN,
+    CaseFinished,
+    Event,
+    RunFinished,
+    RunStarted,
+    RunStopped,
+    RunWarning,
+)
 
 __all__ = ["Estimate", "Progress", "dry_run_lines", "junit_xml", "write_junit"]
 
@@ -97,6 +106,8 @@ class Progress:
         self.done = 0
         self.failed = 0
         self.not_run = 0
+        #: The run stopped (RunStopped): the display ended with the line that says why.
+        self.stopped = False
         self.estimate = Estimate()
         self._left: float | None = None
         self._last_draw = -math.inf
@@ -136,7 +147,18 @@ class Progress:
             elif ev.failing:
                 self.failed += 1
             self._draw(ev.elapsed)
-        elif isinstance(ev, RunFinished) and not self.quiet:
+        elif isinstance(ev, RunStopped):
+            self._clear()
+            self.stopped = True
+            if self.quiet:
+                return
+            failed = f", {self.failed} failed" if ev.ran else ""
+            self.stream.write(
+                f"stopped after {ev.ran} of {plural(ev.total, 'case')}{failed} "
+                f"({_clock(ev.elapsed)} elapsed): {ev.reason}\n"
+            )
+            self.stream.flush()
+        elif isinstance(ev, RunFinished) and not self.quiet and not self.stopped:
             self._clear()
             state = "interrupted" if ev.interrupted else "done"
             self.stream.write(f"{state}: {self.line(ev.elapsed)}\n")
