@@ -74,7 +74,10 @@ def test_run_prints_failures_and_a_reproduction_not_tied_to_its_port(tmp_path: P
     (case,) = doc["commands"]["212"]["cases"]
     port = doc["meta"]["emulator_address"].rsplit(":", 1)[1]
     assert port not in case["reproduce"].replace("127.0.0.1:8080", "")
-    assert "fairino-conformance send --wait 10 127.0.0.1:8080 --hex " in case["reproduce"]
+    # A printable frame is printed as text, piped to send (no hex to decode by eye).
+    assert "& printf '/f/bIII" in case["reproduce"]
+    assert "| fairino-conformance send --wait 10 127.0.0.1:8080 --file -" in case["reproduce"]
+    assert "--hex" not in case["reproduce"]
 
 
 def test_dry_run_decides_every_case_and_sends_nothing(tmp_path: Path) -> None:

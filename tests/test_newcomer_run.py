@@ -66,7 +66,8 @@ def test_item_8_an_interrupted_run_counts_what_ran_apart_from_what_never_did() -
     assert doc["case_totals"] == {**doc["case_totals"], "PASS": 1, "NOT-RUN": 2}
     assert doc["failing"] == [] and doc["exit_code"] == 130  # nothing judged failed
     html = render_html([report])
-    assert 'data-outcome="PASS"' in html and 'data-outcome="NOT-RUN"' in html
+    assert 'data-outcome="STOPPED"' in html and 'data-outcome="NOT-RUN"' in html
+    assert 'data-outcome="PASS"' not in html
     assert 'data-outcome="ERROR"' not in html and "1 STOPPED, 1 NOT-RUN" in html
     # Stopped without Ctrl-C (a dead target, the budget): still exit code 2, the same story.
     report.interrupted = False

@@ -92,7 +92,8 @@ def test_failure_prints_reproduction_that_selects_exactly_that_case(
     run_part, send_part = line.split("reproduce: ", 1)[1].split("  # or: ")
     # Not this run's temporary emulator port: an emulator the user starts, same fault.
     assert f"emulate --listen 127.0.0.1:8080 --fault {fault} &" in send_part
-    assert "fairino-conformance send --wait 10 127.0.0.1:8080 --hex 2f662f62" in send_part
+    assert "& printf '/f/bIII1III" in send_part
+    assert "| fairino-conformance send --wait 10 127.0.0.1:8080 --file -" in send_part
     args = run_part.split()[1:]  # after "fairino-conformance"
     case_id = args[args.index("--case") + 1]
     # The reproduction, as the CLI runs it (in-process: the case fails either way, so

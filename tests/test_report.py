@@ -49,8 +49,8 @@ def test_html_is_self_contained_escaped_and_merges_targets() -> None:
     assert "alpha:1" in page and "beta:2" in page
     assert "<script>alert(1)" not in page and "&lt;script&gt;alert(1)" in page
     assert not re.search(r"(src|href)=\"?https?:", page)
-    row = next(line for line in page.splitlines() if 'data-key="201 movej"' in line)
-    assert row.count('class="cell"') == 2 and 'data-worst="FAIL"' in row
+    row = next(tr for tr in _parse(page).find_all("tr") if tr.attrs.get("data-key") == "201 movej")
+    assert len(row.find_all("td", class_="cell")) == 2 and row.attrs["data-worst"] == "FAIL"
     assert "/f/bIII1III201III2IIIxxIII/b/f" in page  # failing frames shown
 
 
@@ -259,9 +259,9 @@ def test_html_lists_failing_commands_first_with_their_details_open() -> None:
         50,
     ]
     opened = {
-        int(tr.find_all("td", class_="id")[0].text): "open" in d.attrs
+        int(tr.find_all("td", class_="id")[0].text): "open" in tr.find_all("details")[0].attrs
         for tr in rows
-        for d in tr.find_all("details")
+        if tr.find_all("details")
     }
     assert opened == {250: True, 120: True, 300: True, 150: False}
 
@@ -282,19 +282,21 @@ def test_report_html_is_sections_and_merge_is_a_matrix(tmp_path: Path) -> None:
         pages[action] = _parse(out.read_text(encoding="utf-8"))
     assert pages["html"].text != pages["merge"].text
 
-    # html: "each report as its own section: one target per table, its failing cases
-    # listed with frames and reproduction".
+    # html: "each report as its own section: its summary, its failing commands listed
+    # with their cases' frames and reproduction, then its passing commands".
     sections = pages["html"].find_all("section", class_="report")
     assert [s.attrs["data-target"] for s in sections] == ["alpha:1", "beta:2"]
     for s in sections:
-        (table,) = s.find_all("table")
-        assert len(table.find_all("th")) == 3  # ID, command, this one target
-        (body,) = table.find_all("tbody")
-        assert all(len(tr.find_all("td", class_="cell")) == 1 for tr in body.find_all("tr"))
-    (fails,) = sections[0].find_all("ol", class_="failures")
+        assert s.find_all("table", class_="summary") and s.find_all("svg", class_="chart")
+    (fails,) = sections[0].find_all("details", class_="command")
+    assert fails.attrs["data-status"] == "FAIL" and "open" in fails.attrs
     assert "201/MoveJ/framing/2-1" in fails.text
     assert "/f/bIII1III201III2IIIxxIII/b/f" in fails.text and "pytest --case x" in fails.text
-    assert not sections[1].find_all("ol", class_="failures")
+    assert not sections[1].find_all("details", class_="command")
+    (passing,) = sections[1].find_all("details", class_="passing")
+    assert {
+        tr.attrs["data-status"] for tr in passing.find_all("tr") if "data-status" in tr.attrs
+    } == {"PASS"}
 
     # merge: "side-by-side matrix": one table, one column per target.
     assert not pages["merge"].find_all("section")

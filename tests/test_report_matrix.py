@@ -71,7 +71,7 @@ def test_terminal_markdown_and_html(reports: list[Path], tmp_path: Path) -> None
     wrote = cli_run("report", "matrix", *args, "-o", str(page))
     assert wrote.returncode == 0 and "differing first" in wrote.stdout
     html = page.read_text(encoding="utf-8")
-    ids = re.findall(r"<td class=id>(\d+)</td>", html)
+    ids = re.findall(r'<td class="id">(\d+)</td>', html)
     assert ids == ["201", "1074", "203", "905"]
     assert html.count('data-differs="1"') == 2 and html.count("absent in 3.8.2") == 2
     assert 'id="dif"' in html  # the filter to the differing rows

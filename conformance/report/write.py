@@ -30,9 +30,9 @@ def write_reports(
         Path(json_path).write_text(report.dumps(), encoding="utf-8")
         written.append(json_path)
     if html_path:
-        from .html import render_html
+        from .html import render_report
 
-        Path(html_path).write_text(render_html([report]), encoding="utf-8")
+        Path(html_path).write_text(render_report(report), encoding="utf-8")
         written.append(html_path)
     if junit_path:
         from .junit import write_junit
