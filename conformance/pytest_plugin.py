@@ -165,6 +165,8 @@ def pytest_configure(config: pytest.Config) -> None:
     except ConformanceError as e:
         raise pytest.UsageError(str(e)) from None
     _refuse_shared_state_in_parallel(config, sc)
+    if not _is_worker(config):
+        _check_report_paths(config)
     if sc.spec is not None and sc.spec.warning and not _is_worker(config):
         print(f"fairino-conformance: warning: {sc.spec.warning}", file=sys.stderr)
     config.stash[_CONFIG_KEY] = sc
@@ -185,6 +187,18 @@ def pytest_configure(config: pytest.Config) -> None:
     config.stash[_MERGED_KEY] = merged
     if not _is_worker(config):
         config.pluginmanager.register(_Collector(merged), "fairino-conformance-collector")
+
+
+def _check_report_paths(config: pytest.Config) -> None:
+    """The reports' paths, checked before the session runs a case (not after the whole run)."""
+    from .report.write import check_report_paths
+
+    values = _values(config)
+    names = ("report_json", "report_html", "junitxml", "update_baseline")
+    try:
+        check_report_paths({option(k).pytest or option(k).flag: values[k] for k in names})
+    except ConformanceError as e:
+        raise pytest.UsageError(str(e)) from None
 
 
 def _how_it_ran(config: pytest.Config) -> str:
@@ -479,12 +493,17 @@ def _write_reports(config: pytest.Config, report: Report) -> None:
     from .report.write import write_reports
 
     values = _values(config)
+    notes: list[str] = []
     config.stash[_WRITTEN_KEY] = write_reports(
         report,
         json_path=values["report_json"],
         html_path=values["report_html"],
         junit_path=values["junitxml"],
+        baseline_path=None if report.meta.get("dry_run") else values["update_baseline"],
+        notes=notes,
     )
+    for note in notes:
+        print(f"fairino-conformance: {note}", file=sys.stderr)
 
 
 # --------------------------------------------------------------------------- fixtures
