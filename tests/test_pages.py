@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 import re
 from datetime import datetime, timedelta, timezone
+from pathlib import Path
 
 from conformance.judge.verdict import Outcome
 from conformance.report.charts import gapped, time_lines
@@ -102,3 +103,15 @@ def test_a_time_chart_puts_each_point_at_its_time_and_breaks_where_data_stops() 
     # alone, evenly spaced, would have no tick for 2024 or 2025).
     ticks = set(re.findall(r">(20\d\d)<", svg))
     assert {"2024", "2025"} <= ticks, ticks
+
+
+def test_the_docs_show_the_screenshots_the_browser_tests_take() -> None:
+    """docs/reports.md shows the pages as tests/test_pages_browser.py photographs them."""
+    root = Path(__file__).resolve().parent.parent
+    doc = (root / "docs" / "reports.md").read_text(encoding="utf-8")
+    shown = re.findall(r"!\[[^\]]+\]\((images/[\w.-]+)\)", doc)
+    assert shown == ["images/report.png", "images/matrix.png", "images/fleet.png"]
+    for rel in shown:
+        assert (root / "docs" / rel).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", rel
+    browser_tests = (root / "tests" / "test_pages_browser.py").read_text(encoding="utf-8")
+    assert all(f'shots / "{Path(rel).name}"' in browser_tests for rel in shown)

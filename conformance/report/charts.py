@@ -94,6 +94,9 @@ def stacked_bars(
     for yy, total in zip(y, left, strict=True):
         ax.text(total, yy, f" {total}", va="center", fontsize=9, color=_TEXT)
     ax.set_yticks(y, names)
+    from matplotlib.ticker import MaxNLocator
+
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))  # counts: whole numbers
     ax.set_xlabel(unit, color=_TEXT, fontsize=9)
     ax.grid(axis="x", color=_GRID)
     ax.set_xlim(0, max(left, default=1) * 1.08 or 1)
