@@ -189,6 +189,41 @@ def pytest_configure(config: pytest.Config) -> None:
         config.pluginmanager.register(_Collector(merged), "fairino-conformance-collector")
 
 
+@pytest.hookimpl(trylast=True)
+def pytest_sessionstart(session: pytest.Session) -> None:
+    config = session.config
+    if _CONFIG_KEY in config.stash and not _is_worker(config):
+        _progress_per_group(config)
+
+
+def _progress_per_group(config: pytest.Config) -> None:
+    """pytest's progress starts a new line each time the first part of a test's ID (its
+    file) changes.  The suite's items are named by command ID (JUnit's classname) and run
+    group by group, so it started one for each command of each case group: 2,070 lines
+    for a clean run.  Its items are drawn under their case group instead (``fairino-
+    conformance framing ....``): a line per group, wrapped where pytest wraps a long one.
+    The items' IDs stay as they are; only the progress line's label changes, and only
+    where pytest draws one (not with ``-v``, where each item has its own line)."""
+    tr = config.pluginmanager.get_plugin("terminalreporter")
+    if tr is None or config.get_verbosity() > 0:
+        return
+    draw = tr.write_fspath_result
+
+    def write_fspath_result(nodeid: str, res: str, **markup: bool) -> None:
+        draw(_progress_label(nodeid), res, **markup)
+
+    tr.write_fspath_result = write_fspath_result
+
+
+def _progress_label(nodeid: str) -> str:
+    """A case item's progress label, ``fairino-conformance GROUP``; any other ID as it is."""
+    cmd_id, sep, rest = nodeid.partition("::")
+    parts = rest.split("/")
+    if not sep or not cmd_id.isdigit() or len(parts) < 3:
+        return nodeid
+    return f"fairino-conformance {parts[1]}::{rest}"
+
+
 def _check_report_paths(config: pytest.Config) -> None:
     """The reports' paths, checked before the session runs a case (not after the whole run)."""
     from .report.write import check_report_paths

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import socket
 import xml.etree.ElementTree as ET
 from collections.abc import Callable
@@ -265,3 +266,20 @@ def test_budget_from_the_environment_is_checked(
     result = pytester.runpytest("-p", "no:cacheprovider", "--conformance")
     assert result.ret == pytest.ExitCode.USAGE_ERROR
     assert "--budget" in result.stderr.str() and message in result.stderr.str()
+
+
+def test_the_progress_is_a_line_per_case_group_not_per_command(pytester: pytest.Pytester) -> None:
+    """pytest drew a line each time the command ID changed: 2,070 lines for a clean run."""
+    ids = "201,202,203,204,206,209"
+    result = pytester.runpytest(*BASE, "--conformance", "--commands", ids, "--profile", "quick")
+    assert result.ret == 0
+    lines = result.stdout.lines
+    progress = [ln for ln in lines if ln.startswith("fairino-conformance ") and "%]" in ln]
+    groups = [ln.split()[1] for ln in progress]
+    assert groups == ["framing", "examples", "valid", "invalid", "robustness", "transport",
+                      "stateful"], lines  # fmt: skip
+    assert not [ln for ln in lines if re.match(r"\d+ [.sxFE]", ln)], lines  # no line per ID
+    # -v: a line per case, as pytest draws it, under the case's own ID.
+    verbose = pytester.runpytest(*BASE, "--conformance", "--commands", "212", "-v",
+                                 "--groups", "framing")  # fmt: skip
+    verbose.stdout.fnmatch_lines(["212::GetDI/framing/* PASSED*"])
