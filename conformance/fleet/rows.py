@@ -168,6 +168,10 @@ class Rows:
         at_rep = self.at.take(pn)
         d = self.distinct
         refused = pc.fill_null(d["refused"].take(at_rep), False)
+        missing = pc.and_(has_q, pc.invert(has_p))
+        if j.in_flight:  # a request in flight when the recording stopped misses no reply
+            flying = pa.array([i in j.in_flight for i in q.tolist()])
+            missing = pc.and_(missing, pc.invert(flying))
         names = self.names
         self.tables["exchanges"].add_columns(
             {
@@ -186,7 +190,7 @@ class Rows:
                 "reply_rule": _per_frame(d["rule"], at_rep),
                 "refused": refused,
                 "refusal_code": pc.if_else(refused, d["refusal_code"].take(at_rep), none),
-                "missing_reply": pc.and_(has_q, pc.invert(has_p)),
+                "missing_reply": missing,
             },
             len(q),
         )
