@@ -55,6 +55,8 @@ class Rows:
         self.tables = {}
         self.engine = engine
         self.ports: dict[int, int | None] = {}
+        #: Every connection read (its open or close event): what ``info`` counts.
+        self.conns: set[int] = set()
         self.state_cnt: dict[int, int] = {}  # each state connection's last packet counter
         #: The first upstream a connection names, and the earliest time read.
         self.upstream = ""
@@ -93,6 +95,7 @@ class Rows:
                 (c.conn, c.event, c.t_ns, c.transport, c.client, c.upstream, c.reason, c.stream)
             )
             self.upstream = self.upstream or c.upstream
+            self.conns.add(c.conn)
             self._time(c.t_ns)
             if c.event == "open":
                 self.ports[c.conn] = port_of(c.upstream)
