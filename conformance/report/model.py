@@ -251,10 +251,12 @@ class CommandSummary:
         return s in (Status.DIALECT, Status.NON_STRICT) and self.rule(Outcome(s.value))
 
     def counts(self) -> dict[str, int]:
-        """Cases by status (:func:`case_status`): outcomes, XFAIL, XPASS and NOT-RUN."""
+        """Cases by status (:func:`case_status`): outcomes, XFAIL, XPASS and NOT-RUN; a case
+        that stands for several frames (``check``, ``serve`` and ``replay`` fold alike
+        ones into one: :attr:`CaseResult.count`) counts as that many."""
         out: dict[str, int] = {}
-        for st in self.statuses():
-            out[st.value] = out.get(st.value, 0) + 1
+        for c, st in zip(self.cases, self.statuses(), strict=True):
+            out[st.value] = out.get(st.value, 0) + c.count
         return out
 
 
@@ -341,10 +343,11 @@ class Report:
         return out
 
     def case_totals(self) -> dict[str, int]:
-        """Cases by :meth:`status`, every status but STOPPED (a command's) a key, worst first."""
+        """Cases by :meth:`status`, every status but STOPPED (a command's) a key, worst first;
+        a case that stands for several frames counts as that many (as :meth:`CommandSummary.counts`)."""
         out = {s.value: 0 for s in Status if s is not Status.STOPPED}
         for c in self.cases:
-            out[self.status(c).value] += 1
+            out[self.status(c).value] += c.count
         return out
 
     def totals_line(self, what: str = "commands") -> str:
