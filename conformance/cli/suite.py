@@ -570,15 +570,22 @@ def _serve(args: argparse.Namespace) -> int:
         print(f"serve: {summary}", file=sys.stderr)
     if verdicts is not None and (lost := verdicts.summary()) is not None:
         print(lost, file=sys.stderr)
+    write_reports(report, json_path=args.report_json, html_path=args.report_html)
+    if failure is not None:
+        print(f"fairino-conformance serve: error: {failure}", file=sys.stderr)
+        return 2
+    if not report.cases:  # nothing came to judge: never a pass (run refuses an empty run)
+        print(
+            f"fairino-conformance serve: nothing to judge: no client sent a frame to "
+            f"{validator.target.removeprefix('client of ')}",
+            file=sys.stderr,
+        )
+        return EXIT_ERROR
     lines = failure_lines(report)  # as run prints them: the frames, the numbers, a reproduction
     if lines:
         print("\n".join(lines))
         print()
     print(report.render_terminal())
-    write_reports(report, json_path=args.report_json, html_path=args.report_html)
-    if failure is not None:
-        print(f"fairino-conformance serve: error: {failure}", file=sys.stderr)
-        return 2
     return report.exit_code()
 
 
