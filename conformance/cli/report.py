@@ -121,7 +121,7 @@ def _report_matrix(args: argparse.Namespace) -> int:
         Path(args.output).write_text(m.html(), encoding="utf-8")
     if args.markdown:
         print(m.markdown(all_rows=args.all), end="")
-    elif not args.output or args.all:
+    else:  # the table, -o or not: what the page holds, at a glance
         print(m.terminal(width=shutil.get_terminal_size((100, 24)).columns, all_rows=args.all))
     if args.output:
         differ = len(m.differing)
