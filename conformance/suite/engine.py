@@ -58,6 +58,8 @@ class RunStarted:
     total: int
     target: str
     seed: int
+    #: The run's work in the estimate's unit, about a frame each (``Profile.frames``).
+    work: int = 0
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -77,6 +79,8 @@ class CaseFinished:
     failing: bool
     #: Seconds since the run started.
     elapsed: float
+    #: The case's work in the estimate's unit (``Profile.frames`` of its group).
+    work: int = 1
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -225,6 +229,7 @@ class Engine:
             result=result,
             failing=self.report.failing(result),
             elapsed=time.monotonic() - self._t0,
+            work=self.config.profile.frames(case.group),
         )
 
     def not_run(self, case: Case) -> CaseResult:
@@ -239,7 +244,12 @@ class Engine:
         cases not run are listed as such and RunFinished says ``interrupted``.
         """
         t0 = time.monotonic()
-        yield RunStarted(total=len(cases), target=self.runner.target_label(), seed=self.config.seed)
+        yield RunStarted(
+            total=len(cases),
+            target=self.runner.target_label(),
+            seed=self.config.seed,
+            work=sum(self.config.profile.frames(c.group) for c in cases),
+        )
         for w in self.warnings(cases):
             self.report.meta.setdefault("warnings", []).append(w)
             yield RunWarning(message=w)
