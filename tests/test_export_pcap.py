@@ -109,3 +109,24 @@ def test_a_capture_with_a_gap_keeps_it_and_nothing_else(tmp_path: Path) -> None:
         "ACKed segment that wasn't captured (common at capture start)",
     ], flags
     assert "39 bytes missing" in gap.detail
+
+
+def test_a_stream_one_way_is_acknowledged_before_it_fills_the_window(tmp_path: Path) -> None:
+    """The state port's packets go one way only: the client acknowledges them every
+    32 KiB, so the 65,535-byte window never fills (tshark would flag it full)."""
+    from tests.test_state_recording import record_emulator
+
+    rec = record_emulator(tmp_path, [], packets=200)
+    pcap = tmp_path / "state.pcap"
+    export_pcap(read_recording(str(rec)), pcap)
+    state = [s for s in _segments(pcap) if 8083 in s[1]]
+    sent = sum(len(s[5]) for s in state if s[1][0] == 8083)
+    assert sent > 65535  # enough to fill the window, unacknowledged
+    acked = 0
+    for _, way, seq, ack, flags, payload in state:
+        if way[0] == 8083 and payload:
+            assert seq + len(payload) - acked <= 65535, "the window would be full"
+        elif way[1] == 8083 and flags & 0x10:
+            acked = max(acked, ack)
+    if shutil.which("tshark"):
+        assert _flags(pcap) == []
