@@ -14,7 +14,7 @@ from conformance.judge.verdict import Outcome
 from conformance.report.charts import gapped, time_lines
 from conformance.report.html import render_report
 from conformance.report.model import CaseResult, Report
-from tests.test_report import _parse
+from tests.html_tree import parse_html
 
 SEND = "printf '/f/bIII1III201III2IIIxxIII/b/f' | fairino-conformance send 127.0.0.1:8080 --file -"
 
@@ -47,7 +47,7 @@ def _report() -> Report:
 
 def test_the_report_page_opens_with_its_summary_then_the_failing_commands_folded() -> None:
     page = render_report(_report())
-    root = _parse(page)
+    root = parse_html(page)
     (section,) = root.find_all("section", class_="report")
     # The summary: the verdict, the totals, a table per group and status, a chart.
     assert "2 commands failing" in section.text and "(exit code 2)" in section.text

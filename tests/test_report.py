@@ -11,6 +11,7 @@ from conformance.judge.verdict import Outcome
 from conformance.report.html import render_html
 from conformance.report.model import CaseResult, Report, load_report
 from tests.cli_run import cli_run
+from tests.html_tree import parse_html
 
 
 def _report(target: str, outcome: Outcome) -> Report:
@@ -49,7 +50,9 @@ def test_html_is_self_contained_escaped_and_merges_targets() -> None:
     assert "alpha:1" in page and "beta:2" in page
     assert "<script>alert(1)" not in page and "&lt;script&gt;alert(1)" in page
     assert not re.search(r"(src|href)=\"?https?:", page)
-    row = next(tr for tr in _parse(page).find_all("tr") if tr.attrs.get("data-key") == "201 movej")
+    row = next(
+        tr for tr in parse_html(page).find_all("tr") if tr.attrs.get("data-key") == "201 movej"
+    )
     assert len(row.find_all("td", class_="cell")) == 2 and row.attrs["data-worst"] == "FAIL"
     assert "/f/bIII1III201III2IIIxxIII/b/f" in page  # failing frames shown
 
@@ -111,59 +114,6 @@ def test_cases_not_run_are_one_line_not_a_table() -> None:
 # --------------------------------------------------------------------------- shared helpers
 
 
-class _Node:
-    """An element of a parsed HTML page: tag, attributes, children and text."""
-
-    def __init__(self, tag: str, attrs: dict[str, str | None]) -> None:
-        self.tag, self.attrs = tag, attrs
-        self.children: list[_Node] = []
-        self.parts: list[str] = []
-
-    @property
-    def text(self) -> str:
-        return "".join(self.parts) + "".join(c.text for c in self.children)
-
-    def find_all(self, tag: str, **attrs: str) -> list[_Node]:
-        out = []
-        for c in self.children:
-            if c.tag == tag and all(
-                v in (c.attrs.get(k.rstrip("_")) or "").split() for k, v in attrs.items()
-            ):
-                out.append(c)
-            out += c.find_all(tag, **attrs)
-        return out
-
-
-_VOID = {"meta", "br", "input", "hr", "img", "link"}
-
-
-def _parse(page: str) -> _Node:
-    from html.parser import HTMLParser
-
-    root = _Node("#root", {})
-    stack = [root]
-
-    class P(HTMLParser):
-        def handle_starttag(self, tag: str, attrs: list[tuple[str, str | None]]) -> None:
-            node = _Node(tag, dict(attrs))
-            stack[-1].children.append(node)
-            if tag not in _VOID:
-                stack.append(node)
-
-        def handle_endtag(self, tag: str) -> None:
-            while len(stack) > 1:
-                if stack.pop().tag == tag:
-                    break
-
-        def handle_data(self, data: str) -> None:
-            stack[-1].parts.append(data)
-
-    p = P()
-    p.feed(page)
-    p.close()
-    return root
-
-
 def _case(cmd_id: int, name: str, group: str, outcome: Outcome, n: int = 1) -> CaseResult:
     return CaseResult(
         id=f"{cmd_id}/{name}/{group}/{n}",
@@ -219,7 +169,7 @@ def test_matrix_gives_each_case_group_a_distinct_label_and_a_legend() -> None:
     for n, g in enumerate(groups):
         r.add(_case(201, "MoveJ", g, Outcome.FAIL, n))
     r.add(_case(201, "MoveJ", "framing", Outcome.PASS))
-    page = _parse(render_html([r]))
+    page = parse_html(render_html([r]))
     labels = {
         str(b.attrs["title"]).split(":")[0]: b.text
         for b in page.find_all("span", class_="box")
@@ -248,7 +198,7 @@ def _mixed() -> Report:
 
 
 def test_html_lists_failing_commands_first_with_their_details_open() -> None:
-    page = _parse(render_html([_mixed()]))
+    page = parse_html(render_html([_mixed()]))
     rows = page.find_all("tr")[1:]
     assert [int(tr.find_all("td", class_="id")[0].text) for tr in rows] == [
         250,
@@ -279,7 +229,7 @@ def test_report_html_is_sections_and_merge_is_a_matrix(tmp_path: Path) -> None:
         out = tmp_path / f"{action}.html"
         done = cli_run("report", action, str(a), str(b), "-o", str(out))
         assert done.returncode == 0, done.stderr
-        pages[action] = _parse(out.read_text(encoding="utf-8"))
+        pages[action] = parse_html(out.read_text(encoding="utf-8"))
     assert pages["html"].text != pages["merge"].text
 
     # html: "each report as its own section: its summary, its failing commands listed
