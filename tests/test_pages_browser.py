@@ -5,7 +5,7 @@ network, the summary above the details, folded commands that open) and photograp
 
 The screenshots go to a temporary directory, or to ``$FAIRINO_SCREENSHOTS`` (relative to
 the project): ``FAIRINO_SCREENSHOTS=docs/images .venv/bin/python -m pytest
-tests/test_pages_browser.py`` makes the ones docs/reports.md shows.
+tests/test_pages_browser.py`` makes the ones docs/reports.md shows (its last section says what they check).
 """
 
 from __future__ import annotations
