@@ -370,7 +370,7 @@ class Report:
 
         The outcome counts alone then do not say why the run fails; with this the
         printed totals and the exit code come from the same cases
-        (:meth:`failing_cases`).  Empty when FAIL and ERROR alone fail.
+        (:meth:`failing_cases`).  Empty when FAIL, ERROR and XPASS alone fail.
         """
         t = self.totals()
         hard = sum(t[s.value] for s in _ALWAYS_FAILING)
