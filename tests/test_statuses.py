@@ -126,3 +126,22 @@ def test_the_html_counts_as_the_terminal_does() -> None:
     assert "commands: 1 XFAIL, 1 STOPPED" in page and "cases: 1 XFAIL, 1 PASS, 1 NOT-RUN" in page
     assert 'data-outcome="STOPPED"' in page and 'data-outcome="XFAIL"' in page
     assert 'data-outcome="PASS"' not in page
+
+
+def test_the_html_summary_per_group_counts_as_the_totals_do() -> None:
+    """A case that stands for several frames (check, serve) counts as that many in the
+    per-group summary too, as in the cases: line."""
+    from tests.html_tree import parse_html
+
+    r = Report(target="t", spec_version="3.8.2")
+    r.add(CaseResult(id="201/MoveJ/client/ok", cmd_id=201, name="MoveJ", group="client",
+                     outcome=Outcome.PASS, count=40))  # fmt: skip
+    r.add(CaseResult(id="201/MoveJ/client/x", cmd_id=201, name="MoveJ", group="client",
+                     outcome=Outcome.FAIL, count=3))  # fmt: skip
+    assert r.group_totals() == {"client": {"FAIL": 3, "PASS": 40}}
+    assert r.totals_line("cases") == "cases: 3 FAIL, 40 PASS"
+    from conformance.report.html import render_report
+
+    (summary,) = parse_html(render_report(r)).find_all("table", class_="summary")
+    (row,) = [tr for tr in summary.find_all("tr") if tr.find_all("td")]
+    assert [td.text for td in row.find_all("td")] == ["client", "3", "40"]

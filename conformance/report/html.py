@@ -209,7 +209,7 @@ def _verdict(r: Report) -> str:
     if r.stopped or any(c.not_run for c in r.cases):
         return "Stopped: not every case ran"
     if code == 0:
-        xfail = sum(r.status(c) is Status.XFAIL for c in r.cases)
+        xfail = r.case_totals()[Status.XFAIL.value]
         return f"Conformant, {plural(xfail, 'expected failure')}" if xfail else "Conformant"
     n = len(r.failing_ids())
     return f"{plural(n, 'command')} failing"
@@ -223,12 +223,8 @@ def _report_view(r: Report, n: int, groups: list[str]) -> dict[str, object]:
     ordered = sorted(per.values(), key=lambda s: (STATUS_ORDER[s.status], s.cmd_id))
     not_passing = [s for s in ordered if s.status not in _PASSING]
     passing = [s for s in ordered if s.status in _PASSING]
-    summary: dict[str, dict[str, int]] = {
-        g: {} for g in groups if any(c.group == g for c in r.cases)
-    }
-    for c in r.cases:
-        st = r.status(c).value
-        summary[c.group][st] = summary[c.group].get(st, 0) + 1
+    counted = r.group_totals()  # the model's count, as the totals lines
+    summary = {g: counted[g] for g in groups if g in counted}
     statuses = [s.value for s in Status if any(s.value in row for row in summary.values())]
     chart = stacked_bars(
         summary,

@@ -350,6 +350,20 @@ class Report:
             out[self.status(c).value] += c.count
         return out
 
+    def group_totals(self) -> dict[str, dict[str, int]]:
+        """Cases by group, then by status, as :meth:`case_totals` counts them (the HTML
+        report's summary): groups in the order their first case came, statuses worst
+        first, only those counted."""
+        out: dict[str, dict[str, int]] = {}
+        for c in self.cases:
+            row = out.setdefault(c.group, {})
+            st = self.status(c).value
+            row[st] = row.get(st, 0) + c.count
+        return {
+            g: dict(sorted(row.items(), key=lambda kv: STATUS_ORDER[Status(kv[0])]))
+            for g, row in out.items()
+        }
+
     def totals_line(self, what: str = "commands") -> str:
         """``commands: 2 FAIL, 338 PASS, 1 STOPPED`` (``what="cases"``: the cases'), the
         statuses counted, worst first; ``none`` when there are none."""
