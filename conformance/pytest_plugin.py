@@ -165,6 +165,8 @@ def pytest_configure(config: pytest.Config) -> None:
     except ConformanceError as e:
         raise pytest.UsageError(str(e)) from None
     _refuse_shared_state_in_parallel(config, sc)
+    if not _is_worker(config):
+        _check_report_paths(config)
     if sc.spec is not None and sc.spec.warning and not _is_worker(config):
         print(f"fairino-conformance: warning: {sc.spec.warning}", file=sys.stderr)
     config.stash[_CONFIG_KEY] = sc
@@ -185,6 +187,53 @@ def pytest_configure(config: pytest.Config) -> None:
     config.stash[_MERGED_KEY] = merged
     if not _is_worker(config):
         config.pluginmanager.register(_Collector(merged), "fairino-conformance-collector")
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_sessionstart(session: pytest.Session) -> None:
+    config = session.config
+    if _CONFIG_KEY in config.stash and not _is_worker(config):
+        _progress_per_group(config)
+
+
+def _progress_per_group(config: pytest.Config) -> None:
+    """pytest's progress starts a new line each time the first part of a test's ID (its
+    file) changes.  The suite's items are named by command ID (JUnit's classname) and run
+    group by group, so it started one for each command of each case group: 2,070 lines
+    for a clean run.  Its items are drawn under their case group instead (``fairino-
+    conformance framing ....``): a line per group, wrapped where pytest wraps a long one.
+    The items' IDs stay as they are; only the progress line's label changes, and only
+    where pytest draws one (not with ``-v``, where each item has its own line)."""
+    tr = config.pluginmanager.get_plugin("terminalreporter")
+    if tr is None or config.get_verbosity() > 0:
+        return
+    draw = tr.write_fspath_result
+
+    def write_fspath_result(nodeid: str, res: str, **markup: bool) -> None:
+        draw(_progress_label(nodeid), res, **markup)
+
+    tr.write_fspath_result = write_fspath_result
+
+
+def _progress_label(nodeid: str) -> str:
+    """A case item's progress label, ``fairino-conformance GROUP``; any other ID as it is."""
+    cmd_id, sep, rest = nodeid.partition("::")
+    parts = rest.split("/")
+    if not sep or not cmd_id.isdigit() or len(parts) < 3:
+        return nodeid
+    return f"fairino-conformance {parts[1]}::{rest}"
+
+
+def _check_report_paths(config: pytest.Config) -> None:
+    """The reports' paths, checked before the session runs a case (not after the whole run)."""
+    from .report.write import check_report_paths
+
+    values = _values(config)
+    names = ("report_json", "report_html", "junitxml", "update_baseline")
+    try:
+        check_report_paths({option(k).pytest or option(k).flag: values[k] for k in names})
+    except ConformanceError as e:
+        raise pytest.UsageError(str(e)) from None
 
 
 def _how_it_ran(config: pytest.Config) -> str:
@@ -253,9 +302,11 @@ class CommandNode(pytest.Collector):
 
 
 class CaseFailed(Exception):
-    def __init__(self, result: CaseResult) -> None:
+    def __init__(self, result: CaseResult, status: str) -> None:
         super().__init__(result.detail)
         self.result = result
+        #: What the report counts the case as (FAIL, ERROR, XPASS, ...).
+        self.status = status
 
 
 class CaseItem(pytest.Item):
@@ -285,10 +336,10 @@ class CaseItem(pytest.Item):
         if outcome is Outcome.DIALECT:
             # JUnit shows the dialect and its source as properties of the testcase.
             self.user_properties.append(("dialect", result.source))
+        if finished.failing:  # the engine's decision (Report.failing), not asked again
+            raise CaseFailed(result, engine.report.status(result).value)
         if result.expected:
             pytest.xfail(f"expected failure: {result.detail}")
-        if finished.failing:  # the engine's decision (Report.failing), not asked again
-            raise CaseFailed(result)
         if outcome is Outcome.SKIPPED:
             pytest.skip(result.detail or "skipped")
         if outcome is Outcome.UNIMPLEMENTED:
@@ -297,7 +348,7 @@ class CaseItem(pytest.Item):
     def repr_failure(self, excinfo: pytest.ExceptionInfo[BaseException], style: Any = None) -> str:
         if isinstance(excinfo.value, CaseFailed):
             r = excinfo.value.result
-            lines = [f"{r.outcome.value}: {r.detail}"]
+            lines = [f"{excinfo.value.status}: {r.detail}"]
             lines += [f"  {f}" for f in r.frames]
             if r.reproduce:
                 lines.append(f"reproduce: {r.reproduce}")
@@ -477,12 +528,17 @@ def _write_reports(config: pytest.Config, report: Report) -> None:
     from .report.write import write_reports
 
     values = _values(config)
+    notes: list[str] = []
     config.stash[_WRITTEN_KEY] = write_reports(
         report,
         json_path=values["report_json"],
         html_path=values["report_html"],
         junit_path=values["junitxml"],
+        baseline_path=None if report.meta.get("dry_run") else values["update_baseline"],
+        notes=notes,
     )
+    for note in notes:
+        print(f"fairino-conformance: {note}", file=sys.stderr)
 
 
 # --------------------------------------------------------------------------- fixtures

@@ -1,5 +1,6 @@
-"""Test modules that need an optional dependency (the ``fleet`` extra's pyarrow and duckdb):
-skipped where it is not installed, without importing it while collecting.
+"""Test modules that need an optional dependency (the ``fleet`` extra's pyarrow and duckdb, a
+program such as tshark): skipped where it is not installed, without importing it while
+collecting; a program ``.ci/run`` installed is required there (a skip would hide a failure).
 
 ``pytest.importorskip`` imports the module, and every pytest-xdist worker collects every
 test module: duckdb and pyarrow cost each worker about 0.15 s of CPU at start-up, before
@@ -10,7 +11,11 @@ from __future__ import annotations
 
 import functools
 import importlib.util
+import os
+import shutil
 from typing import Any
+
+import pytest
 
 
 def missing(*modules: str) -> str:
@@ -26,3 +31,13 @@ def duck() -> Any:
     import duckdb
 
     return duckdb.connect(config={"threads": 1})
+
+
+def needs_program(name: str, *, install: str, require_env: str) -> pytest.MarkDecorator:
+    """Skip a test where the program ``name`` is not on ``PATH`` (the reason says how to
+    ``install`` it), unless ``$require_env`` is set: then the test runs and fails on it."""
+    required = bool(os.environ.get(require_env))
+    return pytest.mark.skipif(
+        shutil.which(name) is None and not required,
+        reason=f"{name} is not installed ({install})",
+    )

@@ -306,7 +306,9 @@ def test_failed_import_pcap_leaves_no_file(
 
     def parse(*a):  # type: ignore[no-untyped-def]
         seen.append(1)
-        if len(seen) > 10:
+        # The packets the fast path leaves to parse_packet (handshakes, FINs): the 4th
+        # is the first FIN, after the traffic.
+        if len(seen) > 3:
             raise OSError(28, "No space left on device")
         return real(*a)
 

@@ -147,3 +147,13 @@ def test_plain_values_compare_by_value_and_ignore_rules() -> None:
     assert [d.kind for d in compare_replies(None, reply(212, "0"), request=req)] == ["extra_reply"]
     wrong = compare_replies(reply(212, "0", cnt=1), reply(212, "0", cnt=2), request=req)
     assert [d.kind for d in wrong] == ["cnt"]
+
+
+def test_diff_names_the_side_a_value_comes_from() -> None:
+    """diff said "(recorded 4 for 4)" where it meant A (both files are recordings)."""
+    from tests.cli_run import cli_run
+
+    root = Path(__file__).resolve().parent.parent / "captures"
+    out = cli_run("diff", str(root / "session.mcap"), str(root / "session_faults.mcap")).stdout
+    assert "reply CNT 5 for request CNT 4 (A: 4 for 4)" in out
+    assert "(recorded" not in out

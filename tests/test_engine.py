@@ -74,7 +74,10 @@ def test_run_prints_failures_and_a_reproduction_not_tied_to_its_port(tmp_path: P
     (case,) = doc["commands"]["212"]["cases"]
     port = doc["meta"]["emulator_address"].rsplit(":", 1)[1]
     assert port not in case["reproduce"].replace("127.0.0.1:8080", "")
-    assert "fairino-conformance send --wait 10 127.0.0.1:8080 --hex " in case["reproduce"]
+    # A printable frame is printed as text, piped to send (no hex to decode by eye).
+    assert "& printf '/f/bIII" in case["reproduce"]
+    assert "| fairino-conformance send --wait 10 127.0.0.1:8080 --file -" in case["reproduce"]
+    assert "--hex" not in case["reproduce"]
 
 
 def test_dry_run_decides_every_case_and_sends_nothing(tmp_path: Path) -> None:
@@ -151,7 +154,7 @@ def test_baseline_warns_shows_xfail_and_says_why_a_listed_case_fails(tmp_path: P
     p = run(
         "-q", "--commands", "212", "--groups", "framing",
         "--emulator-fault", "wrong_cnt:212", "--expected-failures", str(baseline),
-        "--report-json", "r.json", "-v",  # -v: the PASS row with its XFAIL count
+        "--report-json", "r.json",  # the XFAIL row is listed without -v: it is no PASS
         cwd=tmp_path,
     )  # fmt: skip
     assert "1 listed case ID matches no case in this selection: 999/Nope/framing/x" in p.stderr
@@ -160,7 +163,11 @@ def test_baseline_warns_shows_xfail_and_says_why_a_listed_case_fails(tmp_path: P
     assert cases[FRAMING]["expected"] is True and cases[FRAMING]["outcome"] == "FAIL"
     assert p.returncode == 0, p.stdout  # the one failure is expected
     row = next(x for x in p.stdout.splitlines() if x.strip().startswith("212 "))
-    assert "XFAIL=1" in row and "PASS" in row and "FAIL " not in row
+    assert row.split()[2:] == ["XFAIL", "XFAIL=1"], row
+    # Every total counts it as what it is, never as a PASS.
+    assert "cases: 1 XFAIL" in p.stdout and "commands: 1 XFAIL (target" in p.stdout
+    assert doc["totals"]["XFAIL"] == 1 and doc["totals"]["PASS"] == 0
+    assert doc["case_totals"]["XFAIL"] == 1 and doc["commands"]["212"]["outcome"] == "XFAIL"
 
 
 def test_listed_case_that_passes_fails_the_run_with_a_reason(tmp_path: Path) -> None:
@@ -169,7 +176,8 @@ def test_listed_case_that_passes_fails_the_run_with_a_reason(tmp_path: Path) -> 
     p = run("-q", "--commands", "212", "--groups", "framing",
             "--expected-failures", str(baseline), cwd=tmp_path)  # fmt: skip
     assert p.returncode == 1
-    assert f"FAIL {FRAMING}: listed in --expected-failures but passed (PASS)" in p.stdout
+    assert f"XPASS {FRAMING}: listed in --expected-failures but passed (PASS)" in p.stdout
+    assert "cases: 1 XPASS" in p.stdout and "commands: 1 XPASS (target" in p.stdout
 
 
 # --------------------------------------------------------------------------- pytest front-end
@@ -262,12 +270,17 @@ def test_baseline_counts_what_fails_under_the_run_options() -> None:
         id="1/x/g/w", cmd_id=1, name="x", group="g", outcome=Outcome.NON_STRICT, detail="d"
     )
     base = SuiteConfig(expected_failures=frozenset({case.id}))
-    lenient = Engine(base)._baseline(case)
-    strict = Engine(dc_replace(base, strict=True))._baseline(case)
-    assert lenient.outcome is Outcome.FAIL and "listed in --expected-failures but passed" in (
-        lenient.detail
-    )
+    lenient_engine = Engine(base)
+    lenient = lenient_engine._baseline(case)
+    strict_engine = Engine(dc_replace(base, strict=True))
+    strict = strict_engine._baseline(case)
+    assert lenient.outcome is Outcome.NON_STRICT and lenient.expected
+    assert "listed in --expected-failures but passed" in lenient.detail
+    assert lenient_engine.report.status(lenient).value == "XPASS"
+    assert lenient_engine.report.failing(lenient)
     assert strict.outcome is Outcome.NON_STRICT and strict.expected
+    assert strict_engine.report.status(strict).value == "XFAIL"
+    assert not strict_engine.report.failing(strict)
 
 
 def test_an_engine_leaves_a_hosts_frozen_objects_frozen() -> None:

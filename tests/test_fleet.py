@@ -4,6 +4,7 @@ committed captures, as one Parquet dataset; DuckDB's reports find each fault whe
 from __future__ import annotations
 
 import json
+import re
 import shutil
 from collections import Counter
 from pathlib import Path
@@ -327,3 +328,15 @@ def test_state_packets_make_the_state_table(tmp_path: Path) -> None:
     assert [(r["robot"], r["packets"], r["lost"], r["checksum_failures"]) for r in state] == [
         ("r04", 5, 1, 1)
     ]
+
+
+def test_export_counts_the_connections_info_counts(tmp_path: Path) -> None:
+    """export-parquet said 2 connections where info said 1 (its table has a row for each
+    connection's open and each one's close)."""
+    rec = CAPTURES / "session.mcap"
+    info = cli_run("info", str(rec)).stdout
+    (n,) = [int(x) for x in re.findall(r"connections (\d+)", info)]
+    done = cli_run("export-parquet", str(rec), "-o", str(tmp_path / "d"))
+    assert done.returncode == 0, done.stderr
+    assert f"{n} connections" in done.stdout.splitlines()[0] and n == 1, done.stdout
+    assert _sql(tmp_path / "d", "SELECT count(*) FROM connections") == [(2,)]  # open, close

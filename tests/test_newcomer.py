@@ -83,8 +83,9 @@ def test_item_6_an_interrupted_run_says_130_everywhere(
     assert Report.from_json(doc).exit_code() == 130
     html = render_html([report])
     assert "<b>Interrupted</b> after 1 of 3 cases" in html and "(exit code 130)" in html
-    # The half-run command's PASS is of the one case that ran, and the cell says so.
-    assert "PASS</span><small> (2 of 3 not run)</small>" in html
+    # The half-run command is STOPPED (never PASS), and the cell says how much ran.
+    assert 'data-outcome="STOPPED"' in html and "(2 of 3 not run)" in html
+    assert 'data-outcome="PASS"' not in html
     assert 'title="invalid: 1 case not run"' in html  # a group none of whose cases ran
     with pytest.raises(SystemExit):
         main(["run", "--help"])
@@ -106,7 +107,8 @@ def test_item_5_the_reproduction_waits_for_the_emulator_it_starts() -> None:
     line = reproduction(
         SuiteConfig(), "201/MoveJ/valid/x", encode_frame(1, 229, "GetGripperConfig()")
     )
-    assert "& fairino-conformance send --wait 10 127.0.0.1:8080 --hex " in line
+    assert "& printf '/f/bIII1III229III" in line
+    assert "| fairino-conformance send --wait 10 127.0.0.1:8080 --file -" in line
     port = refusing_port()
     raw = encode_frame(1, 229, "GetGripperConfig()").hex()
     refused = threading.Event()
@@ -279,3 +281,36 @@ def test_item_4_check_prints_each_failure_with_its_frames_and_a_reproduction(
         assert main([*shlex.split(decode)[1:], "--hex", raw.hex(), "--json"]) == 0
         (doc,) = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
         assert doc["outcome"] == "FAIL" and rule in doc["problems"], (rule, doc)
+
+
+@pytest.mark.parametrize(
+    "raw",
+    [
+        b"/f/bIII1III229III18IIIGetGripperConfig()III/b/f",
+        b"/f/bIII1III201III13IIIMoveJ('%d\\n')III/b/f",  # %, \\ and ' as themselves
+        b"/f/bIII1III201III3III\x00\xffxIII/b/f",  # not printable: hex
+    ],
+)
+def test_a_reproduction_sends_the_frame_as_printf_prints_it_and_hex_only_where_unprintable(
+    raw: bytes,
+) -> None:
+    """Every reproduction was `send --hex 2f662f62…`, printable frames too."""
+    import shlex
+    import subprocess
+
+    from conformance.suite.config import SuiteConfig
+    from conformance.suite.evidence import reproduction
+
+    line = reproduction(SuiteConfig(target=("192.0.2.1", 8080)), "201/MoveJ/valid/x", raw)
+    send = line.split("  # or: ", 1)[1]
+    printable = all(0x20 <= b < 0x7F for b in raw)
+    if not printable:
+        assert send == f"fairino-conformance send 192.0.2.1:8080 --hex {raw.hex()}"
+        return
+    assert "--hex" not in send and send.endswith(
+        "| fairino-conformance send 192.0.2.1:8080 --file -"
+    )
+    printf = send.split(" | ", 1)[0]
+    assert shlex.split(printf)[0] == "printf"
+    out = subprocess.run(["sh", "-c", printf], capture_output=True, check=True).stdout
+    assert out == raw

@@ -53,18 +53,22 @@ def test_item_8_an_interrupted_run_counts_what_ran_apart_from_what_never_did() -
     stop_report(report, cases, interrupted=True)
     text = report.render_terminal()
     rows, totals = _story(text)
-    # One story: every row is counted under its own outcome; a command no case of which
-    # ran has no row and is counted apart, as NOT-RUN, not as an ERROR nobody saw.
-    assert rows == Counter({"PASS": 1}) and totals == Counter({"PASS": 1, "NOT-RUN": 1}), text
+    # One story: every row is counted under its own status; a command no case of which
+    # ran has no row and is counted apart, as NOT-RUN, not as an ERROR nobody saw; a
+    # command the run stopped in the middle of is STOPPED, never PASS.
+    assert rows == Counter({"STOPPED": 1}), text
+    assert totals == Counter({"STOPPED": 1, "NOT-RUN": 1}), text
     assert "NOT-RUN=1" in text and "2 cases not run: interrupted after 1 of 3 cases" in text
     doc = json.loads(report.dumps())
-    assert doc["commands"]["201"]["outcome"] == "PASS"
+    assert doc["commands"]["201"]["outcome"] == "STOPPED"
     assert doc["commands"]["212"]["outcome"] == "NOT-RUN"
-    assert doc["totals"]["PASS"] == 1 and doc["totals"]["ERROR"] == 0
+    assert doc["totals"]["PASS"] == 0 and doc["totals"]["ERROR"] == 0
+    assert doc["case_totals"] == {**doc["case_totals"], "PASS": 1, "NOT-RUN": 2}
     assert doc["failing"] == [] and doc["exit_code"] == 130  # nothing judged failed
     html = render_html([report])
-    assert 'data-outcome="PASS"' in html and 'data-outcome="NOT-RUN"' in html
-    assert 'data-outcome="ERROR"' not in html and "1 PASS, 1 NOT-RUN" in html
+    assert 'data-outcome="STOPPED"' in html and 'data-outcome="NOT-RUN"' in html
+    assert 'data-outcome="PASS"' not in html
+    assert 'data-outcome="ERROR"' not in html and "1 STOPPED, 1 NOT-RUN" in html
     # Stopped without Ctrl-C (a dead target, the budget): still exit code 2, the same story.
     report.interrupted = False
     assert report.exit_code() == 2 and _story(report.render_terminal()) == (rows, totals)
@@ -101,6 +105,7 @@ def test_rough_edge_a_passing_run_prints_the_summary_not_every_row(
     quiet = capsys.readouterr().out.strip().splitlines()
     assert quiet == [
         "(2 commands PASS or SKIPPED not listed; -v lists them)",
+        "cases: 2 PASS",
         "commands: 2 PASS (target embedded emulator)",
     ]
     assert main([*argv, "-v"]) == 0

@@ -580,3 +580,21 @@ def test_packets_read_inline_give_the_records_of_feed(tmp_path: Path) -> None:
             pr.feed(t_ns, lt, data)
         pr.finish()
     assert dump_json(read_recording(one)) == dump_json(rec)
+
+
+def test_import_pcap_words_a_file_that_is_no_capture_as_the_others_do(tmp_path: Path) -> None:
+    """import-pcap said scapy's "Not a supported capture file"; check, info and export-pcap
+    say what the file is not."""
+    from tests.cli_run import cli_run
+
+    notes = tmp_path / "notes.txt"
+    notes.write_text("some notes\n")
+    done = cli_run("import-pcap", str(notes), "-o", str(tmp_path / "x.mcap"))
+    assert done.returncode == 2
+    assert (
+        done.stderr
+        == f"fairino-conformance import-pcap: error: {notes}: not a pcap/pcapng capture\n"
+    )
+    other = cli_run("check", str(notes)).stderr
+    assert other == (f"fairino-conformance check: error: {notes}: neither an MCAP recording nor "
+                     "a pcap/pcapng capture\n")  # fmt: skip

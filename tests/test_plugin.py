@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import socket
 import xml.etree.ElementTree as ET
 from collections.abc import Callable
@@ -92,7 +93,8 @@ def test_failure_prints_reproduction_that_selects_exactly_that_case(
     run_part, send_part = line.split("reproduce: ", 1)[1].split("  # or: ")
     # Not this run's temporary emulator port: an emulator the user starts, same fault.
     assert f"emulate --listen 127.0.0.1:8080 --fault {fault} &" in send_part
-    assert "fairino-conformance send --wait 10 127.0.0.1:8080 --hex 2f662f62" in send_part
+    assert "& printf '/f/bIII1III" in send_part
+    assert "| fairino-conformance send --wait 10 127.0.0.1:8080 --file -" in send_part
     args = run_part.split()[1:]  # after "fairino-conformance"
     case_id = args[args.index("--case") + 1]
     # The reproduction, as the CLI runs it (in-process: the case fails either way, so
@@ -125,11 +127,15 @@ def test_expected_failures_baseline(
     )
     fixed = pytester.runpytest(*args)  # the listed case passes: the run fails
     fixed.assert_outcomes(failed=1)
-    assert "listed in --expected-failures but passed" in fixed.stdout.str()
+    assert "XPASS: listed in --expected-failures but passed" in fixed.stdout.str()
+    # The kit's own lines count it as what it is, as pytest's line does.
+    fixed.stdout.fnmatch_lines(["cases: 1 XPASS", "commands: 1 XPASS (target *"])
     unanswered(QUERY.cmd_id, wait=0.1)  # no reply echoes CNT: a wait that must expire
     result = pytester.runpytest(*args, "--emulator-fault", fault)
     result.assert_outcomes(xfailed=1)
     assert result.ret == 0
+    # pytest says "1 xfailed"; the kit's lines say XFAIL, never PASS.
+    result.stdout.fnmatch_lines(["*XFAIL*", "cases: 1 XFAIL", "commands: 1 XFAIL (target *"])
 
 
 def test_non_loopback_target_skips_motion_without_connecting(
@@ -260,3 +266,20 @@ def test_budget_from_the_environment_is_checked(
     result = pytester.runpytest("-p", "no:cacheprovider", "--conformance")
     assert result.ret == pytest.ExitCode.USAGE_ERROR
     assert "--budget" in result.stderr.str() and message in result.stderr.str()
+
+
+def test_the_progress_is_a_line_per_case_group_not_per_command(pytester: pytest.Pytester) -> None:
+    """pytest drew a line each time the command ID changed: 2,070 lines for a clean run."""
+    ids = "201,202,203,204,206,209"
+    result = pytester.runpytest(*BASE, "--conformance", "--commands", ids, "--profile", "quick")
+    assert result.ret == 0
+    lines = result.stdout.lines
+    progress = [ln for ln in lines if ln.startswith("fairino-conformance ") and "%]" in ln]
+    groups = [ln.split()[1] for ln in progress]
+    assert groups == ["framing", "examples", "valid", "invalid", "robustness", "transport",
+                      "stateful"], lines  # fmt: skip
+    assert not [ln for ln in lines if re.match(r"\d+ [.sxFE]", ln)], lines  # no line per ID
+    # -v: a line per case, as pytest draws it, under the case's own ID.
+    verbose = pytester.runpytest(*BASE, "--conformance", "--commands", "212", "-v",
+                                 "--groups", "framing")  # fmt: skip
+    verbose.stdout.fnmatch_lines(["212::GetDI/framing/* PASSED*"])

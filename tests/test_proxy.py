@@ -942,3 +942,19 @@ def test_a_udp_flood_past_the_backlog_is_forwarded_counted_and_recorded_as_a_gap
     assert all("forwarded but not recorded" in q.detail for q in gaps)
     # Every datagram recorded or counted (and the TCP request and its reply recorded).
     assert len(rec.frames) - 2 + counted == 2 * (n + 1)
+
+
+def test_print_shows_runs_of_bytes_that_are_not_frames(tmp_path: Path, upstream: Upstream) -> None:
+    """proxy --print showed the frames and nothing of the garbage between them."""
+    proc, addr, _ = _start_proxy_process(tmp_path, upstream, "--print")
+    with socket.create_connection(addr) as c:
+        c.sendall(b"hello\nworld" + encode_frame(3, 201, 'MoveJ("P1")'))
+        recv_frames(c, 1)
+        proc.send_signal(signal.SIGTERM)
+        stdout, stderr = proc.communicate(timeout=10)
+    assert proc.returncode == 0, stderr
+    lines = stdout.splitlines()
+    run = next(k for k, ln in enumerate(lines) if "not a frame" in ln)
+    frame = next(k for k, ln in enumerate(lines) if "CNT=3 ID=201" in ln)
+    assert run < frame  # in the order the bytes came
+    assert re.search(r"#1 > not a frame \(\w+, 11 bytes\) hello\\nworld$", lines[run]), lines[run]

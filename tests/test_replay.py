@@ -259,3 +259,23 @@ def test_serve_descriptor_exhaustion_backs_off_and_serving_goes_on() -> None:
     finally:
         proc.terminate()
         proc.wait(60)
+
+
+def test_replay_counts_each_request_as_its_json_does(session, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """replay printed PASS=1 for MoveJ where --json said sent 3, matched 3."""
+    import json
+    import re
+
+    from tests.cli_run import cli_run
+
+    with EmulatorServer() as em:
+        host, port = em.address
+        done = cli_run("replay", str(CAPTURES / "session.mcap"), "--target", f"{host}:{port}",
+                       "--timeout", str(REPLY_TIMEOUT), "--json", str(tmp_path / "r.json"))  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    doc = json.loads((tmp_path / "r.json").read_text())
+    shown = {
+        int(m[1]): int(m[2]) for m in re.finditer(r"^\s*(\d+)\s.*PASS=(\d+)", done.stdout, re.M)
+    }
+    assert shown == {int(k): c["matched"] for k, c in doc["commands"].items()}
+    assert shown[201] == 3 and f"cases: {sum(shown.values())} PASS" in done.stdout

@@ -11,6 +11,7 @@ from conformance.judge.verdict import Outcome
 from conformance.report.html import render_html
 from conformance.report.model import CaseResult, Report, load_report
 from tests.cli_run import cli_run
+from tests.html_tree import parse_html
 
 
 def _report(target: str, outcome: Outcome) -> Report:
@@ -49,8 +50,10 @@ def test_html_is_self_contained_escaped_and_merges_targets() -> None:
     assert "alpha:1" in page and "beta:2" in page
     assert "<script>alert(1)" not in page and "&lt;script&gt;alert(1)" in page
     assert not re.search(r"(src|href)=\"?https?:", page)
-    row = next(line for line in page.splitlines() if 'data-key="201 movej"' in line)
-    assert row.count('class="cell"') == 2 and 'data-worst="FAIL"' in row
+    row = next(
+        tr for tr in parse_html(page).find_all("tr") if tr.attrs.get("data-key") == "201 movej"
+    )
+    assert len(row.find_all("td", class_="cell")) == 2 and row.attrs["data-worst"] == "FAIL"
     assert "/f/bIII1III201III2IIIxxIII/b/f" in page  # failing frames shown
 
 
@@ -100,67 +103,15 @@ def test_cases_not_run_are_one_line_not_a_table() -> None:
             )
         )
     lines = r.render_terminal().splitlines()
-    assert len(lines) == 5  # header, 201, 212, the not-run line, totals
+    assert len(lines) == 6  # header, 201, 212, the not-run line, totals of cases and commands
     assert lines[3] == f"300 cases not run: {r.stopped}"
+    assert lines[4] == "cases: 1 FAIL, 1 PASS, 300 NOT-RUN"
     assert r.exit_code() == 2  # still an error run
     again = Report.from_json(json.loads(r.dumps()))
     assert again.stopped == r.stopped and sum(c.not_run for c in again.cases) == 300
 
 
 # --------------------------------------------------------------------------- shared helpers
-
-
-class _Node:
-    """An element of a parsed HTML page: tag, attributes, children and text."""
-
-    def __init__(self, tag: str, attrs: dict[str, str | None]) -> None:
-        self.tag, self.attrs = tag, attrs
-        self.children: list[_Node] = []
-        self.parts: list[str] = []
-
-    @property
-    def text(self) -> str:
-        return "".join(self.parts) + "".join(c.text for c in self.children)
-
-    def find_all(self, tag: str, **attrs: str) -> list[_Node]:
-        out = []
-        for c in self.children:
-            if c.tag == tag and all(
-                v in (c.attrs.get(k.rstrip("_")) or "").split() for k, v in attrs.items()
-            ):
-                out.append(c)
-            out += c.find_all(tag, **attrs)
-        return out
-
-
-_VOID = {"meta", "br", "input", "hr", "img", "link"}
-
-
-def _parse(page: str) -> _Node:
-    from html.parser import HTMLParser
-
-    root = _Node("#root", {})
-    stack = [root]
-
-    class P(HTMLParser):
-        def handle_starttag(self, tag: str, attrs: list[tuple[str, str | None]]) -> None:
-            node = _Node(tag, dict(attrs))
-            stack[-1].children.append(node)
-            if tag not in _VOID:
-                stack.append(node)
-
-        def handle_endtag(self, tag: str) -> None:
-            while len(stack) > 1:
-                if stack.pop().tag == tag:
-                    break
-
-        def handle_data(self, data: str) -> None:
-            stack[-1].parts.append(data)
-
-    p = P()
-    p.feed(page)
-    p.close()
-    return root
 
 
 def _case(cmd_id: int, name: str, group: str, outcome: Outcome, n: int = 1) -> CaseResult:
@@ -218,7 +169,7 @@ def test_matrix_gives_each_case_group_a_distinct_label_and_a_legend() -> None:
     for n, g in enumerate(groups):
         r.add(_case(201, "MoveJ", g, Outcome.FAIL, n))
     r.add(_case(201, "MoveJ", "framing", Outcome.PASS))
-    page = _parse(render_html([r]))
+    page = parse_html(render_html([r]))
     labels = {
         str(b.attrs["title"]).split(":")[0]: b.text
         for b in page.find_all("span", class_="box")
@@ -247,7 +198,7 @@ def _mixed() -> Report:
 
 
 def test_html_lists_failing_commands_first_with_their_details_open() -> None:
-    page = _parse(render_html([_mixed()]))
+    page = parse_html(render_html([_mixed()]))
     rows = page.find_all("tr")[1:]
     assert [int(tr.find_all("td", class_="id")[0].text) for tr in rows] == [
         250,
@@ -258,9 +209,9 @@ def test_html_lists_failing_commands_first_with_their_details_open() -> None:
         50,
     ]
     opened = {
-        int(tr.find_all("td", class_="id")[0].text): "open" in d.attrs
+        int(tr.find_all("td", class_="id")[0].text): "open" in tr.find_all("details")[0].attrs
         for tr in rows
-        for d in tr.find_all("details")
+        if tr.find_all("details")
     }
     assert opened == {250: True, 120: True, 300: True, 150: False}
 
@@ -278,22 +229,24 @@ def test_report_html_is_sections_and_merge_is_a_matrix(tmp_path: Path) -> None:
         out = tmp_path / f"{action}.html"
         done = cli_run("report", action, str(a), str(b), "-o", str(out))
         assert done.returncode == 0, done.stderr
-        pages[action] = _parse(out.read_text(encoding="utf-8"))
+        pages[action] = parse_html(out.read_text(encoding="utf-8"))
     assert pages["html"].text != pages["merge"].text
 
-    # html: "each report as its own section: one target per table, its failing cases
-    # listed with frames and reproduction".
+    # html: "each report as its own section: its summary, its failing commands listed
+    # with their cases' frames and reproduction, then its passing commands".
     sections = pages["html"].find_all("section", class_="report")
     assert [s.attrs["data-target"] for s in sections] == ["alpha:1", "beta:2"]
     for s in sections:
-        (table,) = s.find_all("table")
-        assert len(table.find_all("th")) == 3  # ID, command, this one target
-        (body,) = table.find_all("tbody")
-        assert all(len(tr.find_all("td", class_="cell")) == 1 for tr in body.find_all("tr"))
-    (fails,) = sections[0].find_all("ol", class_="failures")
+        assert s.find_all("table", class_="summary") and s.find_all("svg", class_="chart")
+    (fails,) = sections[0].find_all("details", class_="command")
+    assert fails.attrs["data-status"] == "FAIL" and "open" in fails.attrs
     assert "201/MoveJ/framing/2-1" in fails.text
     assert "/f/bIII1III201III2IIIxxIII/b/f" in fails.text and "pytest --case x" in fails.text
-    assert not sections[1].find_all("ol", class_="failures")
+    assert not sections[1].find_all("details", class_="command")
+    (passing,) = sections[1].find_all("details", class_="passing")
+    assert {
+        tr.attrs["data-status"] for tr in passing.find_all("tr") if "data-status" in tr.attrs
+    } == {"PASS"}
 
     # merge: "side-by-side matrix": one table, one column per target.
     assert not pages["merge"].find_all("section")

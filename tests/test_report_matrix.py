@@ -70,8 +70,11 @@ def test_terminal_markdown_and_html(reports: list[Path], tmp_path: Path) -> None
     page = tmp_path / "m.html"
     wrote = cli_run("report", "matrix", *args, "-o", str(page))
     assert wrote.returncode == 0 and "differing first" in wrote.stdout
+    # It prints the table too (it printed only "wrote ..."): the differing rows at a glance.
+    assert wrote.stdout.startswith(term.stdout), wrote.stdout
+    assert wrote.stdout.splitlines()[-1].startswith(f"wrote {page} (3 reports, 4 commands")
     html = page.read_text(encoding="utf-8")
-    ids = re.findall(r"<td class=id>(\d+)</td>", html)
+    ids = re.findall(r'<td class="id">(\d+)</td>', html)
     assert ids == ["201", "1074", "203", "905"]
     assert html.count('data-differs="1"') == 2 and html.count("absent in 3.8.2") == 2
     assert 'id="dif"' in html  # the filter to the differing rows

@@ -59,9 +59,14 @@ def test_whole_suite_against_a_refusing_target_stops_in_one_line(tmp_path: Path)
     assert proc.stderr.strip().splitlines()[-1] == f"fairino-conformance run: {line}"
     # A compact summary, not a table of ERROR rows without a reason.
     assert re.search(rf"^\d+ cases not run: {re.escape(line)}$", proc.stdout, re.M)
-    _, totals, written = proc.stdout.strip().splitlines()  # no row: no case ran
+    _, cases, totals, written = proc.stdout.strip().splitlines()  # no row: no case ran
+    assert re.fullmatch(r"cases: \d+ NOT-RUN", cases)
     assert re.fullmatch(rf"commands: \d+ NOT-RUN \(target 127\.0\.0\.1:{port}\)", totals)
     assert written == "reports written: r.json"
+    # The progress display stops with one line, never a bar filled with cases not run.
+    (stop,) = [x for x in proc.stderr.splitlines() if x.startswith("stopped ")]
+    assert re.fullmatch(rf"stopped after 0 of \d+ cases \(0:0\d elapsed\): {re.escape(line)}", stop)
+    assert not re.search(r"\] \d+/\d+ cases", proc.stderr), proc.stderr
     doc = json.loads((tmp_path / "r.json").read_text(encoding="utf-8"))
     assert doc["stopped"] == line
 

@@ -5,6 +5,7 @@ the finding: both frames go through ``decode``, which gives the same outcome, ru
 from __future__ import annotations
 
 import json
+import re
 import shlex
 import subprocess
 import sys
@@ -76,3 +77,19 @@ def test_the_cnt_finding_and_its_reproduction_agree(
     # decode gives the second frame the same outcome and source, and the same CNT finding.
     assert (got["outcome"], got["source"]) == (outcome, case["source"]), got
     assert "CNT" in str(got["message"]) and "after" in str(got["message"]), got
+
+
+def test_serve_without_a_client_says_there_was_nothing_to_judge() -> None:
+    """serve with no client printed `commands:  (target client of …)` and exit 0."""
+    from tests.cli_run import cli_run
+
+    done = cli_run(
+        "serve", "--listen", "127.0.0.1:0", "--state-listen", "off", "--duration", "0.01"
+    )
+    assert done.returncode == 2
+    assert "commands:" not in done.stdout
+    (line,) = done.stderr.splitlines()
+    assert re.fullmatch(
+        r"fairino-conformance serve: nothing to judge: no client sent a frame to 127\.0\.0\.1:\d+",
+        line,
+    )

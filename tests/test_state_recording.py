@@ -377,11 +377,11 @@ def test_diff_compares_the_state_streams_by_shape(tmp_path: Path) -> None:
     assert [d.detail for d in shape if "period" not in d.detail] == []
     res = diff_recordings(a, other, specs=specs, ignore=quiet)
     details = [d.detail for d in res.state]
-    assert "layout 3.9.8 (recorded 3.8.2)" in details
+    assert "layout 3.9.8 (A: 3.8.2)" in details
     assert any(d.startswith("fields added: smartToolState, toolCoord") for d in details)
-    assert "state problems layout (recorded none)" in details
+    assert "state problems layout (A: none)" in details
     assert res.changed and res.to_json()["state"][0]["kind"] == "state"
-    assert "state port: layout 3.9.8 (recorded 3.8.2)" in res.render()
+    assert "state port: layout 3.9.8 (A: 3.8.2)" in res.render()
     assert not diff_recordings(
         a, other, specs=specs, ignore=Ignore.parse(["latency", "state"])
     ).state

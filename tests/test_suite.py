@@ -300,7 +300,8 @@ def test_a_target_that_does_not_answer_at_the_start_stops_the_run_in_one_line(
     assert report.exit_code() == 2
     text = report.render_terminal()
     assert f"{len(report.cases)} cases not run: {runner.stopped}" in text
-    assert len(text.splitlines()) == 2  # no table of ERROR rows
+    assert len(text.splitlines()) == 3  # no table of ERROR rows: the reason, the totals
+    assert f"cases: {len(report.cases)} NOT-RUN" in text
 
 
 def test_a_target_dying_mid_run_stops_it_naming_the_case() -> None:
@@ -322,6 +323,45 @@ def test_a_target_dying_mid_run_stops_it_naming_the_case() -> None:
     # Bounded: the kit stopped sending once the target was gone.
     assert target.frames <= 150 + 10
     assert runner.report.exit_code() == 2
+
+
+def test_a_target_dying_mid_run_ends_the_progress_with_one_line() -> None:
+    """The progress went on to 3457/3457 cases with the target dead; it stops, in one line."""
+    import io
+    import re
+
+    from conformance.suite.engine import Engine, RunStopped
+    from conformance.suite.present import Progress
+
+    out = io.StringIO()
+    progress = Progress(out, tty=False)
+    with (
+        EmulatorServer(SPECS) as emu,
+        HostileTarget("dies", upstream=emu.address, frames_before_death=150) as target,
+    ):
+        config = SuiteConfig(target=target.address, profile=PROFILES["quick"], seed=12345,
+                             reply_timeout=5.0, recovery_timeout=3.0)  # fmt: skip
+        engine = Engine(config, SPECS)
+        cases = engine.select()
+        stops = []
+        try:
+            for ev in engine.events(cases):
+                progress.handle(ev)
+                if isinstance(ev, RunStopped):
+                    stops.append(ev)
+        finally:
+            engine.finish()
+    (stop,) = stops
+    lines = out.getvalue().splitlines()
+    assert lines[-1] == (
+        f"stopped after {stop.ran} of {len(cases)} cases, {progress.failed} failed "
+        f"({lines[-1].split('(', 1)[1].split(')', 1)[0]}): {stop.reason}"
+    )
+    assert stop.reason.startswith(f"target {target.label} died after case ")
+    assert not [ln for ln in lines if re.search(rf"\] {len(cases)}/{len(cases)} cases", ln)]
+    report = engine.report
+    assert sum(c.not_run for c in report.cases) == len(cases) - stop.ran
+    assert report.exit_code() == 2
 
 
 def test_the_case_deadline_clips_the_reply_wait() -> None:

@@ -19,7 +19,8 @@ from ..net.proxy_base import STATE_BACKLOG_SHARE
 from ..net.server import DEFAULT_MAX_STATE_CONNECTIONS
 from ..protocol.frame import DEFAULT_MAX_FRAME_SIZE
 from ..recording.layout import C2S, MIN_SPLIT_SIZE
-from ..recording.records import FrameRecord
+from ..recording.records import FrameRecord, ProblemRecord
+from ..report.text import printable
 from .specs_option import add_specs_dir, specs_of
 
 __all__ = ["format_frame_line", "parse_duration", "parse_size", "register", "stop_line"]
@@ -251,6 +252,18 @@ def format_frame_line(f: FrameRecord, name: str | None = None) -> str:
     return f"{stamp} #{f.conn} {arrow} CNT={f.cnt} ID={f.cmd_id} {shown} {data}{extra}"
 
 
+def format_problem_line(p: ProblemRecord) -> str:
+    """A run of bytes that are not a frame, as :func:`format_frame_line` draws a frame:
+    time, connection, direction, the rule and its size, and the bytes as text."""
+    t = p.complete_ns
+    stamp = time.strftime("%H:%M:%S", time.localtime(t / 1e9)) + f".{t % 1_000_000_000 // 1000:06d}"
+    arrow = ">" if p.dir == C2S else "<"
+    text = printable(p.raw[:60].decode("utf-8", "backslashreplace"))
+    text = text.replace("\n", "\\n").replace("\t", "\\t")  # one line a run
+    more = "..." if p.size > 60 else ""
+    return f"{stamp} #{p.conn} {arrow} not a frame ({p.rule}, {p.size} bytes) {text}{more}"
+
+
 def _side_ports(
     upstream: Address,
     listen: Address,
@@ -306,7 +319,10 @@ def _run_proxy(args: argparse.Namespace) -> int:
 
         names = FrameNames(Judge(specs, default_dialects()))
 
-        def on_frame(f: FrameRecord) -> None:
+        def on_frame(f: FrameRecord | ProblemRecord) -> None:
+            if isinstance(f, ProblemRecord):  # garbage, a partial frame: shown where it came
+                print(format_problem_line(f), flush=True)
+                return
             frame = f.frame()
             name = (
                 names.request(f.conn, frame, f.transport)

@@ -157,11 +157,11 @@ def _run_export(args: argparse.Namespace) -> int:
         else:
             print(
                 f"{r.recording}: robot {r.robot}, firmware {r.firmware or '?'}, {r.date}: "
-                + ", ".join(f"{n} {t}" for t, n in r.rows.items() if n)
+                + ", ".join(f"{n} {t}" for t, n in _shown(r.rows, r.connections).items() if n)
                 + f" ({r.seconds:.1f} s)"
             )
         skipped += r.skipped
-        for t, n in r.rows.items():
+        for t, n in _shown(r.rows, r.connections).items():
             totals[t] = totals.get(t, 0) + n
     if not args.json:
         not_read = f", {failed} not exported (above)" if failed else ""
@@ -172,6 +172,12 @@ def _run_export(args: argparse.Namespace) -> int:
     if failed:
         return EXIT_ERROR
     return EXIT_DAMAGED if damaged else 0
+
+
+def _shown(rows: dict[str, int], connections: int) -> dict[str, int]:
+    """What a recording gave, as ``info`` counts it: rows per table, but connections (the
+    ``connections`` table has a row for each one's open and each one's close)."""
+    return {t: connections if t == "connections" else n for t, n in rows.items()}
 
 
 def _run_query(args: argparse.Namespace) -> int:

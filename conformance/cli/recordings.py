@@ -286,9 +286,10 @@ def _run_info(args: argparse.Namespace) -> int:
 def _run_check(args: argparse.Namespace) -> int:
     from ..offline.check import check_recording, failing_ids_by_side
     from ..report.model import failure_lines
-    from ..report.write import write_reports
+    from ..report.write import check_report_paths, write_reports
     from ..suite.spec_choice import note_spec
 
+    check_report_paths({"--report-json": args.report_json})  # before reading, not after
     side = args.side
     lost = None
     with opened(args.capture) as (path, damage):

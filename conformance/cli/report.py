@@ -65,6 +65,22 @@ def _add_report(sub: Any) -> None:
         help="terminal and Markdown: every row, not only the differing",
     )
     matrix.set_defaults(func=_report_matrix)
+    baseline = rs.add_parser(
+        "baseline",
+        help="write a report's failing case IDs as a baseline for --expected-failures",
+        description="Write the failing case IDs of a JSON report (run, serve or check "
+        "--report-json), one a line with a comment above each command's, as the baseline "
+        "--expected-failures reads: the failures it lists are then expected (XFAIL) and do "
+        "not fail a run, a listed case that passes (XPASS) fails it until its line goes, and "
+        "any new failure fails it. A report of a run that stopped early is refused (its "
+        "cases not run would be missing). 'run --update-baseline FILE' rewrites a baseline "
+        "after a run.",
+    )
+    baseline.add_argument("report", metavar="REPORT.json", help="a JSON report")
+    baseline.add_argument(
+        "-o", "--output", required=True, metavar="FILE", help="the baseline to write (- : stdout)"
+    )
+    baseline.set_defaults(func=_report_baseline)
 
 
 def _load(path: str) -> Any:
@@ -105,7 +121,7 @@ def _report_matrix(args: argparse.Namespace) -> int:
         Path(args.output).write_text(m.html(), encoding="utf-8")
     if args.markdown:
         print(m.markdown(all_rows=args.all), end="")
-    elif not args.output or args.all:
+    else:  # the table, -o or not: what the page holds, at a glance
         print(m.terminal(width=shutil.get_terminal_size((100, 24)).columns, all_rows=args.all))
     if args.output:
         differ = len(m.differing)
@@ -113,6 +129,20 @@ def _report_matrix(args: argparse.Namespace) -> int:
             f"wrote {args.output} ({len(m.columns)} reports, {len(m.rows)} commands, "
             f"{differ} differing first)"
         )
+    return 0
+
+
+def _report_baseline(args: argparse.Namespace) -> int:
+    from ..report.baseline import baseline_cases, write_baseline
+    from ..report.text import plural
+    from ..report.write import check_report_paths
+
+    report = _load(args.report)
+    check_report_paths({"--output": args.output})
+    n = write_baseline(report, args.output, source=args.report)
+    if args.output != "-":
+        commands = len({c.cmd_id for c in baseline_cases(report)})
+        print(f"wrote {args.output}: {plural(n, 'failing case')} of {plural(commands, 'command')}")
     return 0
 
 

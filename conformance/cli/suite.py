@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import os
 import signal
 import sys
 import threading
@@ -371,27 +370,24 @@ def _add_run(sub: Any) -> None:
     p.set_defaults(func=_run)
 
 
+#: The suite's options that name a file written after the run (checked before it).
+_REPORT_OPTIONS = ("report_json", "report_html", "junitxml", "update_baseline")
+
+
 def _run(args: argparse.Namespace) -> int:
     """``run``: the engine's events drawn on stderr; reports written, each to its own path."""
-    from pathlib import Path
 
     from ..report.model import failure_lines
-    from ..report.write import write_reports
+    from ..report.write import check_report_paths, write_reports
     from ..suite.engine import Engine, EngineError, Interrupted, RunFinished
-    from ..suite.options import OPTIONS, resolve, suite_config
+    from ..suite.options import OPTIONS, option, resolve, suite_config
     from ..suite.present import Progress, dry_run_lines
     from ..suite.spec_choice import choice_line, with_spec
 
     values = resolve({o.name: getattr(args, o.name, None) for o in OPTIONS if o.run})
     if values["emulator_fault"] and values["target"]:
         raise UsageError("--emulator-fault applies only to the built-in emulator (no --target)")
-    outputs = [values[k] for k in ("report_json", "report_html", "junitxml") if values[k]]
-    if len(set(map(os.path.abspath, outputs))) != len(outputs):
-        raise UsageError("--report-json, --report-html and --junitxml must be different files")
-    for path in outputs:
-        parent = Path(path).resolve().parent
-        if not parent.is_dir():
-            raise UsageError(f"cannot write {path}: no directory {parent}")
+    check_report_paths({option(k).flag: values[k] for k in _REPORT_OPTIONS})
     config = with_spec(suite_config(values))  # auto: the target's 905 reply, asked once
     assert config.spec is not None
     line = choice_line(config.spec)
@@ -422,11 +418,14 @@ def _run(args: argparse.Namespace) -> int:
     finally:
         errors = engine.finish()
     report = engine.report
+    notes: list[str] = []
     written = write_reports(
         report,
         json_path=values["report_json"],
         html_path=values["report_html"],
         junit_path=values["junitxml"],
+        baseline_path=None if values["dry_run"] else values["update_baseline"],
+        notes=notes,
     )
     lines = failure_lines(report)
     if lines:
@@ -439,6 +438,8 @@ def _run(args: argparse.Namespace) -> int:
         print(report.render_terminal(only_failures=not verbose, hidden_note="-v lists them"))
     if written:
         print(f"reports written: {', '.join(written)}")
+    for note in notes:
+        print(f"fairino-conformance run: {note}", file=sys.stderr)
     if report.stopped:
         # The one line that says why the run stopped early (unreachable, dead, budget, Ctrl-C).
         print(f"fairino-conformance run: {report.stopped}", file=sys.stderr)
@@ -503,11 +504,12 @@ def _serve(args: argparse.Namespace) -> int:
     from ..net.emulator import EmulatorServer
     from ..offline.client_mode import ClientValidator
     from ..report.model import failure_lines
-    from ..report.write import write_reports
+    from ..report.write import check_report_paths, write_reports
     from ..suite.spec_choice import note_spec
 
     host, port, udp_port = _listen_addresses(args)
     state_port = _state_port(args, host, port)  # the state port too, as emulate serves it
+    check_report_paths({"--report-json": args.report_json, "--report-html": args.report_html})
     from ..errors import SpecError
     from ..spec.state import layout_for
 
@@ -596,15 +598,22 @@ def _serve(args: argparse.Namespace) -> int:
         print(f"serve: {summary}", file=sys.stderr)
     if verdicts is not None and (lost := verdicts.summary()) is not None:
         print(lost, file=sys.stderr)
+    write_reports(report, json_path=args.report_json, html_path=args.report_html)
+    if failure is not None:
+        print(f"fairino-conformance serve: error: {failure}", file=sys.stderr)
+        return 2
+    if not report.cases:  # nothing came to judge: never a pass (run refuses an empty run)
+        print(
+            f"fairino-conformance serve: nothing to judge: no client sent a frame to "
+            f"{validator.target.removeprefix('client of ')}",
+            file=sys.stderr,
+        )
+        return EXIT_ERROR
     lines = failure_lines(report)  # as run prints them: the frames, the numbers, a reproduction
     if lines:
         print("\n".join(lines))
         print()
     print(report.render_terminal())
-    write_reports(report, json_path=args.report_json, html_path=args.report_html)
-    if failure is not None:
-        print(f"fairino-conformance serve: error: {failure}", file=sys.stderr)
-        return 2
     return report.exit_code()
 
 

@@ -61,6 +61,9 @@ class ExportResult:
     firmware: str | None = None
     spec_version: str = ""
     rows: dict[str, int] = field(default_factory=dict)
+    #: Connections (the ``connections`` table has a row per open and close event of each):
+    #: the count ``info`` gives.
+    connections: int = 0
     #: Already in the dataset: nothing written.
     skipped: bool = False
     #: What could not be read (the rows hold the rest).
@@ -252,6 +255,7 @@ class _Job:
         for t, tab in rows.tables.items():
             tab.close(self.dataset / t / part)
             result.rows[t] = tab.count
+        result.connections = len(rows.conns)
         result.robot, result.date = label, date
 
 

@@ -25,6 +25,7 @@ from .schema import SCHEMA_VERSION, TABLES
 
 __all__ = [
     "Result",
+    "cell_text",
     "connect",
     "format_rows",
     "run_report",
@@ -200,7 +201,8 @@ def format_rows(result: Result, fmt: str) -> str:
     return _table(cols, rows)
 
 
-def _cell(v: Any) -> str:
+def cell_text(v: Any) -> str:
+    """A value as the tables print it: ``-`` for none, a time to the second, else its text."""
     if v is None:
         return "-"
     if isinstance(v, datetime.datetime):
@@ -209,7 +211,7 @@ def _cell(v: Any) -> str:
 
 
 def _table(cols: Sequence[str], rows: Sequence[tuple[Any, ...]]) -> str:
-    cells = [[_cell(v) for v in r] for r in rows]
+    cells = [[cell_text(v) for v in r] for r in rows]
     widths = [max([len(c), *(len(r[k]) for r in cells)]) for k, c in enumerate(cols)]
     numeric = [
         all(isinstance(r[k], (int, float)) or r[k] is None for r in rows) for k in range(len(cols))

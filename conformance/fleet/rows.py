@@ -55,6 +55,8 @@ class Rows:
         self.tables = {}
         self.engine = engine
         self.ports: dict[int, int | None] = {}
+        #: Every connection read (its open or close event): what ``info`` counts.
+        self.conns: set[int] = set()
         self.state_cnt: dict[int, int] = {}  # each state connection's last packet counter
         #: The first upstream a connection names, and the earliest time read.
         self.upstream = ""
@@ -93,6 +95,7 @@ class Rows:
                 (c.conn, c.event, c.t_ns, c.transport, c.client, c.upstream, c.reason, c.stream)
             )
             self.upstream = self.upstream or c.upstream
+            self.conns.add(c.conn)
             self._time(c.t_ns)
             if c.event == "open":
                 self.ports[c.conn] = port_of(c.upstream)
@@ -168,6 +171,10 @@ class Rows:
         at_rep = self.at.take(pn)
         d = self.distinct
         refused = pc.fill_null(d["refused"].take(at_rep), False)
+        missing = pc.and_(has_q, pc.invert(has_p))
+        if j.in_flight:  # a request in flight when the recording stopped misses no reply
+            flying = pa.array([i in j.in_flight for i in q.tolist()])
+            missing = pc.and_(missing, pc.invert(flying))
         names = self.names
         self.tables["exchanges"].add_columns(
             {
@@ -186,7 +193,7 @@ class Rows:
                 "reply_rule": _per_frame(d["rule"], at_rep),
                 "refused": refused,
                 "refusal_code": pc.if_else(refused, d["refusal_code"].take(at_rep), none),
-                "missing_reply": pc.and_(has_q, pc.invert(has_p)),
+                "missing_reply": missing,
             },
             len(q),
         )

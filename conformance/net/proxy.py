@@ -73,7 +73,7 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from ..protocol.frame import DEFAULT_MAX_FRAME_SIZE
-from ..recording.records import FrameRecord
+from ..recording.records import FrameRecord, ProblemRecord
 from ..recording.rotating import segment_path
 from ..recording.writer import default_metadata
 from ..spec.commands import SpecSet
@@ -133,7 +133,7 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
         max_pending: int = 1 << 20,
         max_backlog: int = 64 << 20,
         record_tick: float = 0.02,  # 10 -> 20 ms: the recorder's CPU a frame 12 -> 8 us
-        on_frame: Callable[[FrameRecord], None] | None = None,
+        on_frame: Callable[[FrameRecord | ProblemRecord], None] | None = None,
         max_connections: int | None = None,
         max_state_connections: int = DEFAULT_MAX_STATE_CONNECTIONS,
         max_state_backlog: int | None = None,

@@ -40,7 +40,7 @@ from typing import Any
 
 from ..recording.layout import C2S, S2C, STATE_STREAM, DirectionText
 from ..recording.recorder import StreamRecorder
-from ..recording.records import FrameRecord
+from ..recording.records import FrameRecord, ProblemRecord
 from ..recording.rotating import RotatingWriter
 
 __all__ = ["CLOSE", "DATA", "DGRAM", "OPEN", "STOP", "RecorderCounters", "RecorderProcess"]
@@ -140,7 +140,8 @@ class RecorderCounters:
 class RecorderProcess:
     """The proxy's end of the recorder process: starts it, hands it events, hears from it.
 
-    ``on_frame`` (if given) gets the frames the process recorded, and ``on_error``
+    ``on_frame`` (if given) gets the frames the process recorded (and the runs of bytes
+    that are not frames, in their place among them), and ``on_error``
     the first failures (a recording error, an ``on_frame`` that raised, a process that
     died).  :meth:`put` and :meth:`write` belong to one thread (the proxy's I/O thread,
     then :meth:`RecordingProxy.close`).
@@ -150,7 +151,7 @@ class RecorderProcess:
         self,
         *,
         paths: list[str],
-        on_frame: Callable[[FrameRecord], None] | None,
+        on_frame: Callable[[FrameRecord | ProblemRecord], None] | None,
         on_error: Callable[[BaseException], None],
     ) -> None:
         self.on_frame = on_frame
@@ -338,7 +339,7 @@ def _recorder_main(argv: list[str]) -> None:
         status.send(("error", _picklable(e)))
         return
     status.send(("ready", writer.paths))
-    out_frames: list[FrameRecord] = []
+    out_frames: list[FrameRecord | ProblemRecord] = []
     rec = StreamRecorder(
         writer,
         specs=config["specs"],
@@ -378,7 +379,7 @@ class _Recorder:
         shared: mmap.mmap,
         writer: RotatingWriter,
         rec: StreamRecorder,
-        out_frames: list[FrameRecord],
+        out_frames: list[FrameRecord | ProblemRecord],
     ) -> None:
         self.fd = fd
         self.status = status

@@ -271,9 +271,22 @@ class Check:
 
     def _missing(self, j: Judged, q: int, rv: Verdict) -> None:
         c = j.cols
+        name = rv.name or command_name(self.specs, c.cmd_id[q], c.name[q])
+        if q in j.in_flight:  # the recording stopped first: no reply missed (engine.py)
+            self.cases.add(
+                c.cmd_id[q],
+                name,
+                "controller",
+                Outcome.SKIPPED,
+                "in_flight",
+                "the recording stopped before its reply: the request was in flight",
+                (c.raw[q],),
+                "",
+            )
+            return
         self.cases.add(
             c.cmd_id[q],
-            rv.name or command_name(self.specs, c.cmd_id[q], c.name[q]),
+            name,
             "controller",
             Outcome.FAIL,
             "no_reply",

@@ -209,6 +209,7 @@ def compare_replies(
     specs: SpecSet | None = None,
     ignore: Ignore = Ignore(),
     judge: Judge | None = None,
+    was: str = "recorded",
 ) -> list[Difference]:
     """Differences between a recorded reply and a new one (both may be missing).
 
@@ -219,6 +220,8 @@ def compare_replies(
     ``request`` is the recorded request, ``new_request`` the one the new reply
     answers (default: the same); each reply's echo is judged against its own.
     ``noise`` is the malformed bytes received just before each reply (recorded, new).
+    ``was`` names the recorded side where a difference gives its value (``replay``: the
+    recording, ``recorded 4``; ``diff``: its first recording, ``A: 4``).
     """
     new_req = new_request or request
     ref = recorded or new or request
@@ -259,14 +262,14 @@ def compare_replies(
             add(
                 "cnt",
                 f"reply CNT {new.cnt} for request CNT {new_req.cnt} "
-                f"(recorded {recorded.cnt} for {request.cnt})",
+                f"({was} {recorded.cnt} for {request.cnt})",
             )
         if (recorded.cmd_id == request.cmd_id) != (new.cmd_id == new_req.cmd_id):
-            add("cmd_id", f"reply CMD_ID {new.cmd_id} (recorded {recorded.cmd_id})")
+            add("cmd_id", f"reply CMD_ID {new.cmd_id} ({was} {recorded.cmd_id})")
     elif recorded.cmd_id != new.cmd_id:
-        add("cmd_id", f"reply CMD_ID {new.cmd_id} (recorded {recorded.cmd_id})")
+        add("cmd_id", f"reply CMD_ID {new.cmd_id} ({was} {recorded.cmd_id})")
     if bool(noise[0]) != bool(noise[1]):
-        add("framing", f"{noise[1]} malformed bytes before the reply (recorded {noise[0]})")
+        add("framing", f"{noise[1]} malformed bytes before the reply ({was} {noise[0]})")
     returns = _flat_returns(specs, cid, name)
     if judge is not None:
         vr = judge.reply(recorded.frame(), request.frame() if request is not None else None)
@@ -278,14 +281,13 @@ def compare_replies(
         if changed and "verdict" not in ignore.kinds:
             add(
                 "verdict",
-                f"{vn.outcome.value} {vn.rule}: {vn.message} "
-                f"(recorded {vr.outcome.value} {vr.rule})",
+                f"{vn.outcome.value} {vn.rule}: {vn.message} ({was} {vr.outcome.value} {vr.rule})",
             )
     if set(recorded.problems) != set(new.problems):
         add(
             "framing",
             f"framing problems {sorted(new.problems) or 'none'} "
-            f"(recorded {sorted(recorded.problems) or 'none'})",
+            f"({was} {sorted(recorded.problems) or 'none'})",
         )
     if recorded.data == new.data or "data" in ignore.kinds:
         return out
@@ -293,7 +295,7 @@ def compare_replies(
     if rv is None or nv is None or len(rv) != len(nv):
         add(
             "shape",
-            f"{'?' if nv is None else len(nv)} values (recorded {'?' if rv is None else len(rv)}): "
+            f"{'?' if nv is None else len(nv)} values ({was} {'?' if rv is None else len(rv)}): "
             f"{new.data[:60]!r} vs {recorded.data[:60]!r}",
         )
         return out
@@ -304,10 +306,10 @@ def compare_replies(
         vname = decl.name if decl else f"value {i}"
         if decl is not None and decl.volatile:
             if "volatile" not in ignore.kinds and _shape(a) != _shape(b):
-                add("shape", f"{vname} (volatile, index {i}): {_shape(b)} (recorded {_shape(a)})")
+                add("shape", f"{vname} (volatile, index {i}): {_shape(b)} ({was} {_shape(a)})")
             continue
         if _text(a) != _text(b):
-            add("data", f"{vname} (index {i}): {_text(b)!r} (recorded {_text(a)!r})")
+            add("data", f"{vname} (index {i}): {_text(b)!r} ({was} {_text(a)!r})")
     return out
 
 
@@ -467,6 +469,7 @@ def diff_recordings(
             specs=specs,
             ignore=ignore,
             judge=judge,
+            was="A:",  # the value in A; the difference gives B's
         )
         if diffs:
             c.differing += 1
@@ -577,14 +580,14 @@ def diff_state(
         return ", ".join(sorted(map(str, x))) or "none"
 
     if sa.versions != sb.versions:
-        add(f"layout {vs(sb.versions)} (recorded {vs(sa.versions)})")
+        add(f"layout {vs(sb.versions)} (A: {vs(sa.versions)})")
     elif sa.lengths != sb.lengths:
-        add(f"LEN {vs(sb.lengths)} (recorded {vs(sa.lengths)})")
+        add(f"LEN {vs(sb.lengths)} (A: {vs(sa.lengths)})")
     if sa.fields and sb.fields and sa.fields != sb.fields:
         gone = [k for k in sa.fields if k not in sb.fields]
         new = [k for k in sb.fields if k not in sa.fields]
         retyped = [
-            f"{k} {sb.fields[k]} (recorded {sa.fields[k]})"
+            f"{k} {sb.fields[k]} (A: {sa.fields[k]})"
             for k in sa.fields
             if k in sb.fields and sa.fields[k] != sb.fields[k]
         ]
@@ -600,9 +603,9 @@ def diff_state(
     if pa is not None and pb is not None:
         delta = abs(pb - pa)
         if delta > 2 and delta > period_tolerance * pa:
-            add(f"period {pb:g} ms (recorded {pa:g} ms)")
+            add(f"period {pb:g} ms (A: {pa:g} ms)")
     if sa.problems != sb.problems:
-        add(f"state problems {vs(sb.problems)} (recorded {vs(sa.problems)})")
+        add(f"state problems {vs(sb.problems)} (A: {vs(sa.problems)})")
     return out
 
 

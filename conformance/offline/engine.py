@@ -22,8 +22,12 @@ its requests though the first came before the last request): the frames after ``
 for the next window.  Across windows are carried: the requests still waiting for a reply
 (any later reply of their connection may take them), each connection's last request CNT,
 and the verdicts made.  A waiting request's exchange is given when its reply comes, or as a
-missing reply once its connection's close is read (or at the end).  Memory holds a window,
-the connections open and the runs waiting.
+missing reply once its connection's close is read (or at the end).  A request given up
+because the recording stopped, not its connection (no close event at the end of the
+file, or a close the recorder wrote as it stopped: ``RECORDING_STOPPED``), with no reply
+on its connection after it, was **in flight** (:attr:`Judged.in_flight`): its reply was
+never recorded, not never sent, and no reading blames the controller for it.  Memory
+holds a window, the connections open and the runs waiting.
 
 What this relies on is checked as it goes: a frame that comes before one already judged, a
 frame of a connection already closed, or a connection opened after its frames were judged
@@ -45,7 +49,7 @@ from ..judge.pairing import pair_window
 from ..judge.stream import CntSteps
 from ..judge.verdict import Direction
 from ..protocol.frame import Frame
-from ..recording.layout import C2S, STATE_KIND
+from ..recording.layout import C2S, RECORDING_STOPPED, STATE_KIND
 from ..recording.reader import Item, Recording, RecordingReader
 from ..recording.records import ConnectionRecord, FrameRecord, Frames, ProblemRecord, StateRecord
 from ..recording.salvage import Damage
@@ -126,6 +130,9 @@ class Judged:
     #: The connections done with: closed, their frames all judged (none of theirs comes
     #: later).
     ended: list[int] = field(default_factory=list)
+    #: Of ``missing``, the requests in flight when the recording stopped (see the module):
+    #: no reply was recorded, none was missed.
+    in_flight: frozenset[int] = frozenset()
 
     @cached_property
     def verdicts(self) -> list[Verdict]:
@@ -369,6 +376,11 @@ class _State:
         self.held = Columns()
         self.open: set[int] = set()  # connections opened and not closed
         self.closed: set[int] = set()  # closed, some of their frames still to judge
+        #: Of ``closed``, those the recorder closed as it stopped (not their peers).
+        self.stopped: set[int] = set()
+        #: Each connection's latest reply (its first byte): a request after it, given up,
+        #: may have been in flight.
+        self.last_reply_ns: dict[int, int] = {}
         self.used: set[int] = set()  # connections whose frames were judged
         self.gone = _Gone()  # closed and done: a frame of one later is out of order
         self.judged_ns = -1  # the latest first byte judged
@@ -395,6 +407,8 @@ class _State:
                 self.open.add(x.conn)
             elif x.event == "close":
                 self.closed.add(x.conn)
+                if x.reason in RECORDING_STOPPED:
+                    self.stopped.add(x.conn)
         cols = r.cols
         n = len(cols)
         if n:
@@ -466,7 +480,11 @@ class _State:
         done = set() if final else self.closed - held_conns
         carry = [] if final else [i for i in waiting if c.conn[i] not in done]
         missing = [i for i in waiting if final or c.conn[i] in done]
+        self._note_replies(c, k)
+        in_flight = frozenset(i for i in missing if self._in_flight(c, i))
         for conn in done:
+            self.stopped.discard(conn)
+            self.last_reply_ns.pop(conn, None)
             self.closed.discard(conn)
             self.open.discard(conn)
             self.gone.add(conn)
@@ -486,7 +504,29 @@ class _State:
             carry=frozenset(carry),
             missing=missing,
             ended=sorted(done),
+            in_flight=in_flight,
         )
+
+    def _note_replies(self, c: Columns, k: int) -> None:
+        """Each connection's latest reply among the window's new frames."""
+        import numpy as np
+
+        replies = k + np.flatnonzero(np.frombuffer(c.request, dtype=np.int8)[k:] == 0)
+        if not len(replies):
+            return
+        conns, firsts = c.np("conn")[replies], c.np("first_ns")[replies]
+        for conn in np.unique(conns).tolist():
+            t = int(firsts[conns == conn].max())
+            self.last_reply_ns[conn] = max(self.last_reply_ns.get(conn, t), t)
+
+    def _in_flight(self, c: Columns, i: int) -> bool:
+        """Whether request ``i``, given up, was in flight when the recording stopped: its
+        connection ended with the recording (no close read, or the recorder's), and no
+        reply of its connection came after it."""
+        conn = c.conn[i]
+        if conn in self.closed and conn not in self.stopped:
+            return False  # its peer closed it: the reply was never sent
+        return int(c.first_ns[i]) > self.last_reply_ns.get(conn, -1)
 
     def _verdicts(self, c: Columns, k: int, q: Any, p: Any, out: _Distinct) -> None:
         """Each frame's verdict (the first ``k``'s are set): the judge asked once per

@@ -129,7 +129,8 @@ class Info:
                     g.error_replies += 1
         q, p = j.decided()
         for i in q[(p < 0) & (q >= 0)].tolist():  # given up: its reply is missing
-            self._fig(j, i).unanswered += 1
+            if i not in j.in_flight:  # unless the recording stopped first (engine.py)
+                self._fig(j, i).unanswered += 1
 
     def end(self, engine: Engine) -> None:
         pass

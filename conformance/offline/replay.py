@@ -224,6 +224,7 @@ class ReplayResult:
                         group="replay",
                         outcome=Outcome.PASS,
                         detail=f"{c.matched} replies match the recording",
+                        count=c.matched,  # the table counts the requests, as --json does
                     )
                 )
             kinds: dict[str, list[Difference]] = {}
@@ -239,6 +240,7 @@ class ReplayResult:
                         outcome=Outcome.FAIL,
                         detail=f"{len(ds)}x {ds[0].detail}",
                         frames=(ds[0].recorded, ds[0].new),
+                        count=len(ds),
                     )
                 )
             for reason, n in c.skipped.items():
@@ -250,6 +252,7 @@ class ReplayResult:
                         group="replay",
                         outcome=Outcome.SKIPPED,
                         detail=f"{n}x {reason}",
+                        count=n,
                     )
                 )
         return r

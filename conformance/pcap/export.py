@@ -119,6 +119,43 @@ def closed_first(reason: str) -> DirectionText:
     return S2C if reason.startswith(("upstream", "server")) else C2S
 
 
+#: A receiver acknowledges its peer's data with an empty segment once this many bytes are
+#: unacknowledged (the window is 65535 without scaling: a stream that only ever goes one
+#: way, such as the state port's, must never fill it).
+_ACK_EVERY = 32768
+
+
+def _in_stream_order(
+    segments: list[tuple[int, int, int, bytes]],
+) -> list[tuple[int, int, int, bytes]]:
+    """One direction's segments ``(t, recorded order, offset, bytes)`` in stream order.
+
+    Sorted by offset (a malformed run is recorded when the frame after it completes,
+    after that frame, though its bytes came first); each takes at most the time of the
+    segments after it, so that times never go back along the stream (bytes before a
+    frame arrived no later than the frame); bytes already covered by an earlier segment
+    are cut, so that no byte is sent twice.
+    """
+    ordered = sorted(segments, key=lambda s: (s[2], s[1]))
+    out: list[tuple[int, int, int, bytes]] = []
+    end = None
+    for t, order, offset, raw in ordered:
+        if end is not None and offset < end:
+            raw = raw[end - offset :]
+            offset = end
+            if not raw:
+                continue
+        out.append((t, order, offset, raw))
+        end = offset + len(raw)
+    latest = None
+    for k in range(len(out) - 1, -1, -1):
+        t, order, offset, raw = out[k]
+        if latest is not None and t > latest:
+            out[k] = (latest, order, offset, raw)
+        latest = out[k][0]
+    return out
+
+
 def export_pcap(rec: Recording, out: str | os.PathLike[str]) -> int:
     """Write the recording's traffic as a pcap; returns the number of packets written.
 
@@ -128,39 +165,54 @@ def export_pcap(rec: Recording, out: str | os.PathLike[str]) -> int:
     stream offset (so bytes missing from an imported capture stay missing), and
     FINs at its close event, first from the side that closed first (:func:`closed_first`:
     ``import-pcap`` reads an ``upstream closed`` back as ``server closed``, never as the
-    client's doing, which a state stream's cut packet would then not be blamed on).
+    client's doing, which a state stream's cut packet would then not be blamed on).  Each
+    direction's segments are written in stream order (:func:`_in_stream_order`), their
+    sequence numbers from their offsets and their acknowledgements from what the other
+    direction had sent; a receiver acknowledges with an empty segment every
+    :data:`_ACK_EVERY` bytes.  Wireshark's TCP analysis then finds nothing to flag but
+    what the recording lacks.
     """
-    events: list[tuple[int, int, int, str, Any]] = []  # (t, order, conn, kind, payload)
-    opened = {c.conn: c for c in rec.connections if c.event == "open"}
-    closed = {c.conn: c for c in rec.connections if c.event == "close"}
+    streams: dict[tuple[int, str], list[tuple[int, int, int, bytes]]] = {}
     order = 0
-    for f in rec.frames:
+
+    def add(t: int, conn: int, d: str, offset: int, raw: bytes) -> None:
+        nonlocal order
         order += 1
-        events.append((f.complete_ns, order, f.conn, f.dir, (f.offset, f.raw)))
+        streams.setdefault((conn, d), []).append((t, order, offset, raw))
+
+    for f in rec.frames:
+        add(f.complete_ns, f.conn, f.dir, f.offset, f.raw)
     for p in rec.problems:
         if p.kind == "malformed" and p.raw:
-            order += 1
-            events.append((p.complete_ns, order, p.conn, p.dir, (p.offset, p.raw)))
+            add(p.complete_ns, p.conn, p.dir, p.offset, p.raw)
     # The state port's packets and the bytes its decoder kept as problems (garbage, a
     # truncated packet, the client's bytes), each at its stream offset.
-    for s in rec.states:
-        order += 1
-        events.append((s.complete_ns, order, s.conn, S2C, (s.offset, s.raw)))
+    for st8 in rec.states:
+        add(st8.complete_ns, st8.conn, S2C, st8.offset, st8.raw)
     for p in rec.state_problems:
         if p.raw:
-            order += 1
-            events.append((p.complete_ns, order, p.conn, p.dir, (p.offset, p.raw)))
+            add(p.complete_ns, p.conn, p.dir, p.offset, p.raw)
+    opened = {c.conn: c for c in rec.connections if c.event == "open"}
+    closed = {c.conn: c for c in rec.connections if c.event == "close"}
+    udp = {cid for cid, o in opened.items() if o.transport == "udp"}
+    events: list[tuple[int, int, int, str, Any]] = []  # (t, order, conn, kind, payload)
+    for (cid, d), segs in streams.items():
+        # UDP datagrams stay as recorded (no stream to order); TCP in stream order.
+        for t, n, offset, raw in segs if cid in udp else _in_stream_order(segs):
+            events.append((t, n, cid, d, (offset, raw)))
     conn_ids = sorted({e[2] for e in events} | set(opened))
     first_t = {cid: min((e[0] for e in events if e[2] == cid), default=0) for cid in conn_ids}
     last_t = {cid: max((e[0] for e in events if e[2] == cid), default=0) for cid in conn_ids}
     for cid in conn_ids:
         o = opened.get(cid)
         t0 = o.t_ns if o else first_t[cid]
-        events.append((t0, -1, cid, "open", None))
+        events.append((min(t0, first_t[cid]) if cid in first_t else t0, -1, cid, "open", None))
         c = closed.get(cid)
         t1 = c.t_ns if c else last_t[cid]
         events.append((max(t1, last_t[cid]), 1 << 62, cid, "close", None))
-    events.sort(key=lambda e: (e[0], e[1]))
+    # By time; a stream's segments of one time in stream order (their recorded order
+    # would put a run of garbage after the frame that followed it).
+    events.sort(key=lambda e: (e[0], e[1] if e[3] not in (C2S, S2C) else 0, e[4][0] if e[4] else 0))
 
     # Written next to ``out`` and renamed when complete: a failure leaves no file.
     with atomic_output(out) as tmp:
@@ -173,13 +225,13 @@ def export_pcap(rec: Recording, out: str | os.PathLike[str]) -> int:
                     o = opened.get(cid)
                     csrc, cport = _addr(o.client if o else "", "10.0.0.1")
                     sdst, sport = _addr(o.upstream if o else "", "10.0.0.2")
-                    transport = o.transport if o else "tcp"
                     st = state[cid] = {
                         "c": (csrc, cport or 40000 + cid % 20000),
                         "s": (sdst, sport or 8080),
-                        "udp": transport == "udp",
+                        "udp": cid in udp,
                         "isn": {C2S: 1000, S2C: 5000},
                         "sent": {C2S: 0, S2C: 0},
+                        "acked": {C2S: 0, S2C: 0},
                         "open": False,
                     }
                 (ca, cp), (sa, sp) = st["c"], st["s"]
@@ -191,7 +243,7 @@ def export_pcap(rec: Recording, out: str | os.PathLike[str]) -> int:
                         else:
                             w.ip_packet(t, False, _ipv4(sa, ca, 17, _udp(sa, ca, sp, cp, raw), cid))
                     continue
-                isn, sent = st["isn"], st["sent"]
+                isn, sent, acked = st["isn"], st["sent"], st["acked"]
 
                 seg = functools.partial(w.tcp_segment, t, (ca, cp), (sa, sp))
 
@@ -221,7 +273,11 @@ def export_pcap(rec: Recording, out: str | os.PathLike[str]) -> int:
                     chunk = raw[i : i + _MSS]
                     seq = isn[d] + offset + i
                     seg(d == C2S, seq, isn[other] + sent[other], _ACK | 0x08, chunk)
-                sent[d] = max(sent[d], offset + len(raw))
+                    acked[other] = sent[other]
+                    sent[d] = max(sent[d], offset + i + len(chunk))
+                    if sent[d] - acked[d] >= _ACK_EVERY:  # the receiver says it has them
+                        seg(d != C2S, isn[other] + sent[other], isn[d] + sent[d], _ACK)
+                        acked[d] = sent[d]
         finally:
             w.close()
     return w.count

@@ -113,7 +113,11 @@ def _open(name: str) -> Any:
         return RawPcapReader(name)
     except FileNotFoundError:
         raise CaptureError(f"no such capture: {name}", path=name) from None
-    except (Scapy_Exception, EOFError, OSError, zlib.error) as e:
+    except Scapy_Exception:
+        # Neither magic (scapy says "Not a supported capture file"): in the words every
+        # command uses for a file that is not what it reads (pcap/importer.py).
+        raise CaptureError(f"{name}: not a pcap/pcapng capture", path=name) from None
+    except (EOFError, OSError, zlib.error) as e:
         # A .gz cut inside the header, or not gzip after all: the file's fault.
         raise CaptureError(f"{name}: {e}", path=name) from None
 

@@ -64,6 +64,7 @@ __all__ = [
     "MIN_SPLIT_SIZE",
     "OLD_FORMATS",
     "PROBLEM_RAW_LIMIT",
+    "RECORDING_STOPPED",
     "S2C",
     "SCHEMAS",
     "TOPICS",
@@ -83,6 +84,11 @@ DirectionText = Literal["c2s", "s2c"]
 C2S: DirectionText = "c2s"
 #: Controller to client (replies).
 S2C: DirectionText = "s2c"
+
+#: The reasons of the close events a recorder writes as it stops, for the connections still
+#: open (``Recorder.finish``; the proxy's process: stopped, died): the recording ended,
+#: not the connection.  A request without a reply before one of these was in flight.
+RECORDING_STOPPED = frozenset({"recording ended", "proxy stopped", "proxy died"})
 
 #: The frames, of every connection and direction (one ``fairino.Traffic`` a batch).
 TOPIC_FRAMES = "/fairino/frames"

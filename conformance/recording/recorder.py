@@ -51,7 +51,9 @@ _RUN_MIN = 512
 class StreamRecorder(_CommandNames):
     """Bytes and times in, records out (sans-I/O): the proxy's and importer's one path.
 
-    ``on_frame`` (for ``--print``) sees each frame record as it is written.  Frames are
+    ``on_frame`` (for ``--print``) sees each frame record as it is written, and each
+    problem record (a run of bytes that are not a frame, a partial frame) in its place
+    among them: what the traffic held, in the order it came.  Frames are
     held in one batch and written as one message (see the module); a caller that must
     have them in the file now (a flush) calls :meth:`write_held`.
 
@@ -70,7 +72,7 @@ class StreamRecorder(_CommandNames):
         *,
         specs: SpecSet | None = None,
         max_frame_size: int = DEFAULT_MAX_FRAME_SIZE,
-        on_frame: Callable[[FrameRecord], None] | None = None,
+        on_frame: Callable[[FrameRecord | ProblemRecord], None] | None = None,
         slice_size: int = DECODE_SLICE,
         checkpoint: Callable[[], None] | None = None,
         state_version: str | None = None,
@@ -339,6 +341,8 @@ class StreamRecorder(_CommandNames):
         held, so that the file keeps the order things came in."""
         self.write_held()
         self.sink.write(record)
+        if self.on_frame is not None and isinstance(record, ProblemRecord):
+            self.on_frame(record)
 
     def _hold_check(self) -> None:
         """Write the frames held once they fill a message."""

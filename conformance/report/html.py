@@ -1,39 +1,66 @@
-"""The HTML report: one page for one or more targets, one row per command ID and one box per
-case group, failing cases unfolded (``run --report-html``, ``report merge``)."""
+"""The HTML reports, from the templates of :mod:`.pages`: one run's report (``run
+--report-html``), several reports' sections (``report html``) and the side-by-side
+matrix (``report merge``, ``report matrix -o``).
+
+A report's page opens with its verdict and totals (cases and commands by status, as
+the terminal counts them), a table and a chart of its cases per group and status, then
+the commands that do not pass, worst first, each folded (the worst open) with its
+cases: the reason, the frames and a reproduction to paste; the passing commands last,
+folded into one table.  Expected failures are XFAIL, named as such wherever they show.
+"""
 
 from __future__ import annotations
 
 import re
 from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
 
-from ..judge.verdict import SEVERITY, Outcome, aggregate, worst
-from .model import NOT_RUN, CaseResult, CommandSummary, Report, spec_label
+from .model import (
+    NOT_RUN,
+    STATUS_ORDER,
+    CaseResult,
+    CommandSummary,
+    Report,
+    Status,
+    spec_label,
+)
 from .text import plural
 
-__all__ = ["MAX_LISTED_FAILURES", "render_html", "render_html_sections"]
+__all__ = [
+    "MAX_LISTED_CASES",
+    "MAX_LISTED_COMMANDS",
+    "render_html",
+    "render_html_sections",
+    "render_report",
+]
 
 
 _GROUP_ORDER = ("framing", "examples", "valid", "invalid", "robustness", "transport", "stateful")
-_COLORS = {
-    Outcome.PASS: "#2e7d32",
-    Outcome.FAIL: "#c62828",
-    Outcome.NON_STRICT: "#ef6c00",
-    Outcome.DIALECT: "#1565c0",
-    Outcome.UNIMPLEMENTED: "#6a1b9a",
-    Outcome.SKIPPED: "#9e9e9e",
-    Outcome.ERROR: "#000000",
+#: Cases one command lists (the JSON report has them all).
+MAX_LISTED_CASES = 50
+#: Commands not passing one report's page lists unfolded-able (the JSON report has them all).
+MAX_LISTED_COMMANDS = 400
+#: A matrix cell's tint per status (the badge carries the full colour).
+_TINTS = {
+    Status.ERROR.value: "#eeeeee",
+    Status.FAIL.value: "#fdecea",
+    Status.XPASS.value: "#fce4ec",
+    Status.XFAIL.value: "#efebe9",
+    Status.STOPPED.value: "#f0f0f0",
+    Status.DIALECT.value: "#e3f2fd",
+    Status.NON_STRICT.value: "#fff3e0",
+    Status.UNIMPLEMENTED.value: "#f3e5f5",
+    Status.PASS.value: "#edf7ed",
+    Status.SKIPPED.value: "#fafafa",
+    Status.NOT_RUN.value: "#fafafa",
 }
-#: Failing cases one report's section lists (the JSON report has them all).
-MAX_LISTED_FAILURES = 500
+#: The statuses a command passes with: listed last, folded.
+_PASSING = (Status.PASS, Status.SKIPPED)
+#: A reproduction's alternatives, one shell line each (suite/evidence.py writes them so).
+_OR = "  # or: "
 
 
-def _esc(text: object) -> str:
-    import html
-
-    return html.escape(str(text), quote=True)
-
-
-def _groups(reports: list[Report]) -> list[str]:
+def _groups(reports: Iterable[Report]) -> list[str]:
     seen = {c.group for r in reports for c in r.cases}
     return [g for g in _GROUP_ORDER if g in seen] + sorted(seen - set(_GROUP_ORDER))
 
@@ -75,178 +102,222 @@ def _clashing(labels: Mapping[str, str]) -> list[str]:
     return [g for gs in _by_label(labels).values() if len(gs) > 1 for g in gs]
 
 
-def _worst_first(cases: Iterable[CaseResult]) -> list[CaseResult]:
-    return sorted(cases, key=lambda c: (SEVERITY[c.outcome], c.cmd_id))
+# --------------------------------------------------------------------------- view models
 
 
-def _case_item(c: CaseResult, *, with_name: bool = False) -> str:
-    """One case as a list item: ID, outcome, detail, frames, source and reproduction."""
-    frames = "".join(f"<div class=frame>{_esc(f)}</div>" for f in c.frames)
-    repro = f"<div class=repro>{_esc(c.reproduce)}</div>" if c.reproduce else ""
-    if c.source:
-        repro = f"<div class=repro>source: {_esc(c.source)}</div>" + repro
-    name = f" ({_esc(c.name)})" if with_name else ""
-    color = _COLORS[c.outcome]
-    return (
-        f"<li><b>{_esc(c.id)}</b>{name} <span class=o style='color:{color}'>"
-        f"{c.outcome.value}</span> {_esc(c.detail)}{frames}{repro}</li>"
+@dataclass(frozen=True)
+class _CaseView:
+    id: str
+    status: str
+    detail: str
+    frames: tuple[str, ...]
+    source: str
+    repro: tuple[str, ...]
+    count: int
+    open: bool
+
+
+@dataclass
+class _CommandView:
+    cmd_id: int
+    name: str
+    status: str
+    counts: str
+    cases: list[_CaseView] = field(default_factory=list)
+    more: str = ""
+    open: bool = False
+
+
+def _repro_lines(text: str) -> tuple[str, ...]:
+    """A case's reproduction as the shell lines it offers (each pasted alone)."""
+    return tuple(part.strip() for part in text.split(_OR) if part.strip()) if text else ()
+
+
+def _case_view(c: CaseResult, r: Report, *, open_: bool = False) -> _CaseView:
+    return _CaseView(
+        id=c.id,
+        status=r.status(c).value,
+        detail=c.detail,
+        frames=c.frames,
+        source=c.source,
+        repro=_repro_lines(c.reproduce),
+        count=c.count,
+        open=open_,
     )
 
 
-def _cell(
-    cases: list[CaseResult], groups: list[str], labels: Mapping[str, str], *, open_: bool
-) -> str:
-    """One target's results for one command: overall outcome and one box per case group.
+def _counts_text(s: CommandSummary) -> str:
+    counts = s.counts()
+    keys = sorted(counts, key=lambda k: STATUS_ORDER[Status(k)])
+    return ", ".join(f"{counts[k]} {k}" for k in keys)
 
-    ``open_``: the cases that are not PASS unfold at once (a failing command).  The
-    outcomes are those of the cases that ran (as the totals count them): a command the
-    run never reached says NOT-RUN, a group none of whose cases ran has an empty box.
-    """
-    if not cases:
-        return '<td class="none">-</td>'
-    if all(c.not_run for c in cases):
-        return f'<td class="cell" data-outcome="{NOT_RUN}"><span class="ov">{NOT_RUN}</span></td>'
-    never = [c for c in cases if c.not_run]
-    cases = [c for c in cases if not c.not_run]
-    overall = aggregate(c.outcome for c in cases)
-    boxes = []
-    for g in groups:
-        gc = [c for c in cases if c.group == g]
-        if not gc:
-            missed = sum(1 for c in never if c.group == g)
-            tip = f"{_esc(g)}: " + (f"{plural(missed, 'case')} not run" if missed else "no case")
-            boxes.append(f'<span class="box empty" title="{tip}"></span>')
-            continue
-        o = aggregate(c.outcome for c in gc)
-        tip = f"{_esc(g)}: {o.value} ({len(gc)})"
-        boxes.append(
-            f'<span class="box" style="background:{_COLORS[o]}" title="{tip}">'
-            f"{_esc(labels[g])}</span>"
-        )
-    bad = _worst_first(c for c in cases if c.outcome not in (Outcome.PASS, Outcome.SKIPPED))
-    details = ""
-    if bad:
-        items = [_case_item(c) for c in bad[:50]]
-        more = f"<li>... {len(bad) - 50} more</li>" if len(bad) > 50 else ""
-        details = (
-            f"<details{' open' if open_ else ''}><summary>{plural(len(bad), 'case')}</summary>"
-            f"<ul>{''.join(items)}{more}</ul></details>"
-        )
-    color = _COLORS[overall]
-    # A command the run left half done says so beside its outcome (of the cases that ran).
-    partly = (
-        f"<small> ({len(never)} of {len(never) + len(cases)} not run)</small> " if never else ""
-    )
-    return (
-        f'<td class="cell" data-outcome="{overall.value}">'
-        f'<span class="ov" style="color:{color}">{overall.value}</span>{partly} '
-        f"{''.join(boxes)}{details}</td>"
+
+def _shown_cases(s: CommandSummary, r: Report) -> list[CaseResult]:
+    """The cases a command lists: those that ran and did not pass, worst first."""
+    bad = [c for c in s.ran if r.status(c) not in _PASSING]
+    return sorted(bad, key=lambda c: STATUS_ORDER[r.status(c)])
+
+
+def _command_view(s: CommandSummary, r: Report, *, open_: bool) -> _CommandView:
+    shown = _shown_cases(s, r)
+    never = len(s.cases) - len(s.ran)
+    more = []
+    if len(shown) > MAX_LISTED_CASES:
+        more.append(f"{len(shown) - MAX_LISTED_CASES} more cases not passing")
+    if never:
+        more.append(f"{plural(never, 'case')} not run: {r.stopped or 'the run stopped'}")
+    return _CommandView(
+        cmd_id=s.cmd_id,
+        name=s.name,
+        status=s.status.value,
+        counts=_counts_text(s),
+        cases=[
+            _case_view(c, r, open_=open_ and n == 0) for n, c in enumerate(shown[:MAX_LISTED_CASES])
+        ],
+        more="; ".join(more),
+        open=open_,
     )
 
 
 def _head(r: Report) -> str:
     """What a report ran against and how: transport, specs, seed, strictness, reference, faults."""
-    text = f"{_esc(r.transport)} · spec {_esc(spec_label(r))} · seed {_esc(r.seed)}"
+    text = f"{r.transport} · spec {spec_label(r)} · seed {r.seed}"
     if r.strict:
         text += " · strict"
-    text += f" · reference {_esc(r.reference)}"
+    text += f" · reference {r.reference}"
     faults = r.meta.get("emulator_faults")
     if faults:
-        text += f" · faults {_esc(', '.join(map(str, faults)))}"
+        text += f" · faults {', '.join(map(str, faults))}"
     if r.meta.get("ran"):
-        text += f" · ran as {_esc(r.meta['ran'])}"
+        text += f" · ran as {r.meta['ran']}"
     return text
 
 
-def _totals(r: Report, name: str | None = None) -> str:
-    counts = ", ".join(f"{v} {k}" for k, v in r.totals().items() if v)
-    banner = ""
-    if r.stopped:  # an interrupted or stopped run says so before anything else
-        what = "Interrupted" if r.interrupted else "Stopped early"
-        why = r.stopped.removeprefix("interrupted ") if r.interrupted else r.stopped
-        banner = f"<p class=stopped><b>{what}</b> {_esc(why)}</p>"
-    return (
-        f"{banner}<p><b>{_esc(name or r.target)}</b>: {_esc(counts + r.failing_note())} "
-        f"(exit code {r.exit_code()})</p>"
+def _stopped(r: Report) -> tuple[str, str] | None:
+    """An interrupted or stopped run's banner: (what, why)."""
+    if not r.stopped:
+        return None
+    if r.interrupted:
+        return "Interrupted", r.stopped.removeprefix("interrupted ")
+    return "Stopped early:", r.stopped
+
+
+def _verdict(r: Report) -> str:
+    code = r.exit_code()
+    if r.interrupted:
+        return "Interrupted"
+    if r.stopped or any(c.not_run for c in r.cases):
+        return "Stopped: not every case ran"
+    if code == 0:
+        xfail = r.case_totals()[Status.XFAIL.value]
+        return f"Conformant, {plural(xfail, 'expected failure')}" if xfail else "Conformant"
+    n = len(r.failing_ids())
+    return f"{plural(n, 'command')} failing"
+
+
+def _report_view(r: Report, n: int, groups: list[str]) -> dict[str, object]:
+    from .charts import stacked_bars
+    from .pages import STATUS_COLOURS
+
+    per = r.commands()
+    ordered = sorted(per.values(), key=lambda s: (STATUS_ORDER[s.status], s.cmd_id))
+    not_passing = [s for s in ordered if s.status not in _PASSING]
+    passing = [s for s in ordered if s.status in _PASSING]
+    counted = r.group_totals()  # the model's count, as the totals lines
+    summary = {g: counted[g] for g in groups if g in counted}
+    statuses = [s.value for s in Status if any(s.value in row for row in summary.values())]
+    chart = stacked_bars(
+        summary,
+        {s: STATUS_COLOURS[s] for s in statuses},
+        title=f"{r.target}: cases per group and status",
     )
+    shown = not_passing[:MAX_LISTED_COMMANDS]
+    return {
+        "anchor": f"report-{n}",
+        "target": r.target,
+        "head": _head(r),
+        "stopped": _stopped(r),
+        "verdict": _verdict(r),
+        "exit_code": r.exit_code(),
+        "case_line": r.totals_line("cases"),
+        "command_line": r.totals_line(),
+        "failing_note": r.failing_note(),
+        "summary": list(summary.items()),
+        "summary_statuses": statuses,
+        "chart": chart,
+        "failing": [_command_view(s, r, open_=k == 0) for k, s in enumerate(shown)],
+        "hidden": len(not_passing) - len(shown),
+        "passing": [_command_view(s, r, open_=False) for s in passing],
+    }
 
 
-def _legends(groups: list[str], labels: Mapping[str, str]) -> str:
-    outcomes = " ".join(
-        f'<span class="box" style="background:{c}">&nbsp;</span> {o.value}'
-        for o, c in _COLORS.items()
-    )
-    glegend = ", ".join(f"{labels[g]} = {g}" for g in groups)
-    return f'<p>{outcomes}<br><small class="glegend">case groups: {_esc(glegend)}</small></p>'
+def render_report(report: Report, *, title: str = "FAIRINO conformance") -> str:
+    """One run's report as a page (``run --report-html``)."""
+    return render_html_sections([report], title=title)
 
+
+def render_html_sections(reports: list[Report], *, title: str = "FAIRINO conformance") -> str:
+    """Each report as its own section of one page (``report html``): what it ran against,
+    its verdict and totals, its cases per group and status (a table and a chart), its
+    commands not passing (worst first, each folded with its cases), then its passing
+    commands.  Use :func:`render_html` to compare targets side by side."""
+    from .pages import render
+
+    if not reports:
+        raise ValueError("no report to render")
+    groups = _groups(reports)
+    views = [_report_view(r, n, groups) for n, r in enumerate(reports, 1)]
+    used = {r.status(c).value for r in reports for c in r.cases}
+    used |= {s.status.value for r in reports for s in r.commands().values()}
+    return render("report.html.j2", title=title, reports=views, statuses=_ordered(used))
+
+
+def _ordered(statuses: Iterable[str]) -> list[str]:
+    return sorted(set(statuses), key=lambda s: STATUS_ORDER[Status(s)])
+
+
+# --------------------------------------------------------------------------- the matrix
 
 #: A matrix cell a report has no case for: (column, command ID) -> its text (``absent in
 #: 3.8.2``), or None for the plain ``-``.
 Missing = Callable[[int, int], str | None]
 
 
-def _missing_cell(text: str | None) -> str:
-    if text is None:
-        return '<td class="none">-</td>'
-    return f'<td class="absent" data-outcome="ABSENT">{_esc(text)}</td>'
-
-
-def _rows(
-    reports: list[Report],
-    per: list[dict[int, CommandSummary]],
-    groups: list[str],
-    *,
-    order: Sequence[int] | None = None,
-    missing: Missing | None = None,
-    differs: Collection[int] = (),
-    unfold: bool = True,
-) -> list[str]:
-    """One row per command, one cell per report; failing commands first (worst, then ID).
-
-    ``order``: the command IDs in row order instead (``report matrix``: the rows that
-    differ first); ``missing`` names the cells a report has no case for; ``differs``:
-    the rows marked as differing between the columns (a filter of the page); ``unfold``
-    False leaves a failing command's cases folded (a matrix of many columns stays readable).
-    """
-    labels = _group_labels(groups)
-    names = {i: s.name for p in per for i, s in p.items()}
-    worst_of: dict[int, Outcome | None] = {}
-    for i in names:
-        outs = [p[i].outcome for p in per if i in p and p[i].ran]
-        worst_of[i] = worst(outs) if outs else None  # never run anywhere: NOT-RUN, last
-
-    def by_worst(i: int) -> tuple[int, int]:
-        w = worst_of[i]
-        return (len(SEVERITY) if w is None else SEVERITY[w], i)
-
-    rows = []
-    for i in order if order is not None else sorted(names, key=by_worst):
-        cells = "".join(
-            _cell(
-                list(p[i].cases),
-                groups,
-                labels,
-                open_=unfold and bool(p[i].ran) and r.fails(p[i].outcome),
-            )
-            if i in p
-            else _missing_cell(missing(col, i) if missing is not None else None)
-            for col, (r, p) in enumerate(zip(reports, per, strict=True))
+def _matrix_cell(
+    s: CommandSummary, r: Report, groups: list[str], labels: Mapping[str, str], *, unfold: bool
+) -> dict[str, object]:
+    """One report's results for one command: its status, a box per case group (the group's
+    worst status), and its cases not passing folded beneath (unfolded where failing)."""
+    st = s.status.value
+    if st == NOT_RUN:
+        return {"kind": "cell", "status": st, "tint": _TINTS[st], "boxes": [], "partly": "",
+                "cases": [], "open": False, "summary": "", "more": ""}  # fmt: skip
+    never = [c for c in s.cases if c.not_run]
+    boxes = []
+    for g in groups:
+        gc = [c for c in s.ran if c.group == g]
+        if not gc:
+            missed = sum(1 for c in never if c.group == g)
+            tip = f"{g}: " + (f"{plural(missed, 'case')} not run" if missed else "no case")
+            boxes.append({"status": None, "title": tip, "label": ""})
+            continue
+        worst = min((r.status(c) for c in gc), key=STATUS_ORDER.__getitem__)
+        boxes.append(
+            {"status": worst.value, "title": f"{g}: {worst.value} ({len(gc)})", "label": labels[g]}
         )
-        key = _esc(f"{i} {names[i]}".lower())
-        w = worst_of[i]
-        mark = ' data-differs="1" class="differs"' if i in differs else ""
-        rows.append(
-            f'<tr data-worst="{w.value if w else NOT_RUN}" data-key="{key}"{mark}>'
-            f"<td class=id>{i}</td><td class=name>{_esc(names[i])}</td>{cells}</tr>"
-        )
-    return rows
-
-
-def _table(heads: Iterable[str], rows: list[str]) -> str:
-    return (
-        f'<table class="m"><thead><tr><th>ID</th><th>command</th>{"".join(heads)}</tr></thead>'
-        f"<tbody>\n{chr(10).join(rows)}\n</tbody></table>"
-    )
+    shown = _shown_cases(s, r)
+    failing = any(r.failing(c) for c in s.ran)
+    return {
+        "kind": "cell",
+        "status": st,
+        "tint": _TINTS[st],
+        "boxes": boxes,
+        "partly": f"({len(never)} of {len(s.cases)} not run)" if never else "",
+        "cases": [_case_view(c, r) for c in shown[:MAX_LISTED_CASES]],
+        "more": f"{len(shown) - MAX_LISTED_CASES} more" if len(shown) > MAX_LISTED_CASES else "",
+        "open": unfold and failing,
+        "summary": plural(len(shown), "case"),
+    }
 
 
 def render_html(
@@ -260,143 +331,88 @@ def render_html(
 ) -> str:
     """The side-by-side matrix (``report merge``): one row per command, one column per target.
 
-    A self-contained page (no network).  Rows can be filtered by text (ID or name)
-    and to commands that are not PASS everywhere; failing commands come first
-    (worst outcome, then ID), their failing cases unfolded with frames and
-    reproduction line.  ``report matrix`` (:mod:`.matrix`) gives the row ``order``,
-    the text of ``missing`` cells (``absent in 3.8.2``), the rows that ``differs`` (a
-    filter of their own) and the column ``heads`` (plain text, escaped here).
+    Rows can be filtered by text (ID or name) and to commands that are not PASS
+    everywhere; failing commands come first (worst status, then ID), their failing cases
+    unfolded with frames and reproduction.  ``report matrix`` (:mod:`.matrix`) gives the
+    row ``order``, the text of ``missing`` cells (``absent in 3.8.2``), the rows that
+    ``differs`` (a filter of their own; a matrix of many columns keeps its cases folded)
+    and the column ``heads``.
     """
-    if not reports:
-        raise ValueError("no report to render")
-    groups = _groups(reports)
-    per = [r.commands() for r in reports]
-    rows = _rows(
-        reports,
-        per,
-        groups,
-        order=order,
-        missing=missing,
-        differs=differs or (),
-        unfold=differs is None,
-    )
-    names = list(heads) if heads is not None else [r.target for r in reports]
-    cols = [f"{_esc(h)}<br><small>{_head(r)}</small>" for h, r in zip(names, reports, strict=True)]
-    controls = _CONTROLS
-    if differs is not None:
-        controls = controls.replace(
-            "<span id=",
-            '<label><input type="checkbox" id="dif"> only rows that differ</label>\n<span id=',
-            1,
-        )
-    body = (
-        "".join(_totals(r, n) for r, n in zip(reports, names, strict=True))
-        + _legends(groups, _group_labels(groups))
-        + controls
-        + _table([f"<th>{h}</th>" for h in cols], rows)
-    )
-    return _PAGE.format(title=_esc(title), body=body, count=len(rows))
+    from .pages import render
 
-
-def render_html_sections(reports: list[Report], *, title: str = "FAIRINO conformance") -> str:
-    """Each report as its own section of one page (``report html``).
-
-    A section holds one target: what it ran against, its totals, its failing cases
-    listed with frames and reproduction (worst first, then ID), then its own
-    per-command table.  Use :func:`render_html` to compare targets side by side.
-    """
     if not reports:
         raise ValueError("no report to render")
     groups = _groups(reports)
     labels = _group_labels(groups)
-    nav = " · ".join(
-        f'<a href="#report-{n}">{_esc(r.target)}</a>' for n, r in enumerate(reports, 1)
+    per = [r.commands() for r in reports]
+    names = {i: s.name for p in per for i, s in p.items()}
+    worst_of: dict[int, Status | None] = {}
+    for i in names:
+        sts = [p[i].status for p in per if i in p and p[i].ran]
+        worst_of[i] = min(sts, key=STATUS_ORDER.__getitem__) if sts else None
+
+    def by_worst(i: int) -> tuple[int, int]:
+        w = worst_of[i]
+        return (len(STATUS_ORDER) if w is None else STATUS_ORDER[w], i)
+
+    unfold = differs is None
+    rows = []
+    for i in order if order is not None else sorted(names, key=by_worst):
+        cells: list[dict[str, object]] = []
+        for col, (r, p) in enumerate(zip(reports, per, strict=True)):
+            if i in p:
+                cells.append(_matrix_cell(p[i], r, groups, labels, unfold=unfold))
+                continue
+            text = missing(col, i) if missing is not None else None
+            cells.append({"kind": "none"} if text is None else {"kind": "absent", "text": text})
+        w = worst_of[i]
+        rows.append(
+            {
+                "cmd_id": i,
+                "name": names[i],
+                "cells": cells,
+                "worst": w.value if w else NOT_RUN,
+                "key": f"{i} {names[i]}".lower(),
+                "differs": i in (differs or ()),
+            }
+        )
+    col_names = list(heads) if heads is not None else [r.target for r in reports]
+    columns = [
+        {
+            "name": name,
+            "head": _head(r),
+            "stopped": _stopped(r),
+            "case_line": r.totals_line("cases"),
+            "command_line": r.totals_line(),
+            "failing_note": r.failing_note(),
+            "exit_code": r.exit_code(),
+        }
+        for name, r in zip(col_names, reports, strict=True)
+    ]
+    used = {s.status.value for p in per for s in p.values()}
+    used |= {r.status(c).value for r in reports for c in r.cases}
+    return render(
+        "matrix.html.j2",
+        title=title,
+        chart=_columns_chart(col_names, reports),
+        columns=columns,
+        rows=rows,
+        differs=differs is not None,
+        statuses=_ordered(used),
+        group_legend=", ".join(f"{labels[g]} = {g}" for g in groups),
     )
-    sections = []
-    count = 0
-    for n, r in enumerate(reports, 1):
-        per = [r.commands()]
-        rows = _rows([r], per, groups)
-        count += len(rows)
-        failing = _worst_first(r.failing_cases())
-        not_run = sum(c.not_run for c in r.cases)
-        items = [_case_item(c, with_name=True) for c in failing[:MAX_LISTED_FAILURES]]
-        if len(failing) > MAX_LISTED_FAILURES:
-            items.append(
-                f"<li>... {len(failing) - MAX_LISTED_FAILURES} more (the JSON report lists all)"
-                "</li>"
-            )
-        stopped = (
-            f"<p class=stopped>{plural(not_run, 'case')} not run: "
-            f"{_esc(r.stopped or 'the run stopped')}</p>"
-            if not_run
-            else ""
-        )
-        listing = f'<ol class="failures">{"".join(items)}</ol>' if items else "<p>none</p>"
-        sections.append(
-            f'<section class="report" id="report-{n}" data-target="{_esc(r.target)}">'
-            f"<h2>{_esc(r.target)}</h2><p><small>{_head(r)}</small></p>{_totals(r)}{stopped}"
-            f"<h3>failing cases ({len(failing)})</h3>{listing}"
-            f"<h3>commands</h3>{_table([f'<th>{_esc(r.target)}</th>'], rows)}</section>"
-        )
-    body = f"<nav>reports: {nav}</nav>" + _legends(groups, labels) + _CONTROLS + "".join(sections)
-    return _PAGE.format(title=_esc(title), body=body, count=count)
 
 
-_CONTROLS = """<div class="controls"><input id="q" placeholder="filter by ID or name" size="30">
-<label><input type="checkbox" id="bad"> only commands not PASS everywhere</label>
-<span id="shown"></span></div>
-"""
+def _columns_chart(names: Sequence[str], reports: Sequence[Report]) -> str:
+    """The matrix's summary: one bar per column, its commands by status."""
+    from .charts import stacked_bars
+    from .pages import STATUS_COLOURS
 
-_PAGE = """<!DOCTYPE html>
-<html lang="en"><head><meta charset="utf-8"><title>{title}</title>
-<style>
-body {{ font: 14px system-ui, sans-serif; margin: 1em; }}
-table {{ border-collapse: collapse; }}
-th, td {{ border: 1px solid #ddd; padding: 3px 6px; vertical-align: top; text-align: left; }}
-th {{ background: #f3f3f3; position: sticky; top: 0; }}
-.box {{ display: inline-block; min-width: 14px; height: 14px; margin-right: 1px; color: #fff;
-       font-size: 10px; text-align: center; line-height: 14px; border-radius: 2px;
-       padding: 0 1px; box-sizing: border-box; }}
-.box.empty {{ background: #eee; }}
-.ov {{ font-weight: bold; display: inline-block; min-width: 9em; }}
-.frame {{ font-family: monospace; white-space: pre-wrap; color: #333; margin-left: 1em; }}
-.repro {{ font-family: monospace; white-space: pre-wrap; color: #555; margin-left: 1em; }}
-details ul, ol.failures {{ margin: 0.3em 0; padding-left: 1.2em; max-width: 70em; }}
-section.report {{ border-top: 2px solid #ccc; margin-top: 1.5em; }}
-.controls {{ margin: 0.5em 0; }}
-td.cell[data-outcome=FAIL], td.cell[data-outcome=ERROR] {{ background: #fdecea; }}
-td.cell[data-outcome=NON-STRICT] {{ background: #fff3e0; }}
-td.cell[data-outcome=DIALECT] {{ background: #e3f2fd; }}
-td.cell[data-outcome=UNIMPLEMENTED] {{ background: #f3e5f5; }}
-td.cell[data-outcome=PASS] {{ background: #edf7ed; }}
-td.absent {{ background: repeating-linear-gradient(45deg, #f5f5f5, #f5f5f5 6px, #e8e8e8 6px,
-            #e8e8e8 12px); color: #555; font-style: italic; }}
-tr.differs td.id {{ border-left: 4px solid #ef6c00; }}
-</style></head><body>
-<h1>{title}</h1>
-{body}
-<script>
-(function () {{
-  var q = document.getElementById("q"), bad = document.getElementById("bad");
-  var dif = document.getElementById("dif");
-  var rows = document.querySelectorAll("table.m tbody tr");
-  var shown = document.getElementById("shown");
-  function apply() {{
-    var t = q.value.trim().toLowerCase(), n = 0;
-    rows.forEach(function (r) {{
-      var ok = (!t || r.dataset.key.indexOf(t) >= 0) &&
-               (!bad.checked || r.dataset.worst !== "PASS") &&
-               (!dif || !dif.checked || r.dataset.differs === "1");
-      r.style.display = ok ? "" : "none";
-      if (ok) n++;
-    }});
-    shown.textContent = n + " of {count} rows shown";
-  }}
-  q.addEventListener("input", apply); bad.addEventListener("change", apply);
-  if (dif) dif.addEventListener("change", apply);
-  apply();
-}})();
-</script>
-</body></html>
-"""
+    rows: dict[str, dict[str, int]] = {}
+    for n, (name, r) in enumerate(zip(names, reports, strict=True), 1):
+        rows[f"[{n}] {name}" if not name.startswith("[") else name] = {
+            k: v for k, v in r.totals().items() if v
+        }
+    used = {k for row in rows.values() for k in row}
+    colours = {k: c for k, c in STATUS_COLOURS.items() if k in used}
+    return stacked_bars(rows, colours, title="commands per report and status", unit="commands")

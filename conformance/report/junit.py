@@ -1,5 +1,9 @@
-"""The report as JUnit XML: one testcase per case, classname = command ID; a case fails
-(``failure``) when the run's reference and ``--strict`` say its outcome fails."""
+"""The report as JUnit XML: one testcase per case, classname = command ID.
+
+A case's element follows its status (report/model.py), named in its ``type``: a failing
+case (FAIL, XPASS, and NON-STRICT or DIALECT where the run fails them) is a ``failure``,
+ERROR and NOT-RUN an ``error``, XFAIL, SKIPPED and UNIMPLEMENTED ``skipped``.  The suite's
+``totals`` property counts cases and commands by status, as the terminal does."""
 
 from __future__ import annotations
 
@@ -8,7 +12,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ..judge.verdict import Outcome
-from .model import CaseResult, Report, spec_label
+from .model import CaseResult, Report, Status, spec_label
 
 __all__ = ["junit_xml", "write_junit"]
 
@@ -24,15 +28,27 @@ def _testcase(c: CaseResult, report: Report) -> ET.Element:
         prop = "dialect" if c.outcome is Outcome.DIALECT else "source"
         ET.SubElement(props, "property", name=prop, value=c.source)
     text = "\n".join([c.detail, *c.frames, *([f"reproduce: {c.reproduce}"] if c.reproduce else [])])
-    if c.expected:
-        ET.SubElement(tc, "skipped", message=f"expected failure: {c.detail}"[:500])
-    elif c.outcome is Outcome.ERROR:
-        ET.SubElement(tc, "error", message=c.detail[:500]).text = text
-    elif report.failing(c):  # FAIL, and NON-STRICT / DIALECT where the run says so
-        ET.SubElement(tc, "failure", message=f"{c.outcome.value}: {c.detail}"[:500]).text = text
-    elif c.outcome in (Outcome.SKIPPED, Outcome.UNIMPLEMENTED):
-        ET.SubElement(tc, "skipped", message=f"{c.outcome.value}: {c.detail}"[:500])
+    status = report.status(c)
+    element = _element(c, status, report)
+    if element is not None:
+        message = f"expected failure: {c.detail}" if status is Status.XFAIL else c.detail
+        if element == "failure":
+            message = f"{status.value}: {c.detail}"
+        el = ET.SubElement(tc, element, type=status.value, message=message[:500])
+        if element != "skipped":
+            el.text = text
     return tc
+
+
+def _element(c: CaseResult, status: Status, report: Report) -> str | None:
+    """The JUnit element of a case of ``status``, or None for a passed one."""
+    if status in (Status.ERROR, Status.NOT_RUN):
+        return "error"
+    if report.failing(c):  # FAIL, XPASS, and NON-STRICT / DIALECT where the run says so
+        return "failure"
+    if status in (Status.XFAIL, Status.SKIPPED, Status.UNIMPLEMENTED):
+        return "skipped"
+    return None
 
 
 def _seconds(duration: float) -> str:
@@ -44,19 +60,19 @@ def _seconds(duration: float) -> str:
 def junit_xml(report: Report, cases: Sequence[CaseResult] | None = None) -> str:
     """The report as JUnit XML: one testcase per case, classname = command ID."""
     rows = list(report.cases if cases is None else cases)
+    kinds = [_element(c, report.status(c), report) for c in rows]
     suite = ET.Element(
         "testsuite",
         name="fairino-conformance",
         tests=str(len(rows)),
-        failures=str(sum(report.failing(c) and c.outcome is not Outcome.ERROR for c in rows)),
-        errors=str(sum(c.outcome is Outcome.ERROR and not c.expected for c in rows)),
-        skipped=str(
-            sum(c.expected or c.outcome in (Outcome.SKIPPED, Outcome.UNIMPLEMENTED) for c in rows)
-        ),
+        failures=str(kinds.count("failure")),
+        errors=str(kinds.count("error")),
+        skipped=str(kinds.count("skipped")),
         time=_seconds(sum(c.duration for c in rows)),
     )
     props = ET.SubElement(suite, "properties")
     for k, v in (
+        ("totals", f"{report.totals_line('cases')}; {report.totals_line()}"),
         ("target", report.target),
         ("seed", report.seed),
         ("reference", report.reference),

@@ -20,9 +20,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from ..errors import SpecError
-from ..judge.verdict import SEVERITY, Outcome, worst
 from .html import render_html
-from .model import NOT_RUN, CommandSummary, Report, spec_label
+from .model import STATUS_ORDER, CommandSummary, Report, Status, spec_label
 
 __all__ = ["ABSENT", "Cell", "Matrix", "Row", "build_matrix", "spec_cmd_ids"]
 
@@ -46,11 +45,12 @@ def spec_cmd_ids(version: str) -> frozenset[int] | None:
 
 @dataclass(frozen=True, kw_only=True)
 class Cell:
-    #: An outcome's value, ``NOT-RUN``, :data:`ABSENT` or :data:`NONE`.
+    #: A status' value (report/model.py's Status), :data:`ABSENT` or :data:`NONE`.
     status: str
     #: What the cell says (``FAIL 2/14``, ``absent in 3.8.2``, ``-``).
     text: str
-    outcome: Outcome | None = None
+    #: The command's status where the report has it (None: absent, or no case).
+    outcome: Status | None = None
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -64,9 +64,9 @@ class Row:
         return len({c.status for c in self.cells}) > 1
 
     @property
-    def worst(self) -> Outcome | None:
+    def worst(self) -> Status | None:
         outs = [c.outcome for c in self.cells if c.outcome is not None]
-        return worst(outs) if outs else None
+        return min(outs, key=STATUS_ORDER.__getitem__) if outs else None
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -162,7 +162,7 @@ def _md_escape(text: str) -> str:
 
 
 def _md_cell(c: Cell) -> str:
-    if c.outcome is not None and c.outcome in (Outcome.FAIL, Outcome.ERROR):
+    if c.outcome is not None and c.outcome in (Status.FAIL, Status.ERROR, Status.XPASS):
         return f"**{_md_escape(c.text)}**"
     if c.status == ABSENT:
         return f"_{_md_escape(c.text)}_"
@@ -182,14 +182,17 @@ def _cell(
     r: Report, cmd_id: int, summary: CommandSummary | None, ids: frozenset[int] | None
 ) -> Cell:
     if summary is not None:
-        if not summary.ran:
-            return Cell(status=NOT_RUN, text=NOT_RUN)
-        o = summary.outcome
+        st = summary.status
         counts = summary.counts()
         n = sum(counts.values())
-        bad = sum(v for k, v in counts.items() if k not in ("PASS", "SKIPPED", "XFAIL"))
-        text = o.value if o in (Outcome.PASS, Outcome.SKIPPED) else f"{o.value} {bad}/{n}"
-        return Cell(status=o.value, text=text, outcome=o)
+        if st in (Status.PASS, Status.SKIPPED, Status.NOT_RUN):
+            text = st.value
+        elif st in (Status.XFAIL, Status.STOPPED):  # how many expected; how many never ran
+            text = f"{st.value} {counts.get(st.value if st is Status.XFAIL else 'NOT-RUN', 0)}/{n}"
+        else:
+            passed = ("PASS", "SKIPPED", "XFAIL", "NOT-RUN")
+            text = f"{st.value} {sum(v for k, v in counts.items() if k not in passed)}/{n}"
+        return Cell(status=st.value, text=text, outcome=st if summary.ran else None)
     if ids is not None and cmd_id not in ids:
         return Cell(status=ABSENT, text=f"absent in {r.spec_version}")
     return Cell(status=NONE, text=NONE)
@@ -222,7 +225,11 @@ def build_matrix(
 
     def order(row: Row) -> tuple[int, int, int]:
         w = row.worst
-        return (0 if row.differs else 1, len(SEVERITY) if w is None else SEVERITY[w], row.cmd_id)
+        return (
+            0 if row.differs else 1,
+            len(STATUS_ORDER) if w is None else STATUS_ORDER[w],
+            row.cmd_id,
+        )
 
     return Matrix(
         reports=tuple(reports),

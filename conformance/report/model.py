@@ -6,18 +6,23 @@ derived from the cases (never stored twice).  The JSON document has the shape
 the README documents: ``target``, ``kit_version``, ``spec_version``, ``seed`` and
 ``commands``, a mapping from command ID (a string) to
 ``{name, outcome, cases: [{id, group, outcome, detail, reproduce}]}``.
+
+What a total counts a case or a command as is its :class:`Status`: its outcome, or one of
+four the outcomes lack (XFAIL, XPASS, NOT-RUN, STOPPED), decided here for every front-end
+(the terminal, the HTML, JUnit, the JSON, the pytest plugin's line).
 """
 
 from __future__ import annotations
 
+import enum
 import json
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 from .._version import __version__
 from ..errors import EXIT_DAMAGED, EXIT_ERROR, EXIT_FAIL, EXIT_INTERRUPTED, EXIT_OK, ReportFileError
-from ..judge.verdict import SEVERITY, Outcome, aggregate, fails
+from ..judge.verdict import Outcome, aggregate, fails
 from .text import plural, printable
 
 __all__ = [
@@ -26,11 +31,14 @@ __all__ = [
     "MAX_FRAME_LINES",
     "MAX_NAME_WIDTH",
     "NOT_RUN",
+    "STATUS_ORDER",
     "CaseResult",
     "CommandSummary",
     "Outcome",
     "Report",
+    "Status",
     "aggregate",
+    "case_status",
     "failure_lines",
     "load_report",
     "spec_label",
@@ -39,9 +47,43 @@ __all__ = [
 
 # The severity order and the failing rule live in conformance/judge/verdict.py (one place).
 
-#: What the totals and a command's counts call cases (and commands) the run never reached:
-#: not an outcome (nothing was judged), so counted apart from them.
-NOT_RUN = "NOT-RUN"
+
+class Status(str, enum.Enum):
+    """What every total counts a case or a command as: its outcome, or one of four more.
+
+    The outcomes are the judge's (conformance/judge/verdict.py); the four more say what
+    a run made of them: a baseline's expected failure, a listed case that passed, a case
+    the run never reached, a command the run stopped in the middle of.
+    """
+
+    ERROR = "ERROR"
+    FAIL = "FAIL"
+    #: Listed in the baseline (``--expected-failures``) but passed: fails the run, so
+    #: that the baseline loses the line.
+    XPASS = "XPASS"
+    #: A failure the baseline lists: shown as one, not failing the run.
+    XFAIL = "XFAIL"
+    #: A command the run stopped in the middle of: some of its cases ran, the rest never.
+    STOPPED = "STOPPED"
+    DIALECT = "DIALECT"
+    NON_STRICT = "NON-STRICT"
+    UNIMPLEMENTED = "UNIMPLEMENTED"
+    PASS = "PASS"
+    SKIPPED = "SKIPPED"
+    #: A case (or a command none of whose cases) the run never reached: nothing was judged.
+    NOT_RUN = "NOT-RUN"
+
+    @classmethod
+    def of(cls, outcome: Outcome) -> Status:
+        return cls(outcome.value)
+
+
+#: The statuses worst first: the order of every table, and how a command's status is
+#: chosen among its cases' (:attr:`CommandSummary.status`).
+STATUS_ORDER: dict[Status, int] = {s: n for n, s in enumerate(Status)}
+
+#: The status of cases (and commands) the run never reached, as the totals spell it.
+NOT_RUN = Status.NOT_RUN.value
 
 
 #: Bounds on one case's failure text, so that a report stays small whatever the
@@ -134,11 +176,40 @@ class CaseResult:
         return out
 
 
+def _field_rule(outcome: Outcome) -> bool:
+    return fails(outcome)
+
+
+def case_status(case: CaseResult, rule: Callable[[Outcome], bool] = _field_rule) -> Status:
+    """What the totals count ``case`` as, ``rule`` saying which outcomes fail the run
+    (:meth:`Report.fails`): NOT-RUN when the run never reached it; for a case the baseline
+    lists, XFAIL when it failed and XPASS when it passed; else its outcome."""
+    if case.not_run:
+        return Status.NOT_RUN
+    if case.expected:
+        if rule(case.outcome):
+            return Status.XFAIL
+        if case.outcome in _PASSED:
+            return Status.XPASS
+    return Status.of(case.outcome)
+
+
+#: The outcomes a listed case passes with (then it is XPASS); SKIPPED and UNIMPLEMENTED say
+#: nothing of the failure the baseline lists.
+_PASSED = (Outcome.PASS, Outcome.DIALECT, Outcome.NON_STRICT)
+
+#: The statuses that fail a run whatever its reference (the lenient outcomes fail where
+#: the run's rule says so).
+_ALWAYS_FAILING = (Status.ERROR, Status.FAIL, Status.XPASS)
+
+
 @dataclass(frozen=True, kw_only=True)
 class CommandSummary:
     cmd_id: int
     name: str
     cases: tuple[CaseResult, ...]
+    #: Which outcomes fail the run (:meth:`Report.fails`; the field reference by default).
+    rule: Callable[[Outcome], bool] = field(default=_field_rule, compare=False, repr=False)
 
     @property
     def ran(self) -> tuple[CaseResult, ...]:
@@ -147,23 +218,45 @@ class CommandSummary:
 
     @property
     def outcome(self) -> Outcome:
-        """The worst outcome of the cases that ran; a baseline's expected failure counts as
-        passed.  ERROR for a command none of whose cases ran (:attr:`status` says NOT-RUN)."""
-        ran = self.ran or self.cases
-        return aggregate(Outcome.PASS if c.expected else c.outcome for c in ran)
+        """The worst outcome of the cases that ran, as the judge gave them (a baseline's
+        cases too); ERROR for a command none of whose cases ran.  What the command counts
+        as is :attr:`status`."""
+        return aggregate(c.outcome for c in self.ran or self.cases)
+
+    def statuses(self) -> list[Status]:
+        return [case_status(c, self.rule) for c in self.cases]
 
     @property
-    def status(self) -> str:
-        """What the totals count the command as: its outcome, or NOT-RUN when no case ran."""
-        return self.outcome.value if self.ran else NOT_RUN
+    def status(self) -> Status:
+        """What the totals count the command as.
+
+        NOT-RUN when none of its cases ran.  Else the worst status among its cases that
+        fail the run (ERROR, FAIL, XPASS, and NON-STRICT or DIALECT where the run's rule
+        fails them); else STOPPED when some of its cases never ran (a command the run
+        left half done is never PASS); else the worst status of its cases (XFAIL before
+        DIALECT, NON-STRICT, UNIMPLEMENTED, PASS; SKIPPED only when every case was).
+        """
+        if not self.ran:
+            return Status.NOT_RUN
+        ran = [case_status(c, self.rule) for c in self.ran]
+        failing = [s for s in ran if s in _ALWAYS_FAILING or self._lenient_fails(s)]
+        if failing:
+            return min(failing, key=STATUS_ORDER.__getitem__)
+        if len(self.ran) < len(self.cases):
+            return Status.STOPPED
+        judged = [s for s in ran if s is not Status.SKIPPED] or ran
+        return min(judged, key=STATUS_ORDER.__getitem__)
+
+    def _lenient_fails(self, s: Status) -> bool:
+        return s in (Status.DIALECT, Status.NON_STRICT) and self.rule(Outcome(s.value))
 
     def counts(self) -> dict[str, int]:
-        """Cases by outcome; expected failures (the baseline) as ``XFAIL``, cases the run
-        never reached as ``NOT-RUN``."""
+        """Cases by status (:func:`case_status`): outcomes, XFAIL, XPASS and NOT-RUN; a case
+        that stands for several frames (``check``, ``serve`` and ``replay`` fold alike
+        ones into one: :attr:`CaseResult.count`) counts as that many."""
         out: dict[str, int] = {}
-        for c in self.cases:
-            key = NOT_RUN if c.not_run else "XFAIL" if c.expected else c.outcome.value
-            out[key] = out.get(key, 0) + 1
+        for c, st in zip(self.cases, self.statuses(), strict=True):
+            out[st.value] = out.get(st.value, 0) + c.count
         return out
 
 
@@ -195,7 +288,7 @@ class Report:
             by.setdefault(c.cmd_id, []).append(c)
             names.setdefault(c.cmd_id, c.name)
         return {
-            k: CommandSummary(cmd_id=k, name=names[k], cases=tuple(v))
+            k: CommandSummary(cmd_id=k, name=names[k], cases=tuple(v), rule=self.fails)
             for k, v in sorted(by.items())
         }
 
@@ -204,13 +297,19 @@ class Report:
         conformance/judge/verdict.py."""
         return fails(outcome, self.reference, self.strict)
 
+    def status(self, case: CaseResult) -> Status:
+        """What the totals count ``case`` as in this run (:func:`case_status`)."""
+        return case_status(case, self.fails)
+
     def failing(self, case: CaseResult) -> bool:
         """Whether ``case`` fails this run: its outcome does (:meth:`fails`) and the baseline
-        does not list it.  The one answer every front-end shows (the pytest item, the
-        progress line, the tables, JUnit and HTML), none asking the rule itself.  A case
-        the run never reached fails as the ERROR it is, but :meth:`failing_cases` leaves it
-        out."""
-        return not case.expected and self.fails(case.outcome)
+        does not list it, or the baseline lists it and it passed (XPASS).  The one answer
+        every front-end shows (the pytest item, the progress line, the tables, JUnit and
+        HTML), none asking the rule itself.  A case the run never reached fails as the
+        ERROR it is, but :meth:`failing_cases` leaves it out."""
+        if case.expected:
+            return not case.not_run and self.status(case) is Status.XPASS
+        return self.fails(case.outcome)
 
     def failing_cases(self) -> list[CaseResult]:
         """The cases that fail this run: the only source of the exit code and the failing totals.
@@ -237,11 +336,39 @@ class Report:
         return EXIT_FAIL if failing else EXIT_OK
 
     def totals(self) -> dict[str, int]:
-        """Commands by :attr:`CommandSummary.status`: each outcome, and NOT-RUN."""
-        out: dict[str, int] = {**{o.value: 0 for o in Outcome}, NOT_RUN: 0}
+        """Commands by :attr:`CommandSummary.status`, every status a key, worst first."""
+        out = {s.value: 0 for s in Status}
         for s in self.commands().values():
-            out[s.status] += 1
+            out[s.status.value] += 1
         return out
+
+    def case_totals(self) -> dict[str, int]:
+        """Cases by :meth:`status`, every status but STOPPED (a command's) a key, worst first;
+        a case that stands for several frames counts as that many (as :meth:`CommandSummary.counts`)."""
+        out = {s.value: 0 for s in Status if s is not Status.STOPPED}
+        for c in self.cases:
+            out[self.status(c).value] += c.count
+        return out
+
+    def group_totals(self) -> dict[str, dict[str, int]]:
+        """Cases by group, then by status, as :meth:`case_totals` counts them (the HTML
+        report's summary): groups in the order their first case came, statuses worst
+        first, only those counted."""
+        out: dict[str, dict[str, int]] = {}
+        for c in self.cases:
+            row = out.setdefault(c.group, {})
+            st = self.status(c).value
+            row[st] = row.get(st, 0) + c.count
+        return {
+            g: dict(sorted(row.items(), key=lambda kv: STATUS_ORDER[Status(kv[0])]))
+            for g, row in out.items()
+        }
+
+    def totals_line(self, what: str = "commands") -> str:
+        """``commands: 2 FAIL, 338 PASS, 1 STOPPED`` (``what="cases"``: the cases'), the
+        statuses counted, worst first; ``none`` when there are none."""
+        t = self.totals() if what == "commands" else self.case_totals()
+        return f"{what}: " + (", ".join(f"{v} {k}" for k, v in t.items() if v) or "none")
 
     def _why_failing(self) -> str:
         """Which lenient outcomes fail this run, said once (``--strict``, ``--reference manual``)."""
@@ -257,10 +384,10 @@ class Report:
 
         The outcome counts alone then do not say why the run fails; with this the
         printed totals and the exit code come from the same cases
-        (:meth:`failing_cases`).  Empty when FAIL and ERROR alone fail.
+        (:meth:`failing_cases`).  Empty when FAIL, ERROR and XPASS alone fail.
         """
         t = self.totals()
-        hard = t[Outcome.FAIL.value] + t[Outcome.ERROR.value]
+        hard = sum(t[s.value] for s in _ALWAYS_FAILING)
         ids = self.failing_ids()
         if len(ids) == hard:
             return ""
@@ -279,12 +406,13 @@ class Report:
             "interrupted": self.interrupted,
             "meta": self.meta,
             "totals": self.totals(),
+            "case_totals": self.case_totals(),
             "failing": self.failing_ids(),
             "exit_code": self.exit_code(),
             "commands": {
                 str(k): {
                     "name": s.name,
-                    "outcome": s.status,
+                    "outcome": s.status.value,
                     "counts": s.counts(),
                     "cases": [c.to_json() for c in s.cases],
                 }
@@ -351,27 +479,26 @@ class Report:
         them``) then follows the line that counts them.
         """
         ran = [s for s in self.commands().values() if s.ran]
-        rows = sorted(ran, key=lambda s: (SEVERITY[s.outcome], s.cmd_id))
+        rows = sorted(ran, key=lambda s: (STATUS_ORDER[s.status], s.cmd_id))
         hidden = 0
         if only_failures:
-            shown = [s for s in rows if s.outcome not in (Outcome.PASS, Outcome.SKIPPED)]
+            shown = [s for s in rows if s.status not in (Status.PASS, Status.SKIPPED)]
             hidden, rows = len(rows) - len(shown), shown
         w = _name_width(s.name for s in rows)
         lines = [f"{'ID':>5}  {'name':<{w}} {'outcome':<14} counts"] if rows else []
         for s in rows:
             counts = " ".join(f"{k}={v}" for k, v in sorted(s.counts().items()))
-            line = f"{s.cmd_id:>5}  {_fit(s.name, w):<{w}} {s.outcome.value:<14} {counts}"
+            line = f"{s.cmd_id:>5}  {_fit(s.name, w):<{w}} {s.status.value:<14} {counts}"
             lines.append(_fit(line, max(width, len(line) - len(counts) + 1)))
         if hidden:
             note = f"; {hidden_note}" if hidden_note else ""
             lines.append(f"({plural(hidden, 'command')} PASS or SKIPPED not listed{note})")
-        t = self.totals()
-        counts = ", ".join(f"{v} {k}" for k, v in t.items() if v)
         not_run = sum(c.not_run for c in self.cases)
         if not_run:
             lines.append(f"{plural(not_run, 'case')} not run: {self.stopped or 'the run stopped'}")
         lines += self._dialect_lines()
-        lines.append(f"commands: {counts} (target {self.target}){self.failing_note()}")
+        lines.append(self.totals_line("cases"))
+        lines.append(f"{self.totals_line()} (target {self.target}){self.failing_note()}")
         return "\n".join(lines)
 
 
@@ -505,7 +632,7 @@ def failure_lines(report: Report, *, limit: int = 50) -> list[str]:
     bad = report.failing_cases()
     out: list[str] = []
     for c in bad[:limit]:
-        out.append(f"{c.outcome.value} {c.id}: {c.detail}")
+        out.append(f"{report.status(c).value} {c.id}: {c.detail}")
         out += [f"    {f}" for f in c.frames[:6]]
         if c.reproduce:
             out.append(f"    reproduce: {c.reproduce}")

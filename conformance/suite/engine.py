@@ -8,10 +8,12 @@ Two front-ends sit on it and nothing else runs cases (schemathesis' shape):
 (:mod:`conformance.suite.options`), so a case gives the same result, the same
 reproduction and the same report whichever front-end ran it.
 
-Baseline (``--expected-failures``): a listed case that fails is reported with
-its outcome and ``expected`` set, and does not fail the run; a listed case that
-passes fails the run ("listed in --expected-failures but passed"); listed IDs
-that match no selected case are a :class:`RunWarning`.
+Baseline (``--expected-failures``): a listed case is reported with its outcome and
+``expected`` set; one that fails is XFAIL and does not fail the run, one that passes
+is XPASS and fails it ("listed in --expected-failures but passed": the baseline should
+lose the line); listed IDs that match no selected case are a :class:`RunWarning`.
+A run that stops (the target unreachable or dead, the budget used up) ends in one
+:class:`RunStopped`, and the cases it never reached are listed as not run.
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ __all__ = [
     "Interrupted",
     "RunFinished",
     "RunStarted",
+    "RunStopped",
     "RunWarning",
     "stop_report",
 ]
@@ -55,6 +58,8 @@ class RunStarted:
     total: int
     target: str
     seed: int
+    #: The run's work in the estimate's unit, about a frame each (``Profile.frames``).
+    work: int = 0
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -73,6 +78,19 @@ class CaseFinished:
     #: front-ends.
     failing: bool
     #: Seconds since the run started.
+    elapsed: float
+    #: The case's work in the estimate's unit (``Profile.frames`` of its group).
+    work: int = 1
+
+
+@dataclass(frozen=True, kw_only=True)
+class RunStopped:
+    """The run stopped before its end (``reason``: the target unreachable or dead, the
+    budget used up) after ``ran`` of ``total`` cases; the rest are listed as not run."""
+
+    reason: str
+    ran: int
+    total: int
     elapsed: float
 
 
@@ -99,7 +117,7 @@ class EngineError:
     message: str
 
 
-Event = RunStarted | RunWarning | CaseFinished | RunFinished | EngineError
+Event = RunStarted | RunWarning | CaseFinished | RunStopped | RunFinished | EngineError
 
 
 class Engine:
@@ -189,9 +207,10 @@ class Engine:
         if self.report.fails(result.outcome):
             return replace(result, expected=True)
         if result.outcome in (Outcome.PASS, Outcome.DIALECT, Outcome.NON_STRICT):
+            # XPASS (report/model.py's Status): the outcome stays the judge's.
             return replace(
                 result,
-                outcome=Outcome.FAIL,
+                expected=True,
                 detail=f"listed in --expected-failures but passed ({result.outcome.value}"
                 + (f": {result.detail}" if result.detail else "")
                 + "); remove it from the baseline",
@@ -210,6 +229,7 @@ class Engine:
             result=result,
             failing=self.report.failing(result),
             elapsed=time.monotonic() - self._t0,
+            work=self.config.profile.frames(case.group),
         )
 
     def not_run(self, case: Case) -> CaseResult:
@@ -218,17 +238,34 @@ class Engine:
     def events(self, cases: Sequence[Case]) -> Iterator[Event]:
         """Run ``cases`` in order: RunStarted, warnings, CaseFinished each, RunFinished.
 
-        A KeyboardInterrupt stops the run: the cases not run are listed as such
-        and RunFinished says ``interrupted``.
+        A run that stops (the target unreachable at the start or dead after a case, the
+        budget used up) yields one RunStopped instead of the cases it never reaches,
+        which the report lists as not run.  A KeyboardInterrupt stops the run: the
+        cases not run are listed as such and RunFinished says ``interrupted``.
         """
         t0 = time.monotonic()
-        yield RunStarted(total=len(cases), target=self.runner.target_label(), seed=self.config.seed)
+        yield RunStarted(
+            total=len(cases),
+            target=self.runner.target_label(),
+            seed=self.config.seed,
+            work=sum(self.config.profile.frames(c.group) for c in cases),
+        )
         for w in self.warnings(cases):
             self.report.meta.setdefault("warnings", []).append(w)
             yield RunWarning(message=w)
         self._t0 = t0
         try:
             for i, case in enumerate(cases, 1):
+                self.start()  # the target's probe first: it may stop the run before case 1
+                if self.runner.stopped is not None:
+                    stop_report(self.report, cases)
+                    yield RunStopped(
+                        reason=self.runner.stopped,
+                        ran=i - 1,
+                        total=len(cases),
+                        elapsed=time.monotonic() - t0,
+                    )
+                    break
                 yield self.step(case, index=i, total=len(cases))
         except KeyboardInterrupt:
             yield self.interrupt(cases)

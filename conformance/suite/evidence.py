@@ -34,8 +34,19 @@ def describe_exchange(ex: Exchange) -> tuple[str, ...]:
     return tuple(lines)
 
 
+def _send_input(raw: bytes) -> tuple[str, str]:
+    """How a reproduction gives ``send`` its bytes: (what comes before ``send``, its option).
+
+    Printable bytes as they are, through ``printf`` (the frame reads as text); hex only
+    where a byte is not printable (``printf`` escapes are a shell's own business)."""
+    if all(0x20 <= b < 0x7F for b in raw):
+        return f"printf {shell_printf(raw)} | ", " --file -"
+    return "", f" --hex {raw.hex()}"
+
+
 def reproduction(config: SuiteConfig, case_id: str, raw: bytes) -> str:
-    """A shell line re-running exactly this case, and one sending its frame with ``send``.
+    """A shell line re-running exactly this case, and one sending its frame with ``send``
+    (``printf '…' | fairino-conformance send …``; ``--hex`` where a byte is not printable).
 
     Against the built-in emulator the frame goes to an emulator the user starts
     (with the same faults) on 127.0.0.1:8080, never to this run's temporary port.
@@ -57,11 +68,12 @@ def reproduction(config: SuiteConfig, case_id: str, raw: bytes) -> str:
             emulate = "fairino-conformance emulate --listen 127.0.0.1:8080 " + listen
             emulate += "".join(f"--fault {shlex.quote(f)} " for f in faults)
             addr = "127.0.0.1:20007" if udp else "127.0.0.1:8080"
+            pipe, given = _send_input(raw)
             line += (
-                f"  # or: {emulate}& fairino-conformance send --wait 10 {addr}{udp} "
-                f"--hex {raw.hex()}"
+                f"  # or: {emulate}& {pipe}fairino-conformance send --wait 10 {addr}{udp}{given}"
             )
         else:
             addr = shlex.quote(config.target_label())
-            line += f"  # or: fairino-conformance send {addr}{udp} --hex {raw.hex()}"
+            pipe, given = _send_input(raw)
+            line += f"  # or: {pipe}fairino-conformance send {addr}{udp}{given}"
     return line

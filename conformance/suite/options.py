@@ -190,6 +190,13 @@ OPTIONS: tuple[Option, ...] = (
         metavar="N",
         help="Hypothesis seed (default: random, printed in every reproduction)",
     ),
+    Option(
+        name="update_baseline",
+        kind="text",
+        metavar="FILE",
+        help="after the run, write its failing case IDs here: the baseline "
+        "--expected-failures reads (FILE may be that baseline)",
+    ),
     Option(name="report_json", kind="text", metavar="PATH", help="write the JSON report here"),
     Option(name="report_html", kind="text", metavar="PATH", help="write the HTML report here"),
     Option(
@@ -380,7 +387,9 @@ def load_expected_failures(path: str) -> frozenset[str]:
             rep = load_report(path)
         except ReportFileError as e:
             raise ReportFileError(f"--expected-failures: {e}", path=path) from None
-        return frozenset(c.id for c in rep.cases if rep.fails(c.outcome))
+        from ..report.baseline import baseline_cases
+
+        return frozenset(c.id for c in baseline_cases(rep))  # what report baseline writes
     ids = (line.split("#", 1)[0].strip() for line in text.splitlines())
     return frozenset(i for i in ids if i)
 

@@ -5,9 +5,10 @@ re-exported here).
 
 The progress line goes to stderr: redrawn in place (``\\r``) on a terminal, and
 on anything else (a CI log) one plain line at the start, about every 10 % or 30
-seconds, and at the end.  Each shows the cases decided, those that failed, those
-never run (the run stopped), elapsed time and an estimate of the time left
-(:class:`Estimate`).
+seconds, and at the end.  Each shows the cases decided, those that failed, elapsed
+time and an estimate of the time left (:class:`Estimate`).  A run that stops (the
+target unreachable or dead, the budget used up) ends the display with one line that
+says after how many cases and why; the bar never fills with cases that did not run.
 """
 
 from __future__ import annotations
@@ -18,7 +19,15 @@ from typing import TextIO
 from ..report.junit import junit_xml, write_junit
 from ..report.model import Report
 from ..report.text import plural
-from .engine import WOULD_RUN, CaseFinished, Event, RunFinished, RunStarted, RunWarning
+from .engine import (
+    WOULD_RUN,
+    CaseFinished,
+    Event,
+    RunFinished,
+    RunStarted,
+    RunStopped,
+    RunWarning,
+)
 
 __all__ = ["Estimate", "Progress", "dry_run_lines", "junit_xml", "write_junit"]
 
@@ -33,13 +42,16 @@ def _clock(seconds: float) -> str:
 class Estimate:
     """The time a run has left, smoothed so that it counts down instead of jumping.
 
-    A reading is the cases left times the mean time a case has taken since the first
-    one (the start-up before it, the emulator's or the target's probe, is not the
-    cases' pace), taken once ``min_cases`` cases and ``min_seconds`` seconds have
-    passed: the first few cases said 2:36, the next 0:02.  Between readings the shown
-    value counts down with the clock and moves towards the new reading as the cases
-    go by, about two thirds of the way per ``memory`` of the run (a fraction of its
-    cases), so a group of slower cases bends it instead of throwing it.
+    It counts work, not cases: a case weighs about the frames it sends (the profile's
+    ``frames`` of its group), since the cheap groups (framing, the manual's examples)
+    run first and a pace per case learnt on them said 5 minutes for a run of 14.  A
+    reading is the work left times the mean time a unit has taken since the first case
+    (the start-up before it, the emulator's or the target's probe, is not the cases'
+    pace), taken once ``min_cases`` units and ``min_seconds`` seconds have passed: the
+    first few cases said 2:36, the next 0:02.  Between readings the shown value counts
+    down with the clock and moves towards the new reading as the work goes by, about
+    two thirds of the way per ``memory`` of the run (a fraction of its work), so a group
+    of slower cases bends it instead of throwing it.
     """
 
     def __init__(self, *, memory: float = 0.05, min_cases: int = 3, min_seconds: float = 0.5):
@@ -51,7 +63,8 @@ class Estimate:
         self._at = (0.0, 0)
 
     def update(self, elapsed: float, done: int, total: int) -> float | None:
-        """Seconds left after ``done`` of ``total`` cases at ``elapsed``; None while unknown."""
+        """Seconds left after ``done`` of ``total`` units of work at ``elapsed``; None while
+        unknown."""
         if done >= total:
             return None
         if self._base is None:
@@ -95,8 +108,13 @@ class Progress:
         self.every = every_seconds
         self.total = 0
         self.done = 0
+        #: The run's work and the work done, in the estimate's unit (RunStarted.work).
+        self.work = 0
+        self.work_done = 0
         self.failed = 0
         self.not_run = 0
+        #: The run stopped (RunStopped): the display ended with the line that says why.
+        self.stopped = False
         self.estimate = Estimate()
         self._left: float | None = None
         self._last_draw = -math.inf
@@ -119,6 +137,7 @@ class Progress:
     def handle(self, ev: Event) -> None:
         if isinstance(ev, RunStarted):
             self.total = ev.total
+            self.work = ev.work or ev.total
             if not self.quiet:
                 self.stream.write(
                     f"running {plural(ev.total, 'case')} against {ev.target} (seed {ev.seed})\n"
@@ -130,13 +149,25 @@ class Progress:
             self.stream.flush()
         elif isinstance(ev, CaseFinished):
             self.done = ev.index
+            self.work_done += ev.work
             r = ev.result
             if r.not_run:
                 self.not_run += 1
             elif ev.failing:
                 self.failed += 1
             self._draw(ev.elapsed)
-        elif isinstance(ev, RunFinished) and not self.quiet:
+        elif isinstance(ev, RunStopped):
+            self._clear()
+            self.stopped = True
+            if self.quiet:
+                return
+            failed = f", {self.failed} failed" if ev.ran else ""
+            self.stream.write(
+                f"stopped after {ev.ran} of {plural(ev.total, 'case')}{failed} "
+                f"({_clock(ev.elapsed)} elapsed): {ev.reason}\n"
+            )
+            self.stream.flush()
+        elif isinstance(ev, RunFinished) and not self.quiet and not self.stopped:
             self._clear()
             state = "interrupted" if ev.interrupted else "done"
             self.stream.write(f"{state}: {self.line(ev.elapsed)}\n")
@@ -147,7 +178,7 @@ class Progress:
             return
         if self.tty:
             if elapsed - self._last_draw >= 0.1 or self.done == self.total:
-                self._left = self.estimate.update(elapsed, self.done, self.total)
+                self._left = self._estimate(elapsed)
                 text = self.line(elapsed)
                 # Blank what a longer line drawn before left behind (", about 0:03 left").
                 self.stream.write("\r" + text + " " * max(self._drawn - len(text), 0))
@@ -159,11 +190,16 @@ class Progress:
         if (
             step != self._last_step and self.done < self.total
         ) or elapsed - self._last_draw >= self.every:
-            self._left = self.estimate.update(elapsed, self.done, self.total)
+            self._left = self._estimate(elapsed)
             self.stream.write(self.line(elapsed) + "\n")
             self.stream.flush()
             self._last_draw = elapsed
             self._last_step = step
+
+    def _estimate(self, elapsed: float) -> float | None:
+        if self.done >= self.total:
+            return None
+        return self.estimate.update(elapsed, min(self.work_done, self.work - 1), self.work)
 
     def _clear(self) -> None:
         if self.tty and self._drawn:
