@@ -147,3 +147,29 @@ def test_query_names_a_damaged_dataset_file_and_reads_the_rest(tmp_path: Path) -
         p = cli_run("query", str(out), "--report", report, "--format", "json")
         assert p.returncode == EXIT_DAMAGED, (report, p.stderr)
         assert bool(json.loads(p.stdout)) == (report != "failures"), report
+
+
+def test_a_report_with_a_field_of_another_type_or_a_lone_surrogate(tmp_path: Path) -> None:
+    """`report html` and `merge` of a report whose meta.emulator_faults is a number: one
+    line naming the field, exit 2; of one whose target holds a lone surrogate (JSON can
+    carry one): the pages are written, the surrogate shown as its escape (before: an
+    internal error each)."""
+    good = tmp_path / "r.json"
+    assert cli_run("run", "--commands", "201", "--report-json", str(good), "-q").returncode == 0
+    doc = json.loads(good.read_text())
+    doc["meta"]["emulator_faults"] = 5
+    bad_type = tmp_path / "faults.json"
+    bad_type.write_text(json.dumps(doc))
+    doc = json.loads(good.read_text())
+    doc["target"] = "cell\udcff"
+    surrogate = tmp_path / "surrogate.json"
+    surrogate.write_text(json.dumps(doc))  # ASCII: "\udcff" as an escape
+    for action in ("html", "merge"):
+        out = tmp_path / f"{action}.html"
+        p = cli_run("report", action, str(bad_type), str(good), "-o", str(out))
+        assert p.returncode == EXIT_ERROR, p.stderr
+        assert "'emulator_faults' is int, not list" in p.stderr
+        assert "internal error" not in p.stderr
+        p = cli_run("report", action, str(surrogate), str(good), "-o", str(out))
+        assert p.returncode == 0, p.stderr
+        assert "cell\\udcff" in out.read_text(encoding="utf-8")

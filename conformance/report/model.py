@@ -540,6 +540,14 @@ _REPORT_TYPES: dict[str, tuple[type | None, ...]] = {
     "meta": (dict,),
     "commands": (dict,),
 }
+#: The ``meta`` fields the pages and the exit code read, of the types the kit writes.
+_META_TYPES: dict[str, tuple[type | None, ...]] = {
+    "emulator_faults": (list,),
+    "spec": (dict,),
+    "ran": (str,),
+    "damage": (list,),
+    "dry_run": (bool,),
+}
 _COMMAND_TYPES: dict[str, tuple[type | None, ...]] = {"name": (str,), "cases": (list,)}
 _CASE_TYPES: dict[str, tuple[type | None, ...]] = {
     "id": (str,),
@@ -580,6 +588,8 @@ def _check_report(doc: Any) -> str:
     if not isinstance(doc, dict) or "commands" not in doc or "target" not in doc:
         return "no target/commands"
     why = _misfit(doc, _REPORT_TYPES, "the report")
+    if not why and "meta" in doc:
+        why = _misfit(doc["meta"], _META_TYPES, "the report's meta")
     for cid, cmd in doc["commands"].items() if not why else ():
         if not cid.isdigit():
             return f"command ID {cid[:20]!r} is not a number"
@@ -595,6 +605,23 @@ def _check_report(doc: Any) -> str:
         if why:
             break
     return why
+
+
+def _text(v: Any) -> Any:
+    """A JSON document with every string as text that can be written: JSON can carry a lone
+    surrogate (``"\\udcff"``), which no page, font or UTF-8 file takes; it is shown as its
+    escape."""
+    if isinstance(v, str):
+        try:
+            v.encode("utf-8")
+        except UnicodeEncodeError:
+            return v.encode("utf-8", "backslashreplace").decode("utf-8")
+        return v
+    if isinstance(v, list):
+        return [_text(x) for x in v]
+    if isinstance(v, dict):
+        return {_text(k): _text(x) for k, x in v.items()}
+    return v
 
 
 def load_report(path: str) -> Report:
@@ -619,6 +646,7 @@ def load_report(path: str) -> Report:
     why = _check_report(doc)
     if why:
         raise ReportFileError(f"{path} is not a conformance report ({why})", path=path)
+    doc = _text(doc)
     try:
         return Report.from_json(doc)
     except (ValueError, KeyError, TypeError, AttributeError) as e:
