@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 
 from conformance.errors import SpecError, UsageError
 from conformance.spec.commands import validate_document
-from conformance.twin import kinematics
+from conformance.twin.kinematics import robots as models
 from conformance.twin.kinematics.ik import IKStatus, branches
 from conformance.twin.kinematics.pose import (
     angle_between,
@@ -74,8 +74,8 @@ def test_data_validates(doc: dict[str, Any]) -> None:
 
 
 def test_models_and_default() -> None:
-    assert kinematics.ROBOTS == MODELS
-    assert kinematics.DEFAULT_ROBOT == "FR5"
+    assert models.ROBOTS == MODELS
+    assert models.DEFAULT_ROBOT == "FR5"
     assert robot().name == "FR5"
     assert robot("fr10").name == "FR10"
     with pytest.raises(UsageError, match="unknown robot 'FR7'"):

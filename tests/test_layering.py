@@ -140,3 +140,19 @@ def test_the_floor_plan_is_in_the_docs() -> None:
     doc = (ROOT / "docs" / "ARCHITECTURE.md").read_text(encoding="utf-8")
     missing = [name for name in FLOORS if name and f"`{name}" not in doc]
     assert not missing, f"docs/ARCHITECTURE.md does not place: {missing}"
+
+
+def test_a_package_holds_only_its_docstring() -> None:
+    """Every name is imported from the module that defines it: a package's ``__init__``
+    (the root's public API aside) holds its docstring and nothing else, no re-export."""
+    busy = []
+    for name, path in MODS.items():
+        if path.name != "__init__.py" or name == "conformance":
+            continue
+        body = ast.parse(path.read_text(encoding="utf-8")).body
+        code = [
+            b for b in body if not (isinstance(b, ast.Expr) and isinstance(b.value, ast.Constant))
+        ]
+        if code:
+            busy.append(f"{path.relative_to(ROOT)} line {code[0].lineno}")
+    assert not busy, "\n".join(busy)

@@ -31,7 +31,7 @@ from conformance.protocol.frame import Frame, encode_frame
 from conformance.recording.reader import read_recording
 from conformance.spec.commands import default_specs
 from conformance.spec.dialects import default_dialects
-from conformance.wireshark import FIELDS, english_meanings, lua_dissector, reply_kind
+from conformance.wireshark.dissector import FIELDS, english_meanings, lua_dissector, reply_kind
 from tests import scapy_lazy as sp
 from tests.optional import needs_program
 

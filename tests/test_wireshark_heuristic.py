@@ -15,7 +15,7 @@ from typing import Any
 import pytest
 
 from conformance.protocol.frame import encode_frame
-from conformance.wireshark import lua_dissector
+from conformance.wireshark.dissector import lua_dissector
 from tests import scapy_lazy as sp
 
 from .test_wireshark import (

@@ -307,7 +307,7 @@ def _run_diff(args: argparse.Namespace, out: Any) -> int:
 
 
 def _write_wireshark(path: str, specs: SpecSet) -> None:
-    from ..wireshark import lua_dissector
+    from ..wireshark.dissector import lua_dissector
 
     text = lua_dissector(specs, default_dialects())
     try:

@@ -16,7 +16,3 @@ pyarrow and duckdb are the ``fleet`` extra (``pip install 'fairino-conformance[f
 without them the commands say so in one line.  The layout is documented in the README
 ("A fleet's recordings as one table") as a contract with :data:`schema.SCHEMA_VERSION`.
 """
-
-from .schema import PARTITIONS, SCHEMA_VERSION, TABLES
-
-__all__ = ["PARTITIONS", "SCHEMA_VERSION", "TABLES"]

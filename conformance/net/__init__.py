@@ -6,9 +6,3 @@ The emulator serves the text port itself and, from the same model, the state por
 
 Addresses are read and written in one place, :mod:`conformance.net.addresses`.
 """
-
-from __future__ import annotations
-
-from .addresses import Address, format_address, parse_address
-
-__all__ = ["Address", "format_address", "parse_address"]

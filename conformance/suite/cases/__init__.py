@@ -9,11 +9,3 @@ One module per group (:mod:`.framing`, :mod:`.examples`, :mod:`.valid`,
 :mod:`.invalid`, :mod:`.robustness`, :mod:`.transport`, :mod:`.stateful`), what they
 share in :mod:`.shared`, and :func:`build_cases` in :mod:`.build`.
 """
-
-from __future__ import annotations
-
-from .build import build_cases
-from .shared import BATCH as BATCH
-from .shared import PROTOCOL_ID
-
-__all__ = ["PROTOCOL_ID", "build_cases"]
