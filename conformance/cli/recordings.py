@@ -25,7 +25,15 @@ from ..offline.replay import NOT_RECORDED
 from ..pcap.importer import opened, read_capture
 from ..protocol.frame import DEFAULT_MAX_FRAME_SIZE, Frame
 from ..recording.repair import recover
-from .capture import add_label_options, check_ports, labels_of, parse_size
+from .capture import (
+    add_channel_ports,
+    add_label_options,
+    channel_counts,
+    channel_ports_of,
+    check_ports,
+    labels_of,
+    parse_size,
+)
 from .judging import add_judge_options, judge_from, verdict_line
 from .judging import verdict_sink as _verdict_sink
 from .safety import add_safety_options
@@ -233,6 +241,7 @@ def _register_more(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
         help="controller state port (8083 status feedback): its packets recorded on "
         "/fairino/state (repeatable; default none)",
     )
+    add_channel_ports(ip)
     add_specs_dir(ip)
     add_label_options(ip)
     ip.set_defaults(func=_run_import_pcap)
@@ -536,12 +545,14 @@ def _run_import_pcap(args: argparse.Namespace) -> int:
         damage=damage,
         state_ports=tuple(args.state_port),
         metadata=labels_of(args),
+        channel_ports=channel_ports_of(args),
     )
     dt = time.perf_counter() - t0
     print(
         f"imported {st.packets} packets ({st.ignored} not ours) in {dt:.2f} s: "
         f"{st.connections} connections, {st.frames} frames, "
         + (f"{st.state_packets} state packets, " if args.state_port else "")
+        + channel_counts(st)
         + f"{st.problems} problems, "
         f"{st.retransmitted_bytes} retransmitted bytes dropped -> {args.out}"
     )

@@ -13,7 +13,7 @@ from collections.abc import Iterator
 from typing import Any
 
 from ..errors import EXIT_ERROR, EXIT_INTERRUPTED, EXIT_OK, EmulatorError, UsageError
-from ..net.addresses import format_address, parse_address
+from ..net.addresses import CONTROLLER_PORTS, format_address, parse_address
 from ..twin.faults import parse_fault
 from .specs_option import add_specs_dir, spec_choice_of
 
@@ -203,18 +203,6 @@ def _state_port(args: argparse.Namespace, host: str, port: int) -> int | None:
     if shost != host:
         raise UsageError("--state-listen must use the same host as --listen")
     return sport
-
-
-#: The ports ``emulate --host`` serves: a controller's (the SDKs' own channels
-#: specs/fairino-field/channels/ and specs/*/xmlrpc.json; the manual's 8080 and 20007, 8083).
-CONTROLLER_PORTS = {
-    "tcp": 8080,
-    "udp": 20007,
-    "state": 8083,
-    "xmlrpc": 20003,
-    "realtime": 20004,
-    "cnde": 20005,
-}
 
 
 def _host_ports(args: argparse.Namespace) -> dict[str, Any]:

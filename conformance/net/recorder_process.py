@@ -38,7 +38,15 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
-from ..recording.layout import C2S, S2C, DirectionText
+from ..recording.layout import (
+    C2S,
+    CNDE_STREAM,
+    REALTIME_STREAM,
+    S2C,
+    STATE_STREAM,
+    XMLRPC_STREAM,
+    DirectionText,
+)
 from ..recording.recorder import StreamRecorder
 from ..recording.records import FrameRecord
 from ..recording.rotating import RotatingWriter
@@ -57,8 +65,10 @@ _DIR_NAME: tuple[DirectionText, DirectionText] = (C2S, S2C)
 _F_SETPIPE_SZ = 1031  # Linux fcntl: grow the pipe (1 MiB, the unprivileged maximum)
 _PIPE_SIZE = 1 << 20
 # Counters the recorder process keeps in shared memory: frames, problems, bytes taken,
-# state packets, bytes not recorded (taken after the file could not be written).
-_COUNTERS = struct.Struct("<qqqqq")
+# state packets, bytes not recorded (taken after the file could not be written), and the
+# SDK channels' records: XML-RPC calls, CNDE frames, realtime packets.
+_COUNTERS = struct.Struct("<qqqqqqqq")
+_ZEROS = (0,) * 8
 # And one value the proxy writes there: when stopping, the time.monotonic() (one clock
 # for every process on the machine) after which the recorder stops decoding and
 # copies what is left to the file undecoded, so that a stop never waits on a backlog.
@@ -71,19 +81,19 @@ class RecorderCounters:
 
     def __init__(self, shared: mmap.mmap) -> None:
         self._shared = shared
-        self._final: tuple[int, int, int, int, int] | None = None
+        self._final: tuple[int, ...] | None = None
 
     def freeze(self) -> None:
         """Keep the last values: the shared memory is about to be closed."""
         self._final = self._get()
 
-    def _get(self) -> tuple[int, int, int, int, int]:
+    def _get(self) -> tuple[int, ...]:
         if self._final is not None:
             return self._final
         try:
-            return _COUNTERS.unpack_from(self._shared)  # type: ignore[return-value]
+            return _COUNTERS.unpack_from(self._shared)
         except ValueError:  # closed
-            return (0, 0, 0, 0, 0)
+            return _ZEROS
 
     @property
     def frames(self) -> int:
@@ -110,6 +120,21 @@ class RecorderCounters:
     def lost(self) -> int:
         """Payload bytes taken but not recorded: the file could not be written."""
         return self._get()[4]
+
+    @property
+    def calls(self) -> int:
+        """XML-RPC calls recorded (``/fairino/calls`` messages)."""
+        return self._get()[5]
+
+    @property
+    def cnde_frames(self) -> int:
+        """CNDE frames recorded (``/fairino/cnde`` messages)."""
+        return self._get()[6]
+
+    @property
+    def realtime_packets(self) -> int:
+        """20004 packets recorded (``/fairino/realtime`` messages)."""
+        return self._get()[7]
 
 
 class RecorderProcess:
@@ -323,6 +348,19 @@ def _recorder_main(argv: list[str]) -> None:
     _Recorder(config, fd, status, shared, writer, rec, out_frames).run()
 
 
+def _recorded(rec: StreamRecorder) -> tuple[int, ...]:
+    """Frames, problems, state packets, calls, CNDE frames and realtime packets recorded."""
+    ch = rec.channel_records
+    return (
+        rec.frames,
+        rec.problems,
+        ch[STATE_STREAM],
+        ch[XMLRPC_STREAM],
+        ch[CNDE_STREAM],
+        ch[REALTIME_STREAM],
+    )
+
+
 def _read_exactly(fd: int, n: int) -> bytes:
     parts = []
     while n:
@@ -373,7 +411,9 @@ class _Recorder:
         #: the counters stay at what the file holds as of its last whole flush.
         self.broken = False
         self.lost = 0
-        self.saved = (0, 0, 0)  # frames, problems, state packets at the last whole flush
+        #: Frames, problems, state packets, calls, CNDE frames and realtime packets at the
+        #: last whole flush.
+        self.saved: tuple[int, ...] = (0,) * 6
         self.paths = list(writer.paths)
         self.last_flush = time.monotonic()
         self.latest_ns = 0  # arrival time of the newest event taken from the pipe
@@ -422,7 +462,7 @@ class _Recorder:
             except Exception as e:
                 self.fail(e)
             else:
-                self.saved = (self.rec.frames, self.rec.problems, self.rec.state_packets)
+                self.saved = _recorded(self.rec)
         self.publish()
 
     def run(self) -> None:
@@ -478,7 +518,7 @@ class _Recorder:
             except Exception as e:
                 self.fail(e)
             else:
-                self.saved = (self.rec.frames, self.rec.problems, self.rec.state_packets)
+                self.saved = _recorded(self.rec)
         if self.broken:
             self.saved = self.in_files()
         self.publish()
@@ -556,22 +596,25 @@ class _Recorder:
             return self.discard(buf)
         return stop
 
-    def in_files(self) -> tuple[int, int, int]:
-        """Frames, problems and state packets the files hold, read back (after a failed
-        write the counts at the last flush are a lower bound: chunks written since count
-        too, the one being written when the disk filled does not)."""
+    def in_files(self) -> tuple[int, ...]:
+        """What :func:`_recorded` counts, in the files, read back (after a failed write the
+        counts at the last flush are a lower bound: chunks written since count too, the one
+        being written when the disk filled does not)."""
         from ..recording.reader import read_recording
 
-        counts = [0, 0, 0]
+        counts = [0] * 6
         try:
             for path in self.writer.paths:
                 r = read_recording(path)
                 counts[0] += len(r.frames)
-                counts[1] += len(r.problems) + len(r.state_problems)
+                counts[1] += len(r.problems) + len(r.state_problems) + len(r.channel_problems)
                 counts[2] += len(r.states)
+                counts[3] += len(r.calls)
+                counts[4] += len(r.cnde)
+                counts[5] += len(r.realtime)
         except Exception:
             return self.saved
-        return counts[0], counts[1], counts[2]
+        return tuple(counts)
 
     def discard(self, buf: bytearray) -> bool:
         """The file cannot be written: the whole events in ``buf`` taken and counted as
@@ -596,11 +639,13 @@ class _Recorder:
     def publish(self) -> None:
         """Counters to shared memory, frames (for ``on_frame``) and new paths to the proxy."""
         rec = self.rec
-        if self.broken:  # what the file holds, as of its last whole flush
-            frames, problems, states = self.saved
-        else:
-            frames, problems, states = rec.frames, rec.problems, rec.state_packets
-        _COUNTERS.pack_into(self.shared, 0, frames, problems, self.taken, states, self.lost)
+        # What the file holds, as of its last whole flush, once it could not be written.
+        frames, problems, states, calls, cnde, realtime = (
+            self.saved if self.broken else _recorded(rec)
+        )
+        _COUNTERS.pack_into(
+            self.shared, 0, frames, problems, self.taken, states, self.lost, calls, cnde, realtime
+        )
         try:
             if self.out_frames:
                 self.status.send(("frames", list(self.out_frames)))

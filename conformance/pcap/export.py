@@ -16,7 +16,7 @@ from typing import Any
 from ..recording.layout import C2S, S2C
 from ..recording.reader import Recording
 from ..recording.repair import atomic_output
-from .packets import _ACK, _FIN, _SYN, DLT_EN10MB
+from .packets import _ACK, _FIN, _SYN, DEFAULT_CHANNEL_PORTS, DLT_EN10MB
 
 _MAC_CLIENT = bytes.fromhex("020000000001")
 _MAC_SERVER = bytes.fromhex("020000000002")
@@ -111,6 +111,13 @@ class _PcapWriter:
         self.f.close()
 
 
+#: The controller's port for each connection ``stream`` (the command port's: 8080).
+_PORT_OF_STREAM = {
+    "state": 8083,
+    **{kind: port for port, kind in DEFAULT_CHANNEL_PORTS.items()},
+}
+
+
 def export_pcap(rec: Recording, out: str | os.PathLike[str]) -> int:
     """Write the recording's traffic as a pcap; returns the number of packets written.
 
@@ -140,6 +147,28 @@ def export_pcap(rec: Recording, out: str | os.PathLike[str]) -> int:
         if p.raw:
             order += 1
             events.append((p.complete_ns, order, p.conn, p.dir, (p.offset, p.raw)))
+    # The SDKs' channels: each XML-RPC call's request and reply, each CNDE frame, each
+    # 20004 packet, and the bytes their decoders kept as problems, at their offsets.
+    for call in rec.calls:
+        if call.request_raw and call.request_offset is not None:
+            order += 1
+            t = call.request_ns or call.complete_ns
+            events.append((t, order, call.conn, C2S, (call.request_offset, call.request_raw)))
+        if call.reply_raw and call.reply_offset is not None:
+            order += 1
+            t = call.reply_ns or call.complete_ns
+            events.append((t, order, call.conn, S2C, (call.reply_offset, call.reply_raw)))
+    for frame in rec.cnde:
+        order += 1
+        events.append((frame.complete_ns, order, frame.conn, frame.dir, (frame.offset, frame.raw)))
+    for packet in rec.realtime:
+        order += 1
+        events.append((packet.complete_ns, order, packet.conn, S2C, (packet.offset, packet.raw)))
+    for problem in rec.channel_problems:
+        if problem.raw:
+            order += 1
+            where = (problem.offset, problem.raw)
+            events.append((problem.complete_ns, order, problem.conn, problem.dir, where))
     conn_ids = sorted({e[2] for e in events} | set(opened))
     first_t = {cid: min((e[0] for e in events if e[2] == cid), default=0) for cid in conn_ids}
     last_t = {cid: max((e[0] for e in events if e[2] == cid), default=0) for cid in conn_ids}
@@ -166,7 +195,8 @@ def export_pcap(rec: Recording, out: str | os.PathLike[str]) -> int:
                     transport = o.transport if o else "tcp"
                     st = state[cid] = {
                         "c": (csrc, cport or 40000 + cid % 20000),
-                        "s": (sdst, sport or 8080),
+                        # A connection recorded without addresses: its port's number.
+                        "s": (sdst, sport or _PORT_OF_STREAM.get(o.stream if o else "", 8080)),
                         "udp": transport == "udp",
                         "isn": {C2S: 1000, S2C: 5000},
                         "sent": {C2S: 0, S2C: 0},

@@ -12,18 +12,34 @@ from typing import Any
 
 from .layout import (
     C2S,
+    CALL_SCHEMA,
+    CHANNEL_KINDS,
+    CHANNEL_SCHEMAS,
+    CNDE_SCHEMA,
     INT_MAX,
     METADATA_NAME,
     OLD_FORMATS,
+    REALTIME_STREAM,
     SCHEMAS,
     STATE_KIND,
     TIME_MAX,
+    TOPIC_CALLS,
+    TOPIC_CNDE,
     TOPIC_CONNECTIONS,
     TOPIC_FRAMES,
     TOPIC_PROBLEMS,
+    TOPIC_REALTIME,
     TOPIC_STATE,
 )
-from .records import ConnectionRecord, FrameRecord, Frames, ProblemRecord, StateRecord
+from .records import (
+    CallRecord,
+    CndeRecord,
+    ConnectionRecord,
+    FrameRecord,
+    Frames,
+    ProblemRecord,
+    StateRecord,
+)
 from .salvage import MAGIC, Damage, Walk
 from .traffic_pb import decode_traffic
 
@@ -65,6 +81,13 @@ class Recording:
     #: For each of :attr:`problems`, the frames read before it: the file's order of the
     #: two (whose a malformed run is rests on it: conformance/judge/blame.py).
     problems_at: tuple[int, ...] = ()
+    #: The SDKs' channels: XML-RPC calls (``/fairino/calls``), CNDE frames
+    #: (``/fairino/cnde``), 20004 packets (``/fairino/realtime``), in file order, and their
+    #: problems (``kind`` ``xmlrpc``, ``cnde``, ``realtime``), kept apart from the others.
+    calls: tuple[CallRecord, ...] = ()
+    cnde: tuple[CndeRecord, ...] = ()
+    realtime: tuple[StateRecord, ...] = ()
+    channel_problems: tuple[ProblemRecord, ...] = ()
 
     @property
     def start_ns(self) -> int:
@@ -80,6 +103,20 @@ class Recording:
 
     def requests(self) -> list[FrameRecord]:
         return [f for f in self.frames if f.dir == C2S]
+
+    @property
+    def empty(self) -> bool:
+        """Nothing was recorded: no frame, problem, state packet, call or CNDE frame."""
+        return not (
+            self.frames
+            or self.problems
+            or self.states
+            or self.state_problems
+            or self.calls
+            or self.cnde
+            or self.realtime
+            or self.channel_problems
+        )
 
 
 #: The ranges of a recording's integers (:data:`~.layout.INT_MAX`, :data:`~.layout.TIME_MAX`).
@@ -113,9 +150,12 @@ def _misfit(v: Any, schema: Mapping[str, Any], name: str, top: int = _INT_MAX) -
         )
         if not ok:
             return f"{name} is {_kind(v)}, not {' or '.join(allowed)}"
-        if type(v) is int and not 0 <= v <= top:
+        lo, hi = _bounds(schema, top)
+        if type(v) is int and not lo <= v <= hi:
             if top == _TIME_MAX:
                 return f"{name} is {v}, not a time in ns from 1970 to 2106"
+            if (lo, hi) != (0, _INT_MAX):
+                return f"{name} is {v}, not within {lo}..{hi}"
             return f"{name} is {v}, not a non-negative 64-bit integer"
     if "enum" in schema and v not in schema["enum"]:
         return f"{name} is {str(v)[:40]!r}, not one of {', '.join(schema['enum'])}"
@@ -137,6 +177,12 @@ def _misfit(v: Any, schema: Mapping[str, Any], name: str, top: int = _INT_MAX) -
     return None
 
 
+def _bounds(schema: Mapping[str, Any], top: int) -> tuple[int, int]:
+    """An integer's range: the schema's ``minimum`` and ``maximum`` where it states them,
+    else 0 and ``top``."""
+    return int(schema.get("minimum", 0)), int(schema.get("maximum", top))
+
+
 def _fits(schema: Mapping[str, Any], top: int = _INT_MAX) -> Callable[[Any], bool]:
     """A quick yes or no to ``_misfit(v, schema) is None`` (the reader asks it of every
     message; :func:`_misfit` says what is wrong only after a no): the schema compiled
@@ -148,7 +194,8 @@ def _fits(schema: Mapping[str, Any], top: int = _INT_MAX) -> Callable[[Any], boo
         values = frozenset(schema["enum"])
         return lambda v: type(v) is str and v in values
     if allowed == {"integer"}:
-        return lambda v: type(v) is int and 0 <= v <= top
+        lo, hi = _bounds(schema, top)
+        return lambda v: type(v) is int and lo <= v <= hi
     if allowed == {"string"}:
         return lambda v: type(v) is str
     if allowed == {"string", "null"}:
@@ -188,7 +235,7 @@ def _object_fits(schema: Mapping[str, Any]) -> Callable[[Any], bool]:
     columns of integers or text) and each group checked in a loop of its own, inline:
     the reader asks this of every message."""
     required = tuple(schema.get("required", ()))
-    ints: list[tuple[str, int]] = []
+    ints: list[tuple[str, int, int]] = []
     texts: list[str] = []
     enums: list[tuple[str, frozenset[str]]] = []
     int_cols: list[tuple[str, int]] = []
@@ -201,7 +248,7 @@ def _object_fits(schema: Mapping[str, Any]) -> Callable[[Any], bool]:
         if "enum" in sub:
             enums.append((k, frozenset(sub["enum"])))
         elif t == "integer":
-            ints.append((k, top))
+            ints.append((k, *_bounds(sub, top)))
         elif t == "string":
             texts.append(k)
         elif it == "integer" and "enum" not in sub["items"]:
@@ -219,9 +266,9 @@ def _object_fits(schema: Mapping[str, Any]) -> Callable[[Any], bool]:
         for k in required:
             if k not in v:
                 return False
-        for k, top in ints:
-            x = v.get(k, 0)
-            if type(x) is not int or not 0 <= x <= top:
+        for k, lo, top in ints:
+            x = v.get(k, lo)
+            if type(x) is not int or not lo <= x <= top:
                 return False
         for k in texts:
             if type(v.get(k, "")) is not str:
@@ -265,15 +312,20 @@ _INT = frozenset({int})
 _SCHEMA_OF_TOPIC = {
     TOPIC_PROBLEMS: SCHEMAS["fairino.Problem"],
     TOPIC_CONNECTIONS: SCHEMAS["fairino.Connection"],
+    TOPIC_CALLS: CHANNEL_SCHEMAS[CALL_SCHEMA],
+    TOPIC_CNDE: CHANNEL_SCHEMAS[CNDE_SCHEMA],
 }
 
 
 _FITS = {topic: _fits(schema) for topic, schema in _SCHEMA_OF_TOPIC.items()}
 #: Every topic the reader reads (a message on any other is not the reader's: skipped, unnamed).
-READ_TOPICS = frozenset((*_SCHEMA_OF_TOPIC, TOPIC_STATE, TOPIC_FRAMES))
+READ_TOPICS = frozenset((*_SCHEMA_OF_TOPIC, TOPIC_STATE, TOPIC_REALTIME, TOPIC_FRAMES))
+
+#: A record of one JSON message.
+JsonRecord = ProblemRecord | ConnectionRecord | StateRecord | CallRecord | CndeRecord
 
 
-def _record_of(topic: str, doc: Any) -> ProblemRecord | ConnectionRecord | StateRecord:
+def _record_of(topic: str, doc: Any) -> JsonRecord:
     """The record of one JSON message on one of the recording's topics, its JSON checked
     against the topic's schema first (:data:`~.layout.SCHEMAS`): a ``ValueError``
     saying what does not fit."""
@@ -282,18 +334,24 @@ def _record_of(topic: str, doc: Any) -> ProblemRecord | ConnectionRecord | State
     try:
         if topic == TOPIC_STATE:  # its schema comes from the spec set's state layouts
             return StateRecord.from_json(doc)
+        if topic == TOPIC_REALTIME:  # and this one from the 20004 layouts
+            return StateRecord.from_json(doc, stream=REALTIME_STREAM)
         if not _FITS[topic](doc):
             why = _misfit(doc, _SCHEMA_OF_TOPIC[topic], "the message")
             raise ValueError(why or "it does not fit its schema")
         if topic == TOPIC_PROBLEMS:
             return ProblemRecord.from_json(doc)
+        if topic == TOPIC_CALLS:
+            return CallRecord.from_json(doc)
+        if topic == TOPIC_CNDE:
+            return CndeRecord.from_json(doc)
         return ConnectionRecord.from_json(doc)
-    except (binascii.Error, KeyError, TypeError) as e:
+    except (binascii.Error, KeyError, TypeError, AttributeError) as e:
         raise ValueError(f"{type(e).__name__}: {e}") from None
 
 
 #: The records of one message (:func:`read_message`).
-Read = list[FrameRecord] | ProblemRecord | ConnectionRecord | StateRecord
+Read = list[FrameRecord] | JsonRecord
 
 
 def read_message(topic: str, data: bytes, *, protobuf: bool) -> tuple[Read | None, str]:
@@ -355,7 +413,7 @@ def _channel(c: Any, topics: dict[int, str], protobuf: set[int]) -> None:
 
 
 #: What :meth:`RecordingReader.items` gives: a batch of frames, or another record.
-Item = Frames | ProblemRecord | ConnectionRecord | StateRecord
+Item = Frames | JsonRecord
 
 
 class RecordingReader:
@@ -457,18 +515,28 @@ def read_recording(path: str | os.PathLike[str]) -> Recording:
     conns: list[ConnectionRecord] = []
     states: list[StateRecord] = []
     state_problems: list[ProblemRecord] = []
+    calls: list[CallRecord] = []
+    cnde: list[CndeRecord] = []
+    realtime: list[StateRecord] = []
+    channel_problems: list[ProblemRecord] = []
     for got in reader.items():
         if isinstance(got, Frames):
             frames += got.records()
         elif isinstance(got, ProblemRecord):
-            # The state decoder's problems apart from the command port's.
+            # The state decoder's and the SDK channels' problems apart from the command port's.
             if got.kind == STATE_KIND:
                 state_problems.append(got)
+            elif got.kind in CHANNEL_KINDS:
+                channel_problems.append(got)
             else:
                 problems.append(got)
                 problems_at.append(len(frames))
         elif isinstance(got, StateRecord):
-            states.append(got)
+            (realtime if got.realtime else states).append(got)
+        elif isinstance(got, CallRecord):
+            calls.append(got)
+        elif isinstance(got, CndeRecord):
+            cnde.append(got)
         else:
             conns.append(got)
     return Recording(
@@ -483,4 +551,8 @@ def read_recording(path: str | os.PathLike[str]) -> Recording:
         states=tuple(states),
         state_problems=tuple(state_problems),
         problems_at=tuple(problems_at),
+        calls=tuple(calls),
+        cnde=tuple(cnde),
+        realtime=tuple(realtime),
+        channel_problems=tuple(channel_problems),
     )
