@@ -241,3 +241,18 @@ def test_channel_port_options_are_checked(
     assert "--no-sdk-channels" in capsys.readouterr().err
     assert main([*argv, "--xmlrpc-port", "9", "--cnde-port", "9"]) == 2
     assert "port 9 is both xmlrpc and cnde" in capsys.readouterr().err
+
+
+def test_naming_the_ports_to_take_leaves_the_channel_defaults_out(
+    recording: Path, tmp_path: Path
+) -> None:
+    """``--port`` names the ports to take: only those (the SDKs' by default otherwise)."""
+    assert main(["export-pcap", str(recording), "-o", str(tmp_path / "w.pcap")]) == 0
+    only = tmp_path / "only.mcap"
+    assert main(["import-pcap", str(tmp_path / "w.pcap"), "-o", str(only), "--port", "8080"]) == 0
+    assert not read_recording(only).calls
+    named = tmp_path / "named.mcap"
+    argv = ["import-pcap", str(tmp_path / "w.pcap"), "-o", str(named), "--port", "8080"]
+    assert main([*argv, "--xmlrpc-port", "20003"]) == 0
+    r = read_recording(named)
+    assert len(r.calls) == len(CALLS) and not r.cnde

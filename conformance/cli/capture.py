@@ -567,7 +567,8 @@ def add_channel_ports(p: argparse.ArgumentParser) -> None:
             action="append",
             default=[],
             metavar="PORT",
-            help=f"the SDKs' {what} port (default {port}; repeatable)",
+            help=f"the SDKs' {what} port (default {port}, unless --port, --udp-port or "
+            "--state-port names the ports to take; repeatable)",
         )
     p.add_argument(
         "--no-sdk-channels",
@@ -578,8 +579,10 @@ def add_channel_ports(p: argparse.ArgumentParser) -> None:
 
 
 def channel_ports_of(args: argparse.Namespace) -> dict[int, str]:
-    """The SDK channels' ports by kind, from :func:`add_channel_ports`' options; a port named
-    twice is a :class:`UsageError`."""
+    """The SDK channels' ports by kind, from :func:`add_channel_ports`' options: those named;
+    else none with ``--no-sdk-channels`` or when ``--port``, ``--udp-port`` or
+    ``--state-port`` names the ports to take (only the ports given, as for frames); else the
+    SDKs' 20003, 20004 and 20005.  A port named twice is a :class:`UsageError`."""
     from ..pcap.packets import DEFAULT_CHANNEL_PORTS
 
     given = {
@@ -587,26 +590,25 @@ def channel_ports_of(args: argparse.Namespace) -> dict[int, str]:
         "cnde": args.cnde_port,
         "realtime": args.realtime_port,
     }
+    named = any(given.values())
     if args.no_sdk_channels:
-        if any(given.values()):
+        if named:
             raise UsageError(
                 "--no-sdk-channels takes no --xmlrpc-port, --cnde-port or --realtime-port"
             )
         return {}
-    default = {k: p for p, k in DEFAULT_CHANNEL_PORTS.items()}
+    if not named:
+        if args.port or args.udp_port or args.state_port:
+            return {}
+        return dict(DEFAULT_CHANNEL_PORTS)
     out: dict[int, str] = {}
     for kind, ports in given.items():
-        for port in ports or [default[kind]]:
+        for port in ports:
             if port in out and out[port] != kind:
                 raise UsageError(f"port {port} is both {out[port]} and {kind}")
             out[port] = kind
-    taken = set(args.port) | set(args.state_port)
-    clash = sorted(taken & set(out))
-    if clash and not any(given.values()):
-        # A command port named on an SDK port: the named role wins over the default one.
-        for port in clash:
-            del out[port]
-    elif clash:
+    clash = sorted((set(args.port) | set(args.state_port)) & set(out))
+    if clash:
         raise UsageError(f"port {clash[0]} is named twice (a channel port and --port/--state-port)")
     return out
 

@@ -438,7 +438,9 @@ class CallJudge:
                             message=f"the reply is no XML-RPC response: {detail}",
                         )
                     )
-            if not findings and not reading.refused_by_rpc:
+            # A refusal of what no recorded request shows (a reply alone) blames no one.
+            unknown = reading.kind == "reply" and reading.method is None
+            if not findings and not reading.refused_by_rpc and not unknown:
                 findings.append(
                     Finding(
                         rule="xmlrpc_fault",

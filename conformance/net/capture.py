@@ -44,7 +44,7 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 
 from ..errors import CaptureError, ConformanceError, UsageError
-from ..pcap.packets import DEFAULT_CHANNEL_PORTS, DLT_EN10MB, DLT_RAW
+from ..pcap.packets import DLT_EN10MB, DLT_RAW
 from ..pcap.recorder import PacketRecorder
 from ..recording.rotating import RotatingWriter
 from ..recording.writer import default_metadata
@@ -297,14 +297,14 @@ class LiveCapture:
         tick: float = 0.01,
         state_ports: Iterable[int] = (),
         metadata: Mapping[str, str] | None = None,
-        channel_ports: Mapping[int, str] = DEFAULT_CHANNEL_PORTS,
+        channel_ports: Mapping[int, str] | None = None,
     ) -> None:
         self.tcp_ports, self.udp_ports = frozenset(tcp_ports), frozenset(udp_ports)
         #: The state port's (8083): recorded as state packets on /fairino/state.
         self.state_ports = frozenset(state_ports)
-        #: The SDKs' channels (20003, 20004, 20005 by default), recorded as calls, realtime
-        #: packets and CNDE frames.
-        self.channel_ports = dict(channel_ports)
+        #: The SDKs' channels, recorded as calls, realtime packets and CNDE frames: none
+        #: unless given (the ``capture`` command gives 20003, 20004 and 20005 by default).
+        self.channel_ports = dict(channel_ports or {})
         bad = sorted(
             p
             for p in self.tcp_ports | self.udp_ports | self.state_ports | set(self.channel_ports)
