@@ -11,6 +11,7 @@ on a clock: the proxy is ready when it says so on stderr, and stopped when it ex
 from __future__ import annotations
 
 import contextlib
+import json
 import math
 import signal
 import socket
@@ -550,3 +551,58 @@ def test_capture_records_the_sdk_channels_it_is_given(tmp_path: Path) -> None:
     assert [c.method for c in rec.calls] == ["MoveJ", "GetActualJointPosDegree"]
     assert [c.value for c in rec.calls] == [0, [0, *TARGET]]
     assert st.calls == 2 and rec.metadata["channel_ports"] == f"xmlrpc:{port}"
+
+
+def test_serve_host_judges_an_sdk_application_s_calls_per_command(tmp_path: Path) -> None:
+    """``serve --host`` plays every port; the application's XML-RPC calls are judged per
+    command (a bad one and introspection caught, the others counted); it stops after
+    --max-frames calls, the event waited on."""
+    host = "127.0.32.11"
+    report_path = tmp_path / "client.json"
+    cmd = [sys.executable, "-m", "conformance", "serve", "--host", host, "--max-frames", "5"]
+    proc = subprocess.Popen(
+        [*cmd, "--report-json", str(report_path), "--verdicts", str(tmp_path / "v.jsonl")],
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    assert proc.stdout is not None
+    line = proc.stdout.readline()
+    assert f"XML-RPC {host}:20003" in line and f"CNDE {host}:20005" in line, line
+    rpc: Any = xmlrpc.client.ServerProxy(f"http://{host}:20003")
+    assert rpc.GetControllerIP() == [0, host]
+    assert rpc.MoveJ(*MOVEJ) == 0
+    assert rpc.SetSpeed(300) == 4  # the twin refuses it as the judge does
+    with pytest.raises(xmlrpc.client.Fault):
+        rpc.system.listMethods()
+    assert rpc.GetActualJointPosDegree(1)[1:] == TARGET
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 1, err
+    from conformance.report.model import load_report
+
+    report = load_report(str(report_path))  # a case's ID names its method (ID 0 has many)
+    failing = {(c.id, c.group) for c in report.cases if c.outcome is Outcome.FAIL}
+    assert failing == {
+        ("206/SetSpeed/client/xmlrpc/xmlrpc-1", "client-xmlrpc"),
+        ("0/system.listMethods/client/xmlrpc/xmlrpc-1", "client-xmlrpc"),
+    }
+    passing = {(c.id, c.count) for c in report.cases if c.outcome is Outcome.PASS}
+    assert {
+        ("201/MoveJ/client/xmlrpc/conforming", 1),
+        ("375/GetActualJointPosDegree/client/xmlrpc/conforming", 1),
+        ("0/GetControllerIP/client/xmlrpc/conforming", 1),
+    } <= passing
+    speed = next(c for c in report.cases if c.cmd_id == 206)
+    assert "SetSpeed(300)" in speed.reproduce and f"http://{host}:20003" in speed.reproduce
+    assert speed.frames == (">> XMLRPC SetSpeed(300)",)
+    assert report.meta["frames_by_transport"] == {"xmlrpc": 5}
+    lines = [json.loads(x) for x in (tmp_path / "v.jsonl").read_text().splitlines()]
+    assert [x["method"] for x in lines] == [
+        "GetControllerIP",
+        "MoveJ",
+        "SetSpeed",
+        "system.listMethods",
+        "GetActualJointPosDegree",
+    ]
+    assert all(x["kind"] == "call" for x in lines)
