@@ -380,3 +380,34 @@ def test_the_reply_alone_record_has_no_request(tmp_path: Path) -> None:
     rec = record(tmp_path / "a.mcap", "xmlrpc", [(S2C, reply(0))])
     (c,) = rec.calls
     assert isinstance(c, CallRecord) and not c.has_request and c.value == 0 and c.seq is None
+
+
+def test_an_unfinished_recording_of_the_channels_is_recovered_whole(tmp_path: Path) -> None:
+    """A proxy killed mid-session leaves an unfinished file: recover keeps every call, CNDE
+    frame and 20004 packet flushed before (their topics and schemas too)."""
+    from conformance.recording.repair import recover
+
+    path = tmp_path / "killed.mcap"
+    w = RecordingWriter(path)
+    rec = StreamRecorder(w)
+    rec.open(1, t_ns=1, stream="xmlrpc")
+    for k, (q, p) in enumerate(zip(SESSION_C2S, SESSION_S2C, strict=True)):
+        rec.data(1, C2S, 10 + k, q)
+        rec.data(1, S2C, 20 + k, p)
+    rec.open(2, t_ns=30, stream="cnde")
+    c2s, s2c = cnde_session()
+    rec.data(2, C2S, 31, c2s)
+    rec.data(2, S2C, 32, s2c)
+    rec.write_held()
+    w.flush()  # then the process dies: no summary, no footer
+    w._file.close()  # type: ignore[union-attr]
+    result = recover(path, tmp_path / "fixed.mcap")
+    assert not result.was_complete
+    r = read_recording(tmp_path / "fixed.mcap")
+    assert [c.method for c in r.calls] == [
+        "GetControllerIP",
+        "MoveJ",
+        "GetActualJointPosDegree",
+        None,
+    ]
+    assert [f.kind for f in r.cnde].count("OUTPUT_STATE") == 3
