@@ -80,8 +80,10 @@ READINGS = (
     "unreadable",
     "reply",
 )
-#: The most distinct calls whose verdicts are remembered.
+#: The most distinct calls whose verdicts are remembered, and the longest parameters (as
+#: text) a remembered call has.
 MEMO = 65_536
+MEMO_KEY = 2048
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -302,7 +304,10 @@ class CallJudge:
     ) -> tuple[CallReading, Verdict]:
         """A call's reading and its request's verdict; ``error``: why its body is no call
         (the recorder's ``request_error``).  Remembered per distinct call."""
-        key = (method, repr(params), error)
+        shown = repr(params)
+        if len(shown) > MEMO_KEY:  # a large call is judged afresh: the memo stays small
+            return self._request(method, params, error)
+        key = (method, shown, error)
         got = self._memo.get(key)
         if got is None:
             got = self._request(method, params, error)
