@@ -4,7 +4,7 @@ The session is the python SDK's (its constructor configures CNDE on 20005 and st
 then asks GetControllerIP over XML-RPC; then an application's ordinary calls, StopMove on
 8080), made with the standard library's ``xmlrpc.client`` and raw sockets against the
 proxy, which forwards every controller port to the twin.  The controller's ports are
-fixed, so each test module has loopback addresses of its own (127.0.32.N).  Nothing waits
+fixed, so each test worker has loopback addresses of its own (127.0.32+W.N).  Nothing waits
 on a clock: the proxy is ready when it says so on stderr, and stopped when it exits.
 """
 
@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import json
 import math
+import os
 import signal
 import socket
 import subprocess
@@ -51,8 +52,17 @@ from conformance.spec.state import state_decoder
 from conformance.twin.kinematics.robots import robot
 
 REPO = Path(__file__).resolve().parent.parent
-UPSTREAM = "127.0.32.1"  # the twin's ports
-PROXY = "127.0.32.2"  # where the application connects
+
+
+def loopback(n: int) -> str:
+    """This test worker's loopback address ``n``: the controller's ports are fixed, and the
+    pytest-xdist workers may each run a test of this module at once (127.0.32+W.n)."""
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw")
+    return f"127.0.{32 + int(worker) if worker.isdigit() else 32}.{n}"
+
+
+UPSTREAM = loopback(1)  # the twin's ports
+PROXY = loopback(2)  # where the application connects
 WAIT = 20.0
 TARGET = [10.0, -80.0, 95.0, -100.0, -90.0, 5.0]
 MOVEJ = (TARGET, [0.0] * 6, 0, 0, 20.0, 0.0, 100.0, [0.0] * 4, -1.0, 0, [0.0] * 6)
@@ -296,18 +306,19 @@ def test_replay_against_a_fresh_twin_has_nothing_unmatched(session: Session) -> 
 def test_replay_against_another_controller_names_what_changed(session: Session) -> None:
     """The session replayed against a fake controller (faults seeded): each reply that is
     not the recorded one's shape is unmatched and named; an address (volatile) is not."""
-    fake = FakeController("127.0.32.7")
+    other = loopback(7)
+    fake = FakeController(other)
     try:
         r = replay_calls(
             session.recording,
-            "127.0.32.7",
+            other,
             20003,
             specs=load_spec_version("3.8.2"),
-            safety=SafetyPolicy.for_target("127.0.32.7"),
+            safety=SafetyPolicy.for_target(other),
         )
     finally:
         fake.close()
-    assert r.calls["GetControllerIP"].matched == 1  # [0, '127.0.32.5']: another address, volatile
+    assert r.calls["GetControllerIP"].matched == 1  # [0, '10.0.0.5']: another address, volatile
     movej = r.calls["MoveJ"].differences
     assert [d.kind for d in movej][-1] == "shape" and "a fault now (recorded a value)" in movej[
         -1
@@ -325,7 +336,7 @@ def test_replay_against_another_controller_names_what_changed(session: Session) 
 def hostile(tmp_path_factory: pytest.TempPathFactory) -> tuple[Recording, dict[str, Any]]:
     """Bad input through the proxy: malformed XML, an unknown method, wrong types, a huge
     body, a client that stalls mid-request while another is served."""
-    up, px = "127.0.32.3", "127.0.32.4"
+    up, px = loopback(3), loopback(4)
     out = tmp_path_factory.mktemp("hostile") / "bad.mcap"
     got: dict[str, Any] = {}
     # A request may take 0.5 s from its first byte to its last (a slowloris is cut then).
@@ -431,7 +442,7 @@ class FakeController:
     with faults seeded: the kit must catch each one and blame its command."""
 
     ANSWERS: ClassVar[dict[str, bytes]] = {
-        "GetControllerIP": xmlrpc.client.dumps(([0, "127.0.32.5"],), methodresponse=True).encode(),
+        "GetControllerIP": xmlrpc.client.dumps(([0, "10.0.0.5"],), methodresponse=True).encode(),
         # Ints where the SDKs read doubles (the C++ SDK throws): reply_shape on 375.
         "GetActualJointPosDegree": xmlrpc.client.dumps(
             ([0, 1, 2, 3, 4, 5, 6],), methodresponse=True
@@ -476,7 +487,7 @@ class FakeController:
 
 
 def test_a_fake_controller_s_seeded_faults_are_each_caught_and_blamed(tmp_path: Path) -> None:
-    fake_host, px = "127.0.32.5", "127.0.32.6"
+    fake_host, px = loopback(5), loopback(6)
     out = tmp_path / "fake.mcap"
     fake = FakeController(fake_host)
     try:
@@ -557,7 +568,7 @@ def test_serve_host_judges_an_sdk_application_s_calls_per_command(tmp_path: Path
     """``serve --host`` plays every port; the application's XML-RPC calls are judged per
     command (a bad one and introspection caught, the others counted); it stops after
     --max-frames calls, the event waited on."""
-    host = "127.0.32.11"
+    host = loopback(11)
     report_path = tmp_path / "client.json"
     cmd = [sys.executable, "-m", "conformance", "serve", "--host", host, "--max-frames", "5"]
     proc = subprocess.Popen(
