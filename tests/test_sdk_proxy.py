@@ -71,17 +71,12 @@ MOVEJ = (TARGET, [0.0] * 6, 0, 0, 20.0, 0.0, 100.0, [0.0] * 4, -1.0, 0, [0.0] * 
 @contextlib.contextmanager
 def proxy_on(host: str, upstream: str, out: Path, *extra: str) -> Iterator[subprocess.Popen[str]]:
     """``proxy --host host --upstream-host upstream -o out``, ready once it says so; stopped
-    by SIGINT, as a user stops it, when the block ends."""
-    cmd = [
-        sys.executable,
-        "-m",
-        "conformance",
-        "proxy",
-        "--host",
-        host,
-        "--upstream-host",
-        upstream,
-    ]
+    by SIGINT, as a user stops it, when the block ends.  Its recorder decodes all it is
+    behind on before it stops (``--stop-timeout``: on a busy machine the recorder, which runs
+    at the lowest priority, may be seconds behind, and the CLI's default of 1 s would keep
+    the rest as undecoded bytes: all there, but not as calls)."""
+    cmd = [sys.executable, "-m", "conformance", "proxy", "--host", host]
+    cmd += ["--upstream-host", upstream, "--stop-timeout", "300"]
     proc = subprocess.Popen(
         [*cmd, "-o", str(out), *extra], cwd=REPO, stderr=subprocess.PIPE, text=True
     )

@@ -209,7 +209,7 @@ def run(sdk: Path, host: str) -> int:
 
 def start_proxy(host: str, upstream: str, out: Path) -> subprocess.Popen[str]:
     """``proxy --host host --upstream-host upstream``, once it says it listens."""
-    cmd = [sys.executable, "-m", "conformance", "proxy", "--host", host]
+    cmd = [sys.executable, "-m", "conformance", "proxy", "--host", host, "--stop-timeout", "60"]
     proc = subprocess.Popen(
         [*cmd, "--upstream-host", upstream, "-o", str(out)],
         cwd=REPO,

@@ -69,17 +69,6 @@ __all__ = [
 #: The command ID a call is reported under when its method has no command (the method's
 #: name tells them apart in the case's ID).
 CALL_ID = 0
-#: Reading kinds (see the module).
-READINGS = (
-    "introspection",
-    "unknown",
-    "parameters",
-    "dialect",
-    "command",
-    "none",
-    "unreadable",
-    "reply",
-)
 #: The most distinct calls whose verdicts are remembered, and the longest parameters (as
 #: text) a remembered call has.
 MEMO = 65_536

@@ -104,20 +104,6 @@ class Recording:
     def requests(self) -> list[FrameRecord]:
         return [f for f in self.frames if f.dir == C2S]
 
-    @property
-    def empty(self) -> bool:
-        """Nothing was recorded: no frame, problem, state packet, call or CNDE frame."""
-        return not (
-            self.frames
-            or self.problems
-            or self.states
-            or self.state_problems
-            or self.calls
-            or self.cnde
-            or self.realtime
-            or self.channel_problems
-        )
-
 
 #: The ranges of a recording's integers (:data:`~.layout.INT_MAX`, :data:`~.layout.TIME_MAX`).
 _INT_MAX = INT_MAX

@@ -466,13 +466,6 @@ def value_from_json(d: Any) -> XmlRpcValue:
     raise ValueError(f"{type(d).__name__} is no XML-RPC value")
 
 
-#: A call record's reply: its value, a fault, an error (HTTP or a body that is not
-#: XML-RPC), none before the connection closed (``missing``), written in a record of its
-#: own (``separate``), or not known to be this call's (``unknown``: pairing was lost at a
-#: gap in a capture).
-REPLY_KINDS = ("value", "fault", "error", "missing", "separate", "unknown")
-
-
 @dataclass(frozen=True, kw_only=True)
 class CallRecord:
     """One XML-RPC call on port 20003 (topic ``/fairino/calls``): the request (method,
@@ -499,7 +492,9 @@ class CallRecord:
     request_offset: int | None = None
     request_first_ns: int | None = None
     request_ns: int | None = None
-    #: One of :data:`REPLY_KINDS`.
+    #: The reply: ``value``, ``fault``, ``error`` (an HTTP status other than 200, or a body
+    #: that is no response), ``missing`` (none before the connection closed), ``separate``
+    #: (in a record of its own) or ``unknown`` (pairing was lost at a gap in a capture).
     reply: str = "missing"
     #: The reply's HTTP status (None: no reply).
     status: int | None = None

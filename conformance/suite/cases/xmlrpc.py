@@ -39,7 +39,6 @@ from ..strategies import BOUNDS, bounds_applies, invalid_calls, invalid_kinds, v
 from .shared import run_examples
 
 __all__ = [
-    "XMLRPC_KINDS",
     "call_methods",
     "run_call_example",
     "run_call_invalid",
@@ -47,9 +46,6 @@ __all__ = [
     "xmlrpc_invalid_kinds",
 ]
 
-#: The invalid kinds over XML-RPC (``range``/``bounds`` from the table; ``count``, ``type``
-#: of the XML-RPC parameters themselves).
-XMLRPC_KINDS = ("count", "type", "range", BOUNDS)
 _EXPECTED = {
     "count": ERR_ARG_COUNT,
     "type": ERR_ARG_VALUE,
