@@ -425,7 +425,7 @@ def _with_bad_messages(path: Path, *, flip: int = 0) -> Path:
     return path
 
 
-@pytest.mark.parametrize("flip", [0, 4000, 5000, 7000])
+@pytest.mark.parametrize("flip", [0, 4000, 5000, 7250])
 def test_messages_that_do_not_read_or_fit_are_read_in_windows(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, flip: int
 ) -> None:

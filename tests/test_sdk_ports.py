@@ -125,7 +125,24 @@ class Cnde:
         return self.layout.unpack(f.data)
 
     def fresh_state(self) -> dict[str, object]:
-        """A state frame sent after this call (the next but one: one may be on its way)."""
+        """A state frame whose state was read after this call: what the socket holds already
+        is dropped (a busy machine reads slower than the port sends, and frames queue), then
+        the next but one (the port's thread reads the state, then sends: one frame may have
+        been read before this call and be on its way)."""
+        self.frames.clear()
+        self.sock.setblocking(False)
+        try:
+            while True:
+                try:
+                    data = self.sock.recv(65536)
+                except BlockingIOError:
+                    break
+                assert data, "the CNDE port closed the connection"
+                self.dec.feed(data)
+        finally:
+            self.sock.settimeout(WAIT)
+        if self.dec.buffered:  # the rest of a frame sent before this call is still to come
+            self.state()
         self.state()
         return self.state()
 

@@ -15,6 +15,12 @@ inverse getters, SetDO then GetDO (which the SDK reads from CNDE), GetDI, the to
 the soft limits, motion done, the error code, ResetAllError, StopMove (sent on 8080).
 Each call's return is printed with the state that follows; exit 1 if any is not 0, 2 if
 the SDK cannot be imported or the emulator does not start.
+
+``--proxy ADDR`` puts ``fairino-conformance proxy --host ADDR --upstream-host HOST`` between
+the SDK and the twin (the SDK is given ADDR: an application only changes the address it
+connects to), and afterwards reads the recording (``--out PATH`` keeps it): ``info``'s
+XML-RPC figures, ``check``'s verdict per command, and ``replay`` of the calls against a
+fresh twin (how many replies did not match).
 """
 
 from __future__ import annotations
@@ -24,6 +30,7 @@ import contextlib
 import io
 import math
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -106,7 +113,7 @@ def run(sdk: Path, host: str) -> int:
     except Exception as e:
         print(f"sdk_demo: cannot import the SDK from {sdk}/linux/fairino: {e}", file=sys.stderr)
         return 2
-    print(f"SDK: {sdk} ({Robot.RPC.__module__}); twin: fairino-conformance emulate --host {host}")
+    print(f"SDK: {sdk} ({Robot.RPC.__module__}); connecting to {host}")
     out = io.StringIO()
     t0 = time.monotonic()
     with contextlib.redirect_stdout(out):
@@ -200,12 +207,81 @@ def run(sdk: Path, host: str) -> int:
     return 1 if d.failed else 0
 
 
+def start_proxy(host: str, upstream: str, out: Path) -> subprocess.Popen[str]:
+    """``proxy --host host --upstream-host upstream``, once it says it listens."""
+    cmd = [sys.executable, "-m", "conformance", "proxy", "--host", host, "--stop-timeout", "60"]
+    proc = subprocess.Popen(
+        [*cmd, "--upstream-host", upstream, "-o", str(out)],
+        cwd=REPO,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    assert proc.stderr is not None
+    line = proc.stderr.readline()
+    if "listening" not in line:
+        proc.kill()
+        raise SystemExit(f"sdk_demo: the proxy did not start: {line}{proc.stderr.read()}")
+    print(line.strip())
+    return proc
+
+
+def read_back(out: Path, proxy_words: str) -> int:
+    """What the recording holds: info's XML-RPC figures, check, replay to a fresh twin."""
+    sys.path.insert(0, str(REPO))
+    from conformance.net.emulator import EmulatorServer
+    from conformance.offline.check import check_recording
+    from conformance.offline.info import summarize
+    from conformance.offline.replay import replay_calls
+    from conformance.recording.reader import read_recording
+    from conformance.spec.commands import default_specs
+    from conformance.spec.safety import SafetyPolicy
+
+    print(proxy_words.strip())
+    specs = default_specs()
+    rec = read_recording(out)
+    info = summarize(rec, specs)
+    x = info["xmlrpc"]
+    streams = sorted({c.stream or "8080" for c in rec.connections if c.event == "open"})
+    print(
+        f"recording {out}: {len(rec.calls)} XML-RPC calls ({len(x['methods'])} methods, "
+        f"{x['faults']} faults, {x['error_replies']} error replies), {len(rec.cnde)} CNDE frames, "
+        f"{len(rec.frames)} text frames, {len(rec.realtime)} realtime and {len(rec.states)} "
+        f"state packets; connections on {', '.join(streams)}; damage: {len(rec.damage)}"
+    )
+    report = check_recording(rec, specs)
+    fails = [c for c in report.cases if report.fails(c.outcome)]
+    calls = [c for c in report.cases if "/xmlrpc-" in c.id]
+    print(
+        f"check: {len(calls)} cases of XML-RPC calls over {len({c.cmd_id for c in calls})} "
+        f"command IDs, {len(fails)} failing"
+    )
+    for c in fails[:10]:
+        print(f"  FAIL {c.id}: {c.detail}")
+    with EmulatorServer(port=0, xmlrpc_port=0) as fresh:
+        assert fresh.xmlrpc_address is not None
+        h, p = fresh.xmlrpc_address
+        r = replay_calls(rec, h, p, specs=specs, safety=SafetyPolicy.for_target(h))
+    sent = sum(c.sent for c in r.calls.values())
+    print(f"replay against a fresh twin: {sent} calls resent, {r.unmatched} unmatched")
+    for cr in r.calls.values():
+        for d in cr.differences[:2]:
+            print(f"  {d.kind}: {d.detail}")
+    return 1 if fails or r.unmatched or rec.damage else 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sdk", type=Path, required=True, help="a fairino-python-sdk checkout")
     ap.add_argument(
         "--host", default="127.0.0.7", help="the twin's address (a loopback of its own)"
     )
+    ap.add_argument(
+        "--proxy",
+        metavar="ADDR",
+        help="record the SDK through proxy --host ADDR (a loopback of its own), then read "
+        "the recording back (info, check, replay)",
+    )
+    ap.add_argument("--out", type=Path, help="with --proxy: keep the recording here")
     args = ap.parse_args(argv)
     if not (args.sdk / "linux" / "fairino" / "Robot.py").is_file():
         print(f"sdk_demo: no linux/fairino/Robot.py under {args.sdk}", file=sys.stderr)
@@ -221,8 +297,14 @@ def main(argv: list[str] | None = None) -> int:
                 return 2
             log.seek(0)
             print(log.readline().strip())
+            out = args.out.resolve() if args.out else Path(tmp) / "sdk.mcap"
+            proxy = start_proxy(args.proxy, args.host, out) if args.proxy else None
             os.chdir(tmp)  # whatever the SDK writes (logs) stays out of the checkout
-            rc = run(args.sdk, args.host)
+            rc = run(args.sdk, args.proxy or args.host)
+            if proxy is not None:
+                proxy.send_signal(signal.SIGINT)
+                words = proxy.communicate(timeout=60)[1]
+                rc = max(rc, read_back(out, words))
         finally:
             emu.terminate()
             with contextlib.suppress(subprocess.TimeoutExpired):

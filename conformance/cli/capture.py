@@ -11,10 +11,11 @@ import signal
 import sys
 import threading
 import time
+from collections.abc import Collection
 from typing import Any
 
 from ..errors import UsageError
-from ..net.addresses import Address, format_address, parse_address
+from ..net.addresses import CONTROLLER_PORTS, Address, format_address, parse_address
 from ..net.proxy_base import STATE_BACKLOG_SHARE
 from ..net.server import DEFAULT_MAX_STATE_CONNECTIONS
 from ..protocol.frame import DEFAULT_MAX_FRAME_SIZE
@@ -68,15 +69,28 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser(
         "proxy",
         help="record traffic between a client and a controller to MCAP",
-        description="Forward TCP (and with --udp, UDP) traffic and record every frame to MCAP.",
+        description="Forward TCP (and with --udp, UDP) traffic and record every frame to MCAP. "
+        "With --host ADDR --upstream-host ROBOT: every port a controller has, at once (8080, "
+        "20007/udp, 8083, and the SDKs' XML-RPC 20003, realtime 20004, CNDE 20005), so that "
+        "an SDK application only changes the address it connects to (docs/sdk-channels.md).",
     )
     p.add_argument(
-        "--listen", default="127.0.0.1:18080", help="address to listen on (default 127.0.0.1:18080)"
+        "--host",
+        metavar="ADDR",
+        help="listen on every controller port of ADDR (a loopback address of its own, or "
+        "an interface's): 8080, 20007/udp, 8083, 20003, 20004, 20005 (with --upstream-host; "
+        "instead of --listen, --udp*, --state*)",
     )
+    p.add_argument(
+        "--upstream-host",
+        metavar="ROBOT",
+        help="the controller whose ports --host forwards to (the same port numbers)",
+    )
+    p.add_argument("--listen", default=None, help="address to listen on (default 127.0.0.1:18080)")
     p.add_argument(
         "--upstream",
-        required=True,
-        help="controller address HOST:PORT (port 8080 on a real controller)",
+        help="controller address HOST:PORT (port 8080 on a real controller); "
+        "or --host with --upstream-host",
     )
     p.add_argument("--out", "-o", required=True, help="MCAP file to write")
     p.add_argument("--udp", action="store_true", help="proxy the UDP transport too")
@@ -224,6 +238,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         help="controller state port (8083 status feedback): its packets recorded on "
         "/fairino/state (repeatable; default none)",
     )
+    add_channel_ports(cp)
     cp.add_argument("--out", "-o", required=True, help="MCAP file to write")
     cp.add_argument("--split-size", type=_split_size, metavar="SIZE", help=_SPLIT_SIZE_HELP)
     cp.add_argument(
@@ -288,6 +303,47 @@ def _side_ports(
     return up_addr, local_addr
 
 
+def _host_ports(args: argparse.Namespace) -> dict[str, Any]:
+    """``--host ADDR --upstream-host ROBOT``: every controller port of ADDR forwarded to the
+    same port of ROBOT (RecordingProxy keywords)."""
+    if args.upstream_host is None:
+        raise UsageError("--host needs --upstream-host ROBOT (the controller to forward to)")
+    given = [
+        flag
+        for flag, v in (
+            ("--listen", args.listen),
+            ("--upstream", args.upstream),
+            ("--udp", args.udp or None),
+            ("--udp-listen", args.udp_listen),
+            ("--udp-upstream", args.udp_upstream),
+            ("--state-listen", args.state_listen),
+            ("--state-upstream", args.state_upstream),
+        )
+        if v is not None
+    ]
+    if given:
+        raise UsageError(f"--host forwards every port: leave out {', '.join(given)}")
+    host_addr = parse_address(args.host, default_port=0, listen=True, option="--host")
+    robot_addr = parse_address(args.upstream_host, default_port=0, option="--upstream-host")
+    for flag, a in (("--host", host_addr), ("--upstream-host", robot_addr)):
+        if a.port:
+            raise UsageError(
+                f"{flag} takes an address without a port (the controller's ports are fixed)"
+            )
+    host, robot = host_addr.host, robot_addr.host
+    ports = CONTROLLER_PORTS
+    return {
+        "listen": (host, ports["tcp"]),
+        "upstream": (robot, ports["tcp"]),
+        "udp_listen": (host, ports["udp"]),
+        "udp_upstream": (robot, ports["udp"]),
+        "channels": {
+            k: ((host, ports[k]), (robot, ports[k]))
+            for k in ("state", "xmlrpc", "realtime", "cnde")
+        },
+    }
+
+
 def _run_proxy(args: argparse.Namespace) -> int:
     from ..net.proxy import RecordingProxy
 
@@ -295,21 +351,36 @@ def _run_proxy(args: argparse.Namespace) -> int:
         raise UsageError("--max-state-connections must be at least 1")
     if args.max_unrecorded < 1:
         raise UsageError("--max-unrecorded must be at least 1 byte")
-
-    listen = parse_address(args.listen, default_port=18080, listen=True, option="--listen")
-    upstream = parse_address(args.upstream, default_port=8080, option="--upstream")
     udp_upstream = udp_listen = None
-    if args.udp or args.udp_upstream is not None or args.udp_listen is not None:
-        udp_upstream, udp_listen = _side_ports(
-            upstream, listen, (args.udp_upstream, 20007, "--udp-upstream"),
-            (args.udp_listen, 20007, "--udp-listen"),
-        )  # fmt: skip
     state_upstream = state_listen = None
-    if args.state_upstream is not None or args.state_listen is not None:
-        state_upstream, state_listen = _side_ports(
-            upstream, listen, (args.state_upstream, 8083, "--state-upstream"),
-            (args.state_listen, 18083, "--state-listen"),
-        )  # fmt: skip
+    channels: dict[str, Any] = {}
+    if args.host is not None:
+        where = _host_ports(args)
+        listen, upstream = where["listen"], where["upstream"]
+        udp_listen, udp_upstream = where["udp_listen"], where["udp_upstream"]
+        channels = where["channels"]
+    else:
+        if args.upstream_host is not None:
+            raise UsageError("--upstream-host goes with --host ADDR (where to listen)")
+        if args.upstream is None:
+            raise UsageError("give --upstream HOST:PORT, or --host ADDR --upstream-host ROBOT")
+        listen = parse_address(
+            "127.0.0.1:18080" if args.listen is None else args.listen,
+            default_port=18080,
+            listen=True,
+            option="--listen",
+        )
+        upstream = parse_address(args.upstream, default_port=8080, option="--upstream")
+        if args.udp or args.udp_upstream is not None or args.udp_listen is not None:
+            udp_upstream, udp_listen = _side_ports(
+                upstream, listen, (args.udp_upstream, 20007, "--udp-upstream"),
+                (args.udp_listen, 20007, "--udp-listen"),
+            )  # fmt: skip
+        if args.state_upstream is not None or args.state_listen is not None:
+            state_upstream, state_listen = _side_ports(
+                upstream, listen, (args.state_upstream, 8083, "--state-upstream"),
+                (args.state_listen, 18083, "--state-listen"),
+            )  # fmt: skip
     specs = specs_of(args)
     on_frame = None
     if args.print_frames:
@@ -346,6 +417,7 @@ def _run_proxy(args: argparse.Namespace) -> int:
             udp_listen=udp_listen,
             state_upstream=state_upstream,
             state_listen=state_listen,
+            channels=channels,
             specs=specs,
             split_size=args.split_size,
             split_duration=args.split_duration,
@@ -373,11 +445,15 @@ def _run_proxy(args: argparse.Namespace) -> int:
     # long for the recorder thread when a frame arrives.
     sys.setswitchinterval(min(sys.getswitchinterval(), 0.0002))
     proxy.start()
-    msg = f"proxy: listening on {format_address(*proxy.address)} -> {upstream}"
+    msg = f"proxy: listening on {format_address(*proxy.address)} -> {format_address(*upstream)}"
     if proxy.udp_address and udp_upstream:
-        msg += f" (udp {format_address(*proxy.udp_address)} -> {udp_upstream})"
+        msg += f" (udp {format_address(*proxy.udp_address)} -> {format_address(*udp_upstream)})"
     if proxy.state_address and state_upstream:
         msg += f" (state {format_address(*proxy.state_address)} -> {state_upstream})"
+    for kind in ("state", "xmlrpc", "realtime", "cnde"):
+        where_k = proxy.channel_address(kind)
+        if kind in channels and where_k is not None:
+            msg += f" ({kind} {format_address(*where_k)} -> {format_address(*channels[kind][1])})"
     print(msg + f", recording to {args.out}", file=sys.stderr, flush=True)
     failure: BaseException | None = None
     try:
@@ -396,7 +472,8 @@ def _run_proxy(args: argparse.Namespace) -> int:
             proxy.close()
         except Exception as e:
             failure = e
-    print(stop_line(proxy, state=state_upstream is not None), file=sys.stderr)
+    state_on = state_upstream is not None or "state" in channels
+    print(stop_line(proxy, state=state_on, channels=channels), file=sys.stderr)
     if proxy.max_unrecorded is not None and proxy.error is not None:
         print(
             f"proxy: {proxy.unrecorded} bytes were forwarded that the file does not hold "
@@ -415,7 +492,7 @@ def _run_proxy(args: argparse.Namespace) -> int:
     return 0
 
 
-def stop_line(proxy: Any, *, state: bool) -> str:
+def stop_line(proxy: Any, *, state: bool, channels: Collection[str] = ()) -> str:
     """The proxy's last line: connections (those refused, by which limit), what was
     recorded, and every byte that is not in the file as a frame or a state packet: not
     recorded at all, recorded undecoded, or the state port's damage."""
@@ -439,17 +516,23 @@ def stop_line(proxy: Any, *, state: bool) -> str:
             f"; {rec.undecoded} bytes recorded undecoded (the recorder was still behind "
             "after --stop-timeout: problems with rule undecoded)"
         )
-    states = ""
-    if state:
-        states = f"and {rec.state_packets} state packets "
-        if rec.state_damaged:
-            states += (
-                f"({rec.state_damaged} bytes of the state port were no packet: garbage, cut "
-                "packets or the client's bytes, recorded as problems; check names them) "
-            )
+    damaged = ""
+    if state and rec.state_damaged:
+        damaged = (
+            f" ({rec.state_damaged} bytes of the state port were no packet: garbage, cut "
+            "packets or the client's bytes, recorded as problems; check names them)"
+        )
+    sides = [
+        ("state_packets", f"state packets{damaged}", state),
+        ("calls", "XML-RPC calls", "xmlrpc" in channels),
+        ("cnde_frames", "CNDE frames", "cnde" in channels),
+        ("realtime_packets", "realtime packets", "realtime" in channels),
+    ]
+    shown = ", ".join(f"{getattr(rec, n)} {what}" for n, what, on in sides if on)
     return (
         f"proxy: stopped; {st.connections} connections{extra}, {proxy.frames_recorded} frames "
-        f"{states}recorded to {', '.join(proxy.paths)}"
+        + (f"and {shown} " if shown else "")
+        + f"recorded to {', '.join(proxy.paths)}"
     )
 
 
@@ -503,6 +586,17 @@ def _write_failed(proxy: Any, args: argparse.Namespace, said: float) -> float | 
 _LABEL = re.compile(r"[^\x00-\x1f\x7f]{1,128}")
 
 
+def channel_counts(st: Any) -> str:
+    """The SDK channels' records a recorder made (``calls``, ``cnde_frames``,
+    ``realtime_packets``), as a summary line's words; empty for none."""
+    parts = [
+        (st.calls, "XML-RPC call"),
+        (st.cnde_frames, "CNDE frame"),
+        (st.realtime_packets, "realtime packet"),
+    ]
+    return "".join(f"{n} {what}{'s' if n != 1 else ''}, " for n, what in parts if n)
+
+
 def add_label_options(p: argparse.ArgumentParser) -> None:
     """``--robot`` and ``--cell`` of ``proxy``, ``capture`` and ``import-pcap``: written to the
     recording's metadata, where ``export-parquet`` finds the robot a recording is of."""
@@ -533,15 +627,78 @@ def labels_of(args: argparse.Namespace) -> dict[str, str]:
 
 
 def check_ports(args: argparse.Namespace) -> None:
-    """``--port``, ``--udp-port`` and ``--state-port`` of ``capture`` and ``import-pcap``."""
+    """``--port``, ``--udp-port``, ``--state-port`` and the SDK channels' ports of
+    ``capture`` and ``import-pcap``."""
     for flag, ports in (
         ("--port", args.port),
         ("--udp-port", args.udp_port),
         ("--state-port", args.state_port),
+        ("--xmlrpc-port", args.xmlrpc_port),
+        ("--cnde-port", args.cnde_port),
+        ("--realtime-port", args.realtime_port),
     ):
         for port in ports:
             if not 0 < port < 65536:
                 raise UsageError(f"{flag} {port}: a port is 1..65535")
+
+
+def add_channel_ports(p: argparse.ArgumentParser) -> None:
+    """The SDK channels' ports of ``capture`` and ``import-pcap`` (docs/sdk-channels.md)."""
+    for flag, port, what in (
+        ("--xmlrpc-port", 20003, "XML-RPC (calls on /fairino/calls)"),
+        ("--cnde-port", 20005, "CNDE (frames on /fairino/cnde)"),
+        ("--realtime-port", 20004, "the realtime push (packets on /fairino/realtime)"),
+    ):
+        p.add_argument(
+            flag,
+            type=int,
+            action="append",
+            default=[],
+            metavar="PORT",
+            help=f"the SDKs' {what} port (default {port}, unless --port, --udp-port or "
+            "--state-port names the ports to take; repeatable)",
+        )
+    p.add_argument(
+        "--no-sdk-channels",
+        action="store_true",
+        help="record no SDK channel (by default 20003, 20004 and 20005 are recorded as "
+        "XML-RPC, realtime and CNDE)",
+    )
+
+
+def channel_ports_of(args: argparse.Namespace) -> dict[int, str]:
+    """The SDK channels' ports by kind, from :func:`add_channel_ports`' options: those named;
+    else none with ``--no-sdk-channels`` or when ``--port``, ``--udp-port`` or
+    ``--state-port`` names the ports to take (only the ports given, as for frames); else the
+    SDKs' 20003, 20004 and 20005.  A port named twice is a :class:`UsageError`."""
+    from ..pcap.packets import DEFAULT_CHANNEL_PORTS
+
+    given = {
+        "xmlrpc": args.xmlrpc_port,
+        "cnde": args.cnde_port,
+        "realtime": args.realtime_port,
+    }
+    named = any(given.values())
+    if args.no_sdk_channels:
+        if named:
+            raise UsageError(
+                "--no-sdk-channels takes no --xmlrpc-port, --cnde-port or --realtime-port"
+            )
+        return {}
+    if not named:
+        if args.port or args.udp_port or args.state_port:
+            return {}
+        return dict(DEFAULT_CHANNEL_PORTS)
+    out: dict[int, str] = {}
+    for kind, ports in given.items():
+        for port in ports:
+            if port in out and out[port] != kind:
+                raise UsageError(f"port {port} is both {out[port]} and {kind}")
+            out[port] = kind
+    clash = sorted((set(args.port) | set(args.state_port)) & set(out))
+    if clash:
+        raise UsageError(f"port {clash[0]} is named twice (a channel port and --port/--state-port)")
+    return out
 
 
 def _run_capture(args: argparse.Namespace) -> int:
@@ -563,6 +720,7 @@ def _run_capture(args: argparse.Namespace) -> int:
         split_duration=args.split_duration,
         state_ports=tuple(args.state_port),
         metadata=labels_of(args),
+        channel_ports=channel_ports_of(args),
     )
     stop = threading.Event()
     old = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
@@ -572,6 +730,7 @@ def _run_capture(args: argparse.Namespace) -> int:
             [f"tcp {p}" for p in tports]
             + [f"udp {p}" for p in uports]
             + [f"state {p}" for p in args.state_port]
+            + [f"{k} {p}" for p, k in sorted(cap.channel_ports.items())]
         )
         print(
             f"capture: listening on {args.iface} ({ports}), recording to {args.out}",
@@ -598,6 +757,7 @@ def _run_capture(args: argparse.Namespace) -> int:
         f"capture: stopped; {st.packets} packets ({st.ignored} not ours), {st.connections} "
         f"connections, {st.frames} frames, "
         + (f"{st.state_packets} state packets, " if args.state_port else "")
+        + channel_counts(st)
         + f"{st.problems} problems recorded to "
         f"{', '.join(st.paths)}{drops}",
         file=sys.stderr,

@@ -19,7 +19,7 @@ from ..errors import UsageError
 from ..judge.judge import Judge, Verdict
 from ..judge.verdict import REFERENCE_ENV, Reference, reference_from
 from ..protocol.frame import Frame, Malformed
-from ..recording.records import FrameRecord, ProblemRecord
+from ..recording.records import CallRecord, FrameRecord, ProblemRecord, value_to_json
 from ..spec.commands import SpecSet
 from ..spec.dialects import DIALECTS_ENV, dialects_from
 
@@ -90,14 +90,29 @@ def malformed_line(raw: bytes, verdict: Verdict, **extra: object) -> str:
 
 
 def verdict_line(
-    frame: FrameRecord | Frame | Malformed | ProblemRecord, verdict: Verdict, **extra: object
+    frame: FrameRecord | Frame | Malformed | ProblemRecord | CallRecord,
+    verdict: Verdict,
+    **extra: object,
 ) -> str:
-    """One frame and its verdict as a JSON line (``check --verdicts``, ``serve --verdicts``).
+    """One frame and its verdict as a JSON line (``check --verdicts``, ``serve --verdicts``);
+    an XML-RPC call's request or reply (``kind`` ``call``: its method and parameters).
 
     The same keys from every front-end, so that their outputs compare line for line.
     """
     if isinstance(frame, (Malformed, ProblemRecord)):
         return malformed_line(frame.raw, verdict, **extra)
+    if isinstance(frame, CallRecord):
+        call: dict[str, object] = {
+            "kind": "call",
+            "dir": verdict.direction.value,
+            "seq": frame.seq,
+            "method": frame.method,
+            "params": None if frame.params is None else [value_to_json(p) for p in frame.params],
+            "reply": frame.reply,
+            **extra,
+            **verdict.to_json(),
+        }
+        return json.dumps(call, ensure_ascii=False)
     doc: dict[str, object] = {
         "kind": "frame",
         "dir": verdict.direction.value,

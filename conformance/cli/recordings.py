@@ -25,7 +25,15 @@ from ..offline.replay import NOT_RECORDED
 from ..pcap.importer import opened, read_capture
 from ..protocol.frame import DEFAULT_MAX_FRAME_SIZE, Frame
 from ..recording.repair import recover
-from .capture import add_label_options, check_ports, labels_of, parse_size
+from .capture import (
+    add_channel_ports,
+    add_label_options,
+    channel_counts,
+    channel_ports_of,
+    check_ports,
+    labels_of,
+    parse_size,
+)
 from .judging import add_judge_options, judge_from, verdict_line
 from .judging import verdict_sink as _verdict_sink
 from .safety import add_safety_options
@@ -105,7 +113,8 @@ def _register_more(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
         "replay",
         help="resend a recording's requests to a target and compare, or serve its replies",
         description="With --target: resend the client's frames and compare the replies with the "
-        "recorded ones. With --serve: answer a client with the recorded replies.",
+        "recorded ones, and the SDKs' XML-RPC calls to the target's --xmlrpc-port. With "
+        "--serve: answer a client with the recorded replies.",
     )
     rp.add_argument("capture", help="the MCAP recording")
     mode = rp.add_mutually_exclusive_group(required=True)
@@ -136,6 +145,14 @@ def _register_more(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
         help="--target: resend the recording's UDP sessions to this port of the target's host "
         "(without it they are left out); --serve: answer them on this UDP port of the --serve "
         "host (0: the kernel chooses; TCP then answers from the TCP sessions only)",
+    )
+    rp.add_argument(
+        "--xmlrpc-port",
+        type=int,
+        default=20003,
+        metavar="PORT",
+        help="--target: resend the recording's XML-RPC calls to this port of the target's "
+        "host (default 20003, the SDKs'; 0: leave them out)",
     )
     rp.add_argument("--json", metavar="PATH", help="write the comparison as JSON (- for stdout)")
     rp.add_argument(
@@ -233,6 +250,7 @@ def _register_more(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
         help="controller state port (8083 status feedback): its packets recorded on "
         "/fairino/state (repeatable; default none)",
     )
+    add_channel_ports(ip)
     add_specs_dir(ip)
     add_label_options(ip)
     ip.set_defaults(func=_run_import_pcap)
@@ -360,7 +378,7 @@ def _state_player(args: argparse.Namespace, rec: Any) -> Any:
 def _run_replay(args: argparse.Namespace) -> int:
     from ..net.replay_server import ReplayServer
     from ..offline.diff import Ignore
-    from ..offline.replay import ReplyBook, replay_to_target
+    from ..offline.replay import ReplyBook, replay_calls, replay_to_target
     from .safety import safety_policy
 
     if args.serve is None and (args.state_serve is not None or args.state_loop):
@@ -469,7 +487,10 @@ def _run_replay(args: argparse.Namespace) -> int:
         )
         return 0
     host, port = address
+    if not 0 <= args.xmlrpc_port < 65536:
+        raise UsageError(f"--xmlrpc-port must be 0..65535, not {args.xmlrpc_port}")
     safety = safety_policy(args, host)
+    judge = judge_from(args, specs)
     result = replay_to_target(
         rec,
         host,
@@ -479,17 +500,37 @@ def _run_replay(args: argparse.Namespace) -> int:
         timing=args.timing,
         timeout=args.timeout,
         ignore=ignore,
-        judge=judge_from(args, specs),
+        judge=judge,
         udp_port=args.udp_port,
     )
+    if rec.calls and args.xmlrpc_port:
+        replay_calls(
+            rec,
+            host,
+            args.xmlrpc_port,
+            specs=specs,
+            safety=safety,
+            timeout=args.timeout,
+            ignore=ignore,
+            judge=judge,
+            result=result,
+        )
     report = result.to_report(specs.spec_version)
     if args.json:
         _write_json(args.json, result.to_json())
     if args.json != "-":
         print(report.render_terminal())
         for k in sorted(result.differing_ids):
-            for d in result.commands[k].differences[:3]:
-                print(f"  {k} {d.kind}: {d.detail}")
+            named = list(result.commands[k].differences[:3]) if k in result.commands else []
+            for cr in result.calls.values():
+                if cr.cmd_id == k:
+                    named += cr.differences[:3]
+            for diff in named[:6]:
+                print(f"  {k} {diff.kind}: {diff.detail}")
+        if rec.calls and args.xmlrpc_port:
+            sent = sum(c.sent for c in result.calls.values())
+            bad = sum(c.differing for c in result.calls.values())
+            print(f"replay: {sent} XML-RPC calls resent to {result.xmlrpc_target}, {bad} unmatched")
     return 1 if result.differing_ids else 0
 
 
@@ -537,12 +578,14 @@ def _run_import_pcap(args: argparse.Namespace) -> int:
         damage=damage,
         state_ports=tuple(args.state_port),
         metadata=labels_of(args),
+        channel_ports=channel_ports_of(args),
     )
     dt = time.perf_counter() - t0
     print(
         f"imported {st.packets} packets ({st.ignored} not ours) in {dt:.2f} s: "
         f"{st.connections} connections, {st.frames} frames, "
         + (f"{st.state_packets} state packets, " if args.state_port else "")
+        + channel_counts(st)
         + f"{st.problems} problems, "
         f"{st.retransmitted_bytes} retransmitted bytes dropped -> {args.out}"
     )

@@ -12,7 +12,7 @@ from collections.abc import Iterator
 from typing import Any
 
 from ..errors import EXIT_ERROR, EXIT_INTERRUPTED, EXIT_OK, EmulatorError, UsageError
-from ..net.addresses import format_address, parse_address
+from ..net.addresses import CONTROLLER_PORTS, format_address, parse_address
 from ..twin.faults import parse_fault
 from .specs_option import add_specs_dir, spec_choice_of
 
@@ -225,22 +225,12 @@ def _state_port(args: argparse.Namespace, host: str, port: int) -> int | None:
     return sport
 
 
-#: The ports ``emulate --host`` serves: a controller's (the SDKs' own channels
-#: specs/fairino-field/channels/ and specs/*/xmlrpc.json; the manual's 8080 and 20007, 8083).
-CONTROLLER_PORTS = {
-    "tcp": 8080,
-    "udp": 20007,
-    "state": 8083,
-    "xmlrpc": 20003,
-    "realtime": 20004,
-    "cnde": 20005,
-}
-
-
 def _host_ports(args: argparse.Namespace) -> dict[str, Any]:
-    """``--host ADDR``: every controller port on ADDR (EmulatorServer keywords)."""
+    """``--host ADDR``: every controller port on ADDR (EmulatorServer keywords; ``serve``
+    plays the newest 20004 layout, ``emulate`` the one ``--realtime-layout`` names)."""
+    layout = getattr(args, "realtime_layout", None)
     if args.host is None:
-        if args.realtime_layout is not None:
+        if layout is not None:
             raise UsageError("--realtime-layout goes with --host (the 20004 port)")
         return {}
     if any(v is not None for v in (args.listen, args.udp, args.state_listen)):
@@ -254,7 +244,7 @@ def _host_ports(args: argparse.Namespace) -> dict[str, Any]:
         "xmlrpc_port": CONTROLLER_PORTS["xmlrpc"],
         "realtime_port": CONTROLLER_PORTS["realtime"],
         "cnde_port": CONTROLLER_PORTS["cnde"],
-        "realtime_version": args.realtime_layout,
+        "realtime_version": layout,
     }
 
 
@@ -460,12 +450,21 @@ def _add_serve(sub: Any) -> None:
         "serve",
         help="client mode: play the controller and validate every frame a client sends",
         description="Play the controller (the emulator) and report, per command ID, how the "
-        "connecting client departs from the protocol. Stops on Ctrl-C, --duration or "
+        "connecting client departs from the protocol; with --host, on every port a controller "
+        "has, the SDKs' XML-RPC calls judged per command too. Stops on Ctrl-C, --duration or "
         "--max-frames (SIGTERM too); the report is written in every case. A client "
         "cannot stop it: a connection the kit fails on is closed and blamed on the command "
         "ID of the frame that caused it. Exit code 0 conformant, 1 departures, 2 error.",
     )
-    p.add_argument("--listen", default="127.0.0.1:8080", help="TCP HOST:PORT")
+    p.add_argument(
+        "--host",
+        default=None,
+        metavar="ADDR",
+        help="play every port a controller has on ADDR (8080, 20007/udp, 8083, and the SDKs' "
+        "XML-RPC 20003, realtime 20004, CNDE 20005) and judge an SDK application's XML-RPC "
+        "calls per command too (instead of --listen, --udp and --state-listen)",
+    )
+    p.add_argument("--listen", default=None, help="TCP HOST:PORT (default 127.0.0.1:8080)")
     p.add_argument("--udp", default=None, metavar="HOST:PORT", help="also listen on UDP")
     p.add_argument(
         "--state-listen",
@@ -507,8 +506,17 @@ def _serve(args: argparse.Namespace) -> int:
     from ..report.write import check_report_paths, write_reports
     from ..suite.spec_choice import note_spec
 
-    host, port, udp_port = _listen_addresses(args)
-    state_port = _state_port(args, host, port)  # the state port too, as emulate serves it
+    ports = _host_ports(args)
+    if ports:
+        host, port, udp_port, state_port = (
+            ports.pop("host"),
+            ports.pop("port"),
+            ports.pop("udp_port"),
+            ports.pop("state_port"),
+        )
+    else:
+        host, port, udp_port = _listen_addresses(args)
+        state_port = _state_port(args, host, port)  # the state port too, as emulate serves it
     check_report_paths({"--report-json": args.report_json, "--report-html": args.report_html})
     from ..errors import SpecError
     from ..spec.state import layout_for
@@ -540,7 +548,7 @@ def _serve(args: argparse.Namespace) -> int:
 
     validator = ClientValidator(
         specs,
-        target=f"client of {args.listen}",
+        target=f"client of {args.host or args.listen or '127.0.0.1:8080'}",
         strict=args.strict,
         judge=emulation["judge"],
         on_verdict=on_verdict,
@@ -554,11 +562,17 @@ def _serve(args: argparse.Namespace) -> int:
         on_close=validator.connection_closed,
         state_port=state_port,
         state_version=args.state_version,
+        xmlrpc_observer=(lambda peer, body, answer: validator.observe_call(peer, body, answer))
+        if ports
+        else None,
+        **ports,
         **limits,
         **emulation,
     )
     server.start()
     validator.target = f"client of {format_address(*server.address)}"
+    if server.xmlrpc_address is not None:
+        validator.xmlrpc_target = format_address(*server.xmlrpc_address)
     deadline = None if args.duration is None else time.monotonic() + args.duration
     failure: str | None = None
     with _interrupts() as interrupted:
@@ -567,6 +581,13 @@ def _serve(args: argparse.Namespace) -> int:
             if server.state_address is not None:
                 v = server.controller.state_version
                 udp += f", state port {format_address(*server.state_address)} (v{v} layout)"
+            for what, addr in (
+                ("XML-RPC", server.xmlrpc_address),
+                ("realtime", server.realtime_address),
+                ("CNDE", server.cnde_address),
+            ):
+                if addr is not None:
+                    udp += f", {what} {format_address(*addr)}"
             where = format_address(*server.address)
             print(f"playing the controller on {where}{udp}; Ctrl-C to stop", flush=True)
             while deadline is None or time.monotonic() < deadline:

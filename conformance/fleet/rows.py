@@ -2,7 +2,8 @@
 engine's windows (:mod:`conformance.offline.engine`): each frame with the verdict
 ``check`` gives it, each exchange decided, each problem once decided (a controller's
 malformed run with the command ID of the request it answered), each state packet with the
-packets lost before it, each connection record.
+packets lost before it, each connection record, and each XML-RPC call with the verdicts of
+the one call judge (``calls``).
 
 :class:`Rows` is the engine's reading (:class:`~conformance.offline.engine.Reading`) for
 ``export-parquet``: a window's rows go to the tables as columns (the distinct verdicts'
@@ -11,12 +12,13 @@ per table."""
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
-from ..judge.judge import Verdict
+from ..judge.judge import Verdict, display_name
 from ..offline.engine import Engine, Judged
-from ..recording.records import ConnectionRecord, ProblemRecord, StateRecord
+from ..recording.records import ConnectionRecord, ProblemRecord, StateRecord, value_to_json
 from .schema import VERDICT_COLUMNS, verdict_columns
 from .table import Table
 
@@ -73,6 +75,7 @@ class Rows:
         self._exchanges(j)
         self._problems(j)
         self._states(j.states)
+        self._calls(j)
         for conn in j.ended:
             self.ports.pop(conn, None)
         # What the window's arrays took goes back (mimalloc, Arrow's default, keeps freed
@@ -232,6 +235,47 @@ class Rows:
                     0 if gap == 255 else gap,
                 )
             )
+
+    def _calls(self, j: Judged) -> None:
+        table = self.tables["calls"]
+        for jc in j.calls:
+            c, q, p = jc.record, jc.request, jc.reply
+            v = q or p
+            name = (display_name(v) or v.name) if v is not None else c.method
+            code: int | None = None
+            if c.reply == "value":
+                first = c.value[0] if isinstance(c.value, list) and c.value else c.value
+                if type(first) is int and -(2**63) <= first < 2**63:
+                    code = first
+            table.add(
+                (
+                    c.transport,
+                    self.ports.get(c.conn),
+                    c.conn,
+                    c.seq,
+                    c.method,
+                    jc.reading.cmd_id,
+                    name,
+                    c.request_ns,
+                    c.reply_ns,
+                    c.latency_ns,
+                    c.reply,
+                    c.status,
+                    c.fault_code,
+                    code,
+                    q.outcome.value if q is not None else None,
+                    q.rule if q is not None else None,
+                    p.outcome.value if p is not None else None,
+                    p.rule if p is not None else None,
+                    bool(p is not None and p.refused),
+                    json.dumps([value_to_json(x) for x in c.params], ensure_ascii=False)
+                    if self.data and c.params is not None
+                    else None,
+                    c.reply == "missing" and c.has_request,
+                )
+            )
+            if c.first_ns:
+                self._time(c.first_ns)
 
 
 def _per_frame(values: Any, indices: Any) -> Any:

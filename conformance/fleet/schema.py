@@ -7,12 +7,15 @@ recording's start date (UTC) and its robot label::
     DIR/_recordings/<recording_id>.json             one per recording exported (the commit mark)
     DIR/frames/date=2026-01-01/robot=r03/<recording_id>.parquet
     DIR/exchanges/date=.../robot=.../<recording_id>.parquet
-    DIR/problems/...   DIR/connections/...   DIR/state/...
+    DIR/problems/...   DIR/connections/...   DIR/state/...   DIR/calls/...
 
 ``date`` and ``robot`` are the partition columns (in the path only, as hive partitioning
 has them; DuckDB's ``hive_partitioning`` and Spark read them back as columns).  Every
 file's key-value metadata carries ``fairino.schema_version``.  A change that removes or
-retypes a column raises :data:`SCHEMA_VERSION`; new columns at the end do not.
+retypes a column raises :data:`SCHEMA_VERSION`; new columns at the end do not, and nor does
+a new table: ``calls`` (the SDKs' XML-RPC calls, one row each) came with schema version 1
+still, so a dataset exported before it stays readable and appendable (its recordings have
+no ``calls`` files; the query views only the tables that have files).
 
 Times are ``timestamp[us, UTC]`` (microseconds: what Spark reads; Parquet's nanosecond
 timestamps it refuses); latencies are ``int64`` nanoseconds, the recordings' own precision.  Outcomes are the
@@ -121,6 +124,30 @@ COLUMNS: dict[str, tuple[tuple[str, str, str], ...]] = {
         ("upstream", "string", "HOST:PORT of the controller"),
         ("reason", "string", "why it closed"),
         ("stream", "string", "``state`` for a state-port (8083) connection"),
+    ),
+    "calls": (
+        *_RECORDING,
+        ("transport", "string", "tcp"),
+        ("port", "int64", "the controller's port (20003 on a controller); null: unknown"),
+        ("conn", "int64", "connection number within the recording"),
+        ("seq", "int64", "the call's number on its connection (from 1); null: a reply alone"),
+        ("method", "string", "the XML-RPC method; null: a body that is no call"),
+        ("cmd_id", "int64", "the command the call reads as (0: none), as check reports it"),
+        ("name", "string", "the name check shows (the command's, else the method's)"),
+        ("request_time", "timestamp", "the request's last byte; null: no request recorded"),
+        ("reply_time", "timestamp", "the reply's last byte; null: none"),
+        ("latency_ns", "int64", "the reply's last byte after the request's, in ns"),
+        ("reply", "string", "value, fault, error, missing, separate or unknown"),
+        ("status", "int64", "the reply's HTTP status; null: no reply"),
+        ("fault_code", "int64", "an XML-RPC fault's code; null: no fault"),
+        ("error_code", "int64", "the reply's error code (the int, or the array's first); null"),
+        ("request_outcome", "string", "the judge's outcome of the request; null: none"),
+        ("request_rule", "string", "the request's deciding rule"),
+        ("reply_outcome", "string", "of the reply; null: not judged"),
+        ("reply_rule", "string", "the reply's deciding rule"),
+        ("refused", "bool", "the reply says no (a non-zero error code, a fault)"),
+        ("params", "string", "the parameters as JSON (null unless --data)"),
+        ("missing_reply", "bool", "a request no reply was recorded for"),
     ),
     "state": (
         *_RECORDING,

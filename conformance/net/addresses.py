@@ -25,6 +25,7 @@ from typing import Any, NamedTuple
 from ..errors import AddressError
 
 __all__ = [
+    "CONTROLLER_PORTS",
     "LOOPBACK",
     "Address",
     "client_host",
@@ -35,6 +36,20 @@ __all__ = [
 
 #: The host of an address that names none (``:8080``).
 LOOPBACK = "127.0.0.1"
+
+#: The ports a controller serves, by what they carry: the manual's text port (TCP 8080,
+#: UDP 20007) and state port (8083), and the official SDKs' own channels
+#: (``specs/*/xmlrpc.json``, ``specs/fairino-field/channels/``): XML-RPC 20003, the
+#: realtime push 20004, CNDE 20005.  ``emulate --host`` serves them all, ``proxy --host``
+#: forwards them all.
+CONTROLLER_PORTS = {
+    "tcp": 8080,
+    "udp": 20007,
+    "state": 8083,
+    "xmlrpc": 20003,
+    "realtime": 20004,
+    "cnde": 20005,
+}
 
 # A hostname: dot-separated labels of letters, digits, '-' and '_' (RFC 1123, with the
 # '_' that real hostnames carry), at most 253 characters.

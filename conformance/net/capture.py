@@ -267,6 +267,10 @@ class CaptureStats:
     paths: tuple[str, ...]
     state_packets: int = 0
     unread: int = 0  # queued before a stop under load, left unread (STOP_DRAIN)
+    #: The SDKs' channels' records: XML-RPC calls, CNDE frames, 20004 packets.
+    calls: int = 0
+    cnde_frames: int = 0
+    realtime_packets: int = 0
 
 
 class LiveCapture:
@@ -293,12 +297,18 @@ class LiveCapture:
         tick: float = 0.01,
         state_ports: Iterable[int] = (),
         metadata: Mapping[str, str] | None = None,
+        channel_ports: Mapping[int, str] | None = None,
     ) -> None:
         self.tcp_ports, self.udp_ports = frozenset(tcp_ports), frozenset(udp_ports)
         #: The state port's (8083): recorded as state packets on /fairino/state.
         self.state_ports = frozenset(state_ports)
+        #: The SDKs' channels, recorded as calls, realtime packets and CNDE frames: none
+        #: unless given (the ``capture`` command gives 20003, 20004 and 20005 by default).
+        self.channel_ports = dict(channel_ports or {})
         bad = sorted(
-            p for p in self.tcp_ports | self.udp_ports | self.state_ports if not 0 < p < 65536
+            p
+            for p in self.tcp_ports | self.udp_ports | self.state_ports | set(self.channel_ports)
+            if not 0 < p < 65536
         )
         if bad:
             raise UsageError(f"a port is 1..65535, not {bad[0]}")
@@ -308,7 +318,9 @@ class LiveCapture:
         self.filtered = False
         program = (
             port_filter(
-                self.tcp_ports | self.state_ports, self.udp_ports, drop_outgoing=self.loopback
+                self.tcp_ports | self.state_ports | set(self.channel_ports),
+                self.udp_ports,
+                drop_outgoing=self.loopback,
             )
             if self.linktype == DLT_EN10MB
             else None
@@ -340,6 +352,10 @@ class LiveCapture:
         )
         if self.state_ports:
             md["state_ports"] = ",".join(map(str, sorted(self.state_ports)))
+        if self.channel_ports:
+            md["channel_ports"] = ",".join(
+                f"{k}:{p}" for p, k in sorted(self.channel_ports.items())
+            )
         md["upstream"] = ""
         md["listen"] = ""
         md.update(metadata or {})  # robot, cell
@@ -364,6 +380,7 @@ class LiveCapture:
             specs=specs,
             guess=False,
             state_ports=self.state_ports,
+            channel_ports=self.channel_ports,
         )
         self.flush_interval = flush_interval
         self.tick = tick
@@ -543,4 +560,7 @@ class LiveCapture:
             paths=tuple(self.writer.paths),
             state_packets=st.state_packets,
             unread=self.unread,
+            calls=st.calls,
+            cnde_frames=st.cnde_frames,
+            realtime_packets=st.realtime_packets,
         )

@@ -202,6 +202,7 @@ class EmulatorServer:
         realtime_version: str | None = None,
         controller_ip: str | None = None,
         xmlrpc_observer: CallObserver | None = None,
+        xmlrpc_request_timeout: float | None = None,
     ) -> None:
         self.controller = Controller(
             specs,
@@ -218,6 +219,9 @@ class EmulatorServer:
         self._sdk_ports = {"xmlrpc": xmlrpc_port, "cnde": cnde_port, "realtime": realtime_port}
         self._realtime_version = realtime_version
         self._xmlrpc_observer = xmlrpc_observer
+        #: Seconds an XML-RPC request may take from its first byte to its last (None: the
+        #: port's default, :data:`~.xmlrpc_port.REQUEST_TIMEOUT`).
+        self._xmlrpc_request_timeout = xmlrpc_request_timeout
         self.xmlrpc: XmlRpcController | None = None
         if xmlrpc_port is not None:
             from ..twin.xmlrpc import XmlRpcController
@@ -408,7 +412,7 @@ class EmulatorServer:
         from ..spec.cnde import cnde_catalogue
         from ..spec.realtime import realtime_layout
         from .cnde_port import CndePort
-        from .xmlrpc_port import XmlRpcPort
+        from .xmlrpc_port import REQUEST_TIMEOUT, XmlRpcPort
 
         ports: list[tuple[str, int, ListeningPort | StatePort]] = []
         if self._sdk_ports["xmlrpc"] is not None and self.xmlrpc is not None:
@@ -419,6 +423,7 @@ class EmulatorServer:
                 answer=xmlrpc.answer,
                 idle_timeout=self.idle_timeout,
                 observer=self._xmlrpc_observer,
+                request_timeout=self._xmlrpc_request_timeout or REQUEST_TIMEOUT,
             )
             ports.append(("TCP", self._sdk_ports["xmlrpc"], self.xmlrpc_port))
         if self._sdk_ports["cnde"] is not None:

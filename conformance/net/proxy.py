@@ -4,6 +4,13 @@ Put it between a client and a controller::
 
     client ──► proxy (127.0.0.1:18080) ──► controller (192.168.58.2:8080)
 
+Beside the command port it forwards, each on a listener of its own, the state port (8083)
+and the official SDKs' channels (``channels``: XML-RPC 20003, the realtime push 20004,
+CNDE 20005); ``proxy --host ADDR --upstream-host ROBOT`` listens on every controller port
+of ADDR at once, so that an SDK application only changes the address it connects to.
+Their bytes are forwarded as the command port's are; the recorder reads each connection
+as what its port carries (:meth:`~conformance.recording.StreamRecorder.open`'s ``stream``).
+
 One I/O thread moves the bytes with non-blocking sockets and a selector: it
 reads, takes the time, forwards, and only then appends ``(connection,
 direction, time, bytes)`` to a buffer that it writes, once per turn of its loop
@@ -70,6 +77,7 @@ import subprocess
 import threading
 import time
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from typing import Any
 
 from ..protocol.frame import DEFAULT_MAX_FRAME_SIZE
@@ -104,6 +112,17 @@ _READ = selectors.EVENT_READ
 _WRITE = selectors.EVENT_WRITE
 
 
+@dataclass(eq=False)
+class _Side:
+    """A port beside the command port: what its connections are (``stream``), where its
+    clients connect and where it forwards them."""
+
+    stream: str
+    upstream: tuple[str, int]
+    listener: socket.socket
+    address: tuple[str, int]
+
+
 class RecordingProxy(TcpForwarding, UdpForwarding):
     """A recording TCP (and optionally UDP) proxy; see the module docstring.
 
@@ -121,6 +140,7 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
         udp_listen: tuple[str, int] | None = None,
         state_upstream: tuple[str, int] | None = None,
         state_listen: tuple[str, int] | None = None,
+        channels: Mapping[str, tuple[tuple[str, int], tuple[str, int]]] | None = None,
         specs: SpecSet | None = None,
         metadata: Mapping[str, str] | None = None,
         split_size: int | None = None,
@@ -208,21 +228,25 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
             self._udp.bind(ul)
             self._udp.setblocking(False)
             self.udp_address = self._udp.getsockname()[:2]
-        # The state port (8083): a listener of its own, its connections recorded as state
-        # streams (one /fairino/state message a packet).
-        self._state_listener: socket.socket | None = None
-        self.state_address: tuple[str, int] | None = None
+        # The state port (8083) and the SDKs' channels: a listener each, their
+        # connections recorded as what the port carries (``stream``).
+        sides: dict[str, tuple[tuple[str, int], tuple[str, int]]] = {}
         if state_upstream is not None:
-            sl = state_listen or (listen[0], 0)
+            sides["state"] = (state_listen or (listen[0], 0), state_upstream)
+        for stream, (where, to) in (channels or {}).items():
+            if stream not in ("xmlrpc", "cnde", "realtime", "state") or stream in sides:
+                self._close_listeners()
+                raise ValueError(f"a channel is xmlrpc, cnde or realtime, once: not {stream!r}")
+            sides[stream] = (where, to)
+        self._sides: dict[str, _Side] = {}
+        for stream, (where, to) in sides.items():
             try:
-                self._state_listener = socket.create_server(sl, family=family(sl[0]), backlog=64)
+                sock = socket.create_server(where, family=family(where[0]), backlog=64)
             except OSError:
-                self._listener.close()
-                if self._udp is not None:
-                    self._udp.close()
+                self._close_listeners()
                 raise
-            self._state_listener.setblocking(False)
-            self.state_address = self._state_listener.getsockname()[:2]
+            sock.setblocking(False)
+            self._sides[stream] = _Side(stream, to, sock, sock.getsockname()[:2])
 
         md = dict(
             default_metadata(
@@ -234,9 +258,9 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
         if udp_upstream is not None and self.udp_address is not None:
             md["udp_upstream"] = format_sockaddr(udp_upstream)
             md["udp_listen"] = format_sockaddr(self.udp_address)
-        if state_upstream is not None and self.state_address is not None:
-            md["state_upstream"] = format_sockaddr(state_upstream)
-            md["state_listen"] = format_sockaddr(self.state_address)
+        for side in self._sides.values():
+            md[f"{side.stream}_upstream"] = format_sockaddr(side.upstream)
+            md[f"{side.stream}_listen"] = format_sockaddr(side.address)
         md.update(metadata or {})
         self.metadata = md
         self.out = os.fspath(out)
@@ -251,9 +275,7 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
             with open(first, "wb"):
                 pass
         except OSError:
-            for sock in (self._listener, self._udp, self._state_listener):
-                if sock is not None:
-                    sock.close()
+            self._close_listeners()
             raise
 
         self._sel = selectors.DefaultSelector()
@@ -274,6 +296,29 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
         self._next_deadlines = 0.0
         self._closed = False
 
+    def _close_listeners(self) -> None:
+        socks = [
+            self._listener,
+            self._udp,
+            *(s.listener for s in getattr(self, "_sides", {}).values()),
+        ]
+        for sock in socks:
+            if sock is not None:
+                with contextlib.suppress(OSError):
+                    sock.close()
+
+    @property
+    def state_address(self) -> tuple[str, int] | None:
+        """Where the state port's clients connect, if it is proxied."""
+        side = self._sides.get("state")
+        return side.address if side is not None else None
+
+    def channel_address(self, stream: str) -> tuple[str, int] | None:
+        """Where a channel's clients connect (``state``, ``xmlrpc``, ``cnde``, ``realtime``),
+        if it is proxied."""
+        side = self._sides.get(stream)
+        return side.address if side is not None else None
+
     def _failed(self, e: BaseException) -> None:
         """The recording's first failure is the one :meth:`close` raises."""
         if self.error is None:
@@ -284,8 +329,8 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
     def start(self) -> RecordingProxy:
         self._start_recorder()
         self._sel.register(self._listener, _READ, "listen")
-        if self._state_listener is not None:
-            self._sel.register(self._state_listener, _READ, "state-listen")
+        for side in self._sides.values():
+            self._sel.register(side.listener, _READ, side)
         self._sel.register(self._wake_r, _READ, "wake")
         if self._udp is not None:
             self._sel.register(self._udp, _READ, "udp")
@@ -443,8 +488,8 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
                             self._pair_failed(tag, e)
                     elif tag == "listen":
                         self._accept()
-                    elif tag == "state-listen":
-                        self._accept(state=True)
+                    elif type(tag) is _Side:
+                        self._accept(tag)
                     elif tag == "wake":
                         with contextlib.suppress(OSError):
                             self._wake_r.recv(64)
@@ -522,9 +567,8 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
         if paused != self._state_paused:
             self._set_state_paused(paused)
 
-    def _accept(self, *, state: bool = False) -> None:
-        listener = self._state_listener if state else self._listener
-        assert listener is not None
+    def _accept(self, side: _Side | None = None) -> None:
+        listener = side.listener if side is not None else self._listener
         for _ in range(64):
             try:
                 client, addr = listener.accept()
@@ -537,7 +581,7 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
                 # the listener is closing: nothing to record.
                 return
             try:
-                self._new_pair(client, addr, state=state)
+                self._new_pair(client, addr, side)
             except Exception as e:
                 with contextlib.suppress(OSError):
                     client.close()
@@ -546,16 +590,17 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
             if not self._listening:
                 return  # resting after a shortage (see _accept_failed)
 
-    def _new_pair(self, client: socket.socket, addr: Any, *, state: bool = False) -> None:
+    def _new_pair(self, client: socket.socket, addr: Any, side: _Side | None = None) -> None:
         client.setblocking(False)
         conn = self._new_conn()
         self.stats.connections += 1
         t = time.time_ns()
         target = self.upstream
-        if state:
-            assert self.state_upstream is not None and self.state_address is not None
-            target = self.state_upstream
-            payload = open_payload("tcp", addr, target, self.state_address, stream="state")
+        # The state port's connections have a limit and a backlog of their own.
+        state = side is not None and side.stream == "state"
+        if side is not None:
+            target = side.upstream
+            payload = open_payload("tcp", addr, target, side.address, stream=side.stream)
         else:
             payload = open_payload("tcp", addr, target, self.address)
         self._put(OPEN, conn, "", t, payload)
@@ -619,10 +664,9 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
         self.stats.accept_errors += 1
         self._accept_at = time.monotonic() + self._backoff.failed(e)
         if self._listening:
-            for sock in (self._listener, self._state_listener):
-                if sock is not None:
-                    with contextlib.suppress(KeyError, ValueError):
-                        self._sel.unregister(sock)
+            for sock in (self._listener, *(s.listener for s in self._sides.values())):
+                with contextlib.suppress(KeyError, ValueError):
+                    self._sel.unregister(sock)
             self._listening = False
         self._next_deadlines = min(self._next_deadlines, self._accept_at)
 
@@ -643,9 +687,9 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
         if not self._listening and not self._stopping.is_set():
             with contextlib.suppress(KeyError, ValueError, OSError):
                 self._sel.register(self._listener, _READ, "listen")
-            if self._state_listener is not None:
+            for side in self._sides.values():
                 with contextlib.suppress(KeyError, ValueError, OSError):
-                    self._sel.register(self._state_listener, _READ, "state-listen")
+                    self._sel.register(side.listener, _READ, side)
             self._listening = True
 
     def _deadlines(self) -> None:
@@ -670,10 +714,7 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
                     self._send(p, to_client=to_client)
             self._close_pair(p, "proxy stopped")
         self._close_sessions("proxy stopped")
-        for sock in (self._listener, self._udp, self._state_listener):
-            if sock is not None:
-                with contextlib.suppress(OSError):
-                    sock.close()
+        self._close_listeners()
 
 
 def default_max_connections() -> int:

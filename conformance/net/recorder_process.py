@@ -38,7 +38,15 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
-from ..recording.layout import C2S, S2C, STATE_STREAM, DirectionText
+from ..recording.layout import (
+    C2S,
+    CNDE_STREAM,
+    REALTIME_STREAM,
+    S2C,
+    STATE_STREAM,
+    XMLRPC_STREAM,
+    DirectionText,
+)
 from ..recording.recorder import StreamRecorder
 from ..recording.records import FrameRecord, ProblemRecord
 from ..recording.rotating import RotatingWriter
@@ -59,9 +67,10 @@ _PIPE_SIZE = 1 << 20
 # Counters the recorder process keeps in shared memory: frames, problems, bytes taken,
 # state packets, bytes not recorded (taken after the file could not be written), bytes of
 # state connections taken, bytes of state connections recorded as damage, bytes recorded
-# undecoded (the stop deadline passed), bytes taken before the file's last whole flush.
-_COUNTERS = struct.Struct("<qqqqqqqqq")
-_ZEROS = (0,) * 9
+# undecoded (the stop deadline passed), bytes taken before the file's last whole flush,
+# and the SDK channels' records: XML-RPC calls, CNDE frames, realtime packets.
+_COUNTERS = struct.Struct("<" + "q" * 12)
+_ZEROS = (0,) * 12
 # And one value the proxy writes there: when stopping, the time.monotonic() (one clock
 # for every process on the machine) after which the recorder stops decoding and
 # copies what is left to the file undecoded, so that a stop never waits on a backlog.
@@ -135,6 +144,21 @@ class RecorderCounters:
         """Payload bytes taken before the file's last whole flush: those the file holds
         (but a frame a decoder held unfinished then)."""
         return self._get()[8]
+
+    @property
+    def calls(self) -> int:
+        """XML-RPC calls recorded (``/fairino/calls`` messages)."""
+        return self._get()[9]
+
+    @property
+    def cnde_frames(self) -> int:
+        """CNDE frames recorded (``/fairino/cnde`` messages)."""
+        return self._get()[10]
+
+    @property
+    def realtime_packets(self) -> int:
+        """20004 packets recorded (``/fairino/realtime`` messages)."""
+        return self._get()[11]
 
 
 class RecorderProcess:
@@ -349,6 +373,19 @@ def _recorder_main(argv: list[str]) -> None:
     _Recorder(config, fd, status, shared, writer, rec, out_frames).run()
 
 
+def _recorded(rec: StreamRecorder) -> tuple[int, ...]:
+    """Frames, problems, state packets, calls, CNDE frames and realtime packets recorded."""
+    ch = rec.channel_records
+    return (
+        rec.frames,
+        rec.problems,
+        ch[STATE_STREAM],
+        ch[XMLRPC_STREAM],
+        ch[CNDE_STREAM],
+        ch[REALTIME_STREAM],
+    )
+
+
 def _read_exactly(fd: int, n: int) -> bytes:
     parts = []
     while n:
@@ -408,7 +445,9 @@ class _Recorder:
         #: the counters stay at what the file holds as of its last whole flush.
         self.broken = False
         self.lost = 0
-        self.saved = (0, 0, 0)  # frames, problems, state packets at the last whole flush
+        #: Frames, problems, state packets, calls, CNDE frames and realtime packets at the
+        #: last whole flush.
+        self.saved: tuple[int, ...] = (0,) * 6
         self.paths = list(writer.paths)
         self.last_flush = time.monotonic()
         self.latest_ns = 0  # arrival time of the newest event taken from the pipe
@@ -458,7 +497,7 @@ class _Recorder:
             except Exception as e:
                 self.fail(e)
             else:
-                self.saved = (self.rec.frames, self.rec.problems, self.rec.state_packets)
+                self.saved = _recorded(self.rec)
                 # A frame a decoder has begun is not in the file yet, but counted as if: a
                 # peer that sends half a large frame and waits must not stop the proxy
                 # (--on-write-error stop) until its decoder decides (README: the bound).
@@ -526,7 +565,7 @@ class _Recorder:
             except Exception as e:
                 self.fail(e)
             else:
-                self.saved = (self.rec.frames, self.rec.problems, self.rec.state_packets)
+                self.saved = _recorded(self.rec)
                 self.flushed = self.taken
         if self.broken:
             self.saved = self.in_files()
@@ -620,22 +659,25 @@ class _Recorder:
             return self.discard(buf)
         return stop
 
-    def in_files(self) -> tuple[int, int, int]:
-        """Frames, problems and state packets the files hold, read back (after a failed
-        write the counts at the last flush are a lower bound: chunks written since count
-        too, the one being written when the disk filled does not)."""
+    def in_files(self) -> tuple[int, ...]:
+        """What :func:`_recorded` counts, in the files, read back (after a failed write the
+        counts at the last flush are a lower bound: chunks written since count too, the one
+        being written when the disk filled does not)."""
         from ..recording.reader import read_recording
 
-        counts = [0, 0, 0]
+        counts = [0] * 6
         try:
             for path in self.writer.paths:
                 r = read_recording(path)
                 counts[0] += len(r.frames)
-                counts[1] += len(r.problems) + len(r.state_problems)
+                counts[1] += len(r.problems) + len(r.state_problems) + len(r.channel_problems)
                 counts[2] += len(r.states)
+                counts[3] += len(r.calls)
+                counts[4] += len(r.cnde)
+                counts[5] += len(r.realtime)
         except Exception:
             return self.saved
-        return counts[0], counts[1], counts[2]
+        return tuple(counts)
 
     def discard(self, buf: bytearray) -> bool:
         """The file cannot be written: the whole events in ``buf`` taken and counted as
@@ -668,10 +710,10 @@ class _Recorder:
     def publish(self) -> None:
         """Counters to shared memory, frames (for ``on_frame``) and new paths to the proxy."""
         rec = self.rec
-        if self.broken:  # what the file holds, as of its last whole flush
-            frames, problems, states = self.saved
-        else:
-            frames, problems, states = rec.frames, rec.problems, rec.state_packets
+        # What the file holds, as of its last whole flush, once it could not be written.
+        frames, problems, states, calls, cnde, realtime = (
+            self.saved if self.broken else _recorded(rec)
+        )
         _COUNTERS.pack_into(
             self.shared,
             0,
@@ -684,6 +726,9 @@ class _Recorder:
             rec.state_damaged,
             rec.undecoded_bytes,
             self.flushed,
+            calls,
+            cnde,
+            realtime,
         )
         try:
             if self.out_frames:

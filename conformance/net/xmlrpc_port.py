@@ -35,7 +35,7 @@ from ..protocol.http import (
 from ..twin.xmlrpc import XmlRpcAnswer
 from .port import POLL, ListeningPort, PortContext
 
-__all__ = ["XMLRPC_PORT", "XmlRpcPort"]
+__all__ = ["REQUEST_TIMEOUT", "XMLRPC_PORT", "XmlRpcPort"]
 
 #: The SDKs' XML-RPC port (python SDK ``ServerProxy("http://<ip>:20003")``).
 XMLRPC_PORT = 20003

@@ -8,6 +8,12 @@ one case per distinct violation, with the first offending frames as evidence, so
 million-frame capture gives a report of readable size.  The requests also go, in the order
 they came, through the sequence rules (:class:`~conformance.judge.sequence.Sequences`),
 and the state port's stream through the state decoder (:mod:`.state_check`).
+
+The SDKs' channels are reported the same way: each XML-RPC call's request (``client``)
+and reply (``controller``) under its command's ID (0 for a method with no command, the
+method named in the case's ID), as the one call judge judged them
+(:mod:`conformance.judge.calls`); the 20004 stream as the state port's, and the CNDE
+frames and their problems (:mod:`.channel_check`).
 """
 
 from __future__ import annotations
@@ -23,12 +29,13 @@ from ..judge.verdict import Outcome, Reference
 from ..net.addresses import client_host
 from ..recording.layout import C2S
 from ..recording.reader import Recording
-from ..recording.records import FrameRecord, ProblemRecord
+from ..recording.records import CallRecord, FrameRecord, ProblemRecord
 from ..report.model import CaseResult, Report
 from ..report.text import shell_printf
 from ..spec.commands import SpecSet
 from ..spec.dialects import default_dialects
-from .engine import WINDOW, Engine, Judged, Source
+from .channel_check import CndePort, call_lines, call_reproduction, cnde_cases
+from .engine import WINDOW, Engine, Judged, JudgedCall, Source
 from .state_check import StatePort, state_cases
 
 __all__ = [
@@ -48,8 +55,9 @@ SIDES = ("both", "client", "controller")
 #: Bytes of frames put into a reproduction line, as serve does (client_mode's).
 _REPRO_MAX = 4096
 
-#: A frame (or malformed run) and its verdict, as ``check --verdicts`` writes them.
-OnVerdict = Callable[[FrameRecord | ProblemRecord, Verdict], None]
+#: A frame (or malformed run, or XML-RPC call) and its verdict, as ``check --verdicts``
+#: writes them.
+OnVerdict = Callable[[FrameRecord | ProblemRecord | CallRecord, Verdict], None]
 
 
 def command_name(specs: SpecSet | None, cmd_id: int, recorded: str | None = None) -> str:
@@ -117,7 +125,12 @@ class _Cases:
         frames: Sequence[bytes],
         source: str = "",
         transport: str = "tcp",
+        *,
+        shown: Sequence[str] = (),
+        reproduce: str = "",
     ) -> None:
+        """One frame's (or call's) finding; ``shown``: its evidence as lines, where not its
+        bytes; ``reproduce``: its reproduction, where not ``decode`` of its bytes."""
         k = (cmd_id, group, outcome.value, key)
         b = self.buckets.get(k)
         if b is None:
@@ -127,6 +140,9 @@ class _Cases:
         b.count += 1
         if len(b.frames) < 4:
             b.frames.extend(f.decode("utf-8", "replace") for f in frames)
+            b.frames.extend(shown)
+        if not b.reproduce and reproduce and outcome is not Outcome.PASS:
+            b.reproduce = reproduce
         if not b.reproduce and group == "client" and outcome is not Outcome.PASS and frames:
             udp = " --transport udp" if transport == "udp" else ""
             b.reproduce = (
@@ -188,7 +204,10 @@ class Check:
         self.sequences = Sequences()
         self.clients: dict[int, object] = {}
         self.port = StatePort()
+        self.realtime = StatePort(stream="realtime")
+        self.cnde = CndePort()
         self.upstream = ""
+        self.xmlrpc_upstream = ""
         #: Frames, malformed runs and state packets read.
         self.read = 0
 
@@ -196,10 +215,18 @@ class Check:
         for c in j.connections:
             if c.event == "open":
                 self.clients[c.conn] = client_host(c.client) or ("conn", c.conn)
-                self.upstream = self.upstream or c.upstream
+                if not c.stream:  # the command port's, as the report's target names it
+                    self.upstream = self.upstream or c.upstream
+                elif c.stream == "xmlrpc":
+                    self.xmlrpc_upstream = self.xmlrpc_upstream or c.upstream
         self.port.add(j.connections, j.states, j.state_problems)
+        self.realtime.add(j.connections, j.realtime, j.channel_problems)
+        self.cnde.add(j.connections, j.cnde, j.channel_problems)
         self.read += len(j.cols) - j.carried + len(j.problems) + len(j.states)
-        self.read += len(j.state_problems)
+        self.read += len(j.state_problems) + len(j.calls) + len(j.cnde) + len(j.realtime)
+        self.read += len(j.channel_problems)
+        for jc in j.calls:
+            self._call(jc)
         carried, carry, verdicts = j.carried, j.carry, j.verdicts
         for q, p in zip(j.requests, j.replies, strict=True):
             if q >= carried:
@@ -295,6 +322,47 @@ class Check:
             "manual 1.1",
         )
 
+    def _call(self, jc: JudgedCall) -> None:
+        """An XML-RPC call's cases: its request's (``client``) and its reply's
+        (``controller``), under its command's ID."""
+        c = jc.record
+        for group, v in (("client", jc.request), ("controller", jc.reply)):
+            if v is None or (self.side != "both" and group != self.side):
+                continue
+            if self.on_verdict is not None:
+                self.on_verdict(c, v)
+            cmd_id = v.cmd_id or 0
+            name = display_name(v) or v.name or "?"
+            # A method with no command is told apart from the others on ID 0 by its name.
+            prefix = "xmlrpc" if cmd_id else f"xmlrpc-{v.name}"
+            shown = call_lines(c)
+            repro = call_reproduction(c, self.upstream_xmlrpc) if group == "client" else ""
+            if not v.findings:
+                self.cases.add(cmd_id, name, group, Outcome.PASS, f"{prefix}-ok", "", (), v.basis)
+            for fd in v.findings:
+                rule = (
+                    fd.rule
+                    if fd.rule != "dialect" or fd.dialect is None
+                    else f"dialect-{fd.dialect}"
+                )
+                self.cases.add(
+                    cmd_id,
+                    name,
+                    group,
+                    fd.outcome,
+                    f"{prefix}-{rule}",
+                    fd.message,
+                    (),
+                    fd.source,
+                    shown=shown,
+                    reproduce=repro,
+                )
+
+    @property
+    def upstream_xmlrpc(self) -> str:
+        """Where the calls went (an XML-RPC connection's upstream), for reproductions."""
+        return self.xmlrpc_upstream or "HOST:20003"
+
     def _problem(self, p: ProblemRecord, v: Verdict, blamed: tuple[int, int] | None) -> None:
         group = "client" if p.dir == C2S else "controller"
         if self.side != "both" and group != self.side:
@@ -337,6 +405,10 @@ class Check:
         if self.side != "client":  # the state port's stream is the controller's
             for c in state_cases(self.port, version=self.specs.spec_version):
                 report.add(c)
+            for c in state_cases(self.realtime):
+                report.add(c)
+        for c in cnde_cases(self.cnde, side=self.side):
+            report.add(c)
         return report
 
 

@@ -16,22 +16,33 @@ beyond the first ``_MAX_UNKNOWN_IDS`` are lumped into one counted entry under ID
 0, and failure texts are cut at ``_DETAIL_MAX`` characters.  A connection the
 emulator dropped because the kit failed on it (:class:`~conformance.twin.controller.Dropped`)
 is an ERROR of the command ID whose frame caused it (ID 0 if not a frame).
+
+``serve --host`` plays every controller port, and the SDKs' XML-RPC calls are judged too
+(:meth:`ClientValidator.observe_call`, the emulator's XML-RPC observer): each call by the
+one call judge (:mod:`conformance.judge.calls`: its method, its parameters' form, the
+command's argument checks through the text arguments it carries), counted under its
+command's ID (0 for a method with no command), its failures in group ``client-xmlrpc``
+with a line that makes the same call again.
 """
 
 from __future__ import annotations
 
+import shlex
 import threading
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 from typing import Any
 
-from ..errors import Rule
-from ..judge.judge import Judge, Verdict
+from ..errors import RemoteProtocolError, Rule
+from ..judge.calls import CallJudge
+from ..judge.judge import Judge, Verdict, display_name
 from ..judge.sequence import SequenceFinding, Sequences
 from ..judge.stream import CntSteps
 from ..judge.verdict import Direction, Outcome, Reference, worst
 from ..net.addresses import client_host
 from ..protocol.frame import Frame, Malformed
+from ..protocol.xmlrpc import XmlRpcValue, parse_call
+from ..recording.records import CallRecord
 from ..report.model import CaseResult, Report
 from ..report.text import shell_printf, show
 from ..spec.commands import SpecSet
@@ -66,7 +77,7 @@ class ClientValidator:
         target: str = "client",
         strict: bool = False,
         judge: Judge | None = None,
-        on_verdict: Callable[[str, Frame | Malformed, Verdict], None] | None = None,
+        on_verdict: Callable[[str, Frame | Malformed | CallRecord, Verdict], None] | None = None,
     ) -> None:
         self.specs = specs
         self.judge = judge if judge is not None else Judge(specs, default_dialects(), strict=strict)
@@ -91,6 +102,11 @@ class ClientValidator:
         self._lumped_example: int | None = None
         self._unlisted = 0  # failing frames past _PER_COMMAND
         self._drops: dict[str, int] = {}
+        #: The one call judge, and the calls that conform, per (command ID, method).
+        self._calls = CallJudge(self.judge)
+        self._call_passes: dict[tuple[int, str], int] = {}
+        #: Where the XML-RPC port listens (for reproductions), once the server says.
+        self.xmlrpc_target = "HOST:20003"
 
     def observe(self, peer: str, event: Frame | Malformed, actions: Sequence[Action] = ()) -> None:
         transport = "udp" if peer.startswith("udp:") else "tcp"
@@ -169,6 +185,66 @@ class ClientValidator:
                     before=before,
                 )  # fmt: skip
 
+    def observe_call(self, peer: str, body: bytes, answer: object = None) -> None:
+        """One XML-RPC call a client made (the emulator's XML-RPC observer: the request's
+        body; its answer is the twin's own), judged per command by the one call judge."""
+        method: str | None = None
+        params: tuple[XmlRpcValue, ...] | None = None
+        error: tuple[str, str] | None = None
+        try:
+            call = parse_call(body)
+        except RemoteProtocolError as e:
+            error = (e.rule.value, e.message)
+        else:
+            method, params = call.method, call.params
+        with self._lock:
+            _, v = self._calls.request(method, params, error)
+            self.frames += 1
+            self._transports["xmlrpc"] = self._transports.get("xmlrpc", 0) + 1
+            if self.on_verdict is not None:
+                self.on_verdict(peer, _call_record(method, params, body), v)
+            cid = v.cmd_id or 0
+            name = display_name(v) or v.name or "?"
+            self._names.setdefault(cid, name)
+            if v.outcome is Outcome.PASS:
+                key = (cid, method or "?")
+                self._call_passes[key] = self._call_passes.get(key, 0) + 1
+                return
+            if v.outcome is Outcome.DIALECT and v.dialect is not None:
+                entry = self._dialects.setdefault(
+                    (cid, f"xmlrpc-{v.dialect.id}"),
+                    [0, body, v.source, v.message, "xmlrpc", name],
+                )
+                entry[0] += 1
+                return
+            self._add(
+                cid,
+                name,
+                "xmlrpc",
+                v.outcome,
+                v.message,
+                body,
+                "xmlrpc",
+                v.source,
+                reproduce=self._call_line(method, params),
+                shown=(
+                    f">> XMLRPC {method}({', '.join(repr(p) for p in params or ())})"
+                    if method is not None
+                    else f">> XMLRPC (no call) {show(body[:200])}",
+                ),
+            )
+
+    def _call_line(self, method: str | None, params: tuple[XmlRpcValue, ...] | None) -> str:
+        """A shell line making the same call to this ``serve`` with ``xmlrpc.client``."""
+        if method is None or params is None:
+            return ""
+        code = (
+            "import xmlrpc.client as x; "
+            f"print(x.ServerProxy('http://{self.xmlrpc_target}').{method}"
+            f"({', '.join(repr(p) for p in params)}))"
+        )
+        return f"python3 -c {shlex.quote(code)}" if len(code) <= _REPRO_MAX else ""
+
     def _sequence(self, sf: SequenceFinding, raw: bytes, transport: str) -> None:
         """Count a sequence finding under its command ID and rule; the first one is shown."""
         entry = self._sequences.get((sf.cmd_id, sf.rule.id))
@@ -221,9 +297,13 @@ class ClientValidator:
         source: str = "",
         *,
         before: bytes = b"",
+        reproduce: str | None = None,
+        shown: tuple[str, ...] | None = None,
     ) -> None:
         """A case for one frame; ``before``: the frame before it on its connection, where the
-        finding depends on it (a CNT step), shown and reproduced with it."""
+        finding depends on it (a CNT step), shown and reproduced with it; ``reproduce``: the
+        reproduction, where it is not the frame through ``decode``; ``shown``: the evidence
+        lines, where not the frame's bytes."""
         cases = self._cases.setdefault(cid, [])
         self._names.setdefault(cid, name)
         if len(cases) >= _PER_COMMAND:
@@ -239,8 +319,14 @@ class ClientValidator:
                 group=f"client-{group}",
                 outcome=outcome,
                 detail=detail,
-                frames=tuple(f">> {transport.upper()} {show(r)}" for r in (before, raw) if r),
-                reproduce=self._reproduce(before + raw, transport) if raw else "",
+                frames=shown
+                if shown is not None
+                else tuple(f">> {transport.upper()} {show(r)}" for r in (before, raw) if r),
+                reproduce=reproduce
+                if reproduce is not None
+                else self._reproduce(before + raw, transport)
+                if raw
+                else "",
                 source=source,
             )
         )
@@ -311,7 +397,9 @@ class ClientValidator:
                 r.meta["connections_dropped"] = dict(sorted(self._drops.items()))
             dialect_ids = {cid for cid, _ in self._dialects}
             sequence_ids = {cid for cid, _ in self._sequences}
-            for cid in sorted(set(self._cases) | set(self._passes) | dialect_ids | sequence_ids):
+            call_ids = {cid for cid, _ in self._call_passes}
+            every = set(self._cases) | set(self._passes) | dialect_ids | sequence_ids | call_ids
+            for cid in sorted(every):
                 name = self._names.get(cid, "?")
                 n = self._passes.get(cid, 0)
                 if n:
@@ -324,6 +412,20 @@ class ClientValidator:
                             outcome=Outcome.PASS,
                             detail=f"{n} conforming frame(s)",
                             count=n,
+                        )
+                    )
+                for (pid, method), count in sorted(self._call_passes.items()):
+                    if pid != cid:
+                        continue
+                    r.add(
+                        CaseResult(
+                            id=f"{cid}/{method}/client/xmlrpc/conforming",
+                            cmd_id=cid,
+                            name=name if cid else method,
+                            group="client",
+                            outcome=Outcome.PASS,
+                            detail=f"{count} conforming XML-RPC call(s) of {method}",
+                            count=count,
                         )
                     )
                 for (did, eid), (count, raw, source, message, tr, dname) in sorted(
@@ -364,3 +466,12 @@ class ClientValidator:
                     )
                 )
             return r
+
+
+def _call_record(
+    method: str | None, params: tuple[XmlRpcValue, ...] | None, body: bytes
+) -> CallRecord:
+    """A call a client made, as ``serve --verdicts`` writes it (its reply is the twin's)."""
+    return CallRecord(
+        conn=0, seq=None, method=method, params=params, request_raw=body, reply="unknown"
+    )

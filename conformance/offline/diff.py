@@ -18,11 +18,13 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ..errors import RemoteProtocolError
-from ..judge.judge import Judge
+from ..judge.calls import CallReading, value_kind
+from ..judge.judge import Judge, Verdict
 from ..protocol.data_parse import parse_reply
 from ..protocol.data_values import Arg, Array, Number, Text
+from ..protocol.xmlrpc import XmlRpcValue
 from ..recording.reader import Recording
-from ..recording.records import FrameRecord
+from ..recording.records import CallRecord, FrameRecord
 from ..spec.commands import ReturnValue, SpecSet
 from .exchanges import RecordedExchange, exchanges, noise_before
 from .info import percentile
@@ -33,6 +35,7 @@ __all__ = [
     "DiffResult",
     "Difference",
     "Ignore",
+    "compare_call_replies",
     "compare_replies",
     "diff_recordings",
     "diff_state",
@@ -310,6 +313,110 @@ def compare_replies(
             continue
         if _text(a) != _text(b):
             add("data", f"{vname} (index {i}): {_text(b)!r} ({was} {_text(a)!r})")
+    return out
+
+
+def compare_call_replies(
+    recorded: CallRecord,
+    kind: str,
+    value: XmlRpcValue,
+    fault_code: int | None,
+    *,
+    reading: CallReading,
+    ignore: Ignore = Ignore(),
+    judges: tuple[Verdict | None, Verdict | None] = (None, None),
+) -> list[Difference]:
+    """Differences between a recorded XML-RPC reply and a new one (``kind`` ``value``,
+    ``fault``, ``error`` or ``missing``; its value or fault code), read as ``reading``
+    says (:class:`~conformance.judge.calls.CallReading`): the kind, a fault's code, the
+    error code (an ``int`` reply, or an array's first value) and the values' number and
+    types are compared always; a value itself only where the method's command declares it
+    not volatile (a position, a version, an address are state: by type, as for frames).
+    ``judges``: the recorded and the new reply's verdicts (a ``verdict`` difference when
+    they differ)."""
+    cid = reading.cmd_id
+    name = reading.name or "?"
+    if ignore.skips_command(cid, name):
+        return []
+    out: list[Difference] = []
+
+    def shown(k: str, v: XmlRpcValue, code: int | None) -> str:
+        return f"fault {code}" if k == "fault" else repr(v)[:200] if k == "value" else k
+
+    def add(what: str, detail: str) -> None:
+        if what not in ignore.kinds:
+            out.append(
+                Difference(
+                    kind=what,
+                    cmd_id=cid,
+                    detail=f"{name}: {detail}",
+                    recorded=shown(recorded.reply, recorded.value, recorded.fault_code),
+                    new=shown(kind, value, fault_code),
+                )
+            )
+
+    rk = recorded.reply
+    if rk in ("missing", "separate", "unknown") and kind == "missing":
+        return out
+    if kind == "missing":
+        add("missing_reply", "no reply now; the recording has one")
+        return out
+    if rk in ("missing", "separate", "unknown"):
+        add("extra_reply", "a reply now; the recording has none")
+        return out
+    vr, vn = judges
+    if vr is not None and vn is not None and (vr.outcome, vr.rule) != (vn.outcome, vn.rule):
+        add(
+            "verdict",
+            f"{vn.outcome.value} {vn.rule}: {vn.message} (recorded {vr.outcome.value} {vr.rule})",
+        )
+    if rk != kind:
+        add("shape", f"a {kind} now (recorded a {rk})")
+        return out
+    if kind == "fault":
+        if recorded.fault_code != fault_code:
+            add("data", f"fault {fault_code} (recorded fault {recorded.fault_code})")
+        return out
+    if kind != "value":
+        return out
+    a, b = recorded.value, value
+    if value_kind(a) != value_kind(b):
+        add("shape", f"a {value_kind(b)} (recorded a {value_kind(a)})")
+        return out
+    if not isinstance(a, list) or not isinstance(b, list):
+        if a != b and "data" not in ignore.kinds:
+            add("data", f"{b!r} (recorded {a!r})")
+        return out
+    if len(a) != len(b):
+        add("shape", f"{len(b)} values (recorded {len(a)})")
+        return out
+    returns = _call_returns(reading)
+    for i, (x, y) in enumerate(zip(a, b, strict=True)):
+        if value_kind(x) != value_kind(y):
+            add("shape", f"value {i} is a {value_kind(y)} (recorded a {value_kind(x)})")
+            continue
+        if (cid, i) in ignore.values or x == y:
+            continue
+        decl = returns.get(i) if i else None
+        if i == 0 or (decl is not None and not decl.volatile):
+            what = "the error code" if i == 0 else f"{decl.name if decl else 'value'} (index {i})"
+            add("data", f"{what}: {y!r} (recorded {x!r})")
+    return out
+
+
+def _call_returns(reading: CallReading) -> dict[int, ReturnValue]:
+    """A reply array's values that carry a text return value of the call's command, by
+    their index (the surface's ``carries``)."""
+    m, variant = reading.method, reading.variant
+    if m is None or m.reply is None or variant is None:
+        return {}
+    flat: list[ReturnValue] = []
+    for v in variant.returns.values:
+        flat += [v] * (v.length or 1)
+    out: dict[int, ReturnValue] = {}
+    for k, it in enumerate(m.reply.items):
+        if it.carries is not None and it.carries < len(flat):
+            out[k] = flat[it.carries]
     return out
 
 

@@ -44,14 +44,23 @@ from functools import cached_property
 from typing import Any, Protocol
 
 from ..judge.blame import Blame
+from ..judge.calls import CallJudge, CallReading, reply_of
 from ..judge.judge import Judge, Verdict
 from ..judge.pairing import pair_window
 from ..judge.stream import CntSteps
 from ..judge.verdict import Direction
 from ..protocol.frame import Frame
-from ..recording.layout import C2S, RECORDING_STOPPED, STATE_KIND
+from ..recording.layout import C2S, CHANNEL_KINDS, RECORDING_STOPPED, STATE_KIND
 from ..recording.reader import Item, Recording, RecordingReader
-from ..recording.records import ConnectionRecord, FrameRecord, Frames, ProblemRecord, StateRecord
+from ..recording.records import (
+    CallRecord,
+    CndeRecord,
+    ConnectionRecord,
+    FrameRecord,
+    Frames,
+    ProblemRecord,
+    StateRecord,
+)
 from ..recording.salvage import Damage
 from .columns import Columns
 
@@ -61,6 +70,7 @@ __all__ = [
     "Engine",
     "FrameRef",
     "Judged",
+    "JudgedCall",
     "OutOfOrder",
     "Problem",
     "Reading",
@@ -98,6 +108,18 @@ class Problem:
     blamed: FrameRef | None = None
 
 
+@dataclass(frozen=True)
+class JudgedCall:
+    """An XML-RPC call read and judged: how it reads, its request's verdict (None: the
+    record holds no request) and its reply's (None: the reply is in another record, or
+    not known to be this call's)."""
+
+    record: CallRecord
+    reading: CallReading
+    request: Verdict | None
+    reply: Verdict | None
+
+
 @dataclass
 class Judged:
     """One window, judged.
@@ -133,6 +155,12 @@ class Judged:
     #: Of ``missing``, the requests in flight when the recording stopped (see the module):
     #: no reply was recorded, none was missed.
     in_flight: frozenset[int] = frozenset()
+    #: The SDKs' channels read since the window before: XML-RPC calls judged, CNDE frames,
+    #: 20004 packets, and those channels' problems.
+    calls: list[JudgedCall] = field(default_factory=list)
+    cnde: list[CndeRecord] = field(default_factory=list)
+    realtime: list[StateRecord] = field(default_factory=list)
+    channel_problems: list[ProblemRecord] = field(default_factory=list)
 
     @cached_property
     def verdicts(self) -> list[Verdict]:
@@ -277,13 +305,26 @@ class Engine:
             elif isinstance(item, ConnectionRecord):
                 pending.connections.append(item)
             elif isinstance(item, StateRecord):
-                pending.states.append(item)
+                (pending.realtime if item.realtime else pending.states).append(item)
+            elif isinstance(item, CallRecord):
+                pending.calls.append(item)
+            elif isinstance(item, CndeRecord):
+                pending.cnde.append(item)
             elif item.kind == STATE_KIND:
                 pending.state_problems.append(item)
+            elif item.kind in CHANNEL_KINDS:
+                pending.channel_problems.append(item)
             else:
                 state.blame.run(item)
                 pending.problems.append(item)
-            held = len(pending.problems) + len(pending.states) + len(pending.connections)
+            held = (
+                len(pending.problems)
+                + len(pending.states)
+                + len(pending.connections)
+                + len(pending.calls)
+                + len(pending.cnde)
+                + len(pending.realtime)
+            )
             if len(pending.cols) + 8 * len(pending.connections) >= window or held >= window:
                 reading.window(state.judged(pending, final=False))
                 pending = _Read()
@@ -341,6 +382,10 @@ class WholeReader:
             yield _batch(rec.frames[done:], arrays, np)
         yield from rec.states
         yield from rec.state_problems
+        yield from rec.calls
+        yield from rec.cnde
+        yield from rec.realtime
+        yield from rec.channel_problems
         yield from (c for c in rec.connections if c.event != "open")
 
 
@@ -361,6 +406,10 @@ class _Read:
     states: list[StateRecord] = field(default_factory=list)
     state_problems: list[ProblemRecord] = field(default_factory=list)
     connections: list[ConnectionRecord] = field(default_factory=list)
+    calls: list[CallRecord] = field(default_factory=list)
+    cnde: list[CndeRecord] = field(default_factory=list)
+    realtime: list[StateRecord] = field(default_factory=list)
+    channel_problems: list[ProblemRecord] = field(default_factory=list)
 
 
 class _State:
@@ -368,6 +417,7 @@ class _State:
 
     def __init__(self, judge: Judge, window: int) -> None:
         self.judge = judge
+        self.calls = CallJudge(judge)
         self.window = window
         self.blame: Blame[ProblemRecord, FrameRef] = Blame()
         self.cnt = CntSteps()
@@ -450,7 +500,22 @@ class _State:
         out.problems = self._problems(r.problems, final)
         out.states, out.state_problems = r.states, r.state_problems
         out.connections = r.connections
+        out.calls = [self._call(c) for c in r.calls]
+        out.cnde, out.realtime, out.channel_problems = r.cnde, r.realtime, r.channel_problems
         return out
+
+    def _call(self, c: CallRecord) -> JudgedCall:
+        """One call read and judged by the one call judge."""
+        cj = self.calls
+        if c.has_request:
+            reading, rv = cj.request(c.method, c.params, c.request_error)
+        else:  # a reply alone: read against its method, when known
+            reading, rv = cj.reply_only(c.method), None
+        pv = None
+        if c.reply not in ("separate", "unknown"):
+            reply = reply_of(c.reply, c.value, c.fault_code, c.fault_string, c.reply_error)
+            pv = cj.reply(reading, reply)
+        return JudgedCall(record=c, reading=reading, request=rv, reply=pv)
 
     def _judge(self, c: Columns, k: int, final: bool) -> Judged:
         import numpy as np

@@ -1,10 +1,13 @@
 """``info``: a recording's figures per command ID, read through the one engine
 (:mod:`.engine`): requests, replies, missing replies, error replies, the judge's outcomes
 and latency p50/p99; the connections, the problems read and the state port's figures
-(:mod:`.state_check`)."""
+(:mod:`.state_check`); and the SDKs' channels: the XML-RPC calls per method (``xmlrpc``:
+calls, faults, error replies, the judge's outcomes, latency), the CNDE connections
+(``cnde``) and the realtime port's (``realtime``, read again as the state port's)."""
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -14,11 +17,12 @@ from ..recording.reader import Recording
 from ..recording.records import ConnectionRecord
 from ..spec.commands import SpecSet
 from ..spec.dialects import default_dialects
+from .channel_check import CndePort, cnde_figures
 from .check import command_name
-from .engine import Engine, Judged, Source
+from .engine import Engine, Judged, JudgedCall, Source
 from .state_check import StatePort, render_state, state_figures
 
-__all__ = ["CommandFigures", "Info", "percentile", "render_info", "summarize"]
+__all__ = ["CallFigures", "CommandFigures", "Info", "percentile", "render_info", "summarize"]
 
 
 def percentile(values: Sequence[float], q: float) -> float | None:
@@ -60,6 +64,39 @@ class CommandFigures:
         }
 
 
+@dataclass
+class CallFigures:
+    """One method's calls (``info``): how many, faults, error replies (a non-zero error
+    code), replies missing, the judge's outcomes and the latency."""
+
+    method: str
+    cmd_id: int | None = None
+    command: str | None = None
+    calls: int = 0
+    faults: int = 0
+    error_replies: int = 0
+    http_errors: int = 0
+    unanswered: int = 0
+    verdicts: Counter[str] = field(default_factory=Counter)
+    latencies_ns: list[int] = field(default_factory=list)
+
+    def to_json(self) -> dict[str, Any]:
+        p50 = percentile(self.latencies_ns, 50)
+        p99 = percentile(self.latencies_ns, 99)
+        return {
+            "cmd_id": self.cmd_id,
+            "command": self.command,
+            "calls": self.calls,
+            "faults": self.faults,
+            "error_replies": self.error_replies,
+            "http_errors": self.http_errors,
+            "unanswered": self.unanswered,
+            "verdicts": dict(sorted(self.verdicts.items())),
+            "latency_p50_ms": None if p50 is None else round(p50 / 1e6, 3),
+            "latency_p99_ms": None if p99 is None else round(p99 / 1e6, 3),
+        }
+
+
 class Info:
     """``info``'s reading of the engine's windows (:class:`~.engine.Reading`)."""
 
@@ -73,6 +110,9 @@ class Info:
         self.connections: list[ConnectionRecord] = []
         self.closed: dict[int, str] = {}
         self.port = StatePort()
+        self.realtime = StatePort(stream="realtime")
+        self.cnde = CndePort()
+        self.calls: dict[str, CallFigures] = {}
         self.c2s = self.s2c = 0
         self.start_ns: int | None = None
         self.end_ns: int | None = None
@@ -98,6 +138,13 @@ class Info:
             elif x.event == "close":
                 self.closed[x.conn] = x.reason
         self.port.add(j.connections, j.states, j.state_problems)
+        self.realtime.add(j.connections, j.realtime, j.channel_problems)
+        self.cnde.add(j.connections, j.cnde, j.channel_problems)
+        for cp in j.channel_problems:
+            rule = f"{cp.kind}/{cp.rule}"
+            self.problems[rule] = self.problems.get(rule, 0) + 1
+        for jc in j.calls:
+            self._call(jc)
         for pr in j.problems:
             rule = pr.record.rule
             self.problems[rule] = self.problems.get(rule, 0) + 1
@@ -132,6 +179,34 @@ class Info:
             if i not in j.in_flight:  # unless the recording stopped first (engine.py)
                 self._fig(j, i).unanswered += 1
 
+    def _call(self, jc: JudgedCall) -> None:
+        c = jc.record
+        self._times(c.first_ns, c.complete_ns)
+        name = c.method or "(no method)"
+        g = self.calls.get(name)
+        if g is None:
+            m = jc.reading.method
+            g = self.calls[name] = CallFigures(
+                method=name,
+                cmd_id=m.cmd_id if m is not None else None,
+                command=m.command if m is not None else None,
+            )
+        if c.has_request:
+            g.calls += 1
+        if c.reply == "fault":
+            g.faults += 1
+        elif c.reply == "error":
+            g.http_errors += 1
+        elif c.reply == "missing":
+            g.unanswered += 1
+        if jc.reply is not None and jc.reply.refused and c.reply == "value":
+            g.error_replies += 1
+        for v in (jc.request, jc.reply):
+            if v is not None:
+                g.verdicts[v.outcome.value] += 1
+        if c.latency_ns is not None:
+            g.latencies_ns.append(c.latency_ns)
+
     def end(self, engine: Engine) -> None:
         pass
 
@@ -163,6 +238,15 @@ class Info:
             "state": [
                 f.to_json() for f in state_figures(self.port, version=self.specs.spec_version)
             ],
+            # The SDKs' channels: XML-RPC calls per method, CNDE, the realtime port (20004).
+            "xmlrpc": {
+                "calls": sum(g.calls for g in self.calls.values()),
+                "faults": sum(g.faults for g in self.calls.values()),
+                "error_replies": sum(g.error_replies for g in self.calls.values()),
+                "methods": {k: self.calls[k].to_json() for k in sorted(self.calls)},
+            },
+            "cnde": [f.to_json() for f in cnde_figures(self.cnde)],
+            "realtime": [f.to_json() for f in state_figures(self.realtime)],
             # What could not be read (the command exits EXIT_DAMAGED).
             "damage": [str(d) for d in engine.damage],
         }
@@ -222,4 +306,49 @@ def render_info(info: dict[str, Any]) -> str:
             f"{c['unanswered']:>7} {c['error_replies']:>7} "
             f"{c['verdicts'].get('DIALECT', 0):>7} {c['verdicts'].get('FAIL', 0):>7} {p50:>9} {p99:>9}"
         )
+    lines += render_channels(info)
     return "\n".join(lines)
+
+
+def render_channels(info: dict[str, Any]) -> list[str]:
+    """``info``'s lines for the SDKs' channels: XML-RPC per method, CNDE, realtime."""
+    lines: list[str] = []
+    x = info.get("xmlrpc") or {}
+    if x.get("methods"):
+        lines.append(
+            f"xmlrpc     {x['calls']} calls, {x['faults']} faults, "
+            f"{x['error_replies']} error replies"
+        )
+        head = ("calls", "faults", "errors", "noreply", "fail")
+        lines.append(
+            f"{'ID':>5}  {'method':<28} "
+            + " ".join(f"{h:>7}" for h in head)
+            + f" {'p50 ms':>9} {'p99 ms':>9}"
+        )
+        for name, m in x["methods"].items():
+            p50 = "-" if m["latency_p50_ms"] is None else f"{m['latency_p50_ms']:.3f}"
+            p99 = "-" if m["latency_p99_ms"] is None else f"{m['latency_p99_ms']:.3f}"
+            cid = "-" if m["cmd_id"] is None else str(m["cmd_id"])
+            lines.append(
+                f"{cid:>5}  {name[:28]:<28} {m['calls']:>7} {m['faults']:>7} "
+                f"{m['error_replies']:>7} {m['unanswered']:>7} "
+                f"{m['verdicts'].get('FAIL', 0):>7} {p50:>9} {p99:>9}"
+            )
+    for f in info.get("cnde") or ():
+        frames = ", ".join(f"{k} {v}" for k, v in f["frames"].items()) or "none"
+        lines.append(
+            f"cnde       #{f['conn']} {f['upstream'] or '?'}: {f['state_frames']} state frames, "
+            f"period {f['period_ms'] or '-'} ms, median interval "
+            f"{f['interval_ms']['median'] if f['interval_ms']['median'] is not None else '-'} ms; {frames}"
+        )
+        if f["problems"]:
+            lines.append(
+                "           problems " + ", ".join(f"{k}={v}" for k, v in f["problems"].items())
+            )
+    for f in info.get("realtime") or ():
+        lines.append(
+            f"realtime   #{f['conn']} {f['upstream'] or '?'}: {f['packets']} packets, "
+            f"{f['lost']} lost, {f['checksum_failures']} checksum failures, layout "
+            + (", ".join(f"{k} {v}" for k, v in f["versions"].items()) or "none")
+        )
+    return lines

@@ -8,6 +8,16 @@ recorded one by CNT and CMD_ID and compared with
 safety profile (:mod:`conformance.spec.safety`) decides what may be sent to a
 non-loopback target; what it holds back is reported as SKIPPED.
 
+The SDKs' XML-RPC calls are resent too (:func:`replay_calls`, the target's XML-RPC port):
+each call's recorded body, in the order the calls were made, on a kept-open connection per
+recorded connection (:class:`~conformance.net.xmlrpc_client.XmlRpcClient`); each reply is
+compared with the recorded one (:func:`~conformance.offline.diff.compare_call_replies`:
+its kind, fault code, error code and values' shape; a value where the command declares it
+not volatile) and the one call judge's verdicts of both.  A method's safety class decides
+what is sent to a non-loopback target (:meth:`~conformance.spec.safety.SafetyPolicy.permits_method`;
+introspection never, unless named).  The frames and the calls are resent each in their own
+order, the frames first: the interleaving of an application's ports is not replayed.
+
 ``replay --serve``: :class:`ReplyBook` answers requests with the recorded
 replies, matched by command ID and DATA, each echoing the request's CNT and
 CMD_ID (the recorded request's CNT is irrelevant); a request the recording never saw is
@@ -33,16 +43,24 @@ from ..errors import ConformanceError
 from ..judge.judge import Judge, display_name
 from ..judge.verdict import Outcome
 from ..protocol.frame import Frame, encode_frame
+from ..protocol.xmlrpc import XmlRpcFault, XmlRpcResponse
 from ..recording.layout import C2S, S2C
 from ..recording.reader import Recording
 from ..recording.records import FrameRecord, ProblemRecord
 from ..report.model import CaseResult, Report
 from ..spec.commands import SpecSet
 from ..spec.safety import SafetyPolicy
-from .diff import Difference, Ignore, compare_replies
+from .diff import Difference, Ignore, compare_call_replies, compare_replies
 from .exchanges import exchanges, noise_before
 
-__all__ = ["NOT_RECORDED", "NOT_RECORDED_CODE", "ReplayResult", "ReplyBook", "replay_to_target"]
+__all__ = [
+    "NOT_RECORDED",
+    "NOT_RECORDED_CODE",
+    "ReplayResult",
+    "ReplyBook",
+    "replay_calls",
+    "replay_to_target",
+]
 
 # ``nearest``: DATA compared on this many characters, against this many distinct
 # recorded requests of the same command ID at most.
@@ -196,11 +214,29 @@ class _CmdResult:
 
 
 @dataclass
+class _CallResult:
+    """One XML-RPC method's calls resent."""
+
+    method: str
+    cmd_id: int
+    sent: int = 0
+    matched: int = 0
+    differing: int = 0
+    #: Calls sent whose recorded reply there is none to compare with.
+    uncompared: int = 0
+    differences: list[Difference] = field(default_factory=list)
+    skipped: dict[str, int] = field(default_factory=dict)
+
+
+@dataclass
 class ReplayResult:
     target: str
     commands: dict[int, _CmdResult] = field(default_factory=dict)
     connections: int = 0
     elapsed: float = 0.0
+    #: The XML-RPC calls resent, per method, and where they went.
+    calls: dict[str, _CallResult] = field(default_factory=dict)
+    xmlrpc_target: str = ""
 
     def cmd(self, cmd_id: int, name: str | None) -> _CmdResult:
         c = self.commands.get(cmd_id)
@@ -210,7 +246,15 @@ class ReplayResult:
 
     @property
     def differing_ids(self) -> set[int]:
-        return {k for k, c in self.commands.items() if c.differing}
+        frames = {k for k, c in self.commands.items() if c.differing}
+        return frames | {c.cmd_id for c in self.calls.values() if c.differing}
+
+    @property
+    def unmatched(self) -> int:
+        """Replies that differ from the recorded ones (frames and calls)."""
+        return sum(c.differing for c in self.commands.values()) + sum(
+            c.differing for c in self.calls.values()
+        )
 
     def to_report(self, spec_version: str) -> Report:
         r = Report(target=self.target, spec_version=spec_version, meta={"mode": "replay"})
@@ -255,7 +299,53 @@ class ReplayResult:
                         count=n,
                     )
                 )
+        for m, cr in sorted(self.calls.items()):
+            self._call_cases(r, m, cr)
         return r
+
+    @staticmethod
+    def _call_cases(r: Report, m: str, c: _CallResult) -> None:
+        base = f"{c.cmd_id}/replay/xmlrpc-{m}"
+        if c.matched or c.uncompared:
+            more = (
+                f"; {c.uncompared} sent with no recorded reply to compare" if c.uncompared else ""
+            )
+            r.add(
+                CaseResult(
+                    id=f"{base}-match",
+                    cmd_id=c.cmd_id,
+                    name=m,
+                    group="replay",
+                    outcome=Outcome.PASS,
+                    detail=f"{c.matched} XML-RPC replies match the recording{more}",
+                )
+            )
+        kinds: dict[str, list[Difference]] = {}
+        for d in c.differences:
+            kinds.setdefault(d.kind, []).append(d)
+        for kind, ds in sorted(kinds.items()):
+            r.add(
+                CaseResult(
+                    id=f"{base}-{kind}",
+                    cmd_id=c.cmd_id,
+                    name=m,
+                    group="replay",
+                    outcome=Outcome.FAIL,
+                    detail=f"{len(ds)}x {ds[0].detail}",
+                    frames=(f"recorded: {ds[0].recorded}", f"now: {ds[0].new}"),
+                )
+            )
+        for reason, n in c.skipped.items():
+            r.add(
+                CaseResult(
+                    id=f"{base}-skipped",
+                    cmd_id=c.cmd_id,
+                    name=m,
+                    group="replay",
+                    outcome=Outcome.SKIPPED,
+                    detail=f"{n}x {reason}",
+                )
+            )
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -263,6 +353,7 @@ class ReplayResult:
             "connections": self.connections,
             "elapsed_s": round(self.elapsed, 3),
             "differing_ids": sorted(self.differing_ids),
+            "unmatched": self.unmatched,
             "commands": {
                 str(k): {
                     "name": c.name,
@@ -273,6 +364,21 @@ class ReplayResult:
                     "differences": [d.to_json() for d in c.differences[:20]],
                 }
                 for k, c in sorted(self.commands.items())
+            },
+            "xmlrpc": {
+                "target": self.xmlrpc_target,
+                "methods": {
+                    m: {
+                        "cmd_id": c.cmd_id,
+                        "sent": c.sent,
+                        "matched": c.matched,
+                        "differing": c.differing,
+                        "uncompared": c.uncompared,
+                        "skipped": dict(c.skipped),
+                        "differences": [d.to_json() for d in c.differences[:20]],
+                    }
+                    for m, c in sorted(self.calls.items())
+                },
             },
         }
 
@@ -430,3 +536,104 @@ def replay_to_target(
             client.close()
     result.elapsed = time.monotonic() - start
     return result
+
+
+def _body(raw: bytes) -> bytes:
+    """A recorded request's body: what follows its header block."""
+    for sep in (b"\r\n\r\n", b"\n\n"):
+        at = raw.find(sep)
+        if at >= 0:
+            return raw[at + len(sep) :]
+    return raw
+
+
+def replay_calls(
+    rec: Recording,
+    host: str,
+    port: int,
+    *,
+    specs: SpecSet,
+    safety: SafetyPolicy,
+    timeout: float = 2.0,
+    ignore: Ignore = Ignore(),  # noqa: B008 (frozen)
+    judge: Judge | None = None,
+    result: ReplayResult | None = None,
+) -> ReplayResult:
+    """Resend the recording's XML-RPC calls to ``host:port`` and compare the replies (see
+    the module); into ``result`` (a new one if None)."""
+    from ..judge.calls import CallJudge, reply_of
+    from ..net.addresses import format_address
+    from ..net.xmlrpc_client import XmlRpcClient
+
+    if judge is None:
+        from ..spec.dialects import default_dialects
+
+        judge = Judge(specs, default_dialects())
+    cj = CallJudge(judge)
+    out = result if result is not None else ReplayResult(target=format_address(host, port))
+    out.xmlrpc_target = format_address(host, port)
+    start = time.monotonic()
+    calls = sorted(
+        (c for c in rec.calls if c.has_request and c.request_raw),
+        key=lambda c: (c.request_ns or 0, c.conn, c.seq or 0),
+    )
+    last_of = {c.conn: i for i, c in enumerate(calls)}
+    clients: dict[int, XmlRpcClient] = {}
+    try:
+        for i, c in enumerate(calls):
+            assert c.request_raw is not None
+            reading, _ = cj.request(c.method, c.params, c.request_error)
+            name = c.method or "(no method)"
+            cr = out.calls.get(name)
+            if cr is None:
+                cr = out.calls[name] = _CallResult(method=name, cmd_id=reading.cmd_id)
+            if c.method is not None:
+                ok, why = safety.permits_method(c.method, specs)
+            else:  # a body that is no call: sent to a loopback target only
+                ok, why = (
+                    safety.loopback,
+                    "a body that is no call: not sent to a non-loopback target",
+                )
+            if not ok:
+                cr.skipped[why] = cr.skipped.get(why, 0) + 1
+                continue
+            client = clients.get(c.conn)
+            if client is None:
+                client = clients[c.conn] = XmlRpcClient(host, port, timeout=timeout)
+                out.connections += 1
+            try:
+                ex = client.send(_body(c.request_raw), c.method, c.params)
+            except ConformanceError as e:  # the target refused the connection
+                cr.differing += 1
+                cr.differences.append(
+                    Difference(kind="closed", cmd_id=reading.cmd_id, detail=f"{name}: {e}")
+                )
+                continue
+            cr.sent += 1
+            fault = ex.reply.code if isinstance(ex.reply, XmlRpcFault) else None
+            value = ex.reply.value if isinstance(ex.reply, XmlRpcResponse) else None
+            kind = ex.kind
+            if c.reply in ("missing", "separate", "unknown"):
+                cr.uncompared += 1
+                diffs: list[Difference] = []
+            else:
+                recorded = cj.reply(
+                    reading,
+                    reply_of(c.reply, c.value, c.fault_code, c.fault_string, c.reply_error),
+                )
+                now = cj.reply(reading, reply_of(kind, value, fault, None, ex.error))
+                diffs = compare_call_replies(
+                    c, kind, value, fault, reading=reading, ignore=ignore, judges=(recorded, now)
+                )
+            if diffs:
+                cr.differing += 1
+                cr.differences.extend(diffs)
+            elif c.reply not in ("missing", "separate", "unknown"):
+                cr.matched += 1
+            if last_of[c.conn] == i:
+                clients.pop(c.conn).close()
+    finally:
+        for client in clients.values():
+            client.close()
+    out.elapsed += time.monotonic() - start
+    return out

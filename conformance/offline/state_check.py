@@ -21,7 +21,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..judge.state import state_verdict
+from ..judge.state import REALTIME_SOURCE, state_verdict
 from ..judge.verdict import Outcome
 from ..protocol.state import StateDecoder, StatePacket, StateProblem, StateProblemKind
 from ..recording.layout import C2S
@@ -29,6 +29,7 @@ from ..recording.reader import Recording
 from ..recording.records import ConnectionRecord, ProblemRecord, StateRecord
 from ..report.model import CaseResult
 from ..report.text import plural
+from ..spec.realtime import realtime_decoder
 from ..spec.state import known_layouts, state_decoder
 
 __all__ = [
@@ -44,6 +45,7 @@ __all__ = [
 #: The case ID of the state port's cases (no command has it; ``(framing)`` is 0 too).
 STATE_ID = 0
 _NAME = "(state port 8083)"
+_REALTIME_NAME = "(realtime port 20004)"
 #: Where each problem's rule is in the 8083 state manual.
 _SET_PERIOD = re.compile(r"SetStatePeriod\(\s*8083\s*,\s*(\d+(?:\.\d+)?)\s*\)")
 # Reasons a connection ended that are the recorder's, not the controller's: a packet cut
@@ -116,12 +118,21 @@ class StateFigures:
 class StatePort:
     """What a recording holds of the state port, gathered as it is read: the state
     connections' records, their packets and the state decoder's problems, and each
-    ``SetStatePeriod(8083, p)`` the clients sent (time, ms)."""
+    ``SetStatePeriod(8083, p)`` the clients sent (time, ms).
+
+    ``stream="realtime"``: the SDKs' realtime port (20004) instead, its packets framed as
+    8083's and read by the decoder of its layouts
+    (``specs/fairino-field/channels/realtime-20004.json``), its period the controller's 8 ms."""
 
     connections: list[ConnectionRecord] = field(default_factory=list)
     states: list[StateRecord] = field(default_factory=list)
     problems: list[ProblemRecord] = field(default_factory=list)
     asked: list[tuple[int, float]] = field(default_factory=list)
+    stream: str = "state"
+
+    @property
+    def realtime(self) -> bool:
+        return self.stream == "realtime"
 
     @classmethod
     def of(cls, rec: Recording) -> StatePort:
@@ -137,9 +148,9 @@ class StatePort:
         states: Iterable[StateRecord],
         problems: Iterable[ProblemRecord],
     ) -> None:
-        self.connections += [c for c in connections if c.stream == "state"]
+        self.connections += [c for c in connections if c.stream == self.stream]
         self.states += states
-        self.problems += problems
+        self.problems += [p for p in problems if p.kind == self.stream]
 
     def requests(self, requests: Iterable[tuple[int, str]]) -> None:
         """The clients' requests (time, DATA): the periods they asked are noted."""
@@ -150,9 +161,10 @@ class StatePort:
                     self.asked.append((t, float(m.group(1))))
 
 
-def _expected(version: str | None) -> str | None:
-    """The spec set's version if a state layout of it is known (else: any layout)."""
-    if version is None:
+def _expected(version: str | None, *, realtime: bool = False) -> str | None:
+    """The spec set's version if a state layout of it is known (else: any layout); the
+    realtime port's packets are held to no one release's (the SDKs' differ)."""
+    if version is None or realtime:
         return None
     v = version.removeprefix("v")
     return v if any(lay.version == v for lay in known_layouts()) else None
@@ -161,7 +173,7 @@ def _expected(version: str | None) -> str | None:
 def state_figures(port: StatePort, *, version: str | None = None) -> list[StateFigures]:
     """Each state connection read again by the state decoder (module docstring);
     ``version``: the layout the controller should send (the spec set's), None for any."""
-    expected = _expected(version)
+    expected = _expected(version, realtime=port.realtime)
     conns: dict[int, StateFigures] = {}
     for c in port.connections:
         if c.event == "open":
@@ -186,7 +198,8 @@ def state_figures(port: StatePort, *, version: str | None = None) -> list[StateF
             pieces.setdefault(p.conn, []).append((p.offset, 2, p.complete_ns, p.raw))
     asked = sorted(port.asked)
     for conn, fig in sorted(conns.items()):
-        _read_again(fig, sorted(pieces.get(conn, ()), key=lambda x: x[:2]), expected, asked)
+        items = sorted(pieces.get(conn, ()), key=lambda x: x[:2])
+        _read_again(fig, items, expected, asked, realtime=port.realtime)
     return [conns[k] for k in sorted(conns)]
 
 
@@ -228,8 +241,11 @@ def _factor(period_ms: float | None) -> float:
     return max(2.0, (period_ms + STALL_SLACK_MS) / period_ms)
 
 
-def _decoder(expected: str | None, period_ms: float | None, *, asked: bool) -> StateDecoder:
-    dec = state_decoder(expected, period_ms=period_ms, period_factor=_factor(period_ms))
+def _decoder(
+    expected: str | None, period_ms: float | None, *, asked: bool, realtime: bool = False
+) -> StateDecoder:
+    make = realtime_decoder if realtime else state_decoder
+    dec = make(expected, period_ms=period_ms, period_factor=_factor(period_ms))
     if asked and period_ms is not None:
         dec.set_period(period_ms, asked=True)
     return dec
@@ -240,10 +256,14 @@ def _read_again(
     items: list[tuple[int, int, int, bytes | None]],
     expected: str | None,
     asked: list[tuple[int, float]],
+    *,
+    realtime: bool = False,
 ) -> None:
     fig.expected_version = expected
     own = _median_period(items)
-    dec = _decoder(expected, own, asked=False)
+    dec = _decoder(expected, own, asked=False, realtime=realtime)
+    if realtime:
+        asked = []  # SetStatePeriod is the 8083 port's
     fig.period_ms = own
     pending = list(asked)
     last_packet_ns: int | None = None
@@ -259,7 +279,7 @@ def _read_again(
             last_packet_ns = None
         if raw is None:  # a capture gap: the stream restarts after it
             _count(fig, dec.close(t_ns / 1e9))
-            dec = _decoder(expected, fig.period_ms, asked=fig.period_asked)
+            dec = _decoder(expected, fig.period_ms, asked=fig.period_asked, realtime=realtime)
             last_packet_ns = None
             continue
         events = dec.feed(raw, t_ns / 1e9)
@@ -303,6 +323,7 @@ def state_cases(port: StatePort, *, version: str | None = None) -> list[CaseResu
     figs = state_figures(port, version=version)
     if not figs:
         return out
+    name, what = (_REALTIME_NAME, "realtime") if port.realtime else (_NAME, "state")
     problems: Counter[str] = Counter()
     examples: dict[str, list[tuple[str, bytes]]] = {}
     packets = 0
@@ -313,25 +334,26 @@ def state_cases(port: StatePort, *, version: str | None = None) -> list[CaseResu
             examples.setdefault(k, []).extend(v)
     out.append(
         CaseResult(
-            id=f"{STATE_ID}/controller/state",
+            id=f"{STATE_ID}/controller/{what}",
             cmd_id=STATE_ID,
-            name=_NAME,
+            name=name,
             group="controller",
             outcome=Outcome.PASS,
-            detail=f"{packets} state packets read on {plural(len(figs), 'connection')}",
-            source="8083 state manual 2.1",
+            detail=f"{packets} {what} packets read on {plural(len(figs), 'connection')}",
+            source=REALTIME_SOURCE if port.realtime else "8083 state manual 2.1",
             count=max(1, packets),
         )
     )
     for kind, n in sorted(problems.items()):
         ex = examples.get(kind, [])
         first = ex[0][0] if ex else kind
-        verdict = state_verdict(StateProblemKind(kind), first)  # the one judge decides
+        # the one judge decides
+        verdict = state_verdict(StateProblemKind(kind), first, realtime=port.realtime)
         out.append(
             CaseResult(
-                id=f"{STATE_ID}/controller/state-{kind}",
+                id=f"{STATE_ID}/controller/{what}-{kind}",
                 cmd_id=STATE_ID,
-                name=_NAME,
+                name=name,
                 group="controller",
                 outcome=verdict.outcome,
                 detail=f"{n}x {first}",

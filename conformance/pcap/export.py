@@ -16,7 +16,7 @@ from typing import Any
 from ..recording.layout import C2S, S2C, DirectionText
 from ..recording.reader import Recording
 from ..recording.repair import atomic_output
-from .packets import _ACK, _FIN, _SYN, DLT_EN10MB
+from .packets import _ACK, _FIN, _SYN, DEFAULT_CHANNEL_PORTS, DLT_EN10MB
 
 _MAC_CLIENT = bytes.fromhex("020000000001")
 _MAC_SERVER = bytes.fromhex("020000000002")
@@ -156,6 +156,13 @@ def _in_stream_order(
     return out
 
 
+#: The controller's port for each connection ``stream`` (the command port's: 8080).
+_PORT_OF_STREAM = {
+    "state": 8083,
+    **{kind: port for port, kind in DEFAULT_CHANNEL_PORTS.items()},
+}
+
+
 def export_pcap(rec: Recording, out: str | os.PathLike[str]) -> int:
     """Write the recording's traffic as a pcap; returns the number of packets written.
 
@@ -192,6 +199,22 @@ def export_pcap(rec: Recording, out: str | os.PathLike[str]) -> int:
     for p in rec.state_problems:
         if p.raw:
             add(p.complete_ns, p.conn, p.dir, p.offset, p.raw)
+    # The SDKs' channels: each XML-RPC call's request and reply, each CNDE frame, each
+    # 20004 packet, and the bytes their decoders kept as problems, at their offsets.
+    for call in rec.calls:
+        if call.request_raw and call.request_offset is not None:
+            t = call.request_ns or call.complete_ns
+            add(t, call.conn, C2S, call.request_offset, call.request_raw)
+        if call.reply_raw and call.reply_offset is not None:
+            t = call.reply_ns or call.complete_ns
+            add(t, call.conn, S2C, call.reply_offset, call.reply_raw)
+    for frame in rec.cnde:
+        add(frame.complete_ns, frame.conn, frame.dir, frame.offset, frame.raw)
+    for packet in rec.realtime:
+        add(packet.complete_ns, packet.conn, S2C, packet.offset, packet.raw)
+    for problem in rec.channel_problems:
+        if problem.raw:
+            add(problem.complete_ns, problem.conn, problem.dir, problem.offset, problem.raw)
     opened = {c.conn: c for c in rec.connections if c.event == "open"}
     closed = {c.conn: c for c in rec.connections if c.event == "close"}
     udp = {cid for cid, o in opened.items() if o.transport == "udp"}
@@ -227,7 +250,8 @@ def export_pcap(rec: Recording, out: str | os.PathLike[str]) -> int:
                     sdst, sport = _addr(o.upstream if o else "", "10.0.0.2")
                     st = state[cid] = {
                         "c": (csrc, cport or 40000 + cid % 20000),
-                        "s": (sdst, sport or 8080),
+                        # A connection recorded without addresses: its port's number.
+                        "s": (sdst, sport or _PORT_OF_STREAM.get(o.stream if o else "", 8080)),
                         "udp": cid in udp,
                         "isn": {C2S: 1000, S2C: 5000},
                         "sent": {C2S: 0, S2C: 0},

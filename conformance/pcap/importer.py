@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 from ..errors import CaptureError
 from ..recording.reader import read_recording
 from ..recording.salvage import Damage
-from .packets import DEFAULT_TCP_PORTS, DEFAULT_UDP_PORTS
+from .packets import DEFAULT_CHANNEL_PORTS, DEFAULT_TCP_PORTS, DEFAULT_UDP_PORTS
 from .read import CaptureDamage, RecordBlock, read_blocks
 
 if TYPE_CHECKING:
@@ -87,6 +87,7 @@ def opened(
     udp_ports: Iterable[int] = DEFAULT_UDP_PORTS,
     specs: SpecSet | None = None,
     state_ports: Iterable[int] = (),
+    channel_ports: Mapping[int, str] = DEFAULT_CHANNEL_PORTS,
 ) -> Iterator[tuple[str, tuple[Damage, ...]]]:
     """A recording's path, or a pcap/pcapng capture's imported as one (:func:`import_pcap`,
     into a temporary file that is gone when the block ends), with what the capture lost
@@ -110,6 +111,7 @@ def opened(
             udp_ports=udp_ports,
             specs=specs,
             state_ports=state_ports,
+            channel_ports=channel_ports,
             damage=lost,
         )
         yield out, tuple(map(as_damage, lost))
@@ -122,13 +124,20 @@ def read_capture(
     udp_ports: Iterable[int] = DEFAULT_UDP_PORTS,
     specs: SpecSet | None = None,
     state_ports: Iterable[int] = (),
+    channel_ports: Mapping[int, str] = DEFAULT_CHANNEL_PORTS,
 ) -> Recording:
     """A recording, or a pcap/pcapng capture imported as one (:func:`opened`), read whole;
     a capture's keeps its name, and its damage follows the recording's."""
     import dataclasses
 
-    ports = {"tcp_ports": tcp_ports, "udp_ports": udp_ports, "state_ports": state_ports}
-    with opened(path, specs=specs, **ports) as (p, lost):
+    with opened(
+        path,
+        specs=specs,
+        tcp_ports=tcp_ports,
+        udp_ports=udp_ports,
+        state_ports=state_ports,
+        channel_ports=channel_ports,
+    ) as (p, lost):
         rec = read_recording(p)
     return dataclasses.replace(rec, path=os.fspath(path), damage=rec.damage + lost)
 
@@ -151,13 +160,16 @@ def import_pcap(
     damage: list[CaptureDamage] | None = None,
     state_ports: Iterable[int] = (),
     metadata: Mapping[str, str] | None = None,
+    channel_ports: Mapping[int, str] = DEFAULT_CHANNEL_PORTS,
 ) -> ImportStats:
     """Turn a pcap/pcapng capture into a recording (see the module docstring).
 
     ``metadata``: more keys for the recording's metadata (``robot``, ``cell``).
 
     Flows to or from ``state_ports`` (8083) are recorded as state streams (one
-    ``/fairino/state`` message a packet).
+    ``/fairino/state`` message a packet), and those to or from ``channel_ports`` as the
+    SDK channel each names (``xmlrpc``: calls on ``/fairino/calls``; ``cnde``;
+    ``realtime``): by default the SDKs' 20003, 20005 and 20004.
     Flows to or from ``tcp_ports`` and ``udp_ports`` are taken, and with ``guess`` also
     those on other ports whose first payload is a frame head (``ImportStats.guessed``
     names them).  A damaged capture is imported as far as it reads, each damaged part
@@ -169,16 +181,28 @@ def import_pcap(
 
     tports, uports = frozenset(tcp_ports), frozenset(udp_ports)
     sports = frozenset(state_ports)
-    bad = sorted(p for p in tports | uports | sports if not 0 < p < 65536)
+    bad = sorted(p for p in tports | uports | sports | set(channel_ports) if not 0 < p < 65536)
     if bad:
         raise ValueError(f"ports must be 1..65535, not {bad[0]}")
+    odd = sorted(k for k in channel_ports.values() if k not in ("xmlrpc", "cnde", "realtime"))
+    if odd:
+        raise ValueError(f"a channel port is xmlrpc, cnde or realtime, not {odd[0]!r}")
     if specs is None:
         from ..spec.commands import default_specs
 
         specs = default_specs()
     with atomic_output(out) as tmp:
         return _import(
-            path, tmp, tports, uports, specs, guess, sports, damage=damage, metadata=metadata
+            path,
+            tmp,
+            tports,
+            uports,
+            specs,
+            guess,
+            sports,
+            damage=damage,
+            metadata=metadata,
+            channel_ports=channel_ports,
         )
 
 
@@ -193,6 +217,7 @@ def _import(
     *,
     damage: list[CaptureDamage] | None = None,
     metadata: Mapping[str, str] | None = None,
+    channel_ports: Mapping[int, str] = DEFAULT_CHANNEL_PORTS,
 ) -> ImportStats:
     # Here, not at the top: reading a recording (``check``, ``info``) needs none of them.
     from ..recording.writer import RecordingWriter, default_metadata, utc_time
@@ -224,6 +249,7 @@ def _import(
         guess=guess,
         together=IMPORT_TOGETHER,
         state_ports=sports,
+        channel_ports=channel_ports,
     )
     packets.feed_blocks(itertools.chain(() if first is None else (first,), blocks))
     packets.finish()

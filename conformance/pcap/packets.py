@@ -15,6 +15,11 @@ import struct
 #: import or a capture takes flows from unless told other ports.
 DEFAULT_TCP_PORTS = (8080,)
 DEFAULT_UDP_PORTS = (20007,)
+#: The official SDKs' own channels, by port (``specs/*/xmlrpc.json``,
+#: ``specs/fairino-field/channels/``): XML-RPC 20003, the realtime push 20004, CNDE 20005.
+#: An import or a capture records their connections as those channels (the recording's
+#: ``stream``) unless told other ports.
+DEFAULT_CHANNEL_PORTS = {20003: "xmlrpc", 20004: "realtime", 20005: "cnde"}
 
 # Link types (https://www.tcpdump.org/linktypes.html)
 DLT_NULL = 0

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import itertools
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -31,6 +31,7 @@ from .packets import (
     _RST,
     _SYN,
     _SYN_FIN_RST,
+    DEFAULT_CHANNEL_PORTS,
     DEFAULT_TCP_PORTS,
     DEFAULT_UDP_PORTS,
     DLT_EN10MB,
@@ -94,6 +95,10 @@ class ImportStats:
     retransmitted_bytes: int
     #: State-port packets recorded (``state_ports``).
     state_packets: int = 0
+    #: The SDKs' channels' records: XML-RPC calls, CNDE frames, 20004 packets.
+    calls: int = 0
+    cnde_frames: int = 0
+    realtime_packets: int = 0
     #: Flows on no configured port taken because their first payload is a frame: for each
     #: (transport, the server's port), how many connections or UDP flows.
     guessed: tuple[tuple[str, int, int], ...] = ()
@@ -143,11 +148,14 @@ class PacketRecorder:
         guess: bool = True,
         together: int = 1,
         state_ports: Iterable[int] = (),
+        channel_ports: Mapping[int, str] = DEFAULT_CHANNEL_PORTS,
     ) -> None:
         self.tports, self.uports = frozenset(tcp_ports), frozenset(udp_ports)
-        #: TCP ports of the state stream (8083): their connections are recorded as
-        #: state packets (``StreamRecorder.open(..., stream="state")``).
-        self.sports = frozenset(state_ports)
+        #: TCP ports whose connections are not the command port's, and what they are: the
+        #: state stream's (8083, ``state_ports``) and the SDKs' channels (``channel_ports``:
+        #: ``xmlrpc``, ``cnde``, ``realtime``), recorded as such
+        #: (``StreamRecorder.open(..., stream=...)``).
+        self.sports: dict[int, str] = {**channel_ports, **dict.fromkeys(state_ports, "state")}
         self.guess = guess
         self.rec = StreamRecorder(sink, specs=specs)
         self.conns: dict[int, _TcpConn] = {}  # open TCP connections by id, in opening order
@@ -182,6 +190,9 @@ class PacketRecorder:
             frames=self.rec.frames,
             problems=self.rec.problems,
             state_packets=self.rec.state_packets,
+            calls=self.rec.channel_records["xmlrpc"],
+            cnde_frames=self.rec.channel_records["cnde"],
+            realtime_packets=self.rec.channel_records["realtime"],
             retransmitted_bytes=self.retrans,
             guessed=tuple((t, port, n) for (t, port), n in sorted(self.guessed.items())),
         )
@@ -488,9 +499,10 @@ class PacketRecorder:
             return
         sport, dport = _PORTS(flow, len(flow) - 4)
         if dport in self.sports:
-            self._tcp_packet(self._open_tcp(flow, t, state=True), t, payload, seq, flags)
+            way = self._open_tcp(flow, t, stream=self.sports[dport])
+            self._tcp_packet(way, t, payload, seq, flags)
         elif sport in self.sports:
-            self._open_tcp(_reverse(flow), t, state=True)
+            self._open_tcp(_reverse(flow), t, stream=self.sports[sport])
             self._tcp_packet(self.tcp_ways[flow], t, payload, seq, flags)
         elif dport in self.tports:
             self._tcp_packet(self._open_tcp(flow, t), t, payload, seq, flags)
@@ -532,7 +544,7 @@ class PacketRecorder:
             if len(c.fins) == 2:
                 self._close_tcp(c, t, "client closed" if c.fins[0] == C2S else "server closed")
 
-    def _open_tcp(self, flow: bytes, t: int, *, state: bool = False) -> _TcpWay:
+    def _open_tcp(self, flow: bytes, t: int, *, stream: str = "") -> _TcpWay:
         """A connection whose client sends ``flow``; returns that direction's way."""
         self.next_conn += 1
         self._epoch += 1
@@ -548,7 +560,7 @@ class PacketRecorder:
             transport="tcp",
             client=_fmt(c.client),
             upstream=_fmt(c.server),
-            stream="state" if state else "",
+            stream=stream,
         )
         return way
 

@@ -43,6 +43,32 @@ decoder finds (checksum, CNT gap, garbage, truncated packet) goes to
 ``/fairino/problems`` with ``kind`` ``state``, its ``rule`` the decoder's kind and
 its ``detail`` the decoder's words; a garbage run's bytes are all kept.
 
+The official SDKs' own channels (``proxy --host``, ``capture``/``import-pcap
+--xmlrpc-port/--cnde-port/--realtime-port``: docs/sdk-channels.md) are connections like
+the others too, their ``fairino.Connection`` records carrying ``"stream"`` ``xmlrpc``,
+``cnde`` or ``realtime``, and their traffic one JSON message a record, each with its exact
+bytes, registered with its first message (a recording without them does not carry the
+topics):
+
+* ``/fairino/calls``: one message per XML-RPC call, request and reply together (HTTP/1.1
+  answers a connection's requests in order, and the recorder pairs them so): the method
+  and its parameters (XML-RPC values as JSON, :func:`~.records.value_to_json`), the reply's
+  value or fault, the HTTP status, both messages' times, stream offsets and bytes (HTTP
+  header and body).  A body that is not a call, or a reply that is not a response, keeps
+  its bytes and says why (``request_error``, ``reply_error``); bytes that are not HTTP at
+  all go to ``/fairino/problems`` with ``kind`` ``xmlrpc``.
+* ``/fairino/cnde``: one message per CNDE frame, either direction: its header, what its
+  data says (a configuration, a message, or the configured states by name, read with the
+  configuration the controller accepted on that connection) and its bytes.  Bytes that are
+  no frame go to ``/fairino/problems`` with ``kind`` ``cnde``.
+* ``/fairino/realtime``: one message per 20004 packet, as ``/fairino/state`` holds the 8083
+  ones (the 20004 packet is framed as 8083's: ``specs/fairino-field/channels/realtime-20004.json``);
+  its decoder's problems have ``kind`` ``realtime``.
+
+A reader that does not know these topics skips them; one that meets a message it cannot
+read names it as damage (:mod:`.reader`).  Adding them kept the layout at 4: nothing a
+layout-4 reader read before changed.
+
 Earlier versions of the kit wrote layouts 1 to 3 (a frame a JSON message; JSON frame
 batches per stream; protobuf ``fairino.Frames`` batches per stream).  The reader refuses
 them in one line naming the layout (:data:`OLD_FORMATS`): 0.1.0 was never released, and
@@ -59,20 +85,33 @@ __all__ = [
     "BATCH_BYTES",
     "BATCH_FRAMES",
     "C2S",
+    "CALL_SCHEMA",
+    "CHANNEL_KINDS",
+    "CHANNEL_SCHEMAS",
+    "CNDE_SCHEMA",
+    "CNDE_STREAM",
     "FORMAT",
     "METADATA_NAME",
     "MIN_SPLIT_SIZE",
     "OLD_FORMATS",
     "PROBLEM_RAW_LIMIT",
+    "REALTIME_SCHEMA",
+    "REALTIME_STREAM",
     "RECORDING_STOPPED",
     "S2C",
     "SCHEMAS",
+    "STREAMS",
     "TOPICS",
+    "TOPIC_CALLS",
+    "TOPIC_CNDE",
     "TOPIC_CONNECTIONS",
     "TOPIC_FRAMES",
     "TOPIC_PROBLEMS",
+    "TOPIC_REALTIME",
     "TOPIC_STATE",
+    "XMLRPC_STREAM",
     "DirectionText",
+    "realtime_schema",
     "state_schema",
 ]
 
@@ -101,6 +140,22 @@ STATE_SCHEMA = "fairino.State"
 STATE_KIND = "state"
 #: ``fairino.Connection``'s ``stream`` for a state-port connection.
 STATE_STREAM = "state"
+#: The SDKs' channels: XML-RPC calls (20003), CNDE frames (20005), realtime packets (20004).
+TOPIC_CALLS = "/fairino/calls"
+CALL_SCHEMA = "fairino.Call"
+TOPIC_CNDE = "/fairino/cnde"
+CNDE_SCHEMA = "fairino.Cnde"
+TOPIC_REALTIME = "/fairino/realtime"
+REALTIME_SCHEMA = "fairino.Realtime"
+#: ``fairino.Connection``'s ``stream`` of each SDK channel's connections, which is also
+#: the ``kind`` of its problems on ``/fairino/problems``.
+XMLRPC_STREAM = "xmlrpc"
+CNDE_STREAM = "cnde"
+REALTIME_STREAM = "realtime"
+#: The streams a connection may be (``""``: the text command port's frames).
+STREAMS = (STATE_STREAM, XMLRPC_STREAM, CNDE_STREAM, REALTIME_STREAM)
+#: The problem kinds of the SDKs' channels (kept apart from the command port's and 8083's).
+CHANNEL_KINDS = frozenset((XMLRPC_STREAM, CNDE_STREAM, REALTIME_STREAM))
 METADATA_NAME = "fairino.recording"
 #: Every integer of a recording's messages (connection numbers, CNT, CMD_ID, lengths,
 #: offsets, sizes, times in ns since the epoch, counts) is a non-negative 64-bit value.
@@ -143,7 +198,10 @@ SCHEMAS: Mapping[str, Mapping[str, Any]] = {
             "conn": _CONN,
             "transport": _TRANSPORT,
             "dir": _DIR,
-            "kind": {"type": "string", "enum": ["malformed", "gap", "state"]},
+            "kind": {
+                "type": "string",
+                "enum": ["malformed", "gap", "state", "xmlrpc", "cnde", "realtime"],
+            },
             "rule": {"type": "string"},
             "detail": {"type": "string"},
             "offset": {"type": "integer"},
@@ -173,11 +231,89 @@ SCHEMAS: Mapping[str, Mapping[str, Any]] = {
             "frames_s2c": {"type": "integer"},
             "stream": {
                 "type": "string",
-                "enum": ["state"],
-                "description": "state: the state port (8083), its packets on /fairino/state",
+                "enum": ["state", "xmlrpc", "cnde", "realtime"],
+                "description": "state: the state port (8083), its packets on /fairino/state; "
+                "xmlrpc (20003), cnde (20005), realtime (20004): the SDKs' channels, on "
+                "/fairino/calls, /fairino/cnde and /fairino/realtime",
             },
         },
         "required": ["conn", "event", "t_ns"],
+    },
+}
+
+_NS_OR_NULL = {"type": ["integer", "null"], "description": "ns since the Unix epoch"}
+_INT_OR_NULL = {"type": ["integer", "null"]}
+_B64_OR_NULL = {"type": ["string", "null"], "contentEncoding": "base64"}
+_WHY = {
+    "type": ["object", "null"],
+    "properties": {"rule": {"type": "string"}, "detail": {"type": "string"}},
+    "required": ["rule"],
+}
+_XMLRPC_VALUE = {
+    "description": "an XML-RPC value as JSON: numbers, strings, booleans, null and arrays "
+    'as they are; base64 as {"$base64": ...}, dateTime.iso8601 as {"$dateTime": ...}, a '
+    'struct as {"$struct": {...}}'
+}
+
+#: The JSON schemas of the SDK channels' topics (registered with their first message).
+CHANNEL_SCHEMAS: Mapping[str, Mapping[str, Any]] = {
+    CALL_SCHEMA: {
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": CALL_SCHEMA,
+        "description": "One XML-RPC call on port 20003: request and reply (docs/sdk-channels.md)",
+        "type": "object",
+        "properties": {
+            "conn": _CONN,
+            "transport": _TRANSPORT,
+            "seq": {**_INT_OR_NULL, "description": "the call's number on its connection, from 1"},
+            "method": {"type": ["string", "null"]},
+            "params": {"type": ["array", "null"], "items": _XMLRPC_VALUE},
+            "http": {"type": "string", "description": "the request line"},
+            "request_error": {**_WHY, "description": "why the request is no call"},
+            "request_offset": _INT_OR_NULL,
+            "request_first_ns": _NS_OR_NULL,
+            "request_ns": _NS_OR_NULL,
+            "request_raw": _B64_OR_NULL,
+            "reply": {
+                "type": "string",
+                "enum": ["value", "fault", "error", "missing", "separate", "unknown"],
+            },
+            "status": {**_INT_OR_NULL, "description": "the reply's HTTP status"},
+            "value": _XMLRPC_VALUE,
+            "fault_code": {**_INT_OR_NULL, "minimum": -(1 << 31), "maximum": (1 << 31) - 1},
+            "fault_string": {"type": ["string", "null"]},
+            "reply_error": {**_WHY, "description": "why the reply is no response"},
+            "reply_offset": _INT_OR_NULL,
+            "reply_first_ns": _NS_OR_NULL,
+            "reply_ns": _NS_OR_NULL,
+            "reply_raw": _B64_OR_NULL,
+            "detail": {"type": "string"},
+        },
+        "required": ["conn", "seq", "method", "reply"],
+    },
+    CNDE_SCHEMA: {
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": CNDE_SCHEMA,
+        "description": "One CNDE frame on port 20005 (specs/fairino-field/channels/cnde.json)",
+        "type": "object",
+        "properties": {
+            "conn": _CONN,
+            "transport": _TRANSPORT,
+            "dir": _DIR,
+            "cnt": {"type": "integer", "maximum": 255},
+            "type": {"type": "integer", "maximum": 255},
+            "kind": {"type": ["string", "null"], "description": "the type's name"},
+            "len": {"type": "integer"},
+            "offset": {"type": "integer"},
+            "first_ns": {"type": "integer"},
+            "complete_ns": {"type": "integer"},
+            "config": {"type": ["object", "null"]},
+            "message": {"type": ["object", "null"]},
+            "fields": {"type": ["object", "null"]},
+            "detail": {"type": "string"},
+            "raw": _B64,
+        },
+        "required": ["conn", "dir", "cnt", "type", "len", "complete_ns", "raw"],
     },
 }
 
@@ -229,9 +365,35 @@ def state_schema() -> Mapping[str, Any]:
     arrays, text, and objects for the structures."""
     from ..spec.state import known_layouts
 
+    return _packet_schema(
+        STATE_SCHEMA,
+        known_layouts(),
+        "One port-8083 state packet (the 8083 state manual, 2.1 table 2-1): header "
+        "0x5A5A, CNT, LEN, DATA (table 2-2 of the version its LEN matched), checksum; "
+        "fields by table 2-2's names (jt_cur_pos: J1..J6 in degrees)",
+    )
+
+
+@functools.lru_cache(maxsize=1)
+def realtime_schema() -> Mapping[str, Any]:
+    """``fairino.Realtime``: a 20004 packet as ``/fairino/realtime`` holds it (the fields
+    of every layout of ``specs/fairino-field/channels/realtime-20004.json``)."""
+    from ..spec.realtime import realtime_layouts
+
+    return _packet_schema(
+        REALTIME_SCHEMA,
+        realtime_layouts(),
+        "One packet of the SDKs' realtime port 20004: framed as 8083's (header 0x5A5A, "
+        "CNT, LEN, DATA, checksum), DATA one SDK release's state struct "
+        "(specs/fairino-field/channels/realtime-20004.json; version: <robot version>/<size>)",
+    )
+
+
+def _packet_schema(title: str, layouts: Any, description: str) -> Mapping[str, Any]:
+    """The schema of a state-like packet's record, its ``fields`` those of ``layouts``."""
     props: dict[str, dict[str, Any]] = {}
     seen: dict[str, list[str]] = {}
-    for lay in known_layouts():
+    for lay in layouts:
         for f in lay.fields:
             s = _field_schema(f)
             meaning = next(
@@ -254,12 +416,8 @@ def state_schema() -> Mapping[str, Any]:
     fields = {k: {x: y for x, y in v.items() if x != "x-shape"} for k, v in props.items()}
     return {
         "$schema": "https://json-schema.org/draft/2020-12/schema",
-        "title": STATE_SCHEMA,
-        "description": (
-            "One port-8083 state packet (the 8083 state manual, 2.1 table 2-1): header "
-            "0x5A5A, CNT, LEN, DATA (table 2-2 of the version its LEN matched), checksum; "
-            "fields by table 2-2's names (jt_cur_pos: J1..J6 in degrees)"
-        ),
+        "title": title,
+        "description": description,
         "type": "object",
         "properties": {
             "conn": _CONN,

@@ -12,18 +12,34 @@ from typing import Any
 
 from .layout import (
     C2S,
+    CALL_SCHEMA,
+    CHANNEL_KINDS,
+    CHANNEL_SCHEMAS,
+    CNDE_SCHEMA,
     INT_MAX,
     METADATA_NAME,
     OLD_FORMATS,
+    REALTIME_STREAM,
     SCHEMAS,
     STATE_KIND,
     TIME_MAX,
+    TOPIC_CALLS,
+    TOPIC_CNDE,
     TOPIC_CONNECTIONS,
     TOPIC_FRAMES,
     TOPIC_PROBLEMS,
+    TOPIC_REALTIME,
     TOPIC_STATE,
 )
-from .records import ConnectionRecord, FrameRecord, Frames, ProblemRecord, StateRecord
+from .records import (
+    CallRecord,
+    CndeRecord,
+    ConnectionRecord,
+    FrameRecord,
+    Frames,
+    ProblemRecord,
+    StateRecord,
+)
 from .salvage import MAGIC, Damage, Walk
 from .traffic_pb import decode_traffic
 
@@ -65,6 +81,13 @@ class Recording:
     #: For each of :attr:`problems`, the frames read before it: the file's order of the
     #: two (whose a malformed run is rests on it: conformance/judge/blame.py).
     problems_at: tuple[int, ...] = ()
+    #: The SDKs' channels: XML-RPC calls (``/fairino/calls``), CNDE frames
+    #: (``/fairino/cnde``), 20004 packets (``/fairino/realtime``), in file order, and their
+    #: problems (``kind`` ``xmlrpc``, ``cnde``, ``realtime``), kept apart from the others.
+    calls: tuple[CallRecord, ...] = ()
+    cnde: tuple[CndeRecord, ...] = ()
+    realtime: tuple[StateRecord, ...] = ()
+    channel_problems: tuple[ProblemRecord, ...] = ()
 
     @property
     def start_ns(self) -> int:
@@ -97,10 +120,16 @@ def _kind(v: Any) -> str:
     )
 
 
+def _bounds(schema: Mapping[str, Any], top: int) -> tuple[int, int]:
+    """An integer's range: the schema's ``minimum`` and ``maximum`` where it states them,
+    else 0 and ``top``."""
+    return int(schema.get("minimum", 0)), int(schema.get("maximum", top))
+
+
 def _misfit(v: Any, schema: Mapping[str, Any], name: str, top: int = _INT_MAX) -> str | None:
     """Why the JSON value ``v`` does not fit ``schema`` (the part of JSON schema the
-    recording layout uses: type, items, enum, required), or None when it fits.  An
-    integer is at most ``top``."""
+    recording layout uses: type, items, enum, required, minimum, maximum), or None when it
+    fits.  An integer is 0 to ``top`` unless the schema bounds it."""
     types = schema.get("type")
     if types is not None:
         allowed = [types] if isinstance(types, str) else list(types)
@@ -113,9 +142,12 @@ def _misfit(v: Any, schema: Mapping[str, Any], name: str, top: int = _INT_MAX) -
         )
         if not ok:
             return f"{name} is {_kind(v)}, not {' or '.join(allowed)}"
-        if type(v) is int and not 0 <= v <= top:
+        lo, hi = _bounds(schema, top)
+        if type(v) is int and not lo <= v <= hi:
             if top == _TIME_MAX:
                 return f"{name} is {v}, not a time in ns from 1970 to 2106"
+            if (lo, hi) != (0, _INT_MAX):
+                return f"{name} is {v}, not within {lo}..{hi}"
             return f"{name} is {v}, not a non-negative 64-bit integer"
     if "enum" in schema and v not in schema["enum"]:
         return f"{name} is {str(v)[:40]!r}, not one of {', '.join(schema['enum'])}"
@@ -141,14 +173,19 @@ def _misfit(v: Any, schema: Mapping[str, Any], name: str, top: int = _INT_MAX) -
 _SCHEMA_OF_TOPIC = {
     TOPIC_PROBLEMS: SCHEMAS["fairino.Problem"],
     TOPIC_CONNECTIONS: SCHEMAS["fairino.Connection"],
+    TOPIC_CALLS: CHANNEL_SCHEMAS[CALL_SCHEMA],
+    TOPIC_CNDE: CHANNEL_SCHEMAS[CNDE_SCHEMA],
 }
 
 
 #: Every topic the reader reads (a message on any other is not the reader's: skipped, unnamed).
-READ_TOPICS = frozenset((*_SCHEMA_OF_TOPIC, TOPIC_STATE, TOPIC_FRAMES))
+READ_TOPICS = frozenset((*_SCHEMA_OF_TOPIC, TOPIC_STATE, TOPIC_REALTIME, TOPIC_FRAMES))
+
+#: A record of one JSON message.
+JsonRecord = ProblemRecord | ConnectionRecord | StateRecord | CallRecord | CndeRecord
 
 
-def _record_of(topic: str, doc: Any) -> ProblemRecord | ConnectionRecord | StateRecord:
+def _record_of(topic: str, doc: Any) -> JsonRecord:
     """The record of one JSON message on one of the recording's topics, its JSON checked
     against the topic's schema first (:data:`~.layout.SCHEMAS`): a ``ValueError``
     saying what does not fit."""
@@ -157,18 +194,24 @@ def _record_of(topic: str, doc: Any) -> ProblemRecord | ConnectionRecord | State
     try:
         if topic == TOPIC_STATE:  # its schema comes from the spec set's state layouts
             return StateRecord.from_json(doc)
+        if topic == TOPIC_REALTIME:  # and this one from the 20004 layouts
+            return StateRecord.from_json(doc, stream=REALTIME_STREAM)
         why = _misfit(doc, _SCHEMA_OF_TOPIC[topic], "the message")
         if why is not None:
             raise ValueError(why)
         if topic == TOPIC_PROBLEMS:
             return ProblemRecord.from_json(doc)
+        if topic == TOPIC_CALLS:
+            return CallRecord.from_json(doc)
+        if topic == TOPIC_CNDE:
+            return CndeRecord.from_json(doc)
         return ConnectionRecord.from_json(doc)
-    except (binascii.Error, KeyError, TypeError) as e:
+    except (binascii.Error, KeyError, TypeError, AttributeError) as e:
         raise ValueError(f"{type(e).__name__}: {e}") from None
 
 
 #: The records of one message (:func:`read_message`).
-Read = list[FrameRecord] | ProblemRecord | ConnectionRecord | StateRecord
+Read = list[FrameRecord] | JsonRecord
 
 
 def read_message(topic: str, data: bytes, *, protobuf: bool) -> tuple[Read | None, str]:
@@ -230,7 +273,7 @@ def _channel(c: Any, topics: dict[int, str], protobuf: set[int]) -> None:
 
 
 #: What :meth:`RecordingReader.items` gives: a batch of frames, or another record.
-Item = Frames | ProblemRecord | ConnectionRecord | StateRecord
+Item = Frames | JsonRecord
 
 
 class RecordingReader:
@@ -332,18 +375,28 @@ def read_recording(path: str | os.PathLike[str]) -> Recording:
     conns: list[ConnectionRecord] = []
     states: list[StateRecord] = []
     state_problems: list[ProblemRecord] = []
+    calls: list[CallRecord] = []
+    cnde: list[CndeRecord] = []
+    realtime: list[StateRecord] = []
+    channel_problems: list[ProblemRecord] = []
     for got in reader.items():
         if isinstance(got, Frames):
             frames += got.records()
         elif isinstance(got, ProblemRecord):
-            # The state decoder's problems apart from the command port's.
+            # The state decoder's and the SDK channels' problems apart from the command port's.
             if got.kind == STATE_KIND:
                 state_problems.append(got)
+            elif got.kind in CHANNEL_KINDS:
+                channel_problems.append(got)
             else:
                 problems.append(got)
                 problems_at.append(len(frames))
         elif isinstance(got, StateRecord):
-            states.append(got)
+            (realtime if got.realtime else states).append(got)
+        elif isinstance(got, CallRecord):
+            calls.append(got)
+        elif isinstance(got, CndeRecord):
+            cnde.append(got)
         else:
             conns.append(got)
     return Recording(
@@ -358,4 +411,8 @@ def read_recording(path: str | os.PathLike[str]) -> Recording:
         states=tuple(states),
         state_problems=tuple(state_problems),
         problems_at=tuple(problems_at),
+        calls=tuple(calls),
+        cnde=tuple(cnde),
+        realtime=tuple(realtime),
+        channel_problems=tuple(channel_problems),
     )

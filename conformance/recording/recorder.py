@@ -21,7 +21,19 @@ from ..protocol.frame import DEFAULT_MAX_FRAME_SIZE, SEP, TAIL, Event, Frame, Ma
 from ..protocol.frame_run import FrameRun
 from ..spec.commands import SpecSet
 from .batch import FrameBatcher
-from .layout import BATCH_FRAMES, C2S, PROBLEM_RAW_LIMIT, S2C, STATE_STREAM, DirectionText
+from .cnde_stream import CndeStream
+from .layout import (
+    BATCH_FRAMES,
+    C2S,
+    CNDE_STREAM,
+    PROBLEM_RAW_LIMIT,
+    REALTIME_STREAM,
+    S2C,
+    STATE_STREAM,
+    STREAMS,
+    XMLRPC_STREAM,
+    DirectionText,
+)
 from .names import _CommandNames
 from .records import (
     ConnectionRecord,
@@ -33,7 +45,8 @@ from .records import (
     problem_records,
 )
 from .state_stream import StateStream
-from .streams import _TIMELINE_MAX, _Conn, _Stream
+from .streams import _TIMELINE_MAX, ChannelStream, _Conn, _Stream
+from .xmlrpc_stream import XmlRpcStream
 
 __all__ = ["DECODE_SLICE", "StreamRecorder"]
 
@@ -103,13 +116,19 @@ class StreamRecorder(_CommandNames):
         self.problems = 0
         #: The state layout a state connection should send (None: any known one).
         self.state_version = state_version
-        #: State packets recorded, over every state connection.
-        self.state_packets = 0
+        #: Records of each channel (``state`` packets, ``xmlrpc`` calls, ``cnde`` frames,
+        #: ``realtime`` packets), over all its connections.
+        self.channel_records: dict[str, int] = dict.fromkeys(STREAMS, 0)
         #: Bytes of state connections recorded as damage (garbage, truncated packets, the
         #: client's bytes: :attr:`.state_stream.StateStream.damaged`).
         self.state_damaged = 0
         #: Bytes recorded undecoded (after :meth:`stop_decoding`), every kind of stream.
         self.undecoded_bytes = 0
+
+    @property
+    def state_packets(self) -> int:
+        """State packets recorded, over every state connection."""
+        return self.channel_records[STATE_STREAM]
 
     # -- connection life
 
@@ -124,8 +143,14 @@ class StreamRecorder(_CommandNames):
         local: str = "",
         stream: str = "",
     ) -> None:
-        """A connection opened; ``stream="state"``: a state-port (8083) connection, its
-        bytes read as state packets (:class:`~.state_stream.StateStream`)."""
+        """A connection opened.  ``stream`` says what its bytes are: ``""`` the command
+        port's frames; ``state`` a state-port (8083) connection, its bytes read as state
+        packets (:class:`~.state_stream.StateStream`); the SDKs' channels ``xmlrpc``
+        (:class:`~.xmlrpc_stream.XmlRpcStream`), ``cnde`` (:class:`~.cnde_stream.CndeStream`)
+        and ``realtime`` (20004, a ``StateStream`` of its layouts).  Another value is a
+        ``ValueError``."""
+        if stream and stream not in STREAMS:
+            raise ValueError(f"unknown stream {stream!r} (one of: {', '.join(STREAMS)})")
         self._conns[conn] = _Conn(
             transport=transport,
             client=client,
@@ -135,11 +160,8 @@ class StreamRecorder(_CommandNames):
                 C2S: _Stream(self.max_frame_size, (conn, transport, C2S)),
                 S2C: _Stream(self.max_frame_size, (conn, transport, S2C)),
             },
-            state=(
-                StateStream(self.write, conn, transport=transport, version=self.state_version)
-                if stream == STATE_STREAM
-                else None
-            ),
+            channel=self._channel(stream, conn, transport),
+            stream=stream,
         )
         self.write(
             ConnectionRecord(
@@ -150,9 +172,20 @@ class StreamRecorder(_CommandNames):
                 client=client,
                 upstream=upstream,
                 local=local,
-                stream=STATE_STREAM if stream == STATE_STREAM else "",
+                stream=stream,
             )
         )
+
+    def _channel(self, stream: str, conn: int, transport: str) -> ChannelStream | None:
+        if stream == STATE_STREAM:
+            return StateStream(self.write, conn, transport=transport, version=self.state_version)
+        if stream == REALTIME_STREAM:
+            return StateStream(self.write, conn, transport=transport, realtime=True)
+        if stream == XMLRPC_STREAM:
+            return XmlRpcStream(self.write, conn, transport=transport)
+        if stream == CNDE_STREAM:
+            return CndeStream(self.write, conn, transport=transport)
+        return None
 
     def is_open(self, conn: int) -> bool:
         return conn in self._conns
@@ -161,8 +194,8 @@ class StreamRecorder(_CommandNames):
         c = self._conns.pop(conn, None)
         if c is None:
             return
-        if c.state is not None:
-            self._state_close(conn, c, c.state, t_ns, reason)
+        if c.channel is not None:
+            self._channel_close(conn, c, c.channel, t_ns, reason)
             return
         for d, st in c.streams.items():
             self._emit(conn, c.transport, d, st, st.decoder.close(), t_ns)  # type: ignore[arg-type]
@@ -183,13 +216,21 @@ class StreamRecorder(_CommandNames):
             )
         )
 
-    def _state_close(self, conn: int, c: _Conn, s: StateStream, t_ns: int, reason: str) -> None:
-        before = s.packets, s.problems, s.damaged
-        s.close(t_ns)
-        self.state_packets += s.packets - before[0]
+    def _counted(self, c: _Conn, step: Callable[[ChannelStream], None]) -> None:
+        """``step`` on a channel connection, its new records (and a state connection's
+        damaged bytes) counted."""
+        s = c.channel
+        assert s is not None
+        before = s.packets, s.problems, getattr(s, "damaged", 0)
+        step(s)
+        self.channel_records[c.stream] += s.packets - before[0]
         self.problems += s.problems - before[1]
-        self.state_damaged += s.damaged - before[2]
-        c_bytes, s_bytes = s.bytes[C2S], s.bytes[S2C]
+        if c.stream == STATE_STREAM:
+            self.state_damaged += getattr(s, "damaged", 0) - before[2]
+
+    def _channel_close(self, conn: int, c: _Conn, s: ChannelStream, t_ns: int, reason: str) -> None:
+        self._counted(c, lambda s: s.close(t_ns))
+        frames = getattr(s, "frames", None)
         self.write(
             ConnectionRecord(
                 conn=conn,
@@ -200,26 +241,24 @@ class StreamRecorder(_CommandNames):
                 upstream=c.upstream,
                 local=c.local,
                 reason=reason,
-                bytes_c2s=c_bytes,
-                bytes_s2c=s_bytes,
-                frames_s2c=s.packets,
-                stream=STATE_STREAM,
+                bytes_c2s=s.bytes[C2S],
+                bytes_s2c=s.bytes[S2C],
+                frames_c2s=frames[C2S] if frames is not None else 0,
+                frames_s2c=frames[S2C] if frames is not None else s.packets,
+                stream=c.stream,
             )
         )
 
-    def _state_data(self, c: _Conn, direction: DirectionText, t_ns: int, data: bytes) -> None:
-        """A state connection's bytes (each read on its own: packets are small and slow)."""
-        s = c.state
-        assert s is not None
-        before = s.packets, s.problems, s.damaged
-        if self.undecoded_reason is not None and direction == S2C:
-            s.undecoded(direction, t_ns, data, self.undecoded_reason)
+    def _channel_data(self, c: _Conn, direction: DirectionText, t_ns: int, data: bytes) -> None:
+        """A channel connection's bytes (each read on its own: its records are few).  Once
+        decoding stops, they are recorded as they are (a state connection's client bytes
+        are problems anyway: decided as ever)."""
+        reason = self.undecoded_reason
+        if reason is not None and (direction == S2C or c.stream != STATE_STREAM):
+            self._counted(c, lambda s: s.undecoded(direction, t_ns, data, reason))
             self.undecoded_bytes += len(data)
         else:
-            s.data(direction, t_ns, data)
-        self.state_packets += s.packets - before[0]
-        self.problems += s.problems - before[1]
-        self.state_damaged += s.damaged - before[2]
+            self._counted(c, lambda s: s.data(direction, t_ns, data))
         if self.checkpoint is not None:
             self.checkpoint()
 
@@ -275,7 +314,7 @@ class StreamRecorder(_CommandNames):
         streams_of: dict[tuple[int, DirectionText], _Stream] = {}
         for conn, d in dict.fromkeys(keys):
             c = self._conns.get(conn)
-            if c is None or c.state is not None:
+            if c is None or c.channel is not None:
                 return False
             st = streams_of[conn, d] = c.streams[d]
             if len(st.timeline) >= _TIMELINE_MAX:
@@ -397,9 +436,9 @@ class StreamRecorder(_CommandNames):
         is never given bytes of two reads at once.
         """
         c = self._conns[conn]
-        if c.state is not None:
+        if c.channel is not None:
             for t_ns, piece in reads:
-                self._state_data(c, direction, t_ns, piece)
+                self._channel_data(c, direction, t_ns, piece)
             return
         if len(reads) == 1:
             t_ns, data = reads[0]
@@ -576,12 +615,8 @@ class StreamRecorder(_CommandNames):
     ) -> None:
         """``missing`` bytes of the stream were never captured: record it, restart decoding."""
         c = self._conns[conn]
-        if c.state is not None:
-            before = c.state.packets, c.state.problems, c.state.damaged
-            c.state.gap(direction, t_ns, missing, detail)
-            self.state_packets += c.state.packets - before[0]
-            self.problems += c.state.problems - before[1]
-            self.state_damaged += c.state.damaged - before[2]
+        if c.channel is not None:
+            self._counted(c, lambda s: s.gap(direction, t_ns, missing, detail))
             return
         st = c.streams[direction]
         self._emit(conn, c.transport, direction, st, st.decoder.close(), t_ns)

@@ -1,6 +1,8 @@
 """The records of a recording: frames (one by one, :class:`FrameRecord`, or a batch as
-columns, :class:`Frames`), problems, connections and state packets, and the JSON of the
-records the layout writes as JSON (:mod:`conformance.recording.layout`)."""
+columns, :class:`Frames`), problems, connections and state packets (8083, and the SDKs'
+20004), the SDKs' XML-RPC calls (:class:`CallRecord`) and CNDE frames
+(:class:`CndeRecord`), and the JSON of the records the layout writes as JSON
+(:mod:`conformance.recording.layout`)."""
 
 from __future__ import annotations
 
@@ -13,9 +15,12 @@ from itertools import accumulate, pairwise, repeat
 from typing import Any, Literal, Protocol
 
 from ..protocol.frame import Frame, Malformed
-from .layout import PROBLEM_RAW_LIMIT, DirectionText
+from ..protocol.xmlrpc import XmlRpcDateTime, XmlRpcValue
+from .layout import PROBLEM_RAW_LIMIT, REALTIME_STREAM, DirectionText
 
 __all__ = [
+    "CallRecord",
+    "CndeRecord",
     "ConnectionRecord",
     "FrameRecord",
     "Frames",
@@ -25,11 +30,21 @@ __all__ = [
     "StateRecord",
     "Stream",
     "problem_records",
+    "value_from_json",
+    "value_to_json",
 ]
 
 
 def _b64(raw: bytes) -> str:
     return base64.b64encode(raw).decode("ascii")
+
+
+def _b64_or_none(raw: bytes | None) -> str | None:
+    return None if raw is None else _b64(raw)
+
+
+def _bytes_or_none(text: str | None) -> bytes | None:
+    return None if text is None else base64.b64decode(text, validate=True)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -359,6 +374,10 @@ class StateRecord:
     offset: int = 0
     fields: Mapping[str, Any] = field(default_factory=dict, repr=False)
     transport: str = "tcp"
+    #: Which port's packet: ``""`` the state port (8083, ``/fairino/state``), ``realtime``
+    #: the SDKs' realtime push (20004, ``/fairino/realtime``).  Not in the JSON: the
+    #: topic says it.
+    stream: str = ""
 
     @property
     def checksum_ok(self) -> bool:
@@ -382,8 +401,9 @@ class StateRecord:
         }
 
     @classmethod
-    def from_json(cls, d: Mapping[str, Any]) -> StateRecord:
+    def from_json(cls, d: Mapping[str, Any], *, stream: str = "") -> StateRecord:
         return cls(
+            stream=stream,
             conn=d["conn"],
             transport=d.get("transport", "tcp"),
             cnt=d["cnt"],
@@ -398,8 +418,260 @@ class StateRecord:
             raw=base64.b64decode(d["raw"]),
         )
 
+    @property
+    def realtime(self) -> bool:
+        """A packet of the realtime port (20004), not of the state port (8083)."""
+        return self.stream == REALTIME_STREAM
 
-Record = FrameRecord | ProblemRecord | ConnectionRecord | StateRecord
+
+# --------------------------------------------------------------------------- XML-RPC values
+
+#: The JSON of an XML-RPC value that JSON has no type for: a one-member object tagged so.
+_TAG_BASE64 = "$base64"
+_TAG_DATETIME = "$dateTime"
+_TAG_STRUCT = "$struct"
+
+
+def value_to_json(v: XmlRpcValue) -> Any:
+    """An XML-RPC value as JSON: numbers, strings, booleans, nil and arrays as they are;
+    ``base64`` as ``{"$base64": text}``, ``dateTime.iso8601`` as ``{"$dateTime": text}``
+    and a ``struct`` as ``{"$struct": {...}}`` (so that no struct reads as a tag)."""
+    if isinstance(v, list):
+        return [value_to_json(x) for x in v]
+    if isinstance(v, dict):
+        return {_TAG_STRUCT: {str(k): value_to_json(x) for k, x in v.items()}}
+    if isinstance(v, bytes):
+        return {_TAG_BASE64: _b64(v)}
+    if isinstance(v, XmlRpcDateTime):
+        return {_TAG_DATETIME: v.text}
+    return v
+
+
+def value_from_json(d: Any) -> XmlRpcValue:
+    """:func:`value_to_json` read back; a ``ValueError`` for JSON it does not write."""
+    if isinstance(d, list):
+        return [value_from_json(x) for x in d]
+    if isinstance(d, dict):
+        if len(d) == 1:
+            ((tag, inner),) = d.items()
+            if tag == _TAG_STRUCT and isinstance(inner, dict):
+                return {str(k): value_from_json(x) for k, x in inner.items()}
+            if tag == _TAG_BASE64 and isinstance(inner, str):
+                return base64.b64decode(inner, validate=True)
+            if tag == _TAG_DATETIME and isinstance(inner, str):
+                return XmlRpcDateTime(inner)
+        raise ValueError(f"an object that is no tagged XML-RPC value ({', '.join(d)[:60]})")
+    if d is None or isinstance(d, bool | int | float | str):
+        return d
+    raise ValueError(f"{type(d).__name__} is no XML-RPC value")
+
+
+@dataclass(frozen=True, kw_only=True)
+class CallRecord:
+    """One XML-RPC call on port 20003 (topic ``/fairino/calls``): the request (method,
+    parameters, or why its body is not a call) and the reply (a value, a fault, or why it
+    is none), their times, stream offsets and exact bytes (HTTP header and body).
+
+    HTTP/1.1 answers a connection's requests in order, so the recorder pairs them so
+    (:mod:`~.xmlrpc_stream`).  A reply whose request is not recorded (before a capture
+    began, after a gap) is a record with no request (``request_raw`` None); a request
+    whose reply came in another record has ``reply`` ``separate``."""
+
+    conn: int
+    #: The call's number on its connection, from 1 (a reply alone: its request's, if known).
+    seq: int | None
+    transport: str = "tcp"
+    method: str | None = None
+    params: tuple[XmlRpcValue, ...] | None = None
+    #: The request's HTTP request line (``POST /RPC2 HTTP/1.1``).
+    http: str = ""
+    #: Why the request is no call, (rule, detail): a body that is not XML-RPC, a method
+    #: other than POST, HTTP the recorder could not read.
+    request_error: tuple[str, str] | None = None
+    request_raw: bytes | None = field(default=None, repr=False)
+    request_offset: int | None = None
+    request_first_ns: int | None = None
+    request_ns: int | None = None
+    #: The reply: ``value``, ``fault``, ``error`` (an HTTP status other than 200, or a body
+    #: that is no response), ``missing`` (none before the connection closed), ``separate``
+    #: (in a record of its own) or ``unknown`` (pairing was lost at a gap in a capture).
+    reply: str = "missing"
+    #: The reply's HTTP status (None: no reply).
+    status: int | None = None
+    value: XmlRpcValue = None
+    fault_code: int | None = None
+    fault_string: str | None = None
+    reply_error: tuple[str, str] | None = None
+    reply_raw: bytes | None = field(default=None, repr=False)
+    reply_offset: int | None = None
+    reply_first_ns: int | None = None
+    reply_ns: int | None = None
+    #: Why a reply is missing, separate or unknown, in words.
+    detail: str = ""
+
+    @property
+    def has_request(self) -> bool:
+        return self.request_raw is not None
+
+    @property
+    def has_reply(self) -> bool:
+        return self.reply_raw is not None
+
+    @property
+    def first_ns(self) -> int:
+        """When its first byte came (the request's, else the reply's)."""
+        t = self.request_first_ns if self.has_request else self.reply_first_ns
+        return t or self.complete_ns
+
+    @property
+    def complete_ns(self) -> int:
+        """When its last byte came (the reply's, else the request's)."""
+        return self.reply_ns or self.request_ns or 0
+
+    @property
+    def latency_ns(self) -> int | None:
+        if self.request_ns is None or self.reply_ns is None:
+            return None
+        return self.reply_ns - self.request_ns
+
+    def to_json(self) -> dict[str, Any]:
+        def err(e: tuple[str, str] | None) -> dict[str, str] | None:
+            return None if e is None else {"rule": e[0], "detail": e[1]}
+
+        return {
+            "conn": self.conn,
+            "transport": self.transport,
+            "seq": self.seq,
+            "method": self.method,
+            "params": None if self.params is None else [value_to_json(p) for p in self.params],
+            "http": self.http,
+            "request_error": err(self.request_error),
+            "request_offset": self.request_offset,
+            "request_first_ns": self.request_first_ns,
+            "request_ns": self.request_ns,
+            "request_raw": _b64_or_none(self.request_raw),
+            "reply": self.reply,
+            "status": self.status,
+            "value": value_to_json(self.value),
+            "fault_code": self.fault_code,
+            "fault_string": self.fault_string,
+            "reply_error": err(self.reply_error),
+            "reply_offset": self.reply_offset,
+            "reply_first_ns": self.reply_first_ns,
+            "reply_ns": self.reply_ns,
+            "reply_raw": _b64_or_none(self.reply_raw),
+            "detail": self.detail,
+        }
+
+    @classmethod
+    def from_json(cls, d: Mapping[str, Any]) -> CallRecord:
+        def err(e: Any) -> tuple[str, str] | None:
+            return None if e is None else (str(e["rule"]), str(e.get("detail", "")))
+
+        params = d.get("params")
+        return cls(
+            conn=d["conn"],
+            transport=d.get("transport", "tcp"),
+            seq=d.get("seq"),
+            method=d.get("method"),
+            params=None if params is None else tuple(value_from_json(p) for p in params),
+            http=d.get("http") or "",
+            request_error=err(d.get("request_error")),
+            request_offset=d.get("request_offset"),
+            request_first_ns=d.get("request_first_ns"),
+            request_ns=d.get("request_ns"),
+            request_raw=_bytes_or_none(d.get("request_raw")),
+            reply=d.get("reply", "missing"),
+            status=d.get("status"),
+            value=value_from_json(d.get("value")),
+            fault_code=d.get("fault_code"),
+            fault_string=d.get("fault_string"),
+            reply_error=err(d.get("reply_error")),
+            reply_offset=d.get("reply_offset"),
+            reply_first_ns=d.get("reply_first_ns"),
+            reply_ns=d.get("reply_ns"),
+            reply_raw=_bytes_or_none(d.get("reply_raw")),
+            detail=d.get("detail") or "",
+        )
+
+
+@dataclass(frozen=True, kw_only=True)
+class CndeRecord:
+    """One CNDE frame on port 20005 (topic ``/fairino/cnde``), either way: its header
+    fields, what its data says (an ``OUTPUT_CONFIG``'s period and state names, a
+    ``MESSAGE``'s status and text, an ``OUTPUT_STATE``'s states by name, read with the
+    configuration the controller accepted on that connection) and its exact bytes."""
+
+    conn: int
+    dir: DirectionText
+    cnt: int
+    type: int
+    length: int
+    raw: bytes = field(repr=False)
+    complete_ns: int
+    first_ns: int = 0
+    offset: int = 0
+    transport: str = "tcp"
+    #: ``OUTPUT_CONFIG``: ``{"period_ms": n, "names": [...]}``.
+    config: Mapping[str, Any] | None = None
+    #: ``MESSAGE``: ``{"ok": bool, "text": str}``.
+    message: Mapping[str, Any] | None = None
+    #: ``OUTPUT_STATE``: the configured states by name (None: no configuration to read
+    #: them with, or a payload of another length: ``detail`` says).
+    fields: Mapping[str, Any] | None = field(default=None, repr=False)
+    #: What could not be read of the data, in words.
+    detail: str = ""
+
+    @property
+    def kind(self) -> str | None:
+        """The type's name (``OUTPUT_STATE``), None for a byte the SDKs do not define."""
+        from ..protocol.cnde import CndeType
+
+        try:
+            return CndeType(self.type).name
+        except ValueError:
+            return None
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "conn": self.conn,
+            "transport": self.transport,
+            "dir": self.dir,
+            "cnt": self.cnt,
+            "type": self.type,
+            "kind": self.kind,
+            "len": self.length,
+            "offset": self.offset,
+            "first_ns": self.first_ns or self.complete_ns,
+            "complete_ns": self.complete_ns,
+            "config": None if self.config is None else dict(self.config),
+            "message": None if self.message is None else dict(self.message),
+            "fields": None if self.fields is None else dict(self.fields),
+            "detail": self.detail,
+            "raw": _b64(self.raw),
+        }
+
+    @classmethod
+    def from_json(cls, d: Mapping[str, Any]) -> CndeRecord:
+        return cls(
+            conn=d["conn"],
+            transport=d.get("transport", "tcp"),
+            dir=d["dir"],
+            cnt=d["cnt"],
+            type=d["type"],
+            length=d["len"],
+            offset=d.get("offset", 0),
+            first_ns=d.get("first_ns", d["complete_ns"]),
+            complete_ns=d["complete_ns"],
+            config=d.get("config"),
+            message=d.get("message"),
+            fields=d.get("fields"),
+            detail=d.get("detail") or "",
+            raw=base64.b64decode(d["raw"], validate=True),
+        )
+
+
+Record = FrameRecord | ProblemRecord | ConnectionRecord | StateRecord | CallRecord | CndeRecord
 
 
 class RecordSink(Protocol):

@@ -1,4 +1,5 @@
-"""One state-port (8083) connection's bytes in, state records out (sans-I/O).
+"""One state-port (8083) connection's bytes in, state records out (sans-I/O); and one
+realtime-port (20004) connection's, whose packets are framed alike.
 
 :class:`StateStream` is what :class:`~conformance.recording.StreamRecorder` uses for a
 connection opened with ``stream="state"``: the controller's bytes go through the
@@ -12,6 +13,12 @@ garbage run or a truncated packet all of its bytes (in pieces of ``PROBLEM_RAW_L
 what the client sends on the port (it takes nothing: the 8083 manual, section 1) is
 kept the same way, rule ``client_bytes``.  What it holds is bounded by the decoder's:
 one packet, or one garbage run of at most 64 KiB.
+
+A realtime connection (``stream="realtime"``: the SDKs' 20004 push,
+``specs/fairino-field/channels/realtime-20004.json``) goes through the same steps with the
+20004 layouts' decoder (:func:`~conformance.spec.realtime.realtime_decoder`): its packets
+are :class:`StateRecord` of ``stream`` ``realtime`` (``/fairino/realtime``), its problems
+of ``kind`` ``realtime``.
 """
 
 from __future__ import annotations
@@ -19,9 +26,10 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Callable
 
-from ..protocol.state import StatePacket, StateProblem, StateProblemKind
-from ..spec.state import state_decoder as _Decoder
-from .layout import C2S, PROBLEM_RAW_LIMIT, S2C, STATE_KIND, DirectionText
+from ..protocol.state import StateDecoder, StatePacket, StateProblem, StateProblemKind
+from ..spec.realtime import realtime_decoder
+from ..spec.state import state_decoder
+from .layout import C2S, PROBLEM_RAW_LIMIT, REALTIME_STREAM, S2C, STATE_KIND, DirectionText
 from .records import ProblemRecord, Record, StateRecord
 
 __all__ = ["CLIENT_BYTES", "StateStream"]
@@ -41,18 +49,25 @@ class StateStream:
         *,
         transport: str = "tcp",
         version: str | None = None,
+        realtime: bool = False,
     ) -> None:
         #: Where the records go (the recorder's :meth:`~.recorder.StreamRecorder.write`).
         self.write = write
         self.conn = conn
         self.transport = transport
         self.version = version
-        self.decoder = _Decoder(version)
+        #: The port's packets: the state port's (8083), or the realtime port's (20004).
+        self.stream = REALTIME_STREAM if realtime else ""
+        self.kind = REALTIME_STREAM if realtime else STATE_KIND
+        self._decoder: Callable[[str | None], StateDecoder] = (
+            realtime_decoder if realtime else state_decoder
+        )
+        self.decoder = self._decoder(version)
         self.base = 0  # stream offset of the decoder's first byte (grows at gaps)
         self.pending = bytearray()  # bytes of the stream no event has accounted for yet
         self.pending_at = 0  # stream offset of pending[0]
         self.timeline: deque[tuple[int, int]] = deque()  # (stream offset, t_ns)
-        self.bytes = {C2S: 0, S2C: 0}
+        self.bytes: dict[str, int] = {C2S: 0, S2C: 0}
         self.client_offset = 0
         self.last_ns = 0
         self.packets = 0
@@ -72,7 +87,10 @@ class StateStream:
             self._kept(
                 C2S,
                 CLIENT_BYTES,
-                f"{len(data)} bytes from the client on the state port, which takes none "
+                f"{len(data)} bytes from the client on the realtime port (20004), which "
+                "takes none (the SDKs only read it: specs/fairino-field/channels/realtime-20004.json)"
+                if self.stream
+                else f"{len(data)} bytes from the client on the state port, which takes none "
                 "(8083 manual, section 1)",
                 self.client_offset,
                 data,
@@ -95,8 +113,7 @@ class StateStream:
         if direction == C2S:
             self.data(C2S, t_ns, data)
             return
-        if self.decoder is not None:
-            self.close(t_ns)
+        self.close(t_ns)
         at = self.pending_at + len(self.pending)
         self.bytes[S2C] += len(data)
         self._kept(
@@ -124,7 +141,7 @@ class StateStream:
                 conn=self.conn,
                 transport=self.transport,
                 dir=direction,
-                kind=STATE_KIND,
+                kind=self.kind,
                 rule="gap",
                 detail=detail or f"{missing} bytes missing from the capture",
                 offset=at,
@@ -136,7 +153,7 @@ class StateStream:
         self.problems += 1
         if direction == S2C:
             self.pending_at = self.base = at + missing
-            self.decoder = _Decoder(self.version)
+            self.decoder = self._decoder(self.version)
             self.timeline.clear()
 
     def close(self, t_ns: int) -> None:
@@ -155,7 +172,7 @@ class StateStream:
             self.pending_at += len(self.pending)
             self.pending.clear()
         self.base = self.pending_at
-        self.decoder = _Decoder(self.version)
+        self.decoder = self._decoder(self.version)
         self.timeline.clear()
 
     # ------------------------------------------------------------------ output
@@ -201,6 +218,7 @@ class StateStream:
                         first_ns=first,
                         complete_ns=t_ns,
                         fields=ev.to_json()["fields"],
+                        stream=self.stream,
                     )
                 )
                 continue
@@ -220,7 +238,7 @@ class StateStream:
                     conn=self.conn,
                     transport=self.transport,
                     dir=S2C,
-                    kind=STATE_KIND,
+                    kind=self.kind,
                     rule=kind.value,
                     detail=ev.detail,
                     offset=offset,
@@ -256,7 +274,7 @@ class StateStream:
                     conn=self.conn,
                     transport=self.transport,
                     dir=direction,
-                    kind=STATE_KIND,
+                    kind=self.kind,
                     rule=rule,
                     detail=detail if parts == 1 else f"{detail} (part {k + 1} of {parts})",
                     offset=offset + k * PROBLEM_RAW_LIMIT,

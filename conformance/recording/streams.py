@@ -3,14 +3,42 @@ a frame decoder, the stream offsets and times its bytes arrived at, counts."""
 
 from __future__ import annotations
 
+import builtins
 from collections import deque
 from dataclasses import dataclass
+from typing import Protocol
 
 from ..protocol.decoder import FrameDecoder
+from .layout import DirectionText
 from .records import Stream
-from .state_stream import StateStream
 
-__all__ = ["_TIMELINE_MAX", "_Conn", "_Stream"]
+__all__ = ["_TIMELINE_MAX", "ChannelStream", "_Conn", "_Stream"]
+
+
+class ChannelStream(Protocol):
+    """A connection whose bytes are not the command port's frames: the state port's
+    (:class:`~.state_stream.StateStream`), the SDKs' XML-RPC
+    (:class:`~.xmlrpc_stream.XmlRpcStream`), CNDE (:class:`~.cnde_stream.CndeStream`) and
+    realtime port's (a ``StateStream`` too).  Each writes its own records."""
+
+    transport: str
+    #: Records written of the channel's own kind (state packets, calls, CNDE frames).
+    packets: int
+    #: Problem records written.
+    problems: int
+    #: Bytes taken, per direction.
+    bytes: dict[str, int]
+
+    def data(self, direction: DirectionText, t_ns: int, data: builtins.bytes) -> None: ...
+
+    def undecoded(
+        self, direction: DirectionText, t_ns: int, data: builtins.bytes, reason: str
+    ) -> None: ...
+
+    def gap(self, direction: DirectionText, t_ns: int, missing: int, detail: str = "") -> None: ...
+
+    def close(self, t_ns: int) -> None: ...
+
 
 # Arrival times remembered per stream while no event consumes them: a peer trickling
 # an endless frame a byte at a time would otherwise grow the list for ever.  Past the
@@ -49,5 +77,8 @@ class _Conn:
     upstream: str
     local: str
     streams: dict[str, _Stream]
-    #: A state-port connection's packets (``open(..., stream="state")``), else None.
-    state: StateStream | None = None
+    #: A state-port or SDK-channel connection's own records (``open(..., stream=...)``),
+    #: else None (the command port's frames).
+    channel: ChannelStream | None = None
+    #: Its ``stream`` (``state``, ``xmlrpc``, ``cnde``, ``realtime``; ``""``: frames).
+    stream: str = ""

@@ -7,24 +7,40 @@ import json
 import os
 import socket
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import IO, Any, cast
 
 from .._version import __version__
 from .layout import (
     BATCH_BYTES,
+    CALL_SCHEMA,
+    CHANNEL_SCHEMAS,
+    CNDE_SCHEMA,
     FORMAT,
     METADATA_NAME,
+    REALTIME_SCHEMA,
     SCHEMAS,
     STATE_SCHEMA,
+    TOPIC_CALLS,
+    TOPIC_CNDE,
     TOPIC_CONNECTIONS,
     TOPIC_FRAMES,
     TOPIC_PROBLEMS,
+    TOPIC_REALTIME,
     TOPIC_STATE,
     TOPICS,
+    realtime_schema,
     state_schema,
 )
-from .records import FrameRecord, Frames, ProblemRecord, Record, StateRecord
+from .records import (
+    CallRecord,
+    CndeRecord,
+    FrameRecord,
+    Frames,
+    ProblemRecord,
+    Record,
+    StateRecord,
+)
 from .traffic_pb import FILE_DESCRIPTOR_SET, SCHEMA_NAME, encode_traffic
 
 __all__ = ["RecordingWriter", "default_metadata", "utc_time"]
@@ -183,15 +199,24 @@ class RecordingWriter:
         self._add(TOPIC_FRAMES, log, msg, publish)
 
     def write(self, record: Record) -> None:
-        """Any other record: connections and problems, state packets (their topic and
-        schema registered with the first one); a frame record as a batch of one."""
+        """Any other record: connections and problems, state packets, the SDK channels'
+        calls, CNDE frames and realtime packets (a topic and its schema registered with
+        its first message); a frame record as a batch of one."""
         if isinstance(record, FrameRecord):
             self.write_frames(Frames.of([record]))
             return
         if isinstance(record, StateRecord):
-            if TOPIC_STATE not in self._channels:
-                self._register_state()
-            topic, log, publish = TOPIC_STATE, record.complete_ns, record.first_ns
+            topic = TOPIC_REALTIME if record.realtime else TOPIC_STATE
+            self._register(topic)
+            log, publish = record.complete_ns, record.first_ns
+        elif isinstance(record, CallRecord):
+            topic = TOPIC_CALLS
+            self._register(topic)
+            log, publish = record.complete_ns, record.first_ns
+        elif isinstance(record, CndeRecord):
+            topic = TOPIC_CNDE
+            self._register(topic)
+            log, publish = record.complete_ns, record.first_ns
         elif isinstance(record, ProblemRecord):
             topic, log, publish = TOPIC_PROBLEMS, record.complete_ns, record.first_ns
         else:
@@ -209,13 +234,21 @@ class RecordingWriter:
             sequence=seq & 0xFFFFFFFF,
         )
 
-    def _register_state(self) -> None:
-        """The state topic and its schema, with the first state packet (a recording of the
-        command port alone does not carry them)."""
-        sid = self._mcap.register_schema(
-            STATE_SCHEMA, "jsonschema", json.dumps(state_schema()).encode("utf-8")
-        )
-        ch = self._channels[TOPIC_STATE] = self._mcap.register_channel(TOPIC_STATE, "json", sid)
+    def _register(self, topic: str) -> None:
+        """A topic written only when its traffic is there (the state port's, the SDK
+        channels'), with its schema, at its first message: a recording of the command port
+        alone does not carry them."""
+        if topic in self._channels:
+            return
+        schemas: dict[str, tuple[str, Callable[[], Mapping[str, Any]]]] = {
+            TOPIC_STATE: (STATE_SCHEMA, state_schema),
+            TOPIC_REALTIME: (REALTIME_SCHEMA, realtime_schema),
+            TOPIC_CALLS: (CALL_SCHEMA, lambda: CHANNEL_SCHEMAS[CALL_SCHEMA]),
+            TOPIC_CNDE: (CNDE_SCHEMA, lambda: CHANNEL_SCHEMAS[CNDE_SCHEMA]),
+        }
+        name, schema = schemas[topic]
+        sid = self._mcap.register_schema(name, "jsonschema", json.dumps(schema()).encode("utf-8"))
+        ch = self._channels[topic] = self._mcap.register_channel(topic, "json", sid)
         self._seq[ch] = 0
 
     def flush(self) -> None:

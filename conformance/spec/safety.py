@@ -14,6 +14,13 @@ safety class (specs) and the target, whether the kit may send it:
 A command whose ID the manual also gives to another command is judged by the more
 dangerous of the two, since the controller may read the ID either way.  Every
 refusal carries a reason, reported as SKIPPED.
+
+The SDKs' XML-RPC methods (``specs/*/xmlrpc.json``) follow the same rules
+(:meth:`SafetyPolicy.permits_method`): a method read as a command by that command, any
+other by its own safety class (shutdown, an IP change, the robot type are destructive: sent
+only when named); a method the surface lacks only to a loopback target; and XML-RPC
+introspection (``system.listMethods`` and friends, which power a real controller off:
+field fact fws-001) never, to any target, unless named one by one.
 """
 
 from __future__ import annotations
@@ -23,6 +30,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 from .commands import Command, Safety, SpecSet
+from .xmlrpc import XmlRpcMethod, surface_for
 
 __all__ = ["SafetyPolicy", "is_loopback"]
 
@@ -90,28 +98,59 @@ class SafetyPolicy:
         return True, ""
 
     def _permits_one(self, command: Command) -> tuple[bool, str]:
-        s = command.safety
+        return self._permits_class(command.name, command.safety, self.named(command))
+
+    def _permits_class(self, name: str, s: Safety, named: bool) -> tuple[bool, str]:
+        """What a command or method of safety class ``s`` may be sent (``named``: named one
+        by one with ``--allow-destructive``)."""
         if self.embedded:
             return True, ""
         if s is Safety.DESTRUCTIVE:
-            if self.named(command):
+            if named:
                 return True, ""
             return False, (
-                f"{command.name} is destructive (safety class 'destructive'); "
-                f"name it with --allow-destructive {command.name} to send it"
+                f"{name} is destructive (safety class 'destructive'); "
+                f"name it with --allow-destructive {name} to send it"
             )
         if s is Safety.QUERY or self.loopback:
             return True, ""
-        if s is Safety.CONFIGURATION and not (self.allow_config or self.named(command)):
+        if s is Safety.CONFIGURATION and not (self.allow_config or named):
             return (
                 False,
-                f"{command.name} changes configuration on a non-loopback target; pass --allow-config",
+                f"{name} changes configuration on a non-loopback target; pass --allow-config",
             )
-        if s is Safety.IO and not (self.allow_io or self.named(command)):
-            return False, f"{command.name} drives I/O on a non-loopback target; pass --allow-io"
-        if s in (Safety.MOTION, Safety.PROGRAM) and not (self.allow_motion or self.named(command)):
+        if s is Safety.IO and not (self.allow_io or named):
+            return False, f"{name} drives I/O on a non-loopback target; pass --allow-io"
+        if s in (Safety.MOTION, Safety.PROGRAM) and not (self.allow_motion or named):
             return (
                 False,
-                f"{command.name} can move the arm ({s.value}) on a non-loopback target; pass --allow-motion",
+                f"{name} can move the arm ({s.value}) on a non-loopback target; pass --allow-motion",
             )
         return True, ""
+
+    def permits_method(self, name: str, specs: SpecSet) -> tuple[bool, str]:
+        """(allowed, reason when not) for an XML-RPC call of method ``name`` (see the
+        module): introspection only when named, to any target; a method read as a command
+        by :meth:`permits`; any other by its safety class; one the surface lacks only to a
+        loopback target."""
+        surface = surface_for(specs)
+        low = name.lower()
+        if low.startswith(surface.introspection_prefix.lower()):
+            if low in self.destructive:
+                return True, ""
+            return False, (
+                f"{name} is XML-RPC introspection, which powers a real controller off "
+                f"(field fact fws-001); it is never sent unless named with --allow-destructive {name}"
+            )
+        m: XmlRpcMethod | None = surface.method(name)
+        if m is None:
+            if self.loopback:
+                return True, ""
+            return (
+                False,
+                f"{name} is not an XML-RPC method of the SDKs: not sent to a non-loopback target",
+            )
+        command = specs.by_key(m.command_key) if m.command_key is not None else None
+        if command is not None:
+            return self.permits(command, specs)
+        return self._permits_class(name, m.safety, low in self.destructive)

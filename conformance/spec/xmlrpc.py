@@ -10,7 +10,9 @@ the command's text values it carries), the reply's shape (an error code alone, o
 Two readings of a call live here, so that every front-end reads a call alike:
 :meth:`XmlRpcMethod.form_for` (which form a call's parameters follow, or why none) and
 :func:`text_args` (the command's text arguments a call carries, the text parameters no
-XML-RPC value carries given their simplest valid value).
+XML-RPC value carries given their simplest valid value); and its inverse,
+:func:`params_for` (a command's text arguments as the call an SDK sends: what the suite
+sends over XML-RPC).
 """
 
 from __future__ import annotations
@@ -38,6 +40,7 @@ __all__ = [
     "XmlRpcSurface",
     "flat_values",
     "load_surface",
+    "params_for",
     "surface_for",
     "text_args",
 ]
@@ -261,6 +264,61 @@ def text_args(form: XmlRpcForm, variant: Variant, params: Sequence[XmlRpcValue])
             out.append(Array(items=tuple(_arg(x, tp) for x in values)))
         else:
             out.append(_arg(values[0], tp))
+    return out
+
+
+def _flat_text(args: Sequence[Arg]) -> list[int | float | str]:
+    out: list[int | float | str] = []
+    for a in args:
+        items = a.items if isinstance(a, Array) else (a,)
+        for x in items:
+            out.append(x.value if isinstance(x, Number | Text) else str(x))
+    return out
+
+
+def _as(kind: str, v: int | float | str) -> XmlRpcValue:
+    """A text value as an SDK sends a parameter of ``kind``: a whole number for an ``int``
+    (a fraction, or text, is sent as it is: the call then follows no form), a number for a
+    ``double``, text for a ``string``."""
+    if kind == "string":
+        return str(v)
+    if isinstance(v, str):
+        return v
+    if kind in ("int", "boolean"):
+        return int(v) if float(v).is_integer() and abs(v) < 2**31 else v
+    if kind == "double":
+        return float(v)
+    return v
+
+
+def _simplest(p: XmlRpcParam) -> XmlRpcValue:
+    """A parameter no text value carries: its SDK default, else typed zeros."""
+    if p.default is not None:
+        return p.default  # type: ignore[no-any-return]
+    if p.value is not None:
+        return p.value  # type: ignore[no-any-return]
+    if p.items:
+        return [_zero(t) for _, t in p.items]
+    if p.array is not None:
+        return [_zero(p.type)] * (p.array if isinstance(p.array, int) else 6)
+    return _zero(p.type)
+
+
+def params_for(form: XmlRpcForm, args: Sequence[Arg]) -> list[XmlRpcValue]:
+    """The parameters an SDK sends in ``form`` for a command's text arguments ``args`` (the
+    inverse of :func:`text_args`): each parameter the values it carries (``carries``, the
+    flat text values' indices), typed as the form says, the rest their SDK default."""
+    flat = _flat_text(args)
+    out: list[XmlRpcValue] = []
+    for p in form.params:
+        if not p.carries or any(i >= len(flat) for i in p.carries):
+            out.append(_simplest(p))
+            continue
+        if p.array is None:
+            out.append(_as(p.type, flat[p.carries[0]]))
+            continue
+        kinds = [t for _, t in p.items] if p.items else [p.type] * len(p.carries)
+        out.append([_as(k, flat[i]) for k, i in zip(kinds, p.carries, strict=False)])
     return out
 
 

@@ -13,7 +13,16 @@ from ..spec.commands import Command, SpecSet
 from ..spec.firmware import SpecChoice
 from ..spec.safety import SafetyPolicy
 
-__all__ = ["DEFAULT_BUDGET", "GROUPS", "PROFILES", "Profile", "SuiteConfig", "select_commands"]
+__all__ = [
+    "DEFAULT_BUDGET",
+    "GROUPS",
+    "PROFILES",
+    "TRANSPORTS",
+    "XMLRPC_GROUPS",
+    "Profile",
+    "SuiteConfig",
+    "select_commands",
+]
 
 #: Default run budget, seconds (3 hours).  The full default suite (3,457 cases)
 #: sends about 17,000 frames (16,712 against the emulator); at 50 ms a reply that
@@ -24,6 +33,10 @@ DEFAULT_BUDGET = 3 * 3600.0
 
 #: Case groups, in the order they run.
 GROUPS = ("framing", "examples", "valid", "invalid", "robustness", "transport", "stateful")
+#: The groups the XML-RPC transport runs (the rest are the text protocol's framing).
+XMLRPC_GROUPS = ("examples", "valid", "invalid")
+#: The transports a run speaks: the text protocol's TCP and UDP, and the SDKs' XML-RPC.
+TRANSPORTS = ("tcp", "udp", "xmlrpc")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -141,8 +154,8 @@ class SuiteConfig:
     def __post_init__(self) -> None:
         if self.reference not in ("field", "manual"):
             raise UsageError(f"--reference must be field or manual, not {self.reference!r}")
-        if self.transport not in ("tcp", "udp"):
-            raise UsageError(f"--transport must be tcp or udp, not {self.transport!r}")
+        if self.transport not in TRANSPORTS:
+            raise UsageError(f"--transport must be tcp, udp or xmlrpc, not {self.transport!r}")
         bad = [g for g in self.groups if g not in GROUPS]
         if bad:
             raise UsageError(f"unknown case group {bad[0]!r} (one of: {', '.join(GROUPS)})")

@@ -32,7 +32,7 @@ from ..report.text import plural
 from ..spec.commands import SpecSet, default_specs
 from .cases.build import build_cases
 from .config import SuiteConfig
-from .runner import Case, CaseEnd, SuiteRunner, case_result, not_run_result
+from .runner import Case, CaseEnd, SuiteRunner, case_result, not_run_result, permitted
 from .spec_choice import load_chosen, note_spec
 
 __all__ = [
@@ -195,10 +195,9 @@ class Engine:
     def _dry(self, case: Case) -> CaseResult:
         self.report.meta["dry_run"] = True
         why = WOULD_RUN
-        if case.command is not None:
-            ok, reason = self.config.safety.permits(case.command, self.specs)
-            if not ok:
-                why = f"dry run: {reason}"
+        ok, reason = permitted(self.config, case, self.specs)
+        if not ok:
+            why = f"dry run: {reason}"
         return case_result(case, CaseEnd(outcome=Outcome.SKIPPED, detail=why))
 
     def _baseline(self, result: CaseResult) -> CaseResult:

@@ -54,6 +54,8 @@ def reproduction(config: SuiteConfig, case_id: str, raw: bytes) -> str:
     faults = config.emulator_faults
     if config.embedded:
         where = "".join(f" --emulator-fault {shlex.quote(f)}" for f in faults)
+        if config.transport == "xmlrpc":  # its cases are its own
+            where += " --transport xmlrpc"
     else:
         where = f" --target {shlex.quote(config.target_label())}"
         if config.transport != "tcp":

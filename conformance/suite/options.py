@@ -89,7 +89,14 @@ OPTIONS: tuple[Option, ...] = (
         metavar="HOST:PORT",
         help="the endpoint under test (default: the built-in emulator)",
     ),
-    Option(name="transport", kind="text", choices=("tcp", "udp"), default="tcp", help="tcp or udp"),
+    Option(
+        name="transport",
+        kind="text",
+        choices=("tcp", "udp", "xmlrpc"),
+        default="tcp",
+        help="tcp or udp; xmlrpc: the SDKs' calls (port 20003): the examples, valid and "
+        "invalid cases of each command the SDKs send",
+    ),
     Option(
         name="profile",
         kind="text",
@@ -403,10 +410,12 @@ def suite_config(values: Mapping[str, Any], *, seed: int | None = None) -> Suite
     from ..twin.faults import parse_fault
 
     target_text = values["target"]
+    # The SDKs' XML-RPC port is 20003 on a controller (specs/*/xmlrpc.json).
+    default_port = 20003 if values["transport"] == "xmlrpc" else 8080
     target = (
         None
         if target_text is None
-        else parse_address(target_text, default_port=8080, option="--target")
+        else parse_address(target_text, default_port=default_port, option="--target")
     )
     faults: Sequence[str] = values["emulator_fault"]
     for f in faults:

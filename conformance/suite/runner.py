@@ -14,6 +14,12 @@ Bounded against hostile targets (a kit must outlive the peer it tests):
 A stopped run leaves every remaining case ERROR with that one reason
 (``Report.stopped``; the cases are marked ``not_run``).
 
+Over the SDKs' XML-RPC (``--transport xmlrpc``) the target's port 20003 is spoken to through
+:class:`~conformance.net.xmlrpc_client.XmlRpcClient` (:meth:`SuiteRunner.xmlrpc_call`), its
+health is a harmless query over XML-RPC, and each call is judged by the one call judge
+(:attr:`SuiteRunner.call_judge`); a case that calls a method is allowed by that method's
+safety class (:func:`permitted`: introspection never unless named).
+
 A case's function returns how it ended (:class:`CaseEnd`: outcome, detail, frames, the
 bytes that reproduce it), or raises it (:class:`CaseFailure`); :func:`case_result` makes
 that the case's report row, the one place a :class:`~conformance.report.model.CaseResult`
@@ -31,15 +37,19 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 from ..errors import ConformanceError
+from ..judge.calls import CallJudge
 from ..judge.judge import Verdict
 from ..judge.verdict import Outcome, Reference
 from ..net.client import Client, Exchange, TargetUnreachable
+from ..net.xmlrpc_client import XmlRpcClient, XmlRpcExchange
 from ..protocol.frame import Frame, Malformed, encode_frame
+from ..protocol.xmlrpc import XmlRpcValue
 from ..report.model import CaseResult, Report
 from ..report.text import shell_printf
 from ..spec.commands import Command, SpecSet, Variant
 from ..spec.dialects import dialects_from
 from ..spec.knowledge import default_data, health_query, unsolicited_ids
+from ..spec.xmlrpc import params_for
 from .config import SuiteConfig
 from .evidence import describe_exchange, reproduction
 from .judging import RequestMemo, is_shape_fault, request_frame, transport_free
@@ -54,6 +64,7 @@ __all__ = [
     "case_result",
     "describe_exchange",
     "not_run_result",
+    "permitted",
     "shell_printf",
     "transport_free",
 ]
@@ -103,6 +114,8 @@ class Case:
     command: Command | None = field(default=None, repr=False, compare=False)
     variant: Variant | None = field(default=None, repr=False, compare=False)
     extra: Any = field(default=None, repr=False, compare=False)
+    #: The XML-RPC method the case calls (``--transport xmlrpc``), None for a frame's case.
+    method: str | None = field(default=None, compare=False)
 
     @property
     def item_name(self) -> str:
@@ -112,6 +125,16 @@ class Case:
     @property
     def seed_offset(self) -> int:
         return zlib.crc32(self.id.encode())
+
+
+def permitted(config: SuiteConfig, case: Case, specs: SpecSet) -> tuple[bool, str]:
+    """Whether the safety profile lets ``case`` be sent (and why not): by its XML-RPC
+    method's class where it calls one, else by its command's; a case of no command always."""
+    if case.method is not None:
+        return config.safety.permits_method(case.method, specs)
+    if case.command is not None:
+        return config.safety.permits(case.command, specs)
+    return True, ""
 
 
 class SuiteRunner:
@@ -157,6 +180,20 @@ class SuiteRunner:
         self._suspect = False
         self._request_frames: tuple[tuple[bytes, int, int], Frame] | None = None
         self._liveness = AstrayWatch()
+        self._xmlrpc: XmlRpcClient | None = None
+        self._call_judge: CallJudge | None = None
+
+    @property
+    def xmlrpc(self) -> bool:
+        """The run speaks the SDKs' XML-RPC (``--transport xmlrpc``)."""
+        return self.config.transport == "xmlrpc"
+
+    @property
+    def call_judge(self) -> CallJudge:
+        """The one judge of XML-RPC calls, under the run's reference (made on first use)."""
+        if self._call_judge is None:
+            self._call_judge = CallJudge(self.frame_judge)
+        return self._call_judge
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -169,12 +206,15 @@ class SuiteRunner:
             emu = EmulatorServer(
                 self.specs,
                 udp_port=0 if self.config.transport == "udp" else None,
+                xmlrpc_port=0 if self.xmlrpc else None,
                 faults=self.config.emulator_faults,
                 judge=self.frame_judge,  # it accepts what the run's reference accepts
             )
             emu.start()
             self.emulator = emu
             self.address = emu.udp_address if self.config.transport == "udp" else emu.address
+            if self.xmlrpc:
+                self.address = emu.xmlrpc_address
             self.report.meta["emulator_faults"] = list(self.config.emulator_faults)
         else:
             # Fail fast: a target that does not answer the harmless query at the
@@ -192,6 +232,9 @@ class SuiteRunner:
         if self._client is not None:
             self._client.close()
             self._client = None
+        if self._xmlrpc is not None:
+            self._xmlrpc.close()
+            self._xmlrpc = None
         if self.emulator is not None:
             emu, self.emulator = self.emulator, None
             emu.close()
@@ -230,6 +273,58 @@ class SuiteRunner:
         if self._client is not None:
             self._client.close()
             self._client = None
+        if self._xmlrpc is not None:
+            self._xmlrpc.close()
+            self._xmlrpc = None
+
+    # ------------------------------------------------------------------ XML-RPC
+
+    def xmlrpc_call(
+        self, method: str, params: Sequence[XmlRpcValue], *, fresh: bool = False
+    ) -> XmlRpcExchange:
+        """One XML-RPC call on the case's connection (kept open between calls; ``fresh``:
+        on a connection of its own), its wait clipped to the case's time.  No answer
+        makes the target suspect (it is checked after the case)."""
+        self.check_budget()
+        assert self.address is not None
+        wait = min(self.config.reply_timeout, max(0.01, self.case_deadline - time.monotonic()))
+        if fresh:
+            with XmlRpcClient(*self.address, timeout=wait) as c:
+                ex = c.call(method, params)
+        else:
+            if self._xmlrpc is None:
+                self._xmlrpc = XmlRpcClient(*self.address, timeout=wait)
+            self._xmlrpc.timeout = wait
+            ex = self._xmlrpc.call(method, params)
+        if ex.kind == "missing":
+            self._suspect = True
+            if time.monotonic() >= self.case_deadline:
+                raise self.overrun()
+        return ex
+
+    def _xmlrpc_health(self) -> tuple[str, list[XmlRpcValue]]:
+        """The harmless XML-RPC call: the health query's method if the SDKs send it, else
+        GetControllerIP (the python SDK's constructor asks it), with its SDK defaults."""
+        surface = self.call_judge.surface
+        for name in (self.health_command.name, "GetControllerIP"):
+            m = surface.method(name)
+            if m is not None and m.forms:
+                return name, params_for(m.forms[0], [])
+        return "GetControllerIP", []
+
+    def _probe_xmlrpc(self) -> str | None:
+        """None when the target answers the harmless call with any response, else why not."""
+        method, params = self._xmlrpc_health()
+        assert self.address is not None
+        try:
+            with XmlRpcClient(*self.address, timeout=self.config.reply_timeout) as c:
+                ex = c.call(method, params)
+        except TargetUnreachable as e:
+            return f"unreachable: {e.reason}"
+        if ex.reply is not None or ex.status is not None:
+            return None
+        assert ex.error is not None
+        return f"accepted a connection but did not answer {method} over XML-RPC ({ex.error[1]})"
 
     def overrun(self) -> CaseFailure:
         """The case's time is up (its own timeout, or the run's budget)."""
@@ -370,6 +465,11 @@ class SuiteRunner:
 
     def health(self) -> tuple[bool, str]:
         """A harmless query on a fresh connection; (ok, what went wrong)."""
+        if self.xmlrpc:
+            why = self._probe_xmlrpc()
+            if why is None:
+                self._suspect = False
+            return why is None, why or ""
         try:
             ex = self._health_exchange()
         except TargetUnreachable as e:
@@ -390,6 +490,8 @@ class SuiteRunner:
         (ID n) within 2 s``...  A reply that breaks the protocol still counts as
         alive: judging it is the cases' business, not a reason to stop.
         """
+        if self.xmlrpc:
+            return self._probe_xmlrpc()
         name = f"{self.health_command.name} (ID {self.health_command.cmd_id})"
         try:
             ex = self._health_exchange()
@@ -632,10 +734,9 @@ class SuiteRunner:
             self.report.stopped = self.stopped
         if self.stopped is not None:
             return CaseEnd(outcome=Outcome.ERROR, detail=f"not run: {self.stopped}", not_run=True)
-        if case.command is not None:
-            ok, why = self.config.safety.permits(case.command, self.specs)
-            if not ok:
-                return CaseEnd(outcome=Outcome.SKIPPED, detail=why)
+        ok, why = permitted(self.config, case, self.specs)
+        if not ok:
+            return CaseEnd(outcome=Outcome.SKIPPED, detail=why)
         self.case_started = now
         self.case_deadline = min(now + self.config.case_timeout, self.run_deadline)
         self._suspect = False

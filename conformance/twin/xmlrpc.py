@@ -28,8 +28,8 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 from ..errors import ProtocolError, RemoteProtocolError
+from ..judge.calls import CallJudge, CallReading
 from ..judge.requests import ERR_ARG_COUNT, ERR_ARG_VALUE
-from ..protocol.data_values import Arg, Array, Number, Text
 from ..protocol.xmlrpc import (
     DEFAULT_LIMITS,
     XmlRpcCall,
@@ -40,18 +40,14 @@ from ..protocol.xmlrpc import (
     encode_response,
     parse_call,
 )
-from ..spec.checks import check_args
 from ..spec.commands import Command, Variant
-from ..spec.dialects import Dialect
 from ..spec.xmlrpc import (
-    FormMismatch,
     XmlRpcForm,
     XmlRpcMethod,
     XmlRpcReply,
     XmlRpcSurface,
     flat_values,
     surface_for,
-    text_args,
 )
 from .controller import KINEMATICS_QUERIES, Controller, Refused, RobotModel
 
@@ -121,7 +117,8 @@ class XmlRpcController:
 
     ``controller_ip``: what GetControllerIP answers (the address the port listens on).
     The caller holds the controller's lock around :meth:`answer` (one call at a time,
-    as the field's gateway calls it, fws-031).
+    as the field's gateway calls it, fws-031).  A call is read by the one reading
+    (:meth:`~conformance.judge.calls.CallJudge.read`), as ``check`` and ``serve`` judge it.
     """
 
     def __init__(
@@ -136,12 +133,7 @@ class XmlRpcController:
         self.surface = surface if surface is not None else surface_for(controller.specs)
         self.controller_ip = controller_ip
         self.limits = limits
-        #: Field dialects by lower-case name (ServoJV, ServoMIT, the SDKs' MoveL form): a
-        #: call that carries one value for each of a dialect's parameters reads as it.
-        self._dialects: dict[str, list[Dialect]] = {}
-        for d in controller.judge.dialects:
-            if d.kind in ("command", "arguments") and d.params is not None and not d.defect:
-                self._dialects.setdefault(d.name.lower(), []).append(d)
+        self.reader = CallJudge(controller.judge, self.surface)
         self.calls = 0
 
     @property
@@ -179,7 +171,8 @@ class XmlRpcController:
     def _call(self, call: XmlRpcCall) -> tuple[XmlRpcValue | XmlRpcFault, str | None, str]:
         s = self.surface
         name = call.method
-        if name.startswith(s.introspection_prefix):
+        r = self.reader.read(name, call.params)
+        if r.kind == "introspection":
             return (
                 XmlRpcFault(
                     code=s.fault_no_method,
@@ -189,23 +182,23 @@ class XmlRpcController:
                 None,
                 "introspection",
             )
-        m = s.method(name)
-        if m is None or not m.forms:
+        if r.kind == "unknown":
             return (
                 XmlRpcFault(code=s.fault_no_method, message=f"Method '{name}' not defined"),
                 None,
                 "unknown",
             )
-        form = m.form_for(call.params)
-        if isinstance(form, FormMismatch):
+        if r.kind == "parameters":
             return (
-                XmlRpcFault(code=s.fault_params, message=f"{name}: parameters: {form.detail}"),
+                XmlRpcFault(code=s.fault_params, message=f"{name}: parameters: {r.mismatch}"),
                 None,
                 "parameters",
             )
+        m, form = r.method, r.form
+        assert m is not None and form is not None
         reply = m.reply or XmlRpcReply(shape="int")
         try:
-            return self._run(m, form, call.params, reply)
+            return self._run(r, m, form, call.params, reply)
         except Refused as e:
             code = e.code
             if KINEMATICS_QUERIES.get(name.lower()) == "inverse_kin" and code == 28:
@@ -213,7 +206,12 @@ class XmlRpcController:
             return reply.zero(code), m.command, f"refused: {e}"
 
     def _run(
-        self, m: XmlRpcMethod, form: XmlRpcForm, params: Sequence[XmlRpcValue], reply: XmlRpcReply
+        self,
+        r: CallReading,
+        m: XmlRpcMethod,
+        form: XmlRpcForm,
+        params: Sequence[XmlRpcValue],
+        reply: XmlRpcReply,
     ) -> tuple[XmlRpcValue | XmlRpcFault, str | None, str]:
         model = self.model
         name = m.name
@@ -229,63 +227,28 @@ class XmlRpcController:
         if name in MODEL_EFFECTS:
             MODEL_EFFECTS[name](model)
             return reply.zero(0), m.command, "model"
-        dialect = self._dialect(name, form, params)
-        if dialect is not None and form.mapping != "positional":
-            return self._run_dialect(dialect, form, params, reply)
-        command, variant = self._command(m, form)
-        if (
-            command is not None
-            and variant is not None
-            and form.mapping in ("positional", "aligned")
-        ):
-            args = text_args(form, variant, params)
-            return self._execute(command, variant, args, reply, form.mapping or "")
-        if dialect is not None:
-            return self._run_dialect(dialect, form, params, reply)
+        if r.kind == "dialect":
+            assert r.dialect is not None
+            return self._run_dialect(r, reply)
+        if r.kind == "command":
+            assert r.command is not None and r.variant is not None
+            return self._execute(r, r.command, r.variant, reply, form.mapping or "")
         # No command to run: what its class suggests (a getter's typed zeros, a setter's 0).
         return reply.zero(0), None, f"by class ({m.safety.value})"
 
-    def _command(self, m: XmlRpcMethod, form: XmlRpcForm) -> tuple[Command | None, Variant | None]:
-        if m.command_key is None:
-            return None, None
-        command = self.controller.specs.by_key(m.command_key)
-        if command is None:
-            return None, None
-        variant = next((v for v in command.variants if v.table == form.variant), None)
-        return command, variant
-
-    def _dialect(
-        self, name: str, form: XmlRpcForm, params: Sequence[XmlRpcValue]
-    ) -> Dialect | None:
-        n = len(flat_values(form, params))
-        for d in self._dialects.get(name.lower(), ()):
-            if sum(p.length or 1 for p in d.variant.params) == n:
-                return d
-        return None
-
     def _run_dialect(
-        self, d: Dialect, form: XmlRpcForm, params: Sequence[XmlRpcValue], reply: XmlRpcReply
+        self, r: CallReading, reply: XmlRpcReply
     ) -> tuple[XmlRpcValue | XmlRpcFault, str | None, str]:
         """A call whose values are, one for one, a field dialect's parameters (ServoJV's 16,
-        the SDKs' 33-value MoveL): read as that dialect, as the text port reads it."""
-        values = flat_values(form, params)
-        args: list[Arg] = []
-        k = 0
-        for p in d.variant.params:
-            n = p.length or 1
-            chunk = values[k : k + n]
-            k += n
-            if p.length:
-                args.append(Array(items=tuple(_arg(x, p.quoted) for x in chunk)))
-            else:
-                args.append(_arg(chunk[0], p.quoted))
-        command = self.controller.specs.by_name(d.manual_cmd)[0] if d.manual_cmd else None
-        if command is not None:
-            return self._execute(command, d.variant, args, reply, f"dialect {d.id}")
-        viol = check_args(d.variant, args)
+        the SDKs' 33-value MoveL): run as that dialect, as the text port runs it."""
+        d = r.dialect
+        assert d is not None
+        if r.command is not None:
+            return self._execute(r, r.command, d.variant, reply, f"dialect {d.id}")
+        viol = CallJudge.violations(r)
         if viol:
             return reply.zero(_code(viol[0].rule.value)), None, f"dialect {d.id}: {viol[0].detail}"
-        texts = self.model.dialect_values(d, args)
+        texts = self.model.dialect_values(d, list(r.args))
         return (
             _from_text(reply, texts, errcode_only=d.variant.returns.errcode_only),
             d.name,
@@ -293,26 +256,18 @@ class XmlRpcController:
         )
 
     def _execute(
-        self, command: Command, variant: Variant, args: list[Arg], reply: XmlRpcReply, how: str
+        self, r: CallReading, command: Command, variant: Variant, reply: XmlRpcReply, how: str
     ) -> tuple[XmlRpcValue | XmlRpcFault, str | None, str]:
-        viol = check_args(variant, args)
+        viol = CallJudge.violations(r)
         if viol:
             return reply.zero(_code(viol[0].rule.value)), command.name, f"{how}: {viol[0].detail}"
-        texts = self.model.execute(command, variant, args)
+        texts = self.model.execute(command, variant, list(r.args))
         value = _from_text(reply, texts, errcode_only=variant.returns.errcode_only)
         return value, command.name, how
 
 
 def _code(rule: str) -> int:
     return _ERR_CODES.get(rule, ERR_ARG_VALUE)
-
-
-def _arg(v: XmlRpcValue, quoted: bool) -> Arg:
-    if isinstance(v, bool):
-        v = int(v)
-    if isinstance(v, int | float):
-        return Number(text=repr(v) if isinstance(v, float) else str(v), value=v)
-    return Text(value=str(v), quoted=quoted)
 
 
 def _number(v: XmlRpcValue) -> float | None:

@@ -7,7 +7,7 @@ from typing import Any
 
 from ...spec.commands import Command, SpecSet, Variant
 from ...spec.knowledge import derive_pairs, motion_targets
-from ..config import GROUPS, SuiteConfig, select_commands
+from ..config import GROUPS, XMLRPC_GROUPS, SuiteConfig, select_commands
 from ..runner import Case, CaseEnd, SuiteRunner
 from .examples import run_example
 from .framing import run_framing
@@ -23,6 +23,13 @@ from .shared import PROTOCOL, PROTOCOL_ID
 from .stateful import position_queries, run_motion, run_pair
 from .transport import run_concurrent, run_pipelined, run_reconnect, run_split
 from .valid import run_valid
+from .xmlrpc import (
+    call_methods,
+    run_call_example,
+    run_call_invalid,
+    run_call_valid,
+    xmlrpc_invalid_kinds,
+)
 
 
 def _slug(text: str) -> str:
@@ -55,9 +62,62 @@ def _main_variant(cmd: Command) -> Variant:
     return next((v for v in cmd.variants if v.form == "call"), cmd.variants[0])
 
 
+def _call_case(group: str, cmd: Command, method: str, what: str, run: Any, extra: Any) -> Case:
+    """A case over XML-RPC: of its command's ID, calling ``method``."""
+    return Case(
+        id=f"{cmd.cmd_id}/{cmd.name}/{group}/xmlrpc-{_slug(method)}-{_slug(what)}",
+        group=group,
+        cmd_id=cmd.cmd_id,
+        name=cmd.name,
+        run=run,
+        command=cmd,
+        extra=extra,
+        method=method,
+    )
+
+
+def _xmlrpc_cases(specs: SpecSet, config: SuiteConfig, commands: list[Command]) -> list[Case]:
+    """The examples, valid and invalid groups over the SDKs' XML-RPC (cases/xmlrpc.py): for
+    each selected command each method the SDKs send it as."""
+    by_group: dict[str, list[Case]] = {g: [] for g in XMLRPC_GROUPS}
+    for cmd in sorted(commands, key=lambda c: (c.cmd_id, c.key)):
+        for m, form, v in call_methods(specs, cmd):
+            for i, ex in enumerate(v.examples):
+                if ex.request:
+                    what = f"{v.table}-{i + 1}" if len(v.examples) > 1 else v.table
+                    by_group["examples"].append(
+                        _call_case(
+                            "examples",
+                            cmd,
+                            m.name,
+                            what,
+                            run_call_example,
+                            (form, ex.request),
+                        )
+                    )
+            by_group["valid"].append(
+                _call_case("valid", cmd, m.name, v.table, run_call_valid, (form, v))
+            )
+            for kind in xmlrpc_invalid_kinds(cmd, v):
+                by_group["invalid"].append(
+                    _call_case(
+                        "invalid",
+                        cmd,
+                        m.name,
+                        f"{v.table}-{kind}",
+                        run_call_invalid,
+                        (form, v, kind),
+                    )
+                )
+    return [c for g in XMLRPC_GROUPS if g in config.groups for c in by_group[g]]
+
+
 def build_cases(specs: SpecSet, config: SuiteConfig) -> list[Case]:
-    """Every case of the selected groups and commands, in run order (group, then command ID)."""
+    """Every case of the selected groups and commands, in run order (group, then command ID);
+    over XML-RPC, the groups that speak it (:func:`_xmlrpc_cases`)."""
     commands = select_commands(specs, config.commands, config.exclude)
+    if config.transport == "xmlrpc":
+        return _xmlrpc_cases(specs, config, commands)
     chosen = {c.key for c in commands}
     by_group: dict[str, list[Case]] = {g: [] for g in GROUPS}
     whole_protocol = not config.commands  # protocol-wide cases run unless commands are picked
