@@ -19,12 +19,14 @@ from ..protocol.data_values import SHOWN_CHARS, Call, Number, Parsed, shown
 from ..protocol.frame import Frame
 from ..spec.checks import Violation, check_reply, match_variant
 from ..spec.commands import Command, Returns, SpecSet, Variant
+from .verdict import Outcome
 
 __all__ = [
     "RefusalForm",
     "ReplyReading",
     "RequestCheck",
     "classify_reply",
+    "refusal_of_allowed",
     "validate_request",
 ]
 
@@ -33,6 +35,29 @@ ERR_ARG_COUNT = 3
 ERR_ARG_VALUE = 4
 #: Chapter 9: 14 = 指令执行失败 (execution failed), used for unknown commands by the emulator.
 ERR_EXEC_FAILED = 14
+#: Chapter 9's codes for a pose the arm cannot take: 28 逆运动学计算结果异常 (inverse
+#: kinematics: no solution), 32 (its solutions only past the joints' limits), 112 给定位姿无法
+#: 到达 (the pose cannot be reached).  A table's ranges do not say what an arm can reach.
+UNREACHABLE_CODES = frozenset({28, 32, 112})
+
+
+def refusal_of_allowed(code: int | None, *, to_pose: bool) -> tuple[Outcome, str]:
+    """What a refusal of a request the table allows is worth (``run``'s valid and example
+    cases, over any transport): a refusal as invalid arguments (3, 4) fails; a pose the arm
+    cannot reach (``to_pose``: the request moves to a pose; :data:`UNREACHABLE_CODES`) is
+    the controller's right answer (PASS, said); any other is NON-STRICT: the target's state
+    may forbid it."""
+    if code in (ERR_ARG_COUNT, ERR_ARG_VALUE):
+        return Outcome.FAIL, f"refused valid arguments as invalid (code {code})"
+    if to_pose and code in UNREACHABLE_CODES:
+        return Outcome.PASS, (
+            f"refused a pose the arm cannot reach (code {code}): the table allows it, the "
+            "arm's reach need not"
+        )
+    return Outcome.NON_STRICT, (
+        f"refused a request the table allows (code {code}); the target's state may forbid it"
+    )
+
 
 _TEXT_ERR_RE = re.compile(r"robot\s*err(?:or)?\s*code\s*[:=]\s*(-?\d+)", re.IGNORECASE | re.ASCII)
 # An error code is an int (chapter 9 lists two- and three-digit ones); a longer

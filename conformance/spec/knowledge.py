@@ -44,6 +44,7 @@ __all__ = [
     "health_query",
     "motion_targets",
     "motion_targets_of",
+    "moves_to_a_pose",
     "position_query",
     "refusal_data",
     "target_args",
@@ -306,6 +307,13 @@ def motion_targets_of(safety: Safety | None, variant: Variant) -> MotionTargets 
         tcp_array=arr if tcp is None else None,
         joints_array=jarr if joints is None else None,
     )
+
+
+def moves_to_a_pose(variant: Variant) -> bool:
+    """Whether a variant's call moves the arm to a Cartesian pose (``x..rz``, ``pos``):
+    one the arm may not reach, whatever the table allows."""
+    t = motion_targets_of(Safety.MOTION, variant)
+    return t is not None and (t.tcp is not None or t.tcp_array is not None)
 
 
 # --------------------------------------------------------------------------- requests

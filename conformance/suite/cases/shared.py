@@ -18,10 +18,11 @@ from hypothesis import HealthCheck, Phase
 from hypothesis import strategies as st
 from hypothesis.errors import Unsatisfiable
 
-from ...judge.requests import ERR_ARG_COUNT, ERR_ARG_VALUE
+from ...judge.requests import refusal_of_allowed
 from ...judge.verdict import Outcome
 from ...net.client import Exchange
 from ...spec.commands import Variant
+from ...spec.knowledge import moves_to_a_pose
 from ..evidence import describe_exchange
 from ..runner import Case, CaseEnd, CaseFailure, SuiteRunner
 from ..strategies import Batch
@@ -239,19 +240,13 @@ def judge_success(runner: SuiteRunner, ex: Any, variant: Variant, what: str) -> 
                 raw=ex.request,
             )
         form = verdict.form.value if verdict.form else "?"
-        if verdict.code in (ERR_ARG_COUNT, ERR_ARG_VALUE):
-            raise CaseFailure(
-                Outcome.FAIL,
-                f"{what}: refused valid arguments as invalid ({form} form, code {verdict.code})",
-                frames=frames,
-                raw=ex.request,
-            )
+        outcome, why = refusal_of_allowed(verdict.code, to_pose=moves_to_a_pose(variant))
+        if outcome is Outcome.FAIL:
+            raise CaseFailure(outcome, f"{what}: {why}, {form} form", frames=frames, raw=ex.request)
+        if outcome is Outcome.PASS:
+            return None
         return CaseEnd(
-            outcome=Outcome.NON_STRICT,
-            detail=f"{what}: refused a request the table allows ({form} form, "
-            f"code {verdict.code}); the target's state may forbid it",
-            frames=frames,
-            raw=ex.request,
+            outcome=outcome, detail=f"{what}: {why}, {form} form", frames=frames, raw=ex.request
         )
     if faults:
         raise CaseFailure(

@@ -26,13 +26,14 @@ from typing import Any
 
 from ...errors import ProtocolError
 from ...judge.calls import CallReply
-from ...judge.requests import ERR_ARG_COUNT, ERR_ARG_VALUE
+from ...judge.requests import ERR_ARG_COUNT, ERR_ARG_VALUE, refusal_of_allowed
 from ...judge.verdict import Outcome
 from ...net.xmlrpc_client import XmlRpcExchange
 from ...protocol.data_parse import parse_data
 from ...protocol.data_values import Call
 from ...protocol.xmlrpc import XmlRpcFault, XmlRpcResponse, XmlRpcValue, encode_call
 from ...spec.commands import Command, SpecSet, Variant
+from ...spec.knowledge import moves_to_a_pose
 from ...spec.xmlrpc import XmlRpcForm, XmlRpcMethod, params_for, surface_for
 from ..runner import Case, CaseEnd, CaseFailure, SuiteRunner
 from ..strategies import BOUNDS, bounds_applies, invalid_calls, invalid_kinds, valid_calls
@@ -130,18 +131,13 @@ def _succeeds(
             Outcome.FAIL, f"{what}: " + "; ".join(f.message for f in failing), frames=frames
         )
     if v.refused:
-        if v.code in (ERR_ARG_COUNT, ERR_ARG_VALUE):
-            raise CaseFailure(
-                Outcome.FAIL,
-                f"{what}: refused valid arguments as invalid (code {v.code})",
-                frames=frames,
-            )
-        return CaseEnd(
-            outcome=Outcome.NON_STRICT,
-            detail=f"{what}: refused a call the table allows (code {v.code}); the target's "
-            "state may forbid it",
-            frames=frames,
-        )
+        variant = case.variant
+        to_pose = variant is not None and moves_to_a_pose(variant)
+        outcome, why = refusal_of_allowed(v.code, to_pose=to_pose)
+        if outcome is Outcome.FAIL:
+            raise CaseFailure(outcome, f"{what}: {why}", frames=frames)
+        if outcome is not Outcome.PASS:
+            return CaseEnd(outcome=outcome, detail=f"{what}: {why}", frames=frames)
     return None
 
 
