@@ -156,3 +156,36 @@ def test_a_package_holds_only_its_docstring() -> None:
         if code:
             busy.append(f"{path.relative_to(ROOT)} line {code[0].lineno}")
     assert not busy, "\n".join(busy)
+
+
+def test_no_module_imports_another_modules_private_names() -> None:
+    """A name one module takes from another is public there: no ``from .x import _name``
+    and no ``x._name`` across modules."""
+    found = []
+    for name, path in MODS.items():
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        modules: set[str] = set()  # the names that stand for kit modules here
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom):
+                if not node.level and not (node.module or "").startswith("conformance"):
+                    continue  # another package's names are its own business
+                for a in node.names:
+                    if a.name.startswith("_") and not a.name.startswith("__"):
+                        found.append(f"{name}: from {node.module or '.'} import {a.name}")
+                    modules.add(a.asname or a.name)
+            elif isinstance(node, ast.Import):
+                modules.update(
+                    a.asname or a.name.split(".")[0]
+                    for a in node.names
+                    if a.name.startswith("conformance")
+                )
+        for node in ast.walk(tree):
+            if (
+                isinstance(node, ast.Attribute)
+                and isinstance(node.value, ast.Name)
+                and node.value.id in modules
+                and node.attr.startswith("_")
+                and not node.attr.startswith("__")
+            ):
+                found.append(f"{name}: {node.value.id}.{node.attr}")
+    assert not found, "\n".join(found)

@@ -87,8 +87,8 @@ from ..recording.writer import default_metadata
 from ..spec.commands import SpecSet
 from .addresses import format_sockaddr
 from .proxy_base import STATE_BACKLOG_SHARE, ProxyStats, open_payload
-from .proxy_tcp import TcpForwarding, _Pair
-from .proxy_udp import UdpForwarding, _UdpSession
+from .proxy_tcp import Pair, TcpForwarding
+from .proxy_udp import UdpForwarding, UdpSession
 from .recorder_process import CLOSE, OPEN, STOP, RecorderCounters, RecorderProcess
 from .replay_server import ReplayServer
 from .server import (
@@ -288,9 +288,9 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
         self._rec_buf = self._recorder.buf  # events not yet in the pipe (I/O thread only)
         self._rec_registered = False
         self._next_conn = 0
-        self._pairs: dict[socket.socket, _Pair] = {}
-        self._sessions: dict[Any, _UdpSession] = {}
-        self._session_socks: dict[socket.socket, _UdpSession] = {}
+        self._pairs: dict[socket.socket, Pair] = {}
+        self._sessions: dict[Any, UdpSession] = {}
+        self._session_socks: dict[socket.socket, UdpSession] = {}
         self._stopping = threading.Event()
         self._io_thread: threading.Thread | None = None
         self._next_deadlines = 0.0
@@ -459,7 +459,7 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
 
     def _io_loop(self) -> None:
         sel = self._sel
-        pairs = _Pair
+        pairs = Pair
         monotonic = time.monotonic
         try:
             while not self._stopping.is_set():
@@ -499,7 +499,7 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
                         except Exception as e:
                             self.stats.errors += 1
                             self.log(f"proxy: UDP: {type(e).__name__}: {e}")
-                    elif isinstance(tag, _UdpSession):
+                    elif isinstance(tag, UdpSession):
                         try:
                             self._udp_from_upstream(tag)
                         except Exception as e:
@@ -638,7 +638,7 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
             return
         up.setblocking(False)
         up.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        pair = _Pair(
+        pair = Pair(
             conn=conn,
             client=client,
             upstream=up,

@@ -1,6 +1,6 @@
 """The recording proxy's TCP half: one pair of sockets per client, bytes forwarded at once.
 
-Each client connection is a :class:`_Pair` (the client's socket and one to the
+Each client connection is a :class:`Pair` (the client's socket and one to the
 upstream); its bytes are forwarded as they come, then queued for the recorder
 (forward first, record second).  Each direction buffers at most ``max_pending``
 unsent bytes: a slow reader stops us reading from its peer.  A half-close is passed
@@ -33,7 +33,7 @@ _STATE_RECV = 64 * 1024
 
 
 @dataclass(eq=False)
-class _Pair:
+class Pair:
     """One proxied TCP connection."""
 
     conn: int
@@ -63,7 +63,7 @@ class TcpForwarding(ProxyBase):
     connect_timeout: float
     linger: float
     max_pending: int
-    _pairs: dict[socket.socket, _Pair]
+    _pairs: dict[socket.socket, Pair]
     _open_pairs: int
     #: Upstreams whose last connection failed (said once per episode).
     _upstream_down: set[tuple[str, int]]
@@ -78,7 +78,7 @@ class TcpForwarding(ProxyBase):
     _read_budget: int | None = None
     #: With ``max_unrecorded``: the part of it the state connections never read into.
     _state_reserve = 0
-    _state_pairs: set[_Pair]
+    _state_pairs: set[Pair]
 
     def _set_paused(self, paused: bool) -> None:
         self._reads_paused = paused
@@ -94,7 +94,7 @@ class TcpForwarding(ProxyBase):
         for p in list(self._state_pairs):
             self._update(p)
 
-    def _pair_failed(self, p: _Pair, e: BaseException) -> None:
+    def _pair_failed(self, p: Pair, e: BaseException) -> None:
         self.stats.errors += 1
         if self.stats.errors <= 10 or self.stats.errors % 1000 == 0:
             self.log(f"proxy: connection {p.conn} closed: {type(e).__name__}: {e}")
@@ -109,11 +109,11 @@ class TcpForwarding(ProxyBase):
             with contextlib.suppress(OSError):
                 sock.close()
 
-    def _refused(self, pair: _Pair, err: int) -> None:
+    def _refused(self, pair: Pair, err: int) -> None:
         self.stats.refused += 1
         self._upstream_failed(pair, f"refused: {os.strerror(err)}")
 
-    def _upstream_failed(self, pair: _Pair, why: str) -> None:
+    def _upstream_failed(self, pair: Pair, why: str) -> None:
         """The upstream would not take a client's connection: close it, with the reason
         in the file; say so once per episode (until a connection to it succeeds)."""
         up = format_address(*pair.target)
@@ -130,7 +130,7 @@ class TcpForwarding(ProxyBase):
             self._upstream_down.discard(target)
             self.log(f"proxy: upstream {format_address(*target)} accepts connections again")
 
-    def _update(self, p: _Pair) -> None:
+    def _update(self, p: Pair) -> None:
         """Register what each socket of the pair should wait for."""
         if p.closed:
             return
@@ -151,7 +151,7 @@ class TcpForwarding(ProxyBase):
         self._interest(p, p.client, ci)
         self._interest(p, p.upstream, ui)
 
-    def _interest(self, p: _Pair, sock: socket.socket, events: int) -> None:
+    def _interest(self, p: Pair, sock: socket.socket, events: int) -> None:
         fd = sock.fileno()
         old = p.interest.get(fd, 0)
         if old == events:
@@ -164,7 +164,7 @@ class TcpForwarding(ProxyBase):
             self._sel.modify(sock, events, p)
         p.interest[fd] = events
 
-    def _pair_event(self, p: _Pair, sock: socket.socket, mask: int) -> None:
+    def _pair_event(self, p: Pair, sock: socket.socket, mask: int) -> None:
         if p.closed:
             return
         is_client = sock is p.client
@@ -198,7 +198,7 @@ class TcpForwarding(ProxyBase):
                 return
         self._update(p)
 
-    def _recv(self, p: _Pair, *, from_client: bool) -> bool:
+    def _recv(self, p: Pair, *, from_client: bool) -> bool:
         """Read and forward; True if the pair's interests cannot have changed."""
         sock = p.client if from_client else p.upstream
         size = _STATE_RECV if p.state else _RECV
@@ -277,7 +277,7 @@ class TcpForwarding(ProxyBase):
             p.deadline = time.monotonic() + self.linger
         return False
 
-    def _send(self, p: _Pair, *, to_client: bool) -> None:
+    def _send(self, p: Pair, *, to_client: bool) -> None:
         buf = p.to_client if to_client else p.to_upstream
         if not buf:
             return
@@ -293,7 +293,7 @@ class TcpForwarding(ProxyBase):
             if not to_client and p.client_eof:
                 self._shut(p, to_client=False)
 
-    def _shut(self, p: _Pair, *, to_client: bool) -> None:
+    def _shut(self, p: Pair, *, to_client: bool) -> None:
         """Pass a half-close on: the peer has sent everything it will."""
         sock = p.client if to_client else p.upstream
         with contextlib.suppress(OSError):
@@ -318,7 +318,7 @@ class TcpForwarding(ProxyBase):
                     self._close_pair(p, p.first_close or "linger timeout")
 
     def _close_pair(
-        self, p: _Pair, reason: str, pending: tuple[str, int, bytes] | None = None
+        self, p: Pair, reason: str, pending: tuple[str, int, bytes] | None = None
     ) -> None:
         if p.closed:
             return

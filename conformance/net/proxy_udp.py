@@ -40,7 +40,7 @@ UDP_TURN = 4
 
 
 @dataclass(eq=False)
-class _UdpSession:
+class UdpSession:
     conn: int
     client_addr: Any
     sock: socket.socket
@@ -56,14 +56,14 @@ class UdpForwarding(ProxyBase):
     udp_address: tuple[str, int] | None
     udp_idle: float
     _udp: socket.socket | None
-    _sessions: dict[Any, _UdpSession]
-    _session_socks: dict[socket.socket, _UdpSession]
+    _sessions: dict[Any, UdpSession]
+    _session_socks: dict[socket.socket, UdpSession]
 
     max_backlog: int
     _read_budget: int | None
     _rec_buf: bytearray
 
-    def _record_dgram(self, s: _UdpSession, direction: str, t: int, data: bytes) -> None:
+    def _record_dgram(self, s: UdpSession, direction: str, t: int, data: bytes) -> None:
         """Queue a datagram for the recorder, unless it is half of ``max_backlog`` behind
         (the rest is TCP's room): then it is counted, and the run is recorded as a gap
         when it ends."""
@@ -82,7 +82,7 @@ class UdpForwarding(ProxyBase):
         self._put_gap(s, direction, t)
         self._put(DGRAM, s.conn, direction, t, data)
 
-    def _put_gap(self, s: _UdpSession, direction: str, t: int) -> None:
+    def _put_gap(self, s: UdpSession, direction: str, t: int) -> None:
         """The datagrams of ``direction`` forwarded but not recorded, as one gap event."""
         run = s.unrecorded.pop(direction, None)
         if run:
@@ -106,7 +106,7 @@ class UdpForwarding(ProxyBase):
         self.stats.udp_held += 1
         return False
 
-    def _session_failed(self, s: _UdpSession, e: BaseException) -> None:
+    def _session_failed(self, s: UdpSession, e: BaseException) -> None:
         self.stats.errors += 1
         self.log(f"proxy: UDP session {s.conn} closed: {type(e).__name__}: {e}")
         with contextlib.suppress(Exception):
@@ -155,7 +155,7 @@ class UdpForwarding(ProxyBase):
                 except OSError:
                     sock.close()
                     continue
-                s = _UdpSession(
+                s = UdpSession(
                     conn=self._new_conn(), client_addr=addr, sock=sock, last=time.monotonic()
                 )
                 self._sessions[addr] = s
@@ -177,7 +177,7 @@ class UdpForwarding(ProxyBase):
             self.stats.bytes_c2s += len(data)
             self._record_dgram(s, C2S, t, data)
 
-    def _udp_from_upstream(self, s: _UdpSession) -> None:
+    def _udp_from_upstream(self, s: UdpSession) -> None:
         assert self._udp is not None
         for _ in range(UDP_TURN):
             try:
@@ -194,7 +194,7 @@ class UdpForwarding(ProxyBase):
             self.stats.bytes_s2c += len(data)
             self._record_dgram(s, S2C, t, data)
 
-    def _close_session(self, s: _UdpSession, reason: str) -> None:
+    def _close_session(self, s: UdpSession, reason: str) -> None:
         self._sessions.pop(s.client_addr, None)
         self._session_socks.pop(s.sock, None)
         with contextlib.suppress(KeyError, ValueError):

@@ -16,7 +16,7 @@ from typing import Any
 from ..recording.layout import C2S, S2C, DirectionText
 from ..recording.reader import Recording
 from ..recording.repair import atomic_output
-from .packets import _ACK, _FIN, _SYN, DEFAULT_CHANNEL_PORTS, DLT_EN10MB
+from .packets import ACK, DEFAULT_CHANNEL_PORTS, DLT_EN10MB, FIN, SYN
 
 _MAC_CLIENT = bytes.fromhex("020000000001")
 _MAC_SERVER = bytes.fromhex("020000000002")
@@ -274,9 +274,9 @@ def export_pcap(rec: Recording, out: str | os.PathLike[str]) -> int:
                 if kind == "open" or (not st["open"] and kind != "close"):
                     if not st["open"]:
                         st["open"] = True
-                        seg(True, isn[C2S] - 1, 0, _SYN)
-                        seg(False, isn[S2C] - 1, isn[C2S], _SYN | _ACK)
-                        seg(True, isn[C2S], isn[S2C], _ACK)
+                        seg(True, isn[C2S] - 1, 0, SYN)
+                        seg(False, isn[S2C] - 1, isn[C2S], SYN | ACK)
+                        seg(True, isn[C2S], isn[S2C], ACK)
                     if kind == "open":
                         continue
                 if kind == "close":
@@ -286,9 +286,9 @@ def export_pcap(rec: Recording, out: str | os.PathLike[str]) -> int:
                         second = S2C if first == C2S else C2S
                         # The first FIN, the other side's FIN (acknowledging it), the ACK.
                         end = {d: isn[d] + sent[d] for d in (C2S, S2C)}
-                        seg(first == C2S, end[first], end[second], _FIN | _ACK)
-                        seg(second == C2S, end[second], end[first] + 1, _FIN | _ACK)
-                        seg(first == C2S, end[first] + 1, end[second] + 1, _ACK)
+                        seg(first == C2S, end[first], end[second], FIN | ACK)
+                        seg(second == C2S, end[second], end[first] + 1, FIN | ACK)
+                        seg(first == C2S, end[first] + 1, end[second] + 1, ACK)
                     continue
                 offset, raw = payload
                 d = kind
@@ -296,11 +296,11 @@ def export_pcap(rec: Recording, out: str | os.PathLike[str]) -> int:
                 for i in range(0, len(raw), _MSS):
                     chunk = raw[i : i + _MSS]
                     seq = isn[d] + offset + i
-                    seg(d == C2S, seq, isn[other] + sent[other], _ACK | 0x08, chunk)
+                    seg(d == C2S, seq, isn[other] + sent[other], ACK | 0x08, chunk)
                     acked[other] = sent[other]
                     sent[d] = max(sent[d], offset + i + len(chunk))
                     if sent[d] - acked[d] >= _ACK_EVERY:  # the receiver says it has them
-                        seg(d != C2S, isn[other] + sent[other], isn[d] + sent[d], _ACK)
+                        seg(d != C2S, isn[other] + sent[other], isn[d] + sent[d], ACK)
                         acked[d] = sent[d]
         finally:
             w.close()

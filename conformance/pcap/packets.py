@@ -32,8 +32,8 @@ DLT_LINUX_SLL2 = 276
 DLT_IPV4 = 228
 DLT_IPV6 = 229
 
-_FIN, _SYN, _RST, _ACK = 0x01, 0x02, 0x04, 0x10
-_SYN_FIN_RST = _SYN | _FIN | _RST
+FIN, SYN, RST, ACK = 0x01, 0x02, 0x04, 0x10
+SYN_FIN_RST = SYN | FIN | RST
 
 #: What :func:`parse_packet` gives for a TCP segment or UDP datagram:
 #: ``(proto, flow, payload, seq, flags)``, with ``proto`` ``"tcp"`` or ``"udp"``, ``flow``
@@ -100,8 +100,8 @@ _U16 = struct.Struct("!H").unpack_from
 _IPV4 = struct.Struct("!BxHxxHxB").unpack_from  # version/IHL, total length, flags/fragment, proto
 _IPV6 = struct.Struct("!4xHB").unpack_from  # payload length, next header
 _TCP = struct.Struct("!4xI4xBB").unpack_from  # sequence number, data offset, flags
-_IPV4_TCP = struct.Struct("!BxHxxHxB10x4xI4xBB").unpack_from  # the two, with no IP option
-_PORTS = struct.Struct("!HH").unpack_from
+IPV4_TCP = struct.Struct("!BxHxxHxB10x4xI4xBB").unpack_from  # the two, with no IP option
+unpack_ports = struct.Struct("!HH").unpack_from
 _IP_TEXT: dict[bytes, str] = {}
 
 
@@ -119,11 +119,11 @@ def _ip_text(packed: bytes) -> str:
 def flow_ends(flow: bytes) -> tuple[tuple[str, int], tuple[str, int]]:
     """((source address, port), (destination address, port)) of a :data:`Packet` flow."""
     n = (len(flow) - 4) >> 1
-    sport, dport = _PORTS(flow, 2 * n)
+    sport, dport = unpack_ports(flow, 2 * n)
     return (_ip_text(flow[:n]), sport), (_ip_text(flow[n : 2 * n]), dport)
 
 
-def _reverse(flow: bytes) -> bytes:
+def reverse_flow(flow: bytes) -> bytes:
     """The flow of the other direction."""
     n = (len(flow) - 4) >> 1
     return flow[n : 2 * n] + flow[:n] + flow[-2:] + flow[-4:-2]
@@ -146,7 +146,7 @@ def parse_packet(linktype: int, data: bytes) -> Packet | None:
     if ver == 4:
         if size >= off + 40:
             # Most packets: IPv4 without options, then TCP; both headers in one call.
-            vihl, total, frag, proto, seq, doff, flags = _IPV4_TCP(data, off)
+            vihl, total, frag, proto, seq, doff, flags = IPV4_TCP(data, off)
             if vihl == 0x45 and proto == 6 and not frag & 0x3FFF:
                 end = off + total if total else size
                 if end > size:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import heapq
 from typing import Any
 
-from .packets import _SYN
+from .packets import SYN
 
 #: Out-of-order bytes held per direction before the missing ones are declared a gap.
 MAX_PENDING = 4 << 20
@@ -50,12 +50,12 @@ class TcpReassembler:
         self, seq: int, flags: int, payload: bytes, t_ns: int
     ) -> list[tuple[str, int, Any]]:
         if self.next is None:
-            self.next = seq + (1 if flags & _SYN else 0)
-        elif flags & _SYN:
+            self.next = seq + (1 if flags & SYN else 0)
+        elif flags & SYN:
             return []  # a repeated SYN
         if not payload:
             return []
-        pos = self._unwrap(seq) + (1 if flags & _SYN else 0)
+        pos = self._unwrap(seq) + (1 if flags & SYN else 0)
         out: list[tuple[str, int, Any]] = []
         end = pos + len(payload)
         if end <= self.next:

@@ -24,20 +24,20 @@ from ..recording.recorder import StreamRecorder
 from ..recording.records import RecordSink
 from ..spec.commands import SpecSet
 from .packets import (
-    _ACK,
-    _FIN,
-    _IPV4_TCP,
-    _PORTS,
-    _RST,
-    _SYN,
-    _SYN_FIN_RST,
+    ACK,
     DEFAULT_CHANNEL_PORTS,
     DEFAULT_TCP_PORTS,
     DEFAULT_UDP_PORTS,
     DLT_EN10MB,
-    _reverse,
+    FIN,
+    IPV4_TCP,
+    RST,
+    SYN,
+    SYN_FIN_RST,
     flow_ends,
     parse_packet,
+    reverse_flow,
+    unpack_ports,
 )
 from .read import RecordBlock
 from .reassembly import TcpReassembler
@@ -110,7 +110,7 @@ def _fmt(addr: tuple[str, int]) -> str:
 
 def _canonical(flow: bytes) -> bytes:
     """One key for both directions of a flow."""
-    return min(flow, _reverse(flow))
+    return min(flow, reverse_flow(flow))
 
 
 class PacketRecorder:
@@ -219,7 +219,7 @@ class PacketRecorder:
             self.rec.datagram(uway[0], uway[1], t, payload)
             return
         way = self.tcp_ways.get(flow)
-        if way is not None and payload and not flags & _SYN_FIN_RST:
+        if way is not None and payload and not flags & SYN_FIN_RST:
             r = way[2]
             nxt = r.next
             if nxt is not None and seq == nxt & 0xFFFFFFFF and not r.pending:
@@ -245,8 +245,8 @@ class PacketRecorder:
         for lt, t, data in packets:
             size = len(data)
             if lt == DLT_EN10MB and size >= 54 and data[12:14] == b"\x08\x00":
-                vihl, total, frag, proto, seq, doff, flags = _IPV4_TCP(data, 14)
-                if vihl == 0x45 and proto == 6 and not frag & 0x3FFF and not flags & _SYN_FIN_RST:
+                vihl, total, frag, proto, seq, doff, flags = IPV4_TCP(data, 14)
+                if vihl == 0x45 and proto == 6 and not frag & 0x3FFF and not flags & SYN_FIN_RST:
                     end = 14 + total if total else size
                     if end > size:
                         end = size
@@ -319,7 +319,7 @@ class PacketRecorder:
             & (u8[q + 14] == 0x45)
             & (u8[q + 23] == 6)
             & ((u16[q + 20] & 0x3FFF) == 0)
-            & ((u8[q + 47] & _SYN_FIN_RST) == 0)
+            & ((u8[q + 47] & SYN_FIN_RST) == 0)
             & (end >= 54)
             & (start < end)
         )
@@ -483,8 +483,8 @@ class PacketRecorder:
         out of order, retransmitted, or has SYN, FIN or RST."""
         if (
             way is not None
-            and flags & _SYN
-            and not flags & _ACK
+            and flags & SYN
+            and not flags & ACK
             and way[3].halves[C2S].next is not None
         ):
             # The 4-tuple is reused by a new connection.
@@ -494,20 +494,20 @@ class PacketRecorder:
             self._tcp_packet(way, t, payload, seq, flags)
             return
         k = _canonical(flow)
-        if (k in self.finished and not flags & _SYN) or k in self.ignored_flows:
+        if (k in self.finished and not flags & SYN) or k in self.ignored_flows:
             self.ignored += 1
             return
-        sport, dport = _PORTS(flow, len(flow) - 4)
+        sport, dport = unpack_ports(flow, len(flow) - 4)
         if dport in self.sports:
             way = self._open_tcp(flow, t, stream=self.sports[dport])
             self._tcp_packet(way, t, payload, seq, flags)
         elif sport in self.sports:
-            self._open_tcp(_reverse(flow), t, stream=self.sports[sport])
+            self._open_tcp(reverse_flow(flow), t, stream=self.sports[sport])
             self._tcp_packet(self.tcp_ways[flow], t, payload, seq, flags)
         elif dport in self.tports:
             self._tcp_packet(self._open_tcp(flow, t), t, payload, seq, flags)
         elif sport in self.tports:
-            self._open_tcp(_reverse(flow), t)
+            self._open_tcp(reverse_flow(flow), t)
             self._tcp_packet(self.tcp_ways[flow], t, payload, seq, flags)
         elif not self.guess:
             self.ignored += 1
@@ -535,10 +535,10 @@ class PacketRecorder:
     def _tcp_packet(self, way: _TcpWay, t: int, payload: bytes, seq: int, flags: int) -> None:
         cid, d, r, c = way
         self._deliver(cid, d, r.segment(seq, flags, payload, t))
-        if flags & _RST:
+        if flags & RST:
             self._close_tcp(c, t, ("client" if d == C2S else "server") + " reset")
             return
-        if flags & _FIN:
+        if flags & FIN:
             if d not in c.fins:
                 c.fins.append(d)
             if len(c.fins) == 2:
@@ -548,7 +548,7 @@ class PacketRecorder:
         """A connection whose client sends ``flow``; returns that direction's way."""
         self.next_conn += 1
         self._epoch += 1
-        rev = _reverse(flow)
+        rev = reverse_flow(flow)
         c = _TcpConn(self.next_conn, flow, rev)
         self.conns[c.conn] = c
         # Server side first: a flow to itself (same address and port) is client to server.
@@ -584,11 +584,11 @@ class PacketRecorder:
 
     def _open_udp(self, t: int, flow: bytes, payload: bytes) -> tuple[int, DirectionText] | None:
         """The way of a datagram on a new flow, or None if the flow is not ours."""
-        sport, dport = _PORTS(flow, len(flow) - 4)
+        sport, dport = unpack_ports(flow, len(flow) - 4)
         if dport in self.uports:
             c2s = flow
         elif sport in self.uports:
-            c2s = _reverse(flow)
+            c2s = reverse_flow(flow)
         elif self.guess and payload.startswith(HEAD):
             c2s = flow
             self.guessed["udp", dport] += 1
@@ -597,7 +597,7 @@ class PacketRecorder:
         self.next_conn += 1
         conn = self.next_conn
         self.udp_conns.append(conn)
-        rev = _reverse(c2s)
+        rev = reverse_flow(c2s)
         self.udp_ways[rev] = (conn, S2C)
         self.udp_ways[c2s] = (conn, C2S)
         client, server = flow_ends(c2s)

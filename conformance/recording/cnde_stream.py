@@ -39,10 +39,9 @@ from ..protocol.cnde import (
 from ..spec.cnde import CndeCatalogue, cnde_catalogue
 from .layout import C2S, CNDE_STREAM, PROBLEM_RAW_LIMIT, S2C, DirectionText
 from .records import CndeRecord, ProblemRecord, Record
+from .streams import TIMELINE_MAX
 
 __all__ = ["CndeStream"]
-
-_TIMELINE_MAX = 4096
 
 
 class _Way:
@@ -108,7 +107,7 @@ class CndeStream:
             return
         w = self.ways[direction]
         at = w.pending_at + len(w.pending)
-        if len(w.timeline) < _TIMELINE_MAX:
+        if len(w.timeline) < TIMELINE_MAX:
             w.timeline.append((at, t_ns))
         w.pending += data
         w.bytes += len(data)

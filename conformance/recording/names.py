@@ -16,7 +16,7 @@ _UNSET = object()
 _BY_DATA = object()
 
 
-class _CommandNames:
+class CommandNames:
     """The name of a frame's command: by CMD_ID alone where one command has it, else by
     the name at the start of DATA too.  The class using it sets ``specs``, ``_names``
     and ``_id_names`` (an empty dict each) in its ``__init__``."""

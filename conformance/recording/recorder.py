@@ -34,7 +34,7 @@ from .layout import (
     XMLRPC_STREAM,
     DirectionText,
 )
-from .names import _CommandNames
+from .names import CommandNames
 from .records import (
     ConnectionRecord,
     FrameRecord,
@@ -45,7 +45,7 @@ from .records import (
     problem_records,
 )
 from .state_stream import StateStream
-from .streams import _TIMELINE_MAX, ChannelStream, _Conn, _Stream
+from .streams import TIMELINE_MAX, ChannelStream, Conn, DirectionStream
 from .xmlrpc_stream import XmlRpcStream
 
 __all__ = ["DECODE_SLICE", "StreamRecorder"]
@@ -61,7 +61,7 @@ _TAIL_SEP = SEP + TAIL
 _RUN_MIN = 512
 
 
-class StreamRecorder(_CommandNames):
+class StreamRecorder(CommandNames):
     """Bytes and times in, records out (sans-I/O): the proxy's and importer's one path.
 
     ``on_frame`` (for ``--print``) sees each frame record as it is written, and each
@@ -101,7 +101,7 @@ class StreamRecorder(_CommandNames):
         self.checkpoint = checkpoint
         #: Why bytes are now recorded undecoded (None: decoding as usual).
         self.undecoded_reason: str | None = None
-        self._conns: dict[int, _Conn] = {}
+        self._conns: dict[int, Conn] = {}
         self._names: dict[tuple[int, str | None], str | None] = {}
         #: The frames decoded and not written yet (see the module).
         self._held = FrameBatcher()
@@ -151,14 +151,14 @@ class StreamRecorder(_CommandNames):
         ``ValueError``."""
         if stream and stream not in STREAMS:
             raise ValueError(f"unknown stream {stream!r} (one of: {', '.join(STREAMS)})")
-        self._conns[conn] = _Conn(
+        self._conns[conn] = Conn(
             transport=transport,
             client=client,
             upstream=upstream,
             local=local,
             streams={
-                C2S: _Stream(self.max_frame_size, (conn, transport, C2S)),
-                S2C: _Stream(self.max_frame_size, (conn, transport, S2C)),
+                C2S: DirectionStream(self.max_frame_size, (conn, transport, C2S)),
+                S2C: DirectionStream(self.max_frame_size, (conn, transport, S2C)),
             },
             channel=self._channel(stream, conn, transport),
             stream=stream,
@@ -216,7 +216,7 @@ class StreamRecorder(_CommandNames):
             )
         )
 
-    def _counted(self, c: _Conn, step: Callable[[ChannelStream], None]) -> None:
+    def _counted(self, c: Conn, step: Callable[[ChannelStream], None]) -> None:
         """``step`` on a channel connection, its new records (and a state connection's
         damaged bytes) counted."""
         s = c.channel
@@ -228,7 +228,7 @@ class StreamRecorder(_CommandNames):
         if c.stream == STATE_STREAM:
             self.state_damaged += getattr(s, "damaged", 0) - before[2]
 
-    def _channel_close(self, conn: int, c: _Conn, s: ChannelStream, t_ns: int, reason: str) -> None:
+    def _channel_close(self, conn: int, c: Conn, s: ChannelStream, t_ns: int, reason: str) -> None:
         self._counted(c, lambda s: s.close(t_ns))
         frames = getattr(s, "frames", None)
         self.write(
@@ -249,7 +249,7 @@ class StreamRecorder(_CommandNames):
             )
         )
 
-    def _channel_data(self, c: _Conn, direction: DirectionText, t_ns: int, data: bytes) -> None:
+    def _channel_data(self, c: Conn, direction: DirectionText, t_ns: int, data: bytes) -> None:
         """A channel connection's bytes (each read on its own: its records are few).  Once
         decoding stops, they are recorded as they are (a state connection's client bytes
         are problems anyway: decided as ever)."""
@@ -311,13 +311,13 @@ class StreamRecorder(_CommandNames):
         if self.undecoded_reason is not None:
             return False
         keys = [(r[0], r[1]) for r in reads]
-        streams_of: dict[tuple[int, DirectionText], _Stream] = {}
+        streams_of: dict[tuple[int, DirectionText], DirectionStream] = {}
         for conn, d in dict.fromkeys(keys):
             c = self._conns.get(conn)
             if c is None or c.channel is not None:
                 return False
             st = streams_of[conn, d] = c.streams[d]
-            if len(st.timeline) >= _TIMELINE_MAX:
+            if len(st.timeline) >= TIMELINE_MAX:
                 return False
         streams = list(map(streams_of.__getitem__, keys))
         datas = [r[3] for r in reads]
@@ -325,7 +325,7 @@ class StreamRecorder(_CommandNames):
         if got is None:
             return False
         times = [r[2] for r in reads]
-        last: dict[_Stream, tuple[int, int]] = {}
+        last: dict[DirectionStream, tuple[int, int]] = {}
         for st, t, at, n in zip(streams, times, got.offsets, got.sizes, strict=True):
             st.bytes += n
             st.frames += 1
@@ -402,7 +402,7 @@ class StreamRecorder(_CommandNames):
         conn: int,
         transport: str,
         direction: DirectionText,
-        st: _Stream,
+        st: DirectionStream,
         t_ns: int,
         data: bytes,
     ) -> None:
@@ -411,7 +411,7 @@ class StreamRecorder(_CommandNames):
         dec = st.decoder
         tl = st.timeline
         at = dec.stream_offset
-        noted = bool(data) and len(tl) < _TIMELINE_MAX
+        noted = bool(data) and len(tl) < TIMELINE_MAX
         if noted:
             tl.append((at, t_ns))
         events = dec.feed(data)
@@ -469,7 +469,7 @@ class StreamRecorder(_CommandNames):
         tl = st.timeline
         at = dec.stream_offset
         for start, t in zip([0, *ends[:-1]], times, strict=True):
-            if len(tl) < _TIMELINE_MAX and start < n:
+            if len(tl) < TIMELINE_MAX and start < n:
                 tl.append((at + start, t))
         step = self.slice_size
         check = self.checkpoint
@@ -525,7 +525,7 @@ class StreamRecorder(_CommandNames):
         conn: int,
         transport: str,
         direction: DirectionText,
-        st: _Stream,
+        st: DirectionStream,
         data: bytes,
         i: int,
         times: list[int],
@@ -575,7 +575,7 @@ class StreamRecorder(_CommandNames):
         conn: int,
         transport: str,
         direction: DirectionText,
-        st: _Stream,
+        st: DirectionStream,
         t_ns: int,
         data: bytes,
     ) -> None:
@@ -655,7 +655,7 @@ class StreamRecorder(_CommandNames):
         conn: int,
         transport: str,
         direction: DirectionText,
-        st: _Stream,
+        st: DirectionStream,
         run: FrameRun,
         first_ns: list[int],
         complete_ns: list[int],
@@ -688,7 +688,7 @@ class StreamRecorder(_CommandNames):
         conn: int,
         transport: str,
         direction: DirectionText,
-        st: _Stream,
+        st: DirectionStream,
         events: list[Event],
         t_ns: int,
         *,
@@ -724,7 +724,7 @@ class StreamRecorder(_CommandNames):
 
     def _emit_frames(
         self,
-        st: _Stream,
+        st: DirectionStream,
         frames: list[Frame],
         firsts: list[int],
         base: int,

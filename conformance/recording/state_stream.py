@@ -31,12 +31,12 @@ from ..spec.realtime import realtime_decoder
 from ..spec.state import state_decoder
 from .layout import C2S, PROBLEM_RAW_LIMIT, REALTIME_STREAM, S2C, STATE_KIND, DirectionText
 from .records import ProblemRecord, Record, StateRecord
+from .streams import TIMELINE_MAX
 
 __all__ = ["CLIENT_BYTES", "StateStream"]
 
 #: The rule of bytes a client sent on the state port.
 CLIENT_BYTES = "client_bytes"
-_TIMELINE_MAX = 4096
 
 
 class StateStream:
@@ -100,7 +100,7 @@ class StateStream:
             self.client_offset += len(data)
             return
         at = self.pending_at + len(self.pending)
-        if len(self.timeline) < _TIMELINE_MAX:
+        if len(self.timeline) < TIMELINE_MAX:
             self.timeline.append((at, t_ns))
         self.pending += data
         self.bytes[S2C] += len(data)

@@ -12,7 +12,7 @@ from ..protocol.decoder import FrameDecoder
 from .layout import DirectionText
 from .records import Stream
 
-__all__ = ["_TIMELINE_MAX", "ChannelStream", "_Conn", "_Stream"]
+__all__ = ["TIMELINE_MAX", "ChannelStream", "Conn", "DirectionStream"]
 
 
 class ChannelStream(Protocol):
@@ -44,10 +44,10 @@ class ChannelStream(Protocol):
 # an endless frame a byte at a time would otherwise grow the list for ever.  Past the
 # bound, later arrivals are not noted and a frame starting there gets the last noted
 # time (earlier than its real first byte, never later than its last).
-_TIMELINE_MAX = 4096
+TIMELINE_MAX = 4096
 
 
-class _Stream:
+class DirectionStream:
     """One direction of one connection: decoder plus the times its bytes arrived."""
 
     __slots__ = ("base", "bytes", "decoder", "frames", "key", "last_ns", "raw", "timeline")
@@ -71,12 +71,12 @@ class _Stream:
 
 
 @dataclass
-class _Conn:
+class Conn:
     transport: str
     client: str
     upstream: str
     local: str
-    streams: dict[str, _Stream]
+    streams: dict[str, DirectionStream]
     #: A state-port or SDK-channel connection's own records (``open(..., stream=...)``),
     #: else None (the command port's frames).
     channel: ChannelStream | None = None

@@ -52,6 +52,7 @@ from ..protocol.xmlrpc import (
 )
 from .layout import C2S, PROBLEM_RAW_LIMIT, S2C, XMLRPC_STREAM, DirectionText
 from .records import CallRecord, ProblemRecord, Record
+from .streams import TIMELINE_MAX
 
 __all__ = ["MAX_WAITING", "MAX_WAITING_BYTES", "RECORDER_HTTP_LIMITS", "XmlRpcStream"]
 
@@ -63,7 +64,6 @@ MAX_WAITING_BYTES = 8 << 20
 #: What one HTTP message may cost the recorder: the XML-RPC body bound
 #: (:class:`~conformance.protocol.xmlrpc.XmlRpcLimits`), as the twin reads it.
 RECORDER_HTTP_LIMITS = HttpLimits(max_body=DEFAULT_LIMITS.max_body)
-_TIMELINE_MAX = 4096
 #: Where a message starts, by direction: a request line, a status line.
 _STARTS = {C2S: (b"POST ", b"GET ", b"PUT ", b"HEAD "), S2C: (b"HTTP/1.",)}
 
@@ -164,7 +164,7 @@ class XmlRpcStream:
             if not data:
                 return
         at = w.pending_at + len(w.pending)
-        if len(w.timeline) < _TIMELINE_MAX:
+        if len(w.timeline) < TIMELINE_MAX:
             w.timeline.append((at, t_ns))
         w.pending += data
         try:
