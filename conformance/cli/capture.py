@@ -11,7 +11,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Collection
+from collections.abc import Callable, Collection
 from typing import Any
 
 from ..errors import UsageError
@@ -344,6 +344,68 @@ def _host_ports(args: argparse.Namespace) -> dict[str, Any]:
     }
 
 
+def _proxy_where(args: argparse.Namespace) -> dict[str, Any]:
+    """Where ``proxy`` listens and forwards: every port of ``--host``/``--upstream-host``,
+    else ``--listen``/``--upstream`` and the UDP and state ports asked for."""
+    if args.host is not None:
+        return {**_host_ports(args), "state_listen": None, "state_upstream": None}
+    if args.upstream_host is not None:
+        raise UsageError("--upstream-host goes with --host ADDR (where to listen)")
+    if args.upstream is None:
+        raise UsageError("give --upstream HOST:PORT, or --host ADDR --upstream-host ROBOT")
+    listen = parse_address(
+        "127.0.0.1:18080" if args.listen is None else args.listen,
+        default_port=18080,
+        listen=True,
+        option="--listen",
+    )
+    upstream = parse_address(args.upstream, default_port=8080, option="--upstream")
+    out: dict[str, Any] = {
+        "listen": listen,
+        "upstream": upstream,
+        "udp_listen": None,
+        "udp_upstream": None,
+        "state_listen": None,
+        "state_upstream": None,
+        "channels": {},
+    }
+    if args.udp or args.udp_upstream is not None or args.udp_listen is not None:
+        out["udp_upstream"], out["udp_listen"] = _side_ports(
+            upstream, listen, (args.udp_upstream, 20007, "--udp-upstream"),
+            (args.udp_listen, 20007, "--udp-listen"),
+        )  # fmt: skip
+    if args.state_upstream is not None or args.state_listen is not None:
+        out["state_upstream"], out["state_listen"] = _side_ports(
+            upstream, listen, (args.state_upstream, 8083, "--state-upstream"),
+            (args.state_listen, 18083, "--state-listen"),
+        )  # fmt: skip
+    return out
+
+
+def _frame_printer(specs: Any) -> Callable[[FrameRecord | ProblemRecord], None]:
+    """``proxy --print``: each frame a line as it is recorded, named as the judge names it,
+    and each run of bytes that are no frame where it came."""
+    from ..judge.judge import Judge
+    from ..judge.stream import FrameNames
+    from ..spec.dialects import default_dialects
+
+    names = FrameNames(Judge(specs, default_dialects()))
+
+    def on_frame(f: FrameRecord | ProblemRecord) -> None:
+        if isinstance(f, ProblemRecord):  # garbage, a partial frame: shown where it came
+            print(format_problem_line(f), flush=True)
+            return
+        frame = f.frame()
+        name = (
+            names.request(f.conn, frame, f.transport)
+            if f.dir == C2S
+            else names.reply(f.conn, frame)
+        )
+        print(format_frame_line(f, name), flush=True)
+
+    return on_frame
+
+
 def _run_proxy(args: argparse.Namespace) -> int:
     from ..net.proxy import RecordingProxy
 
@@ -351,57 +413,13 @@ def _run_proxy(args: argparse.Namespace) -> int:
         raise UsageError("--max-state-connections must be at least 1")
     if args.max_unrecorded < 1:
         raise UsageError("--max-unrecorded must be at least 1 byte")
-    udp_upstream = udp_listen = None
-    state_upstream = state_listen = None
-    channels: dict[str, Any] = {}
-    if args.host is not None:
-        where = _host_ports(args)
-        listen, upstream = where["listen"], where["upstream"]
-        udp_listen, udp_upstream = where["udp_listen"], where["udp_upstream"]
-        channels = where["channels"]
-    else:
-        if args.upstream_host is not None:
-            raise UsageError("--upstream-host goes with --host ADDR (where to listen)")
-        if args.upstream is None:
-            raise UsageError("give --upstream HOST:PORT, or --host ADDR --upstream-host ROBOT")
-        listen = parse_address(
-            "127.0.0.1:18080" if args.listen is None else args.listen,
-            default_port=18080,
-            listen=True,
-            option="--listen",
-        )
-        upstream = parse_address(args.upstream, default_port=8080, option="--upstream")
-        if args.udp or args.udp_upstream is not None or args.udp_listen is not None:
-            udp_upstream, udp_listen = _side_ports(
-                upstream, listen, (args.udp_upstream, 20007, "--udp-upstream"),
-                (args.udp_listen, 20007, "--udp-listen"),
-            )  # fmt: skip
-        if args.state_upstream is not None or args.state_listen is not None:
-            state_upstream, state_listen = _side_ports(
-                upstream, listen, (args.state_upstream, 8083, "--state-upstream"),
-                (args.state_listen, 18083, "--state-listen"),
-            )  # fmt: skip
+    where = _proxy_where(args)
+    listen, upstream = where["listen"], where["upstream"]
+    udp_listen, udp_upstream = where["udp_listen"], where["udp_upstream"]
+    state_listen, state_upstream = where["state_listen"], where["state_upstream"]
+    channels: dict[str, Any] = where["channels"]
     specs = specs_of(args)
-    on_frame = None
-    if args.print_frames:
-        from ..judge.judge import Judge
-        from ..judge.stream import FrameNames
-        from ..spec.dialects import default_dialects
-
-        names = FrameNames(Judge(specs, default_dialects()))
-
-        def on_frame(f: FrameRecord | ProblemRecord) -> None:
-            if isinstance(f, ProblemRecord):  # garbage, a partial frame: shown where it came
-                print(format_problem_line(f), flush=True)
-                return
-            frame = f.frame()
-            name = (
-                names.request(f.conn, frame, f.transport)
-                if f.dir == C2S
-                else names.reply(f.conn, frame)
-            )
-            print(format_frame_line(f, name), flush=True)
-
+    on_frame = _frame_printer(specs) if args.print_frames else None
     stop = threading.Event()
 
     def _stop(signum: int, frame: object) -> None:

@@ -376,10 +376,7 @@ def _state_player(args: argparse.Namespace, rec: Any) -> Any:
 
 
 def _run_replay(args: argparse.Namespace) -> int:
-    from ..net.replay_server import ReplayServer
     from ..offline.diff import Ignore
-    from ..offline.replay import ReplyBook, replay_calls, replay_to_target
-    from .safety import safety_policy
 
     if args.serve is None and (args.state_serve is not None or args.state_loop):
         raise UsageError("--state-serve and --state-loop need --serve")
@@ -403,89 +400,108 @@ def _run_replay(args: argparse.Namespace) -> int:
         )
     ignore = Ignore.parse(args.ignore, specs=specs)
     if args.serve is not None:
-        udp = args.udp_port is not None
-        udp_listen = Address(address.host, args.udp_port) if udp else None
-        # With UDP, each transport answers from its own sessions, in their recorded order.
-        transports = ("tcp", "udp") if udp else (None,)
-        shown = [0]
+        return _replay_serve(args, rec, address)
+    return _replay_to_target(args, rec, address, specs, ignore)
 
-        def unmatched(frame: Frame, answer: bytes | None) -> None:
-            # Under the server's lock: one line at a time, the first few only.
-            shown[0] += 1
-            if shown[0] > _UNMATCHED_SHOWN:
-                return
-            sent = "nothing" if answer is None else _text(answer)
-            more = " (more are counted, not shown)" if shown[0] == _UNMATCHED_SHOWN else ""
-            print(
-                f"replay: not in the recording: {_text(frame.raw)} -> {sent}{more}",
-                file=sys.stderr,
-                flush=True,
-            )
 
-        books = [
-            ReplyBook(rec, unmatched=args.unmatched, transport=t, on_unmatched=unmatched)
-            for t in transports
-        ]
-        try:
-            server = ReplayServer(
-                books[0],
-                listen=address,
-                udp_listen=udp_listen,
-                udp_book=books[-1],
-                max_connections=args.max_connections,
-                max_frame_size=args.max_frame_size,
-            )
-        except OSError as e:
-            raise UsageError(f"cannot listen on {address}: {e.strerror or e}") from None
-        except ValueError as e:
-            raise UsageError(str(e)) from None
-        try:
-            player = _state_player(args, rec)
-        except UsageError:
-            server.close()
-            raise
-        stop = threading.Event()
-        old = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
-        server.start()
-        if player is not None:
-            player.start()
-            on_udp = f", state port {format_address(*player.address)}"
-            on_udp += f" ({len(player.pieces)} pieces recorded)"
-        else:
-            on_udp = ""
-        on_udp += f", UDP {format_address(*server.udp_address)}" if server.udp_address else ""
+def _replay_serve(args: argparse.Namespace, rec: Any, address: Address) -> int:
+    """``replay --serve``: the recording's controller answers from it (and its state port
+    plays its stream), until Ctrl-C or ``--count`` clients."""
+    from ..net.replay_server import ReplayServer
+    from ..offline.replay import ReplyBook
+
+    udp = args.udp_port is not None
+    udp_listen = Address(address.host, args.udp_port) if udp else None
+    # With UDP, each transport answers from its own sessions, in their recorded order.
+    transports = ("tcp", "udp") if udp else (None,)
+    shown = [0]
+
+    def unmatched(frame: Frame, answer: bytes | None) -> None:
+        # Under the server's lock: one line at a time, the first few only.
+        shown[0] += 1
+        if shown[0] > _UNMATCHED_SHOWN:
+            return
+        sent = "nothing" if answer is None else _text(answer)
+        more = " (more are counted, not shown)" if shown[0] == _UNMATCHED_SHOWN else ""
         print(
-            f"replay: serving {args.capture} on {format_address(*server.address)}{on_udp} "
-            f"(unmatched: {args.unmatched})",
+            f"replay: not in the recording: {_text(frame.raw)} -> {sent}{more}",
             file=sys.stderr,
             flush=True,
         )
-        try:
-            while not stop.wait(0.1):
-                if args.count and server.finished >= args.count:
-                    break
-        finally:
-            for s, h_ in old.items():
-                signal.signal(s, h_)
-            server.close()
-            if player is not None:
-                player.close()
-        dropped = ""
-        if server.refused or server.close_reasons:
-            reasons = ", ".join(f"{n} {r}" for r, n in server.close_reasons.most_common(3))
-            dropped = f"; {server.refused} clients refused (--max-connections)" + (
-                f", connections closed: {reasons}" if reasons else ""
-            )
-        if udp:
-            errs = sum(server.udp_dropped.values())
-            dropped += f"; UDP: {server.datagrams} datagrams from {server.udp_peers} peers"
-            dropped += f", {errs} dropped by an error" if errs else ""
-        print(
-            f"replay: {sum(b.answered for b in books)} requests answered from the recording, "
-            f"{sum(b.unmatched_count for b in books)} unmatched{dropped}",
-            file=sys.stderr,
+
+    books = [
+        ReplyBook(rec, unmatched=args.unmatched, transport=t, on_unmatched=unmatched)
+        for t in transports
+    ]
+    try:
+        server = ReplayServer(
+            books[0],
+            listen=address,
+            udp_listen=udp_listen,
+            udp_book=books[-1],
+            max_connections=args.max_connections,
+            max_frame_size=args.max_frame_size,
         )
-        return 0
+    except OSError as e:
+        raise UsageError(f"cannot listen on {address}: {e.strerror or e}") from None
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    try:
+        player = _state_player(args, rec)
+    except UsageError:
+        server.close()
+        raise
+    stop = threading.Event()
+    old = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
+    server.start()
+    if player is not None:
+        player.start()
+        on_udp = f", state port {format_address(*player.address)}"
+        on_udp += f" ({len(player.pieces)} pieces recorded)"
+    else:
+        on_udp = ""
+    on_udp += f", UDP {format_address(*server.udp_address)}" if server.udp_address else ""
+    print(
+        f"replay: serving {args.capture} on {format_address(*server.address)}{on_udp} "
+        f"(unmatched: {args.unmatched})",
+        file=sys.stderr,
+        flush=True,
+    )
+    try:
+        while not stop.wait(0.1):
+            if args.count and server.finished >= args.count:
+                break
+    finally:
+        for s, h_ in old.items():
+            signal.signal(s, h_)
+        server.close()
+        if player is not None:
+            player.close()
+    dropped = ""
+    if server.refused or server.close_reasons:
+        reasons = ", ".join(f"{n} {r}" for r, n in server.close_reasons.most_common(3))
+        dropped = f"; {server.refused} clients refused (--max-connections)" + (
+            f", connections closed: {reasons}" if reasons else ""
+        )
+    if udp:
+        errs = sum(server.udp_dropped.values())
+        dropped += f"; UDP: {server.datagrams} datagrams from {server.udp_peers} peers"
+        dropped += f", {errs} dropped by an error" if errs else ""
+    print(
+        f"replay: {sum(b.answered for b in books)} requests answered from the recording, "
+        f"{sum(b.unmatched_count for b in books)} unmatched{dropped}",
+        file=sys.stderr,
+    )
+    return 0
+
+
+def _replay_to_target(
+    args: argparse.Namespace, rec: Any, address: Address, specs: Any, ignore: Any
+) -> int:
+    """``replay --target``: the recording's requests sent again, the replies compared."""
+    from ..offline.replay import replay_calls, replay_to_target
+    from .safety import safety_policy
+
     host, port = address
     if not 0 <= args.xmlrpc_port < 65536:
         raise UsageError(f"--xmlrpc-port must be 0..65535, not {args.xmlrpc_port}")

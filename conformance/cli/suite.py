@@ -499,6 +499,39 @@ def _add_serve(sub: Any) -> None:
     p.set_defaults(func=_serve)
 
 
+def _check_serve_limits(args: argparse.Namespace) -> None:
+    """``serve``'s options that name a state layout, a duration or a frame count."""
+    from ..errors import SpecError
+    from ..spec.state import layout_for
+
+    try:
+        layout_for(args.state_version)
+    except SpecError as e:
+        raise UsageError(f"--state-version: {e}") from None
+    if args.duration is not None and args.duration <= 0:
+        raise UsageError("--duration must be positive")
+    if args.max_frames is not None and args.max_frames <= 0:
+        raise UsageError("--max-frames must be positive")
+
+
+def _serving(server: Any) -> str:
+    """Where ``serve`` plays the controller: the text port and every other port served."""
+    out = format_address(*server.address)
+    if server.udp_address:
+        out += f", UDP {format_address(*server.udp_address)}"
+    if server.state_address is not None:
+        v = server.controller.state_version
+        out += f", state port {format_address(*server.state_address)} (v{v} layout)"
+    for what, addr in (
+        ("XML-RPC", server.xmlrpc_address),
+        ("realtime", server.realtime_address),
+        ("CNDE", server.cnde_address),
+    ):
+        if addr is not None:
+            out += f", {what} {format_address(*addr)}"
+    return out
+
+
 def _serve(args: argparse.Namespace) -> int:
     from ..net.emulator import EmulatorServer
     from ..offline.client_mode import ClientValidator
@@ -518,17 +551,7 @@ def _serve(args: argparse.Namespace) -> int:
         host, port, udp_port = _listen_addresses(args)
         state_port = _state_port(args, host, port)  # the state port too, as emulate serves it
     check_report_paths({"--report-json": args.report_json, "--report-html": args.report_html})
-    from ..errors import SpecError
-    from ..spec.state import layout_for
-
-    try:
-        layout_for(args.state_version)
-    except SpecError as e:
-        raise UsageError(f"--state-version: {e}") from None
-    if args.duration is not None and args.duration <= 0:
-        raise UsageError("--duration must be positive")
-    if args.max_frames is not None and args.max_frames <= 0:
-        raise UsageError("--max-frames must be positive")
+    _check_serve_limits(args)
     # serve is the controller: auto has no target to ask, so the default firmware is played.
     specs, choice = spec_choice_of(args, no_target="serve plays the controller, no target to ask")
     limits = _limits(args)
@@ -577,19 +600,7 @@ def _serve(args: argparse.Namespace) -> int:
     failure: str | None = None
     with _interrupts() as interrupted:
         try:
-            udp = f", UDP {format_address(*server.udp_address)}" if server.udp_address else ""
-            if server.state_address is not None:
-                v = server.controller.state_version
-                udp += f", state port {format_address(*server.state_address)} (v{v} layout)"
-            for what, addr in (
-                ("XML-RPC", server.xmlrpc_address),
-                ("realtime", server.realtime_address),
-                ("CNDE", server.cnde_address),
-            ):
-                if addr is not None:
-                    udp += f", {what} {format_address(*addr)}"
-            where = format_address(*server.address)
-            print(f"playing the controller on {where}{udp}; Ctrl-C to stop", flush=True)
+            print(f"playing the controller on {_serving(server)}; Ctrl-C to stop", flush=True)
             while deadline is None or time.monotonic() < deadline:
                 if args.max_frames is not None and validator.frames >= args.max_frames:
                     break

@@ -123,6 +123,17 @@ class _Side:
     address: tuple[str, int]
 
 
+def _check_limits(
+    max_frame_size: int, max_state_connections: int, max_unrecorded: int | None
+) -> None:
+    if max_frame_size < 64:
+        raise ValueError("max_frame_size must be at least 64 bytes")
+    if max_state_connections < 1:
+        raise ValueError("max_state_connections must be at least 1")
+    if max_unrecorded is not None and max_unrecorded < 1:
+        raise ValueError("max_unrecorded must be at least 1 byte")
+
+
 class RecordingProxy(TcpForwarding, UdpForwarding):
     """A recording TCP (and optionally UDP) proxy; see the module docstring.
 
@@ -162,12 +173,7 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
         max_unrecorded: int | None = None,
         log: Callable[[str], None] | None = None,
     ) -> None:
-        if max_frame_size < 64:
-            raise ValueError("max_frame_size must be at least 64 bytes")
-        if max_state_connections < 1:
-            raise ValueError("max_state_connections must be at least 1")
-        if max_unrecorded is not None and max_unrecorded < 1:
-            raise ValueError("max_unrecorded must be at least 1 byte")
+        _check_limits(max_frame_size, max_state_connections, max_unrecorded)
         if specs is None:
             from ..spec.commands import default_specs
 
@@ -228,41 +234,10 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
             self._udp.bind(ul)
             self._udp.setblocking(False)
             self.udp_address = self._udp.getsockname()[:2]
-        # The state port (8083) and the SDKs' channels: a listener each, their
-        # connections recorded as what the port carries (``stream``).
-        sides: dict[str, tuple[tuple[str, int], tuple[str, int]]] = {}
-        if state_upstream is not None:
-            sides["state"] = (state_listen or (listen[0], 0), state_upstream)
-        for stream, (where, to) in (channels or {}).items():
-            if stream not in ("xmlrpc", "cnde", "realtime", "state") or stream in sides:
-                self._close_listeners()
-                raise ValueError(f"a channel is xmlrpc, cnde or realtime, once: not {stream!r}")
-            sides[stream] = (where, to)
+        # The state port (8083) and the SDKs' channels: a listener each.
         self._sides: dict[str, _Side] = {}
-        for stream, (where, to) in sides.items():
-            try:
-                sock = socket.create_server(where, family=family(where[0]), backlog=64)
-            except OSError:
-                self._close_listeners()
-                raise
-            sock.setblocking(False)
-            self._sides[stream] = _Side(stream, to, sock, sock.getsockname()[:2])
-
-        md = dict(
-            default_metadata(
-                source="proxy",
-                upstream=format_sockaddr(upstream),
-                listen=format_sockaddr(self.address),
-            )
-        )
-        if udp_upstream is not None and self.udp_address is not None:
-            md["udp_upstream"] = format_sockaddr(udp_upstream)
-            md["udp_listen"] = format_sockaddr(self.udp_address)
-        for side in self._sides.values():
-            md[f"{side.stream}_upstream"] = format_sockaddr(side.upstream)
-            md[f"{side.stream}_listen"] = format_sockaddr(side.address)
-        md.update(metadata or {})
-        self.metadata = md
+        self._bind_sides(listen, state_listen, state_upstream, channels or {})
+        self.metadata = self._metadata(metadata or {})
         self.out = os.fspath(out)
         self.split_size = split_size
         self.split_duration = split_duration
@@ -295,6 +270,50 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
         self._io_thread: threading.Thread | None = None
         self._next_deadlines = 0.0
         self._closed = False
+
+    def _bind_sides(
+        self,
+        listen: tuple[str, int],
+        state_listen: tuple[str, int] | None,
+        state_upstream: tuple[str, int] | None,
+        channels: Mapping[str, tuple[tuple[str, int], tuple[str, int]]],
+    ) -> None:
+        """A listener for the state port and each SDK channel, its connections recorded as
+        what the port carries (``stream``)."""
+        sides: dict[str, tuple[tuple[str, int], tuple[str, int]]] = {}
+        if state_upstream is not None:
+            sides["state"] = (state_listen or (listen[0], 0), state_upstream)
+        for stream, (where, to) in channels.items():
+            if stream not in ("xmlrpc", "cnde", "realtime", "state") or stream in sides:
+                self._close_listeners()
+                raise ValueError(f"a channel is xmlrpc, cnde or realtime, once: not {stream!r}")
+            sides[stream] = (where, to)
+        for stream, (where, to) in sides.items():
+            try:
+                sock = socket.create_server(where, family=family(where[0]), backlog=64)
+            except OSError:
+                self._close_listeners()
+                raise
+            sock.setblocking(False)
+            self._sides[stream] = _Side(stream, to, sock, sock.getsockname()[:2])
+
+    def _metadata(self, given: Mapping[str, str]) -> dict[str, str]:
+        """The recording's metadata: where each port listens and forwards, then ``given``."""
+        md = dict(
+            default_metadata(
+                source="proxy",
+                upstream=format_sockaddr(self.upstream),
+                listen=format_sockaddr(self.address),
+            )
+        )
+        if self.udp_upstream is not None and self.udp_address is not None:
+            md["udp_upstream"] = format_sockaddr(self.udp_upstream)
+            md["udp_listen"] = format_sockaddr(self.udp_address)
+        for side in self._sides.values():
+            md[f"{side.stream}_upstream"] = format_sockaddr(side.upstream)
+            md[f"{side.stream}_listen"] = format_sockaddr(side.address)
+        md.update(given)
+        return md
 
     def _close_listeners(self) -> None:
         socks = [
@@ -457,22 +476,48 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
 
     # ------------------------------------------------------------------ I/O thread
 
+    def _pause_check(self) -> None:
+        """The recorder fell behind: stop reading (writes go on) until it catches up; the
+        state connections by their own backlog."""
+        paused = len(self._rec_buf) > self.max_backlog
+        if self.max_unrecorded is not None:
+            paused |= self._unrecorded_budget() <= 0
+        if paused != self._reads_paused:
+            self._set_paused(paused)
+        if self._state_read != self._state_taken or (
+            self._read_budget is not None and (self._state_pairs or self._state_paused)
+        ):
+            self._state_backlog_check()
+
+    def _other_event(self, tag: object) -> None:
+        """A selector event that is no pair's and not the pipe's: a listener, the wake-up
+        socket, UDP."""
+        if tag == "listen":
+            self._accept()
+        elif type(tag) is _Side:
+            self._accept(tag)
+        elif tag == "wake":
+            with contextlib.suppress(OSError):
+                self._wake_r.recv(64)
+        elif tag == "udp":
+            try:
+                self._udp_from_client()
+            except Exception as e:
+                self.stats.errors += 1
+                self.log(f"proxy: UDP: {type(e).__name__}: {e}")
+        elif isinstance(tag, UdpSession):
+            try:
+                self._udp_from_upstream(tag)
+            except Exception as e:
+                self._session_failed(tag, e)
+
     def _io_loop(self) -> None:
         sel = self._sel
         pairs = Pair
         monotonic = time.monotonic
         try:
             while not self._stopping.is_set():
-                # The recorder fell behind: stop reading (writes go on) until it catches up.
-                paused = len(self._rec_buf) > self.max_backlog
-                if self.max_unrecorded is not None:
-                    paused |= self._unrecorded_budget() <= 0
-                if paused != self._reads_paused:
-                    self._set_paused(paused)
-                if self._state_read != self._state_taken or (
-                    self._read_budget is not None and (self._state_pairs or self._state_paused)
-                ):
-                    self._state_backlog_check()
+                self._pause_check()
                 self._reply_due = False
                 writable = False  # the pipe to the recorder has room again
                 quick = self._rec_buf or self._state_paused or self._reads_paused
@@ -486,26 +531,10 @@ class RecordingProxy(TcpForwarding, UdpForwarding):
                             # One connection's trouble (a bug its bytes found) ends
                             # that connection, with the reason, never the proxy.
                             self._pair_failed(tag, e)
-                    elif tag == "listen":
-                        self._accept()
-                    elif type(tag) is _Side:
-                        self._accept(tag)
-                    elif tag == "wake":
-                        with contextlib.suppress(OSError):
-                            self._wake_r.recv(64)
-                    elif tag == "udp":
-                        try:
-                            self._udp_from_client()
-                        except Exception as e:
-                            self.stats.errors += 1
-                            self.log(f"proxy: UDP: {type(e).__name__}: {e}")
-                    elif isinstance(tag, UdpSession):
-                        try:
-                            self._udp_from_upstream(tag)
-                        except Exception as e:
-                            self._session_failed(tag, e)
                     elif tag == "rec":
                         writable = True
+                    else:
+                        self._other_event(tag)
                 now = monotonic()
                 if self._rec_buf or self._rec_registered:
                     # Hand the recorder what it has not had for 5 ms, in one write (it

@@ -204,12 +204,9 @@ class TcpForwarding(ProxyBase):
         size = _STATE_RECV if p.state else _RECV
         budget = self._read_budget
         if budget is not None:
-            # --on-write-error stop: never more forwarded than the file may lack, and the
-            # state port never takes the half of it that is the command port's.
-            avail = budget - self._state_reserve if p.state else budget
-            if avail <= 0:
+            size = self._bounded(p, size, budget)
+            if size <= 0:
                 return True  # paused at the next turn
-            size = min(size, avail)
         try:
             data = sock.recv(size)
         except (BlockingIOError, InterruptedError):
@@ -262,6 +259,18 @@ class TcpForwarding(ProxyBase):
             self.stats.bytes_c2s += len(data)
             self._put(DATA, p.conn, C2S, t, data)
             return False
+        self._eof(p, from_client=from_client)
+        return False
+
+    def _bounded(self, p: Pair, size: int, budget: int) -> int:
+        """``--on-write-error stop``: a read of at most what the file may still lack (the
+        state port never takes the half of it that is the command port's)."""
+        avail = budget - self._state_reserve if p.state else budget
+        return min(size, avail)
+
+    def _eof(self, p: Pair, *, from_client: bool) -> None:
+        """One side closed: the other side's shut once what it has to send is sent; the
+        pair closed once both have, else within ``linger``."""
         p.first_close = p.first_close or ("client closed" if from_client else "upstream closed")
         if from_client:
             p.client_eof = True
@@ -275,7 +284,6 @@ class TcpForwarding(ProxyBase):
             self._close_pair(p, p.first_close)
         else:
             p.deadline = time.monotonic() + self.linger
-        return False
 
     def _send(self, p: Pair, *, to_client: bool) -> None:
         buf = p.to_client if to_client else p.to_upstream

@@ -123,9 +123,9 @@ class _Cases:
         key: str,
         detail: str,
         frames: Sequence[bytes],
+        *,
         source: str = "",
         transport: str = "tcp",
-        *,
         shown: Sequence[str] = (),
         reproduce: str = "",
     ) -> None:
@@ -256,13 +256,21 @@ class Check:
             self.on_verdict(j.frame(i), v)
         cases = self.cases
         if not v.findings:
-            cases.add(cmd_id, name, group, Outcome.PASS, "ok", "", (), v.basis)
+            cases.add(cmd_id, name, group, Outcome.PASS, "ok", "", (), source=v.basis)
         for fd in v.findings:
             key = (
                 fd.rule if fd.rule != "dialect" or v.dialect is None else f"dialect-{v.dialect.id}"
             )
             cases.add(
-                cmd_id, name, group, fd.outcome, key, fd.message, frames, fd.source, c.transport[i]
+                cmd_id,
+                name,
+                group,
+                fd.outcome,
+                key,
+                fd.message,
+                frames,
+                source=fd.source,
+                transport=c.transport[i],
             )
 
     def _request(self, j: Judged, q: int) -> None:
@@ -287,7 +295,7 @@ class Check:
                     sf.key,
                     sf.message,
                     (*before, raw),
-                    sf.source,
+                    source=sf.source,
                 )
 
     def _reply(self, j: Judged, p: int, q: int) -> None:
@@ -308,7 +316,6 @@ class Check:
                 "in_flight",
                 "the recording stopped before its reply: the request was in flight",
                 (c.raw[q],),
-                "",
             )
             return
         self.cases.add(
@@ -319,7 +326,7 @@ class Check:
             "no_reply",
             "request without a recorded reply",
             (c.raw[q],),
-            "manual 1.1",
+            source="manual 1.1",
         )
 
     def _call(self, jc: JudgedCall) -> None:
@@ -338,7 +345,9 @@ class Check:
             shown = call_lines(c)
             repro = call_reproduction(c, self.upstream_xmlrpc) if group == "client" else ""
             if not v.findings:
-                self.cases.add(cmd_id, name, group, Outcome.PASS, f"{prefix}-ok", "", (), v.basis)
+                self.cases.add(
+                    cmd_id, name, group, Outcome.PASS, f"{prefix}-ok", "", (), source=v.basis
+                )
             for fd in v.findings:
                 rule = (
                     fd.rule
@@ -353,7 +362,7 @@ class Check:
                     f"{prefix}-{rule}",
                     fd.message,
                     (),
-                    fd.source,
+                    source=fd.source,
                     shown=shown,
                     reproduce=repro,
                 )
@@ -377,7 +386,7 @@ class Check:
             p.rule,
             v.message,
             (p.raw[:200],),
-            v.source,
+            source=v.source,
         )
 
     # ------------------------------------------------------------------ the report

@@ -13,7 +13,7 @@ one recording, replies that differ, and latency changes.  ``--ignore`` rules are
 from __future__ import annotations
 
 import re
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -259,18 +259,7 @@ def compare_replies(
     if recorded is None:
         add("extra_reply", "a reply now; the recording has none")
         return out
-    # Echo: does each reply echo its own request?  (CNT values may differ between runs.)
-    if request is not None and new_req is not None:
-        if (recorded.cnt == request.cnt) != (new.cnt == new_req.cnt):
-            add(
-                "cnt",
-                f"reply CNT {new.cnt} for request CNT {new_req.cnt} "
-                f"({was} {recorded.cnt} for {request.cnt})",
-            )
-        if (recorded.cmd_id == request.cmd_id) != (new.cmd_id == new_req.cmd_id):
-            add("cmd_id", f"reply CMD_ID {new.cmd_id} ({was} {recorded.cmd_id})")
-    elif recorded.cmd_id != new.cmd_id:
-        add("cmd_id", f"reply CMD_ID {new.cmd_id} ({was} {recorded.cmd_id})")
+    _echo(add, was, recorded, new, request, new_req)
     if bool(noise[0]) != bool(noise[1]):
         add("framing", f"{noise[1]} malformed bytes before the reply ({was} {noise[0]})")
     returns = _flat_returns(specs, cid, name)
@@ -292,16 +281,52 @@ def compare_replies(
             f"framing problems {sorted(new.problems) or 'none'} "
             f"({was} {sorted(recorded.problems) or 'none'})",
         )
-    if recorded.data == new.data or "data" in ignore.kinds:
-        return out
-    rv, nv = _values(recorded.data), _values(new.data)
+    if recorded.data != new.data and "data" not in ignore.kinds:
+        _data(add, was, cid, recorded.data, new.data, returns, ignore)
+    return out
+
+
+def _echo(
+    add: Callable[[str, str], None],
+    was: str,
+    recorded: FrameRecord,
+    new: FrameRecord,
+    request: FrameRecord | None,
+    new_req: FrameRecord | None,
+) -> None:
+    """Does each reply echo its own request?  (CNT values may differ between runs.)"""
+    if request is not None and new_req is not None:
+        if (recorded.cnt == request.cnt) != (new.cnt == new_req.cnt):
+            add(
+                "cnt",
+                f"reply CNT {new.cnt} for request CNT {new_req.cnt} "
+                f"({was} {recorded.cnt} for {request.cnt})",
+            )
+        if (recorded.cmd_id == request.cmd_id) != (new.cmd_id == new_req.cmd_id):
+            add("cmd_id", f"reply CMD_ID {new.cmd_id} ({was} {recorded.cmd_id})")
+    elif recorded.cmd_id != new.cmd_id:
+        add("cmd_id", f"reply CMD_ID {new.cmd_id} ({was} {recorded.cmd_id})")
+
+
+def _data(
+    add: Callable[[str, str], None],
+    was: str,
+    cid: int,
+    recorded: str,
+    new: str,
+    returns: list[ReturnValue] | None,
+    ignore: Ignore,
+) -> None:
+    """Two replies' DATA value by value: the shape, then each value (a volatile one by its
+    shape only)."""
+    rv, nv = _values(recorded), _values(new)
     if rv is None or nv is None or len(rv) != len(nv):
         add(
             "shape",
             f"{'?' if nv is None else len(nv)} values ({was} {'?' if rv is None else len(rv)}): "
-            f"{new.data[:60]!r} vs {recorded.data[:60]!r}",
+            f"{new[:60]!r} vs {recorded[:60]!r}",
         )
-        return out
+        return
     for i, (a, b) in enumerate(zip(rv, nv, strict=True)):
         if (cid, i) in ignore.values:
             continue
@@ -313,7 +338,6 @@ def compare_replies(
             continue
         if _text(a) != _text(b):
             add("data", f"{vname} (index {i}): {_text(b)!r} ({was} {_text(a)!r})")
-    return out
 
 
 def compare_call_replies(
@@ -377,19 +401,31 @@ def compare_call_replies(
         if recorded.fault_code != fault_code:
             add("data", f"fault {fault_code} (recorded fault {recorded.fault_code})")
         return out
-    if kind != "value":
-        return out
-    a, b = recorded.value, value
+    if kind == "value":
+        _call_values(add, recorded.value, value, reading, ignore)
+    return out
+
+
+def _call_values(
+    add: Callable[[str, str], None],
+    a: XmlRpcValue,
+    b: XmlRpcValue,
+    reading: CallReading,
+    ignore: Ignore,
+) -> None:
+    """Two XML-RPC reply values: their kinds, an array's length and each value's kind,
+    the error code, and a value its command declares not volatile."""
+    cid = reading.cmd_id
     if value_kind(a) != value_kind(b):
         add("shape", f"a {value_kind(b)} (recorded a {value_kind(a)})")
-        return out
+        return
     if not isinstance(a, list) or not isinstance(b, list):
         if a != b and "data" not in ignore.kinds:
             add("data", f"{b!r} (recorded {a!r})")
-        return out
+        return
     if len(a) != len(b):
         add("shape", f"{len(b)} values (recorded {len(a)})")
-        return out
+        return
     returns = _call_returns(reading)
     for i, (x, y) in enumerate(zip(a, b, strict=True)):
         if value_kind(x) != value_kind(y):
@@ -401,7 +437,6 @@ def compare_call_replies(
         if i == 0 or (decl is not None and not decl.volatile):
             what = "the error code" if i == 0 else f"{decl.name if decl else 'value'} (index {i})"
             add("data", f"{what}: {y!r} (recorded {x!r})")
-    return out
 
 
 def _call_returns(reading: CallReading) -> dict[int, ReturnValue]:

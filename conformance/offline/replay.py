@@ -399,6 +399,19 @@ def _record(f: Frame, direction: str, t_ns: int, name: str | None, conn: int) ->
     )
 
 
+def _client_sides(rec: Recording) -> dict[int, list[FrameRecord | ProblemRecord]]:
+    """Each connection's client side as it was sent: its requests and its malformed
+    bytes, in stream order."""
+    per_conn: dict[int, list[tuple[int, FrameRecord | ProblemRecord]]] = {}
+    for f in rec.frames:
+        if f.dir == C2S:
+            per_conn.setdefault(f.conn, []).append((f.offset, f))
+    for p in rec.problems:
+        if p.dir == C2S and p.kind == "malformed" and p.raw:
+            per_conn.setdefault(p.conn, []).append((p.offset, p))
+    return {c: [x for _, x in sorted(v, key=lambda it: it[0])] for c, v in per_conn.items()}
+
+
 def replay_to_target(
     rec: Recording,
     host: str,
@@ -425,18 +438,12 @@ def replay_to_target(
     for rx in exchanges(rec):
         if rx.request is not None:
             replies[id(rx.request)] = rx.reply
-    per_conn: dict[int, list[tuple[int, FrameRecord | ProblemRecord]]] = {}
+    per_conn = _client_sides(rec)
     transports: dict[int, str] = {c.conn: c.transport for c in rec.connections if c.event == "open"}
-    for f in rec.frames:
-        if f.dir == C2S:
-            per_conn.setdefault(f.conn, []).append((f.offset, f))
-    for p in rec.problems:
-        if p.dir == C2S and p.kind == "malformed" and p.raw:
-            per_conn.setdefault(p.conn, []).append((p.offset, p))
     t0_rec = rec.start_ns
     t0 = time.monotonic()
     for conn in sorted(per_conn):
-        items = [x for _, x in sorted(per_conn[conn], key=lambda it: it[0])]
+        items = per_conn[conn]
         transport = transports.get(conn, items[0].transport)
         if transport == "udp" and udp_port is None:
             continue
@@ -455,11 +462,8 @@ def replay_to_target(
 
         try:
             for item in items:
-                if timing == "recorded":
-                    due = t0 + (item.complete_ns - t0_rec) / 1e9
-                    delay = due - time.monotonic()
-                    if delay > 0:
-                        time.sleep(delay)
+                if timing == "recorded":  # as far apart as they were recorded
+                    time.sleep(max(0.0, t0 + (item.complete_ns - t0_rec) / 1e9 - time.monotonic()))
                 if isinstance(item, ProblemRecord):
                     if ensure():
                         client.send_raw(item.raw)

@@ -15,6 +15,7 @@ from typing import Any
 
 from ..recording.layout import C2S, S2C, DirectionText
 from ..recording.reader import Recording
+from ..recording.records import ConnectionRecord
 from ..recording.repair import atomic_output
 from .packets import ACK, DEFAULT_CHANNEL_PORTS, DLT_EN10MB, FIN, SYN
 
@@ -179,7 +180,35 @@ def export_pcap(rec: Recording, out: str | os.PathLike[str]) -> int:
     :data:`_ACK_EVERY` bytes.  Wireshark's TCP analysis then finds nothing to flag but
     what the recording lacks.
     """
-    streams: dict[tuple[int, str], list[tuple[int, int, int, bytes]]] = {}
+    streams = _segments(rec)
+    opened = {c.conn: c for c in rec.connections if c.event == "open"}
+    closed = {c.conn: c for c in rec.connections if c.event == "close"}
+    udp = {cid for cid, o in opened.items() if o.transport == "udp"}
+    events = _events(streams, opened, closed, udp)
+    # Written next to ``out`` and renamed when complete: a failure leaves no file.
+    with atomic_output(out) as tmp:
+        w = _PcapWriter(tmp)
+        flows: dict[int, _Flow] = {}
+        try:
+            for t, _, cid, kind, payload in events:
+                flow = flows.get(cid)
+                if flow is None:
+                    flow = flows[cid] = _Flow(w, cid, opened.get(cid), cid in udp)
+                flow.event(t, kind, payload, closed.get(cid))
+        finally:
+            w.close()
+    return w.count
+
+
+#: Each stream's (connection, direction) segments: (time, recorded order, offset, bytes).
+_Segments = dict[tuple[int, str], list[tuple[int, int, int, bytes]]]
+
+
+def _segments(rec: Recording) -> _Segments:
+    """Every byte the recording holds of each stream, at its offset: frames and malformed
+    runs, the state port's packets and its decoder's problems, the SDKs' channels (each
+    XML-RPC call's request and reply, CNDE frames, 20004 packets, their problems)."""
+    streams: _Segments = {}
     order = 0
 
     def add(t: int, conn: int, d: str, offset: int, raw: bytes) -> None:
@@ -189,18 +218,18 @@ def export_pcap(rec: Recording, out: str | os.PathLike[str]) -> int:
 
     for f in rec.frames:
         add(f.complete_ns, f.conn, f.dir, f.offset, f.raw)
-    for p in rec.problems:
-        if p.kind == "malformed" and p.raw:
-            add(p.complete_ns, p.conn, p.dir, p.offset, p.raw)
-    # The state port's packets and the bytes its decoder kept as problems (garbage, a
-    # truncated packet, the client's bytes), each at its stream offset.
     for st8 in rec.states:
         add(st8.complete_ns, st8.conn, S2C, st8.offset, st8.raw)
-    for p in rec.state_problems:
+    for frame in rec.cnde:
+        add(frame.complete_ns, frame.conn, frame.dir, frame.offset, frame.raw)
+    for packet in rec.realtime:
+        add(packet.complete_ns, packet.conn, S2C, packet.offset, packet.raw)
+    for p in rec.problems:  # a gap holds no bytes; a malformed run its own
+        if p.kind == "malformed" and p.raw:
+            add(p.complete_ns, p.conn, p.dir, p.offset, p.raw)
+    for p in (*rec.state_problems, *rec.channel_problems):
         if p.raw:
             add(p.complete_ns, p.conn, p.dir, p.offset, p.raw)
-    # The SDKs' channels: each XML-RPC call's request and reply, each CNDE frame, each
-    # 20004 packet, and the bytes their decoders kept as problems, at their offsets.
     for call in rec.calls:
         if call.request_raw and call.request_offset is not None:
             t = call.request_ns or call.complete_ns
@@ -208,17 +237,19 @@ def export_pcap(rec: Recording, out: str | os.PathLike[str]) -> int:
         if call.reply_raw and call.reply_offset is not None:
             t = call.reply_ns or call.complete_ns
             add(t, call.conn, S2C, call.reply_offset, call.reply_raw)
-    for frame in rec.cnde:
-        add(frame.complete_ns, frame.conn, frame.dir, frame.offset, frame.raw)
-    for packet in rec.realtime:
-        add(packet.complete_ns, packet.conn, S2C, packet.offset, packet.raw)
-    for problem in rec.channel_problems:
-        if problem.raw:
-            add(problem.complete_ns, problem.conn, problem.dir, problem.offset, problem.raw)
-    opened = {c.conn: c for c in rec.connections if c.event == "open"}
-    closed = {c.conn: c for c in rec.connections if c.event == "close"}
-    udp = {cid for cid, o in opened.items() if o.transport == "udp"}
-    events: list[tuple[int, int, int, str, Any]] = []  # (t, order, conn, kind, payload)
+    return streams
+
+
+def _events(
+    streams: _Segments,
+    opened: dict[int, ConnectionRecord],
+    closed: dict[int, ConnectionRecord],
+    udp: set[int],
+) -> list[tuple[int, int, int, str, Any]]:
+    """(time, order, connection, kind, payload) of every segment, open and close, by time;
+    a stream's segments of one time in stream order (their recorded order would put a run
+    of garbage after the frame that followed it)."""
+    events: list[tuple[int, int, int, str, Any]] = []
     for (cid, d), segs in streams.items():
         # UDP datagrams stay as recorded (no stream to order); TCP in stream order.
         for t, n, offset, raw in segs if cid in udp else _in_stream_order(segs):
@@ -233,75 +264,71 @@ def export_pcap(rec: Recording, out: str | os.PathLike[str]) -> int:
         c = closed.get(cid)
         t1 = c.t_ns if c else last_t[cid]
         events.append((max(t1, last_t[cid]), 1 << 62, cid, "close", None))
-    # By time; a stream's segments of one time in stream order (their recorded order
-    # would put a run of garbage after the frame that followed it).
     events.sort(key=lambda e: (e[0], e[1] if e[3] not in (C2S, S2C) else 0, e[4][0] if e[4] else 0))
+    return events
 
-    # Written next to ``out`` and renamed when complete: a failure leaves no file.
-    with atomic_output(out) as tmp:
-        w = _PcapWriter(tmp)
-        state: dict[int, dict[str, Any]] = {}
-        try:
-            for t, _, cid, kind, payload in events:
-                st = state.get(cid)
-                if st is None:
-                    o = opened.get(cid)
-                    csrc, cport = _addr(o.client if o else "", "10.0.0.1")
-                    sdst, sport = _addr(o.upstream if o else "", "10.0.0.2")
-                    st = state[cid] = {
-                        "c": (csrc, cport or 40000 + cid % 20000),
-                        # A connection recorded without addresses: its port's number.
-                        "s": (sdst, sport or _PORT_OF_STREAM.get(o.stream if o else "", 8080)),
-                        "udp": cid in udp,
-                        "isn": {C2S: 1000, S2C: 5000},
-                        "sent": {C2S: 0, S2C: 0},
-                        "acked": {C2S: 0, S2C: 0},
-                        "open": False,
-                    }
-                (ca, cp), (sa, sp) = st["c"], st["s"]
-                if st["udp"]:
-                    if kind in (C2S, S2C):
-                        _, raw = payload
-                        if kind == C2S:
-                            w.ip_packet(t, True, _ipv4(ca, sa, 17, _udp(ca, sa, cp, sp, raw), cid))
-                        else:
-                            w.ip_packet(t, False, _ipv4(sa, ca, 17, _udp(sa, ca, sp, cp, raw), cid))
-                    continue
-                isn, sent, acked = st["isn"], st["sent"], st["acked"]
 
-                seg = functools.partial(w.tcp_segment, t, (ca, cp), (sa, sp))
+class _Flow:
+    """One connection's packets: its addresses, sequence numbers and what each side has
+    sent and had acknowledged."""
 
-                if kind == "open" or (not st["open"] and kind != "close"):
-                    if not st["open"]:
-                        st["open"] = True
-                        seg(True, isn[C2S] - 1, 0, SYN)
-                        seg(False, isn[S2C] - 1, isn[C2S], SYN | ACK)
-                        seg(True, isn[C2S], isn[S2C], ACK)
-                    if kind == "open":
-                        continue
-                if kind == "close":
-                    if st["open"]:
-                        c = closed.get(cid)
-                        first = closed_first(c.reason if c is not None else "")
-                        second = S2C if first == C2S else C2S
-                        # The first FIN, the other side's FIN (acknowledging it), the ACK.
-                        end = {d: isn[d] + sent[d] for d in (C2S, S2C)}
-                        seg(first == C2S, end[first], end[second], FIN | ACK)
-                        seg(second == C2S, end[second], end[first] + 1, FIN | ACK)
-                        seg(first == C2S, end[first] + 1, end[second] + 1, ACK)
-                    continue
-                offset, raw = payload
-                d = kind
-                other = S2C if d == C2S else C2S
-                for i in range(0, len(raw), _MSS):
-                    chunk = raw[i : i + _MSS]
-                    seq = isn[d] + offset + i
-                    seg(d == C2S, seq, isn[other] + sent[other], ACK | 0x08, chunk)
-                    acked[other] = sent[other]
-                    sent[d] = max(sent[d], offset + i + len(chunk))
-                    if sent[d] - acked[d] >= _ACK_EVERY:  # the receiver says it has them
-                        seg(d != C2S, isn[other] + sent[other], isn[d] + sent[d], ACK)
-                        acked[d] = sent[d]
-        finally:
-            w.close()
-    return w.count
+    def __init__(self, w: _PcapWriter, cid: int, o: ConnectionRecord | None, udp: bool) -> None:
+        self.w, self.cid, self.udp = w, cid, udp
+        csrc, cport = _addr(o.client if o else "", "10.0.0.1")
+        sdst, sport = _addr(o.upstream if o else "", "10.0.0.2")
+        self.c = (csrc, cport or 40000 + cid % 20000)
+        # A connection recorded without addresses: its port's number.
+        self.s = (sdst, sport or _PORT_OF_STREAM.get(o.stream if o else "", 8080))
+        self.isn: dict[str, int] = {C2S: 1000, S2C: 5000}
+        self.sent: dict[str, int] = {C2S: 0, S2C: 0}
+        self.acked: dict[str, int] = {C2S: 0, S2C: 0}
+        self.open = False
+
+    def event(self, t: int, kind: str, payload: Any, close: ConnectionRecord | None) -> None:
+        if self.udp:
+            if kind in (C2S, S2C):
+                self._datagram(t, kind, payload[1])
+            return
+        seg = functools.partial(self.w.tcp_segment, t, self.c, self.s)
+        if not self.open and kind != "close":
+            self._handshake(seg)
+        if kind == "close":
+            if self.open:
+                self._fins(seg, closed_first(close.reason if close is not None else ""))
+        elif kind != "open":
+            self._data(seg, kind, *payload)
+
+    def _datagram(self, t: int, d: str, raw: bytes) -> None:
+        (ca, cp), (sa, sp) = self.c, self.s
+        if d == C2S:
+            self.w.ip_packet(t, True, _ipv4(ca, sa, 17, _udp(ca, sa, cp, sp, raw), self.cid))
+        else:
+            self.w.ip_packet(t, False, _ipv4(sa, ca, 17, _udp(sa, ca, sp, cp, raw), self.cid))
+
+    def _handshake(self, seg: Any) -> None:
+        isn = self.isn
+        self.open = True
+        seg(True, isn[C2S] - 1, 0, SYN)
+        seg(False, isn[S2C] - 1, isn[C2S], SYN | ACK)
+        seg(True, isn[C2S], isn[S2C], ACK)
+
+    def _fins(self, seg: Any, first: str) -> None:
+        """The first FIN, the other side's FIN (acknowledging it), the ACK."""
+        second = S2C if first == C2S else C2S
+        end: dict[str, int] = {d: self.isn[d] + self.sent[d] for d in (C2S, S2C)}
+        seg(first == C2S, end[first], end[second], FIN | ACK)
+        seg(second == C2S, end[second], end[first] + 1, FIN | ACK)
+        seg(first == C2S, end[first] + 1, end[second] + 1, ACK)
+
+    def _data(self, seg: Any, d: str, offset: int, raw: bytes) -> None:
+        isn, sent, acked = self.isn, self.sent, self.acked
+        other = S2C if d == C2S else C2S
+        for i in range(0, len(raw), _MSS):
+            chunk = raw[i : i + _MSS]
+            seq = isn[d] + offset + i
+            seg(d == C2S, seq, isn[other] + sent[other], ACK | 0x08, chunk)
+            acked[other] = sent[other]
+            sent[d] = max(sent[d], offset + i + len(chunk))
+            if sent[d] - acked[d] >= _ACK_EVERY:  # the receiver says it has them
+                seg(d != C2S, isn[other] + sent[other], isn[d] + sent[d], ACK)
+                acked[d] = sent[d]

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import ipaddress
 import struct
+from collections.abc import Callable
 
 #: The ports the command protocol's frames travel on (TCP 8080, UDP 20007): where an
 #: import or a capture takes flows from unless told other ports.
@@ -44,45 +45,58 @@ SYN_FIN_RST = SYN | FIN | RST
 Packet = tuple[str, bytes, bytes, int, int]
 
 
+def _ethernet(data: bytes) -> tuple[int, int] | None:
+    if len(data) < 14:
+        return None
+    off = 12
+    (etype,) = _U16(data, off)
+    off += 2
+    while etype in (0x8100, 0x88A8, 0x9100) and len(data) >= off + 4:  # VLAN tags
+        (etype,) = _U16(data, off + 2)
+        off += 4
+    return _ethertype(etype, off)
+
+
+def _sll(data: bytes) -> tuple[int, int] | None:
+    return _ethertype(_U16(data, 14)[0], 16) if len(data) >= 16 else None
+
+
+def _sll2(data: bytes) -> tuple[int, int] | None:
+    return _ethertype(_U16(data, 0)[0], 20) if len(data) >= 20 else None
+
+
+def _loopback(data: bytes, network_order: bool) -> tuple[int, int] | None:
+    """DLT_NULL: the address family in the capturing machine's byte order; DLT_LOOP:
+    network order."""
+    if len(data) < 4:
+        return None
+    fam = struct.unpack_from("!I" if network_order else "<I", data, 0)[0]
+    if fam > 0xFFFF:
+        fam = struct.unpack_from("!I", data, 0)[0]
+    if fam == 2:
+        return 4, 4
+    return (6, 4) if fam in (10, 24, 28, 30) else None
+
+
+def _raw_ip(data: bytes) -> tuple[int, int] | None:
+    return (data[0] >> 4, 0) if data else None
+
+
+#: Each link type's reading: (IP version, offset of the IP header), None for no IP.
+_LINKS: dict[int, Callable[[bytes], tuple[int, int] | None]] = {
+    DLT_EN10MB: _ethernet,
+    DLT_LINUX_SLL: _sll,
+    DLT_LINUX_SLL2: _sll2,
+    DLT_NULL: lambda d: _loopback(d, False),
+    DLT_LOOP: lambda d: _loopback(d, True),
+    **dict.fromkeys((DLT_RAW, *DLT_RAW_ALT, DLT_IPV4, DLT_IPV6), _raw_ip),
+}
+
+
 def _link(linktype: int, data: bytes) -> tuple[int, int] | None:
     """(IP version, offset of the IP header), or None for what is not IP."""
-    if linktype == DLT_EN10MB:
-        off = 12
-        if len(data) < 14:
-            return None
-        (etype,) = _U16(data, off)
-        off += 2
-        while etype in (0x8100, 0x88A8, 0x9100) and len(data) >= off + 4:  # VLAN tags
-            (etype,) = _U16(data, off + 2)
-            off += 4
-        return _ethertype(etype, off)
-    if linktype == DLT_LINUX_SLL:
-        if len(data) < 16:
-            return None
-        (etype,) = _U16(data, 14)
-        return _ethertype(etype, 16)
-    if linktype == DLT_LINUX_SLL2:
-        if len(data) < 20:
-            return None
-        (etype,) = _U16(data, 0)
-        return _ethertype(etype, 20)
-    if linktype in (DLT_NULL, DLT_LOOP):
-        if len(data) < 4:
-            return None
-        # DLT_NULL: host byte order of the capturing machine; DLT_LOOP: network order.
-        fam = struct.unpack_from("!I" if linktype == DLT_LOOP else "<I", data, 0)[0]
-        if fam > 0xFFFF:
-            fam = struct.unpack_from("!I", data, 0)[0]
-        if fam == 2:
-            return 4, 4
-        if fam in (10, 24, 28, 30):
-            return 6, 4
-        return None
-    if linktype in (DLT_RAW, *DLT_RAW_ALT, DLT_IPV4, DLT_IPV6):
-        if not data:
-            return None
-        return data[0] >> 4, 0
-    return None
+    read = _LINKS.get(linktype)
+    return read(data) if read is not None else None
 
 
 def _ethertype(etype: int, off: int) -> tuple[int, int] | None:
@@ -143,48 +157,63 @@ def parse_packet(linktype: int, data: bytes) -> Packet | None:
             return None
         ver, off = lk
     size = len(data)
-    if ver == 4:
-        if size >= off + 40:
-            # Most packets: IPv4 without options, then TCP; both headers in one call.
-            vihl, total, frag, proto, seq, doff, flags = IPV4_TCP(data, off)
-            if vihl == 0x45 and proto == 6 and not frag & 0x3FFF:
-                end = off + total if total else size
-                if end > size:
-                    end = size
-                if end >= off + 40:
-                    payload = data[off + 20 + (doff >> 4) * 4 : end]
-                    return "tcp", data[off + 12 : off + 24], payload, seq, flags
-        if size < off + 20:
-            return None
-        vihl, total, frag, proto = _IPV4(data, off)
-        if frag & 0x3FFF:  # fragment (MF set or offset > 0): not reassembled
-            return None
-        end = off + total if total else size
-        addrs, l4 = off + 12, off + (vihl & 0x0F) * 4
-        a_end = off + 20
-    elif ver == 6:
-        if size < off + 40:
-            return None
-        plen, proto = _IPV6(data, off)
-        addrs = off + 8
-        l4 = a_end = off + 40
-        # Payload length 0 with a payload: a GSO/BIG TCP packet over 64 KB as Linux
-        # hands it to the capture (the jumbo option removed), as IPv4's total 0 above.
-        end = l4 + plen if plen else size
-        while proto in _V6_EXT and size >= l4 + 2:
-            proto, hlen = data[l4], (data[l4 + 1] + 1) * 8
-            l4 += hlen
-        if proto == 44:  # fragment header
-            return None
-    else:
+    if ver == 4 and size >= off + 40:
+        # Most packets: IPv4 without options, then TCP; both headers in one call.
+        vihl, total, frag, proto, seq, doff, flags = IPV4_TCP(data, off)
+        if vihl == 0x45 and proto == 6 and not frag & 0x3FFF:
+            end = off + total if total else size
+            if end > size:
+                end = size
+            if end >= off + 40:
+                payload = data[off + 20 + (doff >> 4) * 4 : end]
+                return "tcp", data[off + 12 : off + 24], payload, seq, flags
+    ip = _ipv4(data, off) if ver == 4 else _ipv6(data, off) if ver == 6 else None
+    if ip is None:
         return None
-    if end > size:
-        end = size
+    proto, addrs, l4, a_end, end = ip
+    return _transport(data, proto, addrs, l4, a_end, min(end, size))
+
+
+#: An IP header read: (protocol, where the addresses start, where the transport header
+#: starts, where the addresses end, where the IP payload ends).
+_Ip = tuple[int, int, int, int, int]
+
+
+def _ipv4(data: bytes, off: int) -> _Ip | None:
+    size = len(data)
+    if size < off + 20:
+        return None
+    vihl, total, frag, proto = _IPV4(data, off)
+    if frag & 0x3FFF:  # fragment (MF set or offset > 0): not reassembled
+        return None
+    end = off + total if total else size
+    return proto, off + 12, off + (vihl & 0x0F) * 4, off + 20, end
+
+
+def _ipv6(data: bytes, off: int) -> _Ip | None:
+    size = len(data)
+    if size < off + 40:
+        return None
+    plen, proto = _IPV6(data, off)
+    l4 = off + 40
+    # Payload length 0 with a payload: a GSO/BIG TCP packet over 64 KB as Linux hands it
+    # to the capture (the jumbo option removed), as IPv4's total 0.
+    end = l4 + plen if plen else size
+    while proto in _V6_EXT and size >= l4 + 2:
+        proto, hlen = data[l4], (data[l4 + 1] + 1) * 8
+        l4 += hlen
+    if proto == 44:  # fragment header
+        return None
+    return proto, off + 8, l4, off + 40, end
+
+
+def _transport(data: bytes, proto: int, addrs: int, l4: int, a_end: int, end: int) -> Packet | None:
+    """The TCP or UDP header after the IP header: the flow (addresses and ports, one
+    slice when no IP option or extension header parts them), the payload."""
     if proto == 6:
         if end < l4 + 20:
             return None
         seq, doff, flags = _TCP(data, l4)
-        # Addresses and ports: one slice when no IP option or extension header parts them.
         flow = data[addrs : l4 + 4] if l4 == a_end else data[addrs:a_end] + data[l4 : l4 + 4]
         return "tcp", flow, data[l4 + (doff >> 4) * 4 : end], seq, flags
     if proto == 17:

@@ -147,6 +147,7 @@ class StatePacket:
         raw: bytes,
         checksum: int,
         computed: int,
+        *,
         offset: int = 0,
         time: float | None = None,
     ) -> None:
@@ -435,8 +436,8 @@ class StateDecoder:
                         raw,
                         got,
                         computed,
-                        base + pos,
-                        time,
+                        offset=base + pos,
+                        time=time,
                     )
                 )
             else:
