@@ -37,8 +37,8 @@ from ..protocol.cnde import (
     parse_output_config,
 )
 from ..spec.cnde import CndeCatalogue, cnde_catalogue
-from .layout import C2S, CNDE_STREAM, PROBLEM_RAW_LIMIT, S2C, DirectionText
-from .records import CndeRecord, ProblemRecord, Record
+from .layout import C2S, CNDE_STREAM, S2C, DirectionText
+from .records import CndeRecord, ProblemRecord, Record, problem_pieces
 from .streams import TIMELINE_MAX
 
 __all__ = ["CndeStream"]
@@ -308,22 +308,17 @@ class CndeStream:
         first: int,
         t_ns: int,
     ) -> None:
-        parts = max(1, -(-len(raw) // PROBLEM_RAW_LIMIT))
-        for k in range(parts):
-            piece = raw[k * PROBLEM_RAW_LIMIT : (k + 1) * PROBLEM_RAW_LIMIT]
+        for record in problem_pieces(
+            conn=self.conn,
+            transport=self.transport,
+            direction=direction,
+            kind=CNDE_STREAM,
+            rule=rule,
+            detail=detail,
+            offset=offset,
+            raw=raw,
+            first_ns=first,
+            complete_ns=t_ns,
+        ):
             self.problems += 1
-            self.write(
-                ProblemRecord(
-                    conn=self.conn,
-                    transport=self.transport,
-                    dir=direction,
-                    kind=CNDE_STREAM,
-                    rule=rule,
-                    detail=detail if parts == 1 else f"{detail} (part {k + 1} of {parts})",
-                    offset=offset + k * PROBLEM_RAW_LIMIT,
-                    size=len(piece),
-                    raw=piece,
-                    first_ns=first,
-                    complete_ns=t_ns,
-                )
-            )
+            self.write(record)

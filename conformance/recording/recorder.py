@@ -26,7 +26,6 @@ from .layout import (
     BATCH_FRAMES,
     C2S,
     CNDE_STREAM,
-    PROBLEM_RAW_LIMIT,
     REALTIME_STREAM,
     S2C,
     STATE_STREAM,
@@ -42,6 +41,7 @@ from .records import (
     ProblemRecord,
     Record,
     RecordSink,
+    problem_pieces,
     problem_records,
 )
 from .state_stream import StateStream
@@ -588,27 +588,23 @@ class StreamRecorder(CommandNames):
             st.timeline.clear()
         reason = self.undecoded_reason or "not decoded"
         self.undecoded_bytes += len(data)
-        for k in range(0, len(data), PROBLEM_RAW_LIMIT):
-            piece = data[k : k + PROBLEM_RAW_LIMIT]
-            self.write(
-                ProblemRecord(
-                    conn=conn,
-                    transport=transport,
-                    dir=direction,
-                    # "malformed" for every reader: the bytes are on the wire at this
-                    # offset (export-pcap puts them back); the rule says why.
-                    kind="malformed",
-                    rule="undecoded",
-                    detail=f"{len(piece)} bytes recorded undecoded: {reason}",
-                    offset=st.base,
-                    size=len(piece),
-                    raw=piece,
-                    first_ns=t_ns,
-                    complete_ns=t_ns,
-                )
-            )
+        # "malformed" for every reader: the bytes are on the wire at this offset
+        # (export-pcap puts them back); the rule says why.
+        for record in problem_pieces(
+            conn=conn,
+            transport=transport,
+            direction=direction,
+            kind="malformed",
+            rule="undecoded",
+            detail=f"bytes recorded undecoded: {reason}",
+            offset=st.base,
+            raw=data,
+            first_ns=t_ns,
+            complete_ns=t_ns,
+        ):
+            self.write(record)
             self.problems += 1
-            st.base += len(piece)
+        st.base += len(data)
 
     def gap(
         self, conn: int, direction: DirectionText, t_ns: int, missing: int, detail: str = ""

@@ -29,6 +29,7 @@ __all__ = [
     "RecordSink",
     "StateRecord",
     "Stream",
+    "problem_pieces",
     "problem_records",
     "value_from_json",
     "value_to_json",
@@ -695,9 +696,36 @@ def problem_records(
     first: int,
     t_ns: int,
 ) -> Iterator[ProblemRecord]:
-    """The Problem records of one malformed run: one per ``PROBLEM_RAW_LIMIT`` bytes, at
-    consecutive offsets, so every byte is kept (export-pcap puts them all back)."""
-    raw = ev.raw
+    """The Problem records of one malformed run (:func:`problem_pieces`)."""
+    return problem_pieces(
+        conn=conn,
+        transport=transport,
+        direction=direction,
+        kind="malformed",
+        rule=ev.rule.value,
+        detail=ev.detail,
+        offset=base + ev.offset,
+        raw=ev.raw,
+        first_ns=first,
+        complete_ns=t_ns,
+    )
+
+
+def problem_pieces(
+    *,
+    conn: int,
+    transport: str,
+    direction: DirectionText,
+    kind: str,
+    rule: str,
+    detail: str,
+    offset: int,
+    raw: bytes,
+    first_ns: int,
+    complete_ns: int,
+) -> Iterator[ProblemRecord]:
+    """A problem that owns bytes: one record per ``PROBLEM_RAW_LIMIT`` of them, at
+    consecutive offsets, so that every byte is kept (export-pcap puts them all back)."""
     parts = max(1, -(-len(raw) // PROBLEM_RAW_LIMIT))
     for k in range(parts):
         piece = raw[k * PROBLEM_RAW_LIMIT : (k + 1) * PROBLEM_RAW_LIMIT]
@@ -705,12 +733,12 @@ def problem_records(
             conn=conn,
             transport=transport,
             dir=direction,
-            kind="malformed",
-            rule=ev.rule.value,
-            detail=ev.detail if parts == 1 else f"{ev.detail} (part {k + 1} of {parts})",
-            offset=base + ev.offset + k * PROBLEM_RAW_LIMIT,
+            kind=kind,
+            rule=rule,
+            detail=detail if parts == 1 else f"{detail} (part {k + 1} of {parts})",
+            offset=offset + k * PROBLEM_RAW_LIMIT,
             size=len(piece),
             raw=piece,
-            first_ns=first,
-            complete_ns=t_ns,
+            first_ns=first_ns,
+            complete_ns=complete_ns,
         )

@@ -29,8 +29,8 @@ from collections.abc import Callable
 from ..protocol.state import StateDecoder, StatePacket, StateProblem, StateProblemKind
 from ..spec.realtime import realtime_decoder
 from ..spec.state import state_decoder
-from .layout import C2S, PROBLEM_RAW_LIMIT, REALTIME_STREAM, S2C, STATE_KIND, DirectionText
-from .records import ProblemRecord, Record, StateRecord
+from .layout import C2S, REALTIME_STREAM, S2C, STATE_KIND, DirectionText
+from .records import ProblemRecord, Record, StateRecord, problem_pieces
 from .streams import TIMELINE_MAX
 
 __all__ = ["CLIENT_BYTES", "StateStream"]
@@ -265,22 +265,17 @@ class StateStream:
         are not damage)."""
         if damage:
             self.damaged += len(raw)
-        parts = max(1, -(-len(raw) // PROBLEM_RAW_LIMIT))
-        for k in range(parts):
-            piece = raw[k * PROBLEM_RAW_LIMIT : (k + 1) * PROBLEM_RAW_LIMIT]
+        for record in problem_pieces(
+            conn=self.conn,
+            transport=self.transport,
+            direction=direction,
+            kind=self.kind,
+            rule=rule,
+            detail=detail,
+            offset=offset,
+            raw=raw,
+            first_ns=first,
+            complete_ns=t_ns,
+        ):
             self.problems += 1
-            self.write(
-                ProblemRecord(
-                    conn=self.conn,
-                    transport=self.transport,
-                    dir=direction,
-                    kind=self.kind,
-                    rule=rule,
-                    detail=detail if parts == 1 else f"{detail} (part {k + 1} of {parts})",
-                    offset=offset + k * PROBLEM_RAW_LIMIT,
-                    size=len(piece),
-                    raw=piece,
-                    first_ns=first,
-                    complete_ns=t_ns,
-                )
-            )
+            self.write(record)

@@ -50,8 +50,8 @@ from ..protocol.xmlrpc import (
     parse_call,
     parse_response,
 )
-from .layout import C2S, PROBLEM_RAW_LIMIT, S2C, XMLRPC_STREAM, DirectionText
-from .records import CallRecord, ProblemRecord, Record
+from .layout import C2S, S2C, XMLRPC_STREAM, DirectionText
+from .records import CallRecord, ProblemRecord, Record, problem_pieces
 from .streams import TIMELINE_MAX
 
 __all__ = ["MAX_WAITING", "MAX_WAITING_BYTES", "RECORDER_HTTP_LIMITS", "XmlRpcStream"]
@@ -474,25 +474,20 @@ class XmlRpcStream:
         t_ns: int,
     ) -> None:
         """A problem that owns bytes: one record per ``PROBLEM_RAW_LIMIT`` of them."""
-        parts = max(1, -(-len(raw) // PROBLEM_RAW_LIMIT))
-        for k in range(parts):
-            piece = raw[k * PROBLEM_RAW_LIMIT : (k + 1) * PROBLEM_RAW_LIMIT]
+        for record in problem_pieces(
+            conn=self.conn,
+            transport=self.transport,
+            direction=direction,
+            kind=XMLRPC_STREAM,
+            rule=rule,
+            detail=detail,
+            offset=offset,
+            raw=raw,
+            first_ns=first,
+            complete_ns=t_ns,
+        ):
             self.problems += 1
-            self.write(
-                ProblemRecord(
-                    conn=self.conn,
-                    transport=self.transport,
-                    dir=direction,
-                    kind=XMLRPC_STREAM,
-                    rule=rule,
-                    detail=detail if parts == 1 else f"{detail} (part {k + 1} of {parts})",
-                    offset=offset + k * PROBLEM_RAW_LIMIT,
-                    size=len(piece),
-                    raw=piece,
-                    first_ns=first,
-                    complete_ns=t_ns,
-                )
-            )
+            self.write(record)
 
 
 @dataclass(frozen=True)
