@@ -248,27 +248,32 @@ def _host_ports(args: argparse.Namespace) -> dict[str, Any]:
     }
 
 
+def _served_ports(
+    args: argparse.Namespace,
+) -> tuple[str, int, int | None, int | None, dict[str, Any]]:
+    """Where ``emulate`` and ``serve`` play the controller: host, text port, UDP port and
+    state port, and with ``--host`` the SDKs' ports too (EmulatorServer keywords)."""
+    from ..errors import SpecError
+    from ..spec.realtime import realtime_layout
+
+    ports = _host_ports(args)
+    if not ports:
+        host, port, udp_port = _listen_addresses(args)
+        return host, port, udp_port, _state_port(args, host, port), ports
+    try:
+        realtime_layout(ports["realtime_version"])
+    except SpecError as e:
+        raise UsageError(f"--realtime-layout: {e}") from None
+    where = (ports.pop("host"), ports.pop("port"), ports.pop("udp_port"), ports.pop("state_port"))
+    return (*where, ports)
+
+
 def _emulate(args: argparse.Namespace) -> int:
     from ..errors import SpecError
     from ..net.emulator import EmulatorServer
-    from ..spec.realtime import realtime_layout
     from ..spec.state import layout_for
 
-    ports = _host_ports(args)
-    if ports:
-        host, port, udp_port, state_port = (
-            ports.pop("host"),
-            ports.pop("port"),
-            ports.pop("udp_port"),
-            ports.pop("state_port"),
-        )
-        try:
-            realtime_layout(ports["realtime_version"])
-        except SpecError as e:
-            raise UsageError(f"--realtime-layout: {e}") from None
-    else:
-        host, port, udp_port = _listen_addresses(args)
-        state_port = _state_port(args, host, port)
+    host, port, udp_port, state_port, ports = _served_ports(args)
     try:
         layout_for(args.state_version)
     except SpecError as e:
@@ -539,17 +544,7 @@ def _serve(args: argparse.Namespace) -> int:
     from ..report.write import check_report_paths, write_reports
     from ..suite.spec_choice import note_spec
 
-    ports = _host_ports(args)
-    if ports:
-        host, port, udp_port, state_port = (
-            ports.pop("host"),
-            ports.pop("port"),
-            ports.pop("udp_port"),
-            ports.pop("state_port"),
-        )
-    else:
-        host, port, udp_port = _listen_addresses(args)
-        state_port = _state_port(args, host, port)  # the state port too, as emulate serves it
+    host, port, udp_port, state_port, ports = _served_ports(args)
     check_report_paths({"--report-json": args.report_json, "--report-html": args.report_html})
     _check_serve_limits(args)
     # serve is the controller: auto has no target to ask, so the default firmware is played.

@@ -39,7 +39,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ..protocol.data_values import Arg, Array, Number, Text
-from ..protocol.xmlrpc import XmlRpcValue
+from ..protocol.xmlrpc import XmlRpcValue, value_kind
 from ..spec.checks import Violation, check_args
 from ..spec.commands import Command, SpecSet, Variant
 from ..spec.dialects import Dialect
@@ -63,7 +63,6 @@ __all__ = [
     "CallReply",
     "call_name",
     "reply_of",
-    "value_kind",
 ]
 
 #: The command ID a call is reported under when its method has no command (the method's
@@ -119,27 +118,6 @@ class CallReply:
     value: XmlRpcValue = None
     fault: tuple[int, str] | None = None
     error: tuple[str, str] | None = None
-
-
-def value_kind(v: XmlRpcValue) -> str:
-    """An XML-RPC value's type as the surface names types (``int``, ``double``...)."""
-    if isinstance(v, bool):
-        return "boolean"
-    if isinstance(v, int):
-        return "int"
-    if isinstance(v, float):
-        return "double"
-    if isinstance(v, str):
-        return "string"
-    if isinstance(v, list):
-        return "array"
-    if isinstance(v, dict):
-        return "struct"
-    if v is None:
-        return "nil"
-    if isinstance(v, bytes):
-        return "base64"
-    return "dateTime.iso8601"
 
 
 def call_name(method: str | None) -> str:

@@ -18,11 +18,11 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ..errors import RemoteProtocolError
-from ..judge.calls import CallReading, value_kind
+from ..judge.calls import CallReading
 from ..judge.judge import Judge, Verdict
 from ..protocol.data_parse import parse_reply
 from ..protocol.data_values import Arg, Array, Number, Text
-from ..protocol.xmlrpc import XmlRpcValue
+from ..protocol.xmlrpc import XmlRpcValue, value_kind
 from ..recording.reader import Recording
 from ..recording.records import CallRecord, FrameRecord
 from ..spec.commands import ReturnValue, SpecSet

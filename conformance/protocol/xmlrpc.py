@@ -51,6 +51,7 @@ __all__ = [
     "parse_call",
     "parse_message",
     "parse_response",
+    "value_kind",
 ]
 
 
@@ -477,3 +478,24 @@ def encode_response(value: XmlRpcValue) -> bytes:
 def encode_fault(code: int, message: str) -> bytes:
     """A ``methodResponse`` body carrying a fault."""
     return _dumps(xmlrpc.client.Fault(code, message), methodresponse=True)
+
+
+def value_kind(v: XmlRpcValue) -> str:
+    """An XML-RPC value's type as the surface names types (``int``, ``double``...)."""
+    if isinstance(v, bool):
+        return "boolean"
+    if isinstance(v, int):
+        return "int"
+    if isinstance(v, float):
+        return "double"
+    if isinstance(v, str):
+        return "string"
+    if isinstance(v, list):
+        return "array"
+    if isinstance(v, dict):
+        return "struct"
+    if v is None:
+        return "nil"
+    if isinstance(v, bytes):
+        return "base64"
+    return "dateTime.iso8601"

@@ -26,7 +26,7 @@ from typing import Any
 
 from ..errors import SpecError
 from ..protocol.data_values import Arg, Array, Number, Text
-from ..protocol.xmlrpc import XmlRpcValue
+from ..protocol.xmlrpc import XmlRpcValue, value_kind
 from .commands import Param, Safety, SpecSet, Variant, spec_set_dir
 from .knowledge import default_value
 
@@ -166,24 +166,8 @@ class FormMismatch:
     detail: str
 
 
-def _kind(v: XmlRpcValue) -> str:
-    if isinstance(v, bool):
-        return "boolean"
-    if isinstance(v, int):
-        return "int"
-    if isinstance(v, float):
-        return "double"
-    if isinstance(v, str):
-        return "string"
-    if isinstance(v, list):
-        return "array"
-    if v is None:
-        return "nil"
-    return type(v).__name__
-
-
 def _scalar_ok(want: str, v: XmlRpcValue) -> bool:
-    k = _kind(v)
+    k = value_kind(v)
     if want == "any":
         return k not in ("array", "dict")
     if want == "double":
@@ -204,16 +188,16 @@ def _mismatch(form: XmlRpcForm, params: Sequence[XmlRpcValue]) -> str | None:
         where = f"parameter {i + 1} ({p.name})"
         if p.array is None:
             if not _scalar_ok(p.type, v):
-                return f"{where} is {_kind(v)}, not {p.type}"
+                return f"{where} is {value_kind(v)}, not {p.type}"
             continue
         if not isinstance(v, list):
-            return f"{where} is {_kind(v)}, not an array"
+            return f"{where} is {value_kind(v)}, not an array"
         if isinstance(p.array, int) and len(v) != p.array:
             return f"{where} has {len(v)} values, not {p.array}"
         types = [t for _, t in p.items] if p.items else [p.type] * len(v)
         for k, (t, x) in enumerate(zip(types, v, strict=False)):
             if not _scalar_ok(t, x):
-                return f"{where}[{k}] is {_kind(x)}, not {t}"
+                return f"{where}[{k}] is {value_kind(x)}, not {t}"
     return None
 
 
