@@ -20,7 +20,6 @@ frame, or a run of at most 64 KiB that is none.
 from __future__ import annotations
 
 import math
-from collections import deque
 from collections.abc import Callable, Mapping
 from typing import Any
 
@@ -38,31 +37,30 @@ from ..protocol.cnde import (
 )
 from ..spec.cnde import CndeCatalogue, cnde_catalogue
 from .layout import C2S, CNDE_STREAM, S2C, DirectionText
-from .records import CndeRecord, ProblemRecord, Record, problem_pieces
-from .streams import TIMELINE_MAX
+from .records import CndeRecord, Record
+from .streams import Arrivals, ChannelStream
 
 __all__ = ["CndeStream"]
 
 
-class _Way:
+class _Way(Arrivals):
+    """One direction: its decoder, and the bytes no event has accounted for yet."""
+
     def __init__(self, max_length: int) -> None:
+        super().__init__()
         self.max_length = max_length
         self.decoder = CndeDecoder(max_length=max_length)
         self.base = 0  # stream offset of the decoder's first byte (grows at gaps)
-        self.pending = bytearray()  # bytes no event has accounted for yet
-        self.pending_at = 0
-        self.timeline: deque[tuple[int, int]] = deque()
         #: The decoder's problems whose bytes run to the next event (offset, rule, detail).
         self.held: list[tuple[int, str, str, int]] = []
         self.bytes = 0
         self.frames = 0
-        self.last_ns = 0
 
-    def first_ns(self, offset: int) -> int:
-        tl = self.timeline
-        while len(tl) > 1 and tl[1][0] <= offset:
-            tl.popleft()
-        return tl[0][1] if tl else self.last_ns
+    def restart(self, at: int) -> None:
+        """A fresh decoder, its first byte at stream offset ``at``."""
+        super().restart(at)
+        self.base = at
+        self.decoder = CndeDecoder(max_length=self.max_length)
 
 
 def _plain(v: Any) -> Any:
@@ -74,7 +72,7 @@ def _plain(v: Any) -> Any:
     return v
 
 
-class CndeStream:
+class CndeStream(ChannelStream):
     """The records of one CNDE connection (see the module docstring)."""
 
     def __init__(
@@ -85,9 +83,7 @@ class CndeStream:
         transport: str = "tcp",
         catalogue: CndeCatalogue | None = None,
     ) -> None:
-        self.write = write
-        self.conn = conn
-        self.transport = transport
+        super().__init__(write, conn, transport, CNDE_STREAM)
         self.catalogue = catalogue if catalogue is not None else cnde_catalogue()
         # A frame past the SDKs' 4096-byte buffer cannot be meant: the decoder's bound.
         self.ways = {C2S: _Way(self.catalogue.max_frame), S2C: _Way(self.catalogue.max_frame)}
@@ -95,9 +91,6 @@ class CndeStream:
         self.proposed: OutputConfig | None = None
         self.layout: CndeStateLayout | None = None
         self.layout_why = "no OUTPUT_CONFIG accepted on this connection yet"
-        self.packets = 0
-        self.problems = 0
-        self.bytes: dict[str, int] = {C2S: 0, S2C: 0}
         self.frames: dict[str, int] = {C2S: 0, S2C: 0}
 
     # ------------------------------------------------------------------ input
@@ -106,13 +99,9 @@ class CndeStream:
         if not data:
             return
         w = self.ways[direction]
-        at = w.pending_at + len(w.pending)
-        if len(w.timeline) < TIMELINE_MAX:
-            w.timeline.append((at, t_ns))
-        w.pending += data
+        w.arrive(data, t_ns)
         w.bytes += len(data)
         self.bytes[direction] += len(data)
-        w.last_ns = t_ns
         self._emit(direction, w, w.decoder.feed(data), t_ns)
 
     def undecoded(self, direction: DirectionText, t_ns: int, data: bytes, reason: str) -> None:
@@ -131,31 +120,13 @@ class CndeStream:
             t_ns,
             t_ns,
         )
-        w.pending_at += len(data)
-        w.base = w.pending_at
-        w.decoder = CndeDecoder(max_length=w.max_length)
+        w.restart(w.pending_at + len(data))
 
     def gap(self, direction: DirectionText, t_ns: int, missing: int, detail: str = "") -> None:
         w = self.ways[direction]
         self._finish(direction, w, t_ns)
-        self.write(
-            ProblemRecord(
-                conn=self.conn,
-                transport=self.transport,
-                dir=direction,
-                kind=CNDE_STREAM,
-                rule="gap",
-                detail=detail or f"{missing} bytes missing from the capture",
-                offset=w.pending_at,
-                size=missing,
-                first_ns=t_ns,
-                complete_ns=t_ns,
-            )
-        )
-        self.problems += 1
-        w.pending_at = w.base = w.pending_at + missing
-        w.decoder = CndeDecoder(max_length=w.max_length)
-        w.timeline.clear()
+        self._gap(direction, w.pending_at, missing, detail, t_ns)
+        w.restart(w.pending_at + missing)
 
     def close(self, t_ns: int) -> None:
         for d in (C2S, S2C):
@@ -165,21 +136,9 @@ class CndeStream:
         """The decoder's stream ends here: a frame begun is a truncated one."""
         self._emit(direction, w, w.decoder.close(), t_ns)
         self._settle(direction, w, w.pending_at + len(w.pending), t_ns)
-        if w.pending:  # the decoder accounted for every byte; a bug must not lose any
-            self._kept(
-                direction,
-                "undecoded",
-                "bytes the decoder gave no event for",
-                w.pending_at,
-                bytes(w.pending),
-                t_ns,
-                t_ns,
-            )
-            w.pending_at += len(w.pending)
-            w.pending.clear()
-        w.base = w.pending_at
-        w.decoder = CndeDecoder(max_length=w.max_length)
-        w.timeline.clear()
+        # The decoder accounted for every byte; a bug must not lose any.
+        self._kept_pending(direction, w, "undecoded", "bytes the decoder gave no event for", t_ns)
+        w.restart(w.pending_at)
 
     # ------------------------------------------------------------------ output
 
@@ -196,11 +155,7 @@ class CndeStream:
                 w.held.append((offset, ev.rule.value, ev.detail, w.first_ns(offset)))
                 continue
             self._settle(direction, w, offset, t_ns)
-            size = OVERHEAD + len(ev.data)
-            start = offset - w.pending_at
-            raw = bytes(w.pending[start : start + size])
-            del w.pending[: start + size]
-            w.pending_at = offset + size
+            raw = w.take(offset, OVERHEAD + len(ev.data))
             w.frames += 1
             self.frames[direction] += 1
             self._frame(direction, ev, raw, offset, w.first_ns(offset), t_ns)
@@ -228,10 +183,7 @@ class CndeStream:
             raw = bytes(w.pending[max(0, lo) : max(0, hi)])
             words = detail if n == 1 else f"{detail} (and {n - 1} more like it)"
             self._kept(direction, rule, words, off, raw, first, t_ns)
-        n = upto - w.pending_at
-        if n > 0:
-            del w.pending[:n]
-            w.pending_at = upto
+        w.drop(upto)
 
     def _frame(
         self,
@@ -297,28 +249,3 @@ class CndeStream:
         except SpecError as e:
             self.layout = None
             self.layout_why = f"the configuration accepted names a state the catalogue lacks: {e}"
-
-    def _kept(
-        self,
-        direction: DirectionText,
-        rule: str,
-        detail: str,
-        offset: int,
-        raw: bytes,
-        first: int,
-        t_ns: int,
-    ) -> None:
-        for record in problem_pieces(
-            conn=self.conn,
-            transport=self.transport,
-            direction=direction,
-            kind=CNDE_STREAM,
-            rule=rule,
-            detail=detail,
-            offset=offset,
-            raw=raw,
-            first_ns=first,
-            complete_ns=t_ns,
-        ):
-            self.problems += 1
-            self.write(record)

@@ -23,15 +23,14 @@ of ``kind`` ``realtime``.
 
 from __future__ import annotations
 
-from collections import deque
 from collections.abc import Callable
 
 from ..protocol.state import StateDecoder, StatePacket, StateProblem, StateProblemKind
 from ..spec.realtime import realtime_decoder
 from ..spec.state import state_decoder
 from .layout import C2S, REALTIME_STREAM, S2C, STATE_KIND, DirectionText
-from .records import ProblemRecord, Record, StateRecord, problem_pieces
-from .streams import TIMELINE_MAX
+from .records import Record, StateRecord
+from .streams import Arrivals, ChannelStream
 
 __all__ = ["CLIENT_BYTES", "StateStream"]
 
@@ -39,7 +38,7 @@ __all__ = ["CLIENT_BYTES", "StateStream"]
 CLIENT_BYTES = "client_bytes"
 
 
-class StateStream:
+class StateStream(ChannelStream):
     """The records of one state connection (see the module docstring)."""
 
     def __init__(
@@ -51,27 +50,18 @@ class StateStream:
         version: str | None = None,
         realtime: bool = False,
     ) -> None:
-        #: Where the records go (the recorder's :meth:`~.recorder.StreamRecorder.write`).
-        self.write = write
-        self.conn = conn
-        self.transport = transport
+        super().__init__(write, conn, transport, REALTIME_STREAM if realtime else STATE_KIND)
         self.version = version
         #: The port's packets: the state port's (8083), or the realtime port's (20004).
         self.stream = REALTIME_STREAM if realtime else ""
-        self.kind = REALTIME_STREAM if realtime else STATE_KIND
         self._decoder: Callable[[str | None], StateDecoder] = (
             realtime_decoder if realtime else state_decoder
         )
         self.decoder = self._decoder(version)
         self.base = 0  # stream offset of the decoder's first byte (grows at gaps)
-        self.pending = bytearray()  # bytes of the stream no event has accounted for yet
-        self.pending_at = 0  # stream offset of pending[0]
-        self.timeline: deque[tuple[int, int]] = deque()  # (stream offset, t_ns)
-        self.bytes: dict[str, int] = {C2S: 0, S2C: 0}
+        #: The controller's bytes no event has accounted for yet.
+        self.held = Arrivals()
         self.client_offset = 0
-        self.last_ns = 0
-        self.packets = 0
-        self.problems = 0
         #: Bytes recorded as damage (garbage, a truncated packet, the client's bytes, what
         #: the decoder failed on): every byte not a packet but those recorded undecoded.
         self.damaged = 0
@@ -99,12 +89,8 @@ class StateStream:
             )
             self.client_offset += len(data)
             return
-        at = self.pending_at + len(self.pending)
-        if len(self.timeline) < TIMELINE_MAX:
-            self.timeline.append((at, t_ns))
-        self.pending += data
+        self.held.arrive(data, t_ns)
         self.bytes[S2C] += len(data)
-        self.last_ns = t_ns
         self._emit(self.decoder.feed(data, t_ns / 1e9), t_ns)
 
     def undecoded(self, direction: DirectionText, t_ns: int, data: bytes, reason: str) -> None:
@@ -114,7 +100,7 @@ class StateStream:
             self.data(C2S, t_ns, data)
             return
         self.close(t_ns)
-        at = self.pending_at + len(self.pending)
+        at = self.held.pending_at
         self.bytes[S2C] += len(data)
         self._kept(
             S2C,
@@ -126,7 +112,7 @@ class StateStream:
             t_ns,
             damage=False,
         )
-        self.pending_at = at + len(data)
+        self.held.restart(at + len(data))
 
     def gap(self, direction: DirectionText, t_ns: int, missing: int, detail: str = "") -> None:
         """``missing`` bytes of one direction were never captured."""
@@ -135,74 +121,36 @@ class StateStream:
             self.client_offset += missing
         else:
             self.close(t_ns)
-            at = self.pending_at
-        self.write(
-            ProblemRecord(
-                conn=self.conn,
-                transport=self.transport,
-                dir=direction,
-                kind=self.kind,
-                rule="gap",
-                detail=detail or f"{missing} bytes missing from the capture",
-                offset=at,
-                size=missing,
-                first_ns=t_ns,
-                complete_ns=t_ns,
-            )
-        )
-        self.problems += 1
+            at = self.held.pending_at
+        self._gap(direction, at, missing, detail, t_ns)
         if direction == S2C:
-            self.pending_at = self.base = at + missing
+            self.base = at + missing
+            self.held.restart(self.base)
             self.decoder = self._decoder(self.version)
-            self.timeline.clear()
 
     def close(self, t_ns: int) -> None:
         """The stream ended: a packet begun is a truncated one."""
         self._emit(self.decoder.close(t_ns / 1e9), t_ns)
-        if self.pending:  # the decoder accounted for every byte; a bug must not lose any
-            self._kept(
-                S2C,
-                "undecoded",
-                "bytes the decoder gave no event for",
-                self.pending_at,
-                bytes(self.pending),
-                t_ns,
-                t_ns,
-            )
-            self.pending_at += len(self.pending)
-            self.pending.clear()
-        self.base = self.pending_at
+        # The decoder accounted for every byte; a bug must not lose any.
+        held = self.held
+        if held.pending:
+            at = held.pending_at
+            raw = held.take_all()
+            self._kept(S2C, "undecoded", "bytes the decoder gave no event for", at, raw, t_ns, t_ns)
+        self.base = held.pending_at
         self.decoder = self._decoder(self.version)
-        self.timeline.clear()
+        held.restart(self.base)
 
     # ------------------------------------------------------------------ output
 
-    def _first_ns(self, offset: int) -> int:
-        tl = self.timeline
-        while len(tl) > 1 and tl[1][0] <= offset:
-            tl.popleft()
-        return tl[0][1] if tl else self.last_ns
-
-    def _take(self, offset: int, size: int) -> bytes:
-        """The ``size`` bytes at stream ``offset``; everything before them is let go."""
-        start = offset - self.pending_at
-        out = bytes(self.pending[start : start + size]) if start >= 0 else b""
-        self._drop(offset + size)
-        return out
-
-    def _drop(self, upto: int) -> None:
-        n = upto - self.pending_at
-        if n > 0:
-            del self.pending[:n]
-            self.pending_at = upto
-
     def _emit(self, events: list[StatePacket | StateProblem], t_ns: int) -> None:
         base = self.base
+        held = self.held
         for ev in events:
             offset = base + ev.offset
-            first = self._first_ns(offset)
+            first = held.first_ns(offset)
             if isinstance(ev, StatePacket):
-                self._drop(offset + len(ev.raw))
+                held.drop(offset + len(ev.raw))
                 self.packets += 1
                 self.write(
                     StateRecord(
@@ -225,28 +173,14 @@ class StateStream:
             kind = ev.kind
             if kind in (StateProblemKind.GARBAGE, StateProblemKind.TRUNCATED):
                 if isinstance(ev.actual, int):
-                    raw = self._take(offset, ev.actual)
+                    raw = held.take(offset, ev.actual)
                 else:  # the decoder's own failure: it dropped what it held; keep it here
-                    raw = bytes(self.pending)
-                    offset = self.pending_at
-                    self._drop(self.pending_at + len(raw))
+                    offset = held.pending_at
+                    raw = held.take_all()
                 self._kept(S2C, kind.value, ev.detail, offset, raw, first, t_ns)
                 continue
-            self.problems += 1
-            self.write(
-                ProblemRecord(
-                    conn=self.conn,
-                    transport=self.transport,
-                    dir=S2C,
-                    kind=self.kind,
-                    rule=kind.value,
-                    detail=ev.detail,
-                    offset=offset,
-                    size=0,  # the packet's bytes are its state record's
-                    first_ns=first,
-                    complete_ns=t_ns,
-                )
-            )
+            # The packet's bytes are its state record's.
+            self._problem(S2C, kind.value, ev.detail, offset, 0, first, t_ns)
 
     def _kept(
         self,
@@ -260,22 +194,8 @@ class StateStream:
         *,
         damage: bool = True,
     ) -> None:
-        """A problem that owns bytes: one record per ``PROBLEM_RAW_LIMIT`` of them
-        (``damage``: counted in :attr:`damaged`; bytes the recorder had no time to decode
-        are not damage)."""
+        """A problem that owns bytes (``damage``: counted in :attr:`damaged`; bytes the
+        recorder had no time to decode are not damage)."""
         if damage:
             self.damaged += len(raw)
-        for record in problem_pieces(
-            conn=self.conn,
-            transport=self.transport,
-            direction=direction,
-            kind=self.kind,
-            rule=rule,
-            detail=detail,
-            offset=offset,
-            raw=raw,
-            first_ns=first,
-            complete_ns=t_ns,
-        ):
-            self.problems += 1
-            self.write(record)
+        super()._kept(direction, rule, detail, offset, raw, first, t_ns)

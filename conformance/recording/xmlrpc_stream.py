@@ -51,8 +51,8 @@ from ..protocol.xmlrpc import (
     parse_response,
 )
 from .layout import C2S, S2C, XMLRPC_STREAM, DirectionText
-from .records import CallRecord, ProblemRecord, Record, problem_pieces
-from .streams import TIMELINE_MAX
+from .records import CallRecord, Record
+from .streams import Arrivals, ChannelStream
 
 __all__ = ["MAX_WAITING", "MAX_WAITING_BYTES", "RECORDER_HTTP_LIMITS", "XmlRpcStream"]
 
@@ -83,39 +83,28 @@ class _Call:
     complete_ns: int
 
 
-class _Way:
+class _Way(Arrivals):
     """One direction: its HTTP reader, the bytes fed and not yet in a message."""
 
     def __init__(self, requests: bool, limits: HttpLimits) -> None:
+        super().__init__()
         self.requests = requests
         self.limits = limits
         self.reader = HttpReader(requests=requests, limits=limits)
-        self.pending = bytearray()  # bytes fed to the reader and not yet in a message
-        self.pending_at = 0  # stream offset of pending[0]
-        self.timeline: deque[tuple[int, int]] = deque()  # (stream offset, t_ns)
         #: The rest of the stream is kept as it is, as (rule, detail): HTTP broke.
         self.broken: tuple[str, str] | None = None
         #: Looking for the next message start after a gap.
         self.resync = False
         self.bytes = 0
         self.messages = 0
-        self.last_ns = 0
-
-    def first_ns(self, offset: int) -> int:
-        tl = self.timeline
-        while len(tl) > 1 and tl[1][0] <= offset:
-            tl.popleft()
-        return tl[0][1] if tl else self.last_ns
 
     def restart(self, at: int) -> None:
         """A fresh reader, its first byte at stream offset ``at``."""
+        super().restart(at)
         self.reader = HttpReader(requests=self.requests, limits=self.limits)
-        self.pending.clear()
-        self.pending_at = at
-        self.timeline.clear()
 
 
-class XmlRpcStream:
+class XmlRpcStream(ChannelStream):
     """The records of one XML-RPC connection (see the module docstring)."""
 
     def __init__(
@@ -127,9 +116,7 @@ class XmlRpcStream:
         limits: HttpLimits = RECORDER_HTTP_LIMITS,
         xml_limits: XmlRpcLimits = DEFAULT_LIMITS,
     ) -> None:
-        self.write = write
-        self.conn = conn
-        self.transport = transport
+        super().__init__(write, conn, transport, XMLRPC_STREAM)
         self.xml_limits = xml_limits
         self.ways = {C2S: _Way(True, limits), S2C: _Way(False, limits)}
         self.waiting: deque[_Call] = deque()
@@ -139,10 +126,6 @@ class XmlRpcStream:
         #: Pairing was lost at a gap: requests and replies are written on their own.
         self.unpaired = False
         self.seq = 0
-        #: Call records written, and Problem records.
-        self.packets = 0
-        self.problems = 0
-        self.bytes: dict[str, int] = {C2S: 0, S2C: 0}
         #: Messages read per direction (requests, replies).
         self.frames: dict[str, int] = {C2S: 0, S2C: 0}
 
@@ -163,10 +146,7 @@ class XmlRpcStream:
             data = self._resync(direction, w, data, t_ns)
             if not data:
                 return
-        at = w.pending_at + len(w.pending)
-        if len(w.timeline) < TIMELINE_MAX:
-            w.timeline.append((at, t_ns))
-        w.pending += data
+        w.arrive(data, t_ns)
         try:
             w.reader.feed(data)
             self._messages(direction, w, t_ns)
@@ -188,32 +168,16 @@ class XmlRpcStream:
         """``missing`` bytes of one direction were never captured."""
         w = self.ways[direction]
         at = w.pending_at
-        if w.broken is None and w.pending:
-            self._problem(
+        if w.broken is None:
+            self._kept_pending(
                 direction,
+                w,
                 "truncated",
                 f"a message cut by a gap in the capture ({len(w.pending)} bytes of it)",
-                at,
-                bytes(w.pending),
-                w.first_ns(at),
                 t_ns,
             )
-            at += len(w.pending)
-        self.write(
-            ProblemRecord(
-                conn=self.conn,
-                transport=self.transport,
-                dir=direction,
-                kind=XMLRPC_STREAM,
-                rule="gap",
-                detail=detail or f"{missing} bytes missing from the capture",
-                offset=at,
-                size=missing,
-                first_ns=t_ns,
-                complete_ns=t_ns,
-            )
-        )
-        self.problems += 1
+            at = w.pending_at
+        self._gap(direction, at, missing, detail, t_ns)
         w.restart(at + missing)
         if w.broken is None:
             w.resync = True
@@ -232,19 +196,13 @@ class XmlRpcStream:
             w.reader.close()
             with contextlib.suppress(RemoteProtocolError):  # its bytes are kept below
                 self._messages(d, w, t_ns)  # a response read to the end of the stream
-            if w.pending:
-                at = w.pending_at
-                self._problem(
-                    d,
-                    "truncated",
-                    f"the connection closed {len(w.pending)} bytes into an HTTP message",
-                    at,
-                    bytes(w.pending),
-                    w.first_ns(at),
-                    t_ns,
-                )
-                w.pending_at += len(w.pending)
-                w.pending.clear()
+            self._kept_pending(
+                d,
+                w,
+                "truncated",
+                f"the connection closed {len(w.pending)} bytes into an HTTP message",
+                t_ns,
+            )
         while self.waiting:
             self._write_call(self.waiting.popleft(), detail="no reply before the connection closed")
         self.waiting_bytes = 0
@@ -428,10 +386,7 @@ class XmlRpcStream:
                     complete_ns=t_ns,
                 )
             )
-        held = bytes(w.pending)
-        w.pending.clear()
-        self._problem(direction, rule, detail, at, held, first, t_ns)
-        w.pending_at = at + len(held)
+        self._kept(direction, rule, detail, at, w.take_all(), first, t_ns)
 
     def _keep(self, direction: DirectionText, w: _Way, data: bytes, t_ns: int) -> None:
         """Bytes of a direction whose HTTP broke, kept as they are."""
@@ -439,7 +394,7 @@ class XmlRpcStream:
             return
         assert w.broken is not None or w.resync
         rule, detail = w.broken if w.broken is not None else ("resync", "bytes before a message")
-        self._problem(
+        self._kept(
             direction, rule, f"after the stream broke: {detail}", w.pending_at, data, t_ns, t_ns
         )
         w.pending_at += len(data)
@@ -449,7 +404,7 @@ class XmlRpcStream:
         starts = [i for i in (data.find(s) for s in _STARTS[direction]) if i >= 0]
         cut = min(starts) if starts else len(data)
         if cut:
-            self._problem(
+            self._kept(
                 direction,
                 "resync",
                 "bytes after a gap in the capture, before the next HTTP message",
@@ -462,32 +417,6 @@ class XmlRpcStream:
         if starts:
             w.resync = False
         return data[cut:]
-
-    def _problem(
-        self,
-        direction: DirectionText,
-        rule: str,
-        detail: str,
-        offset: int,
-        raw: bytes,
-        first: int,
-        t_ns: int,
-    ) -> None:
-        """A problem that owns bytes: one record per ``PROBLEM_RAW_LIMIT`` of them."""
-        for record in problem_pieces(
-            conn=self.conn,
-            transport=self.transport,
-            direction=direction,
-            kind=XMLRPC_STREAM,
-            rule=rule,
-            detail=detail,
-            offset=offset,
-            raw=raw,
-            first_ns=first,
-            complete_ns=t_ns,
-        ):
-            self.problems += 1
-            self.write(record)
 
 
 @dataclass(frozen=True)
