@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ..errors import LocalProtocolError, RemoteProtocolError, Rule, SpecError
+from .garbage import GarbageRun, Skipped
 
 __all__ = [
     "DEFAULT_MAX_LENGTH",
@@ -160,9 +161,7 @@ class CndeDecoder:
         #: frame arriving a byte at a time is not searched again per byte.
         self._need = 0
         self._base = 0  # stream offset of _buf[0]
-        self._garbage = 0
-        self._garbage_at = 0
-        self._garbage_raw = bytearray()
+        self._garbage = GarbageRun(_RAW_KEPT, _GARBAGE_CHUNK)
         self.frames = 0
 
     @property
@@ -260,32 +259,22 @@ class CndeDecoder:
         if not report:
             # The bytes were reported by the problem just given: counted, not repeated.
             return
-        while start < stop:
-            if not self._garbage:
-                self._garbage_at = self._base + start
-            take = min(stop - start, _GARBAGE_CHUNK - self._garbage)
-            room = _RAW_KEPT - len(self._garbage_raw)
-            if room > 0:
-                self._garbage_raw += buf[start : start + min(take, room)]
-            self._garbage += take
-            start += take
-            if self._garbage >= _GARBAGE_CHUNK:
-                self._flush(out)
+        for piece in self._garbage.add(buf, start, stop, self._base):
+            out.append(_garbage_problem(piece))
 
     def _flush(self, out: list[CndeEvent]) -> None:
-        if not self._garbage:
-            return
-        n = self._garbage
-        out.append(
-            CndeProblem(
-                rule=Rule.CNDE_FRAME,
-                detail=f"{n} byte{'s' if n != 1 else ''} skipped: no 5A 5A frame head",
-                raw=bytes(self._garbage_raw),
-                offset=self._garbage_at,
-            )
-        )
-        self._garbage = 0
-        self._garbage_raw.clear()
+        if (piece := self._garbage.end()) is not None:
+            out.append(_garbage_problem(piece))
+
+
+def _garbage_problem(piece: Skipped) -> CndeProblem:
+    n = piece.size
+    return CndeProblem(
+        rule=Rule.CNDE_FRAME,
+        detail=f"{n} byte{'s' if n != 1 else ''} skipped: no 5A 5A frame head",
+        raw=piece.raw,
+        offset=piece.offset,
+    )
 
 
 # --------------------------------------------------------------------------- frame data

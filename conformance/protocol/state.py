@@ -29,6 +29,7 @@ from typing import Any
 from zlib import adler32
 
 from ..errors import LocalProtocolError, Rule
+from .garbage import GarbageRun, Skipped
 from .state_layout import StateLayout
 
 __all__ = [
@@ -290,9 +291,7 @@ class StateDecoder:
         #: Bytes _buf must hold before the next decision (a packet begun: all of it).
         self._need = 0
         self._base = 0  # stream offset of _buf[0]
-        self._garbage = 0  # bytes of the garbage run being skipped
-        self._garbage_at = 0
-        self._garbage_raw = bytearray()
+        self._garbage = GarbageRun(_RAW_KEPT, _GARBAGE_CHUNK)  # the run being skipped
         self._rejected = 0  # stray headers rejected in this feed
         self._last_cnt: int | None = None
         self._last_time: float | None = None
@@ -313,7 +312,7 @@ class StateDecoder:
 
     @property
     def buffered(self) -> int:
-        return len(self._buf) + self._garbage
+        return len(self._buf) + self._garbage.size
 
     def feed(
         self, data: bytes | bytearray | memoryview, time: float | None = None
@@ -398,7 +397,7 @@ class StateDecoder:
                     pos = n
                     break
                 need = end - pos
-                if lay is None and self._garbage:
+                if lay is None and self._garbage.size:
                     # A stray header amid garbage, fed in small pieces: wait for a step
                     # of bytes, so that its successors are decided in one vector pass
                     # (the decisions are the same; only later).
@@ -411,7 +410,7 @@ class StateDecoder:
             if lay is None and got != computed:
                 pos = self._skip_to_start(buf, pos, out, time, final)  # a stray 0x5A5A
                 continue
-            if self._garbage:
+            if self._garbage.size:
                 self._flush_garbage(out, time)
             cnt = raw[2]
             last = self._last_cnt
@@ -597,32 +596,22 @@ class StateDecoder:
             return
         # Reported in runs of at most _GARBAGE_CHUNK bytes, cut at the same stream offsets
         # however the bytes came in.
-        while start < stop:
-            if not self._garbage:
-                self._garbage_at = self._base + start
-            take = min(stop - start, _GARBAGE_CHUNK - self._garbage)
-            room = _RAW_KEPT - len(self._garbage_raw)
-            if room > 0:
-                self._garbage_raw += buf[start : start + min(take, room)]
-            self._garbage += take
-            start += take
-            if self._garbage >= _GARBAGE_CHUNK:
-                self._flush_garbage(out, time)
+        for piece in self._garbage.add(buf, start, stop, self._base):
+            out.append(_garbage_problem(piece, time))
 
     def _flush_garbage(self, out: list[StateEvent], time: float | None) -> None:
-        if not self._garbage:
-            return
-        n = self._garbage
-        out.append(
-            StateProblem(
-                kind=StateProblemKind.GARBAGE,
-                detail=f"{n} byte{'s' if n != 1 else ''} skipped: no 0x5A5A header "
-                "with a known LEN and a matching checksum",
-                offset=self._garbage_at,
-                raw=bytes(self._garbage_raw),
-                time=time,
-                actual=n,
-            )
-        )
-        self._garbage = 0
-        self._garbage_raw.clear()
+        if (piece := self._garbage.end()) is not None:
+            out.append(_garbage_problem(piece, time))
+
+
+def _garbage_problem(piece: Skipped, time: float | None) -> StateProblem:
+    n = piece.size
+    return StateProblem(
+        kind=StateProblemKind.GARBAGE,
+        detail=f"{n} byte{'s' if n != 1 else ''} skipped: no 0x5A5A header "
+        "with a known LEN and a matching checksum",
+        offset=piece.offset,
+        raw=piece.raw,
+        time=time,
+        actual=n,
+    )

@@ -199,6 +199,19 @@ class StreamRecorder(CommandNames):
             return
         for d, st in c.streams.items():
             self._emit(conn, c.transport, d, st, st.decoder.close(), t_ns)  # type: ignore[arg-type]
+        c2s, s2c = c.streams[C2S], c.streams[S2C]
+        self._write_close(conn, c, t_ns, reason, (c2s.bytes, s2c.bytes), (c2s.frames, s2c.frames))
+
+    def _write_close(
+        self,
+        conn: int,
+        c: Conn,
+        t_ns: int,
+        reason: str,
+        byte_counts: tuple[int, int],
+        frame_counts: tuple[int, int],
+    ) -> None:
+        """A connection's close record (its counts: client to server, server to client)."""
         self.write(
             ConnectionRecord(
                 conn=conn,
@@ -209,10 +222,11 @@ class StreamRecorder(CommandNames):
                 upstream=c.upstream,
                 local=c.local,
                 reason=reason,
-                bytes_c2s=c.streams[C2S].bytes,
-                bytes_s2c=c.streams[S2C].bytes,
-                frames_c2s=c.streams[C2S].frames,
-                frames_s2c=c.streams[S2C].frames,
+                bytes_c2s=byte_counts[0],
+                bytes_s2c=byte_counts[1],
+                frames_c2s=frame_counts[0],
+                frames_s2c=frame_counts[1],
+                stream=c.stream,
             )
         )
 
@@ -231,22 +245,13 @@ class StreamRecorder(CommandNames):
     def _channel_close(self, conn: int, c: Conn, s: ChannelStream, t_ns: int, reason: str) -> None:
         self._counted(c, lambda s: s.close(t_ns))
         frames = getattr(s, "frames", None)
-        self.write(
-            ConnectionRecord(
-                conn=conn,
-                event="close",
-                t_ns=t_ns,
-                transport=s.transport,
-                client=c.client,
-                upstream=c.upstream,
-                local=c.local,
-                reason=reason,
-                bytes_c2s=s.bytes[C2S],
-                bytes_s2c=s.bytes[S2C],
-                frames_c2s=frames[C2S] if frames is not None else 0,
-                frames_s2c=frames[S2C] if frames is not None else s.packets,
-                stream=c.stream,
-            )
+        self._write_close(
+            conn,
+            c,
+            t_ns,
+            reason,
+            (s.bytes[C2S], s.bytes[S2C]),
+            (frames[C2S], frames[S2C]) if frames is not None else (0, s.packets),
         )
 
     def _channel_data(self, c: Conn, direction: DirectionText, t_ns: int, data: bytes) -> None:
