@@ -35,7 +35,7 @@ import difflib
 import re
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -58,6 +58,7 @@ __all__ = [
     "NOT_RECORDED_CODE",
     "ReplayResult",
     "ReplyBook",
+    "Resent",
     "replay_calls",
     "replay_to_target",
 ]
@@ -203,22 +204,15 @@ class ReplyBook:
 
 
 @dataclass
-class _CmdResult:
+class Resent:
+    """What was resent of one command's frames, or of one XML-RPC method's calls, and
+    how the new replies compared with the recorded ones."""
+
     cmd_id: int
+    #: The command's name, or the method's.
     name: str
-    sent: int = 0
-    matched: int = 0
-    differing: int = 0
-    differences: list[Difference] = field(default_factory=list)
-    skipped: dict[str, int] = field(default_factory=dict)
-
-
-@dataclass
-class _CallResult:
-    """One XML-RPC method's calls resent."""
-
-    method: str
-    cmd_id: int
+    #: Calls of a method (XML-RPC), not frames of a command.
+    call: bool = False
     sent: int = 0
     matched: int = 0
     differing: int = 0
@@ -227,125 +221,110 @@ class _CallResult:
     differences: list[Difference] = field(default_factory=list)
     skipped: dict[str, int] = field(default_factory=dict)
 
+    def cases(self) -> Iterator[CaseResult]:
+        """Its report rows: a PASS of the matches, a FAIL per kind of difference, a
+        SKIPPED per reason (a command's rows count its requests, as ``--json`` does)."""
+        call = self.call
+        base = f"{self.cmd_id}/replay/" + (f"xmlrpc-{self.name}-" if call else "")
+
+        def row(
+            key: str, outcome: Outcome, detail: str, n: int, frames: tuple[str, ...] = ()
+        ) -> CaseResult:
+            return CaseResult(
+                id=base + key,
+                cmd_id=self.cmd_id,
+                name=self.name,
+                group="replay",
+                outcome=outcome,
+                detail=detail,
+                frames=frames,
+                count=1 if call else n,
+            )
+
+        if self.matched or (call and self.uncompared):
+            if not call:
+                detail = f"{self.matched} replies match the recording"
+            elif self.uncompared:
+                detail = (
+                    f"{self.matched} XML-RPC replies match the recording; "
+                    f"{self.uncompared} sent with no recorded reply to compare"
+                )
+            else:
+                detail = f"{self.matched} XML-RPC replies match the recording"
+            yield row("match", Outcome.PASS, detail, self.matched)
+        kinds: dict[str, list[Difference]] = {}
+        for d in self.differences:
+            kinds.setdefault(d.kind, []).append(d)
+        for kind, ds in sorted(kinds.items()):
+            first = ds[0]
+            yield row(
+                kind,
+                Outcome.FAIL,
+                f"{len(ds)}x {first.detail}",
+                len(ds),
+                frames=(f"recorded: {first.recorded}", f"now: {first.new}")
+                if call
+                else (first.recorded, first.new),
+            )
+        for reason, n in self.skipped.items():
+            yield row("skipped", Outcome.SKIPPED, f"{n}x {reason}", n)
+
+    def to_json(self) -> dict[str, Any]:
+        doc: dict[str, Any] = {"cmd_id": self.cmd_id} if self.call else {"name": self.name}
+        doc.update(sent=self.sent, matched=self.matched, differing=self.differing)
+        if self.call:
+            doc["uncompared"] = self.uncompared
+        doc.update(
+            skipped=dict(self.skipped),
+            differences=[d.to_json() for d in self.differences[:20]],
+        )
+        return doc
+
 
 @dataclass
 class ReplayResult:
     target: str
-    commands: dict[int, _CmdResult] = field(default_factory=dict)
+    commands: dict[int, Resent] = field(default_factory=dict)
     connections: int = 0
     elapsed: float = 0.0
     #: The XML-RPC calls resent, per method, and where they went.
-    calls: dict[str, _CallResult] = field(default_factory=dict)
+    calls: dict[str, Resent] = field(default_factory=dict)
     xmlrpc_target: str = ""
 
-    def cmd(self, cmd_id: int, name: str | None) -> _CmdResult:
+    def cmd(self, cmd_id: int, name: str | None) -> Resent:
         c = self.commands.get(cmd_id)
         if c is None:
-            c = self.commands[cmd_id] = _CmdResult(cmd_id=cmd_id, name=name or "?")
+            c = self.commands[cmd_id] = Resent(cmd_id=cmd_id, name=name or "?")
+        return c
+
+    def method(self, name: str, cmd_id: int) -> Resent:
+        c = self.calls.get(name)
+        if c is None:
+            c = self.calls[name] = Resent(cmd_id=cmd_id, name=name, call=True)
         return c
 
     @property
     def differing_ids(self) -> set[int]:
-        frames = {k for k, c in self.commands.items() if c.differing}
-        return frames | {c.cmd_id for c in self.calls.values() if c.differing}
+        return {c.cmd_id for c in self._all() if c.differing}
 
     @property
     def unmatched(self) -> int:
         """Replies that differ from the recorded ones (frames and calls)."""
-        return sum(c.differing for c in self.commands.values()) + sum(
-            c.differing for c in self.calls.values()
-        )
+        return sum(c.differing for c in self._all())
+
+    def _all(self) -> Iterator[Resent]:
+        yield from self.commands.values()
+        yield from self.calls.values()
 
     def to_report(self, spec_version: str) -> Report:
         r = Report(target=self.target, spec_version=spec_version, meta={"mode": "replay"})
-        for k, c in sorted(self.commands.items()):
-            if c.matched:
-                r.add(
-                    CaseResult(
-                        id=f"{k}/replay/match",
-                        cmd_id=k,
-                        name=c.name,
-                        group="replay",
-                        outcome=Outcome.PASS,
-                        detail=f"{c.matched} replies match the recording",
-                        count=c.matched,  # the table counts the requests, as --json does
-                    )
-                )
-            kinds: dict[str, list[Difference]] = {}
-            for d in c.differences:
-                kinds.setdefault(d.kind, []).append(d)
-            for kind, ds in sorted(kinds.items()):
-                r.add(
-                    CaseResult(
-                        id=f"{k}/replay/{kind}",
-                        cmd_id=k,
-                        name=c.name,
-                        group="replay",
-                        outcome=Outcome.FAIL,
-                        detail=f"{len(ds)}x {ds[0].detail}",
-                        frames=(ds[0].recorded, ds[0].new),
-                        count=len(ds),
-                    )
-                )
-            for reason, n in c.skipped.items():
-                r.add(
-                    CaseResult(
-                        id=f"{k}/replay/skipped",
-                        cmd_id=k,
-                        name=c.name,
-                        group="replay",
-                        outcome=Outcome.SKIPPED,
-                        detail=f"{n}x {reason}",
-                        count=n,
-                    )
-                )
-        for m, cr in sorted(self.calls.items()):
-            self._call_cases(r, m, cr)
+        for resent in (
+            *(c for _, c in sorted(self.commands.items())),
+            *(c for _, c in sorted(self.calls.items())),
+        ):
+            for case in resent.cases():
+                r.add(case)
         return r
-
-    @staticmethod
-    def _call_cases(r: Report, m: str, c: _CallResult) -> None:
-        base = f"{c.cmd_id}/replay/xmlrpc-{m}"
-        if c.matched or c.uncompared:
-            more = (
-                f"; {c.uncompared} sent with no recorded reply to compare" if c.uncompared else ""
-            )
-            r.add(
-                CaseResult(
-                    id=f"{base}-match",
-                    cmd_id=c.cmd_id,
-                    name=m,
-                    group="replay",
-                    outcome=Outcome.PASS,
-                    detail=f"{c.matched} XML-RPC replies match the recording{more}",
-                )
-            )
-        kinds: dict[str, list[Difference]] = {}
-        for d in c.differences:
-            kinds.setdefault(d.kind, []).append(d)
-        for kind, ds in sorted(kinds.items()):
-            r.add(
-                CaseResult(
-                    id=f"{base}-{kind}",
-                    cmd_id=c.cmd_id,
-                    name=m,
-                    group="replay",
-                    outcome=Outcome.FAIL,
-                    detail=f"{len(ds)}x {ds[0].detail}",
-                    frames=(f"recorded: {ds[0].recorded}", f"now: {ds[0].new}"),
-                )
-            )
-        for reason, n in c.skipped.items():
-            r.add(
-                CaseResult(
-                    id=f"{base}-skipped",
-                    cmd_id=c.cmd_id,
-                    name=m,
-                    group="replay",
-                    outcome=Outcome.SKIPPED,
-                    detail=f"{n}x {reason}",
-                )
-            )
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -354,31 +333,10 @@ class ReplayResult:
             "elapsed_s": round(self.elapsed, 3),
             "differing_ids": sorted(self.differing_ids),
             "unmatched": self.unmatched,
-            "commands": {
-                str(k): {
-                    "name": c.name,
-                    "sent": c.sent,
-                    "matched": c.matched,
-                    "differing": c.differing,
-                    "skipped": dict(c.skipped),
-                    "differences": [d.to_json() for d in c.differences[:20]],
-                }
-                for k, c in sorted(self.commands.items())
-            },
+            "commands": {str(k): c.to_json() for k, c in sorted(self.commands.items())},
             "xmlrpc": {
                 "target": self.xmlrpc_target,
-                "methods": {
-                    m: {
-                        "cmd_id": c.cmd_id,
-                        "sent": c.sent,
-                        "matched": c.matched,
-                        "differing": c.differing,
-                        "uncompared": c.uncompared,
-                        "skipped": dict(c.skipped),
-                        "differences": [d.to_json() for d in c.differences[:20]],
-                    }
-                    for m, c in sorted(self.calls.items())
-                },
+                "methods": {m: c.to_json() for m, c in sorted(self.calls.items())},
             },
         }
 
@@ -588,9 +546,7 @@ def replay_calls(
             assert c.request_raw is not None
             reading, _ = cj.request(c.method, c.params, c.request_error)
             name = c.method or "(no method)"
-            cr = out.calls.get(name)
-            if cr is None:
-                cr = out.calls[name] = _CallResult(method=name, cmd_id=reading.cmd_id)
+            cr = out.method(name, reading.cmd_id)
             if c.method is not None:
                 ok, why = safety.permits_method(c.method, specs)
             else:  # a body that is no call: sent to a loopback target only
