@@ -9,7 +9,7 @@ from __future__ import annotations
 import base64
 import contextlib
 from bisect import bisect_right
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from itertools import accumulate, pairwise, repeat
 from typing import Any, Literal, Protocol
@@ -48,6 +48,83 @@ def _bytes_or_none(text: str | None) -> bytes | None:
     return None if text is None else base64.b64decode(text, validate=True)
 
 
+#: A member of a record's JSON that must be there.
+_REQUIRED: Any = object()
+#: A member that, missing, reads as the record's ``complete_ns``.
+_COMPLETE_NS: Any = object()
+
+
+@dataclass(frozen=True)
+class _Member:
+    """One member of a record's JSON: its key, the attribute it holds (``""``: the key),
+    what it reads as when missing, and how the attribute is written (``dump``, of the
+    record: by default the attribute as it is) and read (``load``, of the JSON value).
+    A member with ``load`` False is written only (a value the record derives)."""
+
+    key: str
+    attr: str = ""
+    default: Any = _REQUIRED
+    dump: Callable[[Any], Any] | None = None
+    load: Callable[[Any], Any] | Literal[False] | None = None
+    #: Written only when it is not empty.
+    omit_empty: bool = False
+
+    @property
+    def name(self) -> str:
+        return self.attr or self.key
+
+
+def _dump(record: Any, members: tuple[_Member, ...]) -> dict[str, Any]:
+    doc: dict[str, Any] = {}
+    for m in members:
+        v = m.dump(record) if m.dump is not None else getattr(record, m.name)
+        if not (m.omit_empty and not v):
+            doc[m.key] = v
+    return doc
+
+
+def _load(d: Mapping[str, Any], members: tuple[_Member, ...]) -> dict[str, Any]:
+    kw: dict[str, Any] = {}
+    for m in members:
+        if m.load is False:
+            continue
+        if m.default is _REQUIRED:
+            v = d[m.key]
+        elif m.default is _COMPLETE_NS:
+            v = d.get(m.key, d["complete_ns"])
+        else:
+            v = d.get(m.key, m.default)
+        kw[m.name] = m.load(v) if m.load is not None else v
+    return kw
+
+
+def _raw(key: str = "raw", *, required: bool = True) -> _Member:
+    """A bytes attribute as base64 text."""
+    return _Member(
+        key,
+        default=_REQUIRED if required else "",
+        dump=lambda r: _b64(getattr(r, key)),
+        load=lambda v: base64.b64decode(v, validate=True),
+    )
+
+
+def _text_or_empty(v: Any) -> Any:
+    return v or ""
+
+
+#: The members every record of a stream starts with.
+_CONN = _Member("conn")
+_TRANSPORT = _Member("transport", default="tcp")
+_DIR = _Member("dir")
+_OFFSET = _Member("offset", default=0)
+_FIRST_NS = _Member("first_ns", default=_COMPLETE_NS)
+#: ``first_ns`` written as ``complete_ns`` when it is not known (0).
+_FIRST_NS_KNOWN = _Member(
+    "first_ns", default=_COMPLETE_NS, dump=lambda r: r.first_ns or r.complete_ns
+)
+_COMPLETE = _Member("complete_ns")
+
+
 @dataclass(frozen=True, kw_only=True)
 class FrameRecord:
     """One recorded frame (a row of a ``/fairino/frames`` batch: :class:`Frames`)."""
@@ -67,39 +144,7 @@ class FrameRecord:
     transport: str = "tcp"
 
     def to_json(self) -> dict[str, Any]:
-        return {
-            "conn": self.conn,
-            "transport": self.transport,
-            "dir": self.dir,
-            "cnt": self.cnt,
-            "cmd_id": self.cmd_id,
-            "name": self.name,
-            "data": self.data,
-            "len": self.length if self.length is not None else len(self.data.encode("utf-8")),
-            "problems": list(self.problems),
-            "offset": self.offset,
-            "first_ns": self.first_ns,
-            "complete_ns": self.complete_ns,
-            "raw": _b64(self.raw),
-        }
-
-    @classmethod
-    def from_json(cls, d: Mapping[str, Any]) -> FrameRecord:
-        return cls(
-            conn=d["conn"],
-            transport=d.get("transport", "tcp"),
-            dir=d["dir"],
-            cnt=d["cnt"],
-            cmd_id=d["cmd_id"],
-            name=d.get("name"),
-            data=d["data"],
-            length=d.get("len"),
-            problems=tuple(d.get("problems", ())),
-            offset=d.get("offset", 0),
-            first_ns=d.get("first_ns", d["complete_ns"]),
-            complete_ns=d["complete_ns"],
-            raw=base64.b64decode(d["raw"]),
-        )
+        return _dump(self, _FRAME_JSON)
 
     def frame(self) -> Frame:
         """The frame as the codec's :class:`~conformance.protocol.frame.Frame` (for validation)."""
@@ -270,35 +315,11 @@ class ProblemRecord:
     transport: str = "tcp"
 
     def to_json(self) -> dict[str, Any]:
-        return {
-            "conn": self.conn,
-            "transport": self.transport,
-            "dir": self.dir,
-            "kind": self.kind,
-            "rule": self.rule,
-            "detail": self.detail,
-            "offset": self.offset,
-            "size": self.size,
-            "first_ns": self.first_ns,
-            "complete_ns": self.complete_ns,
-            "raw": _b64(self.raw),
-        }
+        return _dump(self, _PROBLEM_JSON)
 
     @classmethod
     def from_json(cls, d: Mapping[str, Any]) -> ProblemRecord:
-        return cls(
-            conn=d["conn"],
-            transport=d.get("transport", "tcp"),
-            dir=d["dir"],
-            kind=d["kind"],
-            rule=d["rule"],
-            detail=d.get("detail", ""),
-            offset=d.get("offset", 0),
-            size=d["size"],
-            first_ns=d.get("first_ns", d["complete_ns"]),
-            complete_ns=d["complete_ns"],
-            raw=base64.b64decode(d.get("raw", "")),
-        )
+        return cls(**_load(d, _PROBLEM_JSON))
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -321,41 +342,11 @@ class ConnectionRecord:
     stream: str = ""
 
     def to_json(self) -> dict[str, Any]:
-        doc: dict[str, Any] = {
-            "conn": self.conn,
-            "transport": self.transport,
-            "event": self.event,
-            "t_ns": self.t_ns,
-            "client": self.client,
-            "upstream": self.upstream,
-            "local": self.local,
-            "reason": self.reason,
-            "bytes_c2s": self.bytes_c2s,
-            "bytes_s2c": self.bytes_s2c,
-            "frames_c2s": self.frames_c2s,
-            "frames_s2c": self.frames_s2c,
-        }
-        if self.stream:
-            doc["stream"] = self.stream
-        return doc
+        return _dump(self, _CONNECTION_JSON)
 
     @classmethod
     def from_json(cls, d: Mapping[str, Any]) -> ConnectionRecord:
-        return cls(
-            conn=d["conn"],
-            transport=d.get("transport", "tcp"),
-            event=d["event"],
-            t_ns=d["t_ns"],
-            client=d.get("client", ""),
-            upstream=d.get("upstream", ""),
-            local=d.get("local", ""),
-            reason=d.get("reason", ""),
-            bytes_c2s=d.get("bytes_c2s", 0),
-            bytes_s2c=d.get("bytes_s2c", 0),
-            frames_c2s=d.get("frames_c2s", 0),
-            frames_s2c=d.get("frames_s2c", 0),
-            stream=d.get("stream", ""),
-        )
+        return cls(**_load(d, _CONNECTION_JSON))
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -385,39 +376,11 @@ class StateRecord:
         return self.checksum == self.computed
 
     def to_json(self) -> dict[str, Any]:
-        return {
-            "conn": self.conn,
-            "transport": self.transport,
-            "cnt": self.cnt,
-            "len": self.length,
-            "version": self.version,
-            "checksum": self.checksum,
-            "computed": self.computed,
-            "checksum_ok": self.checksum_ok,
-            "offset": self.offset,
-            "first_ns": self.first_ns or self.complete_ns,
-            "complete_ns": self.complete_ns,
-            "fields": dict(self.fields),
-            "raw": _b64(self.raw),
-        }
+        return _dump(self, _STATE_JSON)
 
     @classmethod
     def from_json(cls, d: Mapping[str, Any], *, stream: str = "") -> StateRecord:
-        return cls(
-            stream=stream,
-            conn=d["conn"],
-            transport=d.get("transport", "tcp"),
-            cnt=d["cnt"],
-            length=d["len"],
-            version=d.get("version"),
-            checksum=d["checksum"],
-            computed=d["computed"],
-            offset=d.get("offset", 0),
-            first_ns=d.get("first_ns", d["complete_ns"]),
-            complete_ns=d["complete_ns"],
-            fields=d.get("fields") or {},
-            raw=base64.b64decode(d["raw"]),
-        )
+        return cls(stream=stream, **_load(d, _STATE_JSON))
 
     @property
     def realtime(self) -> bool:
@@ -536,64 +499,11 @@ class CallRecord:
         return self.reply_ns - self.request_ns
 
     def to_json(self) -> dict[str, Any]:
-        def err(e: tuple[str, str] | None) -> dict[str, str] | None:
-            return None if e is None else {"rule": e[0], "detail": e[1]}
-
-        return {
-            "conn": self.conn,
-            "transport": self.transport,
-            "seq": self.seq,
-            "method": self.method,
-            "params": None if self.params is None else [value_to_json(p) for p in self.params],
-            "http": self.http,
-            "request_error": err(self.request_error),
-            "request_offset": self.request_offset,
-            "request_first_ns": self.request_first_ns,
-            "request_ns": self.request_ns,
-            "request_raw": _b64_or_none(self.request_raw),
-            "reply": self.reply,
-            "status": self.status,
-            "value": value_to_json(self.value),
-            "fault_code": self.fault_code,
-            "fault_string": self.fault_string,
-            "reply_error": err(self.reply_error),
-            "reply_offset": self.reply_offset,
-            "reply_first_ns": self.reply_first_ns,
-            "reply_ns": self.reply_ns,
-            "reply_raw": _b64_or_none(self.reply_raw),
-            "detail": self.detail,
-        }
+        return _dump(self, _CALL_JSON)
 
     @classmethod
     def from_json(cls, d: Mapping[str, Any]) -> CallRecord:
-        def err(e: Any) -> tuple[str, str] | None:
-            return None if e is None else (str(e["rule"]), str(e.get("detail", "")))
-
-        params = d.get("params")
-        return cls(
-            conn=d["conn"],
-            transport=d.get("transport", "tcp"),
-            seq=d.get("seq"),
-            method=d.get("method"),
-            params=None if params is None else tuple(value_from_json(p) for p in params),
-            http=d.get("http") or "",
-            request_error=err(d.get("request_error")),
-            request_offset=d.get("request_offset"),
-            request_first_ns=d.get("request_first_ns"),
-            request_ns=d.get("request_ns"),
-            request_raw=_bytes_or_none(d.get("request_raw")),
-            reply=d.get("reply", "missing"),
-            status=d.get("status"),
-            value=value_from_json(d.get("value")),
-            fault_code=d.get("fault_code"),
-            fault_string=d.get("fault_string"),
-            reply_error=err(d.get("reply_error")),
-            reply_offset=d.get("reply_offset"),
-            reply_first_ns=d.get("reply_first_ns"),
-            reply_ns=d.get("reply_ns"),
-            reply_raw=_bytes_or_none(d.get("reply_raw")),
-            detail=d.get("detail") or "",
-        )
+        return cls(**_load(d, _CALL_JSON))
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -634,42 +544,147 @@ class CndeRecord:
             return None
 
     def to_json(self) -> dict[str, Any]:
-        return {
-            "conn": self.conn,
-            "transport": self.transport,
-            "dir": self.dir,
-            "cnt": self.cnt,
-            "type": self.type,
-            "kind": self.kind,
-            "len": self.length,
-            "offset": self.offset,
-            "first_ns": self.first_ns or self.complete_ns,
-            "complete_ns": self.complete_ns,
-            "config": None if self.config is None else dict(self.config),
-            "message": None if self.message is None else dict(self.message),
-            "fields": None if self.fields is None else dict(self.fields),
-            "detail": self.detail,
-            "raw": _b64(self.raw),
-        }
+        return _dump(self, _CNDE_JSON)
 
     @classmethod
     def from_json(cls, d: Mapping[str, Any]) -> CndeRecord:
-        return cls(
-            conn=d["conn"],
-            transport=d.get("transport", "tcp"),
-            dir=d["dir"],
-            cnt=d["cnt"],
-            type=d["type"],
-            length=d["len"],
-            offset=d.get("offset", 0),
-            first_ns=d.get("first_ns", d["complete_ns"]),
-            complete_ns=d["complete_ns"],
-            config=d.get("config"),
-            message=d.get("message"),
-            fields=d.get("fields"),
-            detail=d.get("detail") or "",
-            raw=base64.b64decode(d["raw"], validate=True),
-        )
+        return cls(**_load(d, _CNDE_JSON))
+
+
+# --------------------------------------------------------------------------- their JSON
+
+_FRAME_JSON = (
+    _CONN,
+    _TRANSPORT,
+    _DIR,
+    _Member("cnt"),
+    _Member("cmd_id"),
+    _Member("name", default=None),
+    _Member("data"),
+    _Member(
+        "len",
+        "length",
+        default=None,
+        dump=lambda r: r.length if r.length is not None else len(r.data.encode("utf-8")),
+    ),
+    _Member("problems", default=(), dump=lambda r: list(r.problems), load=tuple),
+    _OFFSET,
+    _Member("first_ns", default=_COMPLETE_NS),
+    _COMPLETE,
+    _raw(),
+)
+_PROBLEM_JSON = (
+    _CONN,
+    _TRANSPORT,
+    _DIR,
+    _Member("kind"),
+    _Member("rule"),
+    _Member("detail", default=""),
+    _OFFSET,
+    _Member("size"),
+    _FIRST_NS,
+    _COMPLETE,
+    _raw(required=False),
+)
+_CONNECTION_JSON = (
+    _CONN,
+    _TRANSPORT,
+    _Member("event"),
+    _Member("t_ns"),
+    *(_Member(k, default="") for k in ("client", "upstream", "local", "reason")),
+    *(_Member(k, default=0) for k in ("bytes_c2s", "bytes_s2c", "frames_c2s", "frames_s2c")),
+    _Member("stream", default="", omit_empty=True),
+)
+_STATE_JSON = (
+    _CONN,
+    _TRANSPORT,
+    _Member("cnt"),
+    _Member("len", "length"),
+    _Member("version", default=None),
+    _Member("checksum"),
+    _Member("computed"),
+    _Member("checksum_ok", load=False),
+    _OFFSET,
+    _FIRST_NS_KNOWN,
+    _COMPLETE,
+    _Member("fields", default=None, dump=lambda r: dict(r.fields), load=lambda v: v or {}),
+    _raw(),
+)
+
+
+def _error_json(e: tuple[str, str] | None) -> dict[str, str] | None:
+    return None if e is None else {"rule": e[0], "detail": e[1]}
+
+
+def _error_of(e: Any) -> tuple[str, str] | None:
+    return None if e is None else (str(e["rule"]), str(e.get("detail", "")))
+
+
+def _raw_or_none(key: str) -> _Member:
+    return _Member(
+        key, default=None, dump=lambda r: _b64_or_none(getattr(r, key)), load=_bytes_or_none
+    )
+
+
+def _error(key: str) -> _Member:
+    return _Member(key, default=None, dump=lambda r: _error_json(getattr(r, key)), load=_error_of)
+
+
+_CALL_JSON = (
+    _CONN,
+    _TRANSPORT,
+    _Member("seq", default=None),
+    _Member("method", default=None),
+    _Member(
+        "params",
+        default=None,
+        dump=lambda r: None if r.params is None else [value_to_json(p) for p in r.params],
+        load=lambda v: None if v is None else tuple(value_from_json(p) for p in v),
+    ),
+    _Member("http", default="", load=_text_or_empty),
+    _error("request_error"),
+    *(_Member(k, default=None) for k in ("request_offset", "request_first_ns", "request_ns")),
+    _raw_or_none("request_raw"),
+    _Member("reply", default="missing"),
+    _Member("status", default=None),
+    _Member(
+        "value",
+        default=None,
+        dump=lambda r: value_to_json(r.value),
+        load=value_from_json,
+    ),
+    _Member("fault_code", default=None),
+    _Member("fault_string", default=None),
+    _error("reply_error"),
+    *(_Member(k, default=None) for k in ("reply_offset", "reply_first_ns", "reply_ns")),
+    _raw_or_none("reply_raw"),
+    _Member("detail", default="", load=_text_or_empty),
+)
+
+
+def _dict_or_none(key: str) -> _Member:
+    return _Member(
+        key,
+        default=None,
+        dump=lambda r: None if getattr(r, key) is None else dict(getattr(r, key)),
+    )
+
+
+_CNDE_JSON = (
+    _CONN,
+    _TRANSPORT,
+    _DIR,
+    _Member("cnt"),
+    _Member("type"),
+    _Member("kind", load=False),
+    _Member("len", "length"),
+    _OFFSET,
+    _FIRST_NS_KNOWN,
+    _COMPLETE,
+    *(_dict_or_none(k) for k in ("config", "message", "fields")),
+    _Member("detail", default="", load=_text_or_empty),
+    _raw(),
+)
 
 
 Record = FrameRecord | ProblemRecord | ConnectionRecord | StateRecord | CallRecord | CndeRecord
