@@ -41,6 +41,7 @@ from .records import (
     ProblemRecord,
     Record,
     RecordSink,
+    gap_record,
     problem_pieces,
     problem_records,
 )
@@ -622,20 +623,7 @@ class StreamRecorder(CommandNames):
         st = c.streams[direction]
         self._emit(conn, c.transport, direction, st, st.decoder.close(), t_ns)
         offset = st.base + st.decoder.stream_offset
-        self.write(
-            ProblemRecord(
-                conn=conn,
-                transport=c.transport,
-                dir=direction,
-                kind="gap",
-                rule="gap",
-                detail=detail or f"{missing} bytes missing from the capture",
-                offset=offset,
-                size=missing,
-                first_ns=t_ns,
-                complete_ns=t_ns,
-            )
-        )
+        self.write(gap_record(conn, c.transport, direction, "gap", offset, missing, detail, t_ns))
         self.problems += 1
         st.base = offset + missing
         st.decoder = FrameDecoder(max_frame_size=self.max_frame_size)

@@ -29,6 +29,7 @@ __all__ = [
     "RecordSink",
     "StateRecord",
     "Stream",
+    "gap_record",
     "problem_pieces",
     "problem_records",
     "value_from_json",
@@ -700,6 +701,32 @@ class RecordSink(Protocol):
     def write_frames(self, frames: Frames) -> None: ...
 
     def write(self, record: Record) -> None: ...
+
+
+def gap_record(
+    conn: int,
+    transport: str,
+    direction: DirectionText,
+    kind: str,
+    offset: int,
+    missing: int,
+    detail: str,
+    t_ns: int,
+) -> ProblemRecord:
+    """The record of ``missing`` bytes from stream ``offset`` never captured (``detail``:
+    why, if known)."""
+    return ProblemRecord(
+        conn=conn,
+        transport=transport,
+        dir=direction,
+        kind=kind,
+        rule="gap",
+        detail=detail or f"{missing} bytes missing from the capture",
+        offset=offset,
+        size=missing,
+        first_ns=t_ns,
+        complete_ns=t_ns,
+    )
 
 
 def problem_records(

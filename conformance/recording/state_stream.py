@@ -179,8 +179,8 @@ class StateStream(ChannelStream):
                     raw = held.take_all()
                 self._kept(S2C, kind.value, ev.detail, offset, raw, first, t_ns)
                 continue
-            # The packet's bytes are its state record's.
-            self._problem(S2C, kind.value, ev.detail, offset, 0, first, t_ns)
+            # The packet's bytes are its state record's: the problem owns none.
+            self._kept(S2C, kind.value, ev.detail, offset, b"", first, t_ns)
 
     def _kept(
         self,

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 from ..protocol.decoder import FrameDecoder
 from .layout import C2S, S2C, DirectionText
-from .records import ProblemRecord, Record, Stream, problem_pieces
+from .records import Record, Stream, gap_record, problem_pieces
 
 __all__ = [
     "TIMELINE_MAX",
@@ -97,35 +97,9 @@ class ChannelStream:
 
     def _gap(self, direction: DirectionText, at: int, missing: int, detail: str, t_ns: int) -> None:
         """``missing`` bytes from stream offset ``at`` were never captured."""
-        detail = detail or f"{missing} bytes missing from the capture"
-        self._problem(direction, "gap", detail, at, missing, t_ns, t_ns)
-
-    def _problem(
-        self,
-        direction: DirectionText,
-        rule: str,
-        detail: str,
-        offset: int,
-        size: int,
-        first: int,
-        t_ns: int,
-    ) -> None:
-        """A problem that owns no bytes (of ``size`` bytes never captured, or a state
-        packet's whose bytes are its own record's)."""
         self.problems += 1
         self.write(
-            ProblemRecord(
-                conn=self.conn,
-                transport=self.transport,
-                dir=direction,
-                kind=self.kind,
-                rule=rule,
-                detail=detail,
-                offset=offset,
-                size=size,
-                first_ns=first,
-                complete_ns=t_ns,
-            )
+            gap_record(self.conn, self.transport, direction, self.kind, at, missing, detail, t_ns)
         )
 
 
