@@ -297,46 +297,36 @@ class CallJudge:
         where = f"{self._source} {method}" if method else self._source
         findings: list[Finding] = []
         basis = where
+        failed: tuple[str, str, str] | None = None  # (rule, source, message)
+        surface = self.surface
         if r.kind == "unreadable":
             rule, detail = error or ("xmlrpc_syntax", "the request is no methodCall")
-            findings.append(
-                Finding(
-                    rule=rule,
-                    outcome=Outcome.FAIL,
-                    source="xmlrpc.com/spec, RFC 9112",
-                    message=detail,
-                )
-            )
+            failed = (rule, "xmlrpc.com/spec, RFC 9112", detail)
         elif r.kind == "introspection":
-            findings.append(
-                Finding(
-                    rule="xmlrpc_introspection",
-                    outcome=Outcome.FAIL,
-                    source=f"{self._source} introspection (field fact fws-001)",
-                    message=f"{method}: {self.surface.introspection_why or 'introspection'}",
-                )
+            failed = (
+                "xmlrpc_introspection",
+                f"{self._source} introspection (field fact fws-001)",
+                f"{method}: {surface.introspection_why or 'introspection'}",
             )
         elif r.kind == "unknown":
             what = "no SDK sends it" if r.method is not None else "no SDK has it"
-            findings.append(
-                Finding(
-                    rule="unknown_method",
-                    outcome=Outcome.FAIL,
-                    source=f"{self._source} (xmlrpc-c answers {self.surface.fault_no_method}, fws-009)",
-                    message=f"method {method!r} is not in the v{self.surface.spec_version} "
-                    f"XML-RPC surface ({what})",
-                )
+            failed = (
+                "unknown_method",
+                f"{self._source} (xmlrpc-c answers {surface.fault_no_method}, fws-009)",
+                f"method {method!r} is not in the v{surface.spec_version} XML-RPC surface ({what})",
             )
         elif r.kind == "parameters":
-            findings.append(
-                Finding(
-                    rule="xmlrpc_params",
-                    outcome=Outcome.FAIL,
-                    source=f"{where} (xmlrpc-c answers {self.surface.fault_params}, fws-009)",
-                    message=f"{method}: the parameters follow none of the SDKs' forms: {r.mismatch}",
-                )
+            failed = (
+                "xmlrpc_params",
+                f"{where} (xmlrpc-c answers {surface.fault_params}, fws-009)",
+                f"{method}: the parameters follow none of the SDKs' forms: {r.mismatch}",
             )
-        else:
+        if failed is not None:
+            rule, source, message = failed
+            findings.append(
+                Finding(rule=rule, outcome=Outcome.FAIL, source=source, message=message)
+            )
+        else:  # read as a command
             viols = self.violations(r)
             source = _manual_source(r)
             if r.dialect is not None and not viols:

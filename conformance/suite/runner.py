@@ -229,12 +229,7 @@ class SuiteRunner:
         return self.config.target_label(self.address)
 
     def close(self) -> None:
-        if self._client is not None:
-            self._client.close()
-            self._client = None
-        if self._xmlrpc is not None:
-            self._xmlrpc.close()
-            self._xmlrpc = None
+        self.drop_client()
         if self.emulator is not None:
             emu, self.emulator = self.emulator, None
             emu.close()
