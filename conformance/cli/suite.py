@@ -27,16 +27,12 @@ def _add_emulate(sub: Any) -> None:
         "it: a connection whose bytes make the kit fail is closed and the reason printed on "
         "stderr; --max-connections and --max-frame-size bound what clients cost.",
     )
-    p.add_argument(
-        "--host",
-        default=None,
-        metavar="ADDR",
-        help="serve every port a controller has on ADDR, from one model: the text port TCP "
+    _add_ports(
+        p,
+        "serve every port a controller has on ADDR, from one model: the text port TCP "
         "8080 and UDP 20007, the state port 8083, and the SDKs' own: XML-RPC 20003, the "
-        "realtime push 20004, CNDE 20005 (instead of --listen, --udp and --state-listen)",
+        "realtime push 20004, CNDE 20005",
     )
-    p.add_argument("--listen", default=None, help="TCP HOST:PORT (default 127.0.0.1:8080)")
-    p.add_argument("--udp", default=None, metavar="HOST:PORT", help="also answer UDP here")
     p.add_argument(
         "--realtime-layout",
         default=None,
@@ -44,19 +40,6 @@ def _add_emulate(sub: Any) -> None:
         help="the 20004 packet layout --host serves: an id of "
         "specs/fairino-field/channels/realtime-20004.json (3.8.7/1236) or a size (1236); "
         "default the newest",
-    )
-    p.add_argument(
-        "--state-listen",
-        default=None,
-        metavar="HOST:PORT",
-        help="serve the state port (8083 status feedback) here; default: --listen's host, "
-        "port 8083 when --listen's port is 8080, else off; 'off': never",
-    )
-    p.add_argument(
-        "--state-version",
-        default="3.8.2",
-        metavar="VERSION",
-        help="the state packet layout served: 3.8.2 (default) or 3.9.8 (specs/*/state.json)",
     )
     p.add_argument(
         "--fault",
@@ -72,6 +55,31 @@ def _add_emulate(sub: Any) -> None:
     _add_limits(p)
     _add_emulation(p)
     p.set_defaults(func=_emulate)
+
+
+def _add_ports(p: Any, host_help: str) -> None:
+    """The ports ``emulate`` and ``serve`` take (:func:`_served_ports` reads them)."""
+    p.add_argument(
+        "--host",
+        default=None,
+        metavar="ADDR",
+        help=f"{host_help} (instead of --listen, --udp and --state-listen)",
+    )
+    p.add_argument("--listen", default=None, help="TCP HOST:PORT (default 127.0.0.1:8080)")
+    p.add_argument("--udp", default=None, metavar="HOST:PORT", help="also answer UDP here")
+    p.add_argument(
+        "--state-listen",
+        default=None,
+        metavar="HOST:PORT",
+        help="serve the state port (8083 status feedback) here; default: --listen's host, "
+        "port 8083 when --listen's port is 8080, else off; 'off': never",
+    )
+    p.add_argument(
+        "--state-version",
+        default="3.8.2",
+        metavar="VERSION",
+        help="the state packet layout served: 3.8.2 (default) or 3.9.8 (specs/*/state.json)",
+    )
 
 
 def _add_limits(p: Any) -> None:
@@ -461,28 +469,11 @@ def _add_serve(sub: Any) -> None:
         "cannot stop it: a connection the kit fails on is closed and blamed on the command "
         "ID of the frame that caused it. Exit code 0 conformant, 1 departures, 2 error.",
     )
-    p.add_argument(
-        "--host",
-        default=None,
-        metavar="ADDR",
-        help="play every port a controller has on ADDR (8080, 20007/udp, 8083, and the SDKs' "
+    _add_ports(
+        p,
+        "play every port a controller has on ADDR (8080, 20007/udp, 8083, and the SDKs' "
         "XML-RPC 20003, realtime 20004, CNDE 20005) and judge an SDK application's XML-RPC "
-        "calls per command too (instead of --listen, --udp and --state-listen)",
-    )
-    p.add_argument("--listen", default=None, help="TCP HOST:PORT (default 127.0.0.1:8080)")
-    p.add_argument("--udp", default=None, metavar="HOST:PORT", help="also listen on UDP")
-    p.add_argument(
-        "--state-listen",
-        default=None,
-        metavar="HOST:PORT",
-        help="also serve the state port (8083 status feedback), as emulate does: default "
-        "--listen's host, port 8083 when --listen's port is 8080, else off; 'off': never",
-    )
-    p.add_argument(
-        "--state-version",
-        default="3.8.2",
-        metavar="VERSION",
-        help="the state packet layout served: 3.8.2 (default) or 3.9.8",
+        "calls per command too",
     )
     p.add_argument(
         "--duration", type=float, default=None, metavar="SECONDS", help="stop after SECONDS"
