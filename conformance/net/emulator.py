@@ -373,15 +373,17 @@ class EmulatorServer:
         self._spawn(self._serve_tcp, "emulator-accept")
         return self
 
-    def _context(self) -> PortContext:
-        """What one SDK port shares with the emulator; its connections are counted apart
-        (``max_connections`` a port), so that a flood on one port locks no other out."""
+    def _context(self, conns: ConnectionSet | None = None) -> PortContext:
+        """What one port shares with the emulator; its connections are counted apart
+        (``conns``: the state port's; else ``max_connections`` a port), so that a flood
+        on one port locks no other out."""
 
         def backoff(what: str) -> Backoff:
             return _backoff(what, lambda: f"{self.open_connections} open")
 
-        conns = ConnectionSet(self.max_connections, self._conns_lock)
-        self._port_conns.append(conns)
+        if conns is None:
+            conns = ConnectionSet(self.max_connections, self._conns_lock)
+            self._port_conns.append(conns)
         return PortContext(
             host=self.host,
             conns=conns,
@@ -414,7 +416,7 @@ class EmulatorServer:
         from .cnde_port import CndePort
         from .xmlrpc_port import REQUEST_TIMEOUT, XmlRpcPort
 
-        ports: list[tuple[str, int, ListeningPort | StatePort]] = []
+        ports: list[tuple[str, int, ListeningPort]] = []
         if self._sdk_ports["xmlrpc"] is not None and self.xmlrpc is not None:
             xmlrpc = self.xmlrpc
             self.xmlrpc_port = XmlRpcPort(
@@ -437,19 +439,12 @@ class EmulatorServer:
             ports.append(("TCP", self._sdk_ports["cnde"], self.cnde))
         if self._sdk_ports["realtime"] is not None:
             lay = realtime_layout(self._realtime_version)
-            ctx = self._context()
             self.realtime = StatePort(
-                host=self.host,
-                port=self._sdk_ports["realtime"],
+                self._context(),
+                self._sdk_ports["realtime"],
                 version=self.controller.state_version,
                 faults=(),
                 snapshot=self._realtime_snapshot,
-                conns=ctx.conns,
-                spawn=self._spawn,
-                stop=self._stop,
-                down=self._down,
-                changed=self._notify,
-                backoff=_backoff("realtime port accept", lambda: f"{self.open_connections} open"),
                 layout=lay,
                 name="realtime",
             )
@@ -479,17 +474,11 @@ class EmulatorServer:
 
     def _start_state(self, port: int) -> None:
         state = StatePort(
-            host=self.host,
-            port=port,
+            self._context(self._state_conns),
+            port,
             version=self.controller.state_version,
             faults=self.controller.faults,
             snapshot=self._state_snapshot,
-            conns=self._state_conns,
-            spawn=self._spawn,
-            stop=self._stop,
-            down=self._down,
-            changed=self._notify,
-            backoff=_backoff("state port accept", lambda: f"{self.open_connections} open"),
             refused=self._state_refused,
             stalled=self._state_stalled,
         )

@@ -102,12 +102,14 @@ class ListeningPort:
 
     def _accepted(self, got: tuple[socket.socket, Any]) -> None:
         conn, addr = got
-        if self.ctx.down() or not self.ctx.conns.add(conn):
-            self.refused += 1
+        down = self.ctx.down()
+        if down or not self.ctx.conns.add(conn):
+            self.turned_away(format_sockaddr(addr), down=down)
             shutdown(conn)
             return
         with contextlib.suppress(OSError):
             conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            self.configure(conn)
         self.clients += 1
         try:
             self.ctx.spawn(self._run, f"emulator-{self.name}-conn", conn, format_sockaddr(addr))
@@ -129,6 +131,15 @@ class ListeningPort:
 
     def serve(self, conn: socket.socket, peer: str) -> None:
         raise NotImplementedError
+
+    def turned_away(self, peer: str, *, down: bool) -> None:
+        """A client closed at once: the emulator restarts after a crash (``down``), or
+        the port's connections are at their limit.  Counted in :attr:`refused`."""
+        self.refused += 1
+
+    def configure(self, conn: socket.socket) -> None:
+        """Socket options of a client's connection beyond ``TCP_NODELAY`` (an OSError
+        is ignored)."""
 
 
 def shutdown(s: socket.socket) -> None:
