@@ -66,6 +66,13 @@ LENIENT = frozenset(
 
 #: 1.1 and table 1-1-1 (frame layout), cited for framing rules.
 _FRAMING_SOURCE = "manual 1.1"
+
+
+def _framing(rule: str, message: str, outcome: Outcome = Outcome.FAIL) -> Finding:
+    """A finding against the frame format (manual 1.1)."""
+    return Finding(rule=rule, outcome=outcome, source=_FRAMING_SOURCE, message=message)
+
+
 _FRAMING_RULES = frozenset(
     {
         Rule.BAD_HEAD,
@@ -421,12 +428,7 @@ class Judge:
                 "every time); the manual: CNT counts frames (1.1)",
                 dialect=d.id,
             )
-        return Finding(
-            rule="cnt_step",
-            outcome=Outcome.NON_STRICT,
-            source=_FRAMING_SOURCE,
-            message=f"{what} (not counting up by one)",
-        )
+        return _framing("cnt_step", f"{what} (not counting up by one)", Outcome.NON_STRICT)
 
     def _fixed_cnt(
         self, frame: Frame, verdict: Verdict | None, transport: str | None
@@ -487,11 +489,8 @@ class Judge:
                 )
             if paired:
                 findings.append(
-                    Finding(
-                        rule="unsolicited",
-                        outcome=Outcome.FAIL,
-                        source=_FRAMING_SOURCE,
-                        message=f"reply CNT {frame.cnt} ID {frame.cmd_id} answers no request",
+                    _framing(
+                        "unsolicited", f"reply CNT {frame.cnt} ID {frame.cmd_id} answers no request"
                     )
                 )
                 return Verdict(
@@ -506,20 +505,15 @@ class Judge:
             rv = request_verdict if request_verdict is not None else self.request(request)
             if frame.cnt != request.cnt:
                 findings.append(
-                    Finding(
-                        rule=Rule.BAD_CNT.value,
-                        outcome=Outcome.FAIL,
-                        source=_FRAMING_SOURCE,
-                        message=f"reply CNT {frame.cnt}, request CNT {request.cnt}",
+                    _framing(
+                        Rule.BAD_CNT.value, f"reply CNT {frame.cnt}, request CNT {request.cnt}"
                     )
                 )
             if frame.cmd_id != request.cmd_id:
                 findings.append(
-                    Finding(
-                        rule=Rule.BAD_CMD_ID.value,
-                        outcome=Outcome.FAIL,
-                        source=_FRAMING_SOURCE,
-                        message=f"reply CMD_ID {frame.cmd_id}, request {request.cmd_id}",
+                    _framing(
+                        Rule.BAD_CMD_ID.value,
+                        f"reply CMD_ID {frame.cmd_id}, request {request.cmd_id}",
                     )
                 )
         returns, basis = self._returns_for(rv)

@@ -188,6 +188,10 @@ class _Builder:
     def _fail(self, error: RemoteProtocolError) -> None:
         raise _Refused(error)
 
+    def _number(self, message: str) -> RemoteProtocolError:
+        """A number the XML-RPC spec does not allow (too large an int, not finite)."""
+        return RemoteProtocolError(message, rule=Rule.XMLRPC_NUMBER, raw=self.raw[:200])
+
     def start(self, tag: str, attrs: dict[str, str]) -> None:
         parent = self.tags[-1] if self.tags else None
         allowed = _CHILDREN.get(parent)
@@ -300,10 +304,8 @@ class _Builder:
             lo, hi = _I8 if tag == "i8" else _I4
             if not lo <= n <= hi:
                 self._fail(
-                    RemoteProtocolError(
-                        f"<{tag}> {t[:40]} does not fit in {'64' if tag == 'i8' else '32'} bits",
-                        rule=Rule.XMLRPC_NUMBER,
-                        raw=self.raw[:200],
+                    self._number(
+                        f"<{tag}> {t[:40]} does not fit in {'64' if tag == 'i8' else '32'} bits"
                     )
                 )
             return n
@@ -313,13 +315,7 @@ class _Builder:
             except ValueError:
                 self._fail(_syntax(f"<double>{text.strip()[:40]}</double>", self.raw))
             if not math.isfinite(x):
-                self._fail(
-                    RemoteProtocolError(
-                        f"<double>{text.strip()[:40]}</double> is not finite",
-                        rule=Rule.XMLRPC_NUMBER,
-                        raw=self.raw[:200],
-                    )
-                )
+                self._fail(self._number(f"<double>{text.strip()[:40]}</double> is not finite"))
             return x
         if tag == "boolean":
             t = text.strip()

@@ -296,29 +296,30 @@ def choose_spec(
     fitting = [v for v in available if (version_tuple(v) or ()) <= target]
     if not fitting:
         oldest = min(available, key=lambda v: version_tuple(v) or ())
-        return SpecChoice(
-            version=oldest,
-            asked=AUTO,
-            reported=reported,
-            where=where,
-            note=f"older than every spec set; the oldest, {oldest}",
-            warning=f"--spec-version auto: {where} reports firmware {reported.version}, older "
-            f"than every spec set ({', '.join(available)}); judging against {oldest}",
-        )
+        return _beyond_every_set(reported, available, where, "older", oldest)
     best = max(fitting, key=lambda v: version_tuple(v) or ())
     if target[:2] > (version_tuple(best) or ())[:2] and len(fitting) == len(available):
         # A newer series than any set (v99.0, v3.10): the newest is a guess, said as one.
-        return SpecChoice(
-            version=best,
-            asked=AUTO,
-            reported=reported,
-            where=where,
-            note=f"newer than every spec set; the newest, {best}",
-            warning=f"--spec-version auto: {where} reports firmware {reported.version}, newer "
-            f"than every spec set ({', '.join(available)}); judging against the newest, {best}",
-        )
+        return _beyond_every_set(reported, available, where, "newer", best)
     note = "" if version_tuple(best) == target else "the newest spec set not newer than it"
     return SpecChoice(version=best, asked=AUTO, reported=reported, where=where, note=note)
+
+
+def _beyond_every_set(
+    reported: SoftwareVersion, available: Sequence[str], where: str, side: str, chosen: str
+) -> SpecChoice:
+    """Firmware older (``side``) or newer than every spec set: the oldest or newest
+    (``chosen``), with a warning line."""
+    which = f"the {'oldest' if side == 'older' else 'newest'}, {chosen}"
+    return SpecChoice(
+        version=chosen,
+        asked=AUTO,
+        reported=reported,
+        where=where,
+        note=f"{side} than every spec set; {which}",
+        warning=f"--spec-version auto: {where} reports firmware {reported.version}, {side} "
+        f"than every spec set ({', '.join(available)}); judging against {which}",
+    )
 
 
 def reported_in(replies: Iterable[tuple[int, str]]) -> SoftwareVersion | None:
