@@ -11,7 +11,6 @@ unpacks its ``OUTPUT_STATE`` payloads.
 from __future__ import annotations
 
 import functools
-import json
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,6 +19,7 @@ from typing import Any
 from ..errors import SpecError
 from ..protocol.cnde import CndeStateLayout
 from .commands import specs_root
+from .files import load_spec_file
 
 __all__ = [
     "CNDE_FILE",
@@ -114,14 +114,7 @@ def catalogue_from_doc(doc: Mapping[str, Any]) -> CndeCatalogue:
 
 def load_cnde(path: Path | str) -> CndeCatalogue:
     """The catalogue in one ``cnde.json``; a :class:`SpecError` for a file that is none."""
-    p = Path(path)
-    try:
-        doc = json.loads(p.read_text(encoding="utf-8"))
-        return catalogue_from_doc(doc)
-    except (OSError, ValueError) as e:
-        raise SpecError(f"cannot read the CNDE catalogue: {e}", path=str(p)) from None
-    except (KeyError, TypeError) as e:
-        raise SpecError(f"not a CNDE catalogue (missing {e})", path=str(p)) from None
+    return load_spec_file(path, "a CNDE catalogue", catalogue_from_doc)
 
 
 @functools.lru_cache(maxsize=1)

@@ -14,7 +14,6 @@ A layout's version is its id, ``<robot version it came with>/<packet size>``
 from __future__ import annotations
 
 import functools
-import json
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -23,6 +22,7 @@ from ..errors import SpecError
 from ..protocol.state import StateDecoder
 from ..protocol.state_layout import StateLayout, layout_from_doc
 from .commands import specs_root
+from .files import load_spec_file
 
 __all__ = [
     "REALTIME_FILE",
@@ -67,14 +67,9 @@ def _layout(raw: Mapping[str, Any]) -> StateLayout:
 
 def load_realtime(path: Path | str) -> tuple[StateLayout, ...]:
     """The layouts in one ``realtime-20004.json``, oldest first."""
-    p = Path(path)
-    try:
-        doc = json.loads(p.read_text(encoding="utf-8"))
-        return tuple(_layout(x) for x in doc["layouts"])
-    except (OSError, ValueError) as e:
-        raise SpecError(f"cannot read the 20004 layouts: {e}", path=str(p)) from None
-    except (KeyError, TypeError) as e:
-        raise SpecError(f"not a 20004 layout file (missing {e})", path=str(p)) from None
+    return load_spec_file(
+        path, "a 20004 layout file", lambda doc: tuple(_layout(x) for x in doc["layouts"])
+    )
 
 
 @functools.lru_cache(maxsize=1)

@@ -9,7 +9,6 @@ that takes every known layout by its LEN and, given a version, expects that one.
 from __future__ import annotations
 
 import functools
-import json
 from pathlib import Path
 from typing import Any
 
@@ -17,21 +16,14 @@ from ..errors import SpecError
 from ..protocol.state import StateDecoder, StateEvent
 from ..protocol.state_layout import StateLayout, layout_from_doc
 from .commands import specs_root
+from .files import load_spec_file
 
 __all__ = ["decode_stream", "known_layouts", "layout_for", "load_layout", "state_decoder"]
 
 
 def load_layout(path: Path | str) -> StateLayout:
     """The layout in one ``state.json`` (written by ``tools/extract_state.py``)."""
-    p = Path(path)
-    try:
-        doc = json.loads(p.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as e:
-        raise SpecError(f"cannot read the state layout: {e}", path=str(p)) from None
-    try:
-        return layout_from_doc(doc)
-    except (KeyError, TypeError) as e:
-        raise SpecError(f"not a state layout (missing {e})", path=str(p)) from None
+    return load_spec_file(path, "a state layout", layout_from_doc)
 
 
 @functools.lru_cache(maxsize=1)

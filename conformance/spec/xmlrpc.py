@@ -18,16 +18,15 @@ sends over XML-RPC).
 from __future__ import annotations
 
 import functools
-import json
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..errors import SpecError
 from ..protocol.data_values import Arg, Array, Number, Text
 from ..protocol.xmlrpc import XmlRpcValue, value_kind
 from .commands import Param, Safety, SpecSet, Variant, spec_set_dir
+from .files import load_spec_file
 from .knowledge import default_value
 
 __all__ = [
@@ -406,15 +405,7 @@ def surface_from_doc(doc: Mapping[str, Any]) -> XmlRpcSurface:
 
 def load_surface(path: Path | str) -> XmlRpcSurface:
     """The surface in one ``xmlrpc.json``; a :class:`SpecError` for a file that is none."""
-    p = Path(path)
-    try:
-        doc = json.loads(p.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as e:
-        raise SpecError(f"cannot read the XML-RPC surface: {e}", path=str(p)) from None
-    try:
-        return surface_from_doc(doc)
-    except (KeyError, TypeError, ValueError) as e:
-        raise SpecError(f"not an XML-RPC surface ({type(e).__name__}: {e})", path=str(p)) from None
+    return load_spec_file(path, "an XML-RPC surface", surface_from_doc)
 
 
 @functools.lru_cache(maxsize=4)
