@@ -478,20 +478,20 @@ def encode_fault(code: int, message: str) -> bytes:
 
 def value_kind(v: XmlRpcValue) -> str:
     """An XML-RPC value's type as the surface names types (``int``, ``double``...)."""
-    if isinstance(v, bool):
-        return "boolean"
-    if isinstance(v, int):
-        return "int"
-    if isinstance(v, float):
-        return "double"
-    if isinstance(v, str):
-        return "string"
-    if isinstance(v, list):
-        return "array"
-    if isinstance(v, dict):
-        return "struct"
     if v is None:
         return "nil"
-    if isinstance(v, bytes):
-        return "base64"
+    for kind, name in _KIND_NAMES:  # bool before int: a bool is an int
+        if isinstance(v, kind):
+            return name
     return "dateTime.iso8601"
+
+
+_KIND_NAMES: tuple[tuple[type, str], ...] = (
+    (bool, "boolean"),
+    (int, "int"),
+    (float, "double"),
+    (str, "string"),
+    (list, "array"),
+    (dict, "struct"),
+    (bytes, "base64"),
+)

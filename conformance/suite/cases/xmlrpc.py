@@ -98,16 +98,14 @@ def _args(data: str) -> list[Any] | None:
     return list(parsed.args) if isinstance(parsed, Call) else None
 
 
-def _succeeds(
+def _call(
     runner: SuiteRunner, case: Case, params: list[XmlRpcValue], what: str
-) -> CaseEnd | None:
-    """Send a valid call; None when its reply succeeds in the method's shape, else how the
-    case ends (raised for a failure)."""
+) -> tuple[str, XmlRpcExchange, tuple[str, ...]]:
+    """The case's method called with ``params``: the method, the exchange and how it is
+    shown; a sticky failure (``what``: the call's purpose) when no reply came."""
     method = case.method
     assert method is not None
     ex = runner.xmlrpc_call(method, params)
-    reading, _ = runner.call_judge.request(method, params)
-    v = runner.call_judge.reply(reading, _reply(ex))
     frames = _shown(method, params, ex)
     if ex.kind == "missing":
         raise CaseFailure(
@@ -116,6 +114,17 @@ def _succeeds(
             frames=frames,
             sticky=True,
         )
+    return method, ex, frames
+
+
+def _succeeds(
+    runner: SuiteRunner, case: Case, params: list[XmlRpcValue], what: str
+) -> CaseEnd | None:
+    """Send a valid call; None when its reply succeeds in the method's shape, else how the
+    case ends (raised for a failure)."""
+    method, ex, frames = _call(runner, case, params, what)
+    reading, _ = runner.call_judge.request(method, params)
+    v = runner.call_judge.reply(reading, _reply(ex))
     if (
         isinstance(ex.reply, XmlRpcFault)
         and ex.reply.code == runner.call_judge.surface.fault_no_method
@@ -244,17 +253,7 @@ def _refused(
     runner: SuiteRunner, case: Case, params: list[XmlRpcValue], kind: str
 ) -> CaseEnd | None:
     """Send an invalid call: None when refused with the expected code (or fault)."""
-    method = case.method
-    assert method is not None
-    ex = runner.xmlrpc_call(method, params)
-    frames = _shown(method, params, ex)
-    if ex.kind == "missing":
-        raise CaseFailure(
-            Outcome.FAIL,
-            f"invalid arguments ({kind}): {ex.error[1] if ex.error else 'no reply'}",
-            frames=frames,
-            sticky=True,
-        )
+    _, ex, frames = _call(runner, case, params, f"invalid arguments ({kind})")
     if isinstance(ex.reply, XmlRpcFault) or ex.kind == "error":
         return None  # refused before any command saw it (xmlrpc-c's -502, fws-009)
     assert isinstance(ex.reply, XmlRpcResponse)
