@@ -126,6 +126,11 @@ class Case:
     def seed_offset(self) -> int:
         return zlib.crc32(self.id.encode())
 
+    def spec(self) -> tuple[Command, Variant]:
+        """A command case's command and variant (an XML-RPC or sequence case has none)."""
+        assert self.command is not None and self.variant is not None
+        return self.command, self.variant
+
 
 def permitted(config: SuiteConfig, case: Case, specs: SpecSet) -> tuple[bool, str]:
     """Whether the safety profile lets ``case`` be sent (and why not): by its XML-RPC

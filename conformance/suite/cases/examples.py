@@ -10,8 +10,7 @@ from .shared import judge_success
 
 
 def run_example(runner: SuiteRunner, case: Case) -> CaseEnd:
-    cmd, variant = case.command, case.variant
-    assert cmd is not None and variant is not None
+    cmd, variant = case.spec()
     request, reply_text = case.extra
     events = decode_all(request.encode("utf-8"))
     frames = [e for e in events if isinstance(e, Frame)]

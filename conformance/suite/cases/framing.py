@@ -10,8 +10,7 @@ from ..runner import Case, CaseEnd, CaseFailure, SuiteRunner
 
 
 def run_framing(runner: SuiteRunner, case: Case) -> CaseEnd:
-    cmd, variant = case.command, case.variant
-    assert cmd is not None and variant is not None
+    cmd, variant = case.spec()
     client = runner.client()
     cnt = client.next_cnt()
     raw = encode_frame(cnt, cmd.cmd_id, default_data(cmd, variant))

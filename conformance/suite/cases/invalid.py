@@ -20,8 +20,7 @@ _EXPECTED_CODE = {
 
 
 def run_invalid(runner: SuiteRunner, case: Case) -> CaseEnd:
-    cmd, variant = case.command, case.variant
-    assert cmd is not None and variant is not None
+    cmd, variant = case.spec()
     notes: list[CaseEnd] = []
 
     def check(pair: tuple[str, str], ex: Exchange) -> None:

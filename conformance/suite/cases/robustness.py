@@ -19,8 +19,7 @@ def _silence_window(runner: SuiteRunner) -> float:
 
 def run_malformed_command(runner: SuiteRunner, case: Case) -> CaseEnd:
     """A frame of this command that must not be executed: LEN mismatch or broken DATA."""
-    cmd, variant = case.command, case.variant
-    assert cmd is not None and variant is not None
+    cmd, variant = case.spec()
     kind = case.extra
     data = default_data(cmd, variant)
     client = runner.client()

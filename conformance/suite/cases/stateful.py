@@ -172,8 +172,7 @@ def _show(v: Value) -> str:
 
 
 def run_motion(runner: SuiteRunner, case: Case) -> CaseEnd:
-    cmd, variant = case.command, case.variant
-    assert cmd is not None and variant is not None
+    cmd, variant = case.spec()
     targets = motion_targets(cmd, variant)
     assert targets is not None
     mcmd: Command = cmd

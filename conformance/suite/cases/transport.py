@@ -16,8 +16,7 @@ from ..runner import Case, CaseEnd, CaseFailure, SuiteRunner
 
 
 def run_pipelined(runner: SuiteRunner, case: Case) -> CaseEnd:
-    cmd, variant = case.command, case.variant
-    assert cmd is not None and variant is not None
+    cmd, variant = case.spec()
     client = runner.client()
     data = default_data(cmd, variant)
     cnts = [client.next_cnt() for _ in range(3)]
@@ -46,8 +45,7 @@ def _judge_in(
 
 
 def run_split(runner: SuiteRunner, case: Case) -> CaseEnd:
-    cmd, variant = case.command, case.variant
-    assert cmd is not None and variant is not None
+    cmd, variant = case.spec()
     client = runner.client()
     cnt = client.next_cnt()
     raw = encode_frame(cnt, cmd.cmd_id, default_data(cmd, variant))

@@ -9,8 +9,7 @@ from .shared import first_note, judge_success, run_batched
 
 
 def run_valid(runner: SuiteRunner, case: Case) -> CaseEnd:
-    cmd, variant = case.command, case.variant
-    assert cmd is not None and variant is not None
+    cmd, variant = case.spec()
     notes: list[CaseEnd] = []
 
     def check(data: str, ex: Exchange) -> None:
