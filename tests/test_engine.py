@@ -238,11 +238,11 @@ def test_fixtures_for_a_projects_own_tests(pytester: pytest.Pytester) -> None:
     result.assert_outcomes(passed=3)
 
 
-def test_readme_option_table_is_the_one_definition() -> None:
+def test_the_docs_option_table_is_the_one_definition() -> None:
     from conformance.suite.options import options_table
 
-    readme = (ROOT / "README.md").read_text(encoding="utf-8")
-    block = readme.split("<!-- options:start -->\n", 1)[1].split("\n<!-- options:end -->", 1)[0]
+    doc = (ROOT / "docs" / "testing.md").read_text(encoding="utf-8")
+    block = doc.split("<!-- options:start -->\n", 1)[1].split("\n<!-- options:end -->", 1)[0]
     assert block == options_table(), "regenerate with: python -m conformance.suite.options"
 
 

@@ -1,4 +1,5 @@
-"""The README's examples are tests: its console examples print what it says, and CI runs its test command."""
+"""The guide's console examples are tests (README.md and docs/*.md): each prints what it
+says; and CI runs the README's test command."""
 
 from __future__ import annotations
 
@@ -14,12 +15,19 @@ from tests.cli_run import cli_run
 
 ROOT = Path(__file__).resolve().parent.parent
 README = (ROOT / "README.md").read_text(encoding="utf-8")
+#: The pages whose console examples run: the README and the pages under docs/.
+PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 
 
 def console_examples() -> list[tuple[str, str]]:
     """(command, expected output) for each ``$`` line in console blocks that shows output."""
     out: list[tuple[str, str]] = []
-    for block in re.findall(r"```console\n(.*?)```", README, re.S):
+    blocks = [
+        block
+        for page in PAGES
+        for block in re.findall(r"```console\n(.*?)```", page.read_text(encoding="utf-8"), re.S)
+    ]
+    for block in blocks:
         lines = block.splitlines()
         for i, line in enumerate(lines):
             if not line.startswith("$ "):
@@ -37,7 +45,7 @@ def console_examples() -> list[tuple[str, str]]:
 EXAMPLES = console_examples()
 
 
-def test_readme_has_console_examples() -> None:
+def test_the_guide_has_console_examples() -> None:
     assert len(EXAMPLES) >= 2
 
 
@@ -88,4 +96,4 @@ def test_property_tests_draw_half_their_count_unless_thorough(
     assert [ex.examples(n) for n in (60, 100, 150, 300, 500)] == [60, 100, 100, 150, 250]
     monkeypatch.setattr(ex, "THOROUGH", True)
     assert [ex.examples(n) for n in (60, 150, 500)] == [60, 150, 500]
-    assert "FAIRINO_THOROUGH=1" in (ROOT / "README.md").read_text(encoding="utf-8")
+    assert "FAIRINO_THOROUGH=1" in (ROOT / "docs" / "contributing.md").read_text(encoding="utf-8")

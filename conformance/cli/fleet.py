@@ -41,8 +41,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         help="write recordings (MCAP, pcap, pcapng) as a hive-partitioned Parquet dataset",
         description="Each recording's frames, exchanges, problems, connections and state "
         "packets, judged as check judges them, into DIR/<table>/date=YYYY-MM-DD/robot=LABEL/. "
-        "A recording already in DIR is skipped; new ones only add files. The layout is the "
-        "README's 'A fleet's recordings as one table'.",
+        "A recording already in DIR is skipped; new ones only add files. The layout: "
+        "docs/fleet.md.",
     )
     e.add_argument("recordings", nargs="+", metavar="RECORDING", help="files, directories, globs")
     e.add_argument("-o", "--out", required=True, metavar="DIR", help="the dataset directory")
