@@ -301,7 +301,10 @@ def record_emulator(tmp_path: Path, faults: list[str], packets: int = 24) -> Pat
         with socket.create_connection(emu.state_address, timeout=10) as state:
             dec = state_decoder()
             seen = 0
-            while seen < packets:
+            # Until a read ends between packets: a packet cut by the end of the recording
+            # would be a truncated one in this recording only (a busy machine lets more
+            # bytes pile up in a read, and cuts them anywhere).
+            while seen < packets or dec.buffered:
                 data = state.recv(65536)
                 assert data
                 rec.data(2, "s2c", time.time_ns(), data)
