@@ -130,6 +130,34 @@ def test_ctrl_c_says_interrupted(tmp_path: Path, sig: signal.Signals) -> None:
     assert "cases not run: interrupted" in out
 
 
+@pytest.mark.parametrize("raised", ["Interrupt", "KeyboardInterrupt"])
+def test_an_interrupt_caught_in_code_made_from_a_string_keeps_the_exit_code(
+    tmp_path: Path, raised: str
+) -> None:
+    """A Ctrl-C that lands while a dataclass's ``__init__`` is being made (code run from a
+    string) and is then caught: with a plain KeyboardInterrupt, CPython remembers it and
+    kills a ``python -m`` process with SIGINT at exit (what ``run`` did, now and then,
+    instead of exiting 130); the kit's own Interrupt is not remembered."""
+    (tmp_path / "caught.py").write_text(
+        "import sys\n"
+        "from conformance.cli.suite import Interrupt\n"
+        "try:\n"
+        f"    exec('raise {raised}', {{'Interrupt': Interrupt}})\n"
+        "except KeyboardInterrupt:\n"
+        "    pass\n"
+        "sys.exit(130)\n"
+    )
+    p = subprocess.run(
+        [sys.executable, "-m", "caught"], cwd=tmp_path, capture_output=True, text=True, timeout=60
+    )
+    if raised == "Interrupt":
+        assert p.returncode == 130, p.stderr
+    elif p.returncode == 130:  # the control: this interpreter does not remember it
+        pytest.skip(f"Python {sys.version.split()[0]} does not remember a caught KeyboardInterrupt")
+    else:  # the interpreter's behaviour the kit steps around
+        assert p.returncode == -signal.SIGINT, p.stderr
+
+
 def test_a_run_started_ignoring_sigint_keeps_ignoring_it(tmp_path: Path) -> None:
     """A job a script starts with ``&`` inherits SIGINT ignored, so that a Ctrl-C meant
     for the script's foreground leaves it running; the run does not undo that."""

@@ -414,7 +414,7 @@ def _run(args: argparse.Namespace) -> int:
                     if isinstance(ev, RunFinished):
                         finished = ev
                     elif interrupted.is_set():  # a KeyboardInterrupt that was swallowed
-                        raise KeyboardInterrupt
+                        raise Interrupt
         except KeyboardInterrupt:  # between two cases, outside the engine
             finished = engine.interrupt(cases)
             progress.handle(finished)
@@ -635,6 +635,18 @@ def _serve(args: argparse.Namespace) -> int:
     return report.exit_code()
 
 
+class Interrupt(KeyboardInterrupt):
+    """What Ctrl-C and SIGTERM raise in ``run``, ``serve`` and ``emulate``: a
+    KeyboardInterrupt (every ``except KeyboardInterrupt`` takes it), of a type of its own.
+
+    CPython remembers a plain KeyboardInterrupt that ends code run from a string (the
+    ``__init__`` a dataclass makes, a namedtuple), even when a caller catches it, and at
+    exit then kills the process with SIGINT instead of returning its exit code: a run
+    interrupted while a module was being imported ended as "killed by SIGINT", not 130,
+    and an ``emulate`` stopped by SIGTERM not with 0.  The interpreter looks for that exact
+    type only, so an interrupt of this type is remembered by nothing but the kit."""
+
+
 @contextlib.contextmanager
 def _interrupts() -> Iterator[threading.Event]:
     """Ctrl-C and SIGTERM end ``run`` and ``serve`` (the reports are still written, exit
@@ -651,7 +663,7 @@ def _interrupts() -> Iterator[threading.Event]:
 
     def interrupt(signum: int, frame: object) -> None:
         seen.set()
-        raise KeyboardInterrupt
+        raise Interrupt
 
     old = {
         sig: signal.signal(sig, interrupt)
