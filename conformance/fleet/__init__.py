@@ -13,6 +13,6 @@ module         holds
 =============  ==========================================================================
 
 pyarrow and duckdb are the ``fleet`` extra (``pip install 'fairino-conformance[fleet]'``);
-without them the commands say so in one line.  The layout is documented in the README
+without them the commands say so in one line.  The layout is documented in docs/fleet.md
 ("A fleet's recordings as one table") as a contract with :data:`schema.SCHEMA_VERSION`.
 """

@@ -500,7 +500,7 @@ class _Recorder:
                 self.saved = _recorded(self.rec)
                 # A frame a decoder has begun is not in the file yet, but counted as if: a
                 # peer that sends half a large frame and waits must not stop the proxy
-                # (--on-write-error stop) until its decoder decides (README: the bound).
+                # (--on-write-error stop) until its decoder decides (docs/recording.md: the bound).
                 self.flushed = taken
         self.publish()
 

@@ -77,8 +77,8 @@ class Difference:
 
 
 #: The ``--ignore`` rules (``replay``, ``diff``), each with what it hides: every
-#: difference kind, then the rules that are not kinds.  The CLI's help and the README
-#: list exactly these (a test checks both).
+#: difference kind, then the rules that are not kinds.  The CLI's usage error lists
+#: exactly these (a test checks it), as does docs/recording.md.
 IGNORE_RULES: dict[str, str] = {
     "missing_reply": "no reply now where the recording (A) has one",
     "extra_reply": "a reply now where the recording (A) has none",

@@ -3,7 +3,7 @@ the failing cases as ``run``, ``serve`` and ``check`` print them (:func:`failure
 
 A :class:`Report` collects :class:`CaseResult` rows; the per-command outcome is
 derived from the cases (never stored twice).  The JSON document has the shape
-the README documents: ``target``, ``kit_version``, ``spec_version``, ``seed`` and
+docs/testing.md documents: ``target``, ``kit_version``, ``spec_version``, ``seed`` and
 ``commands``, a mapping from command ID (a string) to
 ``{name, outcome, cases: [{id, group, outcome, detail, reproduce}]}``.
 

@@ -248,7 +248,7 @@ class DialectSet:
         return tuple(sorted(self._by_id))
 
     def counts(self) -> dict[str, dict[str, int]]:
-        """Entries by source and kind (the figures the README and the closing note quote)."""
+        """Entries by source and kind (the figures ``specs dialects`` and docs/dialects.md quote)."""
         out: dict[str, dict[str, int]] = {}
         for e in self.entries:
             row = out.setdefault(e.source, {k: 0 for k in DIALECT_KINDS})

@@ -1,8 +1,8 @@
 """The suite's options, defined once: flag, ini key, environment variable, type, default, help.
 
 ``fairino-conformance run`` builds its argparse parser from :data:`OPTIONS`, the
-pytest plugin its option group and ini keys, and the README's option table is
-checked against it (``tests/test_options.py``).  :func:`resolve` reads one
+pytest plugin its option group and ini keys, and docs/testing.md's option table is
+checked against it (``tests/test_engine.py``).  :func:`resolve` reads one
 value per option with the precedence command line > ini key > environment
 variable > default, and :func:`suite_config` turns the values into a
 :class:`~conformance.suite.config.SuiteConfig`, validating each with a message
@@ -58,7 +58,7 @@ class Option:
     pytest_flag: str | None = ""
     #: Must be > 0 (timeouts, budget, rate).
     positive: bool = False
-    #: The default as the README's table shows it, where ``default`` is None for a reason.
+    #: The default as docs/testing.md's table shows it, where ``default`` is None for a reason.
     default_text: str | None = None
 
     @property
@@ -457,7 +457,7 @@ def suite_config(values: Mapping[str, Any], *, seed: int | None = None) -> Suite
 
 
 def options_table() -> str:
-    """The README's option table (markdown), generated from :data:`OPTIONS`."""
+    """docs/testing.md's option table (markdown), generated from :data:`OPTIONS`."""
     rows = [
         "| `run` | pytest | ini key | environment | default | what |",
         "|---|---|---|---|---|---|",
@@ -489,5 +489,5 @@ def options_table() -> str:
     return "\n".join(rows)
 
 
-if __name__ == "__main__":  # python -m conformance.suite.options: the README's table
+if __name__ == "__main__":  # python -m conformance.suite.options: docs/testing.md's table
     print(options_table())

@@ -39,7 +39,7 @@ from .lua import LUA
 
 __all__ = ["FIELDS", "english_meanings", "lua_dissector", "reply_kind"]
 
-#: Filter name -> what it holds (the generated file's header and README list these).
+#: Filter name -> what it holds (the generated file's header and docs/specs.md list these).
 FIELDS: dict[str, str] = {
     "fairino.cnt": "CNT, the frame counter a reply echoes",
     "fairino.cmd_id": "CMD_ID, the command number",
