@@ -246,6 +246,34 @@ def test_a_gap_ends_the_pairing_honestly(tmp_path: Path) -> None:
     assert [c.value for c in r.calls if not c.has_request] == [[0, 0, 0], [0, 1]]
 
 
+def test_calls_whose_replies_were_recorded_undecoded_are_not_missing_replies(
+    tmp_path: Path,
+) -> None:
+    """A proxy that stops while its recorder is behind keeps the rest as undecoded bytes:
+    a call whose reply is among them has an unknown reply (``check`` judges none), not a
+    missing one (which fails as ``no_reply``)."""
+    from conformance.offline.check import check_recording
+    from conformance.spec.commands import default_specs
+
+    path = tmp_path / "u.mcap"
+    with RecordingWriter(path) as w:
+        rec = StreamRecorder(w)
+        rec.open(1, t_ns=1, stream="xmlrpc", client="127.0.0.1:4000", upstream=HOST)
+        rec.data(1, C2S, 2, call("RobotEnable", 1))
+        rec.data(1, S2C, 3, reply(0))
+        rec.data(1, C2S, 4, call("Mode", 0))
+        rec.stop_decoding("the proxy was stopping")
+        rec.data(1, S2C, 5, reply(0))
+        rec.data(1, C2S, 6, call("SetSpeed", 20))
+        rec.finish(t_ns=9)
+    r = read_recording(path)
+    assert [(c.method, c.reply) for c in r.calls] == [("RobotEnable", "value"), ("Mode", "unknown")]
+    assert "recorded undecoded" in r.calls[1].detail
+    assert put_back(r, S2C) == reply(0) + reply(0)  # every byte kept
+    report = check_recording(r, default_specs())
+    assert not [c.id for c in report.cases if c.outcome.value == "FAIL"]
+
+
 def test_values_as_json_are_read_back_exactly() -> None:
     v: Any = [1, 2.5, "x", True, None, b"\x00\xff", {"a": [1]}, {"$base64": "not a tag here"}]
     assert value_from_json(json.loads(json.dumps(value_to_json(v)))) == v

@@ -123,8 +123,9 @@ class XmlRpcStream(ChannelStream):
         self.waiting_bytes = 0
         #: Calls written before their replies (their number and method), oldest first.
         self.early: deque[tuple[int, str | None]] = deque()
-        #: Pairing was lost at a gap: requests and replies are written on their own.
-        self.unpaired = False
+        #: Pairing was lost (at a gap, or the replies recorded undecoded): requests and
+        #: replies are written on their own, with these words (None: pairing holds).
+        self.unpaired: str | None = None
         self.seq = 0
         #: Messages read per direction (requests, replies).
         self.frames: dict[str, int] = {C2S: 0, S2C: 0}
@@ -162,6 +163,11 @@ class XmlRpcStream(ChannelStream):
             w.broken = ("undecoded", f"bytes recorded undecoded: {reason}")
             self._keep(direction, w, bytes(w.pending), t_ns)
             w.pending.clear()
+            if direction == S2C:  # the replies of the calls waiting are in those bytes
+                self._lose_pairing(
+                    f"its reply is in bytes recorded undecoded ({reason})",
+                    f"pairing was lost: the replies were recorded undecoded ({reason})",
+                )
         self._keep(direction, w, data, t_ns)
 
     def gap(self, direction: DirectionText, t_ns: int, missing: int, detail: str = "") -> None:
@@ -181,7 +187,10 @@ class XmlRpcStream(ChannelStream):
         w.restart(at + missing)
         if w.broken is None:
             w.resync = True
-        self._lose_pairing("a gap in the capture: replies can no longer be told apart")
+        self._lose_pairing(
+            "a gap in the capture: replies can no longer be told apart",
+            "pairing was lost at a gap in the capture",
+        )
 
     def close(self, t_ns: int) -> None:
         """The connection ended: a message begun is a truncated one, a call waiting has
@@ -252,8 +261,8 @@ class XmlRpcStream(ChannelStream):
         self._wait(c)
 
     def _wait(self, c: _Call) -> None:
-        if self.unpaired:
-            self._write_call(c, kind="unknown", detail="pairing was lost at a gap in the capture")
+        if self.unpaired is not None:
+            self._write_call(c, kind="unknown", detail=self.unpaired)
             return
         self.waiting.append(c)
         self.waiting_bytes += len(c.raw)
@@ -288,8 +297,8 @@ class XmlRpcStream(ChannelStream):
                     reply = replace(reply, kind="fault", fault=(got.code, got.message))
                 else:
                     reply = replace(reply, kind="value", value=got.value)
-        if self.unpaired:
-            self._write_reply(reply, None, None, "pairing was lost at a gap in the capture")
+        if self.unpaired is not None:
+            self._write_reply(reply, None, None, self.unpaired)
         elif self.early:
             seq, method = self.early.popleft()
             self._write_reply(reply, seq, method, "the reply of a call written before it")
@@ -300,10 +309,13 @@ class XmlRpcStream(ChannelStream):
         else:
             self._write_reply(reply, None, None, "a reply no request was recorded for")
 
-    def _lose_pairing(self, why: str) -> None:
-        if self.unpaired:
+    def _lose_pairing(self, why: str, later: str) -> None:
+        """Replies can no longer be paired with requests: the calls waiting are written
+        with reply ``unknown`` (``why``), and every later request and reply on its own
+        (``later``)."""
+        if self.unpaired is not None:
             return
-        self.unpaired = True
+        self.unpaired = later
         while self.waiting:
             self._write_call(self.waiting.popleft(), kind="unknown", detail=why)
         self.waiting_bytes = 0
