@@ -113,7 +113,7 @@ def _text_or_empty(v: Any) -> Any:
     return v or ""
 
 
-#: The members every record of a stream starts with.
+#: Members that several records' JSON share.
 _CONN = _Member("conn")
 _TRANSPORT = _Member("transport", default="tcp")
 _DIR = _Member("dir")
@@ -570,7 +570,7 @@ _FRAME_JSON = (
     ),
     _Member("problems", default=(), dump=lambda r: list(r.problems), load=tuple),
     _OFFSET,
-    _Member("first_ns", default=_COMPLETE_NS),
+    _FIRST_NS,
     _COMPLETE,
     _raw(),
 )

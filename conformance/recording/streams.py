@@ -1,5 +1,6 @@
 """The recorder's state per connection and direction (:class:`~.recorder.StreamRecorder`):
-a frame decoder, the stream offsets and times its bytes arrived at, counts."""
+a frame decoder, the stream offsets and times its bytes arrived at, counts; and what every
+channel connection's stream shares (:class:`ChannelStream`, :class:`Arrivals`)."""
 
 from __future__ import annotations
 
