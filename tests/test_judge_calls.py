@@ -15,21 +15,8 @@ from conformance.spec.dialects import default_dialects
 from conformance.twin.controller import Controller
 from conformance.twin.xmlrpc import XmlRpcController
 
+from .sdk_messages import MOVEJ
 from .test_twin_xmlrpc import simplest
-
-MOVEJ: tuple[XmlRpcValue, ...] = (
-    [10.0, -80.0, 95.0, -100.0, -90.0, 5.0],
-    [0.0] * 6,
-    0,
-    0,
-    20.0,
-    0.0,
-    100.0,
-    [0.0] * 4,
-    -1.0,
-    0,
-    [0.0] * 6,
-)
 
 
 @pytest.fixture(scope="module")

@@ -9,7 +9,6 @@ exactly those (command ID, side, rule) and nothing else.
 from __future__ import annotations
 
 import json
-import xmlrpc.client
 from pathlib import Path
 from typing import Any
 
@@ -26,7 +25,6 @@ from conformance.protocol.cnde import (
     encode_message,
     encode_output_config,
 )
-from conformance.protocol.http import encode_request, encode_response
 from conformance.protocol.state import encode_state
 from conformance.recording.layout import C2S, S2C
 from conformance.recording.reader import read_recording
@@ -35,33 +33,15 @@ from conformance.recording.writer import RecordingWriter
 from conformance.spec.commands import load_spec_version
 from conformance.spec.realtime import realtime_layout
 
+from .sdk_messages import MOVEJ, call
+from .sdk_messages import fault as f
+from .sdk_messages import reply as a
+
 HOST = "10.0.0.2:20003"
-MOVEJ: tuple[Any, ...] = (
-    [10.0, -80.0, 95.0, -100.0, -90.0, 5.0],
-    [0.0] * 6,
-    0,
-    0,
-    20.0,
-    0.0,
-    100.0,
-    [0.0] * 4,
-    -1.0,
-    0,
-    [0.0] * 6,
-)
 
 
 def q(method: str, *params: Any) -> bytes:
-    return encode_request(xmlrpc.client.dumps(params, method).encode(), host=HOST)
-
-
-def a(value: Any) -> bytes:
-    return encode_response(200, "OK", xmlrpc.client.dumps((value,), methodresponse=True).encode())
-
-
-def f(code: int, text: str) -> bytes:
-    body = xmlrpc.client.dumps(xmlrpc.client.Fault(code, text), methodresponse=True).encode()
-    return encode_response(200, "OK", body)
+    return call(method, *params, host=HOST)
 
 
 #: (request, reply or None, what is wrong, or None): the session, its faults seeded.

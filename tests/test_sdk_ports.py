@@ -39,8 +39,9 @@ from conformance.spec.realtime import realtime_decoder
 from conformance.spec.state import state_decoder
 from conformance.twin.kinematics.robots import robot
 
+from .sdk_messages import TARGET
+
 FR5 = robot("FR5")
-TARGET = [10.0, -80.0, 95.0, -100.0, -90.0, 5.0]
 WAIT = 10.0
 #: The states a client configures here (a part of the python SDK's default list).
 NAMES = (

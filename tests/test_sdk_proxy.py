@@ -51,6 +51,8 @@ from conformance.spec.safety import SafetyPolicy
 from conformance.spec.state import state_decoder
 from conformance.twin.kinematics.robots import robot
 
+from .sdk_messages import MOVEJ, TARGET
+
 REPO = Path(__file__).resolve().parent.parent
 
 
@@ -64,8 +66,6 @@ def loopback(n: int) -> str:
 UPSTREAM = loopback(1)  # the twin's ports
 PROXY = loopback(2)  # where the application connects
 WAIT = 20.0
-TARGET = [10.0, -80.0, 95.0, -100.0, -90.0, 5.0]
-MOVEJ = (TARGET, [0.0] * 6, 0, 0, 20.0, 0.0, 100.0, [0.0] * 4, -1.0, 0, [0.0] * 6)
 
 
 @contextlib.contextmanager

@@ -12,7 +12,6 @@ from __future__ import annotations
 import io
 import itertools
 import json
-import xmlrpc.client
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -28,7 +27,7 @@ from conformance.protocol.cnde import (
     encode_message,
     encode_output_config,
 )
-from conformance.protocol.http import encode_request, encode_response
+from conformance.protocol.http import encode_response
 from conformance.protocol.state import encode_state
 from conformance.recording.layout import (
     C2S,
@@ -47,21 +46,9 @@ from conformance.spec.cnde import cnde_catalogue
 from conformance.spec.realtime import realtime_layout
 
 from .examples import examples
+from .sdk_messages import MOVEJ, call, fault, reply
 
 HOST = "127.0.0.1:20003"
-
-
-def call(method: str, *params: Any) -> bytes:
-    return encode_request(xmlrpc.client.dumps(params, method).encode(), host=HOST)
-
-
-def reply(value: Any) -> bytes:
-    return encode_response(200, "OK", xmlrpc.client.dumps((value,), methodresponse=True).encode())
-
-
-def fault(code: int, text: str) -> bytes:
-    body = xmlrpc.client.dumps(xmlrpc.client.Fault(code, text), methodresponse=True).encode()
-    return encode_response(200, "OK", body)
 
 
 def record(
@@ -104,19 +91,6 @@ def chunked(data: bytes, cuts: list[int]) -> list[bytes]:
     return [data[a:b] for a, b in itertools.pairwise(at) if b > a]
 
 
-MOVEJ = (
-    [10.0, -80.0, 95.0, -100.0, -90.0, 5.0],
-    [0.0] * 6,
-    0,
-    0,
-    20.0,
-    0.0,
-    100.0,
-    [0.0] * 4,
-    -1.0,
-    0,
-    [0.0] * 6,
-)
 SESSION_C2S = [
     call("GetControllerIP"),
     call("MoveJ", *MOVEJ),
